@@ -1,0 +1,233 @@
+//! Closed-form kinematics (spec §3): IK (elbow-out branch), FK (three-sphere intersection, lower
+//! root), the Jacobian J = A⁻¹B, its inverse, J̇q̇ and J̇, and the singularity margins.
+
+use crate::{DeltaRobot, KinematicsError, Mat3, Vec3};
+
+/// Singularity margin limit: flag S/Lb or |det(A/Lb)| below this (spec §3.5).
+pub const MARGIN_LIMIT: f64 = 0.05;
+
+/// Everything the velocity and dynamics formulas need at one configuration q, computed once.
+///
+/// All vectors are in the base frame. `d[i]` is forearm i (m), `t[i]` = ∂E_i/∂q_i (m/rad),
+/// `n[i]` = ∂t_i/∂q_i (m/rad²), `beta[i]` = d_i·t_i (m²/rad).
+#[derive(Clone, Copy, Debug)]
+pub struct Pose {
+    /// Joint angles, rad.
+    pub q: Vec3,
+    /// Platform centre x = FK(q), m.
+    pub x: Vec3,
+    /// Forearm vectors d_i = P_i − E_i, m.
+    pub d: [Vec3; 3],
+    /// Elbow velocity directions t_i = ∂E_i/∂q_i, m/rad.
+    pub t: [Vec3; 3],
+    /// Second derivatives n_i = ∂t_i/∂q_i, m/rad².
+    pub n: [Vec3; 3],
+    /// β_i = d_i·t_i, m²/rad (positive on the elbow-out branch).
+    pub beta: Vec3,
+    /// A⁻¹ where A has rows d_iᵀ, 1/m.
+    pub a_inv: Mat3,
+    /// det A, m³.
+    pub det_a: f64,
+}
+
+/// Distance from the two kinds of singularity (spec §3.5); both dimensionless.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Margins {
+    /// min_i S_i/Lb = β_i/(La Lb): serial singularity when it reaches 0.
+    pub s_over_lb: f64,
+    /// |det(A/Lb)|: parallel singularity when it reaches 0.
+    pub det_a_norm: f64,
+}
+
+impl Margins {
+    /// True when both margins are at or above [`MARGIN_LIMIT`].
+    pub fn ok(&self) -> bool {
+        self.s_over_lb >= MARGIN_LIMIT && self.det_a_norm >= MARGIN_LIMIT
+    }
+}
+
+fn arr(v: &Vec3) -> [f64; 3] {
+    [v[0], v[1], v[2]]
+}
+
+impl DeltaRobot {
+    /// Elbow position E_i(q_i) = A_i + La (cos q_i u_i − sin q_i e_z), m, base frame.
+    fn elbow(&self, i: usize, qi: f64) -> Vec3 {
+        let (s, c) = qi.sin_cos();
+        let la = self.p.upper_arm;
+        self.u[i] * self.p.base_radius + (self.u[i] * c - Vec3::z() * s) * la
+    }
+
+    /// Inverse kinematics, elbow-out branch (spec §3.1): platform position x (m) → q (rad).
+    pub fn ik(&self, x: &Vec3) -> Result<Vec3, KinematicsError> {
+        let (la, lb) = (self.p.upper_arm, self.p.forearm);
+        let mut q = Vec3::zeros();
+        for i in 0..3 {
+            let w = x + self.u[i] * (self.p.platform_radius - self.p.base_radius);
+            let a = w.dot(&self.u[i]);
+            let b = w.dot(&self.v[i]);
+            let c = w[2];
+            let k = (a * a + b * b + c * c + la * la - lb * lb) / (2.0 * la);
+            let rho2 = a * a + c * c;
+            let radicand = rho2 - k * k;
+            if radicand.is_nan() || radicand <= 0.0 {
+                return Err(KinematicsError::Unreachable {
+                    x: arr(x),
+                    arm: i,
+                    radicand,
+                });
+            }
+            let s = radicand.sqrt();
+            q[i] = (-c * k - a * s).atan2(a * k - c * s);
+        }
+        Ok(q)
+    }
+
+    /// Forward kinematics (spec §3.2): q (rad) → platform position x (m), the lower root.
+    pub fn fk(&self, q: &Vec3) -> Result<Vec3, KinematicsError> {
+        let c: [Vec3; 3] =
+            std::array::from_fn(|i| self.elbow(i, q[i]) - self.u[i] * self.p.platform_radius);
+        let a = c[1] - c[0];
+        let b = c[2] - c[0];
+        let w = a.cross(&b);
+        let w2 = w.norm_squared();
+        let fail = KinematicsError::NoAssembly { q: arr(q) };
+        // Collinear centres: no unique circumcircle.
+        if !(w2 > 1e-24) {
+            return Err(fail);
+        }
+        let m = c[0] + (b * a.norm_squared() - a * b.norm_squared()).cross(&w) / (2.0 * w2);
+        let lb = self.p.forearm;
+        let rad = lb * lb - (m - c[0]).norm_squared();
+        if !(rad >= 0.0) {
+            return Err(fail);
+        }
+        let mut n = w / w2.sqrt();
+        if n[2] > 0.0 {
+            n = -n;
+        }
+        Ok(m + n * rad.sqrt())
+    }
+
+    /// The geometry at q (FK plus the forearm vectors, A⁻¹ and β); the building block of every
+    /// velocity and dynamics query.
+    pub fn pose(&self, q: &Vec3) -> Result<Pose, KinematicsError> {
+        let x = self.fk(q)?;
+        Ok(self.pose_at(q, &x))
+    }
+
+    /// As [`pose`](Self::pose), with the platform position x = FK(q) already known (m).
+    pub fn pose_at(&self, q: &Vec3, x: &Vec3) -> Pose {
+        let la = self.p.upper_arm;
+        let r = self.p.platform_radius;
+        let mut d = [Vec3::zeros(); 3];
+        let mut t = [Vec3::zeros(); 3];
+        let mut n = [Vec3::zeros(); 3];
+        let mut beta = Vec3::zeros();
+        for i in 0..3 {
+            let (s, c) = q[i].sin_cos();
+            d[i] = x + self.u[i] * r - self.elbow(i, q[i]);
+            t[i] = (self.u[i] * s + Vec3::z() * c) * (-la);
+            n[i] = (self.u[i] * c - Vec3::z() * s) * (-la);
+            beta[i] = d[i].dot(&t[i]);
+        }
+        let c0 = d[1].cross(&d[2]);
+        let c1 = d[2].cross(&d[0]);
+        let c2 = d[0].cross(&d[1]);
+        let det_a = d[0].dot(&c0);
+        let a_inv = Mat3::from_columns(&[c0, c1, c2]) / det_a;
+        Pose {
+            q: *q,
+            x: *x,
+            d,
+            t,
+            n,
+            beta,
+            a_inv,
+            det_a,
+        }
+    }
+
+    /// Singularity margins at a pose (spec §3.5).
+    pub fn margins(&self, pose: &Pose) -> Margins {
+        let (la, lb) = (self.p.upper_arm, self.p.forearm);
+        Margins {
+            s_over_lb: pose.beta.min() / (la * lb),
+            det_a_norm: (pose.det_a / (lb * lb * lb)).abs(),
+        }
+    }
+
+    /// An error naming the configuration when the pose is past the singularity margins.
+    pub fn check_margins(&self, pose: &Pose) -> Result<Margins, KinematicsError> {
+        let m = self.margins(pose);
+        if m.ok() {
+            Ok(m)
+        } else {
+            Err(KinematicsError::Singular {
+                q: arr(&pose.q),
+                s_over_lb: m.s_over_lb,
+                det_a_norm: m.det_a_norm,
+                limit: MARGIN_LIMIT,
+            })
+        }
+    }
+}
+
+impl Pose {
+    /// Jacobian J = A⁻¹B (ẋ = J q̇), m/rad.
+    pub fn jacobian(&self) -> Mat3 {
+        let mut j = self.a_inv;
+        for i in 0..3 {
+            j.column_mut(i).scale_mut(self.beta[i]);
+        }
+        j
+    }
+
+    /// Inverse Jacobian J⁻¹ = B⁻¹A (row i = d_iᵀ/β_i), rad/m.
+    pub fn jacobian_inv(&self) -> Mat3 {
+        Mat3::from_rows(&[
+            (self.d[0] / self.beta[0]).transpose(),
+            (self.d[1] / self.beta[1]).transpose(),
+            (self.d[2] / self.beta[2]).transpose(),
+        ])
+    }
+
+    /// ḋ_i = ẋ − t_i q̇_i, m/s, for a platform velocity ẋ (m/s) and joint rates q̇ (rad/s).
+    fn d_dot(&self, xd: &Vec3, qd: &Vec3) -> [Vec3; 3] {
+        std::array::from_fn(|i| xd - self.t[i] * qd[i])
+    }
+
+    /// γ_i = (d_i·n_i) q̇_i² − |ḋ_i|², m²/s² (spec §3.4), given ẋ (m/s) and q̇ (rad/s).
+    pub fn gamma(&self, xd: &Vec3, qd: &Vec3) -> Vec3 {
+        let dd = self.d_dot(xd, qd);
+        Vec3::from_fn(|i, _| self.d[i].dot(&self.n[i]) * qd[i] * qd[i] - dd[i].norm_squared())
+    }
+
+    /// J̇ q̇ = A⁻¹γ, m/s², for joint rates q̇ (rad/s).
+    pub fn jdot_qdot(&self, qd: &Vec3) -> Vec3 {
+        let xd = self.jacobian() * qd;
+        self.a_inv * self.gamma(&xd, qd)
+    }
+
+    /// J̇ = A⁻¹ (diag(β̇) − Ȧ J), m/(rad s), for joint rates q̇ (rad/s).
+    pub fn jdot(&self, qd: &Vec3) -> Mat3 {
+        let j = self.jacobian();
+        let xd = j * qd;
+        let dd = self.d_dot(&xd, qd);
+        let a_dot = Mat3::from_rows(&[dd[0].transpose(), dd[1].transpose(), dd[2].transpose()]);
+        let beta_dot =
+            Vec3::from_fn(|i, _| dd[i].dot(&self.t[i]) + self.d[i].dot(&self.n[i]) * qd[i]);
+        self.a_inv * (Mat3::from_diagonal(&beta_dot) - a_dot * j)
+    }
+
+    /// Joint rates from a platform velocity: q̇ = B⁻¹A ẋ, rad/s (ẋ in m/s).
+    pub fn joint_rates(&self, xd: &Vec3) -> Vec3 {
+        Vec3::from_fn(|i, _| self.d[i].dot(xd) / self.beta[i])
+    }
+
+    /// Joint accelerations from platform motion: q̈ = B⁻¹(A ẍ − γ), rad/s², with γ at (q, q̇, ẋ).
+    pub fn joint_accels(&self, xd: &Vec3, xdd: &Vec3, qd: &Vec3) -> Vec3 {
+        let g = self.gamma(xd, qd);
+        Vec3::from_fn(|i, _| (self.d[i].dot(xdd) - g[i]) / self.beta[i])
+    }
+}

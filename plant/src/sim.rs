@@ -1,0 +1,233 @@
+//! Plant simulation (spec §5): classical RK4 with a fixed step h = Ts/substeps, the torque held
+//! constant over each control interval [kTs, (k+1)Ts) (zero-order hold), friction evaluated at every
+//! stage, and the drives ([`Actuator`]): clamp, transport delay and hold-on-miss.
+
+use crate::{DeltaRobot, KinematicsError, Vec3};
+
+/// A payload step (spec §4.3): m_pay jumps to `mass_kg` at the start of control tick `tick`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PayloadStep {
+    /// Payload mass after the step, kg.
+    pub mass_kg: f64,
+    /// First control tick (k, t = k·Ts) that sees the new mass.
+    pub tick: u64,
+}
+
+/// How the plant integrates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SimConfig {
+    /// Control period Ts, s.
+    pub ts: f64,
+    /// RK4 steps per control period (h = Ts/substeps).
+    pub substeps: u32,
+    /// Joint friction d_f = Fv q̇ + Fc tanh(q̇/ε) on or off.
+    pub friction: bool,
+    /// Fail when a step starts past the singularity margins (spec §3.5).
+    pub check_margins: bool,
+    /// Optional payload step.
+    pub payload_step: Option<PayloadStep>,
+}
+
+impl Default for SimConfig {
+    /// Ts = 0.3 ms, 10 substeps (h = 30 µs), no friction, margins checked, no payload step.
+    fn default() -> Self {
+        Self {
+            ts: 3e-4,
+            substeps: 10,
+            friction: false,
+            check_margins: true,
+            payload_step: None,
+        }
+    }
+}
+
+/// The robot state integrated in time: joint angles q (rad) and rates q̇ (rad/s) at tick k.
+#[derive(Clone, Debug)]
+pub struct PlantSim {
+    robot: DeltaRobot,
+    cfg: SimConfig,
+    q: Vec3,
+    qd: Vec3,
+    k: u64,
+}
+
+impl PlantSim {
+    /// Starts at rest (q̇ = 0) at joint angles `q0` (rad), tick 0. Fails if q0 cannot be assembled
+    /// or is past the singularity margins.
+    pub fn new(robot: DeltaRobot, cfg: SimConfig, q0: Vec3) -> Result<Self, KinematicsError> {
+        let pose = robot.pose(&q0)?;
+        if cfg.check_margins {
+            robot.check_margins(&pose)?;
+        }
+        Ok(Self {
+            robot,
+            cfg,
+            q: q0,
+            qd: Vec3::zeros(),
+            k: 0,
+        })
+    }
+
+    /// Joint angles q, rad.
+    pub fn q(&self) -> Vec3 {
+        self.q
+    }
+
+    /// Joint rates q̇, rad/s.
+    pub fn qd(&self) -> Vec3 {
+        self.qd
+    }
+
+    /// Current control tick k (the state is at t = k·Ts).
+    pub fn tick(&self) -> u64 {
+        self.k
+    }
+
+    /// The model, with the payload currently in effect.
+    pub fn robot(&self) -> &DeltaRobot {
+        &self.robot
+    }
+
+    /// The integration settings.
+    pub fn config(&self) -> &SimConfig {
+        &self.cfg
+    }
+
+    /// Overwrites the state (for tests and energy checks): q in rad, q̇ in rad/s.
+    pub fn set_state(&mut self, q: Vec3, qd: Vec3) {
+        self.q = q;
+        self.qd = qd;
+    }
+
+    /// (q̇, q̈) at (q, q̇) under joint torque τ (N m), including friction if enabled.
+    fn deriv(&self, q: &Vec3, qd: &Vec3, tau: &Vec3, check: bool) -> Result<Vec3, KinematicsError> {
+        let pose = self.robot.pose(q)?;
+        if check {
+            self.robot.check_margins(&pose)?;
+        }
+        let tau_net = if self.cfg.friction {
+            tau - self.robot.friction(qd)
+        } else {
+            *tau
+        };
+        self.robot.forward_dynamics(&pose, qd, &tau_net)
+    }
+
+    /// Integrates one control period with τ (N m) held constant, advancing k by one.
+    /// On error the state is left at the start of the failing substep.
+    pub fn step(&mut self, tau: &Vec3) -> Result<(), KinematicsError> {
+        if let Some(p) = self.cfg.payload_step
+            && self.k == p.tick
+        {
+            self.robot.set_payload(p.mass_kg);
+        }
+        let h = self.cfg.ts / f64::from(self.cfg.substeps);
+        for _ in 0..self.cfg.substeps {
+            self.rk4(tau, h)?;
+        }
+        self.k += 1;
+        Ok(())
+    }
+
+    /// One classical RK4 step of size h (s).
+    pub fn rk4(&mut self, tau: &Vec3, h: f64) -> Result<(), KinematicsError> {
+        let (q, v) = (self.q, self.qd);
+        let a1 = self.deriv(&q, &v, tau, self.cfg.check_margins)?;
+        let (q2, v2) = (q + v * (h / 2.0), v + a1 * (h / 2.0));
+        let a2 = self.deriv(&q2, &v2, tau, false)?;
+        let (q3, v3) = (q + v2 * (h / 2.0), v + a2 * (h / 2.0));
+        let a3 = self.deriv(&q3, &v3, tau, false)?;
+        let (q4, v4) = (q + v3 * h, v + a3 * h);
+        let a4 = self.deriv(&q4, &v4, tau, false)?;
+        self.q = q + (v + v2 * 2.0 + v3 * 2.0 + v4) * (h / 6.0);
+        self.qd = v + (a1 + a2 * 2.0 + a3 * 2.0 + a4) * (h / 6.0);
+        Ok(())
+    }
+}
+
+/// What the drives applied over one interval.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Applied {
+    /// Torque applied over [t_k, t_{k+1}) (= τᵃ_{k+1}), N m.
+    pub tau: Vec3,
+    /// Some joint was clamped to ±τ_max.
+    pub clamped: bool,
+    /// The command due this interval was missing or non-finite, so the last torque was held.
+    pub held: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Slot {
+    /// Before the first command arrives through the delay line: the holding torque τᵃ_0.
+    Initial,
+    Command(Vec3),
+    Missed,
+}
+
+/// The drives: clamp each joint to |τ| ≤ τ_max, delay commands by d ticks, and hold the last
+/// applied torque when a command is missing. Fixed capacity: allocates only at construction.
+#[derive(Clone, Debug)]
+pub struct Actuator {
+    tau_max: f64,
+    line: Vec<Slot>,
+    head: usize,
+    last: Vec3,
+    initial: Vec3,
+}
+
+impl Actuator {
+    /// `tau_max` in N m per joint, `delay` in ticks, `tau_a0` (N m) the holding torque applied
+    /// before the start (reported as τᵃ_0 and applied, unclamped, while the delay line fills).
+    pub fn new(tau_max: f64, delay: usize, tau_a0: Vec3) -> Self {
+        Self {
+            tau_max,
+            line: vec![Slot::Initial; delay],
+            head: 0,
+            last: tau_a0,
+            initial: tau_a0,
+        }
+    }
+
+    /// The torque applied over the last interval, N m.
+    pub fn last_applied(&self) -> Vec3 {
+        self.last
+    }
+
+    /// Takes tick k's command (None when it did not arrive in time) and returns the torque
+    /// applied over [t_k, t_{k+1}), which is the command of tick k − d.
+    pub fn apply(&mut self, cmd: Option<Vec3>) -> Applied {
+        let incoming = match cmd {
+            Some(t) => Slot::Command(t),
+            None => Slot::Missed,
+        };
+        let due = if self.line.is_empty() {
+            incoming
+        } else {
+            let out = std::mem::replace(&mut self.line[self.head], incoming);
+            self.head = (self.head + 1) % self.line.len();
+            out
+        };
+        let applied = match due {
+            Slot::Initial => Applied {
+                tau: self.initial,
+                clamped: false,
+                held: false,
+            },
+            Slot::Command(t) if t.iter().all(|x| x.is_finite()) => {
+                let c = t.map(|x| x.clamp(-self.tau_max, self.tau_max));
+                Applied {
+                    tau: c,
+                    clamped: c != t,
+                    held: false,
+                }
+            }
+            Slot::Command(_) | Slot::Missed => Applied {
+                tau: self.last,
+                clamped: false,
+                held: true,
+            },
+        };
+        self.last = applied.tau;
+        applied
+    }
+}

@@ -1,0 +1,4 @@
+//! `deltaloop`: the supervisor CLI.
+fn main() -> std::process::ExitCode {
+    deltaloop_supervisor::cli::main()
+}
