@@ -1,0 +1,302 @@
+//! The control laws (controller spec, "The laws"). One [`Controller`] runs one law; call
+//! [`Controller::step`] once per tick k with that tick's measurement and reference.
+
+use crate::{ControllerParams, Law, TdeHistory, Vec3, sat, sgn};
+
+/// What the controller measures at tick k.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Measurement {
+    /// Joint angles q_k, rad.
+    pub q: Vec3,
+    /// Joint rates q̇_k, rad/s.
+    pub qd: Vec3,
+    /// Torque the drives applied over [t_{k−1}, t_k) (τᵃ_k), N m. At k = 0, the holding torque.
+    pub tau_applied: Vec3,
+}
+
+/// The joint reference at tick k.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Reference {
+    /// Desired joint angles q_d,k, rad.
+    pub q: Vec3,
+    /// Desired joint rates q̇_d,k, rad/s.
+    pub qd: Vec3,
+    /// Desired joint accelerations q̈_d,k, rad/s².
+    pub qdd: Vec3,
+}
+
+/// What the controller sends at tick k.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Output {
+    /// Commanded torque τ_k (unclamped; the drives clamp), N m.
+    pub tau: Vec3,
+    /// Sliding variable s_k = ė + K_d e + K_p ∫e, rad/s.
+    pub s: Vec3,
+    /// TDE of the lumped unknown term N̂_k, rad/s² (computed for every law; PID does not use it).
+    pub n_hat: Vec3,
+    /// Robust term u_k, rad/s² (0 for `tdc` and `pid`).
+    pub u: Vec3,
+}
+
+/// One control law with its state. Allocates only in [`Controller::new`].
+#[derive(Clone, Debug)]
+pub struct Controller {
+    law: Law,
+    p: ControllerParams,
+    ts: f64,
+    tde: TdeHistory,
+    started: bool,
+    qd_prev: Vec3,
+    /// ∫e, E_{k−1}, rad s.
+    e_int: Vec3,
+    /// Super-twisting integral state v_k, rad/s².
+    v: Vec3,
+    /// PID integral state z_{k−1}, N m.
+    z: Vec3,
+}
+
+impl Controller {
+    /// A controller for `law` with constants `p`, control period `ts` (s) and TDE delay `ell` (≥ 1
+    /// ticks). The start-up history comes from the first measurement (τᵃ_0), not from a model.
+    pub fn new(law: Law, p: ControllerParams, ts: f64, ell: usize) -> Self {
+        Self {
+            law,
+            p,
+            ts,
+            tde: TdeHistory::new(ell.max(1), Vec3::zeros()),
+            started: false,
+            qd_prev: Vec3::zeros(),
+            e_int: Vec3::zeros(),
+            v: Vec3::zeros(),
+            z: Vec3::zeros(),
+        }
+    }
+
+    /// The law this controller runs.
+    pub fn law(&self) -> Law {
+        self.law
+    }
+
+    /// The constants in use.
+    pub fn params(&self) -> &ControllerParams {
+        &self.p
+    }
+
+    /// Seeds the state directly (for checks against hand-computed steps): previous rate q̇_{k−1}
+    /// (rad/s), E_{k−1} (rad s), v_k (rad/s²). Marks the controller as started.
+    pub fn seed(&mut self, qd_prev: Vec3, e_int_prev: Vec3, v: Vec3, tau_hist: Vec3) {
+        self.started = true;
+        self.qd_prev = qd_prev;
+        self.e_int = e_int_prev;
+        self.v = v;
+        self.z = tau_hist;
+        self.tde.reset(tau_hist);
+    }
+
+    /// Tick k: updates E_k (and z_k), computes τ_k, then v_{k+1}.
+    pub fn step(&mut self, m: &Measurement, r: &Reference) -> Output {
+        if !self.started {
+            // Before tick 0 the robot rested at q_0 under τᵃ_0: a_j = 0, τᵃ_j = τᵃ_0, z_{−1} = τᵃ_0.
+            self.started = true;
+            self.tde.reset(m.tau_applied);
+            self.qd_prev = m.qd;
+            self.z = m.tau_applied;
+        }
+        let ts = self.ts;
+        let p = &self.p;
+        let accel_prev = (m.qd - self.qd_prev) / ts;
+        self.qd_prev = m.qd;
+        let (a_lag, tau_lag) = self.tde.push(accel_prev, m.tau_applied);
+
+        let e = r.q - m.q;
+        let ed = r.qd - m.qd;
+        self.e_int += e * ts;
+        let s = ed + e * p.kd + self.e_int * p.kp;
+        let n_hat = a_lag - tau_lag / p.m_bar;
+
+        let mut u = Vec3::zeros();
+        let tau = match self.law {
+            Law::Pid => {
+                self.z += e * (p.pid_i * ts);
+                e * p.pid_p + self.z + ed * p.pid_d
+            }
+            law => {
+                u = match law {
+                    Law::TdeIs if p.phi > 0.0 => s.map(|si| p.ks * sat(si / p.phi)),
+                    Law::TdeIs => s.map(|si| p.ks * sgn(si)),
+                    Law::TdcIsSta => {
+                        Vec3::from_fn(|i, _| p.k1 * s[i].abs().sqrt() * sgn(s[i]) + self.v[i])
+                    }
+                    _ => Vec3::zeros(),
+                };
+                // The expanded form of the spec: τ = τᵃ_{k−ℓ+1} − M̄ a_{k−ℓ} + M̄ (q̈_d + K_d ė + K_p e + u).
+                tau_lag - a_lag * p.m_bar + (r.qdd + ed * p.kd + e * p.kp + u) * p.m_bar
+            }
+        };
+        if self.law == Law::TdcIsSta {
+            self.v += s.map(|si| ts * p.k2 * sgn(si));
+        }
+        Output { tau, s, n_hat, u }
+    }
+
+    /// The super-twisting state v_k, rad/s² (zero for other laws).
+    pub fn sta_state(&self) -> Vec3 {
+        self.v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use deltaloop_protocol::{ControllerParams, Preset};
+
+    fn paper() -> ControllerParams {
+        ControllerParams::preset(Preset::Paper)
+    }
+
+    /// The one-step check of the controller spec, on joint 1 (joints 2 and 3 carry the same data).
+    #[test]
+    fn one_step_check_from_spec() {
+        let mut c = Controller::new(Law::TdcIsSta, paper(), 3e-4, 1);
+        c.seed(
+            Vec3::repeat(1.185),
+            Vec3::repeat(1e-6),
+            Vec3::repeat(0.02),
+            Vec3::repeat(1.4),
+        );
+        let m = Measurement {
+            q: Vec3::repeat(0.4999),
+            qd: Vec3::repeat(1.19),
+            tau_applied: Vec3::repeat(1.4),
+        };
+        let r = Reference {
+            q: Vec3::repeat(0.5),
+            qd: Vec3::repeat(1.2),
+            qdd: Vec3::repeat(-3.0),
+        };
+        let out = c.step(&m, &r);
+        let rel = |a: f64, b: f64| ((a - b) / b).abs();
+        assert!(rel(out.s[0], 0.191854) < 1e-9, "s = {}", out.s[0]);
+        assert!(rel(out.n_hat[0], -4650.0) < 1e-9, "N̂ = {}", out.n_hat[0]);
+        assert!(rel(out.u[0], 306.627990763) < 1e-9, "u = {}", out.u[0]);
+        assert!(
+            rel(out.tau[0], 1.491542397229) < 1e-11,
+            "tau = {}",
+            out.tau[0]
+        );
+        assert!(
+            rel(c.sta_state()[0], 0.05) < 1e-12,
+            "v = {}",
+            c.sta_state()[0]
+        );
+        assert_eq!(out.tau[0], out.tau[2]);
+    }
+
+    #[test]
+    fn sgn_and_sat_are_odd_with_sgn_zero() {
+        assert_eq!(sgn(0.0), 0.0);
+        assert_eq!(sgn(-0.0), 0.0);
+        for x in [1e-300, 0.3, 1.0, 2.5, 1e9, f64::INFINITY] {
+            assert_eq!(sgn(-x), -sgn(x));
+            assert_eq!(sat(-x), -sat(x));
+        }
+        assert_eq!(sat(0.5), 0.5);
+        assert_eq!(sat(7.0), 1.0);
+    }
+
+    #[test]
+    fn s0_is_zero_and_start_is_bumpless_for_every_law() {
+        // At rest on the reference, every law's first torque is the holding torque τᵃ_0 and s₀ = 0.
+        let tau0 = Vec3::new(-1.3, -1.2, -1.1);
+        let m = Measurement {
+            q: Vec3::new(0.1, 0.2, 0.3),
+            qd: Vec3::zeros(),
+            tau_applied: tau0,
+        };
+        let r = Reference {
+            q: m.q,
+            qd: Vec3::zeros(),
+            qdd: Vec3::zeros(),
+        };
+        for preset in [Preset::Matched, Preset::Paper] {
+            for law in Law::ALL {
+                let mut c = Controller::new(law, ControllerParams::preset(preset), 3e-4, 3);
+                let out = c.step(&m, &r);
+                assert_eq!(out.s, Vec3::zeros(), "{law}");
+                assert_eq!(out.tau, tau0, "{law} {preset:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn tde_uses_data_ell_ticks_old() {
+        // Feed a known rate ramp and check N̂_k = a_{k−ℓ} − τᵃ_{k−ℓ+1}/M̄ for ℓ = 3.
+        let p = ControllerParams::preset(Preset::Matched);
+        let ts = 3e-4;
+        let mut c = Controller::new(Law::Tdc, p, ts, 3);
+        let r = Reference::default();
+        let qd = |k: usize| Vec3::repeat((k * k) as f64 * 0.01);
+        let tau = |k: usize| Vec3::repeat(k as f64);
+        for k in 0..8 {
+            let out = c.step(
+                &Measurement {
+                    q: Vec3::zeros(),
+                    qd: qd(k),
+                    tau_applied: tau(k),
+                },
+                &r,
+            );
+            let j = k as i64 - 3; // a_{k−ℓ}
+            let a = if j < 0 {
+                0.0
+            } else {
+                (qd(j as usize + 1)[0] - qd(j as usize)[0]) / ts
+            };
+            let t = if j + 1 <= 0 {
+                tau(0)[0]
+            } else {
+                tau((j + 1) as usize)[0]
+            };
+            assert!(
+                (out.n_hat[0] - (a - t / p.m_bar)).abs() < 1e-9,
+                "k={k}: {} vs {}",
+                out.n_hat[0],
+                a - t / p.m_bar
+            );
+        }
+    }
+
+    #[test]
+    fn pid_integrates_from_the_holding_torque() {
+        let p = ControllerParams::preset(Preset::Matched);
+        let mut c = Controller::new(Law::Pid, p, 3e-4, 1);
+        let tau0 = Vec3::new(1.0, 2.0, 3.0);
+        let r = Reference {
+            q: Vec3::repeat(0.01),
+            ..Reference::default()
+        };
+        let out = c.step(
+            &Measurement {
+                tau_applied: tau0,
+                ..Measurement::default()
+            },
+            &r,
+        );
+        // τ = P e + (τᵃ_0 + I Ts e) + D ė
+        let want = Vec3::repeat(0.01 * 1800.0) + tau0 + Vec3::repeat(6.7e4 * 3e-4 * 0.01);
+        assert!((out.tau - want).amax() < 1e-12, "{:?}", out.tau);
+    }
+
+    #[test]
+    fn tde_is_with_zero_phi_is_sgn() {
+        let mut p = ControllerParams::preset(Preset::Matched);
+        p.phi = 0.0;
+        let mut c = Controller::new(Law::TdeIs, p, 3e-4, 1);
+        let r = Reference {
+            q: Vec3::new(1e-9, -1e-9, 0.0),
+            ..Reference::default()
+        };
+        let out = c.step(&Measurement::default(), &r);
+        assert_eq!(out.u, Vec3::new(p.ks, -p.ks, 0.0));
+    }
+}

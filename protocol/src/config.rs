@@ -1,0 +1,601 @@
+//! The scenario configuration (TOML): schema, presets, and validation.
+//!
+//! A file names a scenario, the plant options, the controller laws and a preset of controller
+//! constants (`matched` or `paper`, see the controller spec), and may override any constant key by
+//! key. [`RunConfig::from_toml_str`] rejects unknown keys and out-of-range values with an error that
+//! names the key, the value and what is allowed. The resolved config ([`RunConfig::to_toml_string`])
+//! has every constant filled in and parses back to the same config.
+
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::path::Path;
+
+/// A config problem, naming the key, the value and what is allowed.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config file {path}: {reason}")]
+    Read { path: String, reason: String },
+    /// The text is not valid TOML for this schema (unknown key, wrong type, syntax).
+    #[error("invalid config{}: {message}", path.as_deref().map(|p| format!(" {p}")).unwrap_or_default())]
+    Parse {
+        path: Option<String>,
+        message: String,
+    },
+    /// A key has a value outside its allowed range.
+    #[error("config key `{key}` = {value} is out of range: {allowed}")]
+    Range {
+        key: String,
+        value: String,
+        allowed: String,
+    },
+}
+
+/// A control law (controller spec, "The laws").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
+#[serde(rename_all = "kebab-case")]
+pub enum Law {
+    /// Time-delay control, u = 0.
+    Tdc,
+    /// TDE + integral sliding mode with a boundary layer (paper eq. 44).
+    TdeIs,
+    /// TDC + integral sliding mode + super-twisting (paper eq. 12–14), the paper's proposal.
+    TdcIsSta,
+    /// PID baseline with a bumpless start; no TDE, no model.
+    Pid,
+}
+
+impl Law {
+    /// Every law, in report order.
+    pub const ALL: [Law; 4] = [Law::Tdc, Law::TdeIs, Law::TdcIsSta, Law::Pid];
+
+    /// The config/CLI name (`tdc`, `tde-is`, `tdc-is-sta`, `pid`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Law::Tdc => "tdc",
+            Law::TdeIs => "tde-is",
+            Law::TdcIsSta => "tdc-is-sta",
+            Law::Pid => "pid",
+        }
+    }
+
+    /// The name the paper uses.
+    pub fn paper_name(self) -> &'static str {
+        match self {
+            Law::Tdc => "TDC",
+            Law::TdeIs => "TDC+IS",
+            Law::TdcIsSta => "TDC+IS+STA",
+            Law::Pid => "PID",
+        }
+    }
+
+    /// Whether the law uses time-delay estimation (so its TDE error is meaningful).
+    pub fn uses_tde(self) -> bool {
+        self != Law::Pid
+    }
+
+    /// Parses a config/CLI name.
+    pub fn parse(s: &str) -> Result<Law, String> {
+        Law::ALL
+            .into_iter()
+            .find(|l| l.name() == s)
+            .ok_or_else(|| format!("unknown law `{s}`: allowed are tdc, tde-is, tdc-is-sta, pid"))
+    }
+}
+
+impl fmt::Display for Law {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A named set of controller constants.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Preset {
+    /// M̄ = 0.03 I kg m² (≈ 0.9 λmin(M) over the workspace), φ = 0.5 rad/s: the method as intended.
+    #[default]
+    Matched,
+    /// M̄ = 3·10⁻⁴ I kg m² (the paper's Table I literally), φ = 100 rad/s: shows the limit cycle.
+    Paper,
+}
+
+impl Preset {
+    /// The config name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Preset::Matched => "matched",
+            Preset::Paper => "paper",
+        }
+    }
+}
+
+/// The controller constants, all per joint (M̄ = m_bar · I).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControllerParams {
+    /// Nominal inertia M̄ (diagonal entry), kg m².
+    pub m_bar: f64,
+    /// Integral-surface gain K_p, 1/s² (rad/s² per rad of integrated error per s).
+    pub kp: f64,
+    /// Derivative gain K_d, 1/s.
+    pub kd: f64,
+    /// Switching gain K_s of `tde-is`, rad/s².
+    pub ks: f64,
+    /// Boundary-layer width φ of `tde-is`, rad/s (0 means sgn).
+    pub phi: f64,
+    /// Super-twisting gain k1, rad^½/s^(3/2).
+    pub k1: f64,
+    /// Super-twisting gain k2, rad/s³.
+    pub k2: f64,
+    /// PID proportional gain P, N m/rad.
+    pub pid_p: f64,
+    /// PID integral gain I, N m/(rad s).
+    pub pid_i: f64,
+    /// PID derivative gain D, N m s/rad.
+    pub pid_d: f64,
+}
+
+impl ControllerParams {
+    /// The constants of a preset (controller spec, Table I and the preset table).
+    pub fn preset(p: Preset) -> Self {
+        let (m_bar, phi) = match p {
+            Preset::Matched => (0.03, 0.5),
+            Preset::Paper => (3e-4, 100.0),
+        };
+        Self {
+            m_bar,
+            kp: 1800.0,
+            kd: 1800.0,
+            ks: 1460.0,
+            phi,
+            k1: 700.0,
+            k2: 100.0,
+            pid_p: 1800.0,
+            pid_i: 6.7e4,
+            pid_d: 16.0,
+        }
+    }
+}
+
+/// Which reference path to follow (plant spec §6).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PathKind {
+    /// P0 → P2 semi-ellipse, T = 0.8 s.
+    S1,
+    /// The same path in T = 0.2 s.
+    S2,
+    /// P0 → P1 → P2, two semi-ellipses in different vertical planes, T = 1.2 s.
+    S3,
+    /// The `segments` list of the scenario table.
+    Custom,
+}
+
+/// One semi-elliptic segment (plant spec §6), traversed with a rest-to-rest quintic time law.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Segment {
+    /// Start point, m, base frame.
+    pub from: [f64; 3],
+    /// End point, m, base frame.
+    pub to: [f64; 3],
+    /// Apex height h above the chord, m.
+    pub apex_m: f64,
+    /// Segment duration, s.
+    pub duration_s: f64,
+}
+
+/// `[scenario]`: the reference motion.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScenarioSection {
+    /// `s1`, `s2`, `s3` or `custom`.
+    pub path: PathKind,
+    /// Segments, only with `path = "custom"`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub segments: Vec<Segment>,
+    /// Extra time after the motion ends, s (the reference holds its end point). Metrics cover the
+    /// whole run.
+    #[serde(default)]
+    pub hold_s: f64,
+}
+
+/// `[plant]`: the simulated robot.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlantSection {
+    /// Joint friction d_f = Fv q̇ + Fc tanh(q̇/ε) on (true) or off.
+    #[serde(default)]
+    pub friction: bool,
+    /// Drive torque limit per joint, N m.
+    #[serde(default = "default_tau_max")]
+    pub tau_max_nm: f64,
+    /// RK4 steps per control period (h = Ts/substeps).
+    #[serde(default = "default_substeps")]
+    pub substeps: u32,
+}
+
+fn default_tau_max() -> f64 {
+    100.0
+}
+fn default_substeps() -> u32 {
+    10
+}
+
+impl Default for PlantSection {
+    fn default() -> Self {
+        Self {
+            friction: false,
+            tau_max_nm: default_tau_max(),
+            substeps: default_substeps(),
+        }
+    }
+}
+
+/// `[controller]`: laws, preset, TDE delay, and per-key overrides of the preset's constants.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControllerSection {
+    /// The preset the constants start from.
+    #[serde(default)]
+    pub preset: Preset,
+    /// The laws to run (each is one run of the scenario).
+    #[serde(default = "default_laws")]
+    pub laws: Vec<Law>,
+    /// TDE delay ℓ (L = ℓ·Ts), ticks, ≥ 1.
+    #[serde(default = "default_ell")]
+    pub tde_delay_samples: u32,
+    /// Overrides (None: the preset's value). See [`ControllerParams`] for units.
+    pub m_bar: Option<f64>,
+    pub kp: Option<f64>,
+    pub kd: Option<f64>,
+    pub ks: Option<f64>,
+    pub phi: Option<f64>,
+    pub k1: Option<f64>,
+    pub k2: Option<f64>,
+    pub pid_p: Option<f64>,
+    pub pid_i: Option<f64>,
+    pub pid_d: Option<f64>,
+}
+
+fn default_laws() -> Vec<Law> {
+    Law::ALL.to_vec()
+}
+fn default_ell() -> u32 {
+    1
+}
+
+impl Default for ControllerSection {
+    fn default() -> Self {
+        toml::from_str("").expect("empty controller section")
+    }
+}
+
+/// `[loop]`: timing of the control loop.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoopSection {
+    /// Control period Ts, s.
+    #[serde(default = "default_ts")]
+    pub ts_s: f64,
+}
+
+fn default_ts() -> f64 {
+    3e-4
+}
+
+impl Default for LoopSection {
+    fn default() -> Self {
+        Self { ts_s: default_ts() }
+    }
+}
+
+/// A whole scenario file. Sections other than `[scenario]` are optional.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// Scenario name (run folders and reports use it); defaults to the file stem.
+    #[serde(default)]
+    pub name: String,
+    /// Free text for reports.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub description: String,
+    pub scenario: ScenarioSection,
+    #[serde(default)]
+    pub plant: PlantSection,
+    #[serde(default)]
+    pub controller: ControllerSection,
+    #[serde(default, rename = "loop")]
+    pub loop_: LoopSection,
+}
+
+/// Largest accepted TDE delay, ticks.
+pub const MAX_TDE_DELAY: u32 = 10_000;
+
+fn range(key: &str, value: impl fmt::Display, allowed: &str) -> ConfigError {
+    ConfigError::Range {
+        key: key.into(),
+        value: value.to_string(),
+        allowed: allowed.into(),
+    }
+}
+
+fn check(key: &str, v: f64, ok: bool, allowed: &str) -> Result<(), ConfigError> {
+    if v.is_finite() && ok {
+        Ok(())
+    } else {
+        Err(range(key, v, allowed))
+    }
+}
+
+impl RunConfig {
+    /// Parses, fills the preset, and validates. `path` only labels errors.
+    pub fn from_toml_str(text: &str, path: Option<&Path>) -> Result<Self, ConfigError> {
+        let mut cfg: RunConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.map(|p| p.display().to_string()),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        if cfg.name.is_empty() {
+            cfg.name = path
+                .and_then(|p| p.file_stem())
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "scenario".into());
+        }
+        cfg.resolve_preset();
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Reads and parses a file.
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
+            path: path.display().to_string(),
+            reason: e.to_string(),
+        })?;
+        Self::from_toml_str(&text, Some(path))
+    }
+
+    /// The resolved config as TOML: every constant explicit; parses back to `self`.
+    pub fn to_toml_string(&self) -> String {
+        toml::to_string_pretty(self).expect("config serialises")
+    }
+
+    /// The controller constants: the preset with the file's overrides applied.
+    pub fn controller_params(&self) -> ControllerParams {
+        let c = &self.controller;
+        let p = ControllerParams::preset(c.preset);
+        ControllerParams {
+            m_bar: c.m_bar.unwrap_or(p.m_bar),
+            kp: c.kp.unwrap_or(p.kp),
+            kd: c.kd.unwrap_or(p.kd),
+            ks: c.ks.unwrap_or(p.ks),
+            phi: c.phi.unwrap_or(p.phi),
+            k1: c.k1.unwrap_or(p.k1),
+            k2: c.k2.unwrap_or(p.k2),
+            pid_p: c.pid_p.unwrap_or(p.pid_p),
+            pid_i: c.pid_i.unwrap_or(p.pid_i),
+            pid_d: c.pid_d.unwrap_or(p.pid_d),
+        }
+    }
+
+    /// Writes the preset's values into every override that is not set, so the config is explicit.
+    fn resolve_preset(&mut self) {
+        let p = self.controller_params();
+        let c = &mut self.controller;
+        c.m_bar = Some(p.m_bar);
+        c.kp = Some(p.kp);
+        c.kd = Some(p.kd);
+        c.ks = Some(p.ks);
+        c.phi = Some(p.phi);
+        c.k1 = Some(p.k1);
+        c.k2 = Some(p.k2);
+        c.pid_p = Some(p.pid_p);
+        c.pid_i = Some(p.pid_i);
+        c.pid_d = Some(p.pid_d);
+    }
+
+    /// Checks every value against its allowed range.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let s = &self.scenario;
+        check(
+            "scenario.hold_s",
+            s.hold_s,
+            (0.0..=3600.0).contains(&s.hold_s),
+            "0 <= hold_s <= 3600 s",
+        )?;
+        match (s.path, s.segments.is_empty()) {
+            (PathKind::Custom, true) => {
+                return Err(range(
+                    "scenario.segments",
+                    "[]",
+                    "at least one segment when path = \"custom\"",
+                ));
+            }
+            (PathKind::Custom, false) => {}
+            (_, false) => {
+                return Err(range(
+                    "scenario.segments",
+                    format!("[{} segments]", s.segments.len()),
+                    "segments are only allowed with path = \"custom\"",
+                ));
+            }
+            _ => {}
+        }
+        for (i, seg) in s.segments.iter().enumerate() {
+            let key = |k: &str| format!("scenario.segments[{i}].{k}");
+            for (k, p) in [("from", seg.from), ("to", seg.to)] {
+                for v in p {
+                    check(&key(k), v, v.abs() <= 2.0, "coordinates within ±2 m")?;
+                }
+            }
+            check(
+                &key("apex_m"),
+                seg.apex_m,
+                seg.apex_m.abs() <= 1.0,
+                "-1 <= apex_m <= 1 m",
+            )?;
+            check(
+                &key("duration_s"),
+                seg.duration_s,
+                seg.duration_s > 0.0 && seg.duration_s <= 3600.0,
+                "0 < duration_s <= 3600 s",
+            )?;
+        }
+        let p = &self.plant;
+        check(
+            "plant.tau_max_nm",
+            p.tau_max_nm,
+            p.tau_max_nm > 0.0 && p.tau_max_nm <= 1e4,
+            "0 < tau_max_nm <= 10000 N m",
+        )?;
+        if !(1..=1000).contains(&p.substeps) {
+            return Err(range("plant.substeps", p.substeps, "1 <= substeps <= 1000"));
+        }
+        let ts = self.loop_.ts_s;
+        check(
+            "loop.ts_s",
+            ts,
+            (1e-5..=0.1).contains(&ts),
+            "1e-5 <= ts_s <= 0.1 s",
+        )?;
+        let c = &self.controller;
+        if c.laws.is_empty() {
+            return Err(range(
+                "controller.laws",
+                "[]",
+                "at least one of tdc, tde-is, tdc-is-sta, pid",
+            ));
+        }
+        for (i, l) in c.laws.iter().enumerate() {
+            if c.laws[..i].contains(l) {
+                return Err(range("controller.laws", l, "each law at most once"));
+            }
+        }
+        if !(1..=MAX_TDE_DELAY).contains(&c.tde_delay_samples) {
+            return Err(range(
+                "controller.tde_delay_samples",
+                c.tde_delay_samples,
+                "1 <= tde_delay_samples <= 10000 ticks",
+            ));
+        }
+        let k = self.controller_params();
+        check(
+            "controller.m_bar",
+            k.m_bar,
+            k.m_bar > 0.0 && k.m_bar <= 100.0,
+            "0 < m_bar <= 100 kg m^2",
+        )?;
+        for (key, v) in [
+            ("controller.kp", k.kp),
+            ("controller.kd", k.kd),
+            ("controller.ks", k.ks),
+            ("controller.phi", k.phi),
+            ("controller.k1", k.k1),
+            ("controller.k2", k.k2),
+            ("controller.pid_p", k.pid_p),
+            ("controller.pid_i", k.pid_i),
+            ("controller.pid_d", k.pid_d),
+        ] {
+            check(
+                key,
+                v,
+                (0.0..=1e9).contains(&v),
+                "a finite number, 0 <= value <= 1e9",
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Number of control ticks after tick 0 for the whole run: round((T + hold)/Ts).
+    pub fn ticks(&self, motion_duration_s: f64) -> u64 {
+        ((motion_duration_s + self.scenario.hold_s) / self.loop_.ts_s).round() as u64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MIN: &str = "[scenario]\npath = \"s1\"\n";
+
+    #[test]
+    fn minimal_file_gets_matched_preset_and_all_laws() {
+        let c = RunConfig::from_toml_str(MIN, Some(Path::new("configs/x.toml"))).unwrap();
+        assert_eq!(c.name, "x");
+        assert_eq!(c.controller.laws, Law::ALL.to_vec());
+        assert_eq!(
+            c.controller_params(),
+            ControllerParams::preset(Preset::Matched)
+        );
+        assert_eq!(c.controller_params().m_bar, 0.03);
+    }
+
+    #[test]
+    fn override_is_key_by_key() {
+        let c = RunConfig::from_toml_str(
+            &format!("{MIN}[controller]\npreset = \"paper\"\nk1 = 50.0\n"),
+            None,
+        )
+        .unwrap();
+        let p = c.controller_params();
+        assert_eq!(p.k1, 50.0);
+        assert_eq!(p.m_bar, 3e-4);
+        assert_eq!(p.phi, 100.0);
+    }
+
+    #[test]
+    fn resolved_config_round_trips() {
+        let c = RunConfig::from_toml_str(
+            &format!("{MIN}[controller]\npreset = \"paper\"\nkp = 900.0\n"),
+            None,
+        )
+        .unwrap();
+        let again = RunConfig::from_toml_str(&c.to_toml_string(), None).unwrap();
+        assert_eq!(c, again);
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let e =
+            RunConfig::from_toml_str(&format!("{MIN}[controller]\nkpp = 1.0\n"), None).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            msg.contains("kpp") && msg.contains("expected one of"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn out_of_range_names_key_value_and_range() {
+        let e = RunConfig::from_toml_str(&format!("{MIN}[controller]\nm_bar = -1.0\n"), None)
+            .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "config key `controller.m_bar` = -1 is out of range: 0 < m_bar <= 100 kg m^2"
+        );
+        let e =
+            RunConfig::from_toml_str(&format!("{MIN}[controller]\ntde_delay_samples = 0\n"), None)
+                .unwrap_err();
+        assert!(
+            e.to_string().contains("controller.tde_delay_samples` = 0"),
+            "{e}"
+        );
+        let e = RunConfig::from_toml_str(&format!("{MIN}[loop]\nts_s = nan\n"), None).unwrap_err();
+        assert!(e.to_string().contains("loop.ts_s` = NaN"), "{e}");
+    }
+
+    #[test]
+    fn unknown_law_lists_allowed() {
+        let e = RunConfig::from_toml_str(&format!("{MIN}[controller]\nlaws = [\"lqr\"]\n"), None)
+            .unwrap_err();
+        let msg = e.to_string();
+        assert!(msg.contains("lqr") && msg.contains("tdc-is-sta"), "{msg}");
+    }
+
+    #[test]
+    fn missing_file_is_named() {
+        let e = RunConfig::from_file(Path::new("/nonexistent/cfg.toml")).unwrap_err();
+        assert!(e.to_string().contains("/nonexistent/cfg.toml"), "{e}");
+    }
+}
