@@ -252,7 +252,7 @@ mod tests {
             } else {
                 (qd(j as usize + 1)[0] - qd(j as usize)[0]) / ts
             };
-            let t = if j + 1 <= 0 {
+            let t = if j < 0 {
                 tau(0)[0]
             } else {
                 tau((j + 1) as usize)[0]

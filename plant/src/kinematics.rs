@@ -28,6 +28,9 @@ pub struct Pose {
     pub a_inv: Mat3,
     /// det A, m³.
     pub det_a: f64,
+    /// sin q_i and cos q_i (kept for gravity and energy).
+    pub sin_q: Vec3,
+    pub cos_q: Vec3,
 }
 
 /// Distance from the two kinds of singularity (spec §3.5); both dimensionless.
@@ -46,16 +49,34 @@ impl Margins {
     }
 }
 
+/// (sin q_i, cos q_i), one call per joint. The plant uses the pure-Rust `libm` for its
+/// transcendental functions: faster here than the system's, and the same bits on every machine.
+#[inline]
+fn sin_cos(q: &Vec3) -> (Vec3, Vec3) {
+    let (s0, c0) = libm::sincos(q[0]);
+    let (s1, c1) = libm::sincos(q[1]);
+    let (s2, c2) = libm::sincos(q[2]);
+    (Vec3::new(s0, s1, s2), Vec3::new(c0, c1, c2))
+}
+
 fn arr(v: &Vec3) -> [f64; 3] {
     [v[0], v[1], v[2]]
 }
 
 impl DeltaRobot {
-    /// Elbow position E_i(q_i) = A_i + La (cos q_i u_i − sin q_i e_z), m, base frame.
-    fn elbow(&self, i: usize, qi: f64) -> Vec3 {
-        let (s, c) = qi.sin_cos();
-        let la = self.p.upper_arm;
-        self.u[i] * self.p.base_radius + (self.u[i] * c - Vec3::z() * s) * la
+    /// Sphere centres C_i = E_i(q_i) − r u_i (m) from sin q_i and cos q_i, where the elbow is
+    /// E_i = A_i + La (cos q_i u_i − sin q_i e_z).
+    #[inline]
+    fn sphere_centres(&self, sin_q: &Vec3, cos_q: &Vec3) -> [Vec3; 3] {
+        let (la, rr) = (
+            self.p.upper_arm,
+            self.p.base_radius - self.p.platform_radius,
+        );
+        // Written per component: u_i has no z part, and IEEE rules keep 0·x from being folded.
+        std::array::from_fn(|i| {
+            let radial = rr + la * cos_q[i];
+            Vec3::new(self.u[i][0] * radial, self.u[i][1] * radial, -la * sin_q[i])
+        })
     }
 
     /// Inverse kinematics, elbow-out branch (spec §3.1): platform position x (m) → q (rad).
@@ -78,28 +99,32 @@ impl DeltaRobot {
                 });
             }
             let s = radicand.sqrt();
-            q[i] = (-c * k - a * s).atan2(a * k - c * s);
+            q[i] = libm::atan2(-c * k - a * s, a * k - c * s);
         }
         Ok(q)
     }
 
     /// Forward kinematics (spec §3.2): q (rad) → platform position x (m), the lower root.
     pub fn fk(&self, q: &Vec3) -> Result<Vec3, KinematicsError> {
-        let c: [Vec3; 3] =
-            std::array::from_fn(|i| self.elbow(i, q[i]) - self.u[i] * self.p.platform_radius);
+        self.pose(q).map(|p| p.x)
+    }
+
+    /// Three-sphere intersection (lower root) of the centres C_i with radius Lb.
+    #[inline]
+    fn intersect(&self, q: &Vec3, c: &[Vec3; 3]) -> Result<Vec3, KinematicsError> {
         let a = c[1] - c[0];
         let b = c[2] - c[0];
         let w = a.cross(&b);
         let w2 = w.norm_squared();
         let fail = KinematicsError::NoAssembly { q: arr(q) };
-        // Collinear centres: no unique circumcircle.
-        if !(w2 > 1e-24) {
+        // Collinear centres (or NaN input): no unique circumcircle.
+        if w2.is_nan() || w2 <= 1e-24 {
             return Err(fail);
         }
         let m = c[0] + (b * a.norm_squared() - a * b.norm_squared()).cross(&w) / (2.0 * w2);
         let lb = self.p.forearm;
         let rad = lb * lb - (m - c[0]).norm_squared();
-        if !(rad >= 0.0) {
+        if rad.is_nan() || rad < 0.0 {
             return Err(fail);
         }
         let mut n = w / w2.sqrt();
@@ -110,32 +135,43 @@ impl DeltaRobot {
     }
 
     /// The geometry at q (FK plus the forearm vectors, A⁻¹ and β); the building block of every
-    /// velocity and dynamics query.
+    /// velocity and dynamics query. One sin/cos per joint.
+    #[inline]
     pub fn pose(&self, q: &Vec3) -> Result<Pose, KinematicsError> {
-        let x = self.fk(q)?;
-        Ok(self.pose_at(q, &x))
+        let (sin_q, cos_q) = sin_cos(q);
+        let c = self.sphere_centres(&sin_q, &cos_q);
+        let x = self.intersect(q, &c)?;
+        Ok(self.assemble(q, &x, sin_q, cos_q, &c))
     }
 
     /// As [`pose`](Self::pose), with the platform position x = FK(q) already known (m).
+    #[inline]
     pub fn pose_at(&self, q: &Vec3, x: &Vec3) -> Pose {
+        let (sin_q, cos_q) = sin_cos(q);
+        let c = self.sphere_centres(&sin_q, &cos_q);
+        self.assemble(q, x, sin_q, cos_q, &c)
+    }
+
+    #[inline]
+    fn assemble(&self, q: &Vec3, x: &Vec3, sin_q: Vec3, cos_q: Vec3, c: &[Vec3; 3]) -> Pose {
         let la = self.p.upper_arm;
-        let r = self.p.platform_radius;
-        let mut d = [Vec3::zeros(); 3];
-        let mut t = [Vec3::zeros(); 3];
-        let mut n = [Vec3::zeros(); 3];
-        let mut beta = Vec3::zeros();
-        for i in 0..3 {
-            let (s, c) = q[i].sin_cos();
-            d[i] = x + self.u[i] * r - self.elbow(i, q[i]);
-            t[i] = (self.u[i] * s + Vec3::z() * c) * (-la);
-            n[i] = (self.u[i] * c - Vec3::z() * s) * (-la);
-            beta[i] = d[i].dot(&t[i]);
-        }
+        // d_i = P_i − E_i = (x + r u_i) − E_i = x − C_i.
+        let d: [Vec3; 3] = std::array::from_fn(|i| x - c[i]);
+        // t_i = −La (sin q_i u_i + cos q_i e_z), n_i = −La (cos q_i u_i − sin q_i e_z).
+        let t: [Vec3; 3] = std::array::from_fn(|i| {
+            let r = -la * sin_q[i];
+            Vec3::new(self.u[i][0] * r, self.u[i][1] * r, -la * cos_q[i])
+        });
+        let n: [Vec3; 3] = std::array::from_fn(|i| {
+            let r = -la * cos_q[i];
+            Vec3::new(self.u[i][0] * r, self.u[i][1] * r, la * sin_q[i])
+        });
+        let beta = Vec3::new(d[0].dot(&t[0]), d[1].dot(&t[1]), d[2].dot(&t[2]));
         let c0 = d[1].cross(&d[2]);
         let c1 = d[2].cross(&d[0]);
         let c2 = d[0].cross(&d[1]);
         let det_a = d[0].dot(&c0);
-        let a_inv = Mat3::from_columns(&[c0, c1, c2]) / det_a;
+        let a_inv = Mat3::from_columns(&[c0, c1, c2]) * (1.0 / det_a);
         Pose {
             q: *q,
             x: *x,
@@ -145,6 +181,8 @@ impl DeltaRobot {
             beta,
             a_inv,
             det_a,
+            sin_q,
+            cos_q,
         }
     }
 
@@ -175,6 +213,7 @@ impl DeltaRobot {
 
 impl Pose {
     /// Jacobian J = A⁻¹B (ẋ = J q̇), m/rad.
+    #[inline]
     pub fn jacobian(&self) -> Mat3 {
         let mut j = self.a_inv;
         for i in 0..3 {
@@ -198,6 +237,7 @@ impl Pose {
     }
 
     /// γ_i = (d_i·n_i) q̇_i² − |ḋ_i|², m²/s² (spec §3.4), given ẋ (m/s) and q̇ (rad/s).
+    #[inline]
     pub fn gamma(&self, xd: &Vec3, qd: &Vec3) -> Vec3 {
         let dd = self.d_dot(xd, qd);
         Vec3::from_fn(|i, _| self.d[i].dot(&self.n[i]) * qd[i] * qd[i] - dd[i].norm_squared())

@@ -17,7 +17,7 @@ pub mod sim;
 pub use error::KinematicsError;
 pub use kinematics::{Margins, Pose};
 pub use params::DeltaParams;
-pub use sim::{Actuator, PlantSim, SimConfig};
+pub use sim::{Actuator, Applied, PayloadStep, Plant, PlantSample, PlantSim, SimConfig};
 
 /// A 3-vector (joint space: rad, rad/s, N m; task space: m, m/s).
 pub type Vec3 = nalgebra::Vector3<f64>;

@@ -100,6 +100,7 @@ impl PlantSim {
     }
 
     /// (q̇, q̈) at (q, q̇) under joint torque τ (N m), including friction if enabled.
+    #[inline]
     fn deriv(&self, q: &Vec3, qd: &Vec3, tau: &Vec3, check: bool) -> Result<Vec3, KinematicsError> {
         let pose = self.robot.pose(q)?;
         if check {
@@ -229,5 +230,67 @@ impl Actuator {
         };
         self.last = applied.tau;
         applied
+    }
+}
+
+/// The plant's state at tick k as the drives and encoders report it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlantSample {
+    /// Control tick k (t = k·Ts).
+    pub k: u64,
+    /// Joint angles q_k, rad.
+    pub q: Vec3,
+    /// Joint rates q̇_k, rad/s.
+    pub qd: Vec3,
+    /// Torque applied over [t_{k−1}, t_k) (τᵃ_k), N m; at k = 0 the holding torque G(q_0).
+    pub tau_applied: Vec3,
+}
+
+/// The whole plant: robot dynamics plus drives. Every loop mode steps this one type.
+#[derive(Clone, Debug)]
+pub struct Plant {
+    sim: PlantSim,
+    drives: Actuator,
+}
+
+impl Plant {
+    /// The robot at rest at `q0` (rad), holding itself with τᵃ_0 = G(q_0) (N m); drives clamp at
+    /// `tau_max` (N m) and apply commands `transport_delay` ticks late.
+    pub fn new(
+        robot: DeltaRobot,
+        cfg: SimConfig,
+        tau_max: f64,
+        transport_delay: usize,
+        q0: Vec3,
+    ) -> Result<Self, KinematicsError> {
+        let pose = robot.pose(&q0)?;
+        let tau_a0 = robot.gravity(&pose);
+        let sim = PlantSim::new(robot, cfg, q0)?;
+        Ok(Self {
+            sim,
+            drives: Actuator::new(tau_max, transport_delay, tau_a0),
+        })
+    }
+
+    /// The current sample (tick k, q, q̇, τᵃ_k).
+    pub fn sample(&self) -> PlantSample {
+        PlantSample {
+            k: self.sim.tick(),
+            q: self.sim.q(),
+            qd: self.sim.qd(),
+            tau_applied: self.drives.last_applied(),
+        }
+    }
+
+    /// Applies tick k's command (None: it did not arrive) over [t_k, t_{k+1}) and integrates.
+    pub fn advance(&mut self, cmd: Option<Vec3>) -> Result<Applied, KinematicsError> {
+        let applied = self.drives.apply(cmd);
+        self.sim.step(&applied.tau)?;
+        Ok(applied)
+    }
+
+    /// The simulation (model and integrator state).
+    pub fn sim(&self) -> &PlantSim {
+        &self.sim
     }
 }

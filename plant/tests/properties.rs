@@ -181,9 +181,10 @@ fn energy_e1_gravity_release_from_rest() {
 
 #[test]
 fn energy_e2_no_gravity_initial_velocity() {
-    let mut p = deltaloop_plant::DeltaParams::default();
-    p.g = 0.0;
-    let robot = DeltaRobot::new(p);
+    let robot = DeltaRobot::new(deltaloop_plant::DeltaParams {
+        g: 0.0,
+        ..Default::default()
+    });
     let q0 = robot.ik(&Vec3::new(0.0, 0.0, -0.37)).unwrap();
     let drift = energy_drift(robot, q0, Vec3::new(1.0, -0.8, 0.6));
     assert!(drift < 1e-8, "E2 drift {drift:e}");

@@ -1,1 +1,15 @@
+//! The deltaloop supervisor: scenarios and references, the loop runners, metrics, reports, and the
+//! `deltaloop` CLI. Math modules ([`scenario`], [`reference`], [`metrics`], [`analysis`]) do no I/O.
 
+pub mod analysis;
+pub mod bench;
+pub mod cli;
+pub mod inproc;
+pub mod metrics;
+pub mod output;
+pub mod record;
+pub mod reference;
+pub mod report;
+pub mod run;
+pub mod scenario;
+pub mod study;

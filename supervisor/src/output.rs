@@ -1,0 +1,146 @@
+//! The run folder: resolved config, `trace.csv`, `summary.json`, `report.md`.
+
+use crate::analysis::Mismatch;
+use crate::metrics::LawMetrics;
+use crate::record::LawRun;
+use crate::reference::JointReference;
+use anyhow::{Context, Result};
+use deltaloop_controller::ControllerParams;
+use deltaloop_protocol::RunConfig;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// `summary.json`.
+#[derive(Debug, Serialize)]
+pub struct Summary<'a> {
+    pub scenario: &'a str,
+    pub mode: &'a str,
+    pub preset: &'a str,
+    pub command: &'a str,
+    pub started_utc: String,
+    /// Control period, s.
+    pub ts_s: f64,
+    /// N: ticks after tick 0 covered by the metrics.
+    pub ticks: usize,
+    /// Motion duration T, s.
+    pub motion_duration_s: f64,
+    pub friction: bool,
+    pub tau_max_nm: f64,
+    pub tde_delay_samples: u32,
+    pub controller: ControllerParams,
+    pub mismatch: &'a Mismatch,
+    /// Metrics per law, keyed by law name.
+    pub laws: BTreeMap<&'a str, &'a LawMetrics>,
+}
+
+/// The default run folder: `runs/<UTC time>-<scenario name>`.
+pub fn default_run_dir(name: &str) -> PathBuf {
+    let stamp = chrono::Utc::now().format("%Y%m%d-%H%M%S");
+    PathBuf::from("runs").join(format!("{stamp}-{name}"))
+}
+
+/// UTC now, RFC 3339.
+pub fn now_utc() -> String {
+    chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Secs, true)
+}
+
+fn header() -> Vec<String> {
+    let mut h = vec!["law".to_string(), "k".into(), "t_s".into()];
+    for name in [
+        "q_des",
+        "q",
+        "qdot",
+        "e",
+        "tau",
+        "tau_applied",
+        "s",
+        "n_hat",
+        "n_true",
+    ] {
+        for j in 1..=3 {
+            h.push(format!("{name}_{j}"));
+        }
+    }
+    h
+}
+
+/// Writes `trace.csv`: one row per tick per law, every float in shortest round-trip exponent form (e.g. `-7.776579935558914e-10`).
+/// Columns: law, k, t_s, then per joint q_des (rad), q (rad, true), qdot (rad/s, true), e (rad),
+/// tau (commanded, N m), tau_applied (τᵃ_k, N m), s (rad/s), n_hat (rad/s²), n_true (rad/s²).
+pub fn write_trace(
+    path: &Path,
+    runs: &[LawRun],
+    reference: &JointReference,
+    m_bar: f64,
+) -> Result<()> {
+    let mut w = csv::Writer::from_path(path)
+        .with_context(|| format!("cannot create {}", path.display()))?;
+    w.write_record(header())?;
+    let ts = reference.ts;
+    let mut row: Vec<String> = Vec::with_capacity(30);
+    for run in runs {
+        for (k, r) in run.records.iter().enumerate() {
+            let rf = &reference.rows[k];
+            let next = run
+                .records
+                .get(k + 1)
+                .map(|n| (n.qd_true, n.sample.tau_applied))
+                .or(run.after.map(|(s, qd)| (qd, s.tau_applied)));
+            let truth = next.map(|(qd1, tau1)| (qd1 - r.qd_true) / ts - tau1 / m_bar);
+            row.clear();
+            row.push(run.law.name().into());
+            row.push(r.sample.k.to_string());
+            row.push(format!("{:e}", rf.t));
+            let mut push3 =
+                |v: &deltaloop_plant::Vec3| row.extend(v.iter().map(|x| format!("{x:e}")));
+            push3(&rf.joint.q);
+            push3(&r.q_true);
+            push3(&r.qd_true);
+            push3(&(rf.joint.q - r.q_true));
+            push3(&r.out.tau);
+            push3(&r.sample.tau_applied);
+            push3(&r.out.s);
+            push3(&r.out.n_hat);
+            match truth {
+                Some(t) => push3(&t),
+                None => row.extend(std::iter::repeat_n(String::new(), 3)),
+            }
+            w.write_record(&row)?;
+        }
+    }
+    w.flush()?;
+    Ok(())
+}
+
+/// Writes a text file, naming it on failure.
+pub fn write_text(path: &Path, text: &str) -> Result<()> {
+    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Writes `config.toml`, `trace.csv`, `summary.json` and `report.md` into `dir`.
+#[allow(clippy::too_many_arguments)]
+pub fn write_run_folder(
+    dir: &Path,
+    cfg: &RunConfig,
+    summary: &Summary<'_>,
+    runs: &[LawRun],
+    reference: &JointReference,
+    report_md: &str,
+) -> Result<()> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create run folder {}", dir.display()))?;
+    write_text(&dir.join("config.toml"), &cfg.to_toml_string())?;
+    write_text(
+        &dir.join("summary.json"),
+        &serde_json::to_string_pretty(summary)?,
+    )?;
+    write_text(&dir.join("report.md"), report_md)?;
+    write_trace(
+        &dir.join("trace.csv"),
+        runs,
+        reference,
+        summary.controller.m_bar,
+    )?;
+    Ok(())
+}

@@ -1,0 +1,135 @@
+//! What a run leaves behind: one [`TickRecord`] per control tick, the state after the last tick,
+//! and how the run ended. Every loop mode fills a [`Recorder`] the same way, so divergence is
+//! decided in one place.
+
+use deltaloop_controller::Output;
+use deltaloop_plant::{PlantSample, Vec3};
+use deltaloop_protocol::Law;
+
+/// Error bound of the divergence rule, rad (controller spec: |e_i| > 0.5 rad).
+pub const DIVERGENCE_ERR_RAD: f64 = 0.5;
+
+/// One control tick.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TickRecord {
+    /// The plant sample the controller saw (tick k, q, q̇, τᵃ_k).
+    pub sample: PlantSample,
+    /// The plant's true (noise-free) joint rates q̇_k, rad/s: the TDE ground truth.
+    pub qd_true: Vec3,
+    /// The true joint angles q_k, rad.
+    pub q_true: Vec3,
+    /// The controller's answer at tick k.
+    pub out: Output,
+    /// Some joint was clamped over [t_k, t_{k+1}).
+    pub clamped: bool,
+    /// The plant held the previous torque over [t_k, t_{k+1}) (missed or rejected command).
+    pub held: bool,
+}
+
+/// How a run ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Outcome {
+    /// All ticks 0..=N ran.
+    Completed,
+    /// Stopped at `tick` (error above the bound, a non-finite value, or the robot left its workspace).
+    Diverged { tick: u64, reason: String },
+}
+
+/// A finished run of one law.
+#[derive(Clone, Debug)]
+pub struct LawRun {
+    pub law: Law,
+    /// Ticks 0..=last, in order.
+    pub records: Vec<TickRecord>,
+    /// The plant state after the last recorded tick (tick last + 1), if the plant got there.
+    pub after: Option<(PlantSample, Vec3)>,
+    pub outcome: Outcome,
+}
+
+/// Collects ticks and applies the divergence rule. Pre-allocated for the whole run.
+#[derive(Debug)]
+pub struct Recorder {
+    run: LawRun,
+}
+
+impl Recorder {
+    /// Room for ticks 0..=n.
+    pub fn new(law: Law, n: usize) -> Self {
+        Self {
+            run: LawRun {
+                law,
+                records: Vec::with_capacity(n + 1),
+                after: None,
+                outcome: Outcome::Completed,
+            },
+        }
+    }
+
+    /// Records tick k (its sample, truth and controller output). Returns false, having marked the
+    /// run diverged, if the tick breaks the divergence rule; the caller must stop.
+    pub fn tick(
+        &mut self,
+        sample: PlantSample,
+        q_true: Vec3,
+        qd_true: Vec3,
+        q_des: &Vec3,
+        out: Output,
+    ) -> bool {
+        self.run.records.push(TickRecord {
+            sample,
+            q_true,
+            qd_true,
+            out,
+            clamped: false,
+            held: false,
+        });
+        let e = q_des - sample.q;
+        let reason = if !(sample
+            .q
+            .iter()
+            .chain(sample.qd.iter())
+            .all(|x| x.is_finite()))
+        {
+            Some("non-finite joint state".to_string())
+        } else if !out.tau.iter().all(|x| x.is_finite()) {
+            Some("non-finite torque command".to_string())
+        } else if e.amax() > DIVERGENCE_ERR_RAD {
+            Some(format!(
+                "tracking error {:.3} rad exceeds {DIVERGENCE_ERR_RAD} rad",
+                e.amax()
+            ))
+        } else {
+            None
+        };
+        match reason {
+            Some(reason) => {
+                self.run.outcome = Outcome::Diverged {
+                    tick: sample.k,
+                    reason,
+                };
+                false
+            }
+            None => true,
+        }
+    }
+
+    /// Marks how the drives treated the last recorded tick's command.
+    pub fn applied(&mut self, clamped: bool, held: bool) {
+        if let Some(r) = self.run.records.last_mut() {
+            r.clamped = clamped;
+            r.held = held;
+        }
+    }
+
+    /// The plant failed while integrating the last recorded tick (e.g. left the workspace).
+    pub fn plant_failed(&mut self, reason: String) {
+        let tick = self.run.records.last().map_or(0, |r| r.sample.k + 1);
+        self.run.outcome = Outcome::Diverged { tick, reason };
+    }
+
+    /// Stores the state after the last tick and returns the run.
+    pub fn finish(mut self, after: Option<(PlantSample, Vec3)>) -> LawRun {
+        self.run.after = after;
+        self.run
+    }
+}

@@ -1,0 +1,323 @@
+//! Human-readable results: the terminal table and `report.md`, shaped like the paper's
+//! Tables II–IV, plus the columns the paper does not have.
+
+use crate::analysis::Mismatch;
+use crate::metrics::LawMetrics;
+use deltaloop_protocol::config::PathKind;
+use deltaloop_protocol::{Law, Preset, RunConfig};
+use std::fmt::Write;
+
+/// The paper's published RMS errors (rad) for TDC+IS and TDC+IS+STA (Tables II–IV).
+pub fn paper_rms(path: PathKind, law: Law) -> Option<[f64; 3]> {
+    let t = match (path, law) {
+        (PathKind::S1, Law::TdeIs) => [3.463e-4, 3.587e-4, 3.587e-4],
+        (PathKind::S1, Law::TdcIsSta) => [3.423e-4, 3.583e-4, 3.583e-4],
+        (PathKind::S2, Law::TdeIs) => [0.0056, 0.0069, 0.0069],
+        (PathKind::S2, Law::TdcIsSta) => [0.0044, 0.0047, 0.0047],
+        (PathKind::S3, Law::TdeIs) => [7.265e-4, 1.622e-4, 1.608e-4],
+        (PathKind::S3, Law::TdcIsSta) => [5.592e-4, 1.776e-4, 1.752e-4],
+        _ => return None,
+    };
+    Some(t)
+}
+
+/// The paper's table number for a scenario.
+pub fn paper_table(path: PathKind) -> Option<&'static str> {
+    match path {
+        PathKind::S1 => Some("II"),
+        PathKind::S2 => Some("III"),
+        PathKind::S3 => Some("IV"),
+        PathKind::Custom => None,
+    }
+}
+
+fn e(x: f64) -> String {
+    format!("{x:.3e}")
+}
+
+fn status(m: &LawMetrics) -> String {
+    match m.diverged_at_tick {
+        None => "ok".into(),
+        Some(k) => format!("diverged at tick {k}"),
+    }
+}
+
+/// The terminal table: one line per law.
+pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "{} ({:?}, preset {}, {} ticks of {} ms)",
+        cfg.name,
+        cfg.scenario.path,
+        cfg.controller.preset.name(),
+        metrics.first().map_or(0, |m| m.ticks),
+        cfg.loop_.ts_s * 1e3
+    );
+    let _ = writeln!(
+        s,
+        "{:<11} {:>10} {:>10} {:>10} {:>9} {:>9} {:>8} {:>7} {:>10}  status",
+        "law", "rms q1", "rms q2", "rms q3", "task mm", "max|tau|", "HF shr", "clamps", "TDE rms"
+    );
+    for m in metrics {
+        let tde = m
+            .tde_err_rms
+            .map_or("-".into(), |t| e(t.into_iter().fold(0.0, f64::max)));
+        let _ = writeln!(
+            s,
+            "{:<11} {:>10} {:>10} {:>10} {:>9.4} {:>9.3} {:>8.4} {:>7} {:>10}  {}",
+            m.law,
+            e(m.rms_rad[0]),
+            e(m.rms_rad[1]),
+            e(m.rms_rad[2]),
+            m.task_rms_mm,
+            m.max_abs_tau_nm.into_iter().fold(0.0, f64::max),
+            m.hf_torque_share.into_iter().fold(0.0, f64::max),
+            m.clamp_count,
+            tde,
+            status(m)
+        );
+    }
+    s
+}
+
+/// Whether a run shows the limit cycle of a mismatched M̄: sustained torque oscillation with a
+/// dominant line above 10 Hz, hitting the clamp or carrying a large share of the torque energy.
+pub fn limit_cycle(m: &LawMetrics) -> bool {
+    let peak = m.torque_peak_hz.into_iter().fold(0.0, f64::max);
+    let share = m.hf_torque_share.into_iter().fold(0.0, f64::max);
+    m.law != "pid" && peak > 10.0 && (m.clamp_count > 0 || share > 0.05)
+}
+
+/// `report.md` for one scenario run.
+pub fn markdown(
+    cfg: &RunConfig,
+    mode: &str,
+    command: &str,
+    metrics: &[LawMetrics],
+    mismatch: &Mismatch,
+) -> String {
+    let mut s = String::new();
+    let p = cfg.controller_params();
+    let _ = writeln!(
+        s,
+        "# {} — {}\n",
+        cfg.name,
+        if cfg.description.is_empty() {
+            "deltaloop run"
+        } else {
+            &cfg.description
+        }
+    );
+    let _ = writeln!(
+        s,
+        "Scenario `{:?}`, preset `{}` (M̄ = {} kg m², K_p = {}, K_d = {}, K_s = {}, φ = {} rad/s, k1 = {}, k2 = {}), \
+         friction {}, τ_max = {} N m, Ts = {} ms, TDE delay ℓ = {}, mode `{mode}`.\n",
+        cfg.scenario.path,
+        cfg.controller.preset.name(),
+        p.m_bar,
+        p.kp,
+        p.kd,
+        p.ks,
+        p.phi,
+        p.k1,
+        p.k2,
+        if cfg.plant.friction { "on" } else { "off" },
+        cfg.plant.tau_max_nm,
+        cfg.loop_.ts_s * 1e3,
+        cfg.controller.tde_delay_samples,
+    );
+    let _ = writeln!(s, "Produced by: `{command}`\n");
+
+    let table = paper_table(cfg.scenario.path);
+    let _ = writeln!(
+        s,
+        "## RMS tracking error per joint (rad){}\n",
+        table.map_or(String::new(), |t| format!(
+            ", shaped like the paper's Table {t}"
+        ))
+    );
+    let _ = writeln!(
+        s,
+        "| Controller | Joint 1 | Joint 2 | Joint 3 | status |\n|---|---|---|---|---|"
+    );
+    for m in metrics {
+        let law = Law::parse(&m.law).expect("metrics carry valid law names");
+        let _ = writeln!(
+            s,
+            "| {} (`{}`) | {} | {} | {} | {} |",
+            law.paper_name(),
+            m.law,
+            e(m.rms_rad[0]),
+            e(m.rms_rad[1]),
+            e(m.rms_rad[2]),
+            status(m)
+        );
+    }
+    if let Some(t) = table {
+        let _ = writeln!(
+            s,
+            "\nThe paper's Table {t} (its own, unpublished robot model and Simulink):\n"
+        );
+        let _ = writeln!(
+            s,
+            "| Controller | Joint 1 | Joint 2 | Joint 3 |\n|---|---|---|---|"
+        );
+        for law in [Law::TdeIs, Law::TdcIsSta] {
+            if let Some(v) = paper_rms(cfg.scenario.path, law) {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {} |",
+                    law.paper_name(),
+                    e(v[0]),
+                    e(v[1]),
+                    e(v[2])
+                );
+            }
+        }
+    }
+
+    let _ = writeln!(s, "\n## Accuracy and torque\n");
+    let _ = writeln!(
+        s,
+        "| law | max \\|e\\| (rad) j1 / j2 / j3 | task RMS (mm) | task max (mm) | max \\|τ\\| (N m) | torque TV (N m) j1 / j2 / j3 | clamped intervals | HF share >100 Hz | HF RMS (N m) | torque peak (Hz) |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
+    let j3 = |v: [f64; 3]| format!("{} / {} / {}", e(v[0]), e(v[1]), e(v[2]));
+    let f3 = |v: [f64; 3], d: usize| format!("{:.d$} / {:.d$} / {:.d$}", v[0], v[1], v[2]);
+    for m in metrics {
+        let _ = writeln!(
+            s,
+            "| `{}` | {} | {:.4} | {:.4} | {:.3} | {} | {} | {} | {} | {} |",
+            m.law,
+            j3(m.max_abs_err_rad),
+            m.task_rms_mm,
+            m.task_max_mm,
+            m.max_abs_tau_nm.into_iter().fold(0.0, f64::max),
+            f3(m.torque_tv_nm, 1),
+            m.clamp_count,
+            f3(m.hf_torque_share, 4),
+            f3(m.hf_torque_rms_nm, 3),
+            f3(m.torque_peak_hz, 1),
+        );
+    }
+
+    let _ = writeln!(
+        s,
+        "\n## Time-delay estimation and the super-twisting gain condition (eq. 43)\n"
+    );
+    let _ = writeln!(
+        s,
+        "Ñ = N̂ − N from the plant's true velocities; δ_N = |ΔÑ|/Ts. Eq. 43 asks k2 > δ_N(δ_N + 3k1²)/(2k1²) with k1 = {}. \
+        It is a sufficient condition for an exogenous Ñ; here Ñ contains u itself, so it can fail where the law works.\n",
+        p.k1
+    );
+    let _ = writeln!(
+        s,
+        "| law | TDE error RMS (rad/s²) j1 / j2 / j3 | δ_N max (rad/s³) | δ_N p99.9 (rad/s³) | k2 demanded | k2 in use | eq. 43 holds |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|");
+    for m in metrics {
+        match (m.tde_err_rms, m.delta_n_max, m.delta_n_p999, m.k2_required) {
+            (Some(r), Some(dm), Some(dp), Some(k2)) => {
+                let _ = writeln!(
+                    s,
+                    "| `{}` | {} | {} | {} | {} | {} | {} |",
+                    m.law,
+                    j3(r),
+                    e(dm.into_iter().fold(0.0, f64::max)),
+                    e(dp.into_iter().fold(0.0, f64::max)),
+                    e(k2),
+                    m.k2_in_use,
+                    if m.eq43_holds == Some(true) {
+                        "yes"
+                    } else {
+                        "no"
+                    }
+                );
+            }
+            _ => {
+                let _ = writeln!(s, "| `{}` | n/a (no TDE) | | | | | |", m.law);
+            }
+        }
+    }
+
+    let diverged: Vec<_> = metrics.iter().filter(|m| !m.completed).collect();
+    if !diverged.is_empty() {
+        let _ = writeln!(s, "\n## Diverged runs\n");
+        for m in diverged {
+            let _ = writeln!(
+                s,
+                "- `{}` stopped at tick {} (t = {:.4} s): {}. Its metrics cover ticks 0..{} only.",
+                m.law,
+                m.diverged_at_tick.unwrap_or(0),
+                m.diverged_at_tick.unwrap_or(0) as f64 * cfg.loop_.ts_s,
+                m.diverged_reason.as_deref().unwrap_or("?"),
+                m.ticks
+            );
+        }
+    }
+
+    let _ = writeln!(s, "\n## M̄ against this plant\n");
+    let mm = mismatch;
+    let _ = writeln!(
+        s,
+        "Along this reference M(q) has eigenvalues in [{:.4}, {:.4}] kg m² (mean joint inertia {:.4}); M̄ = {} kg m², so the TDE \
+         lags the plant by Ts·M/M̄ = {:.2}–{:.2} ms. Seen through the plant, the TDC core is a PID with P = M̄K_d/Ts = {:.0} N m/rad, \
+         I = M̄K_p/Ts = {:.0} N m/(rad s), D = M̄/Ts = {:.2} N m s/rad: on the mean joint inertia it rings at {:.1} Hz with damping ratio ζ = {:.3}.\n",
+        mm.lambda_min,
+        mm.lambda_max,
+        mm.joint_inertia_mean,
+        mm.m_bar,
+        mm.tde_lag_min_s * 1e3,
+        mm.tde_lag_max_s * 1e3,
+        mm.equiv_p,
+        mm.equiv_i,
+        mm.equiv_d,
+        mm.equiv_freq_hz,
+        mm.equiv_zeta
+    );
+    let cycling: Vec<&LawMetrics> = metrics.iter().filter(|m| limit_cycle(m)).collect();
+    if cfg.controller.preset == Preset::Paper || mm.m_bar < 0.1 * mm.lambda_min {
+        let _ = writeln!(
+            s,
+            "**Why the paper's M̄ misbehaves here.** M̄ = {} kg m² is {:.0}× smaller than the smallest joint inertia of this robot \
+             (the paper's M̄ belongs to its own, unpublished robot). The TDE then carries a {:.0}–{:.0} ms lag and the core is the \
+             lightly damped PID above (ζ ≈ {:.2}, ~{:.0} Hz). The switching terms add integral action to that loop, so `tdc-is-sta` \
+             (k1 = {}) and `tde-is` with a thin boundary layer settle into a limit cycle near that frequency against the torque \
+             clamp. That is a property of the gain/plant mismatch, not an implementation bug; the `matched` preset \
+             (M̄ ≈ 0.9 λmin(M)) runs the method as intended.\n",
+            mm.m_bar,
+            mm.lambda_min / mm.m_bar,
+            mm.tde_lag_min_s * 1e3,
+            mm.tde_lag_max_s * 1e3,
+            mm.equiv_zeta,
+            mm.equiv_freq_hz,
+            p.k1
+        );
+    }
+    if cycling.is_empty() {
+        let _ = writeln!(
+            s,
+            "No law shows a sustained torque oscillation in this run (dominant torque line > 10 Hz together with clamping or HF share > 5 %)."
+        );
+    } else {
+        let _ = writeln!(
+            s,
+            "Observed limit cycles (dominant torque line > 10 Hz with clamping or HF share > 5 %):\n"
+        );
+        for m in cycling {
+            let _ = writeln!(
+                s,
+                "- `{}`: torque peaks at {} Hz, HF share {}, clamped in {} of {} intervals, max |τ| = {:.1} N m.",
+                m.law,
+                f3(m.torque_peak_hz, 1),
+                f3(m.hf_torque_share, 3),
+                m.clamp_count,
+                m.ticks,
+                m.max_abs_tau_nm.into_iter().fold(0.0, f64::max)
+            );
+        }
+    }
+    s
+}
