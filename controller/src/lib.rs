@@ -30,3 +30,4 @@ pub fn sgn(x: f64) -> f64 {
 pub fn sat(x: f64) -> f64 {
     x.clamp(-1.0, 1.0)
 }
+pub mod process;

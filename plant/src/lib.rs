@@ -97,3 +97,4 @@ impl Default for DeltaRobot {
         Self::new(DeltaParams::default())
     }
 }
+pub mod process;

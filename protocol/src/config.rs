@@ -272,22 +272,154 @@ impl Default for ControllerSection {
     }
 }
 
-/// `[loop]`: timing of the control loop.
+/// Where and how the two loop processes run in one mode. Missing keys take the mode's default
+/// (see [`Layout::realtime_default`], [`Layout::lockstep_default`]); the resolved config lists all.
+#[derive(Clone, Debug, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Layout {
+    /// CPU for the plant process (−1: not pinned).
+    pub plant_cpu: Option<i32>,
+    /// CPU for the controller process (−1: not pinned).
+    pub controller_cpu: Option<i32>,
+    /// CPU for the supervisor's collector (−1: not pinned).
+    pub supervisor_cpu: Option<i32>,
+    /// SCHED_FIFO priority of the plant, 1..=99 (0: SCHED_OTHER).
+    pub plant_priority: Option<i32>,
+    /// SCHED_FIFO priority of the controller, 1..=99 (0: SCHED_OTHER).
+    pub controller_priority: Option<i32>,
+    /// How long a process busy-polls for its peer's message before blocking, µs.
+    pub spin_us: Option<u32>,
+    /// mlockall in both loop processes.
+    pub lock_memory: Option<bool>,
+    /// Realtime: the plant sleeps until this long before each deadline and busy-waits the rest,
+    /// absorbing the timer's wake-up latency, µs (0: sleep to the deadline).
+    pub wake_early_us: Option<u32>,
+}
+
+impl Layout {
+    /// Realtime default, the lowest tail measured on a 2-vCPU VM: plant and controller share CPU 1
+    /// under SCHED_FIFO (plant above controller), both blocking; the supervisor on CPU 0.
+    pub fn realtime_default() -> Self {
+        Self {
+            plant_cpu: Some(1),
+            controller_cpu: Some(1),
+            supervisor_cpu: Some(0),
+            plant_priority: Some(80),
+            controller_priority: Some(70),
+            spin_us: Some(0),
+            lock_memory: Some(true),
+            wake_early_us: Some(80),
+        }
+    }
+
+    /// Lockstep default, the highest cycle rate: one CPU each, busy-polling before blocking.
+    pub fn lockstep_default() -> Self {
+        Self {
+            plant_cpu: Some(0),
+            controller_cpu: Some(1),
+            supervisor_cpu: Some(-1),
+            plant_priority: Some(0),
+            controller_priority: Some(0),
+            spin_us: Some(200),
+            lock_memory: Some(false),
+            wake_early_us: Some(0),
+        }
+    }
+
+    fn fill(&mut self, d: Layout) {
+        self.plant_cpu = self.plant_cpu.or(d.plant_cpu);
+        self.controller_cpu = self.controller_cpu.or(d.controller_cpu);
+        self.supervisor_cpu = self.supervisor_cpu.or(d.supervisor_cpu);
+        self.plant_priority = self.plant_priority.or(d.plant_priority);
+        self.controller_priority = self.controller_priority.or(d.controller_priority);
+        self.spin_us = self.spin_us.or(d.spin_us);
+        self.lock_memory = self.lock_memory.or(d.lock_memory);
+        self.wake_early_us = self.wake_early_us.or(d.wake_early_us);
+    }
+
+    fn validate(&self, section: &str) -> Result<(), ConfigError> {
+        for (k, v) in [
+            ("plant_cpu", self.plant_cpu),
+            ("controller_cpu", self.controller_cpu),
+            ("supervisor_cpu", self.supervisor_cpu),
+        ] {
+            let v = v.unwrap_or(-1);
+            if !(-1..=1023).contains(&v) {
+                return Err(range(
+                    &format!("{section}.{k}"),
+                    v,
+                    "-1 (not pinned) or a CPU index 0..=1023",
+                ));
+            }
+        }
+        for (k, v) in [
+            ("plant_priority", self.plant_priority),
+            ("controller_priority", self.controller_priority),
+        ] {
+            let v = v.unwrap_or(0);
+            if !(0..=99).contains(&v) {
+                return Err(range(
+                    &format!("{section}.{k}"),
+                    v,
+                    "0 (SCHED_OTHER) or a SCHED_FIFO priority 1..=99",
+                ));
+            }
+        }
+        let spin = self.spin_us.unwrap_or(0);
+        if spin > 1_000_000 {
+            return Err(range(
+                &format!("{section}.spin_us"),
+                spin,
+                "0 <= spin_us <= 1000000 us",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The CPU of a role as an Option (−1 → None).
+    pub fn cpu(v: Option<i32>) -> Option<usize> {
+        v.and_then(|c| usize::try_from(c).ok())
+    }
+}
+
+/// `[loop]`: timing of the control loop and the process layout per mode.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LoopSection {
     /// Control period Ts, s.
     #[serde(default = "default_ts")]
     pub ts_s: f64,
+    /// Realtime: how long after its deadline the plant waits for the tick's torque, µs.
+    #[serde(default = "default_budget")]
+    pub torque_budget_us: u32,
+    /// A peer silent this long is a fault (lockstep, and the controller's wait for states), ms.
+    #[serde(default = "default_silence")]
+    pub silence_timeout_ms: u32,
+    #[serde(default)]
+    pub realtime: Layout,
+    #[serde(default)]
+    pub lockstep: Layout,
 }
 
 fn default_ts() -> f64 {
     3e-4
 }
+fn default_budget() -> u32 {
+    150
+}
+fn default_silence() -> u32 {
+    2000
+}
 
 impl Default for LoopSection {
     fn default() -> Self {
-        Self { ts_s: default_ts() }
+        Self {
+            ts_s: default_ts(),
+            torque_budget_us: default_budget(),
+            silence_timeout_ms: default_silence(),
+            realtime: Layout::default(),
+            lockstep: Layout::default(),
+        }
     }
 }
 
@@ -343,6 +475,8 @@ impl RunConfig {
                 .unwrap_or_else(|| "scenario".into());
         }
         cfg.resolve_preset();
+        cfg.loop_.realtime.fill(Layout::realtime_default());
+        cfg.loop_.lockstep.fill(Layout::lockstep_default());
         cfg.validate()?;
         Ok(cfg)
     }
@@ -459,6 +593,24 @@ impl RunConfig {
             (1e-5..=0.1).contains(&ts),
             "1e-5 <= ts_s <= 0.1 s",
         )?;
+        let budget = self.loop_.torque_budget_us;
+        if budget == 0 || f64::from(budget) * 1e-6 >= ts {
+            return Err(range(
+                "loop.torque_budget_us",
+                budget,
+                &format!("0 < torque_budget_us < Ts = {} us", ts * 1e6),
+            ));
+        }
+        let silence = self.loop_.silence_timeout_ms;
+        if !(10..=600_000).contains(&silence) {
+            return Err(range(
+                "loop.silence_timeout_ms",
+                silence,
+                "10 <= silence_timeout_ms <= 600000 ms",
+            ));
+        }
+        self.loop_.realtime.validate("loop.realtime")?;
+        self.loop_.lockstep.validate("loop.lockstep")?;
         let c = &self.controller;
         if c.laws.is_empty() {
             return Err(range(
@@ -583,6 +735,35 @@ mod tests {
         );
         let e = RunConfig::from_toml_str(&format!("{MIN}[loop]\nts_s = nan\n"), None).unwrap_err();
         assert!(e.to_string().contains("loop.ts_s` = NaN"), "{e}");
+    }
+
+    #[test]
+    fn layouts_default_per_mode_and_validate() {
+        let c = RunConfig::from_toml_str(&format!("{MIN}[loop.lockstep]\nspin_us = 5\n"), None)
+            .unwrap();
+        assert_eq!(c.loop_.realtime, Layout::realtime_default());
+        assert_eq!(c.loop_.lockstep.spin_us, Some(5));
+        assert_eq!(
+            c.loop_.lockstep.plant_cpu,
+            Layout::lockstep_default().plant_cpu
+        );
+        let e = RunConfig::from_toml_str(
+            &format!("{MIN}[loop.realtime]\nplant_priority = 120\n"),
+            None,
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("`loop.realtime.plant_priority` = 120"),
+            "{e}"
+        );
+        let e = RunConfig::from_toml_str(&format!("{MIN}[loop]\ntorque_budget_us = 300\n"), None)
+            .unwrap_err();
+        assert!(
+            e.to_string().contains("torque_budget_us` = 300")
+                && e.to_string().contains("< Ts = 300"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -29,7 +29,7 @@ enum Command {
         /// Scenario file (TOML), e.g. configs/s2-fast.toml.
         config: PathBuf,
         /// Loop transport.
-        #[arg(long, value_enum, default_value = "inproc")]
+        #[arg(long, value_enum, default_value = "realtime")]
         mode: Mode,
         /// Run only this law (repeatable): tdc, tde-is, tdc-is-sta, pid.
         #[arg(long = "law", value_parser = parse_law)]
@@ -71,6 +71,9 @@ pub fn main() -> ExitCode {
         } => run::load_config(&config, &laws)
             .and_then(|cfg| run::run(cfg, mode, out, &command_line))
             .map(|o| {
+                for n in &o.notes {
+                    eprintln!("{n}");
+                }
                 print!("{}", o.table);
                 println!("run folder: {}", o.dir.display());
             }),

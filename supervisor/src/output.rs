@@ -4,6 +4,7 @@ use crate::analysis::Mismatch;
 use crate::metrics::LawMetrics;
 use crate::record::LawRun;
 use crate::reference::JointReference;
+use crate::timing::TimingSummary;
 use anyhow::{Context, Result};
 use deltaloop_controller::ControllerParams;
 use deltaloop_protocol::RunConfig;
@@ -32,6 +33,9 @@ pub struct Summary<'a> {
     pub mismatch: &'a Mismatch,
     /// Metrics per law, keyed by law name.
     pub laws: BTreeMap<&'a str, &'a LawMetrics>,
+    /// Loop timing per law (process modes only), keyed by law name.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub timing: BTreeMap<&'a str, &'a TimingSummary>,
 }
 
 /// The default run folder: `runs/<UTC time>-<scenario name>`.

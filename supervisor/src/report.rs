@@ -3,6 +3,7 @@
 
 use crate::analysis::Mismatch;
 use crate::metrics::LawMetrics;
+use crate::timing::TimingSummary;
 use deltaloop_protocol::config::PathKind;
 use deltaloop_protocol::{Law, Preset, RunConfig};
 use std::fmt::Write;
@@ -318,6 +319,93 @@ pub fn markdown(
                 m.max_abs_tau_nm.into_iter().fold(0.0, f64::max)
             );
         }
+    }
+    s
+}
+
+/// Terminal lines with each law's loop timing (process modes).
+pub fn timing_table(metrics: &[LawMetrics], timing: &[Option<TimingSummary>]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "\ntiming (us)  {:>10} {:>10} {:>10} {:>10} {:>10} {:>8} {:>10}",
+        "rtt p50", "rtt p99.9", "rtt max", "wake p99.9", "compute p50", "misses", "miss ratio"
+    );
+    for (m, t) in metrics.iter().zip(timing) {
+        if let Some(t) = t {
+            let _ = writeln!(
+                s,
+                "{:<12} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>10.2} {:>8} {:>10.2e}",
+                m.law,
+                t.round_trip.p50_us,
+                t.round_trip.p999_us,
+                t.round_trip.max_us,
+                t.wake_lateness.p999_us,
+                t.controller_compute.p50_us,
+                t.deadline_misses,
+                t.miss_ratio
+            );
+        }
+    }
+    s
+}
+
+/// The `report.md` section on loop timing (process modes).
+pub fn timing_markdown(
+    cfg: &RunConfig,
+    mode: &str,
+    metrics: &[LawMetrics],
+    timing: &[Option<TimingSummary>],
+) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "\n## Loop timing ({mode})\n");
+    let _ = writeln!(
+        s,
+        "All times in µs from CLOCK_MONOTONIC stamps in the messages. Round trip: plant publishes the state → plant has the \
+         torque. Wake lateness: plant wake − absolute deadline. Jitter: |period − Ts|. A miss: no torque within {} µs of the \
+         deadline, so the plant held the last torque (realtime only). Full distributions: `<law>.<name>.hgrm`.\n",
+        cfg.loop_.torque_budget_us
+    );
+    let _ = writeln!(
+        s,
+        "| law | quantity | p50 | p99 | p99.9 | p99.99 | max | count |\n|---|---|---|---|---|---|---|---|"
+    );
+    for (m, t) in metrics.iter().zip(timing) {
+        let Some(t) = t else { continue };
+        for (name, p) in [
+            ("round trip", &t.round_trip),
+            ("wake lateness", &t.wake_lateness),
+            ("period jitter", &t.period_jitter),
+            ("state → controller", &t.state_to_controller),
+            ("controller compute", &t.controller_compute),
+        ] {
+            let _ = writeln!(
+                s,
+                "| `{}` | {name} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
+                m.law, p.p50_us, p.p99_us, p.p999_us, p.p9999_us, p.max_us, p.count
+            );
+        }
+    }
+    let _ = writeln!(
+        s,
+        "\n| law | ticks | deadline misses | miss ratio | late replies dropped | states skipped by controller | samples lost by supervisor (state/torque/telemetry) |\n|---|---|---|---|---|---|---|"
+    );
+    for (m, t) in metrics.iter().zip(timing) {
+        let Some(t) = t else { continue };
+        let l = &t.supervisor_lost_samples;
+        let _ = writeln!(
+            s,
+            "| `{}` | {} | {} | {:.2e} | {} | {} | {}/{}/{} |",
+            m.law,
+            t.ticks,
+            t.deadline_misses,
+            t.miss_ratio,
+            t.late_replies_dropped,
+            t.controller_skipped_states,
+            l.state,
+            l.torque,
+            l.telemetry
+        );
     }
     s
 }

@@ -4,10 +4,14 @@ use crate::analysis::mismatch;
 use crate::inproc;
 use crate::metrics::{self, LawMetrics};
 use crate::output::{self, Summary};
+use crate::procs;
 use crate::record::LawRun;
 use crate::report;
 use crate::study::Study;
+use crate::timing::{Timing, TimingSummary};
 use anyhow::{Context, Result};
+use deltaloop_plant::process::ProcMode;
+use deltaloop_protocol::ipc;
 use deltaloop_protocol::{Law, RunConfig};
 use std::path::{Path, PathBuf};
 
@@ -16,12 +20,26 @@ use std::path::{Path, PathBuf};
 pub enum Mode {
     /// Plant and controller libraries stepped together in one process.
     Inproc,
+    /// Real processes over iceoryx2; the plant waits for each torque (bit-identical to inproc).
+    Lockstep,
+    /// Real processes over iceoryx2 on an absolute 3.3 kHz clock; late torques are missed.
+    Realtime,
 }
 
 impl Mode {
     pub fn name(self) -> &'static str {
         match self {
             Mode::Inproc => "inproc",
+            Mode::Lockstep => "lockstep",
+            Mode::Realtime => "realtime",
+        }
+    }
+
+    fn process_mode(self) -> Option<ProcMode> {
+        match self {
+            Mode::Inproc => None,
+            Mode::Lockstep => Some(ProcMode::Lockstep),
+            Mode::Realtime => Some(ProcMode::Realtime),
         }
     }
 }
@@ -31,6 +49,8 @@ pub struct RunOutput {
     pub dir: PathBuf,
     pub metrics: Vec<LawMetrics>,
     pub table: String,
+    /// Lines for the user: scheduling warnings, cleaned stale resources.
+    pub notes: Vec<String>,
 }
 
 /// Loads a config and keeps only `laws` (all of the config's when empty).
@@ -46,16 +66,51 @@ pub fn load_config(path: &Path, laws: &[Law]) -> Result<RunConfig> {
 pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> Result<RunOutput> {
     let started = output::now_utc();
     let study = Study::new(cfg).context("the scenario's reference leaves the robot's workspace")?;
-    let laws = study.config.controller.laws.clone();
-    let runs: Vec<LawRun> = match mode {
-        Mode::Inproc => inproc::run_laws(&study, &laws),
+    let cfg = &study.config;
+    let dir = out.unwrap_or_else(|| output::default_run_dir(&cfg.name));
+    // The resolved config goes first: the child processes read it, and it documents a failed run.
+    std::fs::create_dir_all(&dir)
+        .with_context(|| format!("cannot create run folder {}", dir.display()))?;
+    output::write_text(&dir.join("config.toml"), &cfg.to_toml_string())?;
+    let laws = cfg.controller.laws.clone();
+    let mut notes = Vec::new();
+    let (runs, timings): (Vec<LawRun>, Vec<Option<Timing>>) = match mode.process_mode() {
+        None => (inproc::run_laws(&study, &laws), vec![None; laws.len()]),
+        Some(pm) => {
+            let removed = ipc::remove_dead_nodes();
+            if !removed.is_empty() {
+                notes.push(format!(
+                    "removed stale iceoryx2 resources of {} dead node(s): {}",
+                    removed.len(),
+                    removed.join(", ")
+                ));
+            }
+            let mut runs = Vec::new();
+            let mut timings = Vec::new();
+            for &law in &laws {
+                let r = procs::run_law(&study, law, pm, &dir)
+                    .with_context(|| format!("{} run of `{law}`", mode.name()))?;
+                for m in r.child_messages {
+                    if !notes.contains(&m) {
+                        notes.push(m);
+                    }
+                }
+                r.timing.write_hgrm(&dir, &format!("{law}."))?;
+                runs.push(r.run);
+                timings.push(Some(r.timing));
+            }
+            (runs, timings)
+        }
     };
     let metrics: Vec<LawMetrics> = runs
         .iter()
         .map(|r| metrics::compute(r, &study.reference, &study.robot, &study.params))
         .collect();
+    let timing_summaries: Vec<Option<TimingSummary>> = timings
+        .iter()
+        .map(|t| t.as_ref().map(Timing::summary))
+        .collect();
     let mm = mismatch(&study.robot, &study.reference, &study.params);
-    let cfg = &study.config;
     let summary = Summary {
         scenario: &cfg.name,
         mode: mode.name(),
@@ -71,14 +126,30 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
         controller: study.params,
         mismatch: &mm,
         laws: metrics.iter().map(|m| (m.law.as_str(), m)).collect(),
+        timing: metrics
+            .iter()
+            .zip(&timing_summaries)
+            .filter_map(|(m, t)| t.as_ref().map(|t| (m.law.as_str(), t)))
+            .collect(),
     };
-    let md = report::markdown(cfg, mode.name(), command, &metrics, &mm);
-    let dir = out.unwrap_or_else(|| output::default_run_dir(&cfg.name));
+    let mut md = report::markdown(cfg, mode.name(), command, &metrics, &mm);
+    if mode.process_mode().is_some() {
+        md.push_str(&report::timing_markdown(
+            cfg,
+            mode.name(),
+            &metrics,
+            &timing_summaries,
+        ));
+    }
     output::write_run_folder(&dir, cfg, &summary, &runs, &study.reference, &md)?;
-    let table = report::terminal_table(cfg, &metrics);
+    let mut table = report::terminal_table(cfg, &metrics);
+    if mode.process_mode().is_some() {
+        table.push_str(&report::timing_table(&metrics, &timing_summaries));
+    }
     Ok(RunOutput {
         dir,
         metrics,
         table,
+        notes,
     })
 }

@@ -1,0 +1,230 @@
+//! The controller process (`deltaloop-controller`): waits for each plant state, runs the same
+//! [`Controller::step`] every mode uses, and answers with the torque. It knows no kinematics: the
+//! joint reference arrives from the supervisor as one zero-copy slice sample.
+//!
+//! It always answers the newest state (older ones it skipped are counted in the reply). If the
+//! plant is silent longer than the silence timeout, it exits with a fault.
+//!
+//! Exit codes: 0 done, 2 bad arguments, 3 setup failed, 4 fault during the run (stderr says why).
+
+use crate::{Controller, Law, Measurement, Reference, Vec3};
+use anyhow::{Result, bail};
+use clap::Parser;
+use deltaloop_protocol::config::Layout;
+use deltaloop_protocol::ipc::{self, LOOP_BUFFER};
+use deltaloop_protocol::wire::{self, ControlMsg, RefSample, StateMsg, TorqueMsg, control};
+use deltaloop_protocol::{RunConfig, rt};
+use iceoryx2::port::subscriber::Subscriber;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum ProcMode {
+    Lockstep,
+    Realtime,
+}
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "deltaloop-controller",
+    about = "deltaloop controller process (started by `deltaloop run`)"
+)]
+struct Args {
+    /// Run id: scopes every iceoryx2 service of this run.
+    #[arg(long)]
+    run_id: String,
+    /// Resolved scenario config.
+    #[arg(long)]
+    config: PathBuf,
+    /// The control law to run.
+    #[arg(long, value_parser = Law::parse)]
+    law: Law,
+    #[arg(long, value_enum)]
+    mode: ProcMode,
+}
+
+/// Entry point of `deltaloop-controller`.
+pub fn main() -> ExitCode {
+    let args = Args::parse();
+    match run(&args) {
+        Ok(None) => ExitCode::SUCCESS,
+        Ok(Some(why)) => {
+            eprintln!("deltaloop-controller: {why}");
+            ExitCode::from(4)
+        }
+        Err(e) => {
+            eprintln!("deltaloop-controller: {e:#}");
+            ExitCode::from(3)
+        }
+    }
+}
+
+fn run(args: &Args) -> Result<Option<String>> {
+    let cfg = RunConfig::from_file(&args.config)?;
+    let layout = match args.mode {
+        ProcMode::Lockstep => cfg.loop_.lockstep.clone(),
+        ProcMode::Realtime => cfg.loop_.realtime.clone(),
+    };
+    let rid = &args.run_id;
+    let node = ipc::node("controller", rid)?;
+    let state_sub = ipc::state(&node, rid)?
+        .subscriber_builder()
+        .buffer_size(LOOP_BUFFER)
+        .create()
+        .map_err(|e| ipc::err("state subscriber")(&e))?;
+    let torque_pub = ipc::torque(&node, rid)?
+        .publisher_builder()
+        .create()
+        .map_err(|e| ipc::err("torque publisher")(&e))?;
+    let state_ready = ipc::wakeup(&node, rid, "state-ready")?
+        .listener_builder()
+        .create()
+        .map_err(|e| ipc::err("state listener")(&e))?;
+    let torque_ready = ipc::wakeup(&node, rid, "torque-ready")?
+        .notifier_builder()
+        .create()
+        .map_err(|e| ipc::err("torque notifier")(&e))?;
+    let ref_sub = ipc::reference(&node, rid)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| ipc::err("reference subscriber")(&e))?;
+    let control_svc = ipc::control(&node, rid)?;
+    let ctl_pub = control_svc
+        .publisher_builder()
+        .create()
+        .map_err(|e| ipc::err("control publisher")(&e))?;
+    let ctl_sub = control_svc
+        .subscriber_builder()
+        .create()
+        .map_err(|e| ipc::err("control subscriber")(&e))?;
+
+    let sched = rt::Sched {
+        core: Layout::cpu(layout.controller_cpu),
+        fifo_priority: layout.controller_priority.unwrap_or(0),
+        lock_memory: layout.lock_memory.unwrap_or(false),
+    };
+    for w in rt::apply(&sched) {
+        eprintln!("deltaloop-controller: warning: {w}");
+    }
+    ctl_pub
+        .send_copy(ControlMsg::new(control::READY, control::CONTROLLER))
+        .map_err(|e| ipc::err("send READY")(&e))?;
+
+    // The reference (one slice sample) and START, in either order.
+    let (mut reference, mut started) = (None, false);
+    let end = rt::now_ns() + 30_000_000_000;
+    while reference.is_none() || !started {
+        if rt::now_ns() > end {
+            bail!("no reference or START from the supervisor within 30 s");
+        }
+        if let Some(r) = ref_sub
+            .receive()
+            .map_err(|e| ipc::err("receive reference")(&e))?
+        {
+            reference = Some(r);
+        }
+        while let Some(m) = ctl_sub
+            .receive()
+            .map_err(|e| ipc::err("receive control")(&e))?
+        {
+            match m.payload().kind {
+                control::START => started = true,
+                control::STOP => return Ok(Some("stopped before start".into())),
+                _ => {}
+            }
+        }
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+    let reference = reference.expect("loop exits with a reference");
+    let rows: &[RefSample] = reference.payload();
+
+    let mut ctrl = Controller::new(
+        args.law,
+        cfg.controller_params(),
+        cfg.loop_.ts_s,
+        cfg.controller.tde_delay_samples as usize,
+    );
+    let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
+    let spin_ns = u64::from(layout.spin_us.unwrap_or(0)) * 1000;
+    loop {
+        let Some((state, skipped, rx)) = wait_state(&state_sub, &state_ready, silence_ns, spin_ns)?
+        else {
+            return Ok(Some(format!(
+                "plant silent for {} ms",
+                cfg.loop_.silence_timeout_ms
+            )));
+        };
+        if state.flags & wire::STATE_FINAL != 0 {
+            return Ok(None);
+        }
+        let Some(r) = rows.get(state.tick as usize) else {
+            return Ok(Some(format!(
+                "state tick {} is beyond the reference ({} ticks)",
+                state.tick,
+                rows.len()
+            )));
+        };
+        let out = ctrl.step(
+            &Measurement {
+                q: Vec3::from(state.q),
+                qd: Vec3::from(state.qd),
+                tau_applied: Vec3::from(state.tau_applied),
+            },
+            &Reference {
+                q: Vec3::from(r.q),
+                qd: Vec3::from(r.qd),
+                qdd: Vec3::from(r.qdd),
+            },
+        );
+        let msg = TorqueMsg {
+            tick: state.tick,
+            skipped,
+            tau: out.tau.into(),
+            s: out.s.into(),
+            n_hat: out.n_hat.into(),
+            u: out.u.into(),
+            t_state_rx_ns: rx,
+            t_publish_ns: rt::now_ns(),
+        };
+        torque_pub
+            .send_copy(msg)
+            .map_err(|e| ipc::err("publish torque")(&e))?;
+        torque_ready
+            .notify()
+            .map_err(|e| ipc::err("notify torque")(&e))?;
+    }
+}
+
+/// Waits for the next state (busy-polls for `spin_ns`, then blocks on the wake-up event) and
+/// returns the newest one, how many older ones it skipped, and when it was taken.
+fn wait_state(
+    sub: &Subscriber<ipc::Svc, StateMsg, ()>,
+    listener: &iceoryx2::port::listener::Listener<ipc::Svc>,
+    silence_ns: u64,
+    spin_ns: u64,
+) -> Result<Option<(StateMsg, u64, u64)>> {
+    let start = rt::now_ns();
+    let (spin_end, until) = (start + spin_ns, start + silence_ns);
+    loop {
+        let mut newest: Option<StateMsg> = None;
+        let mut seen = 0u64;
+        while let Some(sample) = sub.receive().map_err(|e| ipc::err("receive state")(&e))? {
+            newest = Some(*sample.payload());
+            seen += 1;
+        }
+        if let Some(s) = newest {
+            return Ok(Some((s, seen - 1, rt::now_ns())));
+        }
+        let now = rt::now_ns();
+        if now >= until {
+            return Ok(None);
+        }
+        if now < spin_end {
+            std::hint::spin_loop();
+            continue;
+        }
+        listener
+            .timed_wait(|_| {}, core::time::Duration::from_nanos(until - now))
+            .map_err(|e| ipc::err("wait for state")(&e))?;
+    }
+}

@@ -1,0 +1,315 @@
+//! The plant process (`deltaloop-plant`): steps [`Plant`] once per tick and exchanges state and
+//! torque with the controller over iceoryx2. The loop is the same `Plant::advance` every mode uses.
+//!
+//! - lockstep: publish state k, wait (without limit but the silence timeout) for τ_k, integrate.
+//! - realtime: wake at the absolute deadline t0 + k·Ts, publish state k, wait for τ_k until the
+//!   deadline plus the torque budget; if it is not there, hold the last applied torque and count a
+//!   miss. A reply for an earlier tick is dropped by tick number, never applied to the wrong tick.
+//!
+//! Exit codes: 0 done, 2 bad arguments, 3 setup failed, 4 fault during the run (stderr says why).
+
+use crate::{DeltaRobot, Plant, SimConfig, Vec3};
+use anyhow::{Context, Result, bail};
+use clap::Parser;
+use deltaloop_protocol::config::Layout;
+use deltaloop_protocol::ipc::{self, LOOP_BUFFER};
+use deltaloop_protocol::wire::{self, ControlMsg, StateMsg, TelemetryMsg, control};
+use deltaloop_protocol::{RunConfig, rt};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// The plant's simulation settings for a config (one mapping for every mode).
+pub fn sim_config(cfg: &RunConfig) -> SimConfig {
+    SimConfig {
+        ts: cfg.loop_.ts_s,
+        substeps: cfg.plant.substeps,
+        friction: cfg.plant.friction,
+        check_margins: true,
+        payload_step: None,
+    }
+}
+
+/// Which loop the processes run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ProcMode {
+    Lockstep,
+    Realtime,
+}
+
+impl ProcMode {
+    /// The layout section of the config for this mode.
+    pub fn layout(self, cfg: &RunConfig) -> &Layout {
+        match self {
+            ProcMode::Lockstep => &cfg.loop_.lockstep,
+            ProcMode::Realtime => &cfg.loop_.realtime,
+        }
+    }
+}
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "deltaloop-plant",
+    about = "deltaloop plant process (started by `deltaloop run`)"
+)]
+struct Args {
+    /// Run id: scopes every iceoryx2 service of this run.
+    #[arg(long)]
+    run_id: String,
+    /// Resolved scenario config.
+    #[arg(long)]
+    config: PathBuf,
+    #[arg(long, value_enum)]
+    mode: ProcMode,
+}
+
+/// A fault during the run: the tick and why.
+struct Fault(u64, String);
+
+/// Entry point of `deltaloop-plant`.
+pub fn main() -> ExitCode {
+    let args = Args::parse();
+    match run(&args) {
+        Ok(Ok(())) => ExitCode::SUCCESS,
+        Ok(Err(Fault(tick, why))) => {
+            eprintln!("deltaloop-plant: fault at tick {tick}: {why}");
+            ExitCode::from(4)
+        }
+        Err(e) => {
+            eprintln!("deltaloop-plant: {e:#}");
+            ExitCode::from(3)
+        }
+    }
+}
+
+fn run(args: &Args) -> Result<Result<(), Fault>> {
+    let cfg = RunConfig::from_file(&args.config)?;
+    let layout = args.mode.layout(&cfg).clone();
+    let node = ipc::node("plant", &args.run_id)?;
+    let rid = &args.run_id;
+    let state_pub = ipc::state(&node, rid)?
+        .publisher_builder()
+        .create()
+        .map_err(|e| ipc::err("state publisher")(&e))?;
+    let tel_pub = ipc::telemetry(&node, rid)?
+        .publisher_builder()
+        .create()
+        .map_err(|e| ipc::err("telemetry publisher")(&e))?;
+    let torque_sub = ipc::torque(&node, rid)?
+        .subscriber_builder()
+        .buffer_size(LOOP_BUFFER)
+        .create()
+        .map_err(|e| ipc::err("torque subscriber")(&e))?;
+    let state_ready = ipc::wakeup(&node, rid, "state-ready")?
+        .notifier_builder()
+        .create()
+        .map_err(|e| ipc::err("state notifier")(&e))?;
+    let torque_ready = ipc::wakeup(&node, rid, "torque-ready")?
+        .listener_builder()
+        .create()
+        .map_err(|e| ipc::err("torque listener")(&e))?;
+    let control_svc = ipc::control(&node, rid)?;
+    let ctl_pub = control_svc
+        .publisher_builder()
+        .create()
+        .map_err(|e| ipc::err("control publisher")(&e))?;
+    let ctl_sub = control_svc
+        .subscriber_builder()
+        .create()
+        .map_err(|e| ipc::err("control subscriber")(&e))?;
+
+    let sched = rt::Sched {
+        core: Layout::cpu(layout.plant_cpu),
+        fifo_priority: layout.plant_priority.unwrap_or(0),
+        lock_memory: layout.lock_memory.unwrap_or(false),
+    };
+    for w in rt::apply(&sched) {
+        eprintln!("deltaloop-plant: warning: {w}");
+    }
+
+    ctl_pub
+        .send_copy(ControlMsg::new(control::READY, control::PLANT))
+        .map_err(|e| ipc::err("send READY")(&e))?;
+    let start = wait_for_start(&ctl_sub, cfg.loop_.silence_timeout_ms.max(30_000))?;
+
+    let robot = DeltaRobot::default();
+    let mut plant = Plant::new(
+        robot,
+        sim_config(&cfg),
+        cfg.plant.tau_max_nm,
+        0,
+        Vec3::from(start.q0),
+    )
+    .context("initial configuration")?;
+    let ticks = start.ticks;
+    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
+    let budget_ns = u64::from(cfg.loop_.torque_budget_us) * 1000;
+    let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
+    let spin_ns = u64::from(layout.spin_us.unwrap_or(0)) * 1000;
+    let early_ns = u64::from(layout.wake_early_us.unwrap_or(0)) * 1000;
+    let max_consecutive_misses = silence_ns / ts_ns.max(1);
+    let (mut misses, mut late, mut consecutive) = (0u64, 0u64, 0u64);
+    let notify = |what: &str| {
+        state_ready
+            .notify()
+            .map(|_| ())
+            .map_err(|e| ipc::err(what.to_string())(&e))
+    };
+
+    for k in 0..=ticks + 1 {
+        let (deadline, wake) = match args.mode {
+            ProcMode::Realtime => {
+                let d = start.t0_ns + k * ts_ns;
+                rt::wake_at_ns(d, early_ns);
+                (d, rt::now_ns())
+            }
+            ProcMode::Lockstep => {
+                let now = rt::now_ns();
+                (now, now)
+            }
+        };
+        if stop_requested(&ctl_sub) {
+            return Ok(Err(Fault(k, "stopped by the supervisor".into())));
+        }
+        let s = plant.sample();
+        let mut msg = StateMsg {
+            tick: k,
+            flags: if k == ticks + 1 { wire::STATE_FINAL } else { 0 },
+            q: s.q.into(),
+            qd: s.qd.into(),
+            tau_applied: s.tau_applied.into(),
+            q_true: s.q.into(),
+            qd_true: s.qd.into(),
+            t_deadline_ns: deadline,
+            t_wake_ns: wake,
+            ..StateMsg::default()
+        };
+        msg.t_publish_ns = rt::now_ns();
+        state_pub
+            .send_copy(msg)
+            .map_err(|e| ipc::err("publish state")(&e))?;
+        notify("notify state")?;
+        if k == ticks + 1 {
+            break;
+        }
+
+        let until = match args.mode {
+            ProcMode::Realtime => deadline + budget_ns,
+            ProcMode::Lockstep => rt::now_ns() + silence_ns,
+        };
+        let reply = wait_torque(&torque_sub, &torque_ready, k, until, spin_ns, &mut late)?;
+        let mut tel = TelemetryMsg {
+            tick: k,
+            t_deadline_ns: deadline,
+            t_wake_ns: wake,
+            t_state_pub_ns: msg.t_publish_ns,
+            ..TelemetryMsg::default()
+        };
+        let cmd = match reply {
+            Some((t, rx)) => {
+                tel.t_torque_rx_ns = rx;
+                consecutive = 0;
+                Some(Vec3::from(t.tau))
+            }
+            None if args.mode == ProcMode::Lockstep => {
+                return Ok(Err(Fault(
+                    k,
+                    format!("controller silent for {} ms", cfg.loop_.silence_timeout_ms),
+                )));
+            }
+            None => {
+                misses += 1;
+                consecutive += 1;
+                tel.flags |= wire::TEL_MISSED;
+                if consecutive > max_consecutive_misses {
+                    return Ok(Err(Fault(
+                        k,
+                        format!("controller silent for {consecutive} ticks"),
+                    )));
+                }
+                None
+            }
+        };
+        match plant.advance(cmd) {
+            Ok(a) => {
+                tel.flags |= if a.clamped { wire::TEL_CLAMPED } else { 0 }
+                    | if a.held { wire::TEL_HELD } else { 0 };
+            }
+            Err(e) => {
+                let _ = ctl_pub.send_copy(ControlMsg::fault(control::PLANT, k + 1, &e.to_string()));
+                return Ok(Err(Fault(k + 1, e.to_string())));
+            }
+        }
+        tel.misses = misses;
+        tel.late_dropped = late;
+        tel_pub
+            .send_copy(tel)
+            .map_err(|e| ipc::err("publish telemetry")(&e))?;
+    }
+    // No DONE message: the final state and the exit status say it, and the controller's ports
+    // are already going away (a send now would race their teardown).
+    Ok(Ok(()))
+}
+
+/// Waits for τ_k until `until_ns`: busy-polls for `spin_ns`, then blocks on the wake-up event.
+/// Replies for other ticks are dropped (and counted in `late` when older). Returns the reply and
+/// its receive time.
+fn wait_torque(
+    sub: &iceoryx2::port::subscriber::Subscriber<ipc::Svc, wire::TorqueMsg, ()>,
+    listener: &iceoryx2::port::listener::Listener<ipc::Svc>,
+    tick: u64,
+    until_ns: u64,
+    spin_ns: u64,
+    late: &mut u64,
+) -> Result<Option<(wire::TorqueMsg, u64)>> {
+    let spin_end = rt::now_ns() + spin_ns;
+    loop {
+        while let Some(sample) = sub.receive().map_err(|e| ipc::err("receive torque")(&e))? {
+            let m = *sample.payload();
+            if m.tick == tick {
+                return Ok(Some((m, rt::now_ns())));
+            }
+            if m.tick < tick {
+                *late += 1;
+            }
+        }
+        let now = rt::now_ns();
+        if now >= until_ns {
+            return Ok(None);
+        }
+        if now < spin_end {
+            std::hint::spin_loop();
+            continue;
+        }
+        listener
+            .timed_wait(|_| {}, core::time::Duration::from_nanos(until_ns - now))
+            .map_err(|e| ipc::err("wait for torque")(&e))?;
+    }
+}
+
+fn stop_requested(sub: &iceoryx2::port::subscriber::Subscriber<ipc::Svc, ControlMsg, ()>) -> bool {
+    while let Ok(Some(m)) = sub.receive() {
+        if m.payload().kind == control::STOP {
+            return true;
+        }
+    }
+    false
+}
+
+/// Polls the control channel for START (1 ms steps) up to `timeout_ms`.
+fn wait_for_start(
+    sub: &iceoryx2::port::subscriber::Subscriber<ipc::Svc, ControlMsg, ()>,
+    timeout_ms: u32,
+) -> Result<ControlMsg> {
+    let end = rt::now_ns() + u64::from(timeout_ms) * 1_000_000;
+    while rt::now_ns() < end {
+        while let Some(m) = sub.receive().map_err(|e| ipc::err("receive control")(&e))? {
+            match m.payload().kind {
+                control::START => return Ok(*m.payload()),
+                control::STOP => bail!("stopped before start"),
+                _ => {}
+            }
+        }
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+    bail!("no START from the supervisor within {timeout_ms} ms")
+}

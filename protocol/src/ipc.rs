@@ -1,0 +1,165 @@
+//! iceoryx2 services of one run. Every process opens them through these functions, so the QoS
+//! settings agree (iceoryx2 refuses to open a service with different settings). Service and node
+//! names carry the run id: two runs, or two tests in parallel, never meet.
+
+use crate::wire::{ControlMsg, RefSample, StateMsg, TelemetryMsg, TorqueMsg};
+use iceoryx2::node::NodeView;
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::{event, publish_subscribe};
+use std::fmt::Debug;
+
+/// The iceoryx2 service variant: inter-process, shared memory.
+pub type Svc = ipc::Service;
+
+/// Per-subscriber queue of an observer (the supervisor): 2.4 s of ticks at 3.3 kHz.
+pub const OBSERVER_BUFFER: usize = 8192;
+/// Per-subscriber queue in the loop itself: the loop always takes the newest sample.
+pub const LOOP_BUFFER: usize = 4;
+
+/// A transport error, with what was being set up.
+#[derive(Debug, thiserror::Error)]
+#[error("iceoryx2: {what}: {detail}")]
+pub struct IpcError {
+    pub what: String,
+    pub detail: String,
+}
+
+/// Wraps any iceoryx2 error with context.
+pub fn err(what: impl Into<String>) -> impl FnOnce(&dyn Debug) -> IpcError {
+    let what = what.into();
+    move |e| IpcError {
+        what,
+        detail: format!("{e:?}"),
+    }
+}
+
+/// The iceoryx2 configuration, set in code (defaults), so no process looks for a config file or
+/// warns that there is none.
+pub fn config() -> Config {
+    Config::default()
+}
+
+/// A node for `role` in run `run_id`. Signal handling stays with the process.
+pub fn node(role: &str, run_id: &str) -> Result<Node<Svc>, IpcError> {
+    let name =
+        NodeName::new(&format!("deltaloop-{role}-{run_id}")).map_err(|e| err("node name")(&e))?;
+    NodeBuilder::new()
+        .name(&name)
+        .config(&config())
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<Svc>()
+        .map_err(|e| err(format!("create node for {role}"))(&e))
+}
+
+/// `deltaloop/<run id>/<what>`.
+pub fn service_name(run_id: &str, what: &str) -> Result<ServiceName, IpcError> {
+    ServiceName::new(&format!("deltaloop/{run_id}/{what}"))
+        .map_err(|e| err(format!("service name {what}"))(&e))
+}
+
+fn pubsub<T: ZeroCopySend + Debug + Copy + 'static>(
+    node: &Node<Svc>,
+    run_id: &str,
+    what: &str,
+    publishers: usize,
+    subscribers: usize,
+    buffer: usize,
+) -> Result<publish_subscribe::PortFactory<Svc, T, ()>, IpcError> {
+    node.service_builder(&service_name(run_id, what)?)
+        .publish_subscribe::<T>()
+        .max_publishers(publishers)
+        .max_subscribers(subscribers)
+        .max_nodes(4)
+        .subscriber_max_buffer_size(buffer)
+        .history_size(0)
+        // A slow observer loses its oldest samples (counted by tick gaps); it never blocks the loop.
+        .enable_safe_overflow(true)
+        .open_or_create()
+        .map_err(|e| err(format!("open service {what}"))(&e))
+}
+
+/// Plant → controller + supervisor.
+pub fn state(
+    node: &Node<Svc>,
+    run_id: &str,
+) -> Result<publish_subscribe::PortFactory<Svc, StateMsg, ()>, IpcError> {
+    pubsub(node, run_id, "state", 1, 2, OBSERVER_BUFFER)
+}
+
+/// Controller → plant + supervisor.
+pub fn torque(
+    node: &Node<Svc>,
+    run_id: &str,
+) -> Result<publish_subscribe::PortFactory<Svc, TorqueMsg, ()>, IpcError> {
+    pubsub(node, run_id, "torque", 1, 2, OBSERVER_BUFFER)
+}
+
+/// Plant → supervisor.
+pub fn telemetry(
+    node: &Node<Svc>,
+    run_id: &str,
+) -> Result<publish_subscribe::PortFactory<Svc, TelemetryMsg, ()>, IpcError> {
+    pubsub(node, run_id, "telemetry", 1, 1, OBSERVER_BUFFER)
+}
+
+/// Handshake, start, stop, faults: everyone publishes and subscribes.
+pub fn control(
+    node: &Node<Svc>,
+    run_id: &str,
+) -> Result<publish_subscribe::PortFactory<Svc, ControlMsg, ()>, IpcError> {
+    pubsub(node, run_id, "control", 3, 3, 64)
+}
+
+/// Supervisor → controller: the whole joint reference as one slice sample.
+pub fn reference(
+    node: &Node<Svc>,
+    run_id: &str,
+) -> Result<publish_subscribe::PortFactory<Svc, [RefSample], ()>, IpcError> {
+    node.service_builder(&service_name(run_id, "reference")?)
+        .publish_subscribe::<[RefSample]>()
+        .max_publishers(1)
+        .max_subscribers(1)
+        .max_nodes(4)
+        .subscriber_max_buffer_size(1)
+        .history_size(0)
+        .open_or_create()
+        .map_err(|e| err("open service reference")(&e))
+}
+
+/// A wake-up event: `state-ready` wakes the controller, `torque-ready` wakes the plant.
+pub fn wakeup(
+    node: &Node<Svc>,
+    run_id: &str,
+    what: &str,
+) -> Result<event::PortFactory<Svc>, IpcError> {
+    node.service_builder(&service_name(run_id, what)?)
+        .event()
+        .max_notifiers(2)
+        .max_listeners(2)
+        .max_nodes(4)
+        .open_or_create()
+        .map_err(|e| err(format!("open event {what}"))(&e))
+}
+
+/// Removes the resources of iceoryx2 nodes whose process died (e.g. a run killed with SIGKILL).
+/// Returns the names of the nodes it cleaned.
+pub fn remove_dead_nodes() -> Vec<String> {
+    let mut removed = Vec::new();
+    let _ = Node::<Svc>::list(&config(), |state| {
+        if let NodeState::Dead(view) = state {
+            let name = view
+                .details()
+                .as_ref()
+                .map(|d| d.name().to_string())
+                .unwrap_or_else(|| "unnamed".into());
+            if view
+                .blocking_remove_stale_resources(core::time::Duration::from_secs(1))
+                .is_ok()
+            {
+                removed.push(name);
+            }
+        }
+        CallbackProgression::Continue
+    });
+    removed
+}

@@ -1,0 +1,111 @@
+//! The real-time helpers both loop processes share: the monotonic clock, absolute sleeps, and
+//! scheduling (CPU pinning, SCHED_FIFO, mlockall, timer slack) with warnings where not permitted.
+
+/// CLOCK_MONOTONIC now, ns.
+#[inline]
+pub fn now_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes into the timespec we own; CLOCK_MONOTONIC always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// Sleeps until the absolute CLOCK_MONOTONIC time `t_ns` (clock_nanosleep, TIMER_ABSTIME), so
+/// periods do not drift; retries on signal interruption.
+#[inline]
+pub fn sleep_until_ns(t_ns: u64) {
+    let ts = libc::timespec {
+        tv_sec: (t_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (t_ns % 1_000_000_000) as libc::c_long,
+    };
+    loop {
+        // SAFETY: a valid timespec; a null remainder is allowed with TIMER_ABSTIME.
+        let r = unsafe {
+            libc::clock_nanosleep(
+                libc::CLOCK_MONOTONIC,
+                libc::TIMER_ABSTIME,
+                &ts,
+                std::ptr::null_mut(),
+            )
+        };
+        if r != libc::EINTR {
+            return;
+        }
+    }
+}
+
+/// Wakes at `t_ns` precisely: sleeps until `early_ns` before it, then busy-waits the rest.
+#[inline]
+pub fn wake_at_ns(t_ns: u64, early_ns: u64) {
+    if early_ns > 0 {
+        sleep_until_ns(t_ns.saturating_sub(early_ns));
+        while now_ns() < t_ns {
+            std::hint::spin_loop();
+        }
+    } else {
+        sleep_until_ns(t_ns);
+    }
+}
+
+/// Busy-waits `us` microseconds (the injected compute delay); reads only the clock.
+#[inline]
+pub fn spin_for_us(us: u32) {
+    let end = now_ns() + u64::from(us) * 1000;
+    while now_ns() < end {
+        std::hint::spin_loop();
+    }
+}
+
+/// How one process should be scheduled.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sched {
+    /// Pin to this CPU (None: leave the affinity alone).
+    pub core: Option<usize>,
+    /// SCHED_FIFO priority 1..=99; 0 keeps SCHED_OTHER.
+    pub fifo_priority: i32,
+    /// mlockall(MCL_CURRENT | MCL_FUTURE).
+    pub lock_memory: bool,
+}
+
+/// Applies `s` to the calling process/thread. Returns one line per thing that was not permitted
+/// (the process runs on with the fallback); never fails.
+pub fn apply(s: &Sched) -> Vec<String> {
+    let mut warnings = Vec::new();
+    // SAFETY: plain prctl/sched/mlock syscalls on the calling process with valid arguments.
+    unsafe {
+        // Timer slack 1 ns: absolute sleeps wake as close to the deadline as the kernel can.
+        libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0);
+    }
+    if let Some(core) = s.core {
+        let n = core_affinity::get_core_ids().map_or(0, |v| v.len());
+        if !core_affinity::set_for_current(core_affinity::CoreId { id: core }) {
+            warnings.push(format!(
+                "cannot pin to CPU {core} (this machine has {n}): running unpinned"
+            ));
+        }
+    }
+    if s.fifo_priority > 0 {
+        let param = libc::sched_param {
+            sched_priority: s.fifo_priority,
+        };
+        // SAFETY: as above.
+        if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } != 0 {
+            let e = std::io::Error::last_os_error();
+            warnings.push(format!(
+                "SCHED_FIFO priority {} not permitted ({e}; needs root, CAP_SYS_NICE or an rtprio limit): running SCHED_OTHER",
+                s.fifo_priority
+            ));
+        }
+    }
+    // SAFETY: as above.
+    if s.lock_memory && unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } != 0 {
+        let e = std::io::Error::last_os_error();
+        warnings.push(format!(
+            "mlockall not permitted ({e}): pages may fault in the loop"
+        ));
+    }
+    warnings
+}

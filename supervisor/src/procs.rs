@@ -1,0 +1,415 @@
+//! The process modes: one `deltaloop-plant` + `deltaloop-controller` pair per law, over iceoryx2.
+//!
+//! The supervisor creates its observer ports, spawns the pair (found next to its own executable),
+//! waits for both to report READY, hands the joint reference to the controller as one slice
+//! sample, sends START, and then only observes: it drains large queues every millisecond and never
+//! notifies or waits on the loop. Afterwards it rebuilds the run tick by tick through the same
+//! [`Recorder`] the in-process loop uses, so every metric comes from the same code.
+
+use crate::record::{LawRun, Recorder};
+use crate::study::Study;
+use crate::timing::Timing;
+use anyhow::{Context, Result, anyhow, bail};
+use deltaloop_controller::Output;
+use deltaloop_plant::process::ProcMode;
+use deltaloop_plant::{PlantSample, Vec3};
+use deltaloop_protocol::config::Layout;
+use deltaloop_protocol::ipc::{self, OBSERVER_BUFFER};
+use deltaloop_protocol::wire::{
+    self, ControlMsg, RefSample, StateMsg, TelemetryMsg, TorqueMsg, control,
+};
+use deltaloop_protocol::{Law, rt};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+/// What one law's process run produced.
+pub struct ProcessRun {
+    pub run: LawRun,
+    pub timing: Timing,
+    /// Warnings and errors the children printed (one line each).
+    pub child_messages: Vec<String>,
+}
+
+/// Where the child executables are: next to the running one.
+pub fn exe_dir() -> Result<PathBuf> {
+    let exe = std::env::current_exe().context("cannot locate the deltaloop executable")?;
+    Ok(exe.parent().map(Path::to_path_buf).unwrap_or_default())
+}
+
+/// A run id unique on this machine: pid, a per-process counter and the clock.
+pub fn new_run_id() -> String {
+    static N: AtomicU64 = AtomicU64::new(0);
+    format!(
+        "{:x}-{:x}-{:x}",
+        std::process::id(),
+        N.fetch_add(1, Ordering::Relaxed),
+        rt::now_ns() & 0xffff_ffff
+    )
+}
+
+/// Kills and reaps a child on drop, so no process outlives the run, whatever happens.
+struct Reaped(Option<Child>, &'static str);
+
+impl Reaped {
+    fn exited(&mut self) -> Option<std::process::ExitStatus> {
+        self.0.as_mut().and_then(|c| c.try_wait().ok().flatten())
+    }
+}
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        if let Some(mut c) = self.0.take() {
+            if c.try_wait().ok().flatten().is_none() {
+                // Ask politely first; then make sure.
+                // SAFETY: sending SIGTERM to our own child's pid.
+                unsafe { libc::kill(c.id() as i32, libc::SIGTERM) };
+                for _ in 0..200 {
+                    if c.try_wait().ok().flatten().is_some() {
+                        return;
+                    }
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                let _ = c.kill();
+            }
+            let _ = c.wait();
+        }
+    }
+}
+
+fn spawn(exe: &Path, args: &[String], log: &Path, name: &'static str) -> Result<Reaped> {
+    let err =
+        std::fs::File::create(log).with_context(|| format!("cannot create {}", log.display()))?;
+    let child = Command::new(exe)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(err)
+        .spawn()
+        .with_context(|| format!("cannot start {} (expected next to deltaloop: build all binaries with `cargo build --release`)", exe.display()))?;
+    Ok(Reaped(Some(child), name))
+}
+
+fn read_log(path: &Path) -> Vec<String> {
+    std::fs::read_to_string(path)
+        .unwrap_or_default()
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .map(str::to_string)
+        .collect()
+}
+
+/// Runs `law` over the study with a real process pair. `run_dir` holds the resolved config the
+/// children read and receives their stderr logs.
+pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Result<ProcessRun> {
+    let cfg = &study.config;
+    let layout = mode.layout(cfg).clone();
+    let config_path = run_dir.join("config.toml");
+    let rid = new_run_id();
+    let node = ipc::node("supervisor", &rid)?;
+    let state_sub = ipc::state(&node, &rid)?
+        .subscriber_builder()
+        .buffer_size(OBSERVER_BUFFER)
+        .create()
+        .map_err(|e| ipc::err("state observer")(&e))?;
+    let torque_sub = ipc::torque(&node, &rid)?
+        .subscriber_builder()
+        .buffer_size(OBSERVER_BUFFER)
+        .create()
+        .map_err(|e| ipc::err("torque observer")(&e))?;
+    let tel_sub = ipc::telemetry(&node, &rid)?
+        .subscriber_builder()
+        .buffer_size(OBSERVER_BUFFER)
+        .create()
+        .map_err(|e| ipc::err("telemetry observer")(&e))?;
+    let control_svc = ipc::control(&node, &rid)?;
+    let ctl_pub = control_svc
+        .publisher_builder()
+        .create()
+        .map_err(|e| ipc::err("control publisher")(&e))?;
+    let ctl_sub = control_svc
+        .subscriber_builder()
+        .create()
+        .map_err(|e| ipc::err("control subscriber")(&e))?;
+    let rows = &study.reference.rows;
+    let ref_pub = ipc::reference(&node, &rid)?
+        .publisher_builder()
+        .initial_max_slice_len(rows.len())
+        .create()
+        .map_err(|e| ipc::err("reference publisher")(&e))?;
+
+    let exe = exe_dir()?;
+    let mode_arg = match mode {
+        ProcMode::Lockstep => "lockstep",
+        ProcMode::Realtime => "realtime",
+    };
+    let common = vec![
+        "--run-id".to_string(),
+        rid.clone(),
+        "--config".into(),
+        config_path.display().to_string(),
+        "--mode".into(),
+        mode_arg.into(),
+    ];
+    let plant_log = run_dir.join(format!("{law}.plant.log"));
+    let ctrl_log = run_dir.join(format!("{law}.controller.log"));
+    let mut plant = spawn(&exe.join("deltaloop-plant"), &common, &plant_log, "plant")?;
+    let mut ctrl_args = common.clone();
+    ctrl_args.extend(["--law".to_string(), law.name().to_string()]);
+    let mut controller = spawn(
+        &exe.join("deltaloop-controller"),
+        &ctrl_args,
+        &ctrl_log,
+        "controller",
+    )?;
+    let messages = |extra: Option<String>| -> Vec<String> {
+        let mut m = read_log(&plant_log);
+        m.extend(read_log(&ctrl_log));
+        m.extend(extra);
+        m
+    };
+
+    // Handshake: both children READY (ports created, scheduling applied).
+    let (mut plant_ready, mut ctrl_ready) = (false, false);
+    let deadline = rt::now_ns() + 30_000_000_000;
+    while !(plant_ready && ctrl_ready) {
+        while let Some(m) = ctl_sub
+            .receive()
+            .map_err(|e| ipc::err("receive control")(&e))?
+        {
+            match (m.payload().kind, m.payload().from) {
+                (control::READY, control::PLANT) => plant_ready = true,
+                (control::READY, control::CONTROLLER) => ctrl_ready = true,
+                _ => {}
+            }
+        }
+        for child in [&mut plant, &mut controller] {
+            if let Some(status) = child.exited() {
+                bail!(
+                    "{} exited before the run started ({status}): {}",
+                    child.1,
+                    messages(None).join(" | ")
+                );
+            }
+        }
+        if rt::now_ns() > deadline {
+            bail!(
+                "the plant/controller pair did not report ready within 30 s: {}",
+                messages(None).join(" | ")
+            );
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+
+    // The joint reference, one zero-copy slice sample.
+    let sample = ref_pub
+        .loan_slice_uninit(rows.len())
+        .map_err(|e| ipc::err("loan reference")(&e))?;
+    let sample = sample.write_from_fn(|k| {
+        let j = &rows[k].joint;
+        RefSample {
+            q: j.q.into(),
+            qd: j.qd.into(),
+            qdd: j.qdd.into(),
+        }
+    });
+    sample.send().map_err(|e| ipc::err("send reference")(&e))?;
+
+    let sched_warnings = rt::apply(&rt::Sched {
+        core: Layout::cpu(layout.supervisor_cpu),
+        fifo_priority: 0,
+        lock_memory: false,
+    });
+    let n = study.reference.n as u64;
+    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
+    let mut start = ControlMsg::new(control::START, control::SUPERVISOR);
+    start.ticks = n;
+    start.q0 = study.reference.q0().into();
+    // Give the controller time to take the reference before tick 0.
+    start.t0_ns = rt::now_ns() + 20_000_000;
+    ctl_pub
+        .send_copy(start)
+        .map_err(|e| ipc::err("send START")(&e))?;
+
+    // Observe until the plant is done (or failed) and both children have exited.
+    let len = n as usize + 2;
+    let mut states: Vec<Option<StateMsg>> = vec![None; len];
+    let mut torques: Vec<Option<TorqueMsg>> = vec![None; len];
+    let mut tels: Vec<Option<TelemetryMsg>> = vec![None; len];
+    let mut fault: Option<(u64, String)> = None;
+    let expected_ns = (n + 2) * ts_ns * 20 + 10_000_000_000;
+    let give_up =
+        rt::now_ns() + expected_ns.max(u64::from(cfg.loop_.silence_timeout_ms) * 3_000_000);
+    let drain = |states: &mut Vec<Option<StateMsg>>,
+                 torques: &mut Vec<Option<TorqueMsg>>,
+                 tels: &mut Vec<Option<TelemetryMsg>>,
+                 fault: &mut Option<(u64, String)>|
+     -> Result<()> {
+        while let Some(s) = state_sub
+            .receive()
+            .map_err(|e| ipc::err("observe state")(&e))?
+        {
+            if let Some(slot) = states.get_mut(s.payload().tick as usize) {
+                *slot = Some(*s.payload());
+            }
+        }
+        while let Some(s) = torque_sub
+            .receive()
+            .map_err(|e| ipc::err("observe torque")(&e))?
+        {
+            if let Some(slot) = torques.get_mut(s.payload().tick as usize) {
+                *slot = Some(*s.payload());
+            }
+        }
+        while let Some(s) = tel_sub
+            .receive()
+            .map_err(|e| ipc::err("observe telemetry")(&e))?
+        {
+            if let Some(slot) = tels.get_mut(s.payload().tick as usize) {
+                *slot = Some(*s.payload());
+            }
+        }
+        while let Some(m) = ctl_sub
+            .receive()
+            .map_err(|e| ipc::err("receive control")(&e))?
+        {
+            if m.payload().kind == control::FAULT && fault.is_none() {
+                *fault = Some((m.payload().tick, m.payload().text()));
+            }
+        }
+        Ok(())
+    };
+    loop {
+        drain(&mut states, &mut torques, &mut tels, &mut fault)?;
+        let (p, c) = (plant.exited(), controller.exited());
+        if p.is_some() && c.is_some() {
+            break;
+        }
+        if p.is_some_and(|s| !s.success()) || c.is_some_and(|s| !s.success()) {
+            // One side failed: give the other a moment to notice, then stop it.
+            std::thread::sleep(Duration::from_millis(50));
+            break;
+        }
+        if rt::now_ns() > give_up {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    drain(&mut states, &mut torques, &mut tels, &mut fault)?;
+    let plant_status = plant.exited();
+    let ctrl_status = controller.exited();
+    drop(plant);
+    drop(controller);
+
+    let mut child_messages = messages(None);
+    child_messages.extend(
+        sched_warnings
+            .into_iter()
+            .map(|w| format!("deltaloop: warning: {w}")),
+    );
+    let timing = Timing::from_streams(
+        &states,
+        &torques,
+        &tels,
+        n,
+        ts_ns,
+        mode == ProcMode::Realtime,
+    );
+    let run = rebuild(
+        law,
+        study,
+        &states,
+        &torques,
+        &tels,
+        fault.as_ref(),
+        plant_status,
+        ctrl_status,
+        &child_messages,
+    )?;
+    Ok(ProcessRun {
+        run,
+        timing,
+        child_messages,
+    })
+}
+
+/// Replays the observed streams through the [`Recorder`], exactly as the in-process loop fills it.
+#[allow(clippy::too_many_arguments)]
+fn rebuild(
+    law: Law,
+    study: &Study,
+    states: &[Option<StateMsg>],
+    torques: &[Option<TorqueMsg>],
+    tels: &[Option<TelemetryMsg>],
+    fault: Option<&(u64, String)>,
+    plant_status: Option<std::process::ExitStatus>,
+    ctrl_status: Option<std::process::ExitStatus>,
+    messages: &[String],
+) -> Result<LawRun> {
+    let n = study.reference.n;
+    let mut rec = Recorder::new(law, n);
+    let sample = |s: &StateMsg| {
+        (
+            PlantSample {
+                k: s.tick,
+                q: Vec3::from(s.q),
+                qd: Vec3::from(s.qd),
+                tau_applied: Vec3::from(s.tau_applied),
+            },
+            Vec3::from(s.q_true),
+            Vec3::from(s.qd_true),
+        )
+    };
+    let mut last_out: Option<Output> = None;
+    for k in 0..=n {
+        // A realtime tick whose state the controller skipped (it answers the newest) has no torque
+        // message; the plant held the previous torque. Record the command still in force.
+        let missed = tels[k].is_some_and(|m| m.flags & wire::TEL_MISSED != 0);
+        let torque = torques[k].map(|t| Output {
+            tau: Vec3::from(t.tau),
+            s: Vec3::from(t.s),
+            n_hat: Vec3::from(t.n_hat),
+            u: Vec3::from(t.u),
+        });
+        let torque = torque.or(if missed { last_out } else { None });
+        let (Some(s), Some(out)) = (states[k], torque) else {
+            // The loop ended here (fault, or a child died), or the supervisor lost the sample.
+            let why = match fault {
+                Some((tick, text)) if *tick as usize <= k + 1 => text.clone(),
+                _ if plant_status.is_none_or(|s| !s.success())
+                    || ctrl_status.is_none_or(|s| !s.success()) =>
+                {
+                    format!(
+                        "the process pair stopped at tick {k}: {}",
+                        messages.join(" | ")
+                    )
+                }
+                _ => format!("the supervisor lost tick {k} of the stream"),
+            };
+            if k == 0 {
+                return Err(anyhow!("{why}"));
+            }
+            rec.plant_failed(why);
+            return Ok(rec.finish(None));
+        };
+        let (smp, q_true, qd_true) = sample(&s);
+        last_out = Some(out);
+        if !rec.tick(smp, q_true, qd_true, &study.reference.rows[k].joint.q, out) {
+            return Ok(rec.finish(None));
+        }
+        let flags = tels[k].map_or(0, |m| m.flags);
+        rec.applied(flags & wire::TEL_CLAMPED != 0, flags & wire::TEL_HELD != 0);
+        if let Some((tick, text)) = fault
+            && *tick as usize == k + 1
+        {
+            rec.plant_failed(text.clone());
+            return Ok(rec.finish(None));
+        }
+    }
+    let after = states[n + 1].map(|s| {
+        let (smp, _, qd_true) = sample(&s);
+        (smp, qd_true)
+    });
+    Ok(rec.finish(after))
+}

@@ -1,0 +1,293 @@
+//! Loop timing from the timestamps in the messages (CLOCK_MONOTONIC ns), kept in HdrHistograms.
+//! The supervisor computes these after the fact, off the critical path.
+
+use anyhow::{Context, Result};
+use deltaloop_protocol::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
+use hdrhistogram::Histogram;
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// One named latency distribution, ns.
+#[derive(Debug, Clone)]
+pub struct Dist {
+    pub name: &'static str,
+    pub what: &'static str,
+    pub hist: Histogram<u64>,
+}
+
+impl Dist {
+    fn new(name: &'static str, what: &'static str) -> Self {
+        // 1 ns .. 100 s, 3 significant digits.
+        Self {
+            name,
+            what,
+            hist: Histogram::new_with_bounds(1, 100_000_000_000, 3).expect("valid bounds"),
+        }
+    }
+
+    fn record(&mut self, ns: u64) {
+        self.hist.saturating_record(ns.max(1));
+    }
+}
+
+/// Percentiles of one distribution, µs.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Percentiles {
+    pub count: u64,
+    pub p50_us: f64,
+    pub p99_us: f64,
+    pub p999_us: f64,
+    pub p9999_us: f64,
+    pub max_us: f64,
+}
+
+/// Counters and distributions of one run of one law.
+#[derive(Debug, Clone)]
+pub struct Timing {
+    /// Plant wake − deadline (realtime only).
+    pub wake_lateness: Dist,
+    /// |wake_k − wake_{k−1} − Ts| (realtime only).
+    pub period_jitter: Dist,
+    /// State published (plant) → taken (controller).
+    pub state_to_controller: Dist,
+    /// Controller: state taken → torque published.
+    pub compute: Dist,
+    /// Plant: state published → torque received.
+    pub round_trip: Dist,
+    /// Ticks that got a command (0..=N).
+    pub ticks: u64,
+    /// Torques that missed their deadline (realtime).
+    pub misses: u64,
+    /// Late replies the plant dropped by tick number.
+    pub late_dropped: u64,
+    /// States the controller skipped to answer the newest.
+    pub skipped: u64,
+    /// Samples the supervisor did not receive (its queue overflowed): state, torque, telemetry.
+    pub lost: [u64; 3],
+}
+
+/// `summary.json` timing block.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct TimingSummary {
+    pub ticks: u64,
+    pub deadline_misses: u64,
+    pub miss_ratio: f64,
+    pub late_replies_dropped: u64,
+    pub controller_skipped_states: u64,
+    pub supervisor_lost_samples: LostSamples,
+    pub wake_lateness: Percentiles,
+    pub period_jitter: Percentiles,
+    pub state_to_controller: Percentiles,
+    pub controller_compute: Percentiles,
+    pub round_trip: Percentiles,
+}
+
+/// Samples the supervisor lost per stream.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct LostSamples {
+    pub state: u64,
+    pub torque: u64,
+    pub telemetry: u64,
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Self {
+            wake_lateness: Dist::new(
+                "wake_lateness",
+                "plant wake time minus its absolute deadline",
+            ),
+            period_jitter: Dist::new("period_jitter", "|wake(k) - wake(k-1) - Ts|"),
+            state_to_controller: Dist::new(
+                "state_to_controller",
+                "state published by the plant -> taken by the controller",
+            ),
+            compute: Dist::new(
+                "controller_compute",
+                "controller: state taken -> torque published",
+            ),
+            round_trip: Dist::new("round_trip", "plant: state published -> torque received"),
+            ticks: 0,
+            misses: 0,
+            late_dropped: 0,
+            skipped: 0,
+            lost: [0; 3],
+        }
+    }
+}
+
+impl Timing {
+    /// Builds the distributions from the three streams, each indexed by tick (None where lost).
+    pub fn from_streams(
+        states: &[Option<StateMsg>],
+        torques: &[Option<TorqueMsg>],
+        tels: &[Option<TelemetryMsg>],
+        ticks: u64,
+        ts_ns: u64,
+        realtime: bool,
+    ) -> Self {
+        let mut t = Timing {
+            ticks: ticks + 1,
+            ..Timing::default()
+        };
+        let n = (ticks + 1) as usize;
+        t.lost = [
+            states.iter().take(n + 1).filter(|s| s.is_none()).count() as u64,
+            torques.iter().take(n).filter(|s| s.is_none()).count() as u64,
+            tels.iter().take(n).filter(|s| s.is_none()).count() as u64,
+        ];
+        let mut prev_wake: Option<u64> = None;
+        for k in 0..n {
+            let (s, q, m) = (
+                states.get(k).copied().flatten(),
+                torques.get(k).copied().flatten(),
+                tels.get(k).copied().flatten(),
+            );
+            if let Some(m) = m {
+                if realtime {
+                    t.wake_lateness
+                        .record(m.t_wake_ns.saturating_sub(m.t_deadline_ns));
+                    if let Some(p) = prev_wake {
+                        t.period_jitter
+                            .record(m.t_wake_ns.saturating_sub(p).abs_diff(ts_ns));
+                    }
+                }
+                prev_wake = Some(m.t_wake_ns);
+                if m.flags & wire::TEL_MISSED != 0 {
+                    t.misses += 1;
+                } else if m.t_torque_rx_ns > 0 {
+                    t.round_trip
+                        .record(m.t_torque_rx_ns.saturating_sub(m.t_state_pub_ns));
+                }
+                t.late_dropped = t.late_dropped.max(m.late_dropped);
+            } else {
+                prev_wake = None;
+            }
+            if let (Some(s), Some(q)) = (s, q) {
+                t.state_to_controller
+                    .record(q.t_state_rx_ns.saturating_sub(s.t_publish_ns));
+            }
+            if let Some(q) = q {
+                t.compute
+                    .record(q.t_publish_ns.saturating_sub(q.t_state_rx_ns));
+                t.skipped += q.skipped;
+            }
+        }
+        t
+    }
+
+    fn dists(&self) -> [&Dist; 5] {
+        [
+            &self.wake_lateness,
+            &self.period_jitter,
+            &self.state_to_controller,
+            &self.compute,
+            &self.round_trip,
+        ]
+    }
+
+    /// Percentiles and counters for `summary.json`.
+    pub fn summary(&self) -> TimingSummary {
+        let p = |d: &Dist| percentiles(&d.hist);
+        TimingSummary {
+            ticks: self.ticks,
+            deadline_misses: self.misses,
+            miss_ratio: self.misses as f64 / self.ticks.max(1) as f64,
+            late_replies_dropped: self.late_dropped,
+            controller_skipped_states: self.skipped,
+            supervisor_lost_samples: LostSamples {
+                state: self.lost[0],
+                torque: self.lost[1],
+                telemetry: self.lost[2],
+            },
+            wake_lateness: p(&self.wake_lateness),
+            period_jitter: p(&self.period_jitter),
+            state_to_controller: p(&self.state_to_controller),
+            controller_compute: p(&self.compute),
+            round_trip: p(&self.round_trip),
+        }
+    }
+
+    /// Writes one `<prefix><name>.hgrm` percentile file per distribution into `dir`.
+    pub fn write_hgrm(&self, dir: &Path, prefix: &str) -> Result<()> {
+        for d in self.dists() {
+            let path = dir.join(format!("{prefix}{}.hgrm", d.name));
+            std::fs::write(&path, hgrm(&d.hist, d.what))
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        Ok(())
+    }
+}
+
+/// p50/p99/p99.9/p99.99/max of a histogram of ns, in µs (zeros for an empty histogram).
+pub fn percentiles(h: &Histogram<u64>) -> Percentiles {
+    let q = |p: f64| {
+        if h.is_empty() {
+            0.0
+        } else {
+            h.value_at_quantile(p) as f64 / 1e3
+        }
+    };
+    Percentiles {
+        count: h.len(),
+        p50_us: q(0.5),
+        p99_us: q(0.99),
+        p999_us: q(0.999),
+        p9999_us: q(0.9999),
+        max_us: if h.is_empty() {
+            0.0
+        } else {
+            h.max() as f64 / 1e3
+        },
+    }
+}
+
+/// The standard HdrHistogram percentile-distribution text (values in µs), as written by
+/// `outputPercentileDistribution` and read by the HdrHistogram plotter.
+pub fn hgrm(h: &Histogram<u64>, what: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# {what}; values in microseconds");
+    let _ = writeln!(
+        s,
+        "{:>12} {:>14} {:>10} {:>14}\n",
+        "Value", "Percentile", "TotalCount", "1/(1-Percentile)"
+    );
+    if !h.is_empty() {
+        for v in h.iter_quantiles(5) {
+            let pct = v.quantile_iterated_to();
+            let inv = if pct < 1.0 {
+                format!("{:>14.2}", 1.0 / (1.0 - pct))
+            } else {
+                format!("{:>14}", "inf")
+            };
+            let _ = writeln!(
+                s,
+                "{:>12.3} {:>14.12} {:>10} {inv}",
+                v.value_iterated_to() as f64 / 1e3,
+                pct,
+                v.count_since_last_iteration()
+            );
+        }
+    }
+    let mean = if h.is_empty() { 0.0 } else { h.mean() / 1e3 };
+    let sd = if h.is_empty() { 0.0 } else { h.stdev() / 1e3 };
+    let _ = writeln!(s, "#[Mean    = {mean:>12.3}, StdDeviation   = {sd:>12.3}]");
+    let _ = writeln!(
+        s,
+        "#[Max     = {:>12.3}, Total count    = {:>12}]",
+        if h.is_empty() {
+            0.0
+        } else {
+            h.max() as f64 / 1e3
+        },
+        h.len()
+    );
+    let _ = writeln!(
+        s,
+        "#[Buckets = {:>12}, SubBuckets     = {:>12}]",
+        h.buckets(),
+        h.distinct_values()
+    );
+    s
+}
