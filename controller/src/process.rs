@@ -110,33 +110,40 @@ fn run(args: &Args) -> Result<Option<String>> {
         .send_copy(ControlMsg::new(control::READY, control::CONTROLLER))
         .map_err(|e| ipc::err("send READY")(&e))?;
 
-    // The reference (one slice sample) and START, in either order.
-    let (mut reference, mut started) = (None, false);
+    // Handshake: the reference (one slice sample), then ARMED, then START.
     let end = rt::now_ns() + 30_000_000_000;
-    while reference.is_none() || !started {
-        if rt::now_ns() > end {
-            bail!("no reference or START from the supervisor within 30 s");
-        }
+    let reference = loop {
         if let Some(r) = ref_sub
             .receive()
             .map_err(|e| ipc::err("receive reference")(&e))?
         {
-            reference = Some(r);
+            break r;
         }
-        while let Some(m) = ctl_sub
-            .receive()
-            .map_err(|e| ipc::err("receive control")(&e))?
-        {
-            match m.payload().kind {
-                control::START => started = true,
-                control::STOP => return Ok(Some("stopped before start".into())),
-                _ => {}
-            }
+        if drain_control(&ctl_sub)?.1 {
+            return Ok(Some("stopped before start".into()));
+        }
+        if rt::now_ns() > end {
+            bail!("no reference from the supervisor within 30 s");
         }
         std::thread::sleep(std::time::Duration::from_millis(1));
-    }
-    let reference = reference.expect("loop exits with a reference");
+    };
     let rows: &[RefSample] = reference.payload();
+    // Touch every row now, so no tick page-faults on its reference; then report ARMED.
+    std::hint::black_box(rows.iter().map(|r| r.q[0]).sum::<f64>());
+    ctl_pub
+        .send_copy(ControlMsg::new(control::ARMED, control::CONTROLLER))
+        .map_err(|e| ipc::err("send ARMED")(&e))?;
+    loop {
+        match drain_control(&ctl_sub)? {
+            (_, true) => return Ok(Some("stopped before start".into())),
+            (true, _) => break,
+            _ => {}
+        }
+        if rt::now_ns() > end {
+            bail!("no START from the supervisor within 30 s");
+        }
+        std::thread::sleep(std::time::Duration::from_micros(200));
+    }
 
     let mut ctrl = Controller::new(
         args.law,
@@ -227,4 +234,14 @@ fn wait_state(
             .timed_wait(|_| {}, core::time::Duration::from_nanos(until - now))
             .map_err(|e| ipc::err("wait for state")(&e))?;
     }
+}
+
+/// Drains the control channel: (saw START, saw STOP).
+fn drain_control(sub: &Subscriber<ipc::Svc, ControlMsg, ()>) -> Result<(bool, bool)> {
+    let (mut start, mut stop) = (false, false);
+    while let Some(m) = sub.receive().map_err(|e| ipc::err("receive control")(&e))? {
+        start |= m.payload().kind == control::START;
+        stop |= m.payload().kind == control::STOP;
+    }
+    Ok((start, stop))
 }

@@ -2,9 +2,8 @@
 //! torque with the controller over iceoryx2. The loop is the same `Plant::advance` every mode uses.
 //!
 //! - lockstep: publish state k, wait (without limit but the silence timeout) for τ_k, integrate.
-//! - realtime: wake at the absolute deadline t0 + k·Ts, publish state k, wait for τ_k until the
-//!   deadline plus the torque budget; if it is not there, hold the last applied torque and count a
-//!   miss. A reply for an earlier tick is dropped by tick number, never applied to the wrong tick.
+//! - realtime: wake at the absolute deadline t0 + k·Ts, publish state k, wait for τ_k at most the
+//!   torque budget; if it is not there, hold the last applied torque and count a miss. A reply for an earlier tick is dropped by tick number, never applied to the wrong tick.
 //!
 //! Exit codes: 0 done, 2 bad arguments, 3 setup failed, 4 fault during the run (stderr says why).
 
@@ -193,7 +192,10 @@ fn run(args: &Args) -> Result<Result<(), Fault>> {
         }
 
         let until = match args.mode {
-            ProcMode::Realtime => deadline + budget_ns,
+            // The budget runs from the state's publication, not from the deadline: after a late
+            // wake the controller still gets its chance, instead of being starved (it runs below
+            // the plant on the same CPU) while the plant races through its backlog.
+            ProcMode::Realtime => msg.t_publish_ns + budget_ns,
             ProcMode::Lockstep => rt::now_ns() + silence_ns,
         };
         let reply = wait_torque(&torque_sub, &torque_ready, k, until, spin_ns, &mut late)?;

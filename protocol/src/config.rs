@@ -389,7 +389,7 @@ pub struct LoopSection {
     /// Control period Ts, s.
     #[serde(default = "default_ts")]
     pub ts_s: f64,
-    /// Realtime: how long after its deadline the plant waits for the tick's torque, µs.
+    /// Realtime: how long after publishing a state the plant waits for its torque, µs.
     #[serde(default = "default_budget")]
     pub torque_budget_us: u32,
     /// A peer silent this long is a fault (lockstep, and the controller's wait for states), ms.

@@ -95,6 +95,8 @@ pub mod control {
     pub const STOP: u32 = 3;
     /// A child failed: `tick` and `text` say where and why.
     pub const FAULT: u32 = 4;
+    /// The controller holds the reference (mapped and touched) and can answer tick 0.
+    pub const ARMED: u32 = 6;
     /// Senders.
     pub const PLANT: u32 = 1;
     pub const CONTROLLER: u32 = 2;

@@ -43,10 +43,32 @@ enum Command {
         #[command(subcommand)]
         what: BenchCommand,
     },
+    /// Internal: the controller side of `bench loop`'s Unix-socket baseline.
+    #[command(hide = true)]
+    UdsController {
+        #[arg(long)]
+        socket: PathBuf,
+        #[arg(long)]
+        config: PathBuf,
+        #[arg(long)]
+        cpu: Option<usize>,
+    },
 }
 
 #[derive(Subcommand, Debug)]
 enum BenchCommand {
+    /// Transport cost: lockstep over iceoryx2 vs a Unix socket pair vs in-process, and a realtime run.
+    Loop {
+        /// Simulated seconds of the lockstep and inproc loops.
+        #[arg(long, default_value_t = 20.0, value_parser = bench::parse_positive_seconds)]
+        lockstep_seconds: f64,
+        /// Wall seconds of the realtime run at 3.3 kHz.
+        #[arg(long, default_value_t = 60.0, value_parser = bench::parse_positive_seconds)]
+        rt_seconds: f64,
+        /// Where the configs, logs and histograms go.
+        #[arg(long, default_value = "runs/bench-loop")]
+        out: PathBuf,
+    },
     /// Wall seconds per simulated second: the plant alone (RK4, h = Ts/10) and the in-process loop.
     Plant {
         /// Simulated seconds per measurement.
@@ -80,6 +102,19 @@ pub fn main() -> ExitCode {
         Command::Bench {
             what: BenchCommand::Plant { seconds, repeats },
         } => bench::plant(seconds, repeats),
+        Command::Bench {
+            what:
+                BenchCommand::Loop {
+                    lockstep_seconds,
+                    rt_seconds,
+                    out,
+                },
+        } => crate::bench_loop::run(lockstep_seconds, rt_seconds, &out),
+        Command::UdsController {
+            socket,
+            config,
+            cpu,
+        } => crate::bench_loop::uds_controller(&socket, &config, cpu),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,6 +3,7 @@
 
 pub mod analysis;
 pub mod bench;
+pub mod bench_loop;
 pub mod cli;
 pub mod inproc;
 pub mod metrics;

@@ -33,6 +33,9 @@ pub struct Summary<'a> {
     pub mismatch: &'a Mismatch,
     /// Metrics per law, keyed by law name.
     pub laws: BTreeMap<&'a str, &'a LawMetrics>,
+    /// The iceoryx2 run id of each law's process pair (process modes only).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub run_ids: BTreeMap<&'a str, &'a str>,
     /// Loop timing per law (process modes only), keyed by law name.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub timing: BTreeMap<&'a str, &'a TimingSummary>,

@@ -26,6 +26,8 @@ use std::time::Duration;
 
 /// What one law's process run produced.
 pub struct ProcessRun {
+    /// The run id that scoped this pair's iceoryx2 services and nodes.
+    pub run_id: String,
     pub run: LawRun,
     pub timing: Timing,
     /// Warnings and errors the children printed (one line each).
@@ -216,6 +218,32 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
     });
     sample.send().map_err(|e| ipc::err("send reference")(&e))?;
 
+    // ARMED: the controller holds (and has touched) the reference.
+    let deadline = rt::now_ns() + 30_000_000_000;
+    'armed: loop {
+        while let Some(m) = ctl_sub
+            .receive()
+            .map_err(|e| ipc::err("receive control")(&e))?
+        {
+            if m.payload().kind == control::ARMED {
+                break 'armed;
+            }
+        }
+        if let Some(status) = controller.exited() {
+            bail!(
+                "controller exited before the run started ({status}): {}",
+                messages(None).join(" | ")
+            );
+        }
+        if rt::now_ns() > deadline {
+            bail!(
+                "the controller did not take the reference within 30 s: {}",
+                messages(None).join(" | ")
+            );
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    }
+
     let sched_warnings = rt::apply(&rt::Sched {
         core: Layout::cpu(layout.supervisor_cpu),
         fifo_priority: 0,
@@ -226,8 +254,9 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
     let mut start = ControlMsg::new(control::START, control::SUPERVISOR);
     start.ticks = n;
     start.q0 = study.reference.q0().into();
-    // Give the controller time to take the reference before tick 0.
-    start.t0_ns = rt::now_ns() + 20_000_000;
+    // Both children poll for START every ≤ 1 ms: tick 0 comes 10 ms after it.
+    start.t0_ns = rt::now_ns() + 10_000_000;
+    let steal_before = crate::timing::steal_jiffies();
     ctl_pub
         .send_copy(start)
         .map_err(|e| ipc::err("send START")(&e))?;
@@ -308,7 +337,13 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
             .into_iter()
             .map(|w| format!("deltaloop: warning: {w}")),
     );
-    let timing = Timing::from_streams(
+    write_timing_csv(
+        &run_dir.join(format!("{law}.timing.csv")),
+        &states,
+        &torques,
+        &tels,
+    )?;
+    let mut timing = Timing::from_streams(
         &states,
         &torques,
         &tels,
@@ -316,6 +351,7 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
         ts_ns,
         mode == ProcMode::Realtime,
     );
+    timing.steal = crate::timing::steal_ms_between(&steal_before, &crate::timing::steal_jiffies());
     let run = rebuild(
         law,
         study,
@@ -328,6 +364,7 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
         &child_messages,
     )?;
     Ok(ProcessRun {
+        run_id: rid,
         run,
         timing,
         child_messages,
@@ -364,7 +401,7 @@ fn rebuild(
     let mut last_out: Option<Output> = None;
     for k in 0..=n {
         // A realtime tick whose state the controller skipped (it answers the newest) has no torque
-        // message; the plant held the previous torque. Record the command still in force.
+        // message; the plant held the previous torque.
         let missed = tels[k].is_some_and(|m| m.flags & wire::TEL_MISSED != 0);
         let torque = torques[k].map(|t| Output {
             tau: Vec3::from(t.tau),
@@ -372,7 +409,19 @@ fn rebuild(
             n_hat: Vec3::from(t.n_hat),
             u: Vec3::from(t.u),
         });
-        let torque = torque.or(if missed { last_out } else { None });
+        // Its torque is the one the plant held (τᵃ_{k+1}); the other fields repeat the last reply.
+        let held = states
+            .get(k + 1)
+            .copied()
+            .flatten()
+            .map(|s| Vec3::from(s.tau_applied));
+        let torque = torque.or(match (missed, held) {
+            (true, Some(tau)) => Some(Output {
+                tau,
+                ..last_out.unwrap_or_default()
+            }),
+            _ => None,
+        });
         let (Some(s), Some(out)) = (states[k], torque) else {
             // The loop ended here (fault, or a child died), or the supervisor lost the sample.
             let why = match fault {
@@ -412,4 +461,56 @@ fn rebuild(
         (smp, qd_true)
     });
     Ok(rec.finish(after))
+}
+
+/// `<law>.timing.csv`: the raw CLOCK_MONOTONIC stamps of every tick (ns) and the plant's flags,
+/// so any latency can be recomputed. Empty cells: the supervisor did not see that message.
+fn write_timing_csv(
+    path: &Path,
+    states: &[Option<StateMsg>],
+    torques: &[Option<TorqueMsg>],
+    tels: &[Option<TelemetryMsg>],
+) -> Result<()> {
+    let mut w = csv::Writer::from_path(path)
+        .with_context(|| format!("cannot create {}", path.display()))?;
+    w.write_record([
+        "k",
+        "deadline_ns",
+        "wake_ns",
+        "state_pub_ns",
+        "ctrl_rx_ns",
+        "ctrl_pub_ns",
+        "torque_rx_ns",
+        "missed",
+        "held",
+        "clamped",
+        "ctrl_skipped",
+    ])?;
+    let opt = |v: Option<u64>| v.map_or(String::new(), |x| x.to_string());
+    for k in 0..tels.len().max(states.len()) {
+        let (s, t, m) = (
+            states.get(k).copied().flatten(),
+            torques.get(k).copied().flatten(),
+            tels.get(k).copied().flatten(),
+        );
+        if s.is_none() && t.is_none() && m.is_none() {
+            continue;
+        }
+        let flag = |bit: u32| opt(m.map(|m| u64::from(m.flags & bit != 0)));
+        w.write_record([
+            k.to_string(),
+            opt(s.map(|s| s.t_deadline_ns)),
+            opt(s.map(|s| s.t_wake_ns)),
+            opt(s.map(|s| s.t_publish_ns)),
+            opt(t.map(|t| t.t_state_rx_ns)),
+            opt(t.map(|t| t.t_publish_ns)),
+            opt(m.and_then(|m| (m.t_torque_rx_ns > 0).then_some(m.t_torque_rx_ns))),
+            flag(wire::TEL_MISSED),
+            flag(wire::TEL_HELD),
+            flag(wire::TEL_CLAMPED),
+            opt(t.map(|t| t.skipped)),
+        ])?;
+    }
+    w.flush()?;
+    Ok(())
 }

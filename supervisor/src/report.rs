@@ -388,24 +388,37 @@ pub fn timing_markdown(
     }
     let _ = writeln!(
         s,
-        "\n| law | ticks | deadline misses | miss ratio | late replies dropped | states skipped by controller | samples lost by supervisor (state/torque/telemetry) |\n|---|---|---|---|---|---|---|"
+        "\n| law | ticks | loop wall time (s) | deadline misses | miss ratio | late replies dropped | states skipped by controller | samples lost by supervisor (state/torque/telemetry) | CPU time stolen by the hypervisor (ms) |\n|---|---|---|---|---|---|---|---|---|"
     );
     for (m, t) in metrics.iter().zip(timing) {
         let Some(t) = t else { continue };
         let l = &t.supervisor_lost_samples;
+        let steal = t
+            .cpu_steal_ms
+            .iter()
+            .map(|c| format!("cpu{} {:.0}", c.cpu, c.ms))
+            .collect::<Vec<_>>()
+            .join(", ");
         let _ = writeln!(
             s,
-            "| `{}` | {} | {} | {:.2e} | {} | {} | {}/{}/{} |",
+            "| `{}` | {} | {:.2} | {} | {:.2e} | {} | {} | {}/{}/{} | {} |",
             m.law,
             t.ticks,
+            t.loop_wall_s,
             t.deadline_misses,
             t.miss_ratio,
             t.late_replies_dropped,
             t.controller_skipped_states,
             l.state,
             l.torque,
-            l.telemetry
+            l.telemetry,
+            steal
         );
     }
+    let _ = writeln!(
+        s,
+        "\nOn a virtual machine, stolen CPU time is time the hypervisor gave the (virtual) CPU to someone else: the loop \
+         cannot run then, whatever its priority. Compare misses with it before blaming the loop."
+    );
     s
 }

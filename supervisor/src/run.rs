@@ -74,6 +74,7 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
     output::write_text(&dir.join("config.toml"), &cfg.to_toml_string())?;
     let laws = cfg.controller.laws.clone();
     let mut notes = Vec::new();
+    let mut run_ids = Vec::new();
     let (runs, timings): (Vec<LawRun>, Vec<Option<Timing>>) = match mode.process_mode() {
         None => (inproc::run_laws(&study, &laws), vec![None; laws.len()]),
         Some(pm) => {
@@ -96,6 +97,7 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
                     }
                 }
                 r.timing.write_hgrm(&dir, &format!("{law}."))?;
+                run_ids.push((law, r.run_id));
                 runs.push(r.run);
                 timings.push(Some(r.timing));
             }
@@ -126,6 +128,10 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
         controller: study.params,
         mismatch: &mm,
         laws: metrics.iter().map(|m| (m.law.as_str(), m)).collect(),
+        run_ids: run_ids
+            .iter()
+            .map(|(l, id)| (l.name(), id.as_str()))
+            .collect(),
         timing: metrics
             .iter()
             .zip(&timing_summaries)

@@ -65,6 +65,10 @@ pub struct Timing {
     pub skipped: u64,
     /// Samples the supervisor did not receive (its queue overflowed): state, torque, telemetry.
     pub lost: [u64; 3],
+    /// Plant wake times of the first and last tick with telemetry, ns (the loop's span).
+    pub span_ns: (u64, u64),
+    /// Hypervisor steal per CPU during the run.
+    pub steal: Vec<StealMs>,
 }
 
 /// `summary.json` timing block.
@@ -76,6 +80,10 @@ pub struct TimingSummary {
     pub late_replies_dropped: u64,
     pub controller_skipped_states: u64,
     pub supervisor_lost_samples: LostSamples,
+    /// Wall time of the loop (first to last tick), s.
+    pub loop_wall_s: f64,
+    /// Time the hypervisor stole from each CPU during the run, ms (VMs; 0 on bare metal).
+    pub cpu_steal_ms: Vec<StealMs>,
     pub wake_lateness: Percentiles,
     pub period_jitter: Percentiles,
     pub state_to_controller: Percentiles,
@@ -113,6 +121,8 @@ impl Default for Timing {
             late_dropped: 0,
             skipped: 0,
             lost: [0; 3],
+            span_ns: (0, 0),
+            steal: Vec::new(),
         }
     }
 }
@@ -132,9 +142,19 @@ impl Timing {
             ..Timing::default()
         };
         let n = (ticks + 1) as usize;
+        // A missing torque on a tick the plant marked missed was never sent (the controller answered
+        // a newer state): that is a miss, not a loss.
+        let missed = |k: usize| {
+            tels.get(k)
+                .copied()
+                .flatten()
+                .is_some_and(|m| m.flags & wire::TEL_MISSED != 0)
+        };
         t.lost = [
             states.iter().take(n + 1).filter(|s| s.is_none()).count() as u64,
-            torques.iter().take(n).filter(|s| s.is_none()).count() as u64,
+            (0..n)
+                .filter(|&k| torques.get(k).copied().flatten().is_none() && !missed(k))
+                .count() as u64,
             tels.iter().take(n).filter(|s| s.is_none()).count() as u64,
         ];
         let mut prev_wake: Option<u64> = None;
@@ -145,6 +165,10 @@ impl Timing {
                 tels.get(k).copied().flatten(),
             );
             if let Some(m) = m {
+                if t.span_ns.0 == 0 {
+                    t.span_ns.0 = m.t_wake_ns;
+                }
+                t.span_ns.1 = m.t_wake_ns;
                 if realtime {
                     t.wake_lateness
                         .record(m.t_wake_ns.saturating_sub(m.t_deadline_ns));
@@ -177,6 +201,17 @@ impl Timing {
         t
     }
 
+    /// Loop cycles per second over the observed span (0 if fewer than two ticks).
+    pub fn cycle_hz(&self) -> f64 {
+        let (a, b) = self.span_ns;
+        let cycles = self.ticks.saturating_sub(1) as f64;
+        if b > a {
+            cycles / ((b - a) as f64 * 1e-9)
+        } else {
+            0.0
+        }
+    }
+
     fn dists(&self) -> [&Dist; 5] {
         [
             &self.wake_lateness,
@@ -201,6 +236,8 @@ impl Timing {
                 torque: self.lost[1],
                 telemetry: self.lost[2],
             },
+            loop_wall_s: self.span_ns.1.saturating_sub(self.span_ns.0) as f64 * 1e-9,
+            cpu_steal_ms: self.steal.clone(),
             wake_lateness: p(&self.wake_lateness),
             period_jitter: p(&self.period_jitter),
             state_to_controller: p(&self.state_to_controller),
@@ -290,4 +327,45 @@ pub fn hgrm(h: &Histogram<u64>, what: &str) -> String {
         h.distinct_values()
     );
     s
+}
+
+/// Per-CPU "steal" time from /proc/stat: time the hypervisor ran something else while this
+/// (virtual) CPU had work. On a VM it explains stalls no scheduling policy inside the guest can
+/// prevent. Jiffies, per CPU index; empty where /proc/stat is unavailable.
+pub fn steal_jiffies() -> Vec<(usize, u64)> {
+    let Ok(text) = std::fs::read_to_string("/proc/stat") else {
+        return Vec::new();
+    };
+    text.lines()
+        .filter_map(|l| {
+            let mut f = l.split_whitespace();
+            let cpu = f.next()?.strip_prefix("cpu")?.parse::<usize>().ok()?;
+            // user nice system idle iowait irq softirq steal
+            let steal = f.nth(7)?.parse::<u64>().ok()?;
+            Some((cpu, steal))
+        })
+        .collect()
+}
+
+/// Steal time per CPU between two readings, ms.
+pub fn steal_ms_between(before: &[(usize, u64)], after: &[(usize, u64)]) -> Vec<StealMs> {
+    // SAFETY: sysconf has no preconditions.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
+    after
+        .iter()
+        .filter_map(|&(cpu, a)| {
+            let b = before.iter().find(|(c, _)| *c == cpu)?.1;
+            Some(StealMs {
+                cpu,
+                ms: a.saturating_sub(b) as f64 * 1e3 / hz,
+            })
+        })
+        .collect()
+}
+
+/// Steal time of one CPU over a run.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct StealMs {
+    pub cpu: usize,
+    pub ms: f64,
 }
