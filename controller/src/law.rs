@@ -2,6 +2,7 @@
 //! [`Controller::step`] once per tick k with that tick's measurement and reference.
 
 use crate::{ControllerParams, Law, TdeHistory, Vec3, sat, sgn};
+use deltaloop_protocol::config::VelocitySource;
 
 /// What the controller measures at tick k.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -46,7 +47,13 @@ pub struct Controller {
     ts: f64,
     tde: TdeHistory,
     started: bool,
+    /// Where q̇ and the TDE accelerations come from.
+    velocity: VelocitySource,
+    /// q̇_{k−1}, rad/s (the rate this controller used at the previous tick).
     qd_prev: Vec3,
+    /// Encoder-difference source: q_{k−1}, q_{k−2} (rad) and τᵃ_{k−1} (N m).
+    q_prev: [Vec3; 2],
+    tau_prev: Vec3,
     /// ∫e, E_{k−1}, rad s.
     e_int: Vec3,
     /// Super-twisting integral state v_k, rad/s².
@@ -65,11 +72,20 @@ impl Controller {
             ts,
             tde: TdeHistory::new(ell.max(1), Vec3::zeros()),
             started: false,
+            velocity: VelocitySource::Measured,
             qd_prev: Vec3::zeros(),
+            q_prev: [Vec3::zeros(); 2],
+            tau_prev: Vec3::zeros(),
             e_int: Vec3::zeros(),
             v: Vec3::zeros(),
             z: Vec3::zeros(),
         }
+    }
+
+    /// Takes q̇ and the TDE accelerations from `v` (default: the measured q̇).
+    pub fn with_velocity(mut self, v: VelocitySource) -> Self {
+        self.velocity = v;
+        self
     }
 
     /// The law this controller runs.
@@ -98,18 +114,36 @@ impl Controller {
         if !self.started {
             // Before tick 0 the robot rested at q_0 under τᵃ_0: a_j = 0, τᵃ_j = τᵃ_0, z_{−1} = τᵃ_0.
             self.started = true;
+            // Encoder source: q_{−1} = q_{−2} = q_0 and τᵃ_{−1} = τᵃ_0.
+            self.started = true;
             self.tde.reset(m.tau_applied);
             self.qd_prev = m.qd;
+            self.q_prev = [m.q; 2];
+            self.tau_prev = m.tau_applied;
             self.z = m.tau_applied;
         }
         let ts = self.ts;
         let p = &self.p;
-        let accel_prev = (m.qd - self.qd_prev) / ts;
-        self.qd_prev = m.qd;
-        let (a_lag, tau_lag) = self.tde.push(accel_prev, m.tau_applied);
+        let (qd, accel_prev, tau_pair) = match self.velocity {
+            // a_{k−1} = (q̇_k − q̇_{k−1})/Ts, paired with τᵃ_k.
+            VelocitySource::Measured => (m.qd, (m.qd - self.qd_prev) / ts, m.tau_applied),
+            // q̇_k = (q_k − q_{k−1})/Ts; a_{k−1} = (q_k − 2q_{k−1} + q_{k−2})/Ts², paired with
+            // the mean of τᵃ_{k−1} and τᵃ_k (the two intervals the second difference spans).
+            VelocitySource::EncoderDifference => {
+                let [q1, q2] = self.q_prev;
+                let qd = (m.q - q1) / ts;
+                let a = (m.q - q1 * 2.0 + q2) / (ts * ts);
+                let pair = (self.tau_prev + m.tau_applied) / 2.0;
+                self.q_prev = [m.q, q1];
+                self.tau_prev = m.tau_applied;
+                (qd, a, pair)
+            }
+        };
+        self.qd_prev = qd;
+        let (a_lag, tau_lag) = self.tde.push(accel_prev, tau_pair);
 
         let e = r.q - m.q;
-        let ed = r.qd - m.qd;
+        let ed = r.qd - qd;
         self.e_int += e * ts;
         let s = ed + e * p.kd + self.e_int * p.kp;
         let n_hat = a_lag - tau_lag / p.m_bar;
@@ -262,6 +296,40 @@ mod tests {
                 "k={k}: {} vs {}",
                 out.n_hat[0],
                 a - t / p.m_bar
+            );
+        }
+    }
+
+    #[test]
+    fn encoder_source_uses_second_difference_and_mean_torque() {
+        // q_k = c k² (constant acceleration 2c/Ts²): the second difference is exact from k = 2.
+        let p = ControllerParams::preset(Preset::Matched);
+        let ts = 3e-4;
+        let mut c =
+            Controller::new(Law::Tdc, p, ts, 1).with_velocity(VelocitySource::EncoderDifference);
+        let coef = 1e-6;
+        let q = |k: usize| Vec3::repeat(coef * (k * k) as f64);
+        let tau = |k: usize| Vec3::repeat(1.0 + k as f64);
+        for k in 0..6 {
+            let out = c.step(
+                &Measurement {
+                    q: q(k),
+                    qd: Vec3::repeat(99.0),
+                    tau_applied: tau(k),
+                },
+                &Reference::default(),
+            );
+            // ℓ = 1: N̂_k = a_{k−1} − M̄⁻¹ (τᵃ_{k−1} + τᵃ_k)/2, with q_{−1} = q_{−2} = q_0, τᵃ_{−1} = τᵃ_0.
+            let qm = |j: i64| if j < 0 { q(0)[0] } else { q(j as usize)[0] };
+            let a = (qm(k as i64) - 2.0 * qm(k as i64 - 1) + qm(k as i64 - 2)) / (ts * ts);
+            let pair = (tau(k.saturating_sub(1))[0] + tau(k)[0]) / 2.0;
+            assert!((out.n_hat[0] - (a - pair / p.m_bar)).abs() < 1e-9, "k={k}");
+            // The measured q̇ (99) is ignored: s uses (q_k − q_{k−1})/Ts.
+            let qd = (qm(k as i64) - qm(k as i64 - 1)) / ts;
+            assert!(
+                (out.s[0] - (-qd - p.kd * q(k)[0] + 0.0)).abs() < 1e-3,
+                "k={k}: s {}",
+                out.s[0]
             );
         }
     }

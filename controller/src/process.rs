@@ -145,12 +145,14 @@ fn run(args: &Args) -> Result<Option<String>> {
         std::thread::sleep(std::time::Duration::from_micros(200));
     }
 
+    let compute_delay_us = cfg.controller.compute_delay_us;
     let mut ctrl = Controller::new(
         args.law,
         cfg.controller_params(),
         cfg.loop_.ts_s,
         cfg.controller.tde_delay_samples as usize,
-    );
+    )
+    .with_velocity(cfg.sensor.velocity);
     let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
     let spin_ns = u64::from(layout.spin_us.unwrap_or(0)) * 1000;
     loop {
@@ -183,6 +185,10 @@ fn run(args: &Args) -> Result<Option<String>> {
                 qdd: Vec3::from(r.qdd),
             },
         );
+        // Injected compute delay: extra wall time before the reply (realtime: real misses).
+        if compute_delay_us > 0 {
+            rt::spin_for_us(compute_delay_us);
+        }
         let msg = TorqueMsg {
             tick: state.tick,
             skipped,
@@ -230,6 +236,8 @@ fn wait_state(
             std::hint::spin_loop();
             continue;
         }
+        // The only timeout here is the silence limit (seconds), so iceoryx2's own timed wait (a
+        // blocking receive, woken directly by the notification) is precise enough and cheapest.
         listener
             .timed_wait(|_| {}, core::time::Duration::from_nanos(until - now))
             .map_err(|e| ipc::err("wait for state")(&e))?;

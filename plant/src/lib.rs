@@ -12,6 +12,7 @@ pub mod dynamics;
 pub mod error;
 pub mod kinematics;
 pub mod params;
+pub mod sensor;
 pub mod sim;
 
 pub use error::KinematicsError;

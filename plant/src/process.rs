@@ -24,8 +24,34 @@ pub fn sim_config(cfg: &RunConfig) -> SimConfig {
         substeps: cfg.plant.substeps,
         friction: cfg.plant.friction,
         check_margins: true,
-        payload_step: None,
+        payload_step: cfg.payload_step_tick().map(|tick| crate::sim::PayloadStep {
+            mass_kg: cfg.plant.payload_step_kg,
+            tick,
+        }),
     }
+}
+
+/// The plant a config describes, at rest at `q0` (rad): dynamics, drives (clamp, transport delay)
+/// and sensors. Every mode builds its plant here.
+pub fn plant_from_config(cfg: &RunConfig, q0: Vec3) -> Result<Plant, crate::KinematicsError> {
+    let plant = Plant::new(
+        DeltaRobot::default(),
+        sim_config(cfg),
+        cfg.plant.tau_max_nm,
+        cfg.plant.transport_delay_samples as usize,
+        q0,
+    )?;
+    let se = &cfg.sensor;
+    Ok(if se.is_ideal() {
+        plant
+    } else {
+        plant.with_sensor(crate::sensor::Sensor::new(crate::sensor::SensorConfig {
+            encoder_counts_per_rev: se.encoder_counts_per_rev,
+            q_noise_std: se.q_noise_std_rad,
+            qd_noise_std: se.qd_noise_std_rad_s,
+            seed: se.seed,
+        }))
+    })
 }
 
 /// Which loop the processes run.
@@ -169,15 +195,16 @@ fn run(args: &Args) -> Result<Result<(), Fault>> {
         if stop_requested(&ctl_sub) {
             return Ok(Err(Fault(k, "stopped by the supervisor".into())));
         }
-        let s = plant.sample();
+        let truth = plant.sample();
+        let s = plant.measure();
         let mut msg = StateMsg {
             tick: k,
             flags: if k == ticks + 1 { wire::STATE_FINAL } else { 0 },
             q: s.q.into(),
             qd: s.qd.into(),
             tau_applied: s.tau_applied.into(),
-            q_true: s.q.into(),
-            qd_true: s.qd.into(),
+            q_true: truth.q.into(),
+            qd_true: truth.qd.into(),
             t_deadline_ns: deadline,
             t_wake_ns: wake,
             ..StateMsg::default()
@@ -282,9 +309,14 @@ fn wait_torque(
             std::hint::spin_loop();
             continue;
         }
+        // Drop wake-ups already seen (e.g. a late reply's), so the poll sleeps until a new one.
         listener
-            .timed_wait(|_| {}, core::time::Duration::from_nanos(until_ns - now))
-            .map_err(|e| ipc::err("wait for torque")(&e))?;
+            .try_wait(|_| {})
+            .map_err(|e| ipc::err("drain torque events")(&e))?;
+        if sub.has_samples().unwrap_or(true) {
+            continue;
+        }
+        ipc::wait_event(listener, until_ns - now)?;
     }
 }
 

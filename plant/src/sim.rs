@@ -246,11 +246,12 @@ pub struct PlantSample {
     pub tau_applied: Vec3,
 }
 
-/// The whole plant: robot dynamics plus drives. Every loop mode steps this one type.
+/// The whole plant: robot dynamics, drives and sensors. Every loop mode steps this one type.
 #[derive(Clone, Debug)]
 pub struct Plant {
     sim: PlantSim,
     drives: Actuator,
+    sensor: Option<crate::sensor::Sensor>,
 }
 
 impl Plant {
@@ -269,7 +270,14 @@ impl Plant {
         Ok(Self {
             sim,
             drives: Actuator::new(tau_max, transport_delay, tau_a0),
+            sensor: None,
         })
+    }
+
+    /// Adds a sensor model: [`Plant::measure`] then perturbs q and q̇ (truth stays in [`Plant::sample`]).
+    pub fn with_sensor(mut self, s: crate::sensor::Sensor) -> Self {
+        self.sensor = Some(s);
+        self
     }
 
     /// The current sample (tick k, q, q̇, τᵃ_k).
@@ -280,6 +288,16 @@ impl Plant {
             qd: self.sim.qd(),
             tau_applied: self.drives.last_applied(),
         }
+    }
+
+    /// What the encoders report at this tick: [`Plant::sample`] with q and q̇ through the sensor
+    /// model (identical to it without one). Call once per tick: it advances the noise stream.
+    pub fn measure(&mut self) -> PlantSample {
+        let mut s = self.sample();
+        if let Some(sensor) = self.sensor.as_mut() {
+            (s.q, s.qd) = sensor.measure(&s.q, &s.qd);
+        }
+        s
     }
 
     /// Applies tick k's command (None: it did not arrive) over [t_k, t_{k+1}) and integrates.

@@ -172,6 +172,18 @@ pub enum PathKind {
     Custom,
 }
 
+impl PathKind {
+    /// Motion duration T of the paper scenarios, s (None for `custom`: the segments say).
+    pub fn paper_duration_s(self) -> Option<f64> {
+        match self {
+            PathKind::S1 => Some(0.8),
+            PathKind::S2 => Some(0.2),
+            PathKind::S3 => Some(1.2),
+            PathKind::Custom => None,
+        }
+    }
+}
+
 /// One semi-elliptic segment (plant spec §6), traversed with a rest-to-rest quintic time law.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -214,6 +226,15 @@ pub struct PlantSection {
     /// RK4 steps per control period (h = Ts/substeps).
     #[serde(default = "default_substeps")]
     pub substeps: u32,
+    /// Transport delay d: the plant applies τ_k over [t_{k+d}, t_{k+d+1}), ticks.
+    #[serde(default)]
+    pub transport_delay_samples: u32,
+    /// Payload step (plant spec §4.3): m_pay jumps from 0 to this mass, kg (0: no step).
+    #[serde(default)]
+    pub payload_step_kg: f64,
+    /// When the payload step happens, s; the first control instant at or after it. Default: T/2.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub payload_step_at_s: Option<f64>,
 }
 
 fn default_tau_max() -> f64 {
@@ -229,7 +250,69 @@ impl Default for PlantSection {
             friction: false,
             tau_max_nm: default_tau_max(),
             substeps: default_substeps(),
+            transport_delay_samples: 0,
+            payload_step_kg: 0.0,
+            payload_step_at_s: None,
         }
+    }
+}
+
+/// Where the controller's joint rates (and TDE accelerations) come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum VelocitySource {
+    /// The plant's measured q̇; a_j = (q̇_{j+1} − q̇_j)/Ts.
+    #[default]
+    Measured,
+    /// Encoder only: q̇_k = (q_k − q_{k−1})/Ts and a_j = (q_{j+1} − 2q_j + q_{j−1})/Ts², paired
+    /// with the mean applied torque of the two intervals (controller spec).
+    EncoderDifference,
+}
+
+/// `[sensor]`: measurement realism, off by default. The plant adds seeded Gaussian noise, then
+/// quantises q to encoder counts; ground truth stays noise-free for evaluation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorSection {
+    /// Encoder counts per revolution on the joint (0: no quantisation).
+    #[serde(default)]
+    pub encoder_counts_per_rev: u32,
+    /// Standard deviation of the noise added to q, rad.
+    #[serde(default)]
+    pub q_noise_std_rad: f64,
+    /// Standard deviation of the noise added to q̇, rad/s.
+    #[serde(default)]
+    pub qd_noise_std_rad_s: f64,
+    /// Seed of the noise (same seed, same run).
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// Controller velocity source.
+    #[serde(default)]
+    pub velocity: VelocitySource,
+}
+
+fn default_seed() -> u64 {
+    1
+}
+
+impl Default for SensorSection {
+    fn default() -> Self {
+        Self {
+            encoder_counts_per_rev: 0,
+            q_noise_std_rad: 0.0,
+            qd_noise_std_rad_s: 0.0,
+            seed: default_seed(),
+            velocity: VelocitySource::Measured,
+        }
+    }
+}
+
+impl SensorSection {
+    /// Whether the plant perturbs measurements at all.
+    pub fn is_ideal(&self) -> bool {
+        self.encoder_counts_per_rev == 0
+            && self.q_noise_std_rad == 0.0
+            && self.qd_noise_std_rad_s == 0.0
     }
 }
 
@@ -246,6 +329,10 @@ pub struct ControllerSection {
     /// TDE delay ℓ (L = ℓ·Ts), ticks, ≥ 1.
     #[serde(default = "default_ell")]
     pub tde_delay_samples: u32,
+    /// Extra wall time the controller process spends before each reply, µs (realtime: real
+    /// misses; lockstep: only slower; inproc: no effect).
+    #[serde(default)]
+    pub compute_delay_us: u32,
     /// Overrides (None: the preset's value). See [`ControllerParams`] for units.
     pub m_bar: Option<f64>,
     pub kp: Option<f64>,
@@ -440,6 +527,8 @@ pub struct RunConfig {
     pub controller: ControllerSection,
     #[serde(default, rename = "loop")]
     pub loop_: LoopSection,
+    #[serde(default)]
+    pub sensor: SensorSection,
 }
 
 /// Largest accepted TDE delay, ticks.
@@ -611,7 +700,55 @@ impl RunConfig {
         }
         self.loop_.realtime.validate("loop.realtime")?;
         self.loop_.lockstep.validate("loop.lockstep")?;
+        if p.transport_delay_samples > MAX_TDE_DELAY {
+            return Err(range(
+                "plant.transport_delay_samples",
+                p.transport_delay_samples,
+                "0 <= transport_delay_samples <= 10000 ticks",
+            ));
+        }
+        check(
+            "plant.payload_step_kg",
+            p.payload_step_kg,
+            (0.0..=10.0).contains(&p.payload_step_kg),
+            "0 <= payload_step_kg <= 10 kg (0: no step)",
+        )?;
+        if let Some(t) = p.payload_step_at_s {
+            check(
+                "plant.payload_step_at_s",
+                t,
+                (0.0..=3600.0).contains(&t),
+                "0 <= payload_step_at_s <= 3600 s",
+            )?;
+        }
+        let se = &self.sensor;
+        check(
+            "sensor.q_noise_std_rad",
+            se.q_noise_std_rad,
+            (0.0..=0.1).contains(&se.q_noise_std_rad),
+            "0 <= q_noise_std_rad <= 0.1 rad",
+        )?;
+        check(
+            "sensor.qd_noise_std_rad_s",
+            se.qd_noise_std_rad_s,
+            (0.0..=10.0).contains(&se.qd_noise_std_rad_s),
+            "0 <= qd_noise_std_rad_s <= 10 rad/s",
+        )?;
+        if se.encoder_counts_per_rev != 0 && se.encoder_counts_per_rev < 16 {
+            return Err(range(
+                "sensor.encoder_counts_per_rev",
+                se.encoder_counts_per_rev,
+                "0 (ideal) or 16..=4294967295 counts per revolution",
+            ));
+        }
         let c = &self.controller;
+        if c.compute_delay_us > 1_000_000 {
+            return Err(range(
+                "controller.compute_delay_us",
+                c.compute_delay_us,
+                "0 <= compute_delay_us <= 1000000 us",
+            ));
+        }
         if c.laws.is_empty() {
             return Err(range(
                 "controller.laws",
@@ -657,6 +794,32 @@ impl RunConfig {
             )?;
         }
         Ok(())
+    }
+
+    /// Motion duration T of the scenario, s.
+    pub fn motion_duration_s(&self) -> f64 {
+        self.scenario
+            .path
+            .paper_duration_s()
+            .unwrap_or_else(|| self.scenario.segments.iter().map(|s| s.duration_s).sum())
+    }
+
+    /// The control tick of the payload step, if any: the first instant k·Ts ≥ the configured
+    /// time (default T/2; plant spec §4.3: k = 1334, 334, 2000 for S1, S2, S3).
+    pub fn payload_step_tick(&self) -> Option<u64> {
+        (self.plant.payload_step_kg > 0.0).then(|| {
+            let t = self
+                .plant
+                .payload_step_at_s
+                .unwrap_or(self.motion_duration_s() / 2.0);
+            let k = (t / self.loop_.ts_s).ceil();
+            // Guard against round-off pushing an exact multiple one tick up.
+            if ((k - 1.0) * self.loop_.ts_s - t).abs() < 1e-12 * t.max(1.0) {
+                (k - 1.0) as u64
+            } else {
+                k as u64
+            }
+        })
     }
 
     /// Number of control ticks after tick 0 for the whole run: round((T + hold)/Ts).
@@ -763,6 +926,24 @@ mod tests {
             e.to_string().contains("torque_budget_us` = 300")
                 && e.to_string().contains("< Ts = 300"),
             "{e}"
+        );
+    }
+
+    #[test]
+    fn payload_step_tick_matches_spec() {
+        for (path, k) in [("s1", 1334), ("s2", 334), ("s3", 2000)] {
+            let c = RunConfig::from_toml_str(
+                &format!("[scenario]\npath = \"{path}\"\n[plant]\npayload_step_kg = 0.5\n"),
+                None,
+            )
+            .unwrap();
+            assert_eq!(c.payload_step_tick(), Some(k), "{path}");
+        }
+        assert_eq!(
+            RunConfig::from_toml_str(MIN, None)
+                .unwrap()
+                .payload_step_tick(),
+            None
         );
     }
 

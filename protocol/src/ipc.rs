@@ -163,3 +163,41 @@ pub fn remove_dead_nodes() -> Vec<String> {
     });
     removed
 }
+
+/// Waits until a wake-up event is pending, for at most `timeout_ns`, with nanosecond precision.
+/// Does not consume it: the caller drains with `listener.try_wait` when it has time (the sample
+/// is already published when the event is, so the reader need not drain before reading).
+///
+/// iceoryx2's own `Listener::timed_wait` uses a socket receive timeout, which the kernel rounds up
+/// to whole jiffies (1–4 ms): useless for a 150 µs budget. This polls the listener's file
+/// descriptor with `ppoll` (a high-resolution timer) instead. Returns whether an event is pending.
+pub fn wait_event(
+    listener: &iceoryx2::port::listener::Listener<Svc>,
+    timeout_ns: u64,
+) -> Result<bool, IpcError> {
+    use iceoryx2::prelude::FileDescriptorBased;
+    // SAFETY: the descriptor belongs to `listener`, which outlives this call; we only poll it.
+    let fd = unsafe { listener.file_descriptor().native_handle() };
+    let mut pfd = libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let ts = libc::timespec {
+        tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
+    };
+    // SAFETY: one valid pollfd we own, a valid timespec, no signal mask change.
+    let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
+    if r < 0 {
+        let e = std::io::Error::last_os_error();
+        if e.kind() == std::io::ErrorKind::Interrupted {
+            return Ok(false);
+        }
+        return Err(IpcError {
+            what: "wait for event".into(),
+            detail: e.to_string(),
+        });
+    }
+    Ok(r > 0)
+}

@@ -223,8 +223,19 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, out: &Path) -> Result<()> {
         t.ticks,
         t.miss_ratio
     );
-    let steal: Vec<String> = t.cpu_steal_ms.iter().map(|c| format!("cpu{} {:.0} ms", c.cpu, c.ms)).collect();
-    println!("    CPU time stolen by the hypervisor during the realtime run: {}", if steal.is_empty() { "n/a".into() } else { steal.join(", ") });
+    let steal: Vec<String> = t
+        .cpu_steal_ms
+        .iter()
+        .map(|c| format!("cpu{} {:.0} ms", c.cpu, c.ms))
+        .collect();
+    println!(
+        "    CPU time stolen by the hypervisor during the realtime run: {}",
+        if steal.is_empty() {
+            "n/a".into()
+        } else {
+            steal.join(", ")
+        }
+    );
     println!("histograms: {}", rt_dir.display());
     println!(
         "lockstep_iox_hz={iox_hz:.0} lockstep_uds_hz={uds_hz:.0} inproc_hz={inproc_hz:.0} rt_rtt_p999_us={:.1} rt_miss_ratio={:.2e}",

@@ -3,7 +3,6 @@
 use crate::bench;
 use crate::run::{self, Mode};
 use clap::{Parser, Subcommand};
-use deltaloop_protocol::Law;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -18,10 +17,6 @@ struct Cli {
     command: Command,
 }
 
-fn parse_law(s: &str) -> Result<Law, String> {
-    Law::parse(s)
-}
-
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Run a scenario config: every law of the config (or those given with --law), one run folder.
@@ -31,10 +26,17 @@ enum Command {
         /// Loop transport.
         #[arg(long, value_enum, default_value = "realtime")]
         mode: Mode,
-        /// Run only this law (repeatable): tdc, tde-is, tdc-is-sta, pid.
-        #[arg(long = "law", value_parser = parse_law)]
-        laws: Vec<Law>,
+        #[command(flatten)]
+        overrides: run::Overrides,
         /// Run folder (default: runs/<UTC time>-<scenario name>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Run a grid of delays × laws × scenarios × presets (see configs/delay-sweep.toml).
+    Sweep {
+        /// Sweep file (TOML).
+        sweep: PathBuf,
+        /// Output folder (default: runs/<UTC time>-sweep-<name>).
         #[arg(long)]
         out: Option<PathBuf>,
     },
@@ -88,9 +90,9 @@ pub fn main() -> ExitCode {
         Command::Run {
             config,
             mode,
-            laws,
+            overrides,
             out,
-        } => run::load_config(&config, &laws)
+        } => run::load_config(&config, &overrides)
             .and_then(|cfg| run::run(cfg, mode, out, &command_line))
             .map(|o| {
                 for n in &o.notes {
@@ -110,6 +112,27 @@ pub fn main() -> ExitCode {
                     out,
                 },
         } => crate::bench_loop::run(lockstep_seconds, rt_seconds, &out),
+        Command::Sweep { sweep, out } => crate::sweep::load(&sweep).and_then(|(sw, _)| {
+            let out = out
+                .unwrap_or_else(|| crate::output::default_run_dir(&format!("sweep-{}", sw.name)));
+            let t0 = std::time::Instant::now();
+            let rows = crate::sweep::run(
+                &sweep,
+                &out,
+                std::io::IsTerminal::is_terminal(&std::io::stderr()),
+            )?;
+            let n = |st: &str| rows.iter().filter(|r| r.status == st).count();
+            println!(
+                "{} runs in {:.1} s: {} ok, {} diverged, {} errors\nsweep folder: {}",
+                rows.len(),
+                t0.elapsed().as_secs_f64(),
+                n("ok"),
+                n("diverged"),
+                n("error"),
+                out.display()
+            );
+            Ok(())
+        }),
         Command::UdsController {
             socket,
             config,

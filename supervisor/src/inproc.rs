@@ -21,7 +21,8 @@ pub fn run_law(study: &Study, law: Law) -> LawRun {
     };
     let mut ctrl = study.new_controller(law);
     for row in &reference.rows[..=n] {
-        let sample = plant.sample();
+        let truth = plant.sample();
+        let sample = plant.measure();
         let out = ctrl.step(
             &Measurement {
                 q: sample.q,
@@ -30,7 +31,7 @@ pub fn run_law(study: &Study, law: Law) -> LawRun {
             },
             &row.joint,
         );
-        if !rec.tick(sample, sample.q, sample.qd, &row.joint.q, out) {
+        if !rec.tick(sample, truth.q, truth.qd, &row.joint.q, out) {
             return rec.finish(None);
         }
         match plant.advance(Some(out.tau)) {

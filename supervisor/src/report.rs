@@ -128,6 +128,40 @@ pub fn markdown(
         cfg.loop_.ts_s * 1e3,
         cfg.controller.tde_delay_samples,
     );
+    let mut extras = Vec::new();
+    if cfg.plant.transport_delay_samples > 0 {
+        extras.push(format!(
+            "transport delay d = {} ticks",
+            cfg.plant.transport_delay_samples
+        ));
+    }
+    if cfg.controller.compute_delay_us > 0 {
+        extras.push(format!(
+            "controller compute delay {} µs",
+            cfg.controller.compute_delay_us
+        ));
+    }
+    if let Some(k) = cfg.payload_step_tick() {
+        extras.push(format!(
+            "payload step to {} kg at tick {k} (t = {:.4} s)",
+            cfg.plant.payload_step_kg,
+            k as f64 * cfg.loop_.ts_s
+        ));
+    }
+    let se = &cfg.sensor;
+    if !se.is_ideal() || se.velocity != deltaloop_protocol::config::VelocitySource::Measured {
+        extras.push(format!(
+            "sensor: {} counts/rev, noise σ_q = {} rad, σ_q̇ = {} rad/s, seed {}, velocity {:?}",
+            se.encoder_counts_per_rev,
+            se.q_noise_std_rad,
+            se.qd_noise_std_rad_s,
+            se.seed,
+            se.velocity
+        ));
+    }
+    if !extras.is_empty() {
+        let _ = writeln!(s, "Injected: {}.\n", extras.join("; "));
+    }
     let _ = writeln!(s, "Produced by: `{command}`\n");
 
     let table = paper_table(cfg.scenario.path);

@@ -53,13 +53,52 @@ pub struct RunOutput {
     pub notes: Vec<String>,
 }
 
-/// Loads a config and keeps only `laws` (all of the config's when empty).
-pub fn load_config(path: &Path, laws: &[Law]) -> Result<RunConfig> {
-    let mut cfg = RunConfig::from_file(path)?;
-    if !laws.is_empty() {
-        cfg.controller.laws = laws.to_vec();
+/// Command-line overrides of a scenario file (None: keep the file's value).
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct Overrides {
+    /// Run only this law (repeatable): tdc, tde-is, tdc-is-sta, pid.
+    #[arg(long = "law", value_parser = Law::parse)]
+    pub laws: Vec<Law>,
+    /// TDE delay ℓ in ticks (controller.tde_delay_samples).
+    #[arg(long)]
+    pub tde_delay: Option<u32>,
+    /// Transport delay d in ticks (plant.transport_delay_samples).
+    #[arg(long)]
+    pub transport_delay: Option<u32>,
+    /// Extra controller compute time per tick, µs (controller.compute_delay_us; realtime).
+    #[arg(long)]
+    pub compute_delay_us: Option<u32>,
+    /// Sensor noise seed (sensor.seed).
+    #[arg(long)]
+    pub seed: Option<u64>,
+}
+
+impl Overrides {
+    /// Applies the overrides and validates the result (same errors as the file would give).
+    pub fn apply(&self, mut cfg: RunConfig) -> Result<RunConfig> {
+        if !self.laws.is_empty() {
+            cfg.controller.laws = self.laws.clone();
+        }
+        if let Some(v) = self.tde_delay {
+            cfg.controller.tde_delay_samples = v;
+        }
+        if let Some(v) = self.transport_delay {
+            cfg.plant.transport_delay_samples = v;
+        }
+        if let Some(v) = self.compute_delay_us {
+            cfg.controller.compute_delay_us = v;
+        }
+        if let Some(v) = self.seed {
+            cfg.sensor.seed = v;
+        }
+        cfg.validate()?;
+        Ok(cfg)
     }
-    Ok(cfg)
+}
+
+/// Loads a config and applies command-line overrides.
+pub fn load_config(path: &Path, o: &Overrides) -> Result<RunConfig> {
+    o.apply(RunConfig::from_file(path)?)
 }
 
 /// Runs every law of `cfg` in `mode` and writes the run folder `out` (default `runs/<time>-<name>`).
@@ -74,6 +113,14 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
     output::write_text(&dir.join("config.toml"), &cfg.to_toml_string())?;
     let laws = cfg.controller.laws.clone();
     let mut notes = Vec::new();
+    if cfg.controller.compute_delay_us > 0 && mode != Mode::Realtime {
+        notes.push(format!(
+            "note: compute_delay_us = {} only changes results in realtime mode ({} mode ignores it{})",
+            cfg.controller.compute_delay_us,
+            mode.name(),
+            if mode == Mode::Lockstep { " except for wall time" } else { "" }
+        ));
+    }
     let mut run_ids = Vec::new();
     let (runs, timings): (Vec<LawRun>, Vec<Option<Timing>>) = match mode.process_mode() {
         None => (inproc::run_laws(&study, &laws), vec![None; laws.len()]),

@@ -4,7 +4,7 @@
 use crate::reference::JointReference;
 use crate::scenario::TaskPath;
 use deltaloop_controller::{Controller, ControllerParams};
-use deltaloop_plant::{DeltaRobot, KinematicsError, Plant, SimConfig};
+use deltaloop_plant::{DeltaRobot, KinematicsError, Plant};
 use deltaloop_protocol::{Law, RunConfig};
 
 /// The resolved inputs of a run.
@@ -35,26 +35,9 @@ impl Study {
         })
     }
 
-    /// Plant integration settings from the config.
-    pub fn sim_config(&self) -> SimConfig {
-        SimConfig {
-            ts: self.config.loop_.ts_s,
-            substeps: self.config.plant.substeps,
-            friction: self.config.plant.friction,
-            check_margins: true,
-            payload_step: None,
-        }
-    }
-
-    /// A fresh plant at rest at q_d(0).
+    /// A fresh plant at rest at q_d(0), as the config describes it.
     pub fn new_plant(&self) -> Result<Plant, KinematicsError> {
-        Plant::new(
-            self.robot.clone(),
-            self.sim_config(),
-            self.config.plant.tau_max_nm,
-            0,
-            self.reference.q0(),
-        )
+        deltaloop_plant::process::plant_from_config(&self.config, self.reference.q0())
     }
 
     /// A fresh controller for `law`.
@@ -65,5 +48,6 @@ impl Study {
             self.config.loop_.ts_s,
             self.config.controller.tde_delay_samples as usize,
         )
+        .with_velocity(self.config.sensor.velocity)
     }
 }
