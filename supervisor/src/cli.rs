@@ -32,6 +32,15 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Reproduce the paper: S1–S3 × both presets × four laws; tables, figures and report.md.
+    Paper {
+        /// Loop transport.
+        #[arg(long, value_enum, default_value = "inproc")]
+        mode: Mode,
+        /// Output folder (default: runs/<UTC time>-paper).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Run a grid of delays × laws × scenarios × presets (see configs/delay-sweep.toml).
     Sweep {
         /// Sweep file (TOML).
@@ -112,6 +121,16 @@ pub fn main() -> ExitCode {
                     out,
                 },
         } => crate::bench_loop::run(lockstep_seconds, rt_seconds, &out),
+        Command::Paper { mode, out } => {
+            let out = out.unwrap_or_else(|| crate::output::default_run_dir("paper"));
+            crate::paper::run(
+                mode,
+                &out,
+                &command_line,
+                std::io::IsTerminal::is_terminal(&std::io::stderr()),
+            )
+            .map(|s| print!("{}", crate::paper::terminal(&s, &out)))
+        }
         Command::Sweep { sweep, out } => crate::sweep::load(&sweep).and_then(|(sw, _)| {
             let out = out
                 .unwrap_or_else(|| crate::output::default_run_dir(&format!("sweep-{}", sw.name)));

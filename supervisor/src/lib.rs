@@ -8,6 +8,7 @@ pub mod cli;
 pub mod inproc;
 pub mod metrics;
 pub mod output;
+pub mod paper;
 pub mod plot;
 pub mod procs;
 pub mod record;

@@ -4,6 +4,7 @@
 use anyhow::{Result, anyhow};
 use deltaloop_protocol::Law;
 use plotters::coord::Shift;
+pub use plotters::prelude::RGBColor;
 use plotters::prelude::*;
 use std::path::Path;
 use std::sync::Once;
@@ -66,7 +67,7 @@ fn range(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
 /// Tick labels: plain for moderate magnitudes, 1e3-style otherwise.
 fn compact(v: f64) -> String {
     let a = v.abs();
-    if v == 0.0 {
+    if a < 1e-12 {
         "0".into()
     } else if (0.01..10_000.0).contains(&a) {
         let s = format!("{v:.3}");
@@ -123,9 +124,12 @@ macro_rules! draw_panel {
                 .legend(move |(x, y)| {
                     PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
                 });
-            chart
-                .draw_series(pts.iter().map(|&p| Circle::new(p, 3, color.filled())))
-                .map_err(e)?;
+            // Markers only where they help: sparse series (sweeps), not dense time series.
+            if pts.len() <= 60 {
+                chart
+                    .draw_series(pts.iter().map(|&p| Circle::new(p, 3, color.filled())))
+                    .map_err(e)?;
+            }
         }
         chart
             .configure_series_labels()
@@ -187,6 +191,91 @@ pub fn figure(stem: &Path, title: &str, panels: &[Panel], cols: usize) -> Result
         title,
         panels,
         cols,
+    )?;
+    Ok(())
+}
+
+/// A 3-D polyline: legend name, colour, (x, y, z) points in m, z up.
+pub struct Series3 {
+    pub name: String,
+    pub color: RGBColor,
+    pub points: Vec<(f64, f64, f64)>,
+    /// Draw thicker (the reference) or thinner.
+    pub width: u32,
+}
+
+fn draw3<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    title: &str,
+    series: &[Series3],
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(e)?;
+    let all = || series.iter().flat_map(|s| s.points.iter());
+    let (x0, x1) = range(all().map(|p| p.0), false);
+    let (y0, y1) = range(all().map(|p| p.1), false);
+    let (z0, z1) = range(all().map(|p| p.2), false);
+    // plotters' 3-D axes are (x, up, depth): map (x, y, z) → (x, z, y).
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 22))
+        .margin(20)
+        .build_cartesian_3d(x0..x1, z0..z1, y0..y1)
+        .map_err(e)?;
+    chart.with_projection(|mut p| {
+        p.pitch = 0.35;
+        p.yaw = 0.6;
+        p.scale = 0.85;
+        p.into_matrix()
+    });
+    chart
+        .configure_axes()
+        .label_style(("sans-serif", 13))
+        .x_formatter(&|v| format!("x {}", compact(*v)))
+        .y_formatter(&|v| format!("z {}", compact(*v)))
+        .z_formatter(&|v| format!("y {}", compact(*v)))
+        .draw()
+        .map_err(e)?;
+    for s in series {
+        let color = s.color;
+        let width = s.width;
+        chart
+            .draw_series(LineSeries::new(
+                s.points.iter().map(|&(x, y, z)| (x, z, y)),
+                color.stroke_width(width),
+            ))
+            .map_err(e)?
+            .label(s.name.as_str())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(width))
+            });
+    }
+    chart
+        .configure_series_labels()
+        .label_font(("sans-serif", 15))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(e)?;
+    root.present().map_err(e)?;
+    Ok(())
+}
+
+/// Writes `<stem>.svg` and `<stem>.png` of a 3-D path plot (task space, m).
+pub fn figure3(stem: &Path, title: &str, series: &[Series3]) -> Result<()> {
+    register_font();
+    let size = (900, 720);
+    draw3(
+        SVGBackend::new(&stem.with_extension("svg"), size).into_drawing_area(),
+        title,
+        series,
+    )?;
+    draw3(
+        BitMapBackend::new(&stem.with_extension("png"), size).into_drawing_area(),
+        title,
+        series,
     )?;
     Ok(())
 }

@@ -51,6 +51,9 @@ pub struct RunOutput {
     pub table: String,
     /// Lines for the user: scheduling warnings, cleaned stale resources.
     pub notes: Vec<String>,
+    /// What was run, and the runs themselves (for figures).
+    pub study: Study,
+    pub runs: Vec<LawRun>,
 }
 
 /// Command-line overrides of a scenario file (None: keep the file's value).
@@ -204,5 +207,7 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
         metrics,
         table,
         notes,
+        study,
+        runs,
     })
 }
