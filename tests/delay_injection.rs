@@ -184,7 +184,15 @@ fn realtime_compute_delay_longer_than_the_period_misses_and_is_reported() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Every reply is late: after 100 consecutive misses the plant declares the controller unusable,
+    // brakes to a safe stop, and the run ends with that fault (exit 1), data kept.
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("no torque within the budget for 100 consecutive ticks")
+            && err.contains("late replies dropped"),
+        "{err}"
+    );
     let s = json(&out.join("summary.json"));
     let t = &s["timing"]["tdc"];
     let (misses, ticks) = (
@@ -194,8 +202,9 @@ fn realtime_compute_delay_longer_than_the_period_misses_and_is_reported() {
     // Every reply comes 1 ms after its state, beyond the 150 µs budget: nearly every tick misses.
     assert!(misses * 10 >= ticks * 9, "{misses} of {ticks}");
     assert!(t["controller_compute"]["p50_us"].as_f64().unwrap() >= 1000.0);
-    // Holding τᵃ_0 while the reference moves: the run stops as diverged and says why.
+    // The fault is recorded on the law, with the tick the hold window ended.
     assert_eq!(s["laws"]["tdc"]["completed"], false);
+    assert_eq!(s["laws"]["tdc"]["fault_at_tick"].as_u64(), Some(99));
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(
         report.contains("controller compute delay 1000 µs"),

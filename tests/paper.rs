@@ -14,9 +14,13 @@ fn paper_folder_is_complete_and_report_matches_summary() {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(stdout.contains("STA beats IS?") && stdout.lines().count() < 40, "one screen: {stdout}");
+    assert!(
+        stdout.contains("STA beats IS?") && stdout.lines().count() < 40,
+        "one screen: {stdout}"
+    );
 
-    let s: Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let s: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     let cases = s["cases"].as_array().unwrap();
     assert_eq!(cases.len(), 6, "3 scenarios × 2 presets");
@@ -27,22 +31,51 @@ fn paper_folder_is_complete_and_report_matches_summary() {
         for law in ["tde-is", "tdc-is-sta", "tdc", "pid"] {
             let rms = &c["laws"][law]["rms_rad"];
             let row = format!("| ours, `{preset}` |");
-            let want = format!("(`{law}`) | {} | {} | {} |", fmt(&rms[0]), fmt(&rms[1]), fmt(&rms[2]));
-            assert!(report.lines().any(|l| l.starts_with(&row) && l.ends_with(&want)), "{preset} {law}: no row ending {want}");
+            let want = format!(
+                "(`{law}`) | {} | {} | {} |",
+                fmt(&rms[0]),
+                fmt(&rms[1]),
+                fmt(&rms[2])
+            );
+            assert!(
+                report
+                    .lines()
+                    .any(|l| l.starts_with(&row) && l.ends_with(&want)),
+                "{preset} {law}: no row ending {want}"
+            );
         }
         // Figures: errors, torques, chatter zoom, 3-D path; PNG and SVG, real content.
         let figs = c["figures"].as_array().unwrap();
         assert_eq!(figs.len(), 4);
         for f in figs {
             let f = f.as_str().unwrap();
-            assert!(report.contains(&format!("({f}.png)")), "report does not embed {f}");
+            assert!(
+                report.contains(&format!("({f}.png)")),
+                "report does not embed {f}"
+            );
             let png = std::fs::read(out.join(format!("{f}.png"))).unwrap();
             assert!(png.starts_with(b"\x89PNG"));
-            let (w, h) = (u32::from_be_bytes(png[16..20].try_into().unwrap()), u32::from_be_bytes(png[20..24].try_into().unwrap()));
-            assert!(w >= 800 && h >= 400 && png.len() > 20_000, "{f}.png {w}x{h}, {} bytes", png.len());
+            let (w, h) = (
+                u32::from_be_bytes(png[16..20].try_into().unwrap()),
+                u32::from_be_bytes(png[20..24].try_into().unwrap()),
+            );
+            assert!(
+                w >= 800 && h >= 400 && png.len() > 20_000,
+                "{f}.png {w}x{h}, {} bytes",
+                png.len()
+            );
             let svg = std::fs::read_to_string(out.join(format!("{f}.svg"))).unwrap();
             // Each series is a polyline with many points (not an empty chart).
-            let longest = svg.split("<polyline").skip(1).map(|p| p.split("points=\"").nth(1).map_or(0, |q| q.split('"').next().unwrap_or("").split(' ').count())).max().unwrap_or(0);
+            let longest = svg
+                .split("<polyline")
+                .skip(1)
+                .map(|p| {
+                    p.split("points=\"")
+                        .nth(1)
+                        .map_or(0, |q| q.split('"').next().unwrap_or("").split(' ').count())
+                })
+                .max()
+                .unwrap_or(0);
             assert!(longest > 40, "{f}.svg: longest series has {longest} points");
         }
         // The normal run folder of this case is there too.
@@ -55,8 +88,19 @@ fn paper_folder_is_complete_and_report_matches_summary() {
     for v in ["3.463e-4", "4.400e-3", "5.592e-4"] {
         assert!(report.contains(v), "published value {v} missing");
     }
-    assert_eq!(report.matches("Does the proposal beat TDC+IS here").count(), 3);
-    let s1_paper = cases.iter().find(|c| c["preset"] == "paper" && c["scenario"] == "s1").unwrap();
-    let clamps = s1_paper["laws"]["tdc-is-sta"]["clamp_count"].as_u64().unwrap();
-    assert!(clamps > 0 && report.contains(&format!("clamp in {clamps} of")), "limit cycle not explained with its numbers");
+    assert_eq!(
+        report.matches("Does the proposal beat TDC+IS here").count(),
+        3
+    );
+    let s1_paper = cases
+        .iter()
+        .find(|c| c["preset"] == "paper" && c["scenario"] == "s1")
+        .unwrap();
+    let clamps = s1_paper["laws"]["tdc-is-sta"]["clamp_count"]
+        .as_u64()
+        .unwrap();
+    assert!(
+        clamps > 0 && report.contains(&format!("clamp in {clamps} of")),
+        "limit cycle not explained with its numbers"
+    );
 }

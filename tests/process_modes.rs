@@ -1,19 +1,12 @@
 //! End-to-end with real processes over iceoryx2: lockstep ≡ inproc bit for bit, a realtime run
 //! that tracks, two runs at once, and nothing left behind.
 
-use iceoryx2::node::NodeView;
-use iceoryx2::prelude::*;
+mod common;
+
+use common::{children_mentioning, deltaloop, iceoryx_leftovers};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn deltaloop(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("deltaloop runs")
-}
+use std::process::Command;
 
 fn run(config: &str, mode: &str, out: &Path, extra: &[&str]) -> Value {
     let mut args = vec![
@@ -33,53 +26,6 @@ fn run(config: &str, mode: &str, out: &Path, extra: &[&str]) -> Value {
         String::from_utf8_lossy(&o.stdout)
     );
     serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
-}
-
-/// Process ids of `deltaloop-plant`/`deltaloop-controller` whose command line mentions `needle`.
-fn children_mentioning(needle: &str) -> Vec<u32> {
-    let mut found = Vec::new();
-    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        let Ok(cmd) = std::fs::read(entry.path().join("cmdline")) else {
-            continue;
-        };
-        let cmd = String::from_utf8_lossy(&cmd);
-        if (cmd.contains("deltaloop-plant") || cmd.contains("deltaloop-controller"))
-            && cmd.contains(needle)
-        {
-            found.push(pid);
-        }
-    }
-    found
-}
-
-/// iceoryx2 nodes and services whose name carries `run_id`.
-fn iceoryx_leftovers(run_id: &str) -> Vec<String> {
-    let config = Config::default();
-    let mut left = Vec::new();
-    Node::<ipc::Service>::list(&config, |state| {
-        let name = match &state {
-            NodeState::Alive(v) => v.details().as_ref().map(|d| d.name().to_string()),
-            NodeState::Dead(v) => v.details().as_ref().map(|d| d.name().to_string()),
-            _ => None,
-        };
-        if let Some(n) = name.filter(|n| n.contains(run_id)) {
-            left.push(format!("node {n}"));
-        }
-        CallbackProgression::Continue
-    })
-    .unwrap();
-    ipc::Service::list(&config, |s| {
-        let name = s.static_details.name().to_string();
-        if name.contains(run_id) {
-            left.push(format!("service {name}"));
-        }
-        CallbackProgression::Continue
-    })
-    .unwrap();
-    left
 }
 
 fn assert_clean(out: &Path, summary: &Value) {
@@ -218,4 +164,31 @@ fn two_runs_at_once_do_not_interfere() {
             std::fs::read(reference.join("trace.csv")).unwrap()
         );
     }
+}
+
+/// Regression: the plant process once ignored the transport delay, the sensor model and the
+/// payload step (it built its plant without them); lockstep must equal inproc with all three on.
+#[test]
+fn lockstep_equals_inproc_with_delay_noise_and_payload() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("all.toml");
+    std::fs::write(
+        &cfg,
+        "[scenario]\npath = \"s2\"\n[plant]\nfriction = true\ntransport_delay_samples = 2\npayload_step_kg = 0.5\n\
+         [controller]\nlaws = [\"tdc\", \"tdc-is-sta\"]\ntde_delay_samples = 3\n\
+         [sensor]\nencoder_counts_per_rev = 1048576\nq_noise_std_rad = 1e-6\nqd_noise_std_rad_s = 1e-3\nseed = 9\n",
+    )
+    .unwrap();
+    let (a, b) = (tmp.path().join("inproc"), tmp.path().join("lockstep"));
+    let si = run(cfg.to_str().unwrap(), "inproc", &a, &[]);
+    let sl = run(cfg.to_str().unwrap(), "lockstep", &b, &[]);
+    assert!(
+        std::fs::read(a.join("trace.csv")).unwrap() == std::fs::read(b.join("trace.csv")).unwrap(),
+        "traces differ"
+    );
+    assert_eq!(si["laws"], sl["laws"]);
+    // And the options really acted: the run differs from one without them.
+    let plain = tmp.path().join("plain");
+    let sp = run("configs/s2-fast.toml", "inproc", &plain, &["--law", "tdc"]);
+    assert_ne!(sp["laws"]["tdc"]["rms_rad"], si["laws"]["tdc"]["rms_rad"]);
 }

@@ -10,7 +10,7 @@
 use crate::{Controller, Law, Measurement, Reference, Vec3};
 use anyhow::{Result, bail};
 use clap::Parser;
-use deltaloop_protocol::config::Layout;
+use deltaloop_protocol::config::{FaultInjection, Layout};
 use deltaloop_protocol::ipc::{self, LOOP_BUFFER};
 use deltaloop_protocol::wire::{self, ControlMsg, RefSample, StateMsg, TorqueMsg, control};
 use deltaloop_protocol::{RunConfig, rt};
@@ -46,7 +46,8 @@ struct Args {
 /// Entry point of `deltaloop-controller`.
 pub fn main() -> ExitCode {
     let args = Args::parse();
-    match run(&args) {
+    let term = rt::child_signals();
+    match run(&args, &term) {
         Ok(None) => ExitCode::SUCCESS,
         Ok(Some(why)) => {
             eprintln!("deltaloop-controller: {why}");
@@ -59,7 +60,7 @@ pub fn main() -> ExitCode {
     }
 }
 
-fn run(args: &Args) -> Result<Option<String>> {
+fn run(args: &Args, term: &std::sync::atomic::AtomicBool) -> Result<Option<String>> {
     let cfg = RunConfig::from_file(&args.config)?;
     let layout = match args.mode {
         ProcMode::Lockstep => cfg.loop_.lockstep.clone(),
@@ -146,6 +147,7 @@ fn run(args: &Args) -> Result<Option<String>> {
     }
 
     let compute_delay_us = cfg.controller.compute_delay_us;
+    let inject = cfg.faults.inject;
     let mut ctrl = Controller::new(
         args.law,
         cfg.controller_params(),
@@ -156,8 +158,11 @@ fn run(args: &Args) -> Result<Option<String>> {
     let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
     let spin_ns = u64::from(layout.spin_us.unwrap_or(0)) * 1000;
     loop {
-        let Some((state, skipped, rx)) = wait_state(&state_sub, &state_ready, silence_ns, spin_ns)?
-        else {
+        let waited = wait_state(&state_sub, &state_ready, silence_ns, spin_ns);
+        if term.load(std::sync::atomic::Ordering::Relaxed) {
+            return Ok(Some("stopped by SIGTERM".into()));
+        }
+        let Some((state, skipped, rx)) = waited? else {
             return Ok(Some(format!(
                 "plant silent for {} ms",
                 cfg.loop_.silence_timeout_ms
@@ -165,6 +170,17 @@ fn run(args: &Args) -> Result<Option<String>> {
         };
         if state.flags & wire::STATE_FINAL != 0 {
             return Ok(None);
+        }
+        if term.load(std::sync::atomic::Ordering::Relaxed) {
+            return Ok(Some(format!("stopped by SIGTERM at tick {}", state.tick)));
+        }
+        // Injected faults (drills and tests): stall = stop answering, panic = die loudly.
+        match inject {
+            FaultInjection::Stall(k) if state.tick >= k => continue,
+            FaultInjection::Panic(k) if state.tick >= k => {
+                panic!("injected controller panic at tick {}", state.tick)
+            }
+            _ => {}
         }
         let Some(r) = rows.get(state.tick as usize) else {
             return Ok(Some(format!(
@@ -185,6 +201,13 @@ fn run(args: &Args) -> Result<Option<String>> {
                 qdd: Vec3::from(r.qdd),
             },
         );
+        let out = match inject {
+            FaultInjection::NanTorque(k) if state.tick == k => crate::Output {
+                tau: Vec3::repeat(f64::NAN),
+                ..out
+            },
+            _ => out,
+        };
         // Injected compute delay: extra wall time before the reply (realtime: real misses).
         if compute_delay_us > 0 {
             rt::spin_for_us(compute_delay_us);

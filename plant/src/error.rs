@@ -21,6 +21,9 @@ pub enum KinematicsError {
         q[0], q[1], q[2]
     )]
     NoAssembly { q: [f64; 3] },
+    /// The integrated state is not finite (the simulation diverged).
+    #[error("the simulated state became non-finite at q = ({:.6}, {:.6}, {:.6}) rad: the simulation diverged", q[0], q[1], q[2])]
+    NonFinite { q: [f64; 3] },
     /// The configuration is past the singularity margins (S/Lb or |det(A/Lb)| below the limit).
     #[error(
         "joint configuration q = ({:.6}, {:.6}, {:.6}) rad is past the singularity margins: min S/Lb = {:.4}, |det(A/Lb)| = {:.4} (both must be >= {})",

@@ -40,7 +40,8 @@ pub fn plant_from_config(cfg: &RunConfig, q0: Vec3) -> Result<Plant, crate::Kine
         cfg.plant.tau_max_nm,
         cfg.plant.transport_delay_samples as usize,
         q0,
-    )?;
+    )?
+    .reject_over_limit(cfg.faults.torque_limit == deltaloop_protocol::config::TorqueLimit::Reject);
     let se = &cfg.sensor;
     Ok(if se.is_ideal() {
         plant
@@ -93,7 +94,8 @@ struct Fault(u64, String);
 /// Entry point of `deltaloop-plant`.
 pub fn main() -> ExitCode {
     let args = Args::parse();
-    match run(&args) {
+    let term = rt::child_signals();
+    match run(&args, &term) {
         Ok(Ok(())) => ExitCode::SUCCESS,
         Ok(Err(Fault(tick, why))) => {
             eprintln!("deltaloop-plant: fault at tick {tick}: {why}");
@@ -106,7 +108,7 @@ pub fn main() -> ExitCode {
     }
 }
 
-fn run(args: &Args) -> Result<Result<(), Fault>> {
+fn run(args: &Args, term: &std::sync::atomic::AtomicBool) -> Result<Result<(), Fault>> {
     let cfg = RunConfig::from_file(&args.config)?;
     let layout = args.mode.layout(&cfg).clone();
     let node = ipc::node("plant", &args.run_id)?;
@@ -156,22 +158,15 @@ fn run(args: &Args) -> Result<Result<(), Fault>> {
         .map_err(|e| ipc::err("send READY")(&e))?;
     let start = wait_for_start(&ctl_sub, cfg.loop_.silence_timeout_ms.max(30_000))?;
 
-    let robot = DeltaRobot::default();
-    let mut plant = Plant::new(
-        robot,
-        sim_config(&cfg),
-        cfg.plant.tau_max_nm,
-        0,
-        Vec3::from(start.q0),
-    )
-    .context("initial configuration")?;
+    let mut plant =
+        plant_from_config(&cfg, Vec3::from(start.q0)).context("initial configuration")?;
     let ticks = start.ticks;
     let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
     let budget_ns = u64::from(cfg.loop_.torque_budget_us) * 1000;
     let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
     let spin_ns = u64::from(layout.spin_us.unwrap_or(0)) * 1000;
     let early_ns = u64::from(layout.wake_early_us.unwrap_or(0)) * 1000;
-    let max_consecutive_misses = silence_ns / ts_ns.max(1);
+    let silence_ticks = u64::from(cfg.faults.controller_silence_ticks);
     let (mut misses, mut late, mut consecutive) = (0u64, 0u64, 0u64);
     let notify = |what: &str| {
         state_ready
@@ -180,6 +175,9 @@ fn run(args: &Args) -> Result<Result<(), Fault>> {
             .map_err(|e| ipc::err(what.to_string())(&e))
     };
 
+    // Set when the loop must end early: (tick, why, whether the plant can still brake).
+    let mut fault: Option<(u64, String, bool)> = None;
+    let mut last_deadline = start.t0_ns;
     for k in 0..=ticks + 1 {
         let (deadline, wake) = match args.mode {
             ProcMode::Realtime => {
@@ -192,8 +190,10 @@ fn run(args: &Args) -> Result<Result<(), Fault>> {
                 (now, now)
             }
         };
-        if stop_requested(&ctl_sub) {
-            return Ok(Err(Fault(k, "stopped by the supervisor".into())));
+        last_deadline = deadline;
+        if stop_requested(&ctl_sub) || term.load(std::sync::atomic::Ordering::Relaxed) {
+            fault = Some((k, "stopped by the supervisor".into(), true));
+            break;
         }
         let truth = plant.sample();
         let s = plant.measure();
@@ -240,20 +240,24 @@ fn run(args: &Args) -> Result<Result<(), Fault>> {
                 Some(Vec3::from(t.tau))
             }
             None if args.mode == ProcMode::Lockstep => {
-                return Ok(Err(Fault(
-                    k,
-                    format!("controller silent for {} ms", cfg.loop_.silence_timeout_ms),
-                )));
+                let why = format!(
+                    "controller silent: no torque for tick {k} within {} ms",
+                    cfg.loop_.silence_timeout_ms
+                );
+                fault = Some((k, why, true));
+                break;
             }
             None => {
                 misses += 1;
                 consecutive += 1;
                 tel.flags |= wire::TEL_MISSED;
-                if consecutive > max_consecutive_misses {
-                    return Ok(Err(Fault(
-                        k,
-                        format!("controller silent for {consecutive} ticks"),
-                    )));
+                if consecutive >= silence_ticks {
+                    let why = format!(
+                        "no torque within the budget for {consecutive} consecutive ticks ({:.1} ms; controller dead, stalled or too slow, {late} late replies dropped); the plant held the last applied torque through them",
+                        consecutive as f64 * cfg.loop_.ts_s * 1e3
+                    );
+                    fault = Some((k, why, true));
+                    break;
                 }
                 None
             }
@@ -261,11 +265,13 @@ fn run(args: &Args) -> Result<Result<(), Fault>> {
         match plant.advance(cmd) {
             Ok(a) => {
                 tel.flags |= if a.clamped { wire::TEL_CLAMPED } else { 0 }
-                    | if a.held { wire::TEL_HELD } else { 0 };
+                    | if a.held { wire::TEL_HELD } else { 0 }
+                    | if a.rejected { wire::TEL_REJECTED } else { 0 };
             }
             Err(e) => {
-                let _ = ctl_pub.send_copy(ControlMsg::fault(control::PLANT, k + 1, &e.to_string()));
-                return Ok(Err(Fault(k + 1, e.to_string())));
+                // The model itself failed (singularity, divergence): no brake can be computed.
+                fault = Some((k + 1, e.to_string(), false));
+                break;
             }
         }
         tel.misses = misses;
@@ -274,9 +280,68 @@ fn run(args: &Args) -> Result<Result<(), Fault>> {
             .send_copy(tel)
             .map_err(|e| ipc::err("publish telemetry")(&e))?;
     }
-    // No DONE message: the final state and the exit status say it, and the controller's ports
-    // are already going away (a send now would race their teardown).
-    Ok(Ok(()))
+    let Some((tick, why, can_brake)) = fault else {
+        // No DONE message: the final state and the exit status say it, and the controller's ports
+        // are already going away (a send now would race their teardown).
+        return Ok(Ok(()));
+    };
+    let t = tick as f64 * cfg.loop_.ts_s;
+    let kind = if can_brake {
+        control::FAULT
+    } else {
+        control::DIVERGED
+    };
+    let _ = ctl_pub.send_copy(ControlMsg::with_text(kind, control::PLANT, tick, &why));
+    // Release the controller (it may be blocked waiting for a state): the run is over.
+    let last = plant.sample();
+    let final_state = StateMsg {
+        tick,
+        flags: wire::STATE_FINAL,
+        q: last.q.into(),
+        qd: last.qd.into(),
+        tau_applied: last.tau_applied.into(),
+        q_true: last.q.into(),
+        qd_true: last.qd.into(),
+        t_publish_ns: rt::now_ns(),
+        ..StateMsg::default()
+    };
+    let _ = state_pub.send_copy(final_state);
+    let _ = state_ready.notify();
+    if !can_brake {
+        return Ok(Err(Fault(
+            tick,
+            format!("t = {t:.4} s: {why}; no safe stop possible"),
+        )));
+    }
+    // Safe stop: the drives brake (τ = G(q) − D q̇) for safe_stop_ms, keeping the clock in realtime.
+    let stop_ticks = (f64::from(cfg.faults.safe_stop_ms) * 1e-3 / cfg.loop_.ts_s).round() as u64;
+    let damping = cfg.faults.brake_damping_nm_s;
+    for i in 1..=stop_ticks {
+        if args.mode == ProcMode::Realtime {
+            rt::wake_at_ns(last_deadline + i * ts_ns, early_ns);
+        }
+        if let Err(e) = plant.brake_tick(damping) {
+            return Ok(Err(Fault(
+                tick,
+                format!("t = {t:.4} s: {why}; the safe stop failed: {e}"),
+            )));
+        }
+        let tel = TelemetryMsg {
+            tick: tick + i,
+            flags: wire::TEL_SAFE_STOP | wire::TEL_HELD,
+            t_wake_ns: rt::now_ns(),
+            ..TelemetryMsg::default()
+        };
+        let _ = tel_pub.send_copy(tel);
+    }
+    let speed = plant.sample().qd.amax();
+    Ok(Err(Fault(
+        tick,
+        format!(
+            "t = {t:.4} s: {why}; then braked for {} ms (τ = G(q) − {damping} q̇): safe stop, max |q̇| = {speed:.3} rad/s",
+            cfg.faults.safe_stop_ms
+        ),
+    )))
 }
 
 /// Waits for τ_k until `until_ns`: busy-polls for `spin_ns`, then blocks on the wake-up event.

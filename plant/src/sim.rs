@@ -126,6 +126,12 @@ impl PlantSim {
         for _ in 0..self.cfg.substeps {
             self.rk4(tau, h)?;
         }
+        // Never hand out a NaN state: a diverged simulation is a fault that names where.
+        if !(self.q.iter().chain(self.qd.iter()).all(|x| x.is_finite())) {
+            return Err(KinematicsError::NonFinite {
+                q: [self.q[0], self.q[1], self.q[2]],
+            });
+        }
         self.k += 1;
         Ok(())
     }
@@ -153,8 +159,10 @@ pub struct Applied {
     pub tau: Vec3,
     /// Some joint was clamped to ±τ_max.
     pub clamped: bool,
-    /// The command due this interval was missing or non-finite, so the last torque was held.
+    /// The command due this interval was missing or rejected, so the last torque was held.
     pub held: bool,
+    /// The command was rejected (non-finite, or beyond ±τ_max under the `reject` policy).
+    pub rejected: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -165,11 +173,14 @@ enum Slot {
     Missed,
 }
 
-/// The drives: clamp each joint to |τ| ≤ τ_max, delay commands by d ticks, and hold the last
-/// applied torque when a command is missing. Fixed capacity: allocates only at construction.
+/// The drives: clamp (or reject) commands beyond ±τ_max, reject non-finite ones, delay commands by
+/// d ticks, and hold the last applied torque when a command is missing or rejected. Fixed
+/// capacity: allocates only at construction.
 #[derive(Clone, Debug)]
 pub struct Actuator {
     tau_max: f64,
+    /// Reject (hold) commands beyond ±τ_max instead of clamping them.
+    reject_over_limit: bool,
     line: Vec<Slot>,
     head: usize,
     last: Vec3,
@@ -182,6 +193,7 @@ impl Actuator {
     pub fn new(tau_max: f64, delay: usize, tau_a0: Vec3) -> Self {
         Self {
             tau_max,
+            reject_over_limit: false,
             line: vec![Slot::Initial; delay],
             head: 0,
             last: tau_a0,
@@ -189,8 +201,27 @@ impl Actuator {
         }
     }
 
+    /// Rejects commands beyond ±τ_max (holding the last torque) instead of clamping them.
+    pub fn reject_over_limit(mut self, yes: bool) -> Self {
+        self.reject_over_limit = yes;
+        self
+    }
+
     /// The torque applied over the last interval, N m.
     pub fn last_applied(&self) -> Vec3 {
+        self.last
+    }
+
+    /// Applies a torque directly, bypassing the delay line (a drive-local action such as a brake),
+    /// clamped to ±τ_max. Returns what was applied.
+    pub fn apply_local(&mut self, tau: Vec3) -> Vec3 {
+        self.last = tau.map(|x| {
+            if x.is_finite() {
+                x.clamp(-self.tau_max, self.tau_max)
+            } else {
+                0.0
+            }
+        });
         self.last
     }
 
@@ -208,25 +239,31 @@ impl Actuator {
             self.head = (self.head + 1) % self.line.len();
             out
         };
+        let hold = |rejected| Applied {
+            tau: self.last,
+            clamped: false,
+            held: true,
+            rejected,
+        };
         let applied = match due {
             Slot::Initial => Applied {
                 tau: self.initial,
                 clamped: false,
                 held: false,
+                rejected: false,
             },
-            Slot::Command(t) if t.iter().all(|x| x.is_finite()) => {
+            Slot::Missed => hold(false),
+            Slot::Command(t) if !t.iter().all(|x| x.is_finite()) => hold(true),
+            Slot::Command(t) if self.reject_over_limit && t.amax() > self.tau_max => hold(true),
+            Slot::Command(t) => {
                 let c = t.map(|x| x.clamp(-self.tau_max, self.tau_max));
                 Applied {
                     tau: c,
                     clamped: c != t,
                     held: false,
+                    rejected: false,
                 }
             }
-            Slot::Command(_) | Slot::Missed => Applied {
-                tau: self.last,
-                clamped: false,
-                held: true,
-            },
         };
         self.last = applied.tau;
         applied
@@ -305,6 +342,26 @@ impl Plant {
         let applied = self.drives.apply(cmd);
         self.sim.step(&applied.tau)?;
         Ok(applied)
+    }
+
+    /// The drives' brake for a safe stop: τ = G(q) − D q̇ (hold against gravity, damp the motion),
+    /// D in N m s/rad.
+    pub fn brake_torque(&self, damping: f64) -> Result<Vec3, KinematicsError> {
+        let pose = self.sim.robot().pose(&self.sim.q())?;
+        Ok(self.sim.robot().gravity(&pose) - self.sim.qd() * damping)
+    }
+
+    /// One tick of safe stop: the drives apply the brake directly (no controller, no delay line).
+    pub fn brake_tick(&mut self, damping: f64) -> Result<Vec3, KinematicsError> {
+        let tau = self.drives.apply_local(self.brake_torque(damping)?);
+        self.sim.step(&tau)?;
+        Ok(tau)
+    }
+
+    /// Rejects commands beyond ±τ_max instead of clamping them.
+    pub fn reject_over_limit(mut self, yes: bool) -> Self {
+        self.drives = self.drives.reject_over_limit(yes);
+        self
     }
 
     /// The simulation (model and integrator state).

@@ -257,6 +257,114 @@ impl Default for PlantSection {
     }
 }
 
+/// What the drives do with a command beyond ±τ_max (non-finite commands are always rejected).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum TorqueLimit {
+    /// Clamp each joint to ±τ_max (counted).
+    #[default]
+    Clamp,
+    /// Reject the whole command and hold the last applied torque (counted).
+    Reject,
+}
+
+/// A controller fault to inject, for drills and tests: `none`, or `<kind>@<tick>` with kind
+/// `nan-torque` (send NaN), `panic` (the process panics), `stall` (stop answering).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum FaultInjection {
+    #[default]
+    None,
+    NanTorque(u64),
+    Panic(u64),
+    Stall(u64),
+}
+
+impl FaultInjection {
+    fn parse(s: &str) -> Result<Self, String> {
+        if s == "none" {
+            return Ok(Self::None);
+        }
+        let bad =
+            || format!("`{s}`: expected none, nan-torque@<tick>, panic@<tick> or stall@<tick>");
+        let (kind, tick) = s.split_once('@').ok_or_else(bad)?;
+        let tick: u64 = tick.parse().map_err(|_| bad())?;
+        match kind {
+            "nan-torque" => Ok(Self::NanTorque(tick)),
+            "panic" => Ok(Self::Panic(tick)),
+            "stall" => Ok(Self::Stall(tick)),
+            _ => Err(bad()),
+        }
+    }
+}
+
+impl std::fmt::Display for FaultInjection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::None => f.write_str("none"),
+            Self::NanTorque(k) => write!(f, "nan-torque@{k}"),
+            Self::Panic(k) => write!(f, "panic@{k}"),
+            Self::Stall(k) => write!(f, "stall@{k}"),
+        }
+    }
+}
+
+impl Serialize for FaultInjection {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&self.to_string())
+    }
+}
+
+impl<'de> Deserialize<'de> for FaultInjection {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let s = String::deserialize(d)?;
+        Self::parse(&s).map_err(serde::de::Error::custom)
+    }
+}
+
+/// `[faults]`: how the loop reacts to a misbehaving peer, and fault injection.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FaultSection {
+    /// Realtime: this many consecutive missing torques declare the controller dead. The plant holds
+    /// the last applied torque through them (the hold window), then stops safely.
+    #[serde(default = "default_silence_ticks")]
+    pub controller_silence_ticks: u32,
+    /// Safe stop after a fault: the drives brake with τ = G(q) − D q̇ for this long, then the plant exits, ms.
+    #[serde(default = "default_safe_stop_ms")]
+    pub safe_stop_ms: u32,
+    /// Brake damping D of the safe stop, N m s/rad.
+    #[serde(default = "default_brake")]
+    pub brake_damping_nm_s: f64,
+    /// Commands beyond ±τ_max: `clamp` or `reject`.
+    #[serde(default)]
+    pub torque_limit: TorqueLimit,
+    /// Controller fault injection (see [`FaultInjection`]).
+    #[serde(default)]
+    pub inject: FaultInjection,
+}
+
+fn default_silence_ticks() -> u32 {
+    100
+}
+fn default_safe_stop_ms() -> u32 {
+    100
+}
+fn default_brake() -> f64 {
+    2.0
+}
+
+impl Default for FaultSection {
+    fn default() -> Self {
+        Self {
+            controller_silence_ticks: default_silence_ticks(),
+            safe_stop_ms: default_safe_stop_ms(),
+            brake_damping_nm_s: default_brake(),
+            torque_limit: TorqueLimit::Clamp,
+            inject: FaultInjection::None,
+        }
+    }
+}
+
 /// Where the controller's joint rates (and TDE accelerations) come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
@@ -529,6 +637,8 @@ pub struct RunConfig {
     pub loop_: LoopSection,
     #[serde(default)]
     pub sensor: SensorSection,
+    #[serde(default)]
+    pub faults: FaultSection,
 }
 
 /// Largest accepted TDE delay, ticks.
@@ -741,6 +851,27 @@ impl RunConfig {
                 "0 (ideal) or 16..=4294967295 counts per revolution",
             ));
         }
+        let f = &self.faults;
+        if !(1..=1_000_000).contains(&f.controller_silence_ticks) {
+            return Err(range(
+                "faults.controller_silence_ticks",
+                f.controller_silence_ticks,
+                "1 <= controller_silence_ticks <= 1000000 ticks",
+            ));
+        }
+        if f.safe_stop_ms > 60_000 {
+            return Err(range(
+                "faults.safe_stop_ms",
+                f.safe_stop_ms,
+                "0 <= safe_stop_ms <= 60000 ms",
+            ));
+        }
+        check(
+            "faults.brake_damping_nm_s",
+            f.brake_damping_nm_s,
+            (0.0..=1000.0).contains(&f.brake_damping_nm_s),
+            "0 <= brake_damping_nm_s <= 1000 N m s/rad",
+        )?;
         let c = &self.controller;
         if c.compute_delay_us > 1_000_000 {
             return Err(range(

@@ -109,3 +109,24 @@ pub fn apply(s: &Sched) -> Vec<String> {
     }
     warnings
 }
+
+/// Signal set-up for a loop process started by the supervisor: SIGINT is ignored (a Ctrl-C in
+/// the terminal reaches the whole process group; the supervisor stops its children in order),
+/// SIGTERM sets the returned flag (checked once per tick: a clean stop), and the process gets
+/// SIGTERM if its parent dies, so no child outlives a killed supervisor.
+pub fn child_signals() -> std::sync::Arc<std::sync::atomic::AtomicBool> {
+    let flag = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    // SAFETY: setting a signal disposition and the parent-death signal of this process.
+    unsafe {
+        libc::signal(libc::SIGINT, libc::SIG_IGN);
+        libc::prctl(
+            libc::PR_SET_PDEATHSIG,
+            libc::SIGTERM as libc::c_ulong,
+            0,
+            0,
+            0,
+        );
+    }
+    let _ = signal_hook::flag::register(signal_hook::consts::SIGTERM, flag.clone());
+    flag
+}

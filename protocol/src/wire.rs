@@ -64,6 +64,10 @@ pub const TEL_CLAMPED: u32 = 1;
 pub const TEL_HELD: u32 = 2;
 /// The torque for this tick did not arrive within the budget (realtime).
 pub const TEL_MISSED: u32 = 4;
+/// The command was rejected (non-finite, or over the limit with the `reject` policy).
+pub const TEL_REJECTED: u32 = 8;
+/// A safe-stop tick after a fault: the drives brake, no controller.
+pub const TEL_SAFE_STOP: u32 = 16;
 
 /// Plant → supervisor after each tick: what happened to the command, and the timing.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
@@ -97,6 +101,9 @@ pub mod control {
     pub const FAULT: u32 = 4;
     /// The controller holds the reference (mapped and touched) and can answer tick 0.
     pub const ARMED: u32 = 6;
+    /// The plant's model failed at `tick` (left the workspace, non-finite state): the run
+    /// diverged, as the study's divergence rule counts it; `text` says how.
+    pub const DIVERGED: u32 = 7;
     /// Senders.
     pub const PLANT: u32 = 1;
     pub const CONTROLLER: u32 = 2;
@@ -137,7 +144,12 @@ impl ControlMsg {
 
     /// A FAULT message at `tick` with `text` (truncated at a character boundary).
     pub fn fault(from: u32, tick: u64, text: &str) -> Self {
-        let mut m = Self::new(control::FAULT, from);
+        Self::with_text(control::FAULT, from, tick, text)
+    }
+
+    /// A message of `kind` at `tick` carrying `text` (truncated at a character boundary).
+    pub fn with_text(kind: u32, from: u32, tick: u64, text: &str) -> Self {
+        let mut m = Self::new(kind, from);
         m.tick = tick;
         let mut end = text.len().min(m.text.len());
         while !text.is_char_boundary(end) {

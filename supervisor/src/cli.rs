@@ -94,6 +94,7 @@ enum BenchCommand {
 /// Entry point of the `deltaloop` binary.
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
+    crate::signals::install();
     let command_line = std::env::args().collect::<Vec<_>>().join(" ");
     let result = match cli.command {
         Command::Run {
@@ -160,6 +161,10 @@ pub fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e.downcast_ref::<run::Interrupted>().is_some() => {
+            eprintln!("deltaloop: {e}");
+            ExitCode::from(130)
+        }
         Err(e) => {
             eprintln!("deltaloop: error: {e:#}");
             ExitCode::FAILURE

@@ -21,6 +21,10 @@ pub fn run_law(study: &Study, law: Law) -> LawRun {
     };
     let mut ctrl = study.new_controller(law);
     for row in &reference.rows[..=n] {
+        if crate::signals::interrupted() {
+            rec.interrupt();
+            return rec.finish(None);
+        }
         let truth = plant.sample();
         let sample = plant.measure();
         let out = ctrl.step(
@@ -35,7 +39,7 @@ pub fn run_law(study: &Study, law: Law) -> LawRun {
             return rec.finish(None);
         }
         match plant.advance(Some(out.tau)) {
-            Ok(a) => rec.applied(a.clamped, a.held),
+            Ok(a) => rec.applied(a.clamped, a.held, a.rejected),
             Err(e) => {
                 rec.plant_failed(e.to_string());
                 return rec.finish(None);

@@ -16,6 +16,7 @@ pub mod reference;
 pub mod report;
 pub mod run;
 pub mod scenario;
+pub mod signals;
 pub mod study;
 pub mod sweep;
 pub mod timing;

@@ -22,6 +22,11 @@ pub struct LawMetrics {
     /// Tick at which the run diverged, if it did.
     pub diverged_at_tick: Option<u64>,
     pub diverged_reason: Option<String>,
+    /// Tick at which Ctrl-C / SIGTERM stopped the run, if it did.
+    pub interrupted_at_tick: Option<u64>,
+    /// Tick and cause of a loop fault (a process died or stalled), if any.
+    pub fault_at_tick: Option<u64>,
+    pub fault: Option<String>,
     /// RMS joint tracking error over k = 0..=N, rad.
     pub rms_rad: [f64; 3],
     /// Max |e_i| over k = 0..=N, rad.
@@ -38,6 +43,8 @@ pub struct LawMetrics {
     pub clamp_count: u64,
     /// Intervals in which the plant held the previous torque (missed or rejected command).
     pub held_count: u64,
+    /// Commands the plant rejected (non-finite, or over the limit under `faults.torque_limit = "reject"`).
+    pub rejected_count: u64,
     /// RMS of the detrended commanded torque above 100 Hz, N m.
     pub hf_torque_rms_nm: [f64; 3],
     /// Share of the detrended torque energy above 100 Hz (0..1).
@@ -181,6 +188,7 @@ pub fn compute(
     });
     let clamp_count = taus.iter().filter(|r| r.clamped).count() as u64;
     let held_count = taus.iter().filter(|r| r.held).count() as u64;
+    let rejected_count = taus.iter().filter(|r| r.rejected).count() as u64;
     let hf: [(f64, f64, f64); 3] =
         std::array::from_fn(|i| high_frequency(&tau(i).collect::<Vec<_>>(), ts));
 
@@ -211,8 +219,17 @@ pub fn compute(
     let k2_req = delta_n_max.map(|d| k2_required(d.into_iter().fold(0.0, f64::max), params.k1));
 
     let (completed, diverged_at_tick, diverged_reason) = match &run.outcome {
-        Outcome::Completed => (true, None, None),
         Outcome::Diverged { tick, reason } => (false, Some(*tick), Some(reason.clone())),
+        Outcome::Completed => (true, None, None),
+        _ => (false, None, None),
+    };
+    let interrupted_at_tick = match run.outcome {
+        Outcome::Interrupted { tick } => Some(tick),
+        _ => None,
+    };
+    let (fault_at_tick, fault) = match &run.outcome {
+        Outcome::Fault { tick, cause } => (Some(*tick), Some(cause.clone())),
+        _ => (None, None),
     };
     LawMetrics {
         law: run.law.name().to_string(),
@@ -220,6 +237,9 @@ pub fn compute(
         completed,
         diverged_at_tick,
         diverged_reason,
+        interrupted_at_tick,
+        fault_at_tick,
+        fault,
         rms_rad,
         max_abs_err_rad,
         task_rms_mm,
@@ -228,6 +248,7 @@ pub fn compute(
         torque_tv_nm,
         clamp_count,
         held_count,
+        rejected_count,
         hf_torque_rms_nm: hf.map(|h| h.0),
         hf_torque_share: hf.map(|h| h.1),
         torque_peak_hz: hf.map(|h| h.2),

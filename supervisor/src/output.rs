@@ -31,6 +31,8 @@ pub struct Summary<'a> {
     pub tde_delay_samples: u32,
     pub controller: ControllerParams,
     pub mismatch: &'a Mismatch,
+    /// Ctrl-C / SIGTERM stopped the run: the data is partial.
+    pub interrupted: bool,
     /// Metrics per law, keyed by law name.
     pub laws: BTreeMap<&'a str, &'a LawMetrics>,
     /// The iceoryx2 run id of each law's process pair (process modes only).

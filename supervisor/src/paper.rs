@@ -500,8 +500,8 @@ pub fn terminal(s: &PaperSummary, out: &Path) -> String {
     );
     let _ = writeln!(
         o,
-        "{:<4} {:<9} {:<11} {:>10} {:>10} {:>10}   {}",
-        "scn", "source", "law", "joint 1", "joint 2", "joint 3", "STA beats IS?"
+        "{:<4} {:<9} {:<11} {:>10} {:>10} {:>10}   STA beats IS?",
+        "scn", "source", "law", "joint 1", "joint 2", "joint 3"
     );
     for scn in ["s1", "s2", "s3"] {
         for law in [Law::TdeIs, Law::TdcIsSta] {

@@ -26,6 +26,10 @@ use std::time::Duration;
 
 /// What one law's process run produced.
 pub struct ProcessRun {
+    /// A loop fault: its tick and one-line cause (a child died, stalled, or the plant stopped).
+    pub fault: Option<(u64, String)>,
+    /// Ctrl-C / SIGTERM stopped the run.
+    pub interrupted: bool,
     /// The run id that scoped this pair's iceoryx2 services and nodes.
     pub run_id: String,
     pub run: LawRun,
@@ -303,24 +307,45 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
             .receive()
             .map_err(|e| ipc::err("receive control")(&e))?
         {
-            if m.payload().kind == control::FAULT && fault.is_none() {
+            if m.payload().kind == control::DIVERGED && fault.is_none() {
                 *fault = Some((m.payload().tick, m.payload().text()));
             }
         }
         Ok(())
     };
+    // Bounded waits: after STOP, or after one child exits early, the other gets the safe stop
+    // (plus the silence timeout for the plant to notice a dead controller), then it is stopped.
+    let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
+    let grace_ns = u64::from(cfg.faults.safe_stop_ms) * 1_000_000 + 2_000_000_000;
+    let mut stop_sent: Option<u64> = None;
+    let mut first_exit: Option<(u64, &'static str)> = None;
     loop {
         drain(&mut states, &mut torques, &mut tels, &mut fault)?;
         let (p, c) = (plant.exited(), controller.exited());
+        let now = rt::now_ns();
+        if first_exit.is_none() {
+            first_exit = match (p.is_some(), c.is_some()) {
+                (false, true) => Some((now, "controller")),
+                (true, false) => Some((now, "plant")),
+                _ => None,
+            };
+        }
         if p.is_some() && c.is_some() {
             break;
         }
-        if p.is_some_and(|s| !s.success()) || c.is_some_and(|s| !s.success()) {
-            // One side failed: give the other a moment to notice, then stop it.
-            std::thread::sleep(Duration::from_millis(50));
-            break;
+        if crate::signals::interrupted() && stop_sent.is_none() {
+            let _ = ctl_pub.send_copy(ControlMsg::new(control::STOP, control::SUPERVISOR));
+            stop_sent = Some(now);
         }
-        if rt::now_ns() > give_up {
+        let waited_out = match first_exit {
+            // The plant is gone: the controller exits on the plant's final state, or (plant killed)
+            // waits for states that never come; give it 1 s to say why, then stop it.
+            Some((t, "plant")) => now > t + 1_000_000_000,
+            // A dead controller: the plant notices, holds, brakes, and exits by itself.
+            Some((t, _)) => now > t + silence_ns + grace_ns,
+            None => false,
+        };
+        if waited_out || stop_sent.is_some_and(|t| now > t + grace_ns) || now > give_up {
             break;
         }
         std::thread::sleep(Duration::from_millis(1));
@@ -330,6 +355,20 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
     let ctrl_status = controller.exited();
     drop(plant);
     drop(controller);
+    let interrupted = stop_sent.is_some();
+    let cause = if interrupted {
+        None
+    } else {
+        fault_cause(
+            plant_status,
+            ctrl_status,
+            &plant_log,
+            &ctrl_log,
+            first_exit,
+            &torques,
+            &tels,
+        )
+    };
 
     let mut child_messages = messages(None);
     child_messages.extend(
@@ -353,17 +392,18 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
     );
     timing.steal = crate::timing::steal_ms_between(&steal_before, &crate::timing::steal_jiffies());
     let run = rebuild(
+        interrupted,
+        cause.as_ref(),
         law,
         study,
         &states,
         &torques,
         &tels,
         fault.as_ref(),
-        plant_status,
-        ctrl_status,
-        &child_messages,
     )?;
     Ok(ProcessRun {
+        fault: cause,
+        interrupted,
         run_id: rid,
         run,
         timing,
@@ -374,15 +414,14 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
 /// Replays the observed streams through the [`Recorder`], exactly as the in-process loop fills it.
 #[allow(clippy::too_many_arguments)]
 fn rebuild(
+    interrupted: bool,
+    cause: Option<&(u64, String)>,
     law: Law,
     study: &Study,
     states: &[Option<StateMsg>],
     torques: &[Option<TorqueMsg>],
     tels: &[Option<TelemetryMsg>],
     fault: Option<&(u64, String)>,
-    plant_status: Option<std::process::ExitStatus>,
-    ctrl_status: Option<std::process::ExitStatus>,
-    messages: &[String],
 ) -> Result<LawRun> {
     let n = study.reference.n;
     let mut rec = Recorder::new(law, n);
@@ -423,17 +462,17 @@ fn rebuild(
             _ => None,
         });
         let (Some(s), Some(out)) = (states[k], torque) else {
-            // The loop ended here (fault, or a child died), or the supervisor lost the sample.
+            // The loop ended here (interrupt, fault, a child died), or the supervisor lost the sample.
+            if interrupted {
+                rec.interrupt();
+                return Ok(rec.finish(None));
+            }
+            if let Some((tick, text)) = cause {
+                rec.fault(*tick, text.clone());
+                return Ok(rec.finish(None));
+            }
             let why = match fault {
                 Some((tick, text)) if *tick as usize <= k + 1 => text.clone(),
-                _ if plant_status.is_none_or(|s| !s.success())
-                    || ctrl_status.is_none_or(|s| !s.success()) =>
-                {
-                    format!(
-                        "the process pair stopped at tick {k}: {}",
-                        messages.join(" | ")
-                    )
-                }
                 _ => format!("the supervisor lost tick {k} of the stream"),
             };
             if k == 0 {
@@ -448,7 +487,11 @@ fn rebuild(
             return Ok(rec.finish(None));
         }
         let flags = tels[k].map_or(0, |m| m.flags);
-        rec.applied(flags & wire::TEL_CLAMPED != 0, flags & wire::TEL_HELD != 0);
+        rec.applied(
+            flags & wire::TEL_CLAMPED != 0,
+            flags & wire::TEL_HELD != 0,
+            flags & wire::TEL_REJECTED != 0,
+        );
         if let Some((tick, text)) = fault
             && *tick as usize == k + 1
         {
@@ -513,4 +556,100 @@ fn write_timing_csv(
     }
     w.flush()?;
     Ok(())
+}
+
+fn status_text(s: std::process::ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    match (s.code(), s.signal()) {
+        (_, Some(9)) => "was killed (SIGKILL)".into(),
+        (_, Some(sig)) => format!("was killed by signal {sig}"),
+        (Some(101), _) => "panicked (exit status 101)".into(),
+        (Some(c), _) => format!("exited with status {c}"),
+        _ => "exited".into(),
+    }
+}
+
+/// The line of a child's log that says why it stopped: a panic's message, else its last line
+/// (backtraces and warnings skipped).
+fn last_line(path: &Path) -> String {
+    let lines = read_log(path);
+    if let Some(i) = lines.iter().position(|l| l.contains("panicked at")) {
+        return format!(
+            "{} {}",
+            lines[i].trim(),
+            lines.get(i + 1).map_or("", |l| l.trim())
+        );
+    }
+    lines
+        .into_iter()
+        .rev()
+        .find(|l| {
+            !l.contains("warning:")
+                && !l.trim_start().starts_with("at ")
+                && !l.trim_start().starts_with(|c: char| c.is_ascii_digit())
+                && !l.starts_with("note:")
+                && !l.starts_with("stack backtrace")
+        })
+        .unwrap_or_default()
+}
+
+/// One line saying what went wrong, or None when both children finished normally.
+fn fault_cause(
+    plant: Option<std::process::ExitStatus>,
+    ctrl: Option<std::process::ExitStatus>,
+    plant_log: &Path,
+    ctrl_log: &Path,
+    first_exit: Option<(u64, &'static str)>,
+    torques: &[Option<TorqueMsg>],
+    tels: &[Option<TelemetryMsg>],
+) -> Option<(u64, String)> {
+    let ok = |s: Option<std::process::ExitStatus>| s.is_some_and(|s| s.success());
+    if ok(plant) && ok(ctrl) {
+        return None;
+    }
+    let last_torque = torques.iter().rev().flatten().next();
+    let last_tel = tels
+        .iter()
+        .rev()
+        .flatten()
+        .find(|m| m.flags & wire::TEL_SAFE_STOP == 0);
+    let tick = last_tel.map_or(0, |m| m.tick + 1);
+    let mut parts = Vec::new();
+    // A child still running when the supervisor stopped it is not a cause (status None).
+    if ctrl.is_some() && !ok(ctrl) {
+        let what = ctrl.map_or("did not exit".into(), status_text);
+        let line = last_line(ctrl_log);
+        parts.push(if line.is_empty() {
+            format!("the controller {what}")
+        } else {
+            format!("the controller {what} ({line})")
+        });
+    }
+    if plant.is_some() && !ok(plant) {
+        let what = plant.map_or("did not exit".into(), status_text);
+        let line = last_line(plant_log);
+        parts.push(if line.is_empty() {
+            format!("the plant {what}")
+        } else {
+            format!(
+                "the plant {what}: {}",
+                line.trim_start_matches("deltaloop-plant: ")
+            )
+        });
+    }
+    // How long after the dead peer's last message the supervisor saw it exit.
+    if let Some((noticed, who)) = first_exit {
+        let last = if who == "controller" {
+            last_torque.map(|t| t.t_publish_ns)
+        } else {
+            last_tel.map(|m| m.t_wake_ns)
+        };
+        if let Some(t) = last {
+            parts.push(format!(
+                "the supervisor saw the {who} exit {:.1} ms after its last message",
+                noticed.saturating_sub(t) as f64 * 1e-6
+            ));
+        }
+    }
+    Some((tick, parts.join("; ")))
 }

@@ -24,6 +24,8 @@ pub struct TickRecord {
     pub clamped: bool,
     /// The plant held the previous torque over [t_k, t_{k+1}) (missed or rejected command).
     pub held: bool,
+    /// The plant rejected the command (non-finite, or over the limit under `reject`).
+    pub rejected: bool,
 }
 
 /// How a run ended.
@@ -33,6 +35,10 @@ pub enum Outcome {
     Completed,
     /// Stopped at `tick` (error above the bound, a non-finite value, or the robot left its workspace).
     Diverged { tick: u64, reason: String },
+    /// Stopped at `tick` by Ctrl-C / SIGTERM; the ticks before it are kept.
+    Interrupted { tick: u64 },
+    /// Stopped at `tick` by a loop fault (a process died, stalled, or the plant failed).
+    Fault { tick: u64, cause: String },
 }
 
 /// A finished run of one law.
@@ -82,6 +88,7 @@ impl Recorder {
             out,
             clamped: false,
             held: false,
+            rejected: false,
         });
         let e = q_des - sample.q;
         let reason = if !(sample
@@ -114,10 +121,11 @@ impl Recorder {
     }
 
     /// Marks how the drives treated the last recorded tick's command.
-    pub fn applied(&mut self, clamped: bool, held: bool) {
+    pub fn applied(&mut self, clamped: bool, held: bool, rejected: bool) {
         if let Some(r) = self.run.records.last_mut() {
             r.clamped = clamped;
             r.held = held;
+            r.rejected = rejected;
         }
     }
 
@@ -125,6 +133,17 @@ impl Recorder {
     pub fn plant_failed(&mut self, reason: String) {
         let tick = self.run.records.last().map_or(0, |r| r.sample.k + 1);
         self.run.outcome = Outcome::Diverged { tick, reason };
+    }
+
+    /// The run was interrupted by a signal after the last recorded tick.
+    pub fn interrupt(&mut self) {
+        let tick = self.run.records.last().map_or(0, |r| r.sample.k + 1);
+        self.run.outcome = Outcome::Interrupted { tick };
+    }
+
+    /// The loop faulted at `tick` (after the last recorded tick).
+    pub fn fault(&mut self, tick: u64, cause: String) {
+        self.run.outcome = Outcome::Fault { tick, cause };
     }
 
     /// Stores the state after the last tick and returns the run.

@@ -37,9 +37,11 @@ fn e(x: f64) -> String {
 }
 
 fn status(m: &LawMetrics) -> String {
-    match m.diverged_at_tick {
-        None => "ok".into(),
-        Some(k) => format!("diverged at tick {k}"),
+    match (m.diverged_at_tick, m.interrupted_at_tick, m.fault_at_tick) {
+        (Some(k), _, _) => format!("diverged at tick {k}"),
+        (_, Some(k), _) => format!("interrupted at tick {k}"),
+        (_, _, Some(k)) => format!("FAULT at tick {k}"),
+        _ => "ok".into(),
     }
 }
 
@@ -277,7 +279,45 @@ pub fn markdown(
         }
     }
 
-    let diverged: Vec<_> = metrics.iter().filter(|m| !m.completed).collect();
+    for m in metrics.iter().filter(|m| m.rejected_count > 0) {
+        let _ = writeln!(
+            s,
+            "\n**`{}`: the plant rejected {} torque command(s)** (non-finite, or beyond ±τ_max with `faults.torque_limit = \"reject\"`) and held the last applied torque instead; they never reached the integrator.",
+            m.law, m.rejected_count
+        );
+    }
+    let stopped: Vec<_> = metrics
+        .iter()
+        .filter(|m| m.interrupted_at_tick.is_some() || m.fault.is_some())
+        .collect();
+    if !stopped.is_empty() {
+        let _ = writeln!(s, "\n## Stopped runs\n");
+        for m in stopped {
+            match (&m.fault, m.interrupted_at_tick) {
+                (Some(cause), _) => {
+                    let _ = writeln!(
+                        s,
+                        "- `{}`: **fault** at tick {}: {cause}. Trace and metrics cover ticks 0..{}.",
+                        m.law,
+                        m.fault_at_tick.unwrap_or(0),
+                        m.ticks
+                    );
+                }
+                (None, Some(k)) => {
+                    let _ = writeln!(
+                        s,
+                        "- `{}`: **interrupted** (Ctrl-C / SIGTERM) at tick {k}. Trace and metrics cover ticks 0..{}.",
+                        m.law, m.ticks
+                    );
+                }
+                _ => {}
+            }
+        }
+    }
+    let diverged: Vec<_> = metrics
+        .iter()
+        .filter(|m| m.diverged_at_tick.is_some())
+        .collect();
     if !diverged.is_empty() {
         let _ = writeln!(s, "\n## Diverged runs\n");
         for m in diverged {

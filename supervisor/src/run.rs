@@ -125,6 +125,9 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
         ));
     }
     let mut run_ids = Vec::new();
+    // A fault or an interrupt ends the run after this law; the folder is still written.
+    let mut stopped: Option<(Law, Option<String>)> = None;
+    let mut faults: Vec<(Law, u64, String)> = Vec::new();
     let (runs, timings): (Vec<LawRun>, Vec<Option<Timing>>) = match mode.process_mode() {
         None => (inproc::run_laws(&study, &laws), vec![None; laws.len()]),
         Some(pm) => {
@@ -139,6 +142,9 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
             let mut runs = Vec::new();
             let mut timings = Vec::new();
             for &law in &laws {
+                if stopped.is_some() || crate::signals::interrupted() {
+                    break;
+                }
                 let r = procs::run_law(&study, law, pm, &dir)
                     .with_context(|| format!("{} run of `{law}`", mode.name()))?;
                 for m in r.child_messages {
@@ -148,16 +154,30 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
                 }
                 r.timing.write_hgrm(&dir, &format!("{law}."))?;
                 run_ids.push((law, r.run_id));
+                if let Some((tick, cause)) = &r.fault {
+                    faults.push((law, *tick, cause.clone()));
+                }
+                if r.interrupted || r.fault.is_some() {
+                    stopped = Some((law, r.fault.as_ref().map(|f| f.1.clone())));
+                }
                 runs.push(r.run);
                 timings.push(Some(r.timing));
             }
             (runs, timings)
         }
     };
-    let metrics: Vec<LawMetrics> = runs
+    let mut metrics: Vec<LawMetrics> = runs
         .iter()
         .map(|r| metrics::compute(r, &study.reference, &study.robot, &study.params))
         .collect();
+    // A loop fault is recorded even when the study's divergence rule stopped the trace earlier
+    // (e.g. the robot drifting while the plant held the torque of a dead controller).
+    for (law, tick, cause) in &faults {
+        if let Some(m) = metrics.iter_mut().find(|m| m.law == law.name()) {
+            m.fault_at_tick = Some(*tick);
+            m.fault = Some(cause.clone());
+        }
+    }
     let timing_summaries: Vec<Option<TimingSummary>> = timings
         .iter()
         .map(|t| t.as_ref().map(Timing::summary))
@@ -177,6 +197,7 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
         tde_delay_samples: cfg.controller.tde_delay_samples,
         controller: study.params,
         mismatch: &mm,
+        interrupted: crate::signals::interrupted(),
         laws: metrics.iter().map(|m| (m.law.as_str(), m)).collect(),
         run_ids: run_ids
             .iter()
@@ -202,6 +223,19 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
     if mode.process_mode().is_some() {
         table.push_str(&report::timing_table(&metrics, &timing_summaries));
     }
+    if let Some((law, cause)) = &stopped {
+        return Err(match cause {
+            Some(c) => anyhow::anyhow!(
+                "{} run of `{law}` stopped by a fault: {c} (data so far in {})",
+                mode.name(),
+                dir.display()
+            ),
+            None => anyhow::Error::new(Interrupted(dir.clone())),
+        });
+    }
+    if crate::signals::interrupted() {
+        return Err(anyhow::Error::new(Interrupted(dir.clone())));
+    }
     Ok(RunOutput {
         dir,
         metrics,
@@ -211,3 +245,19 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
         runs,
     })
 }
+
+/// The run was stopped by Ctrl-C / SIGTERM; its folder holds the data gathered so far.
+#[derive(Debug)]
+pub struct Interrupted(pub PathBuf);
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "interrupted; the data gathered so far is in {}",
+            self.0.display()
+        )
+    }
+}
+
+impl std::error::Error for Interrupted {}

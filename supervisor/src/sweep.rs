@@ -335,6 +335,9 @@ pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
             .map(|_| {
                 s.spawn(|| -> Result<()> {
                     loop {
+                        if crate::signals::interrupted() {
+                            return Ok(());
+                        }
                         let n = next.fetch_add(1, Ordering::Relaxed);
                         let Some(&i) = parallel.get(n) else {
                             return Ok(());
@@ -351,6 +354,9 @@ pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
         Ok(())
     })?;
     for i in serial {
+        if crate::signals::interrupted() {
+            break;
+        }
         record(i, run_job(&base, &all[i], &sw.mode, out))?;
     }
     bar.finish_with_message("done");
@@ -362,7 +368,15 @@ pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
         .collect();
     std::fs::write(out.join("sweep.json"), serde_json::to_string_pretty(&rows)?)?;
     let figures = plots(&sw, &rows, out)?;
-    std::fs::write(out.join("report.md"), report(&sw, &rows, &figures, path))?;
+    let mut md = report(&sw, &rows, &figures, path);
+    if crate::signals::interrupted() {
+        md.insert_str(0, &format!("> **Interrupted** (Ctrl-C / SIGTERM) after {} of {} runs: the tables hold the finished ones.\n\n", rows.len(), all.len()));
+        std::fs::write(out.join("report.md"), md)?;
+        return Err(anyhow::Error::new(crate::run::Interrupted(
+            out.to_path_buf(),
+        )));
+    }
+    std::fs::write(out.join("report.md"), md)?;
     Ok(rows)
 }
 

@@ -137,11 +137,16 @@ impl Timing {
         ts_ns: u64,
         realtime: bool,
     ) -> Self {
+        // A run stopped early (fault, interrupt) only covers the ticks it reached.
+        let reached = tels
+            .iter()
+            .rposition(|m| m.is_some_and(|m| m.flags & wire::TEL_SAFE_STOP == 0))
+            .map_or(0, |k| k + 1);
+        let n = reached.min((ticks + 1) as usize);
         let mut t = Timing {
-            ticks: ticks + 1,
+            ticks: n as u64,
             ..Timing::default()
         };
-        let n = (ticks + 1) as usize;
         // A missing torque on a tick the plant marked missed was never sent (the controller answered
         // a newer state): that is a miss, not a loss.
         let missed = |k: usize| {

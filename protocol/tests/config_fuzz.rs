@@ -1,0 +1,130 @@
+//! Fuzzing the config parser: no input may panic it. Whatever it accepts is valid and round-trips.
+
+use deltaloop_protocol::RunConfig;
+use proptest::prelude::*;
+
+const SECTIONS: &[&str] = &[
+    "",
+    "scenario",
+    "plant",
+    "controller",
+    "loop",
+    "loop.realtime",
+    "loop.lockstep",
+    "sensor",
+    "faults",
+    "bogus",
+];
+const KEYS: &[&str] = &[
+    "name",
+    "path",
+    "hold_s",
+    "segments",
+    "friction",
+    "tau_max_nm",
+    "substeps",
+    "transport_delay_samples",
+    "payload_step_kg",
+    "payload_step_at_s",
+    "preset",
+    "laws",
+    "tde_delay_samples",
+    "compute_delay_us",
+    "m_bar",
+    "kp",
+    "kd",
+    "ks",
+    "phi",
+    "k1",
+    "k2",
+    "pid_p",
+    "pid_i",
+    "pid_d",
+    "ts_s",
+    "torque_budget_us",
+    "silence_timeout_ms",
+    "plant_cpu",
+    "controller_cpu",
+    "supervisor_cpu",
+    "plant_priority",
+    "controller_priority",
+    "spin_us",
+    "lock_memory",
+    "wake_early_us",
+    "encoder_counts_per_rev",
+    "q_noise_std_rad",
+    "qd_noise_std_rad_s",
+    "seed",
+    "velocity",
+    "controller_silence_ticks",
+    "safe_stop_ms",
+    "brake_damping_nm_s",
+    "torque_limit",
+    "inject",
+    "unknown_key",
+];
+
+/// A TOML value that is often wrong: hostile numbers, wrong types, near-valid strings.
+fn value() -> impl Strategy<Value = String> {
+    prop_oneof![
+        any::<i64>().prop_map(|v| v.to_string()),
+        prop_oneof![Just(0.0f64), Just(-1.0), Just(1e308), Just(3e-4), Just(0.5), any::<f64>()].prop_map(|v| {
+            if v.is_nan() { "nan".to_string() } else if v.is_infinite() { if v > 0.0 { "inf".into() } else { "-inf".into() } } else { format!("{v:e}") }
+        }),
+        Just("nan".to_string()),
+        Just("-inf".to_string()),
+        any::<bool>().prop_map(|b| b.to_string()),
+        prop_oneof![Just("s1"), Just("s2"), Just("s3"), Just("custom"), Just("matched"), Just("paper"), Just("tdc"), Just("stall@3"), Just("nan-torque@x"), Just("reject"), Just("encoder-difference"), Just("")]
+            .prop_map(|s| format!("{s:?}")),
+        prop::collection::vec(prop_oneof![Just("\"tdc\""), Just("\"pid\""), Just("\"lqr\""), Just("1"), Just("0.25")], 0..4).prop_map(|v| format!("[{}]", v.join(", "))),
+        Just("[{ from = [0.25, 0, -0.43], to = [-0.25, 0, -0.43], apex_m = 0.12, duration_s = 0.5 }]".to_string()),
+        Just("[{ from = [9, 9, 9], to = [1], apex_m = nan, duration_s = -1 }]".to_string()),
+    ]
+}
+
+/// A config-shaped document: sections of key = value lines, mostly plausible, often wrong.
+fn document() -> impl Strategy<Value = String> {
+    prop::collection::vec(
+        (
+            prop::sample::select(SECTIONS),
+            prop::collection::vec((prop::sample::select(KEYS), value()), 0..6),
+        ),
+        0..6,
+    )
+    .prop_map(|sections| {
+        let mut s = String::from("[scenario]\npath = \"s1\"\n");
+        for (name, kvs) in sections {
+            if !name.is_empty() && name != "scenario" {
+                s.push_str(&format!("[{name}]\n"));
+            }
+            for (k, v) in kvs {
+                s.push_str(&format!("{k} = {v}\n"));
+            }
+        }
+        s
+    })
+}
+
+fn check(text: &str) {
+    if let Ok(cfg) = RunConfig::from_toml_str(text, None) {
+        cfg.validate().expect("an accepted config validates");
+        let again = RunConfig::from_toml_str(&cfg.to_toml_string(), None)
+            .expect("the resolved config parses");
+        assert_eq!(cfg, again, "the resolved config round-trips");
+        assert!(cfg.loop_.ts_s.is_finite() && cfg.controller_params().m_bar > 0.0);
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(2000))]
+
+    #[test]
+    fn structured_toml_never_panics(doc in document()) {
+        check(&doc);
+    }
+
+    #[test]
+    fn arbitrary_text_never_panics(text in ".{0,400}") {
+        check(&text);
+    }
+}

@@ -1,0 +1,62 @@
+//! Helpers shared by the end-to-end tests.
+#![allow(dead_code)]
+
+use iceoryx2::node::NodeView;
+use iceoryx2::prelude::*;
+use std::process::{Command, Output};
+
+/// Runs `deltaloop` with `args` from the repository root.
+pub fn deltaloop(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("deltaloop runs")
+}
+
+/// Process ids of `deltaloop-plant`/`deltaloop-controller` whose command line mentions `needle`.
+pub fn children_mentioning(needle: &str) -> Vec<u32> {
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(cmd) = std::fs::read(entry.path().join("cmdline")) else {
+            continue;
+        };
+        let cmd = String::from_utf8_lossy(&cmd);
+        if (cmd.contains("deltaloop-plant") || cmd.contains("deltaloop-controller"))
+            && cmd.contains(needle)
+        {
+            found.push(pid);
+        }
+    }
+    found
+}
+
+/// iceoryx2 nodes and services whose name carries `run_id`.
+pub fn iceoryx_leftovers(run_id: &str) -> Vec<String> {
+    let config = Config::default();
+    let mut left = Vec::new();
+    Node::<ipc::Service>::list(&config, |state| {
+        let name = match &state {
+            NodeState::Alive(v) => v.details().as_ref().map(|d| d.name().to_string()),
+            NodeState::Dead(v) => v.details().as_ref().map(|d| d.name().to_string()),
+            _ => None,
+        };
+        if let Some(n) = name.filter(|n| n.contains(run_id)) {
+            left.push(format!("node {n}"));
+        }
+        CallbackProgression::Continue
+    })
+    .unwrap();
+    ipc::Service::list(&config, |s| {
+        let name = s.static_details.name().to_string();
+        if name.contains(run_id) {
+            left.push(format!("service {name}"));
+        }
+        CallbackProgression::Continue
+    })
+    .unwrap();
+    left
+}

@@ -1,0 +1,325 @@
+//! Faults, signals and debris, end to end with real processes and real signals. Each test checks
+//! the exit code, the message, the files on disk, and that no child process outlives the run.
+
+mod common;
+
+use common::{children_mentioning, deltaloop, iceoryx_leftovers};
+use serde_json::Value;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// S1 plus a hold (long enough to act on mid-run), one law, realtime unless `extra` says otherwise.
+fn config(dir: &Path, hold_s: f64, extra: &str) -> String {
+    let p = dir.join("cfg.toml");
+    // Tests run in parallel. Several SCHED_FIFO loops pinned to one CPU starve each other's
+    // controllers (FIFO does not time-slice), so these runs use a fair layout (unpinned,
+    // SCHED_OTHER, no early-wake spin) and a 1000-tick (300 ms) silence window: what they test is
+    // fault handling, not latency.
+    let silence = "[faults]\ncontroller_silence_ticks = 1000\n";
+    let faults = if extra.contains("[faults]") {
+        extra.replace("[faults]\n", silence)
+    } else {
+        format!("{extra}{silence}")
+    };
+    let layout = "[loop.realtime]\nplant_cpu = -1\ncontroller_cpu = -1\nsupervisor_cpu = -1\nplant_priority = 0\ncontroller_priority = 0\nwake_early_us = 0\nlock_memory = false\n";
+    let layout = if faults.contains("[loop]") {
+        String::new()
+    } else {
+        layout.to_string()
+    };
+    std::fs::write(&p, format!("name = \"fault\"\n[scenario]\npath = \"s1\"\nhold_s = {hold_s}\n[plant]\nfriction = true\n[controller]\nlaws = [\"tde-is\"]\n{faults}{layout}")).unwrap();
+    p.display().to_string()
+}
+
+fn spawn(args: &[&str]) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Waits until the pair of `out` runs (the handshake is done) plus `after_ms`, then sends `sig`
+/// to `who`.
+fn signal_child(out: &Path, who: &str, sig: i32, after_ms: u64) {
+    let t0 = Instant::now();
+    loop {
+        let pids: Vec<u32> = children_mentioning(out.to_str().unwrap())
+            .into_iter()
+            .filter(|&p| {
+                std::fs::read(format!("/proc/{p}/cmdline"))
+                    .is_ok_and(|c| String::from_utf8_lossy(&c).contains(who))
+            })
+            .collect();
+        if out.join("tde-is.controller.log").exists() && !pids.is_empty() {
+            std::thread::sleep(Duration::from_millis(after_ms));
+            for p in pids {
+                // SAFETY: signalling a process we found by its command line.
+                unsafe { libc::kill(p as i32, sig) };
+            }
+            return;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the pair never started"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn finish(child: Child) -> (Option<i32>, String) {
+    let o = child.wait_with_output().unwrap();
+    (
+        o.status.code(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+fn summary(out: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
+}
+
+/// The run folder is complete and no process or iceoryx2 resource of it is left.
+fn assert_kept_and_clean(out: &Path) -> Value {
+    for f in [
+        "config.toml",
+        "trace.csv",
+        "summary.json",
+        "report.md",
+        "tde-is.timing.csv",
+    ] {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+    assert!(
+        std::fs::read_to_string(out.join("trace.csv"))
+            .unwrap()
+            .lines()
+            .count()
+            > 100,
+        "the trace up to the stop is kept"
+    );
+    assert!(
+        children_mentioning(out.to_str().unwrap()).is_empty(),
+        "a child outlived the run"
+    );
+    let s = summary(out);
+    for id in s["run_ids"].as_object().unwrap().values() {
+        assert!(iceoryx_leftovers(id.as_str().unwrap()).is_empty());
+    }
+    s
+}
+
+#[test]
+fn controller_killed_plant_holds_then_brakes_supervisor_reports() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = config(tmp.path(), 5.0, "");
+    let child = spawn(&["run", &cfg, "--out", out.to_str().unwrap()]);
+    // In the hold phase after the motion (t > 0.8 s): the held torque holds the robot, so the
+    // safe stop is a real stop; mid-motion a 300 ms hold would drift into a singularity.
+    signal_child(&out, "deltaloop-controller", libc::SIGKILL, 1500);
+    let (code, err) = finish(child);
+    assert_eq!(code, Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "one-line cause: {err}");
+    for needle in [
+        "controller was killed (SIGKILL)",
+        "no torque within the budget for 1000 consecutive ticks",
+        "braked for 100 ms",
+        "safe stop",
+        "the supervisor saw the controller exit",
+    ] {
+        assert!(err.contains(needle), "missing {needle:?} in: {err}");
+    }
+    let s = assert_kept_and_clean(&out);
+    let m = &s["laws"]["tde-is"];
+    assert_eq!(m["completed"], false);
+    assert!(
+        m["fault_at_tick"].as_u64().unwrap() > 1000
+            && m["fault"].as_str().unwrap().contains("SIGKILL")
+    );
+    assert!(
+        std::fs::read_to_string(out.join("report.md"))
+            .unwrap()
+            .contains("**fault** at tick")
+    );
+}
+
+#[test]
+fn plant_killed_controller_is_stopped_and_fault_reported() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = config(tmp.path(), 5.0, "");
+    let child = spawn(&["run", &cfg, "--out", out.to_str().unwrap()]);
+    let t0 = Instant::now();
+    signal_child(&out, "deltaloop-plant", libc::SIGKILL, 400);
+    let (code, err) = finish(child);
+    assert!(
+        t0.elapsed() < Duration::from_secs(5),
+        "bounded: {:?}",
+        t0.elapsed()
+    );
+    assert_eq!(code, Some(1), "{err}");
+    assert!(
+        err.contains("plant was killed (SIGKILL)")
+            && err.contains("the supervisor saw the plant exit"),
+        "{err}"
+    );
+    assert_kept_and_clean(&out);
+}
+
+#[test]
+fn injected_panic_and_stall_are_faults_with_their_cause() {
+    for (inject, needle) in [
+        ("panic@300", "injected controller panic at tick 300"),
+        (
+            "stall@300",
+            "no torque within the budget for 1000 consecutive ticks",
+        ),
+    ] {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("run");
+        let cfg = config(
+            tmp.path(),
+            0.0,
+            &format!("[faults]\ninject = \"{inject}\"\n"),
+        );
+        let o = deltaloop(&["run", &cfg, "--out", out.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{inject}: {err}");
+        assert!(
+            err.contains(needle) && err.contains("safe stop"),
+            "{inject}: {err}"
+        );
+        let s = assert_kept_and_clean(&out);
+        // Ticks 300..=1299 go unanswered: the 1000th silent tick (1299) ends the hold window.
+        assert_eq!(
+            s["laws"]["tde-is"]["fault_at_tick"].as_u64(),
+            Some(1299),
+            "{inject}"
+        );
+        assert!(err.contains("fault at tick 1299"), "{err}");
+    }
+}
+
+#[test]
+fn lockstep_stall_is_noticed_after_the_silence_timeout() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = config(
+        tmp.path(),
+        0.0,
+        "[faults]\ninject = \"stall@100\"\n[loop]\nsilence_timeout_ms = 300\n",
+    );
+    let t0 = Instant::now();
+    let o = deltaloop(&[
+        "run",
+        &cfg,
+        "--mode",
+        "lockstep",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("no torque for tick 100 within 300 ms"),
+        "{err}"
+    );
+    assert!(t0.elapsed() < Duration::from_secs(10));
+    assert_kept_and_clean(&out);
+}
+
+#[test]
+fn sigterm_and_ctrl_c_stop_everything_and_keep_the_data() {
+    for sig in [libc::SIGTERM, libc::SIGINT] {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("run");
+        let cfg = config(tmp.path(), 5.0, "");
+        // Its own process group, so SIGINT reaches all three like a terminal's Ctrl-C does.
+        let child = {
+            use std::os::unix::process::CommandExt;
+            Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+                .args(["run", &cfg, "--out", out.to_str().unwrap()])
+                .current_dir(env!("CARGO_MANIFEST_DIR"))
+                .process_group(0)
+                .stderr(Stdio::piped())
+                .stdout(Stdio::piped())
+                .spawn()
+                .unwrap()
+        };
+        let pgid = child.id() as i32;
+        signal_child(&out, "deltaloop-plant", 0, 400);
+        let t0 = Instant::now();
+        // SAFETY: signalling the process group we created.
+        unsafe { libc::kill(if sig == libc::SIGINT { -pgid } else { pgid }, sig) };
+        let (code, err) = finish(child);
+        assert!(
+            t0.elapsed() < Duration::from_secs(4),
+            "stops within a bounded time: {:?}",
+            t0.elapsed()
+        );
+        assert_eq!(code, Some(130), "signal {sig}: {err}");
+        assert!(err.contains("interrupted"), "{err}");
+        let s = assert_kept_and_clean(&out);
+        assert_eq!(s["interrupted"], true);
+        assert!(s["laws"]["tde-is"]["interrupted_at_tick"].as_u64().unwrap() > 100);
+    }
+}
+
+#[test]
+fn sigkilled_run_leaves_nothing_that_breaks_the_next() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("killed");
+    let cfg = config(tmp.path(), 5.0, "");
+    let mut child = spawn(&["run", &cfg, "--out", out.to_str().unwrap()]);
+    signal_child(&out, "deltaloop-", libc::SIGKILL, 400);
+    // SAFETY: SIGKILL to our own child, the supervisor, after its children.
+    unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
+    let _ = child.wait();
+    std::thread::sleep(Duration::from_millis(200));
+    assert!(children_mentioning(out.to_str().unwrap()).is_empty());
+    // The next run cleans the dead nodes, says so, and succeeds.
+    let next = tmp.path().join("next");
+    let o = deltaloop(&[
+        "run",
+        &config(tmp.path(), 0.0, ""),
+        "--mode",
+        "lockstep",
+        "--out",
+        next.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("removed stale iceoryx2 resources"), "{err}");
+}
+
+#[test]
+fn over_limit_torque_is_rejected_per_config_and_counted() {
+    // The paper preset's STA limit cycle commands beyond ±100 N m: with `reject` the plant holds.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let p = tmp.path().join("rej.toml");
+    std::fs::write(&p, "[scenario]\npath = \"s1\"\n[plant]\nfriction = true\n[controller]\npreset = \"paper\"\nlaws = [\"tdc-is-sta\"]\n[faults]\ntorque_limit = \"reject\"\n").unwrap();
+    let o = deltaloop(&[
+        "run",
+        p.to_str().unwrap(),
+        "--mode",
+        "inproc",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success());
+    let m = &summary(&out)["laws"]["tdc-is-sta"];
+    assert!(
+        m["rejected_count"].as_u64().unwrap() > 0 && m["clamp_count"] == 0,
+        "{m}"
+    );
+    assert!(
+        std::fs::read_to_string(out.join("report.md"))
+            .unwrap()
+            .contains("the plant rejected")
+    );
+}
