@@ -338,9 +338,14 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
             stop_sent = Some(now);
         }
         let waited_out = match first_exit {
-            // The plant is gone: the controller exits on the plant's final state, or (plant killed)
-            // waits for states that never come; give it 1 s to say why, then stop it.
-            Some((t, "plant")) => now > t + 1_000_000_000,
+            // The plant is gone. If it exited by itself it released the controller with a final
+            // state: give the controller 1 s to finish and say why. If it was killed by a signal
+            // nothing will release the controller: stop it now.
+            Some((t, "plant")) => {
+                use std::os::unix::process::ExitStatusExt;
+                let killed = p.is_some_and(|s| s.signal().is_some());
+                now > t + if killed { 20_000_000 } else { 1_000_000_000 }
+            }
             // A dead controller: the plant notices, holds, brakes, and exits by itself.
             Some((t, _)) => now > t + silence_ns + grace_ns,
             None => false,
