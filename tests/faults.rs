@@ -328,7 +328,12 @@ fn over_limit_torque_is_rejected_per_config_and_counted() {
 fn interrupted_sweep_keeps_its_finished_rows() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("sweep");
-    let child = spawn(&["sweep", "configs/delay-sweep.toml", "--out", out.to_str().unwrap()]);
+    let child = spawn(&[
+        "sweep",
+        "configs/delay-sweep.toml",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     // Wait for the first finished rows, then SIGTERM.
     let t0 = Instant::now();
     while std::fs::read_to_string(out.join("sweep.csv")).map_or(0, |s| s.lines().count()) < 5 {
@@ -339,10 +344,23 @@ fn interrupted_sweep_keeps_its_finished_rows() {
     unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
     let (code, err) = finish(child);
     assert_eq!(code, Some(130), "{err}");
-    let rows = std::fs::read_to_string(out.join("sweep.csv")).unwrap().lines().count() - 1;
-    let json: Value = serde_json::from_str(&std::fs::read_to_string(out.join("sweep.json")).unwrap()).unwrap();
-    assert_eq!(json.as_array().unwrap().len(), rows, "sweep.json holds the finished rows");
+    let rows = std::fs::read_to_string(out.join("sweep.csv"))
+        .unwrap()
+        .lines()
+        .count()
+        - 1;
+    let json: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("sweep.json")).unwrap()).unwrap();
+    assert_eq!(
+        json.as_array().unwrap().len(),
+        rows,
+        "sweep.json holds the finished rows"
+    );
     assert!(rows >= 4 && rows < 600, "{rows} rows");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    assert!(report.contains("Interrupted") && report.contains(&format!("after {rows} of 600 runs")), "{}", &report[..200.min(report.len())]);
+    assert!(
+        report.contains("Interrupted") && report.contains(&format!("after {rows} of 600 runs")),
+        "{}",
+        &report[..200.min(report.len())]
+    );
 }

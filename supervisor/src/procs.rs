@@ -169,10 +169,9 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
         &ctrl_log,
         "controller",
     )?;
-    let messages = |extra: Option<String>| -> Vec<String> {
+    let messages = || -> Vec<String> {
         let mut m = read_log(&plant_log);
         m.extend(read_log(&ctrl_log));
-        m.extend(extra);
         m
     };
 
@@ -195,14 +194,14 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
                 bail!(
                     "{} exited before the run started ({status}): {}",
                     child.1,
-                    messages(None).join(" | ")
+                    messages().join(" | ")
                 );
             }
         }
         if rt::now_ns() > deadline {
             bail!(
                 "the plant/controller pair did not report ready within 30 s: {}",
-                messages(None).join(" | ")
+                messages().join(" | ")
             );
         }
         std::thread::sleep(Duration::from_millis(1));
@@ -236,13 +235,13 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
         if let Some(status) = controller.exited() {
             bail!(
                 "controller exited before the run started ({status}): {}",
-                messages(None).join(" | ")
+                messages().join(" | ")
             );
         }
         if rt::now_ns() > deadline {
             bail!(
                 "the controller did not take the reference within 30 s: {}",
-                messages(None).join(" | ")
+                messages().join(" | ")
             );
         }
         std::thread::sleep(Duration::from_micros(200));
@@ -375,7 +374,7 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
         )
     };
 
-    let mut child_messages = messages(None);
+    let mut child_messages = messages();
     child_messages.extend(
         sched_warnings
             .into_iter()
