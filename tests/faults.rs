@@ -356,7 +356,7 @@ fn interrupted_sweep_keeps_its_finished_rows() {
         rows,
         "sweep.json holds the finished rows"
     );
-    assert!(rows >= 4 && rows < 600, "{rows} rows");
+    assert!((4..600).contains(&rows), "{rows} rows");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(
         report.contains("Interrupted") && report.contains(&format!("after {rows} of 600 runs")),
