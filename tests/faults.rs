@@ -275,13 +275,31 @@ fn sigkilled_run_leaves_nothing_that_breaks_the_next() {
     let out = tmp.path().join("killed");
     let cfg = config(tmp.path(), 5.0, "");
     let mut child = spawn(&["run", &cfg, "--out", out.to_str().unwrap()]);
-    signal_child(&out, "deltaloop-", libc::SIGKILL, 400);
-    // SAFETY: SIGKILL to our own child, the supervisor, after its children.
+    signal_child(&out, "deltaloop-", 0, 400);
+    // The run id, from the children's command lines, before anything dies.
+    let pid = children_mentioning(out.to_str().unwrap())[0];
+    let cmd = String::from_utf8_lossy(&std::fs::read(format!("/proc/{pid}/cmdline")).unwrap())
+        .into_owned();
+    let run_id = cmd
+        .split('\0')
+        .skip_while(|a| *a != "--run-id")
+        .nth(1)
+        .unwrap()
+        .to_string();
+    // SIGKILL everything: the two children, then the supervisor.
+    for p in children_mentioning(out.to_str().unwrap()) {
+        // SAFETY: signalling processes we found by their command line.
+        unsafe { libc::kill(p as i32, libc::SIGKILL) };
+    }
+    // SAFETY: as above, our own child.
     unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
     let _ = child.wait();
     std::thread::sleep(Duration::from_millis(200));
     assert!(children_mentioning(out.to_str().unwrap()).is_empty());
-    // The next run cleans the dead nodes, says so, and succeeds.
+    // Debris exists now (dead nodes of the killed run), unless a concurrent test's run already
+    // removed it (every process run starts by removing dead nodes).
+    let debris = iceoryx_leftovers(&run_id);
+    // The next run removes what is left, says so, and succeeds.
     let next = tmp.path().join("next");
     let o = deltaloop(&[
         "run",
@@ -293,7 +311,21 @@ fn sigkilled_run_leaves_nothing_that_breaks_the_next() {
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
-    assert!(err.contains("removed stale iceoryx2 resources"), "{err}");
+    assert!(
+        iceoryx_leftovers(&run_id).is_empty(),
+        "debris of the killed run is still there"
+    );
+    if err.contains("removed stale iceoryx2 resources") {
+        assert!(
+            err.contains(&run_id),
+            "the report names the removed nodes: {err}"
+        );
+    } else {
+        assert!(
+            debris.is_empty() || iceoryx_leftovers(&run_id).is_empty(),
+            "{err}"
+        );
+    }
 }
 
 #[test]

@@ -34,9 +34,14 @@ pub fn err(what: impl Into<String>) -> impl FnOnce(&dyn Debug) -> IpcError {
 }
 
 /// The iceoryx2 configuration, set in code (defaults), so no process looks for a config file or
-/// warns that there is none.
+/// warns that there is none. iceoryx2's own silent clean-up of dead nodes is off: the supervisor
+/// removes them explicitly before a run ([`remove_dead_nodes`]) and reports what it removed.
 pub fn config() -> Config {
-    Config::default()
+    let mut c = Config::default();
+    c.global.node.cleanup_dead_nodes_on_creation = false;
+    c.global.node.cleanup_dead_nodes_on_destruction = false;
+    c.global.service.cleanup_dead_nodes_on_open = false;
+    c
 }
 
 /// A node for `role` in run `run_id`. Signal handling stays with the process.
