@@ -375,6 +375,16 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
     };
 
     let mut child_messages = messages();
+    // A child killed by a signal leaves its iceoryx2 node behind: the surviving supervisor
+    // removes it now (and says so) rather than leaving it to the next run.
+    let removed = ipc::remove_dead_nodes();
+    if !removed.is_empty() {
+        child_messages.push(format!(
+            "removed the iceoryx2 resources of {} dead node(s): {}",
+            removed.len(),
+            removed.join(", ")
+        ));
+    }
     child_messages.extend(
         sched_warnings
             .into_iter()
