@@ -89,27 +89,21 @@ fn run(args: &Args, term: &std::sync::atomic::AtomicBool) -> Result<Option<Strin
         .subscriber_builder()
         .create()
         .map_err(|e| ipc::err("reference subscriber")(&e))?;
-    let control_svc = ipc::control(&node, rid)?;
-    let ctl_pub = control_svc
-        .publisher_builder()
-        .create()
-        .map_err(|e| ipc::err("control publisher")(&e))?;
-    let ctl_sub = control_svc
-        .subscriber_builder()
-        .create()
-        .map_err(|e| ipc::err("control subscriber")(&e))?;
-
-    let sched = rt::Sched {
-        core: Layout::cpu(layout.controller_cpu),
-        fifo_priority: layout.controller_priority.unwrap_or(0),
-        lock_memory: layout.lock_memory.unwrap_or(false),
-    };
-    for w in rt::apply(&sched) {
-        eprintln!("deltaloop-controller: warning: {w}");
-    }
-    ctl_pub
-        .send_copy(ControlMsg::new(control::READY, control::CONTROLLER))
-        .map_err(|e| ipc::err("send READY")(&e))?;
+    let (ctl_pub, ctl_sub) = ipc::control_ports(&node, rid)?;
+    rt::schedule_and_report_ready(
+        &rt::Sched {
+            core: Layout::cpu(layout.controller_cpu),
+            fifo_priority: layout.controller_priority.unwrap_or(0),
+            lock_memory: layout.lock_memory.unwrap_or(false),
+        },
+        "deltaloop-controller",
+        || {
+            ctl_pub
+                .send_copy(ControlMsg::new(control::READY, control::CONTROLLER))
+                .map(|_| ())
+                .map_err(|e| ipc::err("send READY")(&e))
+        },
+    )?;
 
     // Handshake: the reference (one slice sample), then ARMED, then START.
     let end = rt::now_ns() + 30_000_000_000;

@@ -134,28 +134,21 @@ fn run(args: &Args, term: &std::sync::atomic::AtomicBool) -> Result<Result<(), F
         .listener_builder()
         .create()
         .map_err(|e| ipc::err("torque listener")(&e))?;
-    let control_svc = ipc::control(&node, rid)?;
-    let ctl_pub = control_svc
-        .publisher_builder()
-        .create()
-        .map_err(|e| ipc::err("control publisher")(&e))?;
-    let ctl_sub = control_svc
-        .subscriber_builder()
-        .create()
-        .map_err(|e| ipc::err("control subscriber")(&e))?;
-
-    let sched = rt::Sched {
-        core: Layout::cpu(layout.plant_cpu),
-        fifo_priority: layout.plant_priority.unwrap_or(0),
-        lock_memory: layout.lock_memory.unwrap_or(false),
-    };
-    for w in rt::apply(&sched) {
-        eprintln!("deltaloop-plant: warning: {w}");
-    }
-
-    ctl_pub
-        .send_copy(ControlMsg::new(control::READY, control::PLANT))
-        .map_err(|e| ipc::err("send READY")(&e))?;
+    let (ctl_pub, ctl_sub) = ipc::control_ports(&node, rid)?;
+    rt::schedule_and_report_ready(
+        &rt::Sched {
+            core: Layout::cpu(layout.plant_cpu),
+            fifo_priority: layout.plant_priority.unwrap_or(0),
+            lock_memory: layout.lock_memory.unwrap_or(false),
+        },
+        "deltaloop-plant",
+        || {
+            ctl_pub
+                .send_copy(ControlMsg::new(control::READY, control::PLANT))
+                .map(|_| ())
+                .map_err(|e| ipc::err("send READY")(&e))
+        },
+    )?;
     let start = wait_for_start(&ctl_sub, cfg.loop_.silence_timeout_ms.max(30_000))?;
 
     let mut plant =

@@ -115,6 +115,26 @@ pub fn control(
     pubsub(node, run_id, "control", 3, 3, 64)
 }
 
+/// A process's two ends of the control channel (publisher, subscriber).
+pub type ControlPorts = (
+    iceoryx2::port::publisher::Publisher<Svc, ControlMsg, ()>,
+    iceoryx2::port::subscriber::Subscriber<Svc, ControlMsg, ()>,
+);
+
+/// Opens the control channel and creates this process's publisher and subscriber on it.
+pub fn control_ports(node: &Node<Svc>, run_id: &str) -> Result<ControlPorts, IpcError> {
+    let svc = control(node, run_id)?;
+    let publisher = svc
+        .publisher_builder()
+        .create()
+        .map_err(|e| err("control publisher")(&e))?;
+    let subscriber = svc
+        .subscriber_builder()
+        .create()
+        .map_err(|e| err("control subscriber")(&e))?;
+    Ok((publisher, subscriber))
+}
+
 /// Supervisor → controller: the whole joint reference as one slice sample.
 pub fn reference(
     node: &Node<Svc>,

@@ -130,3 +130,16 @@ pub fn child_signals() -> std::sync::Arc<std::sync::atomic::AtomicBool> {
     let _ = signal_hook::flag::register(signal_hook::consts::SIGTERM, flag.clone());
     flag
 }
+
+/// A loop process's start: apply its scheduling, print one warning line per thing not permitted
+/// (prefixed with the process name), then tell the supervisor it is ready.
+pub fn schedule_and_report_ready<E>(
+    s: &Sched,
+    name: &str,
+    ready: impl FnOnce() -> Result<(), E>,
+) -> Result<(), E> {
+    for w in apply(s) {
+        eprintln!("{name}: warning: {w}");
+    }
+    ready()
+}

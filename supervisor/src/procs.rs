@@ -129,15 +129,7 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
         .buffer_size(OBSERVER_BUFFER)
         .create()
         .map_err(|e| ipc::err("telemetry observer")(&e))?;
-    let control_svc = ipc::control(&node, &rid)?;
-    let ctl_pub = control_svc
-        .publisher_builder()
-        .create()
-        .map_err(|e| ipc::err("control publisher")(&e))?;
-    let ctl_sub = control_svc
-        .subscriber_builder()
-        .create()
-        .map_err(|e| ipc::err("control subscriber")(&e))?;
+    let (ctl_pub, ctl_sub) = ipc::control_ports(&node, &rid)?;
     let rows = &study.reference.rows;
     let ref_pub = ipc::reference(&node, &rid)?
         .publisher_builder()
