@@ -1,16 +1,11 @@
 //! End-to-end: the `deltaloop` binary on the shipped configs, and its answers to bad input.
 
+mod common;
+
+use common::deltaloop;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn deltaloop(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("deltaloop runs")
-}
+use std::process::Output;
 
 fn run_into(config: &str, extra: &[&str]) -> (tempfile::TempDir, PathBuf, Output) {
     let tmp = tempfile::tempdir().unwrap();

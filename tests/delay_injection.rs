@@ -1,17 +1,11 @@
 //! End-to-end: `deltaloop sweep` (divergence recorded, files complete), CLI delay overrides, and a
 //! realtime compute delay that produces real misses.
 
+mod common;
+
+use common::deltaloop;
 use serde_json::Value;
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn deltaloop(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("deltaloop runs")
-}
 
 fn json(p: &Path) -> Value {
     serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
@@ -62,25 +56,8 @@ fn sweep_records_divergence_and_writes_table_and_plots() {
             .unwrap()
     };
     assert!(tde("tdc", 1) < tde("tdc", 2) && tde("tdc", 2) < tde("tdc", 3));
-    // The same numbers as `deltaloop run` with the same delays.
+    // The same numbers as `deltaloop run` of that point (preset `paper`, ℓ = 3 given on the CLI).
     let run_dir = tmp.path().join("run");
-    let r = deltaloop(&[
-        "run",
-        base.to_str().unwrap(),
-        "--mode",
-        "inproc",
-        "--law",
-        "tdc",
-        "--tde-delay",
-        "3",
-        "--out",
-        run_dir.to_str().unwrap(),
-    ]);
-    assert!(r.status.success());
-    let mut cfg = std::fs::read_to_string(run_dir.join("config.toml")).unwrap();
-    assert!(cfg.contains("tde_delay_samples = 3"), "{cfg}");
-    cfg.clear();
-    // The sweep's point used preset `paper`; rerun that exact point through `run`.
     let r = deltaloop(&[
         "run",
         "configs/paper/s2-fast.toml",
@@ -94,6 +71,11 @@ fn sweep_records_divergence_and_writes_table_and_plots() {
         run_dir.to_str().unwrap(),
     ]);
     assert!(r.status.success());
+    let cfg = std::fs::read_to_string(run_dir.join("config.toml")).unwrap();
+    assert!(
+        cfg.contains("tde_delay_samples = 3"),
+        "the override reaches the resolved config: {cfg}"
+    );
     let s = json(&run_dir.join("summary.json"));
     let from_run = s["laws"]["tdc"]["tde_err_rms"]
         .as_array()

@@ -14,9 +14,9 @@ fn config(dir: &Path, hold_s: f64, extra: &str) -> String {
     let p = dir.join("cfg.toml");
     // Tests run in parallel. Several SCHED_FIFO loops pinned to one CPU starve each other's
     // controllers (FIFO does not time-slice), so these runs use a fair layout (unpinned,
-    // SCHED_OTHER, no early-wake spin) and a 1000-tick (300 ms) silence window: what they test is
+    // SCHED_OTHER, no early-wake spin) and a 300-tick (90 ms) silence window: what they test is
     // fault handling, not latency.
-    let silence = "[faults]\ncontroller_silence_ticks = 1000\n";
+    let silence = "[faults]\ncontroller_silence_ticks = 300\n";
     let faults = if extra.contains("[faults]") {
         extra.replace("[faults]\n", silence)
     } else {
@@ -28,7 +28,7 @@ fn config(dir: &Path, hold_s: f64, extra: &str) -> String {
     } else {
         layout.to_string()
     };
-    std::fs::write(&p, format!("name = \"fault\"\n[scenario]\npath = \"s1\"\nhold_s = {hold_s}\n[plant]\nfriction = true\n[controller]\nlaws = [\"tde-is\"]\n{faults}{layout}")).unwrap();
+    std::fs::write(&p, format!("name = \"fault\"\n[scenario]\npath = \"s1\"\nhold_s = {hold_s}\n[plant]\nfriction = true\n[controller]\nlaws = [\"tdc\"]\n{faults}{layout}")).unwrap();
     p.display().to_string()
 }
 
@@ -54,7 +54,7 @@ fn signal_child(out: &Path, who: &str, sig: i32, after_ms: u64) {
                     .is_ok_and(|c| String::from_utf8_lossy(&c).contains(who))
             })
             .collect();
-        if out.join("tde-is.controller.log").exists() && !pids.is_empty() {
+        if out.join("tdc.controller.log").exists() && !pids.is_empty() {
             std::thread::sleep(Duration::from_millis(after_ms));
             for p in pids {
                 // SAFETY: signalling a process we found by its command line.
@@ -89,7 +89,7 @@ fn assert_kept_and_clean(out: &Path) -> Value {
         "trace.csv",
         "summary.json",
         "report.md",
-        "tde-is.timing.csv",
+        "tdc.timing.csv",
     ] {
         assert!(out.join(f).exists(), "{f} missing");
     }
@@ -126,7 +126,7 @@ fn controller_killed_plant_holds_then_brakes_supervisor_reports() {
     assert_eq!(err.trim().lines().count(), 1, "one-line cause: {err}");
     for needle in [
         "controller was killed (SIGKILL)",
-        "no torque within the budget for 1000 consecutive ticks",
+        "no torque within the budget for 300 consecutive ticks",
         "braked for 100 ms",
         "safe stop",
         "the supervisor saw the controller exit",
@@ -134,7 +134,7 @@ fn controller_killed_plant_holds_then_brakes_supervisor_reports() {
         assert!(err.contains(needle), "missing {needle:?} in: {err}");
     }
     let s = assert_kept_and_clean(&out);
-    let m = &s["laws"]["tde-is"];
+    let m = &s["laws"]["tdc"];
     assert_eq!(m["completed"], false);
     assert!(
         m["fault_at_tick"].as_u64().unwrap() > 1000
@@ -172,18 +172,20 @@ fn plant_killed_controller_is_stopped_and_fault_reported() {
 
 #[test]
 fn injected_panic_and_stall_are_faults_with_their_cause() {
+    // Injected in the hold phase after the motion (tick 3000 > 2667), where holding the last
+    // torque holds the robot; mid-motion a long hold can drift into a singularity margin.
     for (inject, needle) in [
-        ("panic@300", "injected controller panic at tick 300"),
+        ("panic@3000", "injected controller panic at tick"),
         (
-            "stall@300",
-            "no torque within the budget for 1000 consecutive ticks",
+            "stall@3000",
+            "no torque within the budget for 300 consecutive ticks",
         ),
     ] {
         let tmp = tempfile::tempdir().unwrap();
         let out = tmp.path().join("run");
         let cfg = config(
             tmp.path(),
-            0.0,
+            1.0,
             &format!("[faults]\ninject = \"{inject}\"\n"),
         );
         let o = deltaloop(&["run", &cfg, "--out", out.to_str().unwrap()]);
@@ -194,13 +196,15 @@ fn injected_panic_and_stall_are_faults_with_their_cause() {
             "{inject}: {err}"
         );
         let s = assert_kept_and_clean(&out);
-        // Ticks 300..=1299 go unanswered: the 1000th silent tick (1299) ends the hold window.
-        assert_eq!(
-            s["laws"]["tde-is"]["fault_at_tick"].as_u64(),
-            Some(1299),
-            "{inject}"
+        // The 300th consecutive missing torque ends the hold window: tick 3299 if the controller
+        // answered every tick up to 2999, a few ticks earlier if late replies just before the
+        // injection joined the run of misses; never later.
+        let tick = s["laws"]["tdc"]["fault_at_tick"].as_u64().unwrap();
+        assert!(
+            (3250..=3299).contains(&tick),
+            "{inject}: fault at tick {tick}"
         );
-        assert!(err.contains("fault at tick 1299"), "{err}");
+        assert!(err.contains(&format!("fault at tick {tick}")), "{err}");
     }
 }
 
@@ -265,7 +269,7 @@ fn sigterm_and_ctrl_c_stop_everything_and_keep_the_data() {
         assert!(err.contains("interrupted"), "{err}");
         let s = assert_kept_and_clean(&out);
         assert_eq!(s["interrupted"], true);
-        assert!(s["laws"]["tde-is"]["interrupted_at_tick"].as_u64().unwrap() > 100);
+        assert!(s["laws"]["tdc"]["interrupted_at_tick"].as_u64().unwrap() > 100);
     }
 }
 
@@ -315,15 +319,12 @@ fn sigkilled_run_leaves_nothing_that_breaks_the_next() {
         iceoryx_leftovers(&run_id).is_empty(),
         "debris of the killed run is still there"
     );
-    if err.contains("removed stale iceoryx2 resources") {
+    // Whoever removed the debris (this run, or a concurrent test's run) reported it; when it was
+    // this run, the report names the killed run's nodes.
+    if !debris.is_empty() && err.contains("removed stale iceoryx2 resources") {
         assert!(
             err.contains(&run_id),
             "the report names the removed nodes: {err}"
-        );
-    } else {
-        assert!(
-            debris.is_empty() || iceoryx_leftovers(&run_id).is_empty(),
-            "{err}"
         );
     }
 }

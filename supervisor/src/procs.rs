@@ -167,37 +167,47 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
         m
     };
 
-    // Handshake: both children READY (ports created, scheduling applied).
-    let (mut plant_ready, mut ctrl_ready) = (false, false);
-    let deadline = rt::now_ns() + 30_000_000_000;
-    while !(plant_ready && ctrl_ready) {
-        while let Some(m) = ctl_sub
-            .receive()
-            .map_err(|e| ipc::err("receive control")(&e))?
-        {
-            match (m.payload().kind, m.payload().from) {
-                (control::READY, control::PLANT) => plant_ready = true,
-                (control::READY, control::CONTROLLER) => ctrl_ready = true,
-                _ => {}
+    // Handshake steps: poll the control channel until `done` says the step is complete, failing
+    // (with the children's stderr) if a child exits first or 30 s pass.
+    let mut await_control = |step: &str, done: &mut dyn FnMut(&ControlMsg) -> bool| -> Result<()> {
+        let deadline = rt::now_ns() + 30_000_000_000;
+        loop {
+            while let Some(m) = ctl_sub
+                .receive()
+                .map_err(|e| ipc::err("receive control")(&e))?
+            {
+                if done(m.payload()) {
+                    return Ok(());
+                }
             }
-        }
-        for child in [&mut plant, &mut controller] {
-            if let Some(status) = child.exited() {
+            for child in [&mut plant, &mut controller] {
+                if let Some(status) = child.exited() {
+                    bail!(
+                        "{} exited before the run started ({status}): {}",
+                        child.1,
+                        messages().join(" | ")
+                    );
+                }
+            }
+            if rt::now_ns() > deadline {
                 bail!(
-                    "{} exited before the run started ({status}): {}",
-                    child.1,
+                    "{step} did not happen within 30 s: {}",
                     messages().join(" | ")
                 );
             }
+            std::thread::sleep(Duration::from_micros(200));
         }
-        if rt::now_ns() > deadline {
-            bail!(
-                "the plant/controller pair did not report ready within 30 s: {}",
-                messages().join(" | ")
-            );
+    };
+    // READY from both children (ports created, scheduling applied).
+    let (mut plant_ready, mut ctrl_ready) = (false, false);
+    await_control("the plant/controller pair reporting ready", &mut |m| {
+        match (m.kind, m.from) {
+            (control::READY, control::PLANT) => plant_ready = true,
+            (control::READY, control::CONTROLLER) => ctrl_ready = true,
+            _ => {}
         }
-        std::thread::sleep(Duration::from_millis(1));
-    }
+        plant_ready && ctrl_ready
+    })?;
 
     // The joint reference, one zero-copy slice sample.
     let sample = ref_pub
@@ -214,30 +224,9 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
     sample.send().map_err(|e| ipc::err("send reference")(&e))?;
 
     // ARMED: the controller holds (and has touched) the reference.
-    let deadline = rt::now_ns() + 30_000_000_000;
-    'armed: loop {
-        while let Some(m) = ctl_sub
-            .receive()
-            .map_err(|e| ipc::err("receive control")(&e))?
-        {
-            if m.payload().kind == control::ARMED {
-                break 'armed;
-            }
-        }
-        if let Some(status) = controller.exited() {
-            bail!(
-                "controller exited before the run started ({status}): {}",
-                messages().join(" | ")
-            );
-        }
-        if rt::now_ns() > deadline {
-            bail!(
-                "the controller did not take the reference within 30 s: {}",
-                messages().join(" | ")
-            );
-        }
-        std::thread::sleep(Duration::from_micros(200));
-    }
+    await_control("the controller taking the reference", &mut |m| {
+        m.kind == control::ARMED
+    })?;
 
     let sched_warnings = rt::apply(&rt::Sched {
         core: Layout::cpu(layout.supervisor_cpu),
