@@ -80,9 +80,10 @@ fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
                 m["rms_rad"][j].as_f64().unwrap(),
                 si["laws"][law]["rms_rad"][j].as_f64().unwrap(),
             );
-            // A few held torques on a noisy machine move the error a little, not by orders of magnitude.
+            // A few held torques on a noisy machine move the error by fractions of a µrad (the matched
+            // laws track to ~1e-8 rad); a broken loop is off by 1e-4 rad or more.
             assert!(
-                r < 3.0 * i + 1e-7,
+                r < 3.0 * i + 1e-6,
                 "{law} joint {j}: realtime {r:e} vs inproc {i:e}"
             );
         }
