@@ -1,47 +1,12 @@
-//! End-to-end with real processes over iceoryx2: lockstep ≡ inproc bit for bit, a realtime run
-//! that tracks, two runs at once, and nothing left behind.
+//! End-to-end with real processes over iceoryx2 in lockstep: lockstep ≡ inproc bit for bit, two
+//! runs at once, and nothing left behind. The realtime run has its own test binary (realtime.rs).
 
 mod common;
 
-use common::{children_mentioning, deltaloop, iceoryx_leftovers};
+use common::{assert_clean, run};
 use serde_json::Value;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
-
-fn run(config: &str, mode: &str, out: &Path, extra: &[&str]) -> Value {
-    let mut args = vec![
-        "run",
-        config,
-        "--mode",
-        mode,
-        "--out",
-        out.to_str().unwrap(),
-    ];
-    args.extend_from_slice(extra);
-    let o = deltaloop(&args);
-    assert!(
-        o.status.success(),
-        "{mode} run failed: {}\n{}",
-        String::from_utf8_lossy(&o.stderr),
-        String::from_utf8_lossy(&o.stdout)
-    );
-    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
-}
-
-fn assert_clean(out: &Path, summary: &Value) {
-    assert!(
-        children_mentioning(out.to_str().unwrap()).is_empty(),
-        "child processes outlived the run"
-    );
-    let ids = summary["run_ids"]
-        .as_object()
-        .expect("process runs record their run ids");
-    assert!(!ids.is_empty());
-    for id in ids.values() {
-        let left = iceoryx_leftovers(id.as_str().unwrap());
-        assert!(left.is_empty(), "iceoryx2 resources left behind: {left:?}");
-    }
-}
 
 #[test]
 fn lockstep_is_bit_identical_to_inproc_and_leaves_nothing_behind() {
@@ -63,54 +28,6 @@ fn lockstep_is_bit_identical_to_inproc_and_leaves_nothing_behind() {
         }
         assert_clean(&b, &sl);
     }
-}
-
-#[test]
-fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
-    let tmp = tempfile::tempdir().unwrap();
-    let (a, b) = (tmp.path().join("inproc"), tmp.path().join("rt"));
-    let laws = ["--law", "tde-is", "--law", "pid"];
-    let si = run("configs/s1-nominal.toml", "inproc", &a, &laws);
-    let sr = run("configs/s1-nominal.toml", "realtime", &b, &laws);
-    for law in ["tde-is", "pid"] {
-        let m = &sr["laws"][law];
-        assert_eq!(m["completed"], true, "{law}: {m}");
-        for j in 0..3 {
-            let (r, i) = (
-                m["rms_rad"][j].as_f64().unwrap(),
-                si["laws"][law]["rms_rad"][j].as_f64().unwrap(),
-            );
-            // A few held torques on a noisy machine move the error by fractions of a µrad (the matched
-            // laws track to ~1e-8 rad); a broken loop is off by 1e-4 rad or more.
-            assert!(
-                r < 3.0 * i + 1e-6,
-                "{law} joint {j}: realtime {r:e} vs inproc {i:e}"
-            );
-        }
-        let t = &sr["timing"][law];
-        assert_eq!(t["ticks"], 2668);
-        assert!(t["miss_ratio"].as_f64().unwrap() < 0.05, "{law}: {t}");
-        assert!(t["round_trip"]["p50_us"].as_f64().unwrap() > 0.0);
-        for h in [
-            "round_trip",
-            "wake_lateness",
-            "period_jitter",
-            "state_to_controller",
-            "controller_compute",
-        ] {
-            let text = std::fs::read_to_string(b.join(format!("{law}.{h}.hgrm"))).unwrap();
-            assert!(
-                text.lines()
-                    .filter(|l| l.trim_start().starts_with(|c: char| c.is_ascii_digit()))
-                    .count()
-                    > 10,
-                "{law}.{h}.hgrm is thin"
-            );
-        }
-    }
-    let report = std::fs::read_to_string(b.join("report.md")).unwrap();
-    assert!(report.contains("## Loop timing (realtime)") && report.contains("deadline misses"));
-    assert_clean(&b, &sr);
 }
 
 #[test]

@@ -3,6 +3,8 @@
 
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
+use serde_json::Value;
+use std::path::Path;
 use std::process::{Command, Output};
 
 /// Runs `deltaloop` with `args` from the repository root.
@@ -59,4 +61,41 @@ pub fn iceoryx_leftovers(run_id: &str) -> Vec<String> {
     })
     .unwrap();
     left
+}
+
+/// `deltaloop run <config> --mode <mode> --out <out> <extra…>`, asserted to succeed; its summary.json.
+pub fn run(config: &str, mode: &str, out: &Path, extra: &[&str]) -> Value {
+    let mut args = vec![
+        "run",
+        config,
+        "--mode",
+        mode,
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let o = deltaloop(&args);
+    assert!(
+        o.status.success(),
+        "{mode} run failed: {}\n{}",
+        String::from_utf8_lossy(&o.stderr),
+        String::from_utf8_lossy(&o.stdout)
+    );
+    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
+}
+
+/// No child process and no iceoryx2 node or service of the run is left.
+pub fn assert_clean(out: &Path, summary: &Value) {
+    assert!(
+        children_mentioning(out.to_str().unwrap()).is_empty(),
+        "child processes outlived the run"
+    );
+    let ids = summary["run_ids"]
+        .as_object()
+        .expect("process runs record their run ids");
+    assert!(!ids.is_empty());
+    for id in ids.values() {
+        let left = iceoryx_leftovers(id.as_str().unwrap());
+        assert!(left.is_empty(), "iceoryx2 resources left behind: {left:?}");
+    }
 }
