@@ -340,6 +340,28 @@ fn run(args: &Args, term: &std::sync::atomic::AtomicBool) -> Result<Result<(), F
 /// Waits for τ_k until `until_ns`: busy-polls for `spin_ns`, then blocks on the wake-up event.
 /// Replies for other ticks are dropped (and counted in `late` when older). Returns the reply and
 /// its receive time.
+/// What the plant does with a torque reply while it waits for tick `tick`'s.
+#[derive(Debug, PartialEq, Eq)]
+enum Reply {
+    /// The answer to this tick, sent within the budget.
+    Apply,
+    /// Too late: for an earlier tick, or for this one but sent after the budget ended.
+    Late,
+    /// Not an answer to any state published yet (a misbehaving peer): dropped.
+    Ignore,
+}
+
+/// Judges a reply by the controller's own send time, not by when the plant looks: a plant that
+/// was itself preempted past the budget must not apply a reply that came late (it would count a
+/// late controller as on time, and the miss statistics would depend on the plant's CPU).
+fn reply_verdict(m: &wire::TorqueMsg, tick: u64, until_ns: u64) -> Reply {
+    match m.tick.cmp(&tick) {
+        std::cmp::Ordering::Equal if m.t_publish_ns <= until_ns => Reply::Apply,
+        std::cmp::Ordering::Equal | std::cmp::Ordering::Less => Reply::Late,
+        std::cmp::Ordering::Greater => Reply::Ignore,
+    }
+}
+
 fn wait_torque(
     sub: &iceoryx2::port::subscriber::Subscriber<ipc::Svc, wire::TorqueMsg, ()>,
     listener: &iceoryx2::port::listener::Listener<ipc::Svc>,
@@ -352,11 +374,10 @@ fn wait_torque(
     loop {
         while let Some(sample) = sub.receive().map_err(|e| ipc::err("receive torque")(&e))? {
             let m = *sample.payload();
-            if m.tick == tick {
-                return Ok(Some((m, rt::now_ns())));
-            }
-            if m.tick < tick {
-                *late += 1;
+            match reply_verdict(&m, tick, until_ns) {
+                Reply::Apply => return Ok(Some((m, rt::now_ns()))),
+                Reply::Late => *late += 1,
+                Reply::Ignore => {}
             }
         }
         let now = rt::now_ns();
@@ -404,4 +425,37 @@ fn wait_for_start(
         std::thread::sleep(std::time::Duration::from_millis(1));
     }
     bail!("no START from the supervisor within {timeout_ms} ms")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn reply(tick: u64, t_publish_ns: u64) -> wire::TorqueMsg {
+        wire::TorqueMsg {
+            tick,
+            t_publish_ns,
+            ..wire::TorqueMsg::default()
+        }
+    }
+
+    #[test]
+    fn a_reply_in_budget_for_this_tick_is_applied() {
+        assert_eq!(reply_verdict(&reply(7, 1_000), 7, 1_000), Reply::Apply);
+        assert_eq!(reply_verdict(&reply(7, 999), 7, 1_000), Reply::Apply);
+    }
+
+    /// Regression: a plant preempted past its budget applied the late reply it found on waking,
+    /// so a controller 1 ms late was counted on time whenever the plant's CPU was busy (seen as a
+    /// flaky compute-delay test without SCHED_FIFO).
+    #[test]
+    fn regression_reply_sent_after_the_budget_is_late_even_if_the_plant_sees_it_late_too() {
+        assert_eq!(reply_verdict(&reply(7, 1_001), 7, 1_000), Reply::Late);
+    }
+
+    #[test]
+    fn replies_for_earlier_ticks_are_late_and_for_later_ticks_ignored() {
+        assert_eq!(reply_verdict(&reply(6, 10), 7, 1_000), Reply::Late);
+        assert_eq!(reply_verdict(&reply(8, 10), 7, 1_000), Reply::Ignore);
+    }
 }
