@@ -10,19 +10,13 @@
 use crate::{Controller, Law, Measurement, Reference, Vec3};
 use anyhow::{Result, bail};
 use clap::Parser;
-use deltaloop_protocol::config::{FaultInjection, Layout};
+use deltaloop_protocol::config::{FaultInjection, Layout, ProcMode};
 use deltaloop_protocol::ipc::{self, LOOP_BUFFER};
 use deltaloop_protocol::wire::{self, ControlMsg, RefSample, StateMsg, TorqueMsg, control};
 use deltaloop_protocol::{RunConfig, rt};
 use iceoryx2::port::subscriber::Subscriber;
 use std::path::PathBuf;
 use std::process::ExitCode;
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-enum ProcMode {
-    Lockstep,
-    Realtime,
-}
 
 #[derive(Parser, Debug)]
 #[command(
@@ -39,7 +33,8 @@ struct Args {
     /// The control law to run.
     #[arg(long, value_parser = Law::parse)]
     law: Law,
-    #[arg(long, value_enum)]
+    /// The loop to run: lockstep or realtime.
+    #[arg(long, value_parser = ProcMode::parse)]
     mode: ProcMode,
 }
 
@@ -62,10 +57,7 @@ pub fn main() -> ExitCode {
 
 fn run(args: &Args, term: &std::sync::atomic::AtomicBool) -> Result<Option<String>> {
     let cfg = RunConfig::from_file(&args.config)?;
-    let layout = match args.mode {
-        ProcMode::Lockstep => cfg.loop_.lockstep.clone(),
-        ProcMode::Realtime => cfg.loop_.realtime.clone(),
-    };
+    let layout = args.mode.layout(&cfg).clone();
     let rid = &args.run_id;
     let node = ipc::node("controller", rid)?;
     let state_sub = ipc::state(&node, rid)?
@@ -164,9 +156,6 @@ fn run(args: &Args, term: &std::sync::atomic::AtomicBool) -> Result<Option<Strin
         };
         if state.flags & wire::STATE_FINAL != 0 {
             return Ok(None);
-        }
-        if term.load(std::sync::atomic::Ordering::Relaxed) {
-            return Ok(Some(format!("stopped by SIGTERM at tick {}", state.tick)));
         }
         // Injected faults (drills and tests): stall = stop answering, panic = die loudly.
         match inject {

@@ -3,14 +3,16 @@
 //!
 //! - lockstep: publish state k, wait (without limit but the silence timeout) for τ_k, integrate.
 //! - realtime: wake at the absolute deadline t0 + k·Ts, publish state k, wait for τ_k at most the
-//!   torque budget; if it is not there, hold the last applied torque and count a miss. A reply for an earlier tick is dropped by tick number, never applied to the wrong tick.
+//!   torque budget; if it is not there, hold the last applied torque and count a miss. A reply
+//!   sent after its budget, or for an earlier tick, is dropped: never applied late or to the
+//!   wrong tick.
 //!
 //! Exit codes: 0 done, 2 bad arguments, 3 setup failed, 4 fault during the run (stderr says why).
 
 use crate::{DeltaRobot, Plant, SimConfig, Vec3};
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use deltaloop_protocol::config::Layout;
+use deltaloop_protocol::config::{Layout, ProcMode};
 use deltaloop_protocol::ipc::{self, LOOP_BUFFER};
 use deltaloop_protocol::wire::{self, ControlMsg, StateMsg, TelemetryMsg, control};
 use deltaloop_protocol::{RunConfig, rt};
@@ -55,23 +57,6 @@ pub fn plant_from_config(cfg: &RunConfig, q0: Vec3) -> Result<Plant, crate::Kine
     })
 }
 
-/// Which loop the processes run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum ProcMode {
-    Lockstep,
-    Realtime,
-}
-
-impl ProcMode {
-    /// The layout section of the config for this mode.
-    pub fn layout(self, cfg: &RunConfig) -> &Layout {
-        match self {
-            ProcMode::Lockstep => &cfg.loop_.lockstep,
-            ProcMode::Realtime => &cfg.loop_.realtime,
-        }
-    }
-}
-
 #[derive(Parser, Debug)]
 #[command(
     name = "deltaloop-plant",
@@ -84,7 +69,8 @@ struct Args {
     /// Resolved scenario config.
     #[arg(long)]
     config: PathBuf,
-    #[arg(long, value_enum)]
+    /// The loop to run: lockstep or realtime.
+    #[arg(long, value_parser = ProcMode::parse)]
     mode: ProcMode,
 }
 

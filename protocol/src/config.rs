@@ -491,6 +491,41 @@ pub struct Layout {
     pub wake_early_us: Option<u32>,
 }
 
+/// Which loop the two processes run (the process modes; inproc has no processes).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ProcMode {
+    /// The plant waits for every torque.
+    Lockstep,
+    /// The plant runs on an absolute clock; late torques are missed.
+    Realtime,
+}
+
+impl ProcMode {
+    /// The command-line name (`lockstep`, `realtime`).
+    pub fn name(self) -> &'static str {
+        match self {
+            ProcMode::Lockstep => "lockstep",
+            ProcMode::Realtime => "realtime",
+        }
+    }
+
+    /// Parses a command-line name.
+    pub fn parse(s: &str) -> Result<ProcMode, String> {
+        [ProcMode::Lockstep, ProcMode::Realtime]
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| format!("unknown mode `{s}` (allowed: lockstep, realtime)"))
+    }
+
+    /// The layout section of the config for this mode.
+    pub fn layout(self, cfg: &RunConfig) -> &Layout {
+        match self {
+            ProcMode::Lockstep => &cfg.loop_.lockstep,
+            ProcMode::Realtime => &cfg.loop_.realtime,
+        }
+    }
+}
+
 impl Layout {
     /// Realtime default, the lowest tail measured on a 2-vCPU VM: plant and controller share CPU 1
     /// under SCHED_FIFO (plant above controller), both blocking; the supervisor on CPU 0.

@@ -83,11 +83,25 @@ pub struct TelemetryMsg {
     pub t_wake_ns: u64,
     pub t_state_pub_ns: u64,
     pub t_torque_rx_ns: u64,
-    /// Replies for earlier ticks that arrived late and were dropped, so far.
+    /// Late replies dropped so far: sent after their tick's budget, or for an earlier tick.
     pub late_dropped: u64,
     /// Deadline misses so far.
     pub misses: u64,
 }
+
+/// A loop message stamped with the tick it belongs to (the supervisor files them by it).
+pub trait Ticked {
+    fn tick(&self) -> u64;
+}
+
+macro_rules! ticked {
+    ($($t:ty),*) => {$(impl Ticked for $t {
+        fn tick(&self) -> u64 {
+            self.tick
+        }
+    })*};
+}
+ticked!(StateMsg, TorqueMsg, TelemetryMsg);
 
 /// `ControlMsg::kind`.
 pub mod control {

@@ -11,9 +11,8 @@ use crate::study::Study;
 use crate::timing::Timing;
 use anyhow::{Context, Result, anyhow, bail};
 use deltaloop_controller::Output;
-use deltaloop_plant::process::ProcMode;
 use deltaloop_plant::{PlantSample, Vec3};
-use deltaloop_protocol::config::Layout;
+use deltaloop_protocol::config::{Layout, ProcMode};
 use deltaloop_protocol::ipc::{self, OBSERVER_BUFFER};
 use deltaloop_protocol::wire::{
     self, ControlMsg, RefSample, StateMsg, TelemetryMsg, TorqueMsg, control,
@@ -36,6 +35,23 @@ pub struct ProcessRun {
     pub timing: Timing,
     /// Warnings and errors the children printed (one line each).
     pub child_messages: Vec<String>,
+}
+
+/// Files every waiting sample of `sub` into `slots` by its tick (a tick beyond `slots` is dropped).
+fn file_by_tick<T>(
+    sub: &iceoryx2::port::subscriber::Subscriber<ipc::Svc, T, ()>,
+    slots: &mut [Option<T>],
+    what: &str,
+) -> Result<()>
+where
+    T: wire::Ticked + Copy + std::fmt::Debug + iceoryx2::prelude::ZeroCopySend,
+{
+    while let Some(s) = sub.receive().map_err(|e| ipc::err(what)(&e))? {
+        if let Some(slot) = slots.get_mut(s.payload().tick() as usize) {
+            *slot = Some(*s.payload());
+        }
+    }
+    Ok(())
 }
 
 /// Where the child executables are: next to the running one.
@@ -138,10 +154,7 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
         .map_err(|e| ipc::err("reference publisher")(&e))?;
 
     let exe = exe_dir()?;
-    let mode_arg = match mode {
-        ProcMode::Lockstep => "lockstep",
-        ProcMode::Realtime => "realtime",
-    };
+    let mode_arg = mode.name();
     let common = vec![
         "--run-id".to_string(),
         rid.clone(),
@@ -259,30 +272,9 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
                  tels: &mut Vec<Option<TelemetryMsg>>,
                  fault: &mut Option<(u64, String)>|
      -> Result<()> {
-        while let Some(s) = state_sub
-            .receive()
-            .map_err(|e| ipc::err("observe state")(&e))?
-        {
-            if let Some(slot) = states.get_mut(s.payload().tick as usize) {
-                *slot = Some(*s.payload());
-            }
-        }
-        while let Some(s) = torque_sub
-            .receive()
-            .map_err(|e| ipc::err("observe torque")(&e))?
-        {
-            if let Some(slot) = torques.get_mut(s.payload().tick as usize) {
-                *slot = Some(*s.payload());
-            }
-        }
-        while let Some(s) = tel_sub
-            .receive()
-            .map_err(|e| ipc::err("observe telemetry")(&e))?
-        {
-            if let Some(slot) = tels.get_mut(s.payload().tick as usize) {
-                *slot = Some(*s.payload());
-            }
-        }
+        file_by_tick(&state_sub, states, "observe state")?;
+        file_by_tick(&torque_sub, torques, "observe torque")?;
+        file_by_tick(&tel_sub, tels, "observe telemetry")?;
         while let Some(m) = ctl_sub
             .receive()
             .map_err(|e| ipc::err("receive control")(&e))?

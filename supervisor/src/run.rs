@@ -10,7 +10,7 @@ use crate::report;
 use crate::study::Study;
 use crate::timing::{Timing, TimingSummary};
 use anyhow::{Context, Result};
-use deltaloop_plant::process::ProcMode;
+use deltaloop_protocol::config::ProcMode;
 use deltaloop_protocol::ipc;
 use deltaloop_protocol::{Law, RunConfig};
 use std::path::{Path, PathBuf};
