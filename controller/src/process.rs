@@ -173,11 +173,7 @@ fn run(args: &Args, term: &std::sync::atomic::AtomicBool) -> Result<Option<Strin
             )));
         };
         let out = ctrl.step(
-            &Measurement {
-                q: Vec3::from(state.q),
-                qd: Vec3::from(state.qd),
-                tau_applied: Vec3::from(state.tau_applied),
-            },
+            &measurement(&state),
             &Reference {
                 q: Vec3::from(r.q),
                 qd: Vec3::from(r.qd),
@@ -196,14 +192,10 @@ fn run(args: &Args, term: &std::sync::atomic::AtomicBool) -> Result<Option<Strin
             rt::spin_for_us(compute_delay_us);
         }
         let msg = TorqueMsg {
-            tick: state.tick,
             skipped,
-            tau: out.tau.into(),
-            s: out.s.into(),
-            n_hat: out.n_hat.into(),
-            u: out.u.into(),
             t_state_rx_ns: rx,
             t_publish_ns: rt::now_ns(),
+            ..reply(state.tick, &out)
         };
         torque_pub
             .send_copy(msg)
@@ -211,6 +203,28 @@ fn run(args: &Args, term: &std::sync::atomic::AtomicBool) -> Result<Option<Strin
         torque_ready
             .notify()
             .map_err(|e| ipc::err("notify torque")(&e))?;
+    }
+}
+
+/// What the controller measures, read off a state message (joint data and applied torque only).
+pub fn measurement(s: &StateMsg) -> Measurement {
+    Measurement {
+        q: Vec3::from(s.q),
+        qd: Vec3::from(s.qd),
+        tau_applied: Vec3::from(s.tau_applied),
+    }
+}
+
+/// The reply to tick `tick`: the torque and the law's internals (skip count and times left zero,
+/// for the caller to stamp).
+pub fn reply(tick: u64, out: &crate::Output) -> TorqueMsg {
+    TorqueMsg {
+        tick,
+        tau: out.tau.into(),
+        s: out.s.into(),
+        n_hat: out.n_hat.into(),
+        u: out.u.into(),
+        ..TorqueMsg::default()
     }
 }
 

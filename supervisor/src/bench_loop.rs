@@ -10,10 +10,10 @@ use crate::inproc;
 use crate::procs;
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
-use deltaloop_controller::{Measurement, Reference};
+use deltaloop_controller::Reference;
+use deltaloop_controller::process as controller_process;
 use deltaloop_plant::Vec3;
-use deltaloop_protocol::config::Layout;
-use deltaloop_protocol::config::ProcMode;
+use deltaloop_protocol::config::{Layout, ProcMode};
 use deltaloop_protocol::wire::{StateMsg, TorqueMsg};
 use deltaloop_protocol::{Law, RunConfig, rt};
 use std::io::{Read, Write};
@@ -66,23 +66,9 @@ pub fn uds_controller(socket: &Path, config: &Path, cpu: Option<usize>) -> Resul
             Err(e) => return Err(e.into()),
         };
         let r: &Reference = &rows[(st.tick as usize).min(rows.len() - 1)].joint;
-        let out = ctrl.step(
-            &Measurement {
-                q: Vec3::from(st.q),
-                qd: Vec3::from(st.qd),
-                tau_applied: Vec3::from(st.tau_applied),
-            },
-            r,
-        );
-        let msg = TorqueMsg {
-            tick: st.tick,
-            tau: out.tau.into(),
-            s: out.s.into(),
-            n_hat: out.n_hat.into(),
-            u: out.u.into(),
-            ..TorqueMsg::default()
-        };
-        s.write_all(bytes_of(&msg))?;
+        // The same mapping the controller process uses, so the baseline does the same work.
+        let out = ctrl.step(&controller_process::measurement(&st), r);
+        s.write_all(bytes_of(&controller_process::reply(st.tick, &out)))?;
     }
 }
 

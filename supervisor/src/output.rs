@@ -43,6 +43,22 @@ pub struct Summary<'a> {
     pub timing: BTreeMap<&'a str, &'a TimingSummary>,
 }
 
+/// A progress bar over `len` steps on stderr, or a hidden one (`show` false: tests, pipes).
+pub fn progress_bar(len: usize, show: bool) -> indicatif::ProgressBar {
+    let bar = if show {
+        indicatif::ProgressBar::new(len as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar
+}
+
 /// The default run folder: `runs/<UTC time>-<scenario name>`.
 pub fn default_run_dir(name: &str) -> PathBuf {
     let stamp = chrono::Utc::now().format("%Y%m%d-%H%M%S");

@@ -208,17 +208,7 @@ fn figures(
 pub fn run(mode: Mode, out: &Path, command: &str, progress: bool) -> Result<PaperSummary> {
     let t0 = Instant::now();
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let bar = if progress {
-        indicatif::ProgressBar::new(CONFIGS.len() as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let bar = crate::output::progress_bar(CONFIGS.len(), progress);
     let mut cases = Vec::new();
     for (preset, name, text) in CONFIGS {
         bar.set_message(format!(

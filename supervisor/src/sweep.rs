@@ -290,17 +290,7 @@ pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     std::fs::write(out.join("sweep.toml"), toml::to_string_pretty(&sw)?)?;
     std::fs::write(out.join("base.toml"), base.to_toml_string())?;
-    let bar = if progress {
-        indicatif::ProgressBar::new(all.len() as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} {msg}",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let bar = crate::output::progress_bar(all.len(), progress);
     let writer = Mutex::new(
         csv::Writer::from_path(out.join("sweep.csv")).context("cannot create sweep.csv")?,
     );
