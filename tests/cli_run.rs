@@ -2,9 +2,8 @@
 
 mod common;
 
-use common::deltaloop;
-use serde_json::Value;
-use std::path::{Path, PathBuf};
+use common::{deltaloop, summary};
+use std::path::PathBuf;
 use std::process::Output;
 
 fn run_into(config: &str, extra: &[&str]) -> (tempfile::TempDir, PathBuf, Output) {
@@ -21,10 +20,6 @@ fn run_into(config: &str, extra: &[&str]) -> (tempfile::TempDir, PathBuf, Output
     args.extend_from_slice(extra);
     let out = deltaloop(&args);
     (tmp, out_dir, out)
-}
-
-fn summary(dir: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
 }
 
 #[test]

@@ -3,13 +3,8 @@
 
 mod common;
 
-use common::deltaloop;
-use serde_json::Value;
+use common::{deltaloop, json};
 use std::path::Path;
-
-fn json(p: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
-}
 
 #[test]
 fn sweep_records_divergence_and_writes_table_and_plots() {

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{children_mentioning, deltaloop, iceoryx_leftovers};
+use common::{children_mentioning, deltaloop, iceoryx_leftovers, summary};
 use serde_json::Value;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -76,10 +76,6 @@ fn finish(child: Child) -> (Option<i32>, String) {
         o.status.code(),
         String::from_utf8_lossy(&o.stderr).into_owned(),
     )
-}
-
-fn summary(out: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
 }
 
 /// The run folder is complete and no process or iceoryx2 resource of it is left.

@@ -1,17 +1,16 @@
 //! `deltaloop paper`: the folder is complete (every table and figure, non-trivial) and the numbers
 //! in report.md are the ones in summary.json.
 
+mod common;
+
+use common::{deltaloop, summary};
 use serde_json::Value;
-use std::process::Command;
 
 #[test]
 fn paper_folder_is_complete_and_report_matches_summary() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("paper");
-    let o = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(["paper", "--out", out.to_str().unwrap()])
-        .output()
-        .unwrap();
+    let o = deltaloop(&["paper", "--out", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(
@@ -19,8 +18,7 @@ fn paper_folder_is_complete_and_report_matches_summary() {
         "one screen: {stdout}"
     );
 
-    let s: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let s = summary(&out);
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     let cases = s["cases"].as_array().unwrap();
     assert_eq!(cases.len(), 6, "3 scenarios × 2 presets");

@@ -81,7 +81,7 @@ pub fn run(config: &str, mode: &str, out: &Path, extra: &[&str]) -> Value {
         String::from_utf8_lossy(&o.stderr),
         String::from_utf8_lossy(&o.stdout)
     );
-    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
+    summary(out)
 }
 
 /// No child process and no iceoryx2 node or service of the run is left.
@@ -98,4 +98,14 @@ pub fn assert_clean(out: &Path, summary: &Value) {
         let left = iceoryx_leftovers(id.as_str().unwrap());
         assert!(left.is_empty(), "iceoryx2 resources left behind: {left:?}");
     }
+}
+
+/// A JSON file, parsed.
+pub fn json(p: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+}
+
+/// A run folder's summary.json, parsed.
+pub fn summary(dir: &Path) -> Value {
+    json(&dir.join("summary.json"))
 }
