@@ -227,10 +227,7 @@ pub fn compute(
         Outcome::Interrupted { tick } => Some(tick),
         _ => None,
     };
-    let (fault_at_tick, fault) = match &run.outcome {
-        Outcome::Fault { tick, cause } => (Some(*tick), Some(cause.clone())),
-        _ => (None, None),
-    };
+    let (fault_at_tick, fault) = run.fault.clone().unzip();
     LawMetrics {
         law: run.law.name().to_string(),
         ticks: recs.len().saturating_sub(1) as u64,

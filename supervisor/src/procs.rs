@@ -412,6 +412,9 @@ fn rebuild(
 ) -> Result<LawRun> {
     let n = study.reference.n;
     let mut rec = Recorder::new(law, n);
+    if let Some((tick, text)) = cause {
+        rec.fault(*tick, text.clone());
+    }
     let sample = |s: &StateMsg| {
         (
             PlantSample {
@@ -454,8 +457,7 @@ fn rebuild(
                 rec.interrupt();
                 return Ok(rec.finish(None));
             }
-            if let Some((tick, text)) = cause {
-                rec.fault(*tick, text.clone());
+            if cause.is_some() {
                 return Ok(rec.finish(None));
             }
             let why = match fault {

@@ -37,8 +37,8 @@ pub enum Outcome {
     Diverged { tick: u64, reason: String },
     /// Stopped at `tick` by Ctrl-C / SIGTERM; the ticks before it are kept.
     Interrupted { tick: u64 },
-    /// Stopped at `tick` by a loop fault (a process died, stalled, or the plant failed).
-    Fault { tick: u64, cause: String },
+    /// Stopped by the loop fault in [`LawRun::fault`] (a process died, stalled, or the plant failed).
+    Faulted,
 }
 
 /// A finished run of one law.
@@ -50,6 +50,9 @@ pub struct LawRun {
     /// The plant state after the last recorded tick (tick last + 1), if the plant got there.
     pub after: Option<(PlantSample, Vec3)>,
     pub outcome: Outcome,
+    /// A loop fault: its tick and cause. Kept even when the divergence rule ended the trace first
+    /// (e.g. the robot drifting while the plant held the torque of a dead controller).
+    pub fault: Option<(u64, String)>,
 }
 
 /// Collects ticks and applies the divergence rule. Pre-allocated for the whole run.
@@ -67,6 +70,7 @@ impl Recorder {
                 records: Vec::with_capacity(n + 1),
                 after: None,
                 outcome: Outcome::Completed,
+                fault: None,
             },
         }
     }
@@ -141,14 +145,60 @@ impl Recorder {
         self.run.outcome = Outcome::Interrupted { tick };
     }
 
-    /// The loop faulted at `tick` (after the last recorded tick).
+    /// The loop faulted at `tick`. Unless something later ends the trace otherwise (divergence,
+    /// an interrupt), the run ends as [`Outcome::Faulted`]; the fault is kept either way.
     pub fn fault(&mut self, tick: u64, cause: String) {
-        self.run.outcome = Outcome::Fault { tick, cause };
+        self.run.fault = Some((tick, cause));
+        self.run.outcome = Outcome::Faulted;
     }
 
     /// Stores the state after the last tick and returns the run.
     pub fn finish(mut self, after: Option<(PlantSample, Vec3)>) -> LawRun {
         self.run.after = after;
         self.run
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tick(rec: &mut Recorder, k: u64, q: f64) -> bool {
+        let sample = PlantSample {
+            k,
+            q: Vec3::repeat(q),
+            qd: Vec3::zeros(),
+            tau_applied: Vec3::zeros(),
+        };
+        rec.tick(
+            sample,
+            sample.q,
+            sample.qd,
+            &Vec3::zeros(),
+            Output::default(),
+        )
+    }
+
+    #[test]
+    fn a_fault_ends_an_otherwise_healthy_trace() {
+        let mut rec = Recorder::new(Law::Tdc, 10);
+        rec.fault(3, "controller died".into());
+        assert!(tick(&mut rec, 0, 0.0) && tick(&mut rec, 1, 0.0));
+        let run = rec.finish(None);
+        assert_eq!(run.outcome, Outcome::Faulted);
+        assert_eq!(run.fault, Some((3, "controller died".into())));
+    }
+
+    /// The robot can drift out of bounds while the plant holds a dead controller's torque: the
+    /// run is diverged, and the fault that caused it stays on record (once patched on afterwards).
+    #[test]
+    fn fault_kept_when_divergence_ends_the_trace_first() {
+        let mut rec = Recorder::new(Law::Tdc, 10);
+        rec.fault(5, "controller died".into());
+        assert!(tick(&mut rec, 0, 0.0));
+        assert!(!tick(&mut rec, 1, 2.0 * DIVERGENCE_ERR_RAD));
+        let run = rec.finish(None);
+        assert!(matches!(run.outcome, Outcome::Diverged { tick: 1, .. }));
+        assert_eq!(run.fault, Some((5, "controller died".into())));
     }
 }

@@ -127,7 +127,6 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
     let mut run_ids = Vec::new();
     // A fault or an interrupt ends the run after this law; the folder is still written.
     let mut stopped: Option<(Law, Option<String>)> = None;
-    let mut faults: Vec<(Law, u64, String)> = Vec::new();
     let (runs, timings): (Vec<LawRun>, Vec<Option<Timing>>) = match mode.process_mode() {
         None => (inproc::run_laws(&study, &laws), vec![None; laws.len()]),
         Some(pm) => {
@@ -154,9 +153,6 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
                 }
                 r.timing.write_hgrm(&dir, &format!("{law}."))?;
                 run_ids.push((law, r.run_id));
-                if let Some((tick, cause)) = &r.fault {
-                    faults.push((law, *tick, cause.clone()));
-                }
                 if r.interrupted || r.fault.is_some() {
                     stopped = Some((law, r.fault.as_ref().map(|f| f.1.clone())));
                 }
@@ -166,18 +162,10 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
             (runs, timings)
         }
     };
-    let mut metrics: Vec<LawMetrics> = runs
+    let metrics: Vec<LawMetrics> = runs
         .iter()
         .map(|r| metrics::compute(r, &study.reference, &study.robot, &study.params))
         .collect();
-    // A loop fault is recorded even when the study's divergence rule stopped the trace earlier
-    // (e.g. the robot drifting while the plant held the torque of a dead controller).
-    for (law, tick, cause) in &faults {
-        if let Some(m) = metrics.iter_mut().find(|m| m.law == law.name()) {
-            m.fault_at_tick = Some(*tick);
-            m.fault = Some(cause.clone());
-        }
-    }
     let timing_summaries: Vec<Option<TimingSummary>> = timings
         .iter()
         .map(|t| t.as_ref().map(Timing::summary))
