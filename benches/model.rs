@@ -4,9 +4,9 @@
 //! same-run baseline for the hand-written hot path.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use deltaloop_controller::{Controller, Measurement, Reference};
-use deltaloop_plant::{DeltaRobot, Plant, SimConfig, Vec3};
-use deltaloop_protocol::{ControllerParams, Law, Preset};
+use deltaloop_config::{ControllerParams, Law, Preset};
+use deltaloop_law::{Controller, Measurement, Reference};
+use deltaloop_model::{DeltaRobot, Plant, SimConfig, Vec3};
 use std::hint::black_box;
 
 fn model(c: &mut Criterion) {

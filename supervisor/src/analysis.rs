@@ -3,8 +3,8 @@
 //! whose TDE lags Ts·M/M̄ behind the plant. Pure numbers from the model along the reference.
 
 use crate::reference::JointReference;
-use deltaloop_controller::ControllerParams;
-use deltaloop_plant::DeltaRobot;
+use deltaloop_law::ControllerParams;
+use deltaloop_model::DeltaRobot;
 use serde::Serialize;
 
 /// The gain/plant mismatch of a preset on the reference path.

@@ -3,8 +3,8 @@
 use crate::inproc;
 use crate::study::Study;
 use anyhow::Result;
-use deltaloop_plant::{DeltaRobot, Plant, SimConfig, Vec3};
-use deltaloop_protocol::{Law, RunConfig};
+use deltaloop_config::{Law, RunConfig};
+use deltaloop_model::{DeltaRobot, Plant, SimConfig, Vec3};
 use std::time::Instant;
 
 /// clap parser for a positive duration in seconds.

@@ -3,19 +3,19 @@
 //! (a) lockstep over iceoryx2 (the real process pair), (b) the same lockstep loop over a blocking
 //! Unix domain socket pair (plant in this process, controller in a helper process, pinned like
 //! lockstep), (c) the in-process loop, (d) a realtime run at 3.3 kHz. All four step the same
-//! `Plant::advance` and `Controller::step` on the same scenario; the transport's cost per cycle
-//! is 1/lockstep_hz − 1/inproc_hz.
+//! plant and controller tick ([`deltaloop_plant::PlantSide`], [`deltaloop_controller::ControllerSide`])
+//! on the same scenario; the transport's cost per cycle is 1/lockstep_hz − 1/inproc_hz.
 
 use crate::inproc;
 use crate::procs;
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
-use deltaloop_controller::Reference;
-use deltaloop_controller::process as controller_process;
-use deltaloop_plant::Vec3;
-use deltaloop_protocol::config::{Layout, ProcMode};
-use deltaloop_protocol::wire::{StateMsg, TorqueMsg};
-use deltaloop_protocol::{Law, RunConfig, rt};
+use deltaloop_config::LoopMode;
+use deltaloop_config::config::Layout;
+use deltaloop_config::{Law, RunConfig};
+use deltaloop_plant::Arrival;
+use deltaloop_transport::rt;
+use deltaloop_transport::wire::{StateMsg, TorqueMsg};
 use std::io::{Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::Path;
@@ -57,7 +57,7 @@ pub fn uds_controller(socket: &Path, config: &Path, cpu: Option<usize>) -> Resul
     }
     let mut s =
         UnixStream::connect(socket).with_context(|| format!("connect {}", socket.display()))?;
-    let mut ctrl = study.new_controller(Law::TdcIsSta);
+    let mut ctrl = study.controller_side(Law::TdcIsSta);
     let rows = &study.reference.rows;
     loop {
         let st: StateMsg = match read_msg(&mut s) {
@@ -65,10 +65,9 @@ pub fn uds_controller(socket: &Path, config: &Path, cpu: Option<usize>) -> Resul
             Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
             Err(e) => return Err(e.into()),
         };
-        let r: &Reference = &rows[(st.tick as usize).min(rows.len() - 1)].joint;
-        // The same mapping the controller process uses, so the baseline does the same work.
-        let out = ctrl.step(&controller_process::measurement(&st), r);
-        s.write_all(bytes_of(&controller_process::reply(st.tick, &out)))?;
+        let r = &rows[(st.tick as usize).min(rows.len() - 1)].joint;
+        // The same controller tick every mode runs, so the baseline does the same work.
+        s.write_all(bytes_of(&ctrl.answer(&st, r)))?;
     }
 }
 
@@ -107,26 +106,18 @@ fn uds_lockstep(
     }) {
         eprintln!("deltaloop bench loop: warning: {w}");
     }
-    let mut plant = study.new_plant()?;
+    let mut plant = study.plant_side()?;
     let ticks = study.reference.n as u64;
     let t0 = Instant::now();
     for k in 0..=ticks {
-        let smp = plant.sample();
-        let msg = StateMsg {
-            tick: k,
-            q: smp.q.into(),
-            qd: smp.qd.into(),
-            tau_applied: smp.tau_applied.into(),
-            q_true: smp.q.into(),
-            qd_true: smp.qd.into(),
-            ..StateMsg::default()
-        };
-        s.write_all(bytes_of(&msg))?;
+        s.write_all(bytes_of(&plant.state()))?;
         let t: TorqueMsg = read_msg(&mut s)?;
         if t.tick != k {
             bail!("uds baseline: reply for tick {} at tick {k}", t.tick);
         }
-        plant.advance(Some(Vec3::from(t.tau)))?;
+        if let Err(stop) = plant.advance(Arrival::Reply(t)) {
+            bail!("uds baseline: {}", stop.cause());
+        }
     }
     let hz = (ticks + 1) as f64 / t0.elapsed().as_secs_f64();
     drop(s);
@@ -157,7 +148,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, out: &Path) -> Result<()> {
         1e6 / inproc_hz
     );
 
-    let pr = procs::run_law(&ls, Law::TdcIsSta, ProcMode::Lockstep, &ls_dir)?;
+    let pr = procs::run_law(&ls, Law::TdcIsSta, LoopMode::Lockstep, &ls_dir)?;
     let iox_hz = pr.timing.cycle_hz();
     let rtt = pr.timing.summary().round_trip;
     println!(
@@ -192,7 +183,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, out: &Path) -> Result<()> {
     let rt_dir = out.join("realtime");
     std::fs::create_dir_all(&rt_dir)?;
     std::fs::write(rt_dir.join("config.toml"), rs.config.to_toml_string())?;
-    let pr = procs::run_law(&rs, Law::TdcIsSta, ProcMode::Realtime, &rt_dir)?;
+    let pr = procs::run_law(&rs, Law::TdcIsSta, LoopMode::Realtime, &rt_dir)?;
     pr.timing.write_hgrm(&rt_dir, "")?;
     let t = pr.timing.summary();
     for m in &pr.child_messages {

@@ -1,8 +1,9 @@
 //! The `deltaloop` command line.
 
 use crate::bench;
-use crate::run::{self, Mode};
+use crate::run;
 use clap::{Parser, Subcommand};
+use deltaloop_config::LoopMode;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -24,8 +25,8 @@ enum Command {
         /// Scenario file (TOML), e.g. configs/s2-fast.toml.
         config: PathBuf,
         /// Loop transport.
-        #[arg(long, value_enum, default_value = "realtime")]
-        mode: Mode,
+        #[arg(long, value_parser = LoopMode::parse, default_value = "realtime")]
+        mode: LoopMode,
         #[command(flatten)]
         overrides: run::Overrides,
         /// Run folder (default: runs/<UTC time>-<scenario name>).
@@ -35,8 +36,8 @@ enum Command {
     /// Reproduce the paper: S1–S3 × both presets × four laws; tables, figures and report.md.
     Paper {
         /// Loop transport.
-        #[arg(long, value_enum, default_value = "inproc")]
-        mode: Mode,
+        #[arg(long, value_parser = LoopMode::parse, default_value = "inproc")]
+        mode: LoopMode,
         /// Output folder (default: runs/<UTC time>-paper).
         #[arg(long)]
         out: Option<PathBuf>,

@@ -1,53 +1,46 @@
-//! The in-process loop: plant and controller libraries stepped together in one thread. The
-//! process modes run the very same `Plant::advance` and `Controller::step`; only the transport
-//! between them differs.
+//! The in-process loop: the plant's and the controller's tick ([`PlantSide`], [`ControllerSide`])
+//! stepped together in one thread. The process modes run the very same two ticks; only the
+//! transport between them differs, and every mode records through the same [`Recorder`].
+//!
+//! [`PlantSide`]: deltaloop_plant::PlantSide
+//! [`ControllerSide`]: deltaloop_controller::ControllerSide
 
 use crate::record::{LawRun, Recorder};
 use crate::study::Study;
-use deltaloop_controller::Measurement;
-use deltaloop_protocol::Law;
+use deltaloop_config::Law;
+use deltaloop_plant::Arrival;
 
-/// Runs one law over the study's reference, ticks 0..=N.
+/// Runs one law over the study's reference, ticks 0..=N, then takes the final state N + 1.
 pub fn run_law(study: &Study, law: Law) -> LawRun {
     let reference = &study.reference;
-    let n = reference.n;
-    let mut rec = Recorder::new(law, n);
-    let mut plant = match study.new_plant() {
+    let mut rec = Recorder::new(law, reference.n);
+    let mut plant = match study.plant_side() {
         Ok(p) => p,
         Err(e) => {
             rec.plant_failed(e.to_string());
             return rec.finish(None);
         }
     };
-    let mut ctrl = study.new_controller(law);
-    for row in &reference.rows[..=n] {
+    let mut ctrl = study.controller_side(law);
+    for row in &reference.rows[..=reference.n] {
         if crate::signals::interrupted() {
             rec.interrupt();
             return rec.finish(None);
         }
-        let truth = plant.sample();
-        let sample = plant.measure();
-        let out = ctrl.step(
-            &Measurement {
-                q: sample.q,
-                qd: sample.qd,
-                tau_applied: sample.tau_applied,
-            },
-            &row.joint,
-        );
-        if !rec.tick(sample, truth.q, truth.qd, &row.joint.q, out) {
+        let state = plant.state();
+        let reply = ctrl.answer(&state, &row.joint);
+        if !rec.tick(&state, Some(&reply), &row.joint.q) {
             return rec.finish(None);
         }
-        match plant.advance(Some(out.tau)) {
-            Ok(a) => rec.applied(a.clamped, a.held, a.rejected),
-            Err(e) => {
-                rec.plant_failed(e.to_string());
+        match plant.advance(Arrival::Reply(reply)) {
+            Ok(tel) => rec.applied(Some(&tel)),
+            Err(stop) => {
+                rec.plant_failed(stop.cause().to_string());
                 return rec.finish(None);
             }
         }
     }
-    let after = plant.sample();
-    rec.finish(Some((after, after.qd)))
+    rec.finish(Some(&plant.state()))
 }
 
 /// Runs several laws, each on its own thread (they share nothing but the read-only study).

@@ -3,8 +3,8 @@
 
 use crate::record::{LawRun, Outcome};
 use crate::reference::JointReference;
-use deltaloop_controller::ControllerParams;
-use deltaloop_plant::{DeltaRobot, Vec3};
+use deltaloop_law::{ControllerParams, Law};
+use deltaloop_model::{DeltaRobot, Vec3};
 use rustfft::{FftPlanner, num_complex::Complex};
 use serde::Serialize;
 
@@ -14,7 +14,7 @@ pub const HF_CUTOFF_HZ: u64 = 100;
 /// Per-law metrics, as written to `summary.json`. Arrays are per joint [1, 2, 3].
 #[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct LawMetrics {
-    pub law: String,
+    pub law: Law,
     /// Ticks after tick 0 the metrics cover (k = 0..=N); fewer if the run diverged.
     pub ticks: u64,
     /// Whether every tick 0..=N ran.
@@ -179,11 +179,11 @@ pub fn compute(
         .min(reference.n)
         .max(usize::from(!recs.is_empty()));
     let taus = &recs[..n_tau];
-    let tau = |i: usize| taus.iter().map(move |r| r.out.tau[i]);
+    let tau = |i: usize| taus.iter().map(move |r| r.tau[i]);
     let max_abs_tau_nm = per_joint(|i| tau(i).fold(0.0, |m, t| m.max(t.abs())));
     let torque_tv_nm = per_joint(|i| {
         taus.windows(2)
-            .map(|w| (w[1].out.tau[i] - w[0].out.tau[i]).abs())
+            .map(|w| (w[1].tau[i] - w[0].tau[i]).abs())
             .sum()
     });
     let clamp_count = taus.iter().filter(|r| r.clamped).count() as u64;
@@ -199,19 +199,22 @@ pub fn compute(
             None => run.after.map(|(s, qd_true)| (qd_true, s.tau_applied)),
         }
     };
-    let mut n_tilde: Vec<Vec3> = Vec::with_capacity(n_tau);
+    // A tick the controller never answered has no N̂: it is left out, and so are the differences
+    // that would span it.
+    let mut n_tilde: Vec<Option<Vec3>> = Vec::with_capacity(n_tau);
     for (k, r) in taus.iter().enumerate() {
         if let Some((qd1, tau1)) = next(k) {
             let truth = (qd1 - r.qd_true) / ts - tau1 / params.m_bar;
-            n_tilde.push(r.out.n_hat - truth);
+            n_tilde.push(r.out.map(|o| o.n_hat - truth));
         }
     }
     let uses_tde = run.law.uses_tde();
-    let tde_err_rms = uses_tde.then(|| per_joint(|i| rms(n_tilde.iter().map(|v| v[i]))));
+    let answered: Vec<Vec3> = n_tilde.iter().flatten().copied().collect();
+    let tde_err_rms = uses_tde.then(|| per_joint(|i| rms(answered.iter().map(|v| v[i]))));
     let dn = |i: usize| -> Vec<f64> {
         n_tilde
             .windows(2)
-            .map(|w| ((w[1][i] - w[0][i]) / ts).abs())
+            .filter_map(|w| Some(((w[1]?[i] - w[0]?[i]) / ts).abs()))
             .collect()
     };
     let delta_n_max = uses_tde.then(|| per_joint(|i| dn(i).into_iter().fold(0.0, f64::max)));
@@ -227,9 +230,9 @@ pub fn compute(
         Outcome::Interrupted { tick } => Some(tick),
         _ => None,
     };
-    let (fault_at_tick, fault) = run.fault.clone().unzip();
+    let (fault_at_tick, fault) = run.fault.clone().map(|f| (f.tick, f.cause)).unzip();
     LawMetrics {
-        law: run.law.name().to_string(),
+        law: run.law,
         ticks: recs.len().saturating_sub(1) as u64,
         completed,
         diverged_at_tick,

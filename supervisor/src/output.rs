@@ -2,12 +2,12 @@
 
 use crate::analysis::Mismatch;
 use crate::metrics::LawMetrics;
-use crate::record::LawRun;
+use crate::record::{LawRun, TickRecord};
 use crate::reference::JointReference;
 use crate::timing::TimingSummary;
 use anyhow::{Context, Result};
-use deltaloop_controller::ControllerParams;
-use deltaloop_protocol::RunConfig;
+use deltaloop_config::RunConfig;
+use deltaloop_law::ControllerParams;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -87,12 +87,27 @@ fn header() -> Vec<String> {
             h.push(format!("{name}_{j}"));
         }
     }
+    h.extend(["reply".into(), "drives".into()]);
     h
 }
 
-/// Writes `trace.csv`: one row per tick per law, every float in shortest round-trip exponent form (e.g. `-7.776579935558914e-10`).
-/// Columns: law, k, t_s, then per joint q_des (rad), q (rad, true), qdot (rad/s, true), e (rad),
-/// tau (commanded, N m), tau_applied (τᵃ_k, N m), s (rad/s), n_hat (rad/s²), n_true (rad/s²).
+/// What the drives did over [t_k, t_{k+1}) (`trace.csv` column `drives`).
+fn drives(r: &TickRecord) -> &'static str {
+    match (r.rejected, r.held, r.clamped) {
+        (true, _, _) => "rejected",
+        (_, true, _) => "held",
+        (_, _, true) => "clamped",
+        _ => "commanded",
+    }
+}
+
+/// Writes `trace.csv`: one row per tick per law, every float in shortest round-trip exponent form
+/// (e.g. `-7.776579935558914e-10`). Columns: law, k, t_s, then per joint q_des (rad), q (rad,
+/// true), qdot (rad/s, true), e (rad), tau (commanded τ_k, N m), tau_applied (τᵃ_k, N m), s
+/// (rad/s), n_hat (rad/s²), n_true (rad/s²); then `reply` (what became of the controller's reply
+/// to tick k: applied, late, skipped, missed) and `drives` (what the drives did over
+/// [t_k, t_{k+1}): commanded, clamped, held, rejected). tau, s and n_hat are empty on a tick the
+/// controller never answered; n_true is empty where the next state is unknown.
 pub fn write_trace(
     path: &Path,
     runs: &[LawRun],
@@ -118,19 +133,22 @@ pub fn write_trace(
             row.push(r.sample.k.to_string());
             row.push(format!("{:e}", rf.t));
             let mut push3 =
-                |v: &deltaloop_plant::Vec3| row.extend(v.iter().map(|x| format!("{x:e}")));
+                |v: &deltaloop_model::Vec3| row.extend(v.iter().map(|x| format!("{x:e}")));
             push3(&rf.joint.q);
             push3(&r.q_true);
             push3(&r.qd_true);
             push3(&(rf.joint.q - r.q_true));
-            push3(&r.out.tau);
-            push3(&r.sample.tau_applied);
-            push3(&r.out.s);
-            push3(&r.out.n_hat);
-            match truth {
-                Some(t) => push3(&t),
+            let mut opt3 = |v: Option<&deltaloop_model::Vec3>| match v {
+                Some(v) => row.extend(v.iter().map(|x| format!("{x:e}"))),
                 None => row.extend(std::iter::repeat_n(String::new(), 3)),
-            }
+            };
+            opt3(r.out.as_ref().map(|o| &o.tau));
+            opt3(Some(&r.sample.tau_applied));
+            opt3(r.out.as_ref().map(|o| &o.s));
+            opt3(r.out.as_ref().map(|o| &o.n_hat));
+            opt3(truth.as_ref());
+            row.push(r.fate.name().into());
+            row.push(drives(r).into());
             w.write_record(&row)?;
         }
     }

@@ -9,11 +9,12 @@ use crate::metrics::LawMetrics;
 use crate::plot::{self, Panel, Series, Series3};
 use crate::record::LawRun;
 use crate::report::paper_rms;
-use crate::run::{self, Mode};
+use crate::run;
 use crate::study::Study;
 use anyhow::{Context, Result};
-use deltaloop_protocol::config::PathKind;
-use deltaloop_protocol::{Law, Preset, RunConfig};
+use deltaloop_config::LoopMode;
+use deltaloop_config::config::PathKind;
+use deltaloop_config::{Law, Preset, RunConfig};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -64,7 +65,7 @@ pub struct Case {
     pub scenario: String,
     pub paper_table: &'static str,
     /// Metrics per law.
-    pub laws: BTreeMap<String, LawMetrics>,
+    pub laws: BTreeMap<Law, LawMetrics>,
     pub mismatch: Mismatch,
     /// tdc-is-sta RMS / tde-is RMS per joint (< 1: the proposal is better).
     pub sta_over_is_rms: [f64; 3],
@@ -128,7 +129,7 @@ fn figures(
     let err = |r: &LawRun, k: usize, j: usize| {
         study.reference.rows[k].joint.q[j] - r.records[k].q_true[j]
     };
-    let tau = |r: &LawRun, k: usize, j: usize| r.records[k].out.tau[j];
+    let tau = |r: &LawRun, k: usize, j: usize| r.records[k].tau[j];
     let panels = |f: &dyn Fn(&LawRun, usize, usize) -> f64,
                   runs: &[&LawRun],
                   ks: std::ops::Range<usize>,
@@ -205,7 +206,7 @@ fn figures(
 }
 
 /// Runs the study into `out`.
-pub fn run(mode: Mode, out: &Path, command: &str, progress: bool) -> Result<PaperSummary> {
+pub fn run(mode: LoopMode, out: &Path, command: &str, progress: bool) -> Result<PaperSummary> {
     let t0 = Instant::now();
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let bar = crate::output::progress_bar(CONFIGS.len(), progress);
@@ -229,9 +230,8 @@ pub fn run(mode: Mode, out: &Path, command: &str, progress: bool) -> Result<Pape
             &format!("fig-{scn}-{}", preset.name()),
             &title,
         )?;
-        let laws: BTreeMap<String, LawMetrics> =
-            o.metrics.into_iter().map(|m| (m.law.clone(), m)).collect();
-        let (is, sta) = (&laws["tde-is"].rms_rad, &laws["tdc-is-sta"].rms_rad);
+        let laws: BTreeMap<Law, LawMetrics> = o.metrics.into_iter().map(|m| (m.law, m)).collect();
+        let (is, sta) = (&laws[&Law::TdeIs].rms_rad, &laws[&Law::TdcIsSta].rms_rad);
         cases.push(Case {
             preset: preset.name().into(),
             scenario: scn.into(),
@@ -281,7 +281,7 @@ pub fn fmt_rms(x: f64) -> String {
 
 fn verdict(c: &Case) -> String {
     let r = c.sta_over_is_rms;
-    let (is, sta) = (&c.laws["tde-is"], &c.laws["tdc-is-sta"]);
+    let (is, sta) = (&c.laws[&Law::TdeIs], &c.laws[&Law::TdcIsSta]);
     if !is.completed || !sta.completed {
         return format!(
             "a run diverged (tde-is: {}, tdc-is-sta: {}), so the comparison does not apply",
@@ -321,7 +321,7 @@ fn short_verdict(c: &Case) -> String {
         r.iter().cloned().fold(f64::INFINITY, f64::min),
         r.iter().cloned().fold(0.0, f64::max),
     );
-    let word = if !c.laws["tde-is"].completed || !c.laws["tdc-is-sta"].completed {
+    let word = if !c.laws[&Law::TdeIs].completed || !c.laws[&Law::TdcIsSta].completed {
         "diverged"
     } else if hi < 1.0 {
         "yes"
@@ -375,7 +375,7 @@ fn report(s: &PaperSummary) -> String {
         }
         for c in &cs {
             for law in LAWS {
-                let m = &c.laws[law.name()];
+                let m = &c.laws[&law];
                 let st = if m.completed {
                     String::new()
                 } else {
@@ -410,7 +410,7 @@ fn report(s: &PaperSummary) -> String {
         );
         for c in &cs {
             for law in LAWS {
-                let m = &c.laws[law.name()];
+                let m = &c.laws[&law];
                 let mx = |v: [f64; 3]| v.into_iter().fold(0.0, f64::max);
                 let opt =
                     |v: Option<[f64; 3]>| v.map_or("n/a".to_string(), |v| format!("{:.3e}", mx(v)));
@@ -444,7 +444,7 @@ fn report(s: &PaperSummary) -> String {
         .find(|c| c.preset == "paper" && c.scenario == "s1")
     {
         let mm = &c.mismatch;
-        let sta = &c.laws["tdc-is-sta"];
+        let sta = &c.laws[&Law::TdcIsSta];
         let _ = writeln!(
             o,
             "M̄ is an estimate of the plant's inertia, not a universal constant. The paper's M̄ = {} kg m² belongs to its own robot; ours has joint inertia \
@@ -474,7 +474,7 @@ fn report(s: &PaperSummary) -> String {
             s.cases
                 .iter()
                 .find(|c| c.preset == "matched" && c.scenario == "s1")
-                .map_or("?".into(), |m| fmt_rms(m.laws["tdc-is-sta"].rms_rad[0]))
+                .map_or("?".into(), |m| fmt_rms(m.laws[&Law::TdcIsSta].rms_rad[0]))
         );
     }
     o
@@ -510,7 +510,7 @@ pub fn terminal(s: &PaperSummary, out: &Path) -> String {
         }
         for c in s.cases.iter().filter(|c| c.scenario == scn) {
             for law in [Law::TdeIs, Law::TdcIsSta] {
-                let m = &c.laws[law.name()];
+                let m = &c.laws[&law];
                 let v = if law == Law::TdcIsSta {
                     short_verdict(c)
                 } else {

@@ -2,7 +2,7 @@
 //! (DejaVu Sans, see `assets/DejaVuSans.LICENSE`), so it renders on machines without fonts.
 
 use anyhow::{Result, anyhow};
-use deltaloop_protocol::Law;
+use deltaloop_config::Law;
 use plotters::coord::Shift;
 pub use plotters::prelude::RGBColor;
 use plotters::prelude::*;

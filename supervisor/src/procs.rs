@@ -1,32 +1,35 @@
 //! The process modes: one `deltaloop-plant` + `deltaloop-controller` pair per law, over iceoryx2.
 //!
-//! The supervisor creates its observer ports, spawns the pair (found next to its own executable),
-//! waits for both to report READY, hands the joint reference to the controller as one slice
-//! sample, sends START, and then only observes: it drains large queues every millisecond and never
-//! notifies or waits on the loop. Afterwards it rebuilds the run tick by tick through the same
-//! [`Recorder`] the in-process loop uses, so every metric comes from the same code.
+//! [`run_law`] goes through four phases: spawn the pair (found next to the supervisor's own
+//! executable), the handshake (READY from both, the joint reference to the controller as one
+//! slice sample, ARMED, START), observe (drain large queues every millisecond; never notify or
+//! wait on the loop) until both children exit, and classify how they ended. Then the observed
+//! streams go through the same [`Recorder`] the in-process loop fills, so every row and metric
+//! comes from the same code.
 
-use crate::record::{LawRun, Recorder};
+use crate::record::{Fault, LawRun, Recorder};
 use crate::study::Study;
 use crate::timing::Timing;
 use anyhow::{Context, Result, anyhow, bail};
-use deltaloop_controller::Output;
-use deltaloop_plant::{PlantSample, Vec3};
-use deltaloop_protocol::config::{Layout, ProcMode};
-use deltaloop_protocol::ipc::{self, OBSERVER_BUFFER};
-use deltaloop_protocol::wire::{
-    self, ControlMsg, RefSample, StateMsg, TelemetryMsg, TorqueMsg, control,
+use deltaloop_config::config::Layout;
+use deltaloop_config::{Law, LoopMode};
+use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, OBSERVER_BUFFER, Svc};
+use deltaloop_transport::rt;
+use deltaloop_transport::wire::{
+    self, ControlKind, ControlMsg, RefSample, Sender, StateMsg, TelemetryMsg, TorqueMsg,
 };
-use deltaloop_protocol::{Law, rt};
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 /// What one law's process run produced.
 pub struct ProcessRun {
-    /// A loop fault: its tick and one-line cause (a child died, stalled, or the plant stopped).
-    pub fault: Option<(u64, String)>,
+    /// A loop fault (a child died, stalled, or the plant stopped).
+    pub fault: Option<Fault>,
     /// Ctrl-C / SIGTERM stopped the run.
     pub interrupted: bool,
     /// The run id that scoped this pair's iceoryx2 services and nodes.
@@ -38,15 +41,11 @@ pub struct ProcessRun {
 }
 
 /// Files every waiting sample of `sub` into `slots` by its tick (a tick beyond `slots` is dropped).
-fn file_by_tick<T>(
-    sub: &iceoryx2::port::subscriber::Subscriber<ipc::Svc, T, ()>,
-    slots: &mut [Option<T>],
-    what: &str,
-) -> Result<()>
+fn file_by_tick<T>(sub: &Subscriber<Svc, T, ()>, slots: &mut [Option<T>], what: &str) -> Result<()>
 where
-    T: wire::Ticked + Copy + std::fmt::Debug + iceoryx2::prelude::ZeroCopySend,
+    T: wire::Ticked + Copy + std::fmt::Debug + ZeroCopySend,
 {
-    while let Some(s) = sub.receive().map_err(|e| ipc::err(what)(&e))? {
+    while let Some(s) = sub.receive().ipc(what)? {
         if let Some(slot) = slots.get_mut(s.payload().tick() as usize) {
             *slot = Some(*s.payload());
         }
@@ -122,110 +121,159 @@ fn read_log(path: &Path) -> Vec<String> {
         .collect()
 }
 
-/// Runs `law` over the study with a real process pair. `run_dir` holds the resolved config the
-/// children read and receives their stderr logs.
-pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Result<ProcessRun> {
-    let cfg = &study.config;
-    let layout = mode.layout(cfg).clone();
-    let config_path = run_dir.join("config.toml");
-    let rid = new_run_id();
-    let node = ipc::node("supervisor", &rid)?;
-    let state_sub = ipc::state(&node, &rid)?
-        .subscriber_builder()
-        .buffer_size(OBSERVER_BUFFER)
-        .create()
-        .map_err(|e| ipc::err("state observer")(&e))?;
-    let torque_sub = ipc::torque(&node, &rid)?
-        .subscriber_builder()
-        .buffer_size(OBSERVER_BUFFER)
-        .create()
-        .map_err(|e| ipc::err("torque observer")(&e))?;
-    let tel_sub = ipc::telemetry(&node, &rid)?
-        .subscriber_builder()
-        .buffer_size(OBSERVER_BUFFER)
-        .create()
-        .map_err(|e| ipc::err("telemetry observer")(&e))?;
-    let (ctl_pub, ctl_sub) = ipc::control_ports(&node, &rid)?;
-    let rows = &study.reference.rows;
-    let ref_pub = ipc::reference(&node, &rid)?
-        .publisher_builder()
-        .initial_max_slice_len(rows.len())
-        .create()
-        .map_err(|e| ipc::err("reference publisher")(&e))?;
+/// The supervisor's ports: observers of the three loop streams, the control channel, and the
+/// reference publisher.
+struct Observer {
+    state: Subscriber<Svc, StateMsg, ()>,
+    torque: Subscriber<Svc, TorqueMsg, ()>,
+    telemetry: Subscriber<Svc, TelemetryMsg, ()>,
+    control: ControlPorts,
+    reference: Publisher<Svc, [RefSample], ()>,
+    _node: Node<Svc>,
+}
 
-    let exe = exe_dir()?;
-    let mode_arg = mode.name();
-    let common = vec![
-        "--run-id".to_string(),
-        rid.clone(),
-        "--config".into(),
-        config_path.display().to_string(),
-        "--mode".into(),
-        mode_arg.into(),
-    ];
-    let plant_log = run_dir.join(format!("{law}.plant.log"));
-    let ctrl_log = run_dir.join(format!("{law}.controller.log"));
-    let mut plant = spawn(&exe.join("deltaloop-plant"), &common, &plant_log, "plant")?;
-    let mut ctrl_args = common.clone();
-    ctrl_args.extend(["--law".to_string(), law.name().to_string()]);
-    let mut controller = spawn(
-        &exe.join("deltaloop-controller"),
-        &ctrl_args,
-        &ctrl_log,
-        "controller",
-    )?;
-    let messages = || -> Vec<String> {
-        let mut m = read_log(&plant_log);
-        m.extend(read_log(&ctrl_log));
+impl Observer {
+    fn open(run_id: &str, reference_len: usize) -> Result<Self> {
+        let node = ipc::node("supervisor", run_id)?;
+        Ok(Self {
+            state: ipc::state(&node, run_id)?
+                .subscriber_builder()
+                .buffer_size(OBSERVER_BUFFER)
+                .create()
+                .ipc("state observer")?,
+            torque: ipc::torque(&node, run_id)?
+                .subscriber_builder()
+                .buffer_size(OBSERVER_BUFFER)
+                .create()
+                .ipc("torque observer")?,
+            telemetry: ipc::telemetry(&node, run_id)?
+                .subscriber_builder()
+                .buffer_size(OBSERVER_BUFFER)
+                .create()
+                .ipc("telemetry observer")?,
+            control: ipc::control_ports(&node, run_id)?,
+            reference: ipc::reference(&node, run_id)?
+                .publisher_builder()
+                .initial_max_slice_len(reference_len)
+                .create()
+                .ipc("reference publisher")?,
+            _node: node,
+        })
+    }
+}
+
+/// The two children of one run and their stderr logs.
+struct Pair {
+    plant: Reaped,
+    controller: Reaped,
+    plant_log: PathBuf,
+    ctrl_log: PathBuf,
+}
+
+impl Pair {
+    /// Starts both children with the run id, the resolved config and the mode.
+    fn spawn(run_id: &str, law: Law, mode: LoopMode, run_dir: &Path) -> Result<Self> {
+        let exe = exe_dir()?;
+        let common = vec![
+            "--run-id".to_string(),
+            run_id.to_string(),
+            "--config".into(),
+            run_dir.join("config.toml").display().to_string(),
+            "--mode".into(),
+            mode.name().into(),
+        ];
+        let plant_log = run_dir.join(format!("{law}.plant.log"));
+        let ctrl_log = run_dir.join(format!("{law}.controller.log"));
+        let plant = spawn(&exe.join("deltaloop-plant"), &common, &plant_log, "plant")?;
+        let mut ctrl_args = common;
+        ctrl_args.extend(["--law".to_string(), law.name().to_string()]);
+        let controller = spawn(
+            &exe.join("deltaloop-controller"),
+            &ctrl_args,
+            &ctrl_log,
+            "controller",
+        )?;
+        Ok(Self {
+            plant,
+            controller,
+            plant_log,
+            ctrl_log,
+        })
+    }
+
+    /// Every non-empty line both children printed.
+    fn messages(&self) -> Vec<String> {
+        let mut m = read_log(&self.plant_log);
+        m.extend(read_log(&self.ctrl_log));
         m
-    };
+    }
 
-    // Handshake steps: poll the control channel until `done` says the step is complete, failing
-    // (with the children's stderr) if a child exits first or 30 s pass.
-    let mut await_control = |step: &str, done: &mut dyn FnMut(&ControlMsg) -> bool| -> Result<()> {
-        let deadline = rt::now_ns() + 30_000_000_000;
-        loop {
-            while let Some(m) = ctl_sub
-                .receive()
-                .map_err(|e| ipc::err("receive control")(&e))?
-            {
-                if done(m.payload()) {
-                    return Ok(());
-                }
-            }
-            for child in [&mut plant, &mut controller] {
-                if let Some(status) = child.exited() {
-                    bail!(
-                        "{} exited before the run started ({status}): {}",
-                        child.1,
-                        messages().join(" | ")
-                    );
-                }
-            }
-            if rt::now_ns() > deadline {
+    /// Fails, with the children's stderr, if either child has exited.
+    fn check_alive(&mut self) -> Result<()> {
+        for child in [&mut self.plant, &mut self.controller] {
+            if let Some(status) = child.exited() {
+                let who = child.1;
+                let (plant_log, ctrl_log) = (&self.plant_log, &self.ctrl_log);
+                let mut messages = read_log(plant_log);
+                messages.extend(read_log(ctrl_log));
                 bail!(
-                    "{step} did not happen within 30 s: {}",
-                    messages().join(" | ")
+                    "{who} exited before the run started ({status}): {}",
+                    messages.join(" | ")
                 );
             }
-            std::thread::sleep(Duration::from_micros(200));
         }
-    };
-    // READY from both children (ports created, scheduling applied).
-    let (mut plant_ready, mut ctrl_ready) = (false, false);
-    await_control("the plant/controller pair reporting ready", &mut |m| {
-        match (m.kind, m.from) {
-            (control::READY, control::PLANT) => plant_ready = true,
-            (control::READY, control::CONTROLLER) => ctrl_ready = true,
-            _ => {}
-        }
-        plant_ready && ctrl_ready
-    })?;
+        Ok(())
+    }
+}
 
-    // The joint reference, one zero-copy slice sample.
-    let sample = ref_pub
+/// Polls the control channel until `done` says a handshake step is complete, failing (with the
+/// children's stderr) if a child exits first or the handshake timeout passes.
+fn await_control(
+    obs: &Observer,
+    pair: &mut Pair,
+    step: &str,
+    done: &mut dyn FnMut(&ControlMsg) -> bool,
+) -> Result<()> {
+    let deadline = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
+    loop {
+        while let Some(m) = obs.control.1.receive().ipc("receive control")? {
+            if done(m.payload()) {
+                return Ok(());
+            }
+        }
+        pair.check_alive()?;
+        if rt::now_ns() > deadline {
+            bail!(
+                "{step} did not happen within {} s: {}",
+                ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000,
+                pair.messages().join(" | ")
+            );
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    }
+}
+
+/// READY from both children, the reference to the controller, ARMED from it.
+fn handshake(obs: &Observer, pair: &mut Pair, study: &Study) -> Result<()> {
+    let (mut plant_ready, mut ctrl_ready) = (false, false);
+    await_control(
+        obs,
+        pair,
+        "the plant/controller pair reporting ready",
+        &mut |m| {
+            match (m.kind(), m.sender()) {
+                (Some(ControlKind::Ready), Some(Sender::Plant)) => plant_ready = true,
+                (Some(ControlKind::Ready), Some(Sender::Controller)) => ctrl_ready = true,
+                _ => {}
+            }
+            plant_ready && ctrl_ready
+        },
+    )?;
+    let rows = &study.reference.rows;
+    let sample = obs
+        .reference
         .loan_slice_uninit(rows.len())
-        .map_err(|e| ipc::err("loan reference")(&e))?;
+        .ipc("loan reference")?;
     let sample = sample.write_from_fn(|k| {
         let j = &rows[k].joint;
         RefSample {
@@ -234,57 +282,84 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
             qdd: j.qdd.into(),
         }
     });
-    sample.send().map_err(|e| ipc::err("send reference")(&e))?;
+    sample.send().ipc("send reference")?;
+    await_control(obs, pair, "the controller taking the reference", &mut |m| {
+        m.kind() == Some(ControlKind::Armed)
+    })
+}
 
-    // ARMED: the controller holds (and has touched) the reference.
-    await_control("the controller taking the reference", &mut |m| {
-        m.kind == control::ARMED
-    })?;
+/// The three loop streams as the supervisor saw them, indexed by tick (None: not seen), and what
+/// the plant said on the control channel.
+struct Streams {
+    states: Vec<Option<StateMsg>>,
+    torques: Vec<Option<TorqueMsg>>,
+    tels: Vec<Option<TelemetryMsg>>,
+    /// The plant's FAULT: it stopped the loop at this tick (and braked).
+    plant_fault: Option<Fault>,
+    /// The plant's DIVERGED: its model failed at this tick.
+    diverged: Option<Fault>,
+}
 
-    let sched_warnings = rt::apply(&rt::Sched {
-        core: Layout::cpu(layout.supervisor_cpu),
-        fifo_priority: 0,
-        lock_memory: false,
-    });
-    let n = study.reference.n as u64;
-    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
-    let mut start = ControlMsg::new(control::START, control::SUPERVISOR);
-    start.ticks = n;
-    start.q0 = study.reference.q0().into();
-    // Both children poll for START every ≤ 1 ms: tick 0 comes 10 ms after it.
-    start.t0_ns = rt::now_ns() + 10_000_000;
-    let steal_before = crate::timing::steal_jiffies();
-    ctl_pub
-        .send_copy(start)
-        .map_err(|e| ipc::err("send START")(&e))?;
+impl Streams {
+    fn new(len: usize) -> Self {
+        Self {
+            states: vec![None; len],
+            torques: vec![None; len],
+            tels: vec![None; len],
+            plant_fault: None,
+            diverged: None,
+        }
+    }
 
-    // Observe until the plant is done (or failed) and both children have exited.
-    let len = n as usize + 2;
-    let mut states: Vec<Option<StateMsg>> = vec![None; len];
-    let mut torques: Vec<Option<TorqueMsg>> = vec![None; len];
-    let mut tels: Vec<Option<TelemetryMsg>> = vec![None; len];
-    let mut fault: Option<(u64, String)> = None;
-    let expected_ns = (n + 2) * ts_ns * 20 + 10_000_000_000;
-    let give_up =
-        rt::now_ns() + expected_ns.max(u64::from(cfg.loop_.silence_timeout_ms) * 3_000_000);
-    let drain = |states: &mut Vec<Option<StateMsg>>,
-                 torques: &mut Vec<Option<TorqueMsg>>,
-                 tels: &mut Vec<Option<TelemetryMsg>>,
-                 fault: &mut Option<(u64, String)>|
-     -> Result<()> {
-        file_by_tick(&state_sub, states, "observe state")?;
-        file_by_tick(&torque_sub, torques, "observe torque")?;
-        file_by_tick(&tel_sub, tels, "observe telemetry")?;
-        while let Some(m) = ctl_sub
-            .receive()
-            .map_err(|e| ipc::err("receive control")(&e))?
-        {
-            if m.payload().kind == control::DIVERGED && fault.is_none() {
-                *fault = Some((m.payload().tick, m.payload().text()));
+    /// Takes everything waiting on the observer's ports.
+    fn drain(&mut self, obs: &Observer) -> Result<()> {
+        file_by_tick(&obs.state, &mut self.states, "observe state")?;
+        file_by_tick(&obs.torque, &mut self.torques, "observe torque")?;
+        file_by_tick(&obs.telemetry, &mut self.tels, "observe telemetry")?;
+        while let Some(m) = obs.control.1.receive().ipc("receive control")? {
+            let m = m.payload();
+            let fault = || Fault {
+                tick: m.tick,
+                cause: m.text(),
+            };
+            match m.kind() {
+                Some(ControlKind::Diverged) if self.diverged.is_none() => {
+                    self.diverged = Some(fault())
+                }
+                Some(ControlKind::Fault) if self.plant_fault.is_none() => {
+                    self.plant_fault = Some(fault())
+                }
+                _ => {}
             }
         }
         Ok(())
-    };
+    }
+}
+
+/// How the observed run ended.
+struct Ending {
+    plant: Option<ExitStatus>,
+    controller: Option<ExitStatus>,
+    /// When the first child exited while the other still ran, and which.
+    first_exit: Option<(u64, &'static str)>,
+    /// The supervisor sent STOP (Ctrl-C / SIGTERM).
+    interrupted: bool,
+}
+
+/// Observes until both children exit (or the bounded waits after a STOP or one child's exit run
+/// out), filing every message by tick.
+fn observe(
+    obs: &Observer,
+    pair: &mut Pair,
+    study: &Study,
+    streams: &mut Streams,
+) -> Result<Ending> {
+    let cfg = &study.config;
+    let n = study.reference.n as u64;
+    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
+    let expected_ns = (n + 2) * ts_ns * 20 + 10_000_000_000;
+    let give_up =
+        rt::now_ns() + expected_ns.max(u64::from(cfg.loop_.silence_timeout_ms) * 3_000_000);
     // Bounded waits: after STOP, or after one child exits early, the other gets the safe stop
     // (plus the silence timeout for the plant to notice a dead controller), then it is stopped.
     let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
@@ -292,8 +367,8 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
     let mut stop_sent: Option<u64> = None;
     let mut first_exit: Option<(u64, &'static str)> = None;
     loop {
-        drain(&mut states, &mut torques, &mut tels, &mut fault)?;
-        let (p, c) = (plant.exited(), controller.exited());
+        streams.drain(obs)?;
+        let (p, c) = (pair.plant.exited(), pair.controller.exited());
         let now = rt::now_ns();
         if first_exit.is_none() {
             first_exit = match (p.is_some(), c.is_some()) {
@@ -306,7 +381,10 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
             break;
         }
         if crate::signals::interrupted() && stop_sent.is_none() {
-            let _ = ctl_pub.send_copy(ControlMsg::new(control::STOP, control::SUPERVISOR));
+            let _ = obs
+                .control
+                .0
+                .send_copy(ControlMsg::new(ControlKind::Stop, Sender::Supervisor));
             stop_sent = Some(now);
         }
         let waited_out = match first_exit {
@@ -327,27 +405,50 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
         }
         std::thread::sleep(Duration::from_millis(1));
     }
-    drain(&mut states, &mut torques, &mut tels, &mut fault)?;
-    let plant_status = plant.exited();
-    let ctrl_status = controller.exited();
-    drop(plant);
-    drop(controller);
-    let interrupted = stop_sent.is_some();
-    let cause = if interrupted {
+    streams.drain(obs)?;
+    Ok(Ending {
+        plant: pair.plant.exited(),
+        controller: pair.controller.exited(),
+        first_exit,
+        interrupted: stop_sent.is_some(),
+    })
+}
+
+/// Runs `law` over the study with a real process pair. `run_dir` holds the resolved config the
+/// children read and receives their stderr logs and `<law>.timing.csv`.
+pub fn run_law(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Result<ProcessRun> {
+    let cfg = &study.config;
+    let Some(layout) = mode.layout(cfg) else {
+        bail!("mode {mode} runs no processes");
+    };
+    let rid = new_run_id();
+    let obs = Observer::open(&rid, study.reference.rows.len())?;
+    let mut pair = Pair::spawn(&rid, law, mode, run_dir)?;
+    handshake(&obs, &mut pair, study)?;
+
+    let sched_warnings = rt::apply(&rt::Sched {
+        core: Layout::cpu(layout.supervisor_cpu),
+        fifo_priority: 0,
+        lock_memory: false,
+    });
+    let n = study.reference.n as u64;
+    let mut start = ControlMsg::new(ControlKind::Start, Sender::Supervisor);
+    start.ticks = n;
+    start.q0 = study.reference.q0().into();
+    // Both children poll for START every ≤ 1 ms: tick 0 comes 10 ms after it.
+    start.t0_ns = rt::now_ns() + 10_000_000;
+    let steal_before = crate::timing::steal_jiffies();
+    obs.control.0.send_copy(start).ipc("send START")?;
+
+    let mut streams = Streams::new(n as usize + 2);
+    let ending = observe(&obs, &mut pair, study, &mut streams)?;
+    let mut child_messages = pair.messages();
+    let cause = if ending.interrupted {
         None
     } else {
-        fault_cause(
-            plant_status,
-            ctrl_status,
-            &plant_log,
-            &ctrl_log,
-            first_exit,
-            &torques,
-            &tels,
-        )
+        fault_cause(&ending, &pair, &streams)
     };
-
-    let mut child_messages = messages();
+    drop(pair);
     // A child killed by a signal leaves its iceoryx2 node behind: the surviving supervisor
     // removes it now (and says so) rather than leaving it to the next run.
     let removed = ipc::remove_dead_nodes();
@@ -363,34 +464,21 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
             .into_iter()
             .map(|w| format!("deltaloop: warning: {w}")),
     );
-    write_timing_csv(
-        &run_dir.join(format!("{law}.timing.csv")),
-        &states,
-        &torques,
-        &tels,
-    )?;
+    write_timing_csv(&run_dir.join(format!("{law}.timing.csv")), &streams)?;
+    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
     let mut timing = Timing::from_streams(
-        &states,
-        &torques,
-        &tels,
+        &streams.states,
+        &streams.torques,
+        &streams.tels,
         n,
         ts_ns,
-        mode == ProcMode::Realtime,
+        mode == LoopMode::Realtime,
     );
     timing.steal = crate::timing::steal_ms_between(&steal_before, &crate::timing::steal_jiffies());
-    let run = rebuild(
-        interrupted,
-        cause.as_ref(),
-        law,
-        study,
-        &states,
-        &torques,
-        &tels,
-        fault.as_ref(),
-    )?;
+    let run = record(ending.interrupted, cause.as_ref(), law, study, &streams)?;
     Ok(ProcessRun {
         fault: cause,
-        interrupted,
+        interrupted: ending.interrupted,
         run_id: rid,
         run,
         timing,
@@ -398,61 +486,26 @@ pub fn run_law(study: &Study, law: Law, mode: ProcMode, run_dir: &Path) -> Resul
     })
 }
 
-/// Replays the observed streams through the [`Recorder`], exactly as the in-process loop fills it.
-#[allow(clippy::too_many_arguments)]
-fn rebuild(
+/// Feeds the observed streams through the [`Recorder`], tick by tick, exactly as the in-process
+/// loop feeds it.
+fn record(
     interrupted: bool,
-    cause: Option<&(u64, String)>,
+    cause: Option<&Fault>,
     law: Law,
     study: &Study,
-    states: &[Option<StateMsg>],
-    torques: &[Option<TorqueMsg>],
-    tels: &[Option<TelemetryMsg>],
-    fault: Option<&(u64, String)>,
+    streams: &Streams,
 ) -> Result<LawRun> {
     let n = study.reference.n;
     let mut rec = Recorder::new(law, n);
-    if let Some((tick, text)) = cause {
-        rec.fault(*tick, text.clone());
+    if let Some(f) = cause {
+        rec.fault(f.clone());
     }
-    let sample = |s: &StateMsg| {
-        (
-            PlantSample {
-                k: s.tick,
-                q: Vec3::from(s.q),
-                qd: Vec3::from(s.qd),
-                tau_applied: Vec3::from(s.tau_applied),
-            },
-            Vec3::from(s.q_true),
-            Vec3::from(s.qd_true),
-        )
-    };
-    let mut last_out: Option<Output> = None;
     for k in 0..=n {
-        // A realtime tick whose state the controller skipped (it answers the newest) has no torque
-        // message; the plant held the previous torque.
-        let missed = tels[k].is_some_and(|m| m.flags & wire::TEL_MISSED != 0);
-        let torque = torques[k].map(|t| Output {
-            tau: Vec3::from(t.tau),
-            s: Vec3::from(t.s),
-            n_hat: Vec3::from(t.n_hat),
-            u: Vec3::from(t.u),
-        });
-        // Its torque is the one the plant held (τᵃ_{k+1}); the other fields repeat the last reply.
-        let held = states
-            .get(k + 1)
-            .copied()
-            .flatten()
-            .map(|s| Vec3::from(s.tau_applied));
-        let torque = torque.or(match (missed, held) {
-            (true, Some(tau)) => Some(Output {
-                tau,
-                ..last_out.unwrap_or_default()
-            }),
-            _ => None,
-        });
-        let (Some(s), Some(out)) = (states[k], torque) else {
-            // The loop ended here (interrupt, fault, a child died), or the supervisor lost the sample.
+        let (state, reply, tel) = (streams.states[k], streams.torques[k], streams.tels[k]);
+        // A tick without telemetry never ran to its end (or the sample was lost): the loop
+        // stopped here, unless the plant's telemetry says it held through a missing reply.
+        let ran = tel.is_some() || reply.is_some();
+        let Some(state) = state.filter(|_| ran) else {
             if interrupted {
                 rec.interrupt();
                 return Ok(rec.finish(None));
@@ -460,8 +513,8 @@ fn rebuild(
             if cause.is_some() {
                 return Ok(rec.finish(None));
             }
-            let why = match fault {
-                Some((tick, text)) if *tick as usize <= k + 1 => text.clone(),
+            let why = match &streams.diverged {
+                Some(d) if d.tick as usize <= k + 1 => d.cause.clone(),
                 _ => format!("the supervisor lost tick {k} of the stream"),
             };
             if k == 0 {
@@ -470,39 +523,24 @@ fn rebuild(
             rec.plant_failed(why);
             return Ok(rec.finish(None));
         };
-        let (smp, q_true, qd_true) = sample(&s);
-        last_out = Some(out);
-        if !rec.tick(smp, q_true, qd_true, &study.reference.rows[k].joint.q, out) {
+        if !rec.tick(&state, reply.as_ref(), &study.reference.rows[k].joint.q) {
             return Ok(rec.finish(None));
         }
-        let flags = tels[k].map_or(0, |m| m.flags);
-        rec.applied(
-            flags & wire::TEL_CLAMPED != 0,
-            flags & wire::TEL_HELD != 0,
-            flags & wire::TEL_REJECTED != 0,
-        );
-        if let Some((tick, text)) = fault
-            && *tick as usize == k + 1
+        rec.applied(tel.as_ref());
+        if let Some(d) = &streams.diverged
+            && d.tick as usize == k + 1
         {
-            rec.plant_failed(text.clone());
+            rec.plant_failed(d.cause.clone());
             return Ok(rec.finish(None));
         }
     }
-    let after = states[n + 1].map(|s| {
-        let (smp, _, qd_true) = sample(&s);
-        (smp, qd_true)
-    });
-    Ok(rec.finish(after))
+    Ok(rec.finish(streams.states[n + 1].as_ref()))
 }
 
 /// `<law>.timing.csv`: the raw CLOCK_MONOTONIC stamps of every tick (ns) and the plant's flags,
 /// so any latency can be recomputed. Empty cells: the supervisor did not see that message.
-fn write_timing_csv(
-    path: &Path,
-    states: &[Option<StateMsg>],
-    torques: &[Option<TorqueMsg>],
-    tels: &[Option<TelemetryMsg>],
-) -> Result<()> {
+fn write_timing_csv(path: &Path, streams: &Streams) -> Result<()> {
+    let (states, torques, tels) = (&streams.states, &streams.torques, &streams.tels);
     let mut w = csv::Writer::from_path(path)
         .with_context(|| format!("cannot create {}", path.display()))?;
     w.write_record([
@@ -547,7 +585,7 @@ fn write_timing_csv(
     Ok(())
 }
 
-fn status_text(s: std::process::ExitStatus) -> String {
+fn status_text(s: ExitStatus) -> String {
     use std::os::unix::process::ExitStatusExt;
     match (s.code(), s.signal()) {
         (_, Some(9)) => "was killed (SIGKILL)".into(),
@@ -583,26 +621,25 @@ fn last_line(path: &Path) -> String {
 }
 
 /// One line saying what went wrong, or None when both children finished normally.
-fn fault_cause(
-    plant: Option<std::process::ExitStatus>,
-    ctrl: Option<std::process::ExitStatus>,
-    plant_log: &Path,
-    ctrl_log: &Path,
-    first_exit: Option<(u64, &'static str)>,
-    torques: &[Option<TorqueMsg>],
-    tels: &[Option<TelemetryMsg>],
-) -> Option<(u64, String)> {
-    let ok = |s: Option<std::process::ExitStatus>| s.is_some_and(|s| s.success());
+/// The tick is the one the plant's FAULT message names, else the tick after its last telemetry.
+fn fault_cause(ending: &Ending, pair: &Pair, streams: &Streams) -> Option<Fault> {
+    let (plant, ctrl) = (ending.plant, ending.controller);
+    let (plant_log, ctrl_log) = (&pair.plant_log, &pair.ctrl_log);
+    let ok = |s: Option<ExitStatus>| s.is_some_and(|s| s.success());
     if ok(plant) && ok(ctrl) {
         return None;
     }
-    let last_torque = torques.iter().rev().flatten().next();
-    let last_tel = tels
+    let last_torque = streams.torques.iter().rev().flatten().next();
+    let last_tel = streams
+        .tels
         .iter()
         .rev()
         .flatten()
         .find(|m| m.flags & wire::TEL_SAFE_STOP == 0);
-    let tick = last_tel.map_or(0, |m| m.tick + 1);
+    let tick = streams
+        .plant_fault
+        .as_ref()
+        .map_or(last_tel.map_or(0, |m| m.tick + 1), |f| f.tick);
     let mut parts = Vec::new();
     // A child still running when the supervisor stopped it is not a cause (status None).
     if ctrl.is_some() && !ok(ctrl) {
@@ -627,7 +664,7 @@ fn fault_cause(
         });
     }
     // How long after the dead peer's last message the supervisor saw it exit.
-    if let Some((noticed, who)) = first_exit {
+    if let Some((noticed, who)) = ending.first_exit {
         let last = if who == "controller" {
             last_torque.map(|t| t.t_publish_ns)
         } else {
@@ -640,5 +677,8 @@ fn fault_cause(
             ));
         }
     }
-    Some((tick, parts.join("; ")))
+    Some(Fault {
+        tick,
+        cause: parts.join("; "),
+    })
 }

@@ -2,8 +2,8 @@
 //! once before a run, so the loop only indexes a table (the controller needs no kinematics).
 
 use crate::scenario::{TaskPath, TaskSample};
-use deltaloop_controller::Reference;
-use deltaloop_plant::{DeltaRobot, KinematicsError, Vec3};
+use deltaloop_law::Reference;
+use deltaloop_model::{DeltaRobot, KinematicsError, Vec3};
 
 /// The reference of one tick: task-space sample plus its joint-space image.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -4,8 +4,8 @@
 use crate::analysis::Mismatch;
 use crate::metrics::LawMetrics;
 use crate::timing::TimingSummary;
-use deltaloop_protocol::config::PathKind;
-use deltaloop_protocol::{Law, Preset, RunConfig};
+use deltaloop_config::config::PathKind;
+use deltaloop_config::{Law, Preset, RunConfig};
 use std::fmt::Write;
 
 /// The paper's published RMS errors (rad) for TDC+IS and TDC+IS+STA (Tables II–IV).
@@ -89,7 +89,7 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
 pub fn limit_cycle(m: &LawMetrics) -> bool {
     let peak = m.torque_peak_hz.into_iter().fold(0.0, f64::max);
     let share = m.hf_torque_share.into_iter().fold(0.0, f64::max);
-    m.law != "pid" && peak > 10.0 && (m.clamp_count > 0 || share > 0.05)
+    m.law != Law::Pid && peak > 10.0 && (m.clamp_count > 0 || share > 0.05)
 }
 
 /// `report.md` for one scenario run.
@@ -151,7 +151,7 @@ pub fn markdown(
         ));
     }
     let se = &cfg.sensor;
-    if !se.is_ideal() || se.velocity != deltaloop_protocol::config::VelocitySource::Measured {
+    if !se.is_ideal() || se.velocity != deltaloop_config::config::VelocitySource::Measured {
         extras.push(format!(
             "sensor: {} counts/rev, noise σ_q = {} rad, σ_q̇ = {} rad/s, seed {}, velocity {:?}",
             se.encoder_counts_per_rev,
@@ -179,7 +179,7 @@ pub fn markdown(
         "| Controller | Joint 1 | Joint 2 | Joint 3 | status |\n|---|---|---|---|---|"
     );
     for m in metrics {
-        let law = Law::parse(&m.law).expect("metrics carry valid law names");
+        let law = m.law;
         let _ = writeln!(
             s,
             "| {} (`{}`) | {} | {} | {} | {} |",

@@ -10,39 +10,9 @@ use crate::report;
 use crate::study::Study;
 use crate::timing::{Timing, TimingSummary};
 use anyhow::{Context, Result};
-use deltaloop_protocol::config::ProcMode;
-use deltaloop_protocol::ipc;
-use deltaloop_protocol::{Law, RunConfig};
+use deltaloop_config::{Law, LoopMode, RunConfig};
+use deltaloop_transport::ipc;
 use std::path::{Path, PathBuf};
-
-/// The loop transport.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Mode {
-    /// Plant and controller libraries stepped together in one process.
-    Inproc,
-    /// Real processes over iceoryx2; the plant waits for each torque (bit-identical to inproc).
-    Lockstep,
-    /// Real processes over iceoryx2 on an absolute 3.3 kHz clock; late torques are missed.
-    Realtime,
-}
-
-impl Mode {
-    pub fn name(self) -> &'static str {
-        match self {
-            Mode::Inproc => "inproc",
-            Mode::Lockstep => "lockstep",
-            Mode::Realtime => "realtime",
-        }
-    }
-
-    fn process_mode(self) -> Option<ProcMode> {
-        match self {
-            Mode::Inproc => None,
-            Mode::Lockstep => Some(ProcMode::Lockstep),
-            Mode::Realtime => Some(ProcMode::Realtime),
-        }
-    }
-}
 
 /// What one `run` produced.
 pub struct RunOutput {
@@ -105,7 +75,12 @@ pub fn load_config(path: &Path, o: &Overrides) -> Result<RunConfig> {
 }
 
 /// Runs every law of `cfg` in `mode` and writes the run folder `out` (default `runs/<time>-<name>`).
-pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> Result<RunOutput> {
+pub fn run(
+    cfg: RunConfig,
+    mode: LoopMode,
+    out: Option<PathBuf>,
+    command: &str,
+) -> Result<RunOutput> {
     let started = output::now_utc();
     let study = Study::new(cfg).context("the scenario's reference leaves the robot's workspace")?;
     let cfg = &study.config;
@@ -116,20 +91,20 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
     output::write_text(&dir.join("config.toml"), &cfg.to_toml_string())?;
     let laws = cfg.controller.laws.clone();
     let mut notes = Vec::new();
-    if cfg.controller.compute_delay_us > 0 && mode != Mode::Realtime {
+    if cfg.controller.compute_delay_us > 0 && mode != LoopMode::Realtime {
         notes.push(format!(
             "note: compute_delay_us = {} only changes results in realtime mode ({} mode ignores it{})",
             cfg.controller.compute_delay_us,
             mode.name(),
-            if mode == Mode::Lockstep { " except for wall time" } else { "" }
+            if mode == LoopMode::Lockstep { " except for wall time" } else { "" }
         ));
     }
     let mut run_ids = Vec::new();
     // A fault or an interrupt ends the run after this law; the folder is still written.
     let mut stopped: Option<(Law, Option<String>)> = None;
-    let (runs, timings): (Vec<LawRun>, Vec<Option<Timing>>) = match mode.process_mode() {
-        None => (inproc::run_laws(&study, &laws), vec![None; laws.len()]),
-        Some(pm) => {
+    let (runs, timings): (Vec<LawRun>, Vec<Option<Timing>>) = match mode {
+        LoopMode::Inproc => (inproc::run_laws(&study, &laws), vec![None; laws.len()]),
+        pm => {
             let removed = ipc::remove_dead_nodes();
             if !removed.is_empty() {
                 notes.push(format!(
@@ -154,7 +129,7 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
                 r.timing.write_hgrm(&dir, &format!("{law}."))?;
                 run_ids.push((law, r.run_id));
                 if r.interrupted || r.fault.is_some() {
-                    stopped = Some((law, r.fault.as_ref().map(|f| f.1.clone())));
+                    stopped = Some((law, r.fault.as_ref().map(|f| f.cause.clone())));
                 }
                 runs.push(r.run);
                 timings.push(Some(r.timing));
@@ -186,7 +161,7 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
         controller: study.params,
         mismatch: &mm,
         interrupted: crate::signals::interrupted(),
-        laws: metrics.iter().map(|m| (m.law.as_str(), m)).collect(),
+        laws: metrics.iter().map(|m| (m.law.name(), m)).collect(),
         run_ids: run_ids
             .iter()
             .map(|(l, id)| (l.name(), id.as_str()))
@@ -194,11 +169,11 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
         timing: metrics
             .iter()
             .zip(&timing_summaries)
-            .filter_map(|(m, t)| t.as_ref().map(|t| (m.law.as_str(), t)))
+            .filter_map(|(m, t)| t.as_ref().map(|t| (m.law.name(), t)))
             .collect(),
     };
     let mut md = report::markdown(cfg, mode.name(), command, &metrics, &mm);
-    if mode.process_mode().is_some() {
+    if mode.is_process() {
         md.push_str(&report::timing_markdown(
             cfg,
             mode.name(),
@@ -208,7 +183,7 @@ pub fn run(cfg: RunConfig, mode: Mode, out: Option<PathBuf>, command: &str) -> R
     }
     output::write_run_folder(&dir, cfg, &summary, &runs, &study.reference, &md)?;
     let mut table = report::terminal_table(cfg, &metrics);
-    if mode.process_mode().is_some() {
+    if mode.is_process() {
         table.push_str(&report::timing_table(&metrics, &timing_summaries));
     }
     if let Some((law, cause)) = &stopped {

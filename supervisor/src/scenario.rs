@@ -1,8 +1,8 @@
 //! Task-space reference paths (plant spec §6): semi-elliptic segments traversed with the
 //! rest-to-rest quintic time law, and the paper's scenarios S1, S2, S3.
 
-use deltaloop_plant::Vec3;
-use deltaloop_protocol::config::{PathKind, ScenarioSection, Segment};
+use deltaloop_config::config::{PathKind, ScenarioSection, Segment};
+use deltaloop_model::Vec3;
 
 /// P0 = (0.25, 0, −0.43) m, the start of every paper scenario.
 pub const P0: [f64; 3] = [0.25, 0.0, -0.43];

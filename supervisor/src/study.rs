@@ -3,9 +3,11 @@
 
 use crate::reference::JointReference;
 use crate::scenario::TaskPath;
-use deltaloop_controller::{Controller, ControllerParams};
-use deltaloop_plant::{DeltaRobot, KinematicsError, Plant};
-use deltaloop_protocol::{Law, RunConfig};
+use deltaloop_config::{Law, RunConfig};
+use deltaloop_controller::ControllerSide;
+use deltaloop_law::ControllerParams;
+use deltaloop_model::{DeltaRobot, KinematicsError};
+use deltaloop_plant::PlantSide;
 
 /// The resolved inputs of a run.
 #[derive(Clone, Debug)]
@@ -35,19 +37,14 @@ impl Study {
         })
     }
 
-    /// A fresh plant at rest at q_d(0), as the config describes it.
-    pub fn new_plant(&self) -> Result<Plant, KinematicsError> {
-        deltaloop_plant::process::plant_from_config(&self.config, self.reference.q0())
+    /// The plant side of a fresh run: the plant at rest at q_d(0), as the config describes it,
+    /// for ticks 0..=N.
+    pub fn plant_side(&self) -> Result<PlantSide, KinematicsError> {
+        PlantSide::from_config(&self.config, self.reference.q0(), self.reference.n as u64)
     }
 
-    /// A fresh controller for `law`.
-    pub fn new_controller(&self, law: Law) -> Controller {
-        Controller::new(
-            law,
-            self.params,
-            self.config.loop_.ts_s,
-            self.config.controller.tde_delay_samples as usize,
-        )
-        .with_velocity(self.config.sensor.velocity)
+    /// The controller side of a fresh run of `law`.
+    pub fn controller_side(&self, law: Law) -> ControllerSide {
+        ControllerSide::from_config(&self.config, law)
     }
 }

@@ -9,9 +9,8 @@ use crate::plot::{self, Panel, Series};
 use crate::procs;
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
-use deltaloop_protocol::config::PathKind;
-use deltaloop_protocol::config::ProcMode;
-use deltaloop_protocol::{Law, Preset, RunConfig};
+use deltaloop_config::config::PathKind;
+use deltaloop_config::{Law, LoopMode, Preset, RunConfig};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -29,8 +28,8 @@ pub struct SweepFile {
     /// Its path and preset are replaced by the axes below.
     pub base: PathBuf,
     /// Mode of the deterministic axes: `inproc` or `lockstep`.
-    #[serde(default = "default_mode")]
-    pub mode: String,
+    #[serde(default)]
+    pub mode: LoopMode,
     pub scenarios: Vec<PathKind>,
     pub presets: Vec<Preset>,
     pub laws: Vec<Law>,
@@ -42,17 +41,13 @@ pub struct SweepFile {
     pub compute_delay_us: Vec<u32>,
 }
 
-fn default_mode() -> String {
-    "inproc".into()
-}
-
 /// One grid point's result: a row of `sweep.csv`.
 #[derive(Debug, Clone, Serialize)]
 pub struct Row {
     pub scenario: String,
     pub preset: String,
-    pub law: String,
-    pub mode: String,
+    pub law: Law,
+    pub mode: LoopMode,
     pub tde_delay_samples: u32,
     pub transport_delay_samples: u32,
     pub compute_delay_us: u32,
@@ -97,7 +92,7 @@ fn maxj(v: [f64; 3]) -> f64 {
 
 fn row(
     job: &Job,
-    mode: &str,
+    mode: LoopMode,
     m: Option<&LawMetrics>,
     err: Option<String>,
     timing: Option<&crate::timing::TimingSummary>,
@@ -114,8 +109,8 @@ fn row(
     Row {
         scenario: format!("{:?}", job.scenario).to_lowercase(),
         preset: job.preset.name().into(),
-        law: job.law.name().into(),
-        mode: mode.into(),
+        law: job.law,
+        mode,
         tde_delay_samples: job.ell,
         transport_delay_samples: job.d,
         compute_delay_us: job.compute_us,
@@ -155,7 +150,7 @@ fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
     // The preset axis sets the constants that differ between presets (M̄, φ); the base's other
     // constants (gains) stay as the base resolved them.
     c.controller.preset = job.preset;
-    let p = deltaloop_protocol::ControllerParams::preset(job.preset);
+    let p = deltaloop_config::ControllerParams::preset(job.preset);
     c.controller.m_bar = Some(p.m_bar);
     c.controller.phi = Some(p.phi);
     c.controller.laws = vec![job.law];
@@ -166,20 +161,20 @@ fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
     Ok(c)
 }
 
-fn run_job(base: &RunConfig, job: &Job, mode: &str, dir: &Path) -> Row {
+fn run_job(base: &RunConfig, job: &Job, mode: LoopMode, dir: &Path) -> Row {
     let attempt = || -> Result<(LawMetrics, Option<crate::timing::TimingSummary>)> {
         let cfg = point_config(base, job)?;
         let study = Study::new(cfg).context("reference")?;
-        let (run, timing) = if job.realtime || mode == "lockstep" {
+        let mode = if job.realtime {
+            LoopMode::Realtime
+        } else {
+            mode
+        };
+        let (run, timing) = if mode.is_process() {
             let pdir = dir.join("points").join(&study.config.name);
             std::fs::create_dir_all(&pdir)?;
             std::fs::write(pdir.join("config.toml"), study.config.to_toml_string())?;
-            let pm = if job.realtime {
-                ProcMode::Realtime
-            } else {
-                ProcMode::Lockstep
-            };
-            let r = procs::run_law(&study, job.law, pm, &pdir)?;
+            let r = procs::run_law(&study, job.law, mode, &pdir)?;
             (r.run, Some(r.timing.summary()))
         } else {
             (inproc::run_law(&study, job.law), None)
@@ -189,7 +184,11 @@ fn run_job(base: &RunConfig, job: &Job, mode: &str, dir: &Path) -> Row {
             timing,
         ))
     };
-    let mode = if job.realtime { "realtime" } else { mode };
+    let mode = if job.realtime {
+        LoopMode::Realtime
+    } else {
+        mode
+    };
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(attempt)) {
         Ok(Ok((m, t))) => row(job, mode, Some(&m), None, t.as_ref()),
         Ok(Err(e)) => row(job, mode, None, Some(format!("{e:#}")), None),
@@ -219,9 +218,9 @@ pub fn load(path: &Path) -> Result<(SweepFile, RunConfig)> {
             e.to_string().trim_end()
         )
     })?;
-    if sw.mode != "inproc" && sw.mode != "lockstep" {
+    if sw.mode == LoopMode::Realtime {
         bail!(
-            "sweep key `mode` = {:?} is out of range: inproc or lockstep (the compute_delay_us axis runs in realtime by itself)",
+            "sweep key `mode` = \"{}\" is out of range: inproc or lockstep (the compute_delay_us axis runs in realtime by itself)",
             sw.mode
         );
     }
@@ -317,7 +316,7 @@ pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
     };
     // Deterministic inproc points in parallel (one worker per CPU); process runs one at a time.
     let (parallel, serial): (Vec<usize>, Vec<usize>) =
-        (0..all.len()).partition(|&i| !all[i].realtime && sw.mode == "inproc");
+        (0..all.len()).partition(|&i| !all[i].realtime && sw.mode == LoopMode::Inproc);
     let next = AtomicUsize::new(0);
     let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
     std::thread::scope(|s| -> Result<()> {
@@ -332,7 +331,7 @@ pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
                         let Some(&i) = parallel.get(n) else {
                             return Ok(());
                         };
-                        record(i, run_job(&base, &all[i], &sw.mode, out))?;
+                        record(i, run_job(&base, &all[i], sw.mode, out))?;
                     }
                 })
             })
@@ -347,7 +346,7 @@ pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
         if crate::signals::interrupted() {
             break;
         }
-        record(i, run_job(&base, &all[i], &sw.mode, out))?;
+        record(i, run_job(&base, &all[i], sw.mode, out))?;
     }
     bar.finish_with_message("done");
     let rows: Vec<Row> = results
@@ -401,9 +400,9 @@ fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String
         let on_axis = |r: &Row| -> bool {
             let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
             match axis {
-                "tde_delay" => r.mode != "realtime" && r.transport_delay_samples == d0,
-                "transport_delay" => r.mode != "realtime" && r.tde_delay_samples == l0,
-                _ => r.mode == "realtime",
+                "tde_delay" => r.mode != LoopMode::Realtime && r.transport_delay_samples == d0,
+                "transport_delay" => r.mode != LoopMode::Realtime && r.tde_delay_samples == l0,
+                _ => r.mode == LoopMode::Realtime,
             }
         };
         let values: Vec<f64> = rows.iter().filter(|r| on_axis(r)).map(x_of).collect();
@@ -433,7 +432,7 @@ fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String
                                     on_axis(r)
                                         && r.scenario == scn
                                         && r.preset == pr.name()
-                                        && r.law == law.name()
+                                        && r.law == *law
                                         && r.status == "ok"
                                 })
                                 .map(|r| (x_of(r), get(r)))
@@ -532,20 +531,17 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
                     pr.name()
                 );
                 let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
-                let base =
-                    |r: &&Row| r.mode != "realtime" && r.scenario == scn && r.preset == pr.name();
+                let base = |r: &&Row| {
+                    r.mode != LoopMode::Realtime && r.scenario == scn && r.preset == pr.name()
+                };
                 let by_ell = |law: Law, l: u32| {
                     rows.iter().filter(base).find(|r| {
-                        r.law == law.name()
-                            && r.tde_delay_samples == l
-                            && r.transport_delay_samples == d0
+                        r.law == law && r.tde_delay_samples == l && r.transport_delay_samples == d0
                     })
                 };
                 let by_d = |law: Law, d: u32| {
                     rows.iter().filter(base).find(|r| {
-                        r.law == law.name()
-                            && r.tde_delay_samples == l0
-                            && r.transport_delay_samples == d
+                        r.law == law && r.tde_delay_samples == l0 && r.transport_delay_samples == d
                     })
                 };
                 axis_table(
@@ -575,7 +571,7 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
             s,
             "## Controller compute delay (realtime)\n\n| scenario | preset | law | compute delay (µs) | status | RMS (rad) | misses | round trip p99.9 (µs) |\n|---|---|---|---|---|---|---|---|"
         );
-        for r in rows.iter().filter(|r| r.mode == "realtime") {
+        for r in rows.iter().filter(|r| r.mode == LoopMode::Realtime) {
             let _ = writeln!(
                 s,
                 "| {} | {} | `{}` | {} | {} | {:.2e} | {} | {:.1} |",

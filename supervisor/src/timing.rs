@@ -2,7 +2,7 @@
 //! The supervisor computes these after the fact, off the critical path.
 
 use anyhow::{Context, Result};
-use deltaloop_protocol::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
+use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
 use hdrhistogram::Histogram;
 use serde::Serialize;
 use std::fmt::Write as _;

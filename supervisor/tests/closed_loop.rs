@@ -1,7 +1,7 @@
 //! Closed-loop behaviour of the in-process runner: every law tracks S1; the paper preset shows
 //! the limit cycle; a diverging configuration is reported, not crashed; runs are deterministic.
 
-use deltaloop_protocol::{Law, RunConfig};
+use deltaloop_config::{Law, RunConfig};
 use deltaloop_supervisor::inproc::{run_law, run_laws};
 use deltaloop_supervisor::metrics::{LawMetrics, compute};
 use deltaloop_supervisor::record::Outcome;
@@ -36,7 +36,10 @@ fn every_law_tracks_s1_with_bounded_error_matched_preset() {
         assert!(m.task_max_mm < 1.0, "{law}: {} mm", m.task_max_mm);
         assert_eq!(m.clamp_count, 0, "{law}");
         // s₀ = 0: the run starts on the sliding surface.
-        assert_eq!(run.records[0].out.s, deltaloop_plant::Vec3::zeros());
+        assert_eq!(
+            run.records[0].out.expect("answered").s,
+            deltaloop_model::Vec3::zeros()
+        );
     }
 }
 
@@ -115,7 +118,7 @@ fn truth_n_matches_closed_form_with_exact_tde() {
         let a_prev = if k == 0 { 0.0 } else { a(k - 1) };
         let n_hat = a_prev - r[k].sample.tau_applied[0] / m_bar;
         assert!(
-            (n_hat - r[k].out.n_hat[0]).abs() <= 1e-9 * n_hat.abs().max(1.0),
+            (n_hat - r[k].out.expect("answered").n_hat[0]).abs() <= 1e-9 * n_hat.abs().max(1.0),
             "k={k}"
         );
         let truth = a(k) - r[k + 1].sample.tau_applied[0] / m_bar;

@@ -1,6 +1,6 @@
 //! The delay study's building blocks: TDE delay, transport delay, sensor noise, payload step.
 
-use deltaloop_protocol::{Law, RunConfig};
+use deltaloop_config::{Law, RunConfig};
 use deltaloop_supervisor::inproc::run_law;
 use deltaloop_supervisor::metrics::compute;
 use deltaloop_supervisor::record::{LawRun, Outcome};
@@ -65,10 +65,7 @@ fn transport_delay_applies_the_command_d_ticks_late_and_reports_it_truthfully() 
         let want = if k < d as usize {
             tau_a0
         } else {
-            r[k - d as usize]
-                .out
-                .tau
-                .map(|t| t.clamp(-tau_max, tau_max))
+            r[k - d as usize].tau.map(|t| t.clamp(-tau_max, tau_max))
         };
         assert_eq!(applied, want, "k = {k}");
         clamped += usize::from(r[k].clamped);

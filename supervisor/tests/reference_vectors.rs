@@ -1,7 +1,7 @@
 //! The spec's reference-trajectory vectors (task and joint space) and the scenario peaks.
 
-use deltaloop_plant::{DeltaRobot, Vec3};
-use deltaloop_protocol::RunConfig;
+use deltaloop_config::RunConfig;
+use deltaloop_model::{DeltaRobot, Vec3};
 use deltaloop_supervisor::reference::joint_sample;
 use deltaloop_supervisor::scenario::TaskPath;
 use serde_json::Value;

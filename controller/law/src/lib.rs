@@ -6,10 +6,11 @@
 //! knows nothing of the robot model. This crate does not depend on the plant crate.
 
 pub mod law;
+pub mod params;
 pub mod tde;
 
-pub use deltaloop_protocol::{ControllerParams, Law};
 pub use law::{Controller, Measurement, Output, Reference};
+pub use params::{ControllerParams, Law, Preset, VelocitySource};
 pub use tde::TdeHistory;
 
 /// Joint-space 3-vector (rad, rad/s, rad/s² or N m, as each field says).
@@ -30,4 +31,3 @@ pub fn sgn(x: f64) -> f64 {
 pub fn sat(x: f64) -> f64 {
     x.clamp(-1.0, 1.0)
 }
-pub mod process;

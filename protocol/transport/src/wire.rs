@@ -103,25 +103,58 @@ macro_rules! ticked {
 }
 ticked!(StateMsg, TorqueMsg, TelemetryMsg);
 
-/// `ControlMsg::kind`.
-pub mod control {
-    /// A child has created its ports and waits for `START`.
-    pub const READY: u32 = 1;
+/// What a [`ControlMsg`] says (`ControlMsg::kind` on the wire).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u32)]
+pub enum ControlKind {
+    /// A child has created its ports and waits for `Start`.
+    Ready = 1,
     /// Supervisor → children: begin at `t0_ns` (plant) with `ticks` and `q0`.
-    pub const START: u32 = 2;
+    Start = 2,
     /// Supervisor → children: stop now (interrupt).
-    pub const STOP: u32 = 3;
-    /// A child failed: `tick` and `text` say where and why.
-    pub const FAULT: u32 = 4;
+    Stop = 3,
+    /// The plant stopped the loop at `tick` and brakes (e.g. the controller went silent); `text`
+    /// says why.
+    Fault = 4,
     /// The controller holds the reference (mapped and touched) and can answer tick 0.
-    pub const ARMED: u32 = 6;
+    Armed = 6,
     /// The plant's model failed at `tick` (left the workspace, non-finite state): the run
     /// diverged, as the study's divergence rule counts it; `text` says how.
-    pub const DIVERGED: u32 = 7;
-    /// Senders.
-    pub const PLANT: u32 = 1;
-    pub const CONTROLLER: u32 = 2;
-    pub const SUPERVISOR: u32 = 3;
+    Diverged = 7,
+}
+
+impl ControlKind {
+    /// The kind of a wire value, None for a value this version does not know.
+    pub fn from_wire(v: u32) -> Option<Self> {
+        [
+            Self::Ready,
+            Self::Start,
+            Self::Stop,
+            Self::Fault,
+            Self::Armed,
+            Self::Diverged,
+        ]
+        .into_iter()
+        .find(|k| *k as u32 == v)
+    }
+}
+
+/// Who sent a [`ControlMsg`] (`ControlMsg::from` on the wire).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u32)]
+pub enum Sender {
+    Plant = 1,
+    Controller = 2,
+    Supervisor = 3,
+}
+
+impl Sender {
+    /// The sender of a wire value, None for a value this version does not know.
+    pub fn from_wire(v: u32) -> Option<Self> {
+        [Self::Plant, Self::Controller, Self::Supervisor]
+            .into_iter()
+            .find(|s| *s as u32 == v)
+    }
 }
 
 /// Run control: handshake, start, stop, faults.
@@ -129,7 +162,9 @@ pub mod control {
 #[repr(C)]
 #[type_name("deltaloop::ControlMsg/v1")]
 pub struct ControlMsg {
+    /// A [`ControlKind`] value.
     pub kind: u32,
+    /// A [`Sender`] value.
     pub from: u32,
     pub tick: u64,
     /// START: N, the last tick that gets a command (the plant then publishes tick N + 1 as final).
@@ -144,10 +179,10 @@ pub struct ControlMsg {
 
 impl ControlMsg {
     /// A message of `kind` from `from` with everything else zero.
-    pub fn new(kind: u32, from: u32) -> Self {
+    pub fn new(kind: ControlKind, from: Sender) -> Self {
         Self {
-            kind,
-            from,
+            kind: kind as u32,
+            from: from as u32,
             tick: 0,
             ticks: 0,
             q0: [0.0; 3],
@@ -156,13 +191,18 @@ impl ControlMsg {
         }
     }
 
-    /// A FAULT message at `tick` with `text` (truncated at a character boundary).
-    pub fn fault(from: u32, tick: u64, text: &str) -> Self {
-        Self::with_text(control::FAULT, from, tick, text)
+    /// What the message says (None: a kind this version does not know).
+    pub fn kind(&self) -> Option<ControlKind> {
+        ControlKind::from_wire(self.kind)
+    }
+
+    /// Who sent it (None: a sender this version does not know).
+    pub fn sender(&self) -> Option<Sender> {
+        Sender::from_wire(self.from)
     }
 
     /// A message of `kind` at `tick` carrying `text` (truncated at a character boundary).
-    pub fn with_text(kind: u32, from: u32, tick: u64, text: &str) -> Self {
+    pub fn with_text(kind: ControlKind, from: Sender, tick: u64, text: &str) -> Self {
         let mut m = Self::new(kind, from);
         m.tick = tick;
         let mut end = text.len().min(m.text.len());
@@ -203,11 +243,31 @@ mod tests {
 
     #[test]
     fn fault_text_round_trips_and_truncates_on_char_boundary() {
-        let m = ControlMsg::fault(control::PLANT, 7, "left the workspace");
+        let m = ControlMsg::with_text(ControlKind::Fault, Sender::Plant, 7, "left the workspace");
         assert_eq!(m.text(), "left the workspace");
         assert_eq!(m.tick, 7);
+        assert_eq!(
+            (m.kind(), m.sender()),
+            (Some(ControlKind::Fault), Some(Sender::Plant))
+        );
         let long = "é".repeat(200);
-        let t = ControlMsg::fault(control::PLANT, 0, &long).text();
+        let t = ControlMsg::with_text(ControlKind::Fault, Sender::Plant, 0, &long).text();
         assert!(t.len() <= 160 && t.chars().all(|c| c == 'é'));
+    }
+    #[test]
+    fn control_kinds_and_senders_round_trip_and_unknown_values_are_none() {
+        for k in [
+            ControlKind::Ready,
+            ControlKind::Start,
+            ControlKind::Stop,
+            ControlKind::Fault,
+            ControlKind::Armed,
+            ControlKind::Diverged,
+        ] {
+            assert_eq!(ControlKind::from_wire(k as u32), Some(k));
+        }
+        assert_eq!(ControlKind::from_wire(5), None);
+        assert_eq!(Sender::from_wire(3), Some(Sender::Supervisor));
+        assert_eq!(Sender::from_wire(0), None);
     }
 }

@@ -98,4 +98,3 @@ impl Default for DeltaRobot {
         Self::new(DeltaParams::default())
     }
 }
-pub mod process;

@@ -1,8 +1,7 @@
 //! The control laws (controller spec, "The laws"). One [`Controller`] runs one law; call
 //! [`Controller::step`] once per tick k with that tick's measurement and reference.
 
-use crate::{ControllerParams, Law, TdeHistory, Vec3, sat, sgn};
-use deltaloop_protocol::config::VelocitySource;
+use crate::{ControllerParams, Law, TdeHistory, Vec3, VelocitySource, sat, sgn};
 
 /// What the controller measures at tick k.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -182,7 +181,7 @@ impl Controller {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use deltaloop_protocol::{ControllerParams, Preset};
+    use crate::{ControllerParams, Preset};
 
     fn paper() -> ControllerParams {
         ControllerParams::preset(Preset::Paper)

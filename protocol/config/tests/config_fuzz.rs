@@ -1,6 +1,6 @@
 //! Fuzzing the config parser: no input may panic it. Whatever it accepts is valid and round-trips.
 
-use deltaloop_protocol::RunConfig;
+use deltaloop_config::RunConfig;
 use proptest::prelude::*;
 
 const SECTIONS: &[&str] = &[

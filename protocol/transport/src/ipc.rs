@@ -13,6 +13,8 @@ pub type Svc = ipc::Service;
 
 /// Per-subscriber queue of an observer (the supervisor): 2.4 s of ticks at 3.3 kHz.
 pub const OBSERVER_BUFFER: usize = 8192;
+/// How long each handshake step (READY, ARMED, START) may take before the run is given up, ns.
+pub const HANDSHAKE_TIMEOUT_NS: u64 = 30_000_000_000;
 /// Per-subscriber queue in the loop itself: the loop always takes the newest sample.
 pub const LOOP_BUFFER: usize = 4;
 
@@ -24,12 +26,18 @@ pub struct IpcError {
     pub detail: String,
 }
 
-/// Wraps any iceoryx2 error with context.
-pub fn err(what: impl Into<String>) -> impl FnOnce(&dyn Debug) -> IpcError {
-    let what = what.into();
-    move |e| IpcError {
-        what,
-        detail: format!("{e:?}"),
+/// Names what was being done when an iceoryx2 call failed: `port.receive().ipc("receive state")?`.
+pub trait IpcContext<T> {
+    /// Turns the error into an [`IpcError`] that says `what`.
+    fn ipc(self, what: impl Into<String>) -> Result<T, IpcError>;
+}
+
+impl<T, E: Debug> IpcContext<T> for Result<T, E> {
+    fn ipc(self, what: impl Into<String>) -> Result<T, IpcError> {
+        self.map_err(|e| IpcError {
+            what: what.into(),
+            detail: format!("{e:?}"),
+        })
     }
 }
 
@@ -46,20 +54,18 @@ pub fn config() -> Config {
 
 /// A node for `role` in run `run_id`. Signal handling stays with the process.
 pub fn node(role: &str, run_id: &str) -> Result<Node<Svc>, IpcError> {
-    let name =
-        NodeName::new(&format!("deltaloop-{role}-{run_id}")).map_err(|e| err("node name")(&e))?;
+    let name = NodeName::new(&format!("deltaloop-{role}-{run_id}")).ipc("node name")?;
     NodeBuilder::new()
         .name(&name)
         .config(&config())
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Svc>()
-        .map_err(|e| err(format!("create node for {role}"))(&e))
+        .ipc(format!("create node for {role}"))
 }
 
 /// `deltaloop/<run id>/<what>`.
 pub fn service_name(run_id: &str, what: &str) -> Result<ServiceName, IpcError> {
-    ServiceName::new(&format!("deltaloop/{run_id}/{what}"))
-        .map_err(|e| err(format!("service name {what}"))(&e))
+    ServiceName::new(&format!("deltaloop/{run_id}/{what}")).ipc(format!("service name {what}"))
 }
 
 fn pubsub<T: ZeroCopySend + Debug + Copy + 'static>(
@@ -80,7 +86,7 @@ fn pubsub<T: ZeroCopySend + Debug + Copy + 'static>(
         // A slow observer loses its oldest samples (counted by tick gaps); it never blocks the loop.
         .enable_safe_overflow(true)
         .open_or_create()
-        .map_err(|e| err(format!("open service {what}"))(&e))
+        .ipc(format!("open service {what}"))
 }
 
 /// Plant → controller + supervisor.
@@ -124,14 +130,11 @@ pub type ControlPorts = (
 /// Opens the control channel and creates this process's publisher and subscriber on it.
 pub fn control_ports(node: &Node<Svc>, run_id: &str) -> Result<ControlPorts, IpcError> {
     let svc = control(node, run_id)?;
-    let publisher = svc
-        .publisher_builder()
-        .create()
-        .map_err(|e| err("control publisher")(&e))?;
+    let publisher = svc.publisher_builder().create().ipc("control publisher")?;
     let subscriber = svc
         .subscriber_builder()
         .create()
-        .map_err(|e| err("control subscriber")(&e))?;
+        .ipc("control subscriber")?;
     Ok((publisher, subscriber))
 }
 
@@ -148,7 +151,7 @@ pub fn reference(
         .subscriber_max_buffer_size(1)
         .history_size(0)
         .open_or_create()
-        .map_err(|e| err("open service reference")(&e))
+        .ipc("open service reference")
 }
 
 /// A wake-up event: `state-ready` wakes the controller, `torque-ready` wakes the plant.
@@ -163,7 +166,7 @@ pub fn wakeup(
         .max_listeners(2)
         .max_nodes(4)
         .open_or_create()
-        .map_err(|e| err(format!("open event {what}"))(&e))
+        .ipc(format!("open event {what}"))
 }
 
 /// Removes the resources of iceoryx2 nodes whose process died (e.g. a run killed with SIGKILL).

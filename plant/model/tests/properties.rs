@@ -1,6 +1,6 @@
 //! The property checks of spec §7 over the workspace box, and the energy checks E1/E2.
 
-use deltaloop_plant::{DeltaRobot, Mat3, PlantSim, SimConfig, Vec3};
+use deltaloop_model::{DeltaRobot, Mat3, PlantSim, SimConfig, Vec3};
 use proptest::prelude::*;
 
 /// A platform point in the spec's workspace box x ∈ [−0.25, 0.25], y ∈ [−0.15, 0.15],
@@ -181,7 +181,7 @@ fn energy_e1_gravity_release_from_rest() {
 
 #[test]
 fn energy_e2_no_gravity_initial_velocity() {
-    let robot = DeltaRobot::new(deltaloop_plant::DeltaParams {
+    let robot = DeltaRobot::new(deltaloop_model::DeltaParams {
         g: 0.0,
         ..Default::default()
     });

@@ -6,6 +6,7 @@
 //! names the key, the value and what is allowed. The resolved config ([`RunConfig::to_toml_string`])
 //! has every constant filled in and parses back to the same config.
 
+pub use deltaloop_law::{ControllerParams, Law, Preset, VelocitySource};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::Path;
@@ -29,133 +30,6 @@ pub enum ConfigError {
         value: String,
         allowed: String,
     },
-}
-
-/// A control law (controller spec, "The laws").
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
-#[serde(rename_all = "kebab-case")]
-pub enum Law {
-    /// Time-delay control, u = 0.
-    Tdc,
-    /// TDE + integral sliding mode with a boundary layer (paper eq. 44).
-    TdeIs,
-    /// TDC + integral sliding mode + super-twisting (paper eq. 12–14), the paper's proposal.
-    TdcIsSta,
-    /// PID baseline with a bumpless start; no TDE, no model.
-    Pid,
-}
-
-impl Law {
-    /// Every law, in report order.
-    pub const ALL: [Law; 4] = [Law::Tdc, Law::TdeIs, Law::TdcIsSta, Law::Pid];
-
-    /// The config/CLI name (`tdc`, `tde-is`, `tdc-is-sta`, `pid`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Law::Tdc => "tdc",
-            Law::TdeIs => "tde-is",
-            Law::TdcIsSta => "tdc-is-sta",
-            Law::Pid => "pid",
-        }
-    }
-
-    /// The name the paper uses.
-    pub fn paper_name(self) -> &'static str {
-        match self {
-            Law::Tdc => "TDC",
-            Law::TdeIs => "TDC+IS",
-            Law::TdcIsSta => "TDC+IS+STA",
-            Law::Pid => "PID",
-        }
-    }
-
-    /// Whether the law uses time-delay estimation (so its TDE error is meaningful).
-    pub fn uses_tde(self) -> bool {
-        self != Law::Pid
-    }
-
-    /// Parses a config/CLI name.
-    pub fn parse(s: &str) -> Result<Law, String> {
-        Law::ALL
-            .into_iter()
-            .find(|l| l.name() == s)
-            .ok_or_else(|| format!("unknown law `{s}`: allowed are tdc, tde-is, tdc-is-sta, pid"))
-    }
-}
-
-impl fmt::Display for Law {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// A named set of controller constants.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum Preset {
-    /// M̄ = 0.03 I kg m² (≈ 0.9 λmin(M) over the workspace), φ = 0.5 rad/s: the method as intended.
-    #[default]
-    Matched,
-    /// M̄ = 3·10⁻⁴ I kg m² (the paper's Table I literally), φ = 100 rad/s: shows the limit cycle.
-    Paper,
-}
-
-impl Preset {
-    /// The config name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Preset::Matched => "matched",
-            Preset::Paper => "paper",
-        }
-    }
-}
-
-/// The controller constants, all per joint (M̄ = m_bar · I).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ControllerParams {
-    /// Nominal inertia M̄ (diagonal entry), kg m².
-    pub m_bar: f64,
-    /// Integral-surface gain K_p, 1/s² (rad/s² per rad of integrated error per s).
-    pub kp: f64,
-    /// Derivative gain K_d, 1/s.
-    pub kd: f64,
-    /// Switching gain K_s of `tde-is`, rad/s².
-    pub ks: f64,
-    /// Boundary-layer width φ of `tde-is`, rad/s (0 means sgn).
-    pub phi: f64,
-    /// Super-twisting gain k1, rad^½/s^(3/2).
-    pub k1: f64,
-    /// Super-twisting gain k2, rad/s³.
-    pub k2: f64,
-    /// PID proportional gain P, N m/rad.
-    pub pid_p: f64,
-    /// PID integral gain I, N m/(rad s).
-    pub pid_i: f64,
-    /// PID derivative gain D, N m s/rad.
-    pub pid_d: f64,
-}
-
-impl ControllerParams {
-    /// The constants of a preset (controller spec, Table I and the preset table).
-    pub fn preset(p: Preset) -> Self {
-        let (m_bar, phi) = match p {
-            Preset::Matched => (0.03, 0.5),
-            Preset::Paper => (3e-4, 100.0),
-        };
-        Self {
-            m_bar,
-            kp: 1800.0,
-            kd: 1800.0,
-            ks: 1460.0,
-            phi,
-            k1: 700.0,
-            k2: 100.0,
-            pid_p: 1800.0,
-            pid_i: 6.7e4,
-            pid_d: 16.0,
-        }
-    }
 }
 
 /// Which reference path to follow (plant spec §6).
@@ -365,18 +239,6 @@ impl Default for FaultSection {
     }
 }
 
-/// Where the controller's joint rates (and TDE accelerations) come from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum VelocitySource {
-    /// The plant's measured q̇; a_j = (q̇_{j+1} − q̇_j)/Ts.
-    #[default]
-    Measured,
-    /// Encoder only: q̇_k = (q_k − q_{k−1})/Ts and a_j = (q_{j+1} − 2q_j + q_{j−1})/Ts², paired
-    /// with the mean applied torque of the two intervals (controller spec).
-    EncoderDifference,
-}
-
 /// `[sensor]`: measurement realism, off by default. The plant adds seeded Gaussian noise, then
 /// quantises q to encoder counts; ground truth stays noise-free for evaluation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -491,38 +353,68 @@ pub struct Layout {
     pub wake_early_us: Option<u32>,
 }
 
-/// Which loop the two processes run (the process modes; inproc has no processes).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ProcMode {
-    /// The plant waits for every torque.
+/// How plant and controller are connected: one enum for the CLI, the sweep and the processes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum LoopMode {
+    /// Plant and controller stepped together in one process. Fastest; for sweeps and tests.
+    #[default]
+    Inproc,
+    /// Real processes over iceoryx2; the plant waits for every torque (bit-identical to inproc).
     Lockstep,
-    /// The plant runs on an absolute clock; late torques are missed.
+    /// Real processes over iceoryx2 on an absolute clock; late torques are missed.
     Realtime,
 }
 
-impl ProcMode {
-    /// The command-line name (`lockstep`, `realtime`).
+impl LoopMode {
+    /// Every mode, in documentation order.
+    pub const ALL: [LoopMode; 3] = [LoopMode::Inproc, LoopMode::Lockstep, LoopMode::Realtime];
+
+    /// The config/command-line name (`inproc`, `lockstep`, `realtime`).
     pub fn name(self) -> &'static str {
         match self {
-            ProcMode::Lockstep => "lockstep",
-            ProcMode::Realtime => "realtime",
+            LoopMode::Inproc => "inproc",
+            LoopMode::Lockstep => "lockstep",
+            LoopMode::Realtime => "realtime",
         }
     }
 
-    /// Parses a command-line name.
-    pub fn parse(s: &str) -> Result<ProcMode, String> {
-        [ProcMode::Lockstep, ProcMode::Realtime]
+    /// Parses a config/command-line name.
+    pub fn parse(s: &str) -> Result<LoopMode, String> {
+        LoopMode::ALL
             .into_iter()
             .find(|m| m.name() == s)
-            .ok_or_else(|| format!("unknown mode `{s}` (allowed: lockstep, realtime)"))
+            .ok_or_else(|| format!("unknown mode `{s}` (allowed: inproc, lockstep, realtime)"))
     }
 
-    /// The layout section of the config for this mode.
-    pub fn layout(self, cfg: &RunConfig) -> &Layout {
-        match self {
-            ProcMode::Lockstep => &cfg.loop_.lockstep,
-            ProcMode::Realtime => &cfg.loop_.realtime,
+    /// Parses the mode of a loop process: `lockstep` or `realtime` (a process is never inproc).
+    pub fn parse_process(s: &str) -> Result<LoopMode, String> {
+        match LoopMode::parse(s)? {
+            LoopMode::Inproc => Err(format!(
+                "mode `{s}` has no processes (allowed: lockstep, realtime)"
+            )),
+            m => Ok(m),
         }
+    }
+
+    /// Whether plant and controller run as separate processes.
+    pub fn is_process(self) -> bool {
+        self != LoopMode::Inproc
+    }
+
+    /// The scheduling layout of this mode's processes (None for inproc).
+    pub fn layout(self, cfg: &RunConfig) -> Option<&Layout> {
+        match self {
+            LoopMode::Inproc => None,
+            LoopMode::Lockstep => Some(&cfg.loop_.lockstep),
+            LoopMode::Realtime => Some(&cfg.loop_.realtime),
+        }
+    }
+}
+
+impl fmt::Display for LoopMode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.pad(self.name())
     }
 }
 

@@ -1,13 +1,13 @@
 //! Every numeric vector of the spec (tests/data/delta-robot-vectors.json, a copy of the spec's
 //! file), compared entry-wise within 1e-9 × max|entry of that quantity| (spec §7).
 
-use deltaloop_plant::{DeltaParams, DeltaRobot, Mat3, PlantSim, SimConfig, Vec3};
+use deltaloop_model::{DeltaParams, DeltaRobot, Mat3, PlantSim, SimConfig, Vec3};
 use serde_json::Value;
 
 fn data() -> Value {
     let path = concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/../tests/data/delta-robot-vectors.json"
+        "/../../tests/data/delta-robot-vectors.json"
     );
     serde_json::from_str(&std::fs::read_to_string(path).expect("test data")).expect("json")
 }

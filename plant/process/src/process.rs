@@ -1,0 +1,470 @@
+//! The plant process (`deltaloop-plant`): runs the plant's tick ([`PlantSide`], the same every
+//! mode uses) once per tick and exchanges state and torque with the controller over iceoryx2.
+//!
+//! - lockstep: publish state k, wait (without limit but the silence timeout) for τ_k, integrate.
+//! - realtime: wake at the absolute deadline t0 + k·Ts, publish state k, wait for τ_k at most the
+//!   torque budget (counted from the state's publication); if it is not there, hold the last
+//!   applied torque and count a miss. A reply sent after its budget, or for an earlier tick, is
+//!   dropped: never applied late or to the wrong tick.
+//!
+//! After a fault (or a STOP) the drives brake for `safe_stop_ms` before the process exits. Exit
+//! codes: the table in `deltaloop_transport::exit` (0 done, 2 arguments, 3 set-up, 4 fault,
+//! 5 stopped).
+
+use crate::{Arrival, PlantSide, PlantStop};
+use anyhow::{Context, Result, bail};
+use clap::Parser;
+use deltaloop_config::config::Layout;
+use deltaloop_config::{LoopMode, RunConfig};
+use deltaloop_model::Vec3;
+use deltaloop_transport::args::LoopArgs;
+use deltaloop_transport::exit::{self, ProcessEnd};
+use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, LOOP_BUFFER, Svc};
+use deltaloop_transport::rt;
+use deltaloop_transport::wire::{
+    self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
+};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+const NAME: &str = "deltaloop-plant";
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "deltaloop-plant",
+    about = "deltaloop plant process (started by `deltaloop run`)"
+)]
+struct Args {
+    #[command(flatten)]
+    run: LoopArgs,
+}
+
+/// Entry point of `deltaloop-plant`.
+pub fn main() -> ExitCode {
+    let args = Args::parse();
+    let term = rt::child_signals();
+    exit::exit(NAME, run(&args, &term))
+}
+
+/// The plant's iceoryx2 ports.
+struct Ports {
+    state: Publisher<Svc, StateMsg, ()>,
+    telemetry: Publisher<Svc, TelemetryMsg, ()>,
+    torque: Subscriber<Svc, TorqueMsg, ()>,
+    state_ready: Notifier<Svc>,
+    torque_ready: Listener<Svc>,
+    control: ControlPorts,
+    _node: Node<Svc>,
+}
+
+impl Ports {
+    fn open(run_id: &str) -> Result<Self> {
+        let node = ipc::node("plant", run_id)?;
+        Ok(Self {
+            state: ipc::state(&node, run_id)?
+                .publisher_builder()
+                .create()
+                .ipc("state publisher")?,
+            telemetry: ipc::telemetry(&node, run_id)?
+                .publisher_builder()
+                .create()
+                .ipc("telemetry publisher")?,
+            torque: ipc::torque(&node, run_id)?
+                .subscriber_builder()
+                .buffer_size(LOOP_BUFFER)
+                .create()
+                .ipc("torque subscriber")?,
+            state_ready: ipc::wakeup(&node, run_id, "state-ready")?
+                .notifier_builder()
+                .create()
+                .ipc("state notifier")?,
+            torque_ready: ipc::wakeup(&node, run_id, "torque-ready")?
+                .listener_builder()
+                .create()
+                .ipc("torque listener")?,
+            control: ipc::control_ports(&node, run_id)?,
+            _node: node,
+        })
+    }
+
+    /// Publishes a state and wakes the controller.
+    fn publish_state(&self, msg: StateMsg) -> Result<()> {
+        self.state.send_copy(msg).ipc("publish state")?;
+        self.state_ready.notify().ipc("notify state")?;
+        Ok(())
+    }
+}
+
+/// The loop's settings, in integer nanoseconds.
+struct Clock {
+    mode: LoopMode,
+    t0_ns: u64,
+    ts_ns: u64,
+    budget_ns: u64,
+    silence_ns: u64,
+    spin_ns: u64,
+    early_ns: u64,
+}
+
+impl Clock {
+    /// Waits for tick k: (deadline, wake time). Lockstep has no deadline: both are now.
+    fn wake(&self, k: u64) -> (u64, u64) {
+        match self.mode {
+            LoopMode::Realtime => {
+                let d = self.t0_ns + k * self.ts_ns;
+                rt::wake_at_ns(d, self.early_ns);
+                (d, rt::now_ns())
+            }
+            _ => {
+                let now = rt::now_ns();
+                (now, now)
+            }
+        }
+    }
+}
+
+/// Why the loop ended before its last tick.
+struct LoopStop {
+    tick: u64,
+    cause: String,
+    /// A stop on request (STOP, SIGTERM) rather than a fault.
+    requested: bool,
+    /// The model still works, so the drives can brake.
+    can_brake: bool,
+    /// The last deadline the loop kept, ns (the safe stop keeps the clock from there).
+    last_deadline_ns: u64,
+}
+
+fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
+    let cfg = RunConfig::from_file(&args.run.config)?;
+    let Some(layout) = args.run.mode.layout(&cfg) else {
+        bail!("mode {} has no processes", args.run.mode);
+    };
+    let ports = Ports::open(&args.run.run_id)?;
+    rt::schedule_and_report_ready(
+        &rt::Sched {
+            core: Layout::cpu(layout.plant_cpu),
+            fifo_priority: layout.plant_priority.unwrap_or(0),
+            lock_memory: layout.lock_memory.unwrap_or(false),
+        },
+        NAME,
+        || -> Result<()> {
+            ports
+                .control
+                .0
+                .send_copy(ControlMsg::new(ControlKind::Ready, Sender::Plant))
+                .ipc("send READY")?;
+            Ok(())
+        },
+    )?;
+    let handshake_ms = u32::try_from(ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000).unwrap_or(u32::MAX);
+    let Some(start) = wait_for_start(
+        &ports.control.1,
+        cfg.loop_.silence_timeout_ms.max(handshake_ms),
+    )?
+    else {
+        return Ok(ProcessEnd::Stopped("stopped before start".into()));
+    };
+    let mut side = PlantSide::from_config(&cfg, Vec3::from(start.q0), start.ticks)
+        .context("initial configuration")?;
+    let clock = Clock {
+        mode: args.run.mode,
+        t0_ns: start.t0_ns,
+        ts_ns: (cfg.loop_.ts_s * 1e9).round() as u64,
+        budget_ns: u64::from(cfg.loop_.torque_budget_us) * 1000,
+        silence_ns: u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000,
+        spin_ns: u64::from(layout.spin_us.unwrap_or(0)) * 1000,
+        early_ns: u64::from(layout.wake_early_us.unwrap_or(0)) * 1000,
+    };
+    let Some(stop) = run_loop(&ports, &mut side, &clock, &cfg, term)? else {
+        // No DONE message: the final state and the exit status say it, and the controller's ports
+        // are already going away (a send now would race their teardown).
+        return Ok(ProcessEnd::Completed);
+    };
+    Ok(end_run(&ports, &mut side, &clock, &cfg, stop))
+}
+
+/// Ticks 0..=N, then the final state N + 1. Some(stop) if the loop ended early.
+fn run_loop(
+    ports: &Ports,
+    side: &mut PlantSide,
+    clock: &Clock,
+    cfg: &RunConfig,
+    term: &AtomicBool,
+) -> Result<Option<LoopStop>> {
+    loop {
+        let k = side.tick();
+        let (deadline, wake) = clock.wake(k);
+        if stop_requested(&ports.control.1) || term.load(Ordering::Relaxed) {
+            return Ok(Some(LoopStop {
+                tick: k,
+                cause: "stopped by the supervisor".into(),
+                requested: true,
+                can_brake: true,
+                last_deadline_ns: deadline,
+            }));
+        }
+        let mut msg = side.state();
+        msg.t_deadline_ns = deadline;
+        msg.t_wake_ns = wake;
+        msg.t_publish_ns = rt::now_ns();
+        ports.publish_state(msg)?;
+        if msg.flags & wire::STATE_FINAL != 0 {
+            return Ok(None);
+        }
+        let until = match clock.mode {
+            // The budget runs from the state's publication, not from the deadline: after a late
+            // wake the controller still gets its chance, instead of being starved (it runs below
+            // the plant on the same CPU) while the plant races through its backlog.
+            LoopMode::Realtime => msg.t_publish_ns + clock.budget_ns,
+            _ => rt::now_ns() + clock.silence_ns,
+        };
+        let reply = wait_torque(
+            &ports.torque,
+            &ports.torque_ready,
+            k,
+            until,
+            clock.spin_ns,
+            side,
+        )?;
+        let arrival = match reply {
+            Some((t, _)) => Arrival::Reply(t),
+            None if clock.mode != LoopMode::Realtime => {
+                return Ok(Some(LoopStop {
+                    tick: k,
+                    cause: format!(
+                        "controller silent: no torque for tick {k} within {} ms",
+                        cfg.loop_.silence_timeout_ms
+                    ),
+                    requested: false,
+                    can_brake: true,
+                    last_deadline_ns: deadline,
+                }));
+            }
+            None => Arrival::Missed,
+        };
+        let mut tel = match side.advance(arrival) {
+            Ok(tel) => tel,
+            Err(stop) => {
+                return Ok(Some(LoopStop {
+                    tick: stop.tick(),
+                    cause: stop.cause().to_string(),
+                    requested: false,
+                    can_brake: matches!(stop, PlantStop::ControllerSilent { .. }),
+                    last_deadline_ns: deadline,
+                }));
+            }
+        };
+        tel.t_deadline_ns = deadline;
+        tel.t_wake_ns = wake;
+        tel.t_state_pub_ns = msg.t_publish_ns;
+        tel.t_torque_rx_ns = reply.map_or(0, |(_, rx)| rx);
+        ports.telemetry.send_copy(tel).ipc("publish telemetry")?;
+    }
+}
+
+/// After an early stop: tell the supervisor, release the controller, and brake if the model
+/// still works (keeping the clock in realtime).
+fn end_run(
+    ports: &Ports,
+    side: &mut PlantSide,
+    clock: &Clock,
+    cfg: &RunConfig,
+    stop: LoopStop,
+) -> ProcessEnd {
+    let LoopStop {
+        tick,
+        cause,
+        requested,
+        can_brake,
+        last_deadline_ns,
+    } = stop;
+    let t = tick as f64 * cfg.loop_.ts_s;
+    let kind = if can_brake {
+        ControlKind::Fault
+    } else {
+        ControlKind::Diverged
+    };
+    let _ = ports
+        .control
+        .0
+        .send_copy(ControlMsg::with_text(kind, Sender::Plant, tick, &cause));
+    // Release the controller (it may be blocked waiting for a state): the run is over.
+    let last = side.plant().sample();
+    let _ = ports.publish_state(StateMsg {
+        tick,
+        flags: wire::STATE_FINAL,
+        q: last.q.into(),
+        qd: last.qd.into(),
+        tau_applied: last.tau_applied.into(),
+        q_true: last.q.into(),
+        qd_true: last.qd.into(),
+        t_publish_ns: rt::now_ns(),
+        ..StateMsg::default()
+    });
+    let end = |why: String| {
+        if requested {
+            ProcessEnd::Stopped(why)
+        } else {
+            ProcessEnd::Fault(format!("fault at tick {tick}: {why}"))
+        }
+    };
+    if !can_brake {
+        return end(format!("t = {t:.4} s: {cause}; no safe stop possible"));
+    }
+    let damping = cfg.faults.brake_damping_nm_s;
+    match safe_stop(ports, side, clock, cfg, tick, last_deadline_ns) {
+        Ok(speed) => end(format!(
+            "t = {t:.4} s: {cause}; then braked for {} ms (τ = G(q) − {damping} q̇): safe stop, max |q̇| = {speed:.3} rad/s",
+            cfg.faults.safe_stop_ms
+        )),
+        Err(e) => end(format!("t = {t:.4} s: {cause}; the safe stop failed: {e}")),
+    }
+}
+
+/// The drives brake (τ = G(q) − D q̇) for `safe_stop_ms`; returns the final max |q̇|, rad/s.
+fn safe_stop(
+    ports: &Ports,
+    side: &mut PlantSide,
+    clock: &Clock,
+    cfg: &RunConfig,
+    tick: u64,
+    last_deadline_ns: u64,
+) -> Result<f64, deltaloop_model::KinematicsError> {
+    let stop_ticks = (f64::from(cfg.faults.safe_stop_ms) * 1e-3 / cfg.loop_.ts_s).round() as u64;
+    for i in 1..=stop_ticks {
+        if clock.mode == LoopMode::Realtime {
+            rt::wake_at_ns(last_deadline_ns + i * clock.ts_ns, clock.early_ns);
+        }
+        let mut tel = side.brake(tick + i, cfg.faults.brake_damping_nm_s)?;
+        tel.t_wake_ns = rt::now_ns();
+        let _ = ports.telemetry.send_copy(tel);
+    }
+    Ok(side.plant().sample().qd.amax())
+}
+
+/// What the plant does with a torque reply while it waits for tick `tick`'s.
+#[derive(Debug, PartialEq, Eq)]
+enum Reply {
+    /// The answer to this tick, sent within the budget.
+    Apply,
+    /// Too late: for an earlier tick, or for this one but sent after the budget ended.
+    Late,
+    /// Not an answer to any state published yet (a misbehaving peer): dropped.
+    Ignore,
+}
+
+/// Judges a reply by the controller's own send time, not by when the plant looks: a plant that
+/// was itself preempted past the budget must not apply a reply that came late (it would count a
+/// late controller as on time, and the miss statistics would depend on the plant's CPU).
+fn reply_verdict(m: &TorqueMsg, tick: u64, until_ns: u64) -> Reply {
+    match m.tick.cmp(&tick) {
+        std::cmp::Ordering::Equal if m.t_publish_ns <= until_ns => Reply::Apply,
+        std::cmp::Ordering::Equal | std::cmp::Ordering::Less => Reply::Late,
+        std::cmp::Ordering::Greater => Reply::Ignore,
+    }
+}
+
+/// Waits for τ_k until `until_ns`: busy-polls for `spin_ns`, then blocks on the wake-up event.
+/// Replies judged late are dropped and counted on `side`; replies for later ticks are ignored.
+/// Returns the reply and its receive time.
+fn wait_torque(
+    sub: &Subscriber<Svc, TorqueMsg, ()>,
+    listener: &Listener<Svc>,
+    tick: u64,
+    until_ns: u64,
+    spin_ns: u64,
+    side: &mut PlantSide,
+) -> Result<Option<(TorqueMsg, u64)>> {
+    let spin_end = rt::now_ns() + spin_ns;
+    loop {
+        while let Some(sample) = sub.receive().ipc("receive torque")? {
+            let m = *sample.payload();
+            match reply_verdict(&m, tick, until_ns) {
+                Reply::Apply => return Ok(Some((m, rt::now_ns()))),
+                Reply::Late => side.late_reply(),
+                Reply::Ignore => {}
+            }
+        }
+        let now = rt::now_ns();
+        if now >= until_ns {
+            return Ok(None);
+        }
+        if now < spin_end {
+            std::hint::spin_loop();
+            continue;
+        }
+        // Drop wake-ups already seen (e.g. a late reply's), so the poll sleeps until a new one.
+        listener.try_wait(|_| {}).ipc("drain torque events")?;
+        if sub.has_samples().unwrap_or(true) {
+            continue;
+        }
+        ipc::wait_event(listener, until_ns - now)?;
+    }
+}
+
+fn stop_requested(sub: &Subscriber<Svc, ControlMsg, ()>) -> bool {
+    while let Ok(Some(m)) = sub.receive() {
+        if m.payload().kind() == Some(ControlKind::Stop) {
+            return true;
+        }
+    }
+    false
+}
+
+/// Polls the control channel for START (1 ms steps) up to `timeout_ms`; None on STOP.
+fn wait_for_start(
+    sub: &Subscriber<Svc, ControlMsg, ()>,
+    timeout_ms: u32,
+) -> Result<Option<ControlMsg>> {
+    let end = rt::now_ns() + u64::from(timeout_ms) * 1_000_000;
+    while rt::now_ns() < end {
+        while let Some(m) = sub.receive().ipc("receive control")? {
+            match m.payload().kind() {
+                Some(ControlKind::Start) => return Ok(Some(*m.payload())),
+                Some(ControlKind::Stop) => return Ok(None),
+                _ => {}
+            }
+        }
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+    bail!("no START from the supervisor within {timeout_ms} ms")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn reply(tick: u64, t_publish_ns: u64) -> TorqueMsg {
+        TorqueMsg {
+            tick,
+            t_publish_ns,
+            ..wire::TorqueMsg::default()
+        }
+    }
+
+    #[test]
+    fn a_reply_in_budget_for_this_tick_is_applied() {
+        assert_eq!(reply_verdict(&reply(7, 1_000), 7, 1_000), Reply::Apply);
+        assert_eq!(reply_verdict(&reply(7, 999), 7, 1_000), Reply::Apply);
+    }
+
+    /// Regression: a plant preempted past its budget applied the late reply it found on waking,
+    /// so a controller 1 ms late was counted on time whenever the plant's CPU was busy (seen as a
+    /// flaky compute-delay test without SCHED_FIFO).
+    #[test]
+    fn regression_reply_sent_after_the_budget_is_late_even_if_the_plant_sees_it_late_too() {
+        assert_eq!(reply_verdict(&reply(7, 1_001), 7, 1_000), Reply::Late);
+    }
+
+    #[test]
+    fn replies_for_earlier_ticks_are_late_and_for_later_ticks_ignored() {
+        assert_eq!(reply_verdict(&reply(6, 10), 7, 1_000), Reply::Late);
+        assert_eq!(reply_verdict(&reply(8, 10), 7, 1_000), Reply::Ignore);
+    }
+}

@@ -1,0 +1,253 @@
+//! The plant's side of one tick, written once and called by every loop mode (inproc, lockstep,
+//! realtime, the loop benchmark): measure and publish state k, take what arrived for tick k (a
+//! reply, or nothing), let the drives apply or hold, integrate [t_k, t_{k+1}), and say what
+//! happened in the tick's telemetry. Transport code only moves these messages and stamps times.
+
+use deltaloop_config::RunConfig;
+use deltaloop_config::config::TorqueLimit;
+use deltaloop_model::sensor::{Sensor, SensorConfig};
+use deltaloop_model::{DeltaRobot, KinematicsError, PayloadStep, Plant, SimConfig, Vec3};
+use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
+
+/// The plant's simulation settings for a config (one mapping for every mode).
+pub fn sim_config(cfg: &RunConfig) -> SimConfig {
+    SimConfig {
+        ts: cfg.loop_.ts_s,
+        substeps: cfg.plant.substeps,
+        friction: cfg.plant.friction,
+        check_margins: true,
+        payload_step: cfg.payload_step_tick().map(|tick| PayloadStep {
+            mass_kg: cfg.plant.payload_step_kg,
+            tick,
+        }),
+    }
+}
+
+/// The plant a config describes, at rest at `q0` (rad): dynamics, drives (clamp or reject,
+/// transport delay) and sensors.
+pub fn plant_from_config(cfg: &RunConfig, q0: Vec3) -> Result<Plant, KinematicsError> {
+    let plant = Plant::new(
+        DeltaRobot::default(),
+        sim_config(cfg),
+        cfg.plant.tau_max_nm,
+        cfg.plant.transport_delay_samples as usize,
+        q0,
+    )?
+    .reject_over_limit(cfg.faults.torque_limit == TorqueLimit::Reject);
+    let se = &cfg.sensor;
+    Ok(if se.is_ideal() {
+        plant
+    } else {
+        plant.with_sensor(Sensor::new(SensorConfig {
+            encoder_counts_per_rev: se.encoder_counts_per_rev,
+            q_noise_std: se.q_noise_std_rad,
+            qd_noise_std: se.qd_noise_std_rad_s,
+            seed: se.seed,
+        }))
+    })
+}
+
+/// What reached the plant for the current tick.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Arrival {
+    /// The controller's reply to this tick, in time.
+    Reply(TorqueMsg),
+    /// No reply in time (realtime): the drives hold the last applied torque.
+    Missed,
+}
+
+/// Why the plant side ends the loop.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PlantStop {
+    /// The controller missed `controller_silence_ticks` ticks in a row: a safe stop follows.
+    ControllerSilent { tick: u64, cause: String },
+    /// The model failed at `tick` (left the workspace, non-finite state): no safe stop possible.
+    Diverged { tick: u64, cause: String },
+}
+
+impl PlantStop {
+    /// The tick at which the loop stopped.
+    pub fn tick(&self) -> u64 {
+        match self {
+            PlantStop::ControllerSilent { tick, .. } | PlantStop::Diverged { tick, .. } => *tick,
+        }
+    }
+
+    /// One line saying why.
+    pub fn cause(&self) -> &str {
+        match self {
+            PlantStop::ControllerSilent { cause, .. } | PlantStop::Diverged { cause, .. } => cause,
+        }
+    }
+}
+
+/// The plant side of the loop: the plant, its counters, and the run's last tick N.
+#[derive(Clone, Debug)]
+pub struct PlantSide {
+    plant: Plant,
+    /// N: the last tick that gets a command; the plant then publishes tick N + 1 as final.
+    last_tick: u64,
+    ts_s: f64,
+    silence_ticks: u64,
+    misses: u64,
+    late: u64,
+    consecutive: u64,
+}
+
+impl PlantSide {
+    /// The plant of `cfg` at rest at `q0` (rad), for a run of ticks 0..=`last_tick`.
+    pub fn from_config(cfg: &RunConfig, q0: Vec3, last_tick: u64) -> Result<Self, KinematicsError> {
+        Ok(Self {
+            plant: plant_from_config(cfg, q0)?,
+            last_tick,
+            ts_s: cfg.loop_.ts_s,
+            silence_ticks: u64::from(cfg.faults.controller_silence_ticks),
+            misses: 0,
+            late: 0,
+            consecutive: 0,
+        })
+    }
+
+    /// The current tick k (the plant's state is at t_k = k·Ts).
+    pub fn tick(&self) -> u64 {
+        self.plant.sim().tick()
+    }
+
+    /// The plant itself (model, drives, sensors).
+    pub fn plant(&self) -> &Plant {
+        &self.plant
+    }
+
+    /// State k as the plant publishes it: measured q (rad) and q̇ (rad/s) through the sensor
+    /// model, τᵃ_k (N m), and the noise-free truth; `STATE_FINAL` at k = N + 1. Times are left
+    /// zero for the transport to stamp. Call once per tick: it advances the sensor's noise stream.
+    pub fn state(&mut self) -> StateMsg {
+        let truth = self.plant.sample();
+        let s = self.plant.measure();
+        StateMsg {
+            tick: s.k,
+            flags: if s.k > self.last_tick {
+                wire::STATE_FINAL
+            } else {
+                0
+            },
+            q: s.q.into(),
+            qd: s.qd.into(),
+            tau_applied: s.tau_applied.into(),
+            q_true: truth.q.into(),
+            qd_true: truth.qd.into(),
+            ..StateMsg::default()
+        }
+    }
+
+    /// Counts a reply that came too late to be applied (realtime).
+    pub fn late_reply(&mut self) {
+        self.late += 1;
+    }
+
+    /// Takes what arrived for the current tick k and integrates [t_k, t_{k+1}). Returns the tick's
+    /// telemetry (times left zero for the transport), or why the loop must stop.
+    pub fn advance(&mut self, arrival: Arrival) -> Result<TelemetryMsg, PlantStop> {
+        let k = self.tick();
+        let mut tel = TelemetryMsg {
+            tick: k,
+            ..TelemetryMsg::default()
+        };
+        let cmd = match arrival {
+            Arrival::Reply(t) => {
+                self.consecutive = 0;
+                Some(Vec3::from(t.tau))
+            }
+            Arrival::Missed => {
+                self.misses += 1;
+                self.consecutive += 1;
+                tel.flags |= wire::TEL_MISSED;
+                if self.consecutive >= self.silence_ticks {
+                    return Err(PlantStop::ControllerSilent {
+                        tick: k,
+                        cause: format!(
+                            "no torque within the budget for {} consecutive ticks ({:.1} ms; controller dead, stalled or too slow, {} late replies dropped); the plant held the last applied torque through them",
+                            self.consecutive,
+                            self.consecutive as f64 * self.ts_s * 1e3,
+                            self.late
+                        ),
+                    });
+                }
+                None
+            }
+        };
+        let a = self.plant.advance(cmd).map_err(|e| PlantStop::Diverged {
+            tick: k + 1,
+            cause: e.to_string(),
+        })?;
+        tel.flags |= if a.clamped { wire::TEL_CLAMPED } else { 0 }
+            | if a.held { wire::TEL_HELD } else { 0 }
+            | if a.rejected { wire::TEL_REJECTED } else { 0 };
+        tel.misses = self.misses;
+        tel.late_dropped = self.late;
+        Ok(tel)
+    }
+
+    /// One tick of safe stop: the drives brake with τ = G(q) − D q̇ (D = `damping`, N m s/rad),
+    /// no controller. Returns the telemetry of the braked interval, numbered `tick`.
+    pub fn brake(&mut self, tick: u64, damping: f64) -> Result<TelemetryMsg, KinematicsError> {
+        self.plant.brake_tick(damping)?;
+        Ok(TelemetryMsg {
+            tick,
+            flags: wire::TEL_SAFE_STOP | wire::TEL_HELD,
+            misses: self.misses,
+            late_dropped: self.late,
+            ..TelemetryMsg::default()
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn side(silence: u32) -> PlantSide {
+        let mut cfg = RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s1\"\n", None)
+            .expect("config");
+        cfg.faults.controller_silence_ticks = silence;
+        let q0 = DeltaRobot::default()
+            .ik(&Vec3::new(0.0, 0.0, -0.4))
+            .expect("reachable");
+        PlantSide::from_config(&cfg, q0, 2).expect("plant")
+    }
+
+    #[test]
+    fn states_count_up_and_the_tick_after_n_is_final() {
+        let mut p = side(100);
+        let hold = p.state();
+        assert_eq!((hold.tick, hold.flags), (0, 0));
+        for k in 0..3 {
+            let reply = TorqueMsg {
+                tick: k,
+                tau: hold.tau_applied,
+                ..TorqueMsg::default()
+            };
+            let tel = p.advance(Arrival::Reply(reply)).expect("advance");
+            assert_eq!((tel.tick, tel.flags), (k, 0));
+            let s = p.state();
+            assert_eq!(s.tick, k + 1);
+            assert_eq!(s.flags == wire::STATE_FINAL, k + 1 == 3, "tick {}", s.tick);
+        }
+    }
+
+    #[test]
+    fn a_miss_holds_and_the_silence_window_stops_the_loop() {
+        let mut p = side(2);
+        let s0 = p.state();
+        let tel = p.advance(Arrival::Missed).expect("first miss is held");
+        assert_eq!(tel.flags, wire::TEL_MISSED | wire::TEL_HELD);
+        assert_eq!(tel.misses, 1);
+        assert_eq!(p.state().tau_applied, s0.tau_applied, "held τᵃ_0");
+        match p.advance(Arrival::Missed) {
+            Err(PlantStop::ControllerSilent { tick: 1, cause }) => {
+                assert!(cause.contains("2 consecutive ticks"), "{cause}")
+            }
+            other => panic!("expected a silence stop at tick 1, got {other:?}"),
+        }
+    }
+}

@@ -1,0 +1,74 @@
+//! How a loop process ends, and its exit code. One table for the plant and the controller (and
+//! for any process that takes their place):
+//!
+//! | code | [`ProcessEnd`] | meaning |
+//! |---|---|---|
+//! | 0 | `Completed` | the run ended normally (final state published / received) |
+//! | 2 | — | bad command-line arguments (printed by the argument parser) |
+//! | 3 | — (`Err`) | set-up failed: config, iceoryx2 ports, handshake timeout |
+//! | 4 | `Fault` | the loop failed during the run (peer silent, model failed, safe stop) |
+//! | 5 | `Stopped` | stopped on request: `Stop` from the supervisor, or SIGTERM |
+//!
+//! The process prints one line on stderr for every end but `Completed`.
+
+use std::fmt::Display;
+use std::process::ExitCode;
+
+/// Exit code: bad arguments.
+pub const EXIT_USAGE: u8 = 2;
+/// Exit code: set-up failed.
+pub const EXIT_SETUP: u8 = 3;
+/// Exit code: fault during the run.
+pub const EXIT_FAULT: u8 = 4;
+/// Exit code: stopped on request.
+pub const EXIT_STOPPED: u8 = 5;
+
+/// How a loop process's run ended (set-up failures are the `Err` of its run function).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ProcessEnd {
+    /// Every tick ran.
+    Completed,
+    /// Stopped on request (`Stop`, SIGTERM), before or during the run; says which.
+    Stopped(String),
+    /// The loop failed; one line says at which tick and why.
+    Fault(String),
+}
+
+impl ProcessEnd {
+    /// The exit code of this end (see the table above).
+    pub fn code(&self) -> u8 {
+        match self {
+            ProcessEnd::Completed => 0,
+            ProcessEnd::Stopped(_) => EXIT_STOPPED,
+            ProcessEnd::Fault(_) => EXIT_FAULT,
+        }
+    }
+}
+
+/// Prints the one-line reason for `name`'s end on stderr and returns its exit code.
+pub fn exit<E: Display>(name: &str, end: Result<ProcessEnd, E>) -> ExitCode {
+    match &end {
+        Ok(ProcessEnd::Completed) => ExitCode::SUCCESS,
+        Ok(e @ (ProcessEnd::Stopped(why) | ProcessEnd::Fault(why))) => {
+            eprintln!("{name}: {why}");
+            ExitCode::from(e.code())
+        }
+        Err(e) => {
+            eprintln!("{name}: {e:#}");
+            ExitCode::from(EXIT_SETUP)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_end_has_its_own_code() {
+        assert_eq!(ProcessEnd::Completed.code(), 0);
+        assert_eq!(ProcessEnd::Fault("x".into()).code(), EXIT_FAULT);
+        assert_eq!(ProcessEnd::Stopped("x".into()).code(), EXIT_STOPPED);
+        assert_ne!(EXIT_FAULT, EXIT_STOPPED);
+    }
+}

@@ -1,0 +1,9 @@
+//! How the deltaloop processes talk: the wire types ([`wire`]), the iceoryx2 services of a run
+//! ([`ipc`]), and the real-time helpers both loop processes use ([`rt`]). The config schema lives
+//! apart, in `deltaloop-config`; this crate knows nothing of scenarios or physics.
+
+pub mod args;
+pub mod exit;
+pub mod ipc;
+pub mod rt;
+pub mod wire;
