@@ -1,4 +1,4 @@
-//! Why the paper's literal M̄ misbehaves on this plant (controller spec, "M̄ is a plant estimate"):
+//! Why the paper's literal M̄ misbehaves on this plant (docs/controllers.md, "The laws", presets):
 //! with M̄ ≪ M the TDC core acts like a lightly damped PID, P = M̄K_d/Ts, I = M̄K_p/Ts, D = M̄/Ts,
 //! whose TDE lags Ts·M/M̄ behind the plant. Pure numbers from the model along the reference.
 

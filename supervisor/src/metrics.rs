@@ -1,4 +1,4 @@
-//! The study's metrics (controller spec, "What the study measures"): pure functions of a
+//! The study's metrics (docs/controllers.md, "What the study measures"): pure functions of a
 //! finished run, its reference and the controller constants.
 
 use crate::record::{LawRun, Outcome};

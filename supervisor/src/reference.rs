@@ -1,4 +1,4 @@
-//! Joint references per control tick: task path → IK → q_d, q̇_d, q̈_d (plant spec §6). Computed
+//! Joint references per control tick: task path → IK → q_d, q̇_d, q̈_d (docs/delta-robot.md §6). Computed
 //! once before a run, so the loop only indexes a table (the controller needs no kinematics).
 
 use crate::scenario::{TaskPath, TaskSample};

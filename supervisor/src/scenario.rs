@@ -1,4 +1,4 @@
-//! Task-space reference paths (plant spec §6): semi-elliptic segments traversed with the
+//! Task-space reference paths (docs/delta-robot.md §6): semi-elliptic segments traversed with the
 //! rest-to-rest quintic time law, and the paper's scenarios S1, S2, S3.
 
 use deltaloop_config::config::{PathKind, ScenarioSection, Segment};
@@ -79,7 +79,7 @@ impl TaskPath {
     }
 }
 
-/// A semi-ellipse from P_a to P_b with apex h (plant spec §6), at local time t (s).
+/// A semi-ellipse from P_a to P_b with apex h (docs/delta-robot.md §6), at local time t (s).
 fn semi_ellipse(seg: &Segment, t: f64) -> TaskSample {
     let (pa, pb) = (Vec3::from(seg.from), Vec3::from(seg.to));
     let c = (pa + pb) / 2.0;

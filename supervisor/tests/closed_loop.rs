@@ -70,7 +70,7 @@ fn paper_preset_limit_cycle_appears_for_sta_only() {
     // tde-is with φ = 100 rad/s (the paper preset's boundary layer) stays smooth.
     let is = metrics(&s, Law::TdeIs);
     assert!(!limit_cycle(&is) && is.clamp_count == 0, "{is:?}");
-    // ... but a thin boundary layer makes it cycle too (controller spec).
+    // ... but a thin boundary layer makes it cycle too (docs/controllers.md).
     let thin = study("[controller]\npreset = \"paper\"\nphi = 0.5\n");
     assert!(limit_cycle(&metrics(&thin, Law::TdeIs)));
 }

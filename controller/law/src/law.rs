@@ -1,4 +1,4 @@
-//! The control laws (controller spec, "The laws"). One [`Controller`] runs one law; call
+//! The control laws (docs/controllers.md, "The laws"). One [`Controller`] runs one law; call
 //! [`Controller::step`] once per tick k with that tick's measurement and reference.
 
 use crate::{ControllerParams, Law, TdeHistory, Vec3, VelocitySource, sat, sgn};
@@ -187,7 +187,7 @@ mod tests {
         ControllerParams::preset(Preset::Paper)
     }
 
-    /// The one-step check of the controller spec, on joint 1 (joints 2 and 3 carry the same data).
+    /// The one-step check of the docs/controllers.md, on joint 1 (joints 2 and 3 carry the same data).
     #[test]
     fn one_step_check_from_spec() {
         let mut c = Controller::new(Law::TdcIsSta, paper(), 3e-4, 1);

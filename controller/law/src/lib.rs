@@ -1,4 +1,4 @@
-//! Model-free control laws for trajectory tracking (controller spec): `tdc`, `tde-is`,
+//! Model-free control laws for trajectory tracking (docs/controllers.md): `tdc`, `tde-is`,
 //! `tdc-is-sta` and the `pid` baseline, per joint with a diagonal nominal inertia M̄.
 //!
 //! Pure: no I/O, no clock, no allocation per step (the TDE history is allocated at construction).

@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
-/// A control law (controller spec, "The laws").
+/// A control law (docs/controllers.md, "The laws").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
 #[serde(rename_all = "kebab-case")]
 pub enum Law {
@@ -111,7 +111,7 @@ pub struct ControllerParams {
 }
 
 impl ControllerParams {
-    /// The constants of a preset (controller spec, Table I and the preset table).
+    /// The constants of a preset (docs/controllers.md, Table I and the preset table).
     pub fn preset(p: Preset) -> Self {
         let (m_bar, phi) = match p {
             Preset::Matched => (0.03, 0.5),
@@ -140,6 +140,6 @@ pub enum VelocitySource {
     #[default]
     Measured,
     /// Encoder only: q̇_k = (q_k − q_{k−1})/Ts and a_j = (q_{j+1} − 2q_j + q_{j−1})/Ts², paired
-    /// with the mean applied torque of the two intervals (controller spec).
+    /// with the mean applied torque of the two intervals (docs/controllers.md).
     EncoderDifference,
 }

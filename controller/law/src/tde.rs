@@ -1,4 +1,4 @@
-//! Time-delay estimation history (controller spec, eq. 4–5): the last ℓ pairs
+//! Time-delay estimation history (docs/controllers.md, eq. 4–5): the last ℓ pairs
 //! (a_{j−1}, τᵃ_j), where a_j = (q̇_{j+1} − q̇_j)/Ts is interval j's mean acceleration and τᵃ_j the
 //! torque the drives applied over [t_{j−1}, t_j). At tick k the estimate uses the entry of tick
 //! j = k − ℓ + 1: N̂_k = a_{k−ℓ} − M̄⁻¹ τᵃ_{k−ℓ+1}.

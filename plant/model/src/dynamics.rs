@@ -1,4 +1,4 @@
-//! Lagrangian dynamics of the lumped model (spec §4): M q̈ + C q̇ + G + d = τ.
+//! Lagrangian dynamics of the lumped model (docs/delta-robot.md §4): M q̈ + C q̇ + G + d = τ.
 //!
 //! Joint torques are in N m, inertias in kg m², all vectors in joint space.
 

@@ -1,9 +1,9 @@
-//! Closed-form kinematics (spec §3): IK (elbow-out branch), FK (three-sphere intersection, lower
+//! Closed-form kinematics (docs/delta-robot.md §3): IK (elbow-out branch), FK (three-sphere intersection, lower
 //! root), the Jacobian J = A⁻¹B, its inverse, J̇q̇ and J̇, and the singularity margins.
 
 use crate::{DeltaRobot, KinematicsError, Mat3, Vec3};
 
-/// Singularity margin limit: flag S/Lb or |det(A/Lb)| below this (spec §3.5).
+/// Singularity margin limit: flag S/Lb or |det(A/Lb)| below this (docs/delta-robot.md §3.5).
 pub const MARGIN_LIMIT: f64 = 0.05;
 
 /// Everything the velocity and dynamics formulas need at one configuration q, computed once.
@@ -33,7 +33,7 @@ pub struct Pose {
     pub cos_q: Vec3,
 }
 
-/// Distance from the two kinds of singularity (spec §3.5); both dimensionless.
+/// Distance from the two kinds of singularity (docs/delta-robot.md §3.5); both dimensionless.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Margins {
     /// min_i S_i/Lb = β_i/(La Lb): serial singularity when it reaches 0.
@@ -79,7 +79,7 @@ impl DeltaRobot {
         })
     }
 
-    /// Inverse kinematics, elbow-out branch (spec §3.1): platform position x (m) → q (rad).
+    /// Inverse kinematics, elbow-out branch (docs/delta-robot.md §3.1): platform position x (m) → q (rad).
     pub fn ik(&self, x: &Vec3) -> Result<Vec3, KinematicsError> {
         let (la, lb) = (self.p.upper_arm, self.p.forearm);
         let mut q = Vec3::zeros();
@@ -104,7 +104,7 @@ impl DeltaRobot {
         Ok(q)
     }
 
-    /// Forward kinematics (spec §3.2): q (rad) → platform position x (m), the lower root.
+    /// Forward kinematics (docs/delta-robot.md §3.2): q (rad) → platform position x (m), the lower root.
     pub fn fk(&self, q: &Vec3) -> Result<Vec3, KinematicsError> {
         self.pose(q).map(|p| p.x)
     }
@@ -186,7 +186,7 @@ impl DeltaRobot {
         }
     }
 
-    /// Singularity margins at a pose (spec §3.5).
+    /// Singularity margins at a pose (docs/delta-robot.md §3.5).
     pub fn margins(&self, pose: &Pose) -> Margins {
         let (la, lb) = (self.p.upper_arm, self.p.forearm);
         Margins {
@@ -236,7 +236,7 @@ impl Pose {
         std::array::from_fn(|i| xd - self.t[i] * qd[i])
     }
 
-    /// γ_i = (d_i·n_i) q̇_i² − |ḋ_i|², m²/s² (spec §3.4), given ẋ (m/s) and q̇ (rad/s).
+    /// γ_i = (d_i·n_i) q̇_i² − |ḋ_i|², m²/s² (docs/delta-robot.md §3.4), given ẋ (m/s) and q̇ (rad/s).
     #[inline]
     pub fn gamma(&self, xd: &Vec3, qd: &Vec3) -> Vec3 {
         let dd = self.d_dot(xd, qd);

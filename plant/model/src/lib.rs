@@ -28,7 +28,7 @@ pub type Mat3 = nalgebra::Matrix3<f64>;
 /// The Delta robot model: parameters plus the quantities derived from them.
 ///
 /// Construct once; every query is allocation-free. `mn` follows the payload so a payload step
-/// changes M, C and G consistently (spec §4.3).
+/// changes M, C and G consistently (docs/delta-robot.md §4.3).
 #[derive(Clone, Debug, PartialEq)]
 pub struct DeltaRobot {
     p: DeltaParams,

@@ -1,4 +1,4 @@
-//! Robot parameters (spec §2). Every value is our own choice, not the paper's.
+//! Robot parameters (docs/delta-robot.md §2). Every value is our own choice, not the paper's.
 
 /// Primary parameters of the Delta robot. Derived quantities (Ib, μ, mn) are computed from these,
 /// never stored, so changing the payload or an arm mass stays consistent.
@@ -45,7 +45,7 @@ pub struct DeltaParams {
 }
 
 impl Default for DeltaParams {
-    /// The nominal parameters of spec §2.
+    /// The nominal parameters of docs/delta-robot.md §2.
     fn default() -> Self {
         Self {
             base_radius: 0.20,

@@ -1,10 +1,10 @@
-//! Plant simulation (spec §5): classical RK4 with a fixed step h = Ts/substeps, the torque held
+//! Plant simulation (docs/delta-robot.md §5): classical RK4 with a fixed step h = Ts/substeps, the torque held
 //! constant over each control interval [kTs, (k+1)Ts) (zero-order hold), friction evaluated at every
 //! stage, and the drives ([`Actuator`]): clamp, transport delay and hold-on-miss.
 
 use crate::{DeltaRobot, KinematicsError, Vec3};
 
-/// A payload step (spec §4.3): m_pay jumps to `mass_kg` at the start of control tick `tick`.
+/// A payload step (docs/delta-robot.md §4.3): m_pay jumps to `mass_kg` at the start of control tick `tick`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PayloadStep {
     /// Payload mass after the step, kg.
@@ -22,7 +22,7 @@ pub struct SimConfig {
     pub substeps: u32,
     /// Joint friction d_f = Fv q̇ + Fc tanh(q̇/ε) on or off.
     pub friction: bool,
-    /// Fail when a step starts past the singularity margins (spec §3.5).
+    /// Fail when a step starts past the singularity margins (docs/delta-robot.md §3.5).
     pub check_margins: bool,
     /// Optional payload step.
     pub payload_step: Option<PayloadStep>,

@@ -1,4 +1,4 @@
-//! The property checks of spec §7 over the workspace box, and the energy checks E1/E2.
+//! The property checks of docs/delta-robot.md §7 over the workspace box, and the energy checks E1/E2.
 
 use deltaloop_model::{DeltaRobot, Mat3, PlantSim, SimConfig, Vec3};
 use proptest::prelude::*;
@@ -137,7 +137,7 @@ fn unreachable_point_is_an_error_naming_the_point() {
 
 #[test]
 fn parallel_singularity_is_an_error_not_nan() {
-    // All forearms vertical at the centre: q ≈ 120° (spec §3.5).
+    // All forearms vertical at the centre: q ≈ 120° (docs/delta-robot.md §3.5).
     let r = DeltaRobot::default();
     let q = Vec3::repeat(120f64.to_radians());
     let err = match r.pose(&q) {
@@ -192,7 +192,7 @@ fn energy_e2_no_gravity_initial_velocity() {
 
 #[test]
 fn energy_balance_with_constant_torque() {
-    // With constant τ and d = 0, E − τᵀq is conserved (spec §5).
+    // With constant τ and d = 0, E − τᵀq is conserved (docs/delta-robot.md §5).
     let robot = DeltaRobot::default();
     let q0 = robot.ik(&Vec3::new(0.05, -0.03, -0.40)).unwrap();
     let pose = robot.pose(&q0).unwrap();

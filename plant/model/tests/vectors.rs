@@ -1,5 +1,5 @@
-//! Every numeric vector of the spec (tests/data/delta-robot-vectors.json, a copy of the spec's
-//! file), compared entry-wise within 1e-9 × max|entry of that quantity| (spec §7).
+//! Every numeric vector of docs/delta-robot.md §7 (tests/data/delta-robot-vectors.json), compared
+//! entry-wise within 1e-9 × max|entry of that quantity|.
 
 use deltaloop_model::{DeltaParams, DeltaRobot, Mat3, PlantSim, SimConfig, Vec3};
 use serde_json::Value;

@@ -1,7 +1,7 @@
 //! The scenario configuration (TOML): schema, presets, and validation.
 //!
 //! A file names a scenario, the plant options, the controller laws and a preset of controller
-//! constants (`matched` or `paper`, see the controller spec), and may override any constant key by
+//! constants (`matched` or `paper`, see the docs/controllers.md), and may override any constant key by
 //! key. [`RunConfig::from_toml_str`] rejects unknown keys and out-of-range values with an error that
 //! names the key, the value and what is allowed. The resolved config ([`RunConfig::to_toml_string`])
 //! has every constant filled in and parses back to the same config.
@@ -32,7 +32,7 @@ pub enum ConfigError {
     },
 }
 
-/// Which reference path to follow (plant spec §6).
+/// Which reference path to follow (docs/delta-robot.md §6).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum PathKind {
@@ -58,7 +58,7 @@ impl PathKind {
     }
 }
 
-/// One semi-elliptic segment (plant spec §6), traversed with a rest-to-rest quintic time law.
+/// One semi-elliptic segment (docs/delta-robot.md §6), traversed with a rest-to-rest quintic time law.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Segment {
@@ -103,7 +103,7 @@ pub struct PlantSection {
     /// Transport delay d: the plant applies τ_k over [t_{k+d}, t_{k+d+1}), ticks.
     #[serde(default)]
     pub transport_delay_samples: u32,
-    /// Payload step (plant spec §4.3): m_pay jumps from 0 to this mass, kg (0: no step).
+    /// Payload step (docs/delta-robot.md §4.3): m_pay jumps from 0 to this mass, kg (0: no step).
     #[serde(default)]
     pub payload_step_kg: f64,
     /// When the payload step happens, s; the first control instant at or after it. Default: T/2.
@@ -863,7 +863,7 @@ impl RunConfig {
     }
 
     /// The control tick of the payload step, if any: the first instant k·Ts ≥ the configured
-    /// time (default T/2; plant spec §4.3: k = 1334, 334, 2000 for S1, S2, S3).
+    /// time (default T/2; docs/delta-robot.md §4.3: k = 1334, 334, 2000 for S1, S2, S3).
     pub fn payload_step_tick(&self) -> Option<u64> {
         (self.plant.payload_step_kg > 0.0).then(|| {
             let t = self
