@@ -22,10 +22,11 @@ fn median(mut xs: Vec<f64>) -> f64 {
     xs[xs.len() / 2]
 }
 
-/// The S1 study with one law, looped to cover `seconds` of simulated time.
-fn bench_study(seconds: f64) -> Result<Study> {
+/// The benchmarks' study, named `name`: S1 (0.8 s) followed by a hold, `seconds` of simulated
+/// time in total (at least the motion), friction on, one law (`tdc-is-sta`).
+pub fn s1_hold_study(name: &str, seconds: f64) -> Result<Study> {
     let text = format!(
-        "name = \"bench\"\n[scenario]\npath = \"s1\"\nhold_s = {}\n[plant]\nfriction = true\n[controller]\nlaws = [\"tdc-is-sta\"]\n",
+        "name = \"{name}\"\n[scenario]\npath = \"s1\"\nhold_s = {}\n[plant]\nfriction = true\n[controller]\nlaws = [\"tdc-is-sta\"]\n",
         (seconds - 0.8).max(0.0)
     );
     Ok(Study::new(RunConfig::from_toml_str(&text, None)?)?)
@@ -61,7 +62,7 @@ fn plant_only(seconds: f64, friction: bool) -> Result<f64> {
 
 /// Measures and prints; the last line is `plant_wall_per_sim_s=<x> loop_wall_per_sim_s=<y>`.
 pub fn plant(seconds: f64, repeats: u32) -> Result<()> {
-    let study = bench_study(seconds)?;
+    let study = s1_hold_study("bench", seconds)?;
     let ts = study.config.loop_.ts_s;
     println!(
         "deltaloop bench plant: {seconds} s simulated per repeat, RK4 h = {:.0} us, {repeats} repeats, median reported",
@@ -107,4 +108,23 @@ pub fn plant(seconds: f64, repeats: u32) -> Result<()> {
         median(loop_t)
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn s1_hold_study_keeps_the_name_and_covers_the_seconds() {
+        let s = s1_hold_study("bench-loop", 2.0).unwrap();
+        assert_eq!(s.config.name, "bench-loop");
+        assert_eq!(s.config.controller.laws, vec![Law::TdcIsSta]);
+        assert!(s.config.plant.friction);
+        assert!((s.config.scenario.hold_s - 1.2).abs() < 1e-12);
+        // Shorter than the motion: no hold, never negative.
+        assert_eq!(
+            s1_hold_study("bench", 0.1).unwrap().config.scenario.hold_s,
+            0.0
+        );
+    }
 }

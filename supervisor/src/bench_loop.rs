@@ -6,6 +6,7 @@
 //! plant and controller tick ([`deltaloop_plant::PlantSide`], [`deltaloop_controller::ControllerSide`])
 //! on the same scenario; the transport's cost per cycle is 1/lockstep_hz − 1/inproc_hz.
 
+use crate::bench::s1_hold_study;
 use crate::inproc;
 use crate::procs;
 use crate::study::Study;
@@ -20,15 +21,6 @@ use std::io::{Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::Path;
 use std::time::Instant;
-
-/// S1 followed by a hold, `seconds` of simulated time in total, one law.
-fn study(seconds: f64) -> Result<Study> {
-    let text = format!(
-        "name = \"bench-loop\"\n[scenario]\npath = \"s1\"\nhold_s = {}\n[plant]\nfriction = true\n[controller]\nlaws = [\"tdc-is-sta\"]\n",
-        (seconds - 0.8).max(0.0)
-    );
-    Ok(Study::new(RunConfig::from_toml_str(&text, None)?)?)
-}
 
 /// Plain-data message as bytes (the wire types are `#[repr(C)]` with explicit padding).
 fn bytes_of<T: Copy>(v: &T) -> &[u8] {
@@ -134,7 +126,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, out: &Path) -> Result<()> {
         (lockstep_seconds / 3e-4).round(),
         std::thread::available_parallelism().map_or(0, |n| n.get())
     );
-    let ls = study(lockstep_seconds)?;
+    let ls = s1_hold_study("bench-loop", lockstep_seconds)?;
     let ls_dir = out.join("lockstep");
     std::fs::create_dir_all(&ls_dir)?;
     std::fs::write(ls_dir.join("config.toml"), ls.config.to_toml_string())?;
@@ -179,7 +171,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, out: &Path) -> Result<()> {
     );
 
     // (d) realtime.
-    let rs = study(rt_seconds)?;
+    let rs = s1_hold_study("bench-loop", rt_seconds)?;
     let rt_dir = out.join("realtime");
     std::fs::create_dir_all(&rt_dir)?;
     std::fs::write(rt_dir.join("config.toml"), rs.config.to_toml_string())?;

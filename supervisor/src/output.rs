@@ -1,4 +1,5 @@
-//! The run folder: resolved config, `trace.csv`, `summary.json`, `report.md`.
+//! The run folder: `trace.csv`, `summary.json`, `report.md` (the resolved `config.toml` is
+//! written by [`crate::run::run`] before the runs).
 
 use crate::analysis::Mismatch;
 use crate::metrics::LawMetrics;
@@ -6,7 +7,6 @@ use crate::record::{LawRun, TickRecord};
 use crate::reference::JointReference;
 use crate::timing::TimingSummary;
 use anyhow::{Context, Result};
-use deltaloop_config::RunConfig;
 use deltaloop_law::ControllerParams;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -161,11 +161,11 @@ pub fn write_text(path: &Path, text: &str) -> Result<()> {
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// Writes `config.toml`, `trace.csv`, `summary.json` and `report.md` into `dir`.
-#[allow(clippy::too_many_arguments)]
+/// Writes `trace.csv`, `summary.json` and `report.md` into `dir`. The folder's `config.toml` is
+/// not written here: [`crate::run::run`] writes it once, before the runs (the child processes
+/// read it, and it documents a run that fails).
 pub fn write_run_folder(
     dir: &Path,
-    cfg: &RunConfig,
     summary: &Summary<'_>,
     runs: &[LawRun],
     reference: &JointReference,
@@ -173,7 +173,6 @@ pub fn write_run_folder(
 ) -> Result<()> {
     std::fs::create_dir_all(dir)
         .with_context(|| format!("cannot create run folder {}", dir.display()))?;
-    write_text(&dir.join("config.toml"), &cfg.to_toml_string())?;
     write_text(
         &dir.join("summary.json"),
         &serde_json::to_string_pretty(summary)?,

@@ -4,8 +4,8 @@
 use crate::analysis::Mismatch;
 use crate::metrics::LawMetrics;
 use crate::timing::TimingSummary;
-use deltaloop_config::config::PathKind;
-use deltaloop_config::{Law, Preset, RunConfig};
+use deltaloop_config::config::{PathKind, VelocitySource};
+use deltaloop_config::{ControllerParams, Law, Preset, RunConfig};
 use std::fmt::Write;
 
 /// The paper's published RMS errors (rad) for TDC+IS and TDC+IS+STA (Tables II–IV).
@@ -63,9 +63,7 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
         "law", "rms q1", "rms q2", "rms q3", "task mm", "max|tau|", "HF shr", "clamps", "TDE rms"
     );
     for m in metrics {
-        let tde = m
-            .tde_err_rms
-            .map_or("-".into(), |t| e(t.into_iter().fold(0.0, f64::max)));
+        let tde = m.tde_err_rms.map_or("-".into(), |t| e(max3(t)));
         let _ = writeln!(
             s,
             "{:<11} {:>10} {:>10} {:>10} {:>9.4} {:>9.3} {:>8.4} {:>7} {:>10}  {}",
@@ -74,8 +72,8 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
             e(m.rms_rad[1]),
             e(m.rms_rad[2]),
             m.task_rms_mm,
-            m.max_abs_tau_nm.into_iter().fold(0.0, f64::max),
-            m.hf_torque_share.into_iter().fold(0.0, f64::max),
+            max3(m.max_abs_tau_nm),
+            max3(m.hf_torque_share),
             m.clamp_count,
             tde,
             status(m)
@@ -87,9 +85,24 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
 /// Whether a run shows the limit cycle of a mismatched M̄: sustained torque oscillation with a
 /// dominant line above 10 Hz, hitting the clamp or carrying a large share of the torque energy.
 pub fn limit_cycle(m: &LawMetrics) -> bool {
-    let peak = m.torque_peak_hz.into_iter().fold(0.0, f64::max);
-    let share = m.hf_torque_share.into_iter().fold(0.0, f64::max);
+    let peak = max3(m.torque_peak_hz);
+    let share = max3(m.hf_torque_share);
     m.law != Law::Pid && peak > 10.0 && (m.clamp_count > 0 || share > 0.05)
+}
+
+/// Three per-joint values in the report's exponent form, `j1 / j2 / j3`.
+fn e3(v: [f64; 3]) -> String {
+    format!("{} / {} / {}", e(v[0]), e(v[1]), e(v[2]))
+}
+
+/// Three per-joint values with `d` decimals, `j1 / j2 / j3`.
+fn f3(v: [f64; 3], d: usize) -> String {
+    format!("{:.d$} / {:.d$} / {:.d$}", v[0], v[1], v[2])
+}
+
+/// The largest of three per-joint values (0 for none above 0).
+fn max3(v: [f64; 3]) -> f64 {
+    v.into_iter().fold(0.0, f64::max)
 }
 
 /// `report.md` for one scenario run.
@@ -100,8 +113,21 @@ pub fn markdown(
     metrics: &[LawMetrics],
     mismatch: &Mismatch,
 ) -> String {
-    let mut s = String::new();
     let p = cfg.controller_params();
+    let mut s = String::new();
+    header(&mut s, cfg, &p, mode, command);
+    rms_section(&mut s, cfg.scenario.path, metrics);
+    accuracy_section(&mut s, metrics);
+    tde_section(&mut s, &p, metrics);
+    rejected_notes(&mut s, metrics);
+    stopped_section(&mut s, metrics);
+    diverged_section(&mut s, cfg, metrics);
+    mismatch_section(&mut s, cfg, &p, metrics, mismatch);
+    s
+}
+
+/// Title, the constants of the run, what was injected, and the command that produced it.
+fn header(s: &mut String, cfg: &RunConfig, p: &ControllerParams, mode: &str, command: &str) {
     let _ = writeln!(
         s,
         "# {} — {}\n",
@@ -130,6 +156,15 @@ pub fn markdown(
         cfg.loop_.ts_s * 1e3,
         cfg.controller.tde_delay_samples,
     );
+    let extras = injected(cfg);
+    if !extras.is_empty() {
+        let _ = writeln!(s, "Injected: {}.\n", extras.join("; "));
+    }
+    let _ = writeln!(s, "Produced by: `{command}`\n");
+}
+
+/// What the config adds to the nominal loop: delays, a payload step, sensor realism.
+fn injected(cfg: &RunConfig) -> Vec<String> {
     let mut extras = Vec::new();
     if cfg.plant.transport_delay_samples > 0 {
         extras.push(format!(
@@ -151,7 +186,7 @@ pub fn markdown(
         ));
     }
     let se = &cfg.sensor;
-    if !se.is_ideal() || se.velocity != deltaloop_config::config::VelocitySource::Measured {
+    if !se.is_ideal() || se.velocity != VelocitySource::Measured {
         extras.push(format!(
             "sensor: {} counts/rev, noise σ_q = {} rad, σ_q̇ = {} rad/s, seed {}, velocity {:?}",
             se.encoder_counts_per_rev,
@@ -161,12 +196,12 @@ pub fn markdown(
             se.velocity
         ));
     }
-    if !extras.is_empty() {
-        let _ = writeln!(s, "Injected: {}.\n", extras.join("; "));
-    }
-    let _ = writeln!(s, "Produced by: `{command}`\n");
+    extras
+}
 
-    let table = paper_table(cfg.scenario.path);
+/// Our RMS error per joint and law, then the paper's published table for this scenario.
+fn rms_section(s: &mut String, path: PathKind, metrics: &[LawMetrics]) {
+    let table = paper_table(path);
     let _ = writeln!(
         s,
         "## RMS tracking error per joint (rad){}\n",
@@ -191,46 +226,46 @@ pub fn markdown(
             status(m)
         );
     }
-    if let Some(t) = table {
-        let _ = writeln!(
-            s,
-            "\nThe paper's Table {t} (its own, unpublished robot model and Simulink):\n"
-        );
-        let _ = writeln!(
-            s,
-            "| Controller | Joint 1 | Joint 2 | Joint 3 |\n|---|---|---|---|"
-        );
-        for law in [Law::TdeIs, Law::TdcIsSta] {
-            if let Some(v) = paper_rms(cfg.scenario.path, law) {
-                let _ = writeln!(
-                    s,
-                    "| {} | {} | {} | {} |",
-                    law.paper_name(),
-                    e(v[0]),
-                    e(v[1]),
-                    e(v[2])
-                );
-            }
+    let Some(t) = table else { return };
+    let _ = writeln!(
+        s,
+        "\nThe paper's Table {t} (its own, unpublished robot model and Simulink):\n"
+    );
+    let _ = writeln!(
+        s,
+        "| Controller | Joint 1 | Joint 2 | Joint 3 |\n|---|---|---|---|"
+    );
+    for law in [Law::TdeIs, Law::TdcIsSta] {
+        if let Some(v) = paper_rms(path, law) {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} |",
+                law.paper_name(),
+                e(v[0]),
+                e(v[1]),
+                e(v[2])
+            );
         }
     }
+}
 
+/// Error and torque figures the paper does not report.
+fn accuracy_section(s: &mut String, metrics: &[LawMetrics]) {
     let _ = writeln!(s, "\n## Accuracy and torque\n");
     let _ = writeln!(
         s,
         "| law | max \\|e\\| (rad) j1 / j2 / j3 | task RMS (mm) | task max (mm) | max \\|τ\\| (N m) | torque TV (N m) j1 / j2 / j3 | clamped intervals | HF share >100 Hz | HF RMS (N m) | torque peak (Hz) |"
     );
     let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
-    let j3 = |v: [f64; 3]| format!("{} / {} / {}", e(v[0]), e(v[1]), e(v[2]));
-    let f3 = |v: [f64; 3], d: usize| format!("{:.d$} / {:.d$} / {:.d$}", v[0], v[1], v[2]);
     for m in metrics {
         let _ = writeln!(
             s,
             "| `{}` | {} | {:.4} | {:.4} | {:.3} | {} | {} | {} | {} | {} |",
             m.law,
-            j3(m.max_abs_err_rad),
+            e3(m.max_abs_err_rad),
             m.task_rms_mm,
             m.task_max_mm,
-            m.max_abs_tau_nm.into_iter().fold(0.0, f64::max),
+            max3(m.max_abs_tau_nm),
             f3(m.torque_tv_nm, 1),
             m.clamp_count,
             f3(m.hf_torque_share, 4),
@@ -238,7 +273,10 @@ pub fn markdown(
             f3(m.torque_peak_hz, 1),
         );
     }
+}
 
+/// The TDE error and the super-twisting gain condition, per law with a TDE.
+fn tde_section(s: &mut String, p: &ControllerParams, metrics: &[LawMetrics]) {
     let _ = writeln!(
         s,
         "\n## Time-delay estimation and the super-twisting gain condition (eq. 43)\n"
@@ -261,9 +299,9 @@ pub fn markdown(
                     s,
                     "| `{}` | {} | {} | {} | {} | {} | {} |",
                     m.law,
-                    j3(r),
-                    e(dm.into_iter().fold(0.0, f64::max)),
-                    e(dp.into_iter().fold(0.0, f64::max)),
+                    e3(r),
+                    e(max3(dm)),
+                    e(max3(dp)),
                     e(k2),
                     m.k2_in_use,
                     if m.eq43_holds == Some(true) {
@@ -278,7 +316,10 @@ pub fn markdown(
             }
         }
     }
+}
 
+/// One paragraph per law whose commands the plant rejected.
+fn rejected_notes(s: &mut String, metrics: &[LawMetrics]) {
     for m in metrics.iter().filter(|m| m.rejected_count > 0) {
         let _ = writeln!(
             s,
@@ -286,55 +327,73 @@ pub fn markdown(
             m.law, m.rejected_count
         );
     }
+}
+
+/// Runs a fault or an interrupt ended early.
+fn stopped_section(s: &mut String, metrics: &[LawMetrics]) {
     let stopped: Vec<_> = metrics
         .iter()
         .filter(|m| m.interrupted_at_tick.is_some() || m.fault.is_some())
         .collect();
-    if !stopped.is_empty() {
-        let _ = writeln!(s, "\n## Stopped runs\n");
-        for m in stopped {
-            match (&m.fault, m.interrupted_at_tick) {
-                (Some(cause), _) => {
-                    let _ = writeln!(
-                        s,
-                        "- `{}`: **fault** at tick {}: {cause}. Trace and metrics cover ticks 0..{}.",
-                        m.law,
-                        m.fault_at_tick.unwrap_or(0),
-                        m.ticks
-                    );
-                }
-                (None, Some(k)) => {
-                    let _ = writeln!(
-                        s,
-                        "- `{}`: **interrupted** (Ctrl-C / SIGTERM) at tick {k}. Trace and metrics cover ticks 0..{}.",
-                        m.law, m.ticks
-                    );
-                }
-                _ => {}
+    if stopped.is_empty() {
+        return;
+    }
+    let _ = writeln!(s, "\n## Stopped runs\n");
+    for m in stopped {
+        match (&m.fault, m.interrupted_at_tick) {
+            (Some(cause), _) => {
+                let _ = writeln!(
+                    s,
+                    "- `{}`: **fault** at tick {}: {cause}. Trace and metrics cover ticks 0..{}.",
+                    m.law,
+                    m.fault_at_tick.unwrap_or(0),
+                    m.ticks
+                );
             }
+            (None, Some(k)) => {
+                let _ = writeln!(
+                    s,
+                    "- `{}`: **interrupted** (Ctrl-C / SIGTERM) at tick {k}. Trace and metrics cover ticks 0..{}.",
+                    m.law, m.ticks
+                );
+            }
+            _ => {}
         }
     }
+}
+
+/// Runs that diverged, where and why.
+fn diverged_section(s: &mut String, cfg: &RunConfig, metrics: &[LawMetrics]) {
     let diverged: Vec<_> = metrics
         .iter()
         .filter(|m| m.diverged_at_tick.is_some())
         .collect();
-    if !diverged.is_empty() {
-        let _ = writeln!(s, "\n## Diverged runs\n");
-        for m in diverged {
-            let _ = writeln!(
-                s,
-                "- `{}` stopped at tick {} (t = {:.4} s): {}. Its metrics cover ticks 0..{} only.",
-                m.law,
-                m.diverged_at_tick.unwrap_or(0),
-                m.diverged_at_tick.unwrap_or(0) as f64 * cfg.loop_.ts_s,
-                m.diverged_reason.as_deref().unwrap_or("?"),
-                m.ticks
-            );
-        }
+    if diverged.is_empty() {
+        return;
     }
+    let _ = writeln!(s, "\n## Diverged runs\n");
+    for m in diverged {
+        let _ = writeln!(
+            s,
+            "- `{}` stopped at tick {} (t = {:.4} s): {}. Its metrics cover ticks 0..{} only.",
+            m.law,
+            m.diverged_at_tick.unwrap_or(0),
+            m.diverged_at_tick.unwrap_or(0) as f64 * cfg.loop_.ts_s,
+            m.diverged_reason.as_deref().unwrap_or("?"),
+            m.ticks
+        );
+    }
+}
 
+/// M̄ against this plant: the loop it makes, why the paper's M̄ cycles, and the cycles seen.
+fn mismatch_section(
+    s: &mut String,
+    cfg: &RunConfig,
+    p: &ControllerParams,
+    metrics: &[LawMetrics],
+    mm: &Mismatch,
+) {
     let _ = writeln!(s, "\n## M̄ against this plant\n");
-    let mm = mismatch;
     let _ = writeln!(
         s,
         "Along this reference M(q) has eigenvalues in [{:.4}, {:.4}] kg m² (mean joint inertia {:.4}); M̄ = {} kg m², so the TDE \
@@ -352,7 +411,6 @@ pub fn markdown(
         mm.equiv_freq_hz,
         mm.equiv_zeta
     );
-    let cycling: Vec<&LawMetrics> = metrics.iter().filter(|m| limit_cycle(m)).collect();
     if cfg.controller.preset == Preset::Paper || mm.m_bar < 0.1 * mm.lambda_min {
         let _ = writeln!(
             s,
@@ -371,30 +429,35 @@ pub fn markdown(
             p.k1
         );
     }
+    limit_cycles(s, metrics);
+}
+
+/// The laws that show a limit cycle in this run, or a line saying none does.
+fn limit_cycles(s: &mut String, metrics: &[LawMetrics]) {
+    let cycling: Vec<&LawMetrics> = metrics.iter().filter(|m| limit_cycle(m)).collect();
     if cycling.is_empty() {
         let _ = writeln!(
             s,
             "No law shows a sustained torque oscillation in this run (dominant torque line > 10 Hz together with clamping or HF share > 5 %)."
         );
-    } else {
+        return;
+    }
+    let _ = writeln!(
+        s,
+        "Observed limit cycles (dominant torque line > 10 Hz with clamping or HF share > 5 %):\n"
+    );
+    for m in cycling {
         let _ = writeln!(
             s,
-            "Observed limit cycles (dominant torque line > 10 Hz with clamping or HF share > 5 %):\n"
+            "- `{}`: torque peaks at {} Hz, HF share {}, clamped in {} of {} intervals, max |τ| = {:.1} N m.",
+            m.law,
+            f3(m.torque_peak_hz, 1),
+            f3(m.hf_torque_share, 3),
+            m.clamp_count,
+            m.ticks,
+            max3(m.max_abs_tau_nm)
         );
-        for m in cycling {
-            let _ = writeln!(
-                s,
-                "- `{}`: torque peaks at {} Hz, HF share {}, clamped in {} of {} intervals, max |τ| = {:.1} N m.",
-                m.law,
-                f3(m.torque_peak_hz, 1),
-                f3(m.hf_torque_share, 3),
-                m.clamp_count,
-                m.ticks,
-                m.max_abs_tau_nm.into_iter().fold(0.0, f64::max)
-            );
-        }
     }
-    s
 }
 
 /// Terminal lines with each law's loop timing (process modes).
@@ -436,8 +499,9 @@ pub fn timing_markdown(
     let _ = writeln!(
         s,
         "All times in µs from CLOCK_MONOTONIC stamps in the messages. Round trip: plant publishes the state → plant has the \
-         torque. Wake lateness: plant wake − absolute deadline. Jitter: |period − Ts|. A miss: no torque within {} µs of the \
-         deadline, so the plant held the last torque (realtime only). Full distributions: `<law>.<name>.hgrm`.\n",
+         torque. Wake lateness: plant wake − absolute deadline. Jitter: |period − Ts|. A miss: the controller sent no torque \
+         for the tick within {} µs (the torque budget) of the plant publishing its state, so the plant held the last torque \
+         (realtime only). Full distributions: `<law>.<name>.hgrm`.\n",
         cfg.loop_.torque_budget_us
     );
     let _ = writeln!(
@@ -495,4 +559,33 @@ pub fn timing_markdown(
          cannot run then, whatever its priority. Compare misses with it before blaming the loop."
     );
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The plant's torque budget runs from the state's publication (`until = t_publish + budget`
+    /// in the plant's run loop), not from the tick's deadline; the report must say so.
+    #[test]
+    fn timing_section_measures_a_miss_from_the_state_publication() {
+        let cfg = RunConfig::from_toml_str("[scenario]\npath = \"s1\"\n", None).unwrap();
+        let md = timing_markdown(&cfg, "realtime", &[], &[]);
+        assert!(
+            md.contains(&format!(
+                "within {} µs (the torque budget) of the plant publishing its state",
+                cfg.loop_.torque_budget_us
+            )),
+            "{md}"
+        );
+        assert!(!md.contains("µs of the deadline"), "{md}");
+    }
+
+    #[test]
+    fn every_paper_scenario_has_a_table() {
+        assert_eq!(paper_table(PathKind::S1), Some("II"));
+        assert_eq!(paper_table(PathKind::S2), Some("III"));
+        assert_eq!(paper_table(PathKind::S3), Some("IV"));
+        assert_eq!(paper_table(PathKind::Custom), None);
+    }
 }

@@ -85,7 +85,8 @@ pub fn run(
     let study = Study::new(cfg).context("the scenario's reference leaves the robot's workspace")?;
     let cfg = &study.config;
     let dir = out.unwrap_or_else(|| output::default_run_dir(&cfg.name));
-    // The resolved config goes first: the child processes read it, and it documents a failed run.
+    // The resolved config goes first, and only here: the child processes read it, and it
+    // documents a failed run. write_run_folder adds the results next to it.
     std::fs::create_dir_all(&dir)
         .with_context(|| format!("cannot create run folder {}", dir.display()))?;
     output::write_text(&dir.join("config.toml"), &cfg.to_toml_string())?;
@@ -181,7 +182,7 @@ pub fn run(
             &timing_summaries,
         ));
     }
-    output::write_run_folder(&dir, cfg, &summary, &runs, &study.reference, &md)?;
+    output::write_run_folder(&dir, &summary, &runs, &study.reference, &md)?;
     let mut table = report::terminal_table(cfg, &metrics);
     if mode.is_process() {
         table.push_str(&report::timing_table(&metrics, &timing_summaries));
@@ -224,3 +225,31 @@ impl std::fmt::Display for Interrupted {
 }
 
 impl std::error::Error for Interrupted {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `config.toml` is written once, before the runs, and is the resolved config.
+    #[test]
+    fn run_folder_holds_the_resolved_config() {
+        let cfg = RunConfig::from_toml_str(
+            "name = \"cfg-once\"\n[scenario]\npath = \"s1\"\n[controller]\nlaws = [\"tdc\"]\n",
+            None,
+        )
+        .unwrap();
+        let expected = cfg.to_toml_string();
+        let dir = std::env::temp_dir().join(format!("deltaloop-run-cfg-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let o = run(cfg, LoopMode::Inproc, Some(dir.clone()), "test");
+        let written = std::fs::read_to_string(dir.join("config.toml"));
+        let others: Vec<bool> = ["trace.csv", "summary.json", "report.md"]
+            .iter()
+            .map(|f| dir.join(f).is_file())
+            .collect();
+        let _ = std::fs::remove_dir_all(&dir);
+        o.unwrap();
+        assert_eq!(written.unwrap(), expected);
+        assert_eq!(others, [true; 3]);
+    }
+}

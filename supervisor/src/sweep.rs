@@ -278,17 +278,56 @@ fn jobs(sw: &SweepFile) -> Vec<Job> {
     v
 }
 
-/// Runs the sweep into `out` and returns the rows (in grid order).
+/// Loads the sweep file at `path` and runs it into `out`; returns the rows (in grid order).
+/// A caller that has already loaded the file (e.g. to name the output folder) passes the result
+/// to [`run_loaded`] instead, so the file is read and parsed once.
 pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
     let (sw, base) = load(path)?;
+    run_loaded(&sw, &base, path, out, progress)
+}
+
+/// Runs a sweep loaded by [`load`] from `path` (named in the report) into `out`; returns the
+/// rows (in grid order).
+pub fn run_loaded(
+    sw: &SweepFile,
+    base: &RunConfig,
+    path: &Path,
+    out: &Path,
+    progress: bool,
+) -> Result<Vec<Row>> {
     // Every point must be a valid config before anything runs.
-    let all = jobs(&sw);
+    let all = jobs(sw);
     for j in &all {
-        point_config(&base, j).with_context(|| format!("sweep point {j:?}"))?;
+        point_config(base, j).with_context(|| format!("sweep point {j:?}"))?;
     }
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    std::fs::write(out.join("sweep.toml"), toml::to_string_pretty(&sw)?)?;
+    std::fs::write(out.join("sweep.toml"), toml::to_string_pretty(sw)?)?;
     std::fs::write(out.join("base.toml"), base.to_toml_string())?;
+    let rows = run_grid(sw, base, &all, out, progress)?;
+    std::fs::write(out.join("sweep.json"), serde_json::to_string_pretty(&rows)?)?;
+    let figures = plots(sw, &rows, out)?;
+    let mut md = report(sw, &rows, &figures, path);
+    if crate::signals::interrupted() {
+        md.insert_str(0, &format!("> **Interrupted** (Ctrl-C / SIGTERM) after {} of {} runs: the tables hold the finished ones.\n\n", rows.len(), all.len()));
+        std::fs::write(out.join("report.md"), md)?;
+        return Err(anyhow::Error::new(crate::run::Interrupted(
+            out.to_path_buf(),
+        )));
+    }
+    std::fs::write(out.join("report.md"), md)?;
+    Ok(rows)
+}
+
+/// Runs every job, appending each result to `sweep.csv` as it finishes: deterministic inproc
+/// points in parallel (one worker per CPU), process runs one at a time. Stops starting jobs on
+/// Ctrl-C / SIGTERM. Returns the finished rows in grid order.
+fn run_grid(
+    sw: &SweepFile,
+    base: &RunConfig,
+    all: &[Job],
+    out: &Path,
+    progress: bool,
+) -> Result<Vec<Row>> {
     let bar = crate::output::progress_bar(all.len(), progress);
     let writer = Mutex::new(
         csv::Writer::from_path(out.join("sweep.csv")).context("cannot create sweep.csv")?,
@@ -314,7 +353,6 @@ pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
         results.lock().expect("results")[i] = Some(r);
         Ok(())
     };
-    // Deterministic inproc points in parallel (one worker per CPU); process runs one at a time.
     let (parallel, serial): (Vec<usize>, Vec<usize>) =
         (0..all.len()).partition(|&i| !all[i].realtime && sw.mode == LoopMode::Inproc);
     let next = AtomicUsize::new(0);
@@ -331,7 +369,7 @@ pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
                         let Some(&i) = parallel.get(n) else {
                             return Ok(());
                         };
-                        record(i, run_job(&base, &all[i], sw.mode, out))?;
+                        record(i, run_job(base, &all[i], sw.mode, out))?;
                     }
                 })
             })
@@ -346,27 +384,15 @@ pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
         if crate::signals::interrupted() {
             break;
         }
-        record(i, run_job(&base, &all[i], sw.mode, out))?;
+        record(i, run_job(base, &all[i], sw.mode, out))?;
     }
     bar.finish_with_message("done");
-    let rows: Vec<Row> = results
+    Ok(results
         .into_inner()
         .expect("results")
         .into_iter()
         .flatten()
-        .collect();
-    std::fs::write(out.join("sweep.json"), serde_json::to_string_pretty(&rows)?)?;
-    let figures = plots(&sw, &rows, out)?;
-    let mut md = report(&sw, &rows, &figures, path);
-    if crate::signals::interrupted() {
-        md.insert_str(0, &format!("> **Interrupted** (Ctrl-C / SIGTERM) after {} of {} runs: the tables hold the finished ones.\n\n", rows.len(), all.len()));
-        std::fs::write(out.join("report.md"), md)?;
-        return Err(anyhow::Error::new(crate::run::Interrupted(
-            out.to_path_buf(),
-        )));
-    }
-    std::fs::write(out.join("report.md"), md)?;
-    Ok(rows)
+        .collect())
 }
 
 /// (file stem, x axis, metric) of every figure written.
@@ -592,4 +618,33 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
         let _ = writeln!(s, "### {title}\n\n![{title}]({stem}.png)\n");
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The file is read once: what `load` returned is what runs, even if the file is gone.
+    #[test]
+    fn run_loaded_runs_what_it_is_given_without_rereading_the_file() {
+        let dir = std::env::temp_dir().join(format!("deltaloop-sweep-once-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("base.toml"), "[scenario]\npath = \"s1\"\n").unwrap();
+        let path = dir.join("sweep.toml");
+        std::fs::write(
+            &path,
+            "name = \"once\"\nbase = \"base.toml\"\nscenarios = [\"s1\"]\npresets = [\"matched\"]\n\
+             laws = [\"tdc\"]\ntde_delay_samples = [1]\ntransport_delay_samples = [0]\n",
+        )
+        .unwrap();
+        let (mut sw, base) = load(&path).unwrap();
+        std::fs::remove_file(&path).unwrap();
+        sw.laws = vec![Law::Pid];
+        let rows = run_loaded(&sw, &base, &path, &dir.join("out"), false);
+        let _ = std::fs::remove_dir_all(&dir);
+        let rows = rows.unwrap();
+        assert_eq!(rows.len(), 1);
+        assert_eq!((rows[0].law, rows[0].status.as_str()), (Law::Pid, "ok"));
+    }
 }

@@ -57,9 +57,13 @@ pub struct Timing {
     pub round_trip: Dist,
     /// Ticks that got a command (0..=N).
     pub ticks: u64,
-    /// Torques that missed their deadline (realtime).
+    /// Ticks whose torque was not applied (realtime): the controller sent none for the tick within
+    /// the torque budget, counted from the state's publication (not from the tick's deadline).
     pub misses: u64,
-    /// Late replies the plant dropped by tick number.
+    /// Late replies the plant dropped (realtime; the telemetry's running count). The plant judges
+    /// a reply by the controller's send time, not by when the reply arrives or by its tick number
+    /// alone: a reply for the current tick sent after the torque budget (state publication +
+    /// budget), or any reply for an earlier tick, is late. Replies for later ticks are ignored.
     pub late_dropped: u64,
     /// States the controller skipped to answer the newest.
     pub skipped: u64,
@@ -75,8 +79,12 @@ pub struct Timing {
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct TimingSummary {
     pub ticks: u64,
+    /// Ticks without an applied torque (see [`Timing::misses`]: the budget runs from the state's
+    /// publication).
     pub deadline_misses: u64,
     pub miss_ratio: f64,
+    /// Replies dropped as late: for this tick but sent after the budget, or for an earlier tick
+    /// (see [`Timing::late_dropped`]).
     pub late_replies_dropped: u64,
     pub controller_skipped_states: u64,
     pub supervisor_lost_samples: LostSamples,

@@ -111,9 +111,8 @@ impl Controller {
     /// Tick k: updates E_k (and z_k), computes τ_k, then v_{k+1}.
     pub fn step(&mut self, m: &Measurement, r: &Reference) -> Output {
         if !self.started {
-            // Before tick 0 the robot rested at q_0 under τᵃ_0: a_j = 0, τᵃ_j = τᵃ_0, z_{−1} = τᵃ_0.
-            self.started = true;
-            // Encoder source: q_{−1} = q_{−2} = q_0 and τᵃ_{−1} = τᵃ_0.
+            // Before tick 0 the robot rested at q_0 under τᵃ_0: a_j = 0, τᵃ_j = τᵃ_0, z_{−1} = τᵃ_0;
+            // for the encoder source also q_{−1} = q_{−2} = q_0 and τᵃ_{−1} = τᵃ_0.
             self.started = true;
             self.tde.reset(m.tau_applied);
             self.qd_prev = m.qd;

@@ -349,7 +349,8 @@ pub struct Layout {
     /// mlockall in both loop processes.
     pub lock_memory: Option<bool>,
     /// Realtime: the plant sleeps until this long before each deadline and busy-waits the rest,
-    /// absorbing the timer's wake-up latency, µs (0: sleep to the deadline).
+    /// absorbing the timer's wake-up latency, µs (0: sleep to the deadline). At most one control
+    /// period (Ts in µs).
     pub wake_early_us: Option<u32>,
 }
 
@@ -459,7 +460,10 @@ impl Layout {
         self.wake_early_us = self.wake_early_us.or(d.wake_early_us);
     }
 
-    fn validate(&self, section: &str) -> Result<(), ConfigError> {
+    /// Checks one mode's layout; `section` names it in errors (`loop.realtime`, `loop.lockstep`),
+    /// `ts_s` is the (already validated) control period, which bounds `wake_early_us`: waking more
+    /// than a period before the deadline would wake before the previous tick.
+    fn validate(&self, section: &str, ts_s: f64) -> Result<(), ConfigError> {
         for (k, v) in [
             ("plant_cpu", self.plant_cpu),
             ("controller_cpu", self.controller_cpu),
@@ -495,7 +499,32 @@ impl Layout {
                 "0 <= spin_us <= 1000000 us",
             ));
         }
+        let wake = self.wake_early_us.unwrap_or(0);
+        let period_us = ts_s * 1e6;
+        if f64::from(wake) > period_us {
+            return Err(range(
+                &format!("{section}.wake_early_us"),
+                wake,
+                &format!("0 <= wake_early_us <= Ts = {period_us} us"),
+            ));
+        }
         Ok(())
+    }
+
+    /// This layout with `wake_early_us` at most one period of `ts_s` (µs), so a default never
+    /// fails the check of [`Layout::validate`] at a short period the user chose. A non-finite or
+    /// out-of-range `ts_s` leaves it as is (the period's own check reports that).
+    fn wake_early_within(mut self, ts_s: f64) -> Self {
+        let period_us = ts_s * 1e6;
+        if let Some(w) = self.wake_early_us
+            && period_us.is_finite()
+            && period_us >= 0.0
+            && f64::from(w) > period_us
+        {
+            // Truncation is the point: the largest whole µs within the period.
+            self.wake_early_us = Some(period_us as u32);
+        }
+        self
     }
 
     /// The CPU of a role as an Option (−1 → None).
@@ -568,8 +597,14 @@ pub struct RunConfig {
     pub faults: FaultSection,
 }
 
-/// Largest accepted TDE delay, ticks.
+/// Largest accepted TDE delay ℓ (`controller.tde_delay_samples`), ticks. The controller keeps ℓ
+/// past (acceleration, torque) pairs.
 pub const MAX_TDE_DELAY: u32 = 10_000;
+
+/// Largest accepted transport delay d (`plant.transport_delay_samples`), ticks. The plant's drives
+/// keep d commands in flight. Separate from [`MAX_TDE_DELAY`]: the two delays are different
+/// things (one in the controller's estimate, one on the wire) and share a value by coincidence.
+pub const MAX_TRANSPORT_DELAY: u32 = 10_000;
 
 fn range(key: &str, value: impl fmt::Display, allowed: &str) -> ConfigError {
     ConfigError::Range {
@@ -587,84 +622,16 @@ fn check(key: &str, v: f64, ok: bool, allowed: &str) -> Result<(), ConfigError> 
     }
 }
 
-impl RunConfig {
-    /// Parses, fills the preset, and validates. `path` only labels errors.
-    pub fn from_toml_str(text: &str, path: Option<&Path>) -> Result<Self, ConfigError> {
-        let mut cfg: RunConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
-            path: path.map(|p| p.display().to_string()),
-            message: e.to_string().trim_end().to_string(),
-        })?;
-        if cfg.name.is_empty() {
-            cfg.name = path
-                .and_then(|p| p.file_stem())
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "scenario".into());
-        }
-        cfg.resolve_preset();
-        cfg.loop_.realtime.fill(Layout::realtime_default());
-        cfg.loop_.lockstep.fill(Layout::lockstep_default());
-        cfg.validate()?;
-        Ok(cfg)
-    }
-
-    /// Reads and parses a file.
-    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
-            path: path.display().to_string(),
-            reason: e.to_string(),
-        })?;
-        Self::from_toml_str(&text, Some(path))
-    }
-
-    /// The resolved config as TOML: every constant explicit; parses back to `self`.
-    pub fn to_toml_string(&self) -> String {
-        toml::to_string_pretty(self).expect("config serialises")
-    }
-
-    /// The controller constants: the preset with the file's overrides applied.
-    pub fn controller_params(&self) -> ControllerParams {
-        let c = &self.controller;
-        let p = ControllerParams::preset(c.preset);
-        ControllerParams {
-            m_bar: c.m_bar.unwrap_or(p.m_bar),
-            kp: c.kp.unwrap_or(p.kp),
-            kd: c.kd.unwrap_or(p.kd),
-            ks: c.ks.unwrap_or(p.ks),
-            phi: c.phi.unwrap_or(p.phi),
-            k1: c.k1.unwrap_or(p.k1),
-            k2: c.k2.unwrap_or(p.k2),
-            pid_p: c.pid_p.unwrap_or(p.pid_p),
-            pid_i: c.pid_i.unwrap_or(p.pid_i),
-            pid_d: c.pid_d.unwrap_or(p.pid_d),
-        }
-    }
-
-    /// Writes the preset's values into every override that is not set, so the config is explicit.
-    fn resolve_preset(&mut self) {
-        let p = self.controller_params();
-        let c = &mut self.controller;
-        c.m_bar = Some(p.m_bar);
-        c.kp = Some(p.kp);
-        c.kd = Some(p.kd);
-        c.ks = Some(p.ks);
-        c.phi = Some(p.phi);
-        c.k1 = Some(p.k1);
-        c.k2 = Some(p.k2);
-        c.pid_p = Some(p.pid_p);
-        c.pid_i = Some(p.pid_i);
-        c.pid_d = Some(p.pid_d);
-    }
-
-    /// Checks every value against its allowed range.
-    pub fn validate(&self) -> Result<(), ConfigError> {
-        let s = &self.scenario;
+impl ScenarioSection {
+    /// `[scenario]`: the hold, and the segments (only, and at least one, with `custom`).
+    fn validate(&self) -> Result<(), ConfigError> {
         check(
             "scenario.hold_s",
-            s.hold_s,
-            (0.0..=3600.0).contains(&s.hold_s),
+            self.hold_s,
+            (0.0..=3600.0).contains(&self.hold_s),
             "0 <= hold_s <= 3600 s",
         )?;
-        match (s.path, s.segments.is_empty()) {
+        match (self.path, self.segments.is_empty()) {
             (PathKind::Custom, true) => {
                 return Err(range(
                     "scenario.segments",
@@ -676,13 +643,13 @@ impl RunConfig {
             (_, false) => {
                 return Err(range(
                     "scenario.segments",
-                    format!("[{} segments]", s.segments.len()),
+                    format!("[{} segments]", self.segments.len()),
                     "segments are only allowed with path = \"custom\"",
                 ));
             }
             _ => {}
         }
-        for (i, seg) in s.segments.iter().enumerate() {
+        for (i, seg) in self.segments.iter().enumerate() {
             let key = |k: &str| format!("scenario.segments[{i}].{k}");
             for (k, p) in [("from", seg.from), ("to", seg.to)] {
                 for v in p {
@@ -702,55 +669,40 @@ impl RunConfig {
                 "0 < duration_s <= 3600 s",
             )?;
         }
-        let p = &self.plant;
+        Ok(())
+    }
+}
+
+impl PlantSection {
+    /// `[plant]`: torque limit, integrator steps, transport delay, payload step.
+    fn validate(&self) -> Result<(), ConfigError> {
         check(
             "plant.tau_max_nm",
-            p.tau_max_nm,
-            p.tau_max_nm > 0.0 && p.tau_max_nm <= 1e4,
+            self.tau_max_nm,
+            self.tau_max_nm > 0.0 && self.tau_max_nm <= 1e4,
             "0 < tau_max_nm <= 10000 N m",
         )?;
-        if !(1..=1000).contains(&p.substeps) {
-            return Err(range("plant.substeps", p.substeps, "1 <= substeps <= 1000"));
-        }
-        let ts = self.loop_.ts_s;
-        check(
-            "loop.ts_s",
-            ts,
-            (1e-5..=0.1).contains(&ts),
-            "1e-5 <= ts_s <= 0.1 s",
-        )?;
-        let budget = self.loop_.torque_budget_us;
-        if budget == 0 || f64::from(budget) * 1e-6 >= ts {
+        if !(1..=1000).contains(&self.substeps) {
             return Err(range(
-                "loop.torque_budget_us",
-                budget,
-                &format!("0 < torque_budget_us < Ts = {} us", ts * 1e6),
+                "plant.substeps",
+                self.substeps,
+                "1 <= substeps <= 1000",
             ));
         }
-        let silence = self.loop_.silence_timeout_ms;
-        if !(10..=600_000).contains(&silence) {
-            return Err(range(
-                "loop.silence_timeout_ms",
-                silence,
-                "10 <= silence_timeout_ms <= 600000 ms",
-            ));
-        }
-        self.loop_.realtime.validate("loop.realtime")?;
-        self.loop_.lockstep.validate("loop.lockstep")?;
-        if p.transport_delay_samples > MAX_TDE_DELAY {
+        if self.transport_delay_samples > MAX_TRANSPORT_DELAY {
             return Err(range(
                 "plant.transport_delay_samples",
-                p.transport_delay_samples,
-                "0 <= transport_delay_samples <= 10000 ticks",
+                self.transport_delay_samples,
+                &format!("0 <= transport_delay_samples <= {MAX_TRANSPORT_DELAY} ticks"),
             ));
         }
         check(
             "plant.payload_step_kg",
-            p.payload_step_kg,
-            (0.0..=10.0).contains(&p.payload_step_kg),
+            self.payload_step_kg,
+            (0.0..=10.0).contains(&self.payload_step_kg),
             "0 <= payload_step_kg <= 10 kg (0: no step)",
         )?;
-        if let Some(t) = p.payload_step_at_s {
+        if let Some(t) = self.payload_step_at_s {
             check(
                 "plant.payload_step_at_s",
                 t,
@@ -758,75 +710,141 @@ impl RunConfig {
                 "0 <= payload_step_at_s <= 3600 s",
             )?;
         }
-        let se = &self.sensor;
+        Ok(())
+    }
+}
+
+impl LoopSection {
+    /// `[loop]`: the period first (the budget and both layouts are bounded by it), then the
+    /// torque budget, the silence timeout and the layout of each process mode.
+    fn validate(&self) -> Result<(), ConfigError> {
+        let ts = self.ts_s;
+        check(
+            "loop.ts_s",
+            ts,
+            (1e-5..=0.1).contains(&ts),
+            "1e-5 <= ts_s <= 0.1 s",
+        )?;
+        let budget = self.torque_budget_us;
+        if budget == 0 || f64::from(budget) * 1e-6 >= ts {
+            return Err(range(
+                "loop.torque_budget_us",
+                budget,
+                &format!("0 < torque_budget_us < Ts = {} us", ts * 1e6),
+            ));
+        }
+        let silence = self.silence_timeout_ms;
+        if !(10..=600_000).contains(&silence) {
+            return Err(range(
+                "loop.silence_timeout_ms",
+                silence,
+                "10 <= silence_timeout_ms <= 600000 ms",
+            ));
+        }
+        self.realtime.validate("loop.realtime", ts)?;
+        self.lockstep.validate("loop.lockstep", ts)
+    }
+}
+
+impl SensorSection {
+    /// `[sensor]`: noise levels and encoder resolution.
+    fn validate(&self) -> Result<(), ConfigError> {
         check(
             "sensor.q_noise_std_rad",
-            se.q_noise_std_rad,
-            (0.0..=0.1).contains(&se.q_noise_std_rad),
+            self.q_noise_std_rad,
+            (0.0..=0.1).contains(&self.q_noise_std_rad),
             "0 <= q_noise_std_rad <= 0.1 rad",
         )?;
         check(
             "sensor.qd_noise_std_rad_s",
-            se.qd_noise_std_rad_s,
-            (0.0..=10.0).contains(&se.qd_noise_std_rad_s),
+            self.qd_noise_std_rad_s,
+            (0.0..=10.0).contains(&self.qd_noise_std_rad_s),
             "0 <= qd_noise_std_rad_s <= 10 rad/s",
         )?;
-        if se.encoder_counts_per_rev != 0 && se.encoder_counts_per_rev < 16 {
+        if self.encoder_counts_per_rev != 0 && self.encoder_counts_per_rev < 16 {
             return Err(range(
                 "sensor.encoder_counts_per_rev",
-                se.encoder_counts_per_rev,
+                self.encoder_counts_per_rev,
                 "0 (ideal) or 16..=4294967295 counts per revolution",
             ));
         }
-        let f = &self.faults;
-        if !(1..=1_000_000).contains(&f.controller_silence_ticks) {
+        Ok(())
+    }
+}
+
+impl FaultSection {
+    /// `[faults]`: silence window, safe stop, brake.
+    fn validate(&self) -> Result<(), ConfigError> {
+        if !(1..=1_000_000).contains(&self.controller_silence_ticks) {
             return Err(range(
                 "faults.controller_silence_ticks",
-                f.controller_silence_ticks,
+                self.controller_silence_ticks,
                 "1 <= controller_silence_ticks <= 1000000 ticks",
             ));
         }
-        if f.safe_stop_ms > 60_000 {
+        if self.safe_stop_ms > 60_000 {
             return Err(range(
                 "faults.safe_stop_ms",
-                f.safe_stop_ms,
+                self.safe_stop_ms,
                 "0 <= safe_stop_ms <= 60000 ms",
             ));
         }
         check(
             "faults.brake_damping_nm_s",
-            f.brake_damping_nm_s,
-            (0.0..=1000.0).contains(&f.brake_damping_nm_s),
+            self.brake_damping_nm_s,
+            (0.0..=1000.0).contains(&self.brake_damping_nm_s),
             "0 <= brake_damping_nm_s <= 1000 N m s/rad",
-        )?;
-        let c = &self.controller;
-        if c.compute_delay_us > 1_000_000 {
+        )
+    }
+}
+
+impl ControllerSection {
+    /// The constants: the preset with this section's overrides applied.
+    fn params(&self) -> ControllerParams {
+        let p = ControllerParams::preset(self.preset);
+        ControllerParams {
+            m_bar: self.m_bar.unwrap_or(p.m_bar),
+            kp: self.kp.unwrap_or(p.kp),
+            kd: self.kd.unwrap_or(p.kd),
+            ks: self.ks.unwrap_or(p.ks),
+            phi: self.phi.unwrap_or(p.phi),
+            k1: self.k1.unwrap_or(p.k1),
+            k2: self.k2.unwrap_or(p.k2),
+            pid_p: self.pid_p.unwrap_or(p.pid_p),
+            pid_i: self.pid_i.unwrap_or(p.pid_i),
+            pid_d: self.pid_d.unwrap_or(p.pid_d),
+        }
+    }
+
+    /// `[controller]`: compute delay, the law list, the TDE delay, and the resolved constants.
+    fn validate(&self) -> Result<(), ConfigError> {
+        if self.compute_delay_us > 1_000_000 {
             return Err(range(
                 "controller.compute_delay_us",
-                c.compute_delay_us,
+                self.compute_delay_us,
                 "0 <= compute_delay_us <= 1000000 us",
             ));
         }
-        if c.laws.is_empty() {
+        if self.laws.is_empty() {
             return Err(range(
                 "controller.laws",
                 "[]",
                 "at least one of tdc, tde-is, tdc-is-sta, pid",
             ));
         }
-        for (i, l) in c.laws.iter().enumerate() {
-            if c.laws[..i].contains(l) {
+        for (i, l) in self.laws.iter().enumerate() {
+            if self.laws[..i].contains(l) {
                 return Err(range("controller.laws", l, "each law at most once"));
             }
         }
-        if !(1..=MAX_TDE_DELAY).contains(&c.tde_delay_samples) {
+        if !(1..=MAX_TDE_DELAY).contains(&self.tde_delay_samples) {
             return Err(range(
                 "controller.tde_delay_samples",
-                c.tde_delay_samples,
-                "1 <= tde_delay_samples <= 10000 ticks",
+                self.tde_delay_samples,
+                &format!("1 <= tde_delay_samples <= {MAX_TDE_DELAY} ticks"),
             ));
         }
-        let k = self.controller_params();
+        let k = self.params();
         check(
             "controller.m_bar",
             k.m_bar,
@@ -852,6 +870,77 @@ impl RunConfig {
             )?;
         }
         Ok(())
+    }
+}
+
+impl RunConfig {
+    /// Parses, fills the preset, and validates. `path` only labels errors.
+    pub fn from_toml_str(text: &str, path: Option<&Path>) -> Result<Self, ConfigError> {
+        let mut cfg: RunConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.map(|p| p.display().to_string()),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        if cfg.name.is_empty() {
+            cfg.name = path
+                .and_then(|p| p.file_stem())
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "scenario".into());
+        }
+        cfg.resolve_preset();
+        let ts = cfg.loop_.ts_s;
+        cfg.loop_
+            .realtime
+            .fill(Layout::realtime_default().wake_early_within(ts));
+        cfg.loop_
+            .lockstep
+            .fill(Layout::lockstep_default().wake_early_within(ts));
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Reads and parses a file.
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
+            path: path.display().to_string(),
+            reason: e.to_string(),
+        })?;
+        Self::from_toml_str(&text, Some(path))
+    }
+
+    /// The resolved config as TOML: every constant explicit; parses back to `self`.
+    pub fn to_toml_string(&self) -> String {
+        toml::to_string_pretty(self).expect("config serialises")
+    }
+
+    /// The controller constants: the preset with the file's overrides applied.
+    pub fn controller_params(&self) -> ControllerParams {
+        self.controller.params()
+    }
+
+    /// Writes the preset's values into every override that is not set, so the config is explicit.
+    fn resolve_preset(&mut self) {
+        let p = self.controller_params();
+        let c = &mut self.controller;
+        c.m_bar = Some(p.m_bar);
+        c.kp = Some(p.kp);
+        c.kd = Some(p.kd);
+        c.ks = Some(p.ks);
+        c.phi = Some(p.phi);
+        c.k1 = Some(p.k1);
+        c.k2 = Some(p.k2);
+        c.pid_p = Some(p.pid_p);
+        c.pid_i = Some(p.pid_i);
+        c.pid_d = Some(p.pid_d);
+    }
+
+    /// Checks every value against its allowed range, one section at a time.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        self.scenario.validate()?;
+        self.plant.validate()?;
+        self.loop_.validate()?;
+        self.sensor.validate()?;
+        self.faults.validate()?;
+        self.controller.validate()
     }
 
     /// Motion duration T of the scenario, s.
@@ -984,6 +1073,82 @@ mod tests {
             e.to_string().contains("torque_budget_us` = 300")
                 && e.to_string().contains("< Ts = 300"),
             "{e}"
+        );
+    }
+
+    #[test]
+    fn wake_early_us_is_bounded_by_the_period() {
+        // Ts = 300 µs by default: a whole period early is allowed, more is not.
+        for section in ["loop.realtime", "loop.lockstep"] {
+            let c =
+                RunConfig::from_toml_str(&format!("{MIN}[{section}]\nwake_early_us = 300\n"), None)
+                    .unwrap();
+            let layout = if section == "loop.realtime" {
+                &c.loop_.realtime
+            } else {
+                &c.loop_.lockstep
+            };
+            assert_eq!(layout.wake_early_us, Some(300), "{section}");
+            let e =
+                RunConfig::from_toml_str(&format!("{MIN}[{section}]\nwake_early_us = 301\n"), None)
+                    .unwrap_err();
+            assert_eq!(
+                e.to_string(),
+                format!(
+                    "config key `{section}.wake_early_us` = 301 is out of range: 0 <= wake_early_us <= Ts = 300 us"
+                )
+            );
+        }
+        // The bound follows the period.
+        let e = RunConfig::from_toml_str(
+            &format!("{MIN}[loop]\nts_s = 1e-3\ntorque_budget_us = 500\n[loop.realtime]\nwake_early_us = 1001\n"),
+            None,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("<= Ts = 1000 us"), "{e}");
+    }
+
+    #[test]
+    fn default_wake_early_us_fits_a_short_period() {
+        // The realtime default (80 µs) is capped at a shorter period instead of rejected.
+        let c = RunConfig::from_toml_str(
+            &format!("{MIN}[loop]\nts_s = 5e-5\ntorque_budget_us = 20\n"),
+            None,
+        )
+        .unwrap();
+        assert_eq!(c.loop_.realtime.wake_early_us, Some(50));
+        assert_eq!(c.loop_.lockstep.wake_early_us, Some(0));
+        let again = RunConfig::from_toml_str(&c.to_toml_string(), None).unwrap();
+        assert_eq!(c, again);
+    }
+
+    #[test]
+    fn transport_delay_has_its_own_bound() {
+        let ok = format!("{MIN}[plant]\ntransport_delay_samples = {MAX_TRANSPORT_DELAY}\n");
+        assert!(RunConfig::from_toml_str(&ok, None).is_ok());
+        let e = RunConfig::from_toml_str(
+            &format!(
+                "{MIN}[plant]\ntransport_delay_samples = {}\n",
+                MAX_TRANSPORT_DELAY + 1
+            ),
+            None,
+        )
+        .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "config key `plant.transport_delay_samples` = 10001 is out of range: 0 <= transport_delay_samples <= 10000 ticks"
+        );
+        let e = RunConfig::from_toml_str(
+            &format!(
+                "{MIN}[controller]\ntde_delay_samples = {}\n",
+                MAX_TDE_DELAY + 1
+            ),
+            None,
+        )
+        .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "config key `controller.tde_delay_samples` = 10001 is out of range: 1 <= tde_delay_samples <= 10000 ticks"
         );
     }
 

@@ -68,7 +68,7 @@ const KEYS: &[&str] = &[
 fn value() -> impl Strategy<Value = String> {
     prop_oneof![
         any::<i64>().prop_map(|v| v.to_string()),
-        prop_oneof![Just(0.0f64), Just(-1.0), Just(1e308), Just(3e-4), Just(0.5), any::<f64>()].prop_map(|v| {
+        prop_oneof![Just(0.0f64), Just(-1.0), Just(1e308), Just(3e-4), Just(5e-5), Just(0.5), any::<f64>()].prop_map(|v| {
             if v.is_nan() { "nan".to_string() } else if v.is_infinite() { if v > 0.0 { "inf".into() } else { "-inf".into() } } else { format!("{v:e}") }
         }),
         Just("nan".to_string()),
@@ -112,6 +112,13 @@ fn check(text: &str) {
             .expect("the resolved config parses");
         assert_eq!(cfg, again, "the resolved config round-trips");
         assert!(cfg.loop_.ts_s.is_finite() && cfg.controller_params().m_bar > 0.0);
+        for layout in [&cfg.loop_.realtime, &cfg.loop_.lockstep] {
+            let wake = f64::from(layout.wake_early_us.unwrap_or(0));
+            assert!(
+                wake <= cfg.loop_.ts_s * 1e6,
+                "wake_early_us within one period"
+            );
+        }
     }
 }
 
