@@ -106,11 +106,14 @@ pub fn main() -> ExitCode {
         } => run::load_config(&config, &overrides)
             .and_then(|cfg| run::run(cfg, mode, out, &command_line))
             .map(|o| {
+                use std::io::Write;
+                // Never panic on a closed terminal or pipe: the run folder is already written.
                 for n in &o.notes {
-                    eprintln!("{n}");
+                    let _ = writeln!(std::io::stderr(), "{n}");
                 }
-                print!("{}", o.table);
-                println!("run folder: {}", o.dir.display());
+                let mut out = std::io::stdout().lock();
+                let _ = write!(out, "{}", o.table);
+                let _ = writeln!(out, "run folder: {}", o.dir.display());
             }),
         Command::Bench {
             what: BenchCommand::Plant { seconds, repeats },
@@ -133,11 +136,13 @@ pub fn main() -> ExitCode {
             )
             .map(|s| print!("{}", crate::paper::terminal(&s, &out)))
         }
-        Command::Sweep { sweep, out } => crate::sweep::load(&sweep).and_then(|(sw, _)| {
+        Command::Sweep { sweep, out } => crate::sweep::load(&sweep).and_then(|(sw, base)| {
             let out = out
                 .unwrap_or_else(|| crate::output::default_run_dir(&format!("sweep-{}", sw.name)));
             let t0 = std::time::Instant::now();
-            let rows = crate::sweep::run(
+            let rows = crate::sweep::run_loaded(
+                &sw,
+                &base,
                 &sweep,
                 &out,
                 std::io::IsTerminal::is_terminal(&std::io::stderr()),
@@ -160,14 +165,22 @@ pub fn main() -> ExitCode {
             cpu,
         } => crate::bench_loop::uds_controller(&socket, &config, cpu),
     };
+    // After SIGHUP the terminal may be gone: a failed write to stderr must not panic.
+    let say = |line: String| {
+        use std::io::Write;
+        let _ = writeln!(std::io::stderr(), "{line}");
+    };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) if e.downcast_ref::<run::Interrupted>().is_some() => {
-            eprintln!("deltaloop: {e}");
+            let by = crate::signals::signal().map_or(String::new(), |s| {
+                format!(" (by {})", crate::signals::name(s))
+            });
+            say(format!("deltaloop: {e}{by}"));
             ExitCode::from(130)
         }
         Err(e) => {
-            eprintln!("deltaloop: error: {e:#}");
+            say(format!("deltaloop: error: {e:#}"));
             ExitCode::FAILURE
         }
     }

@@ -19,7 +19,7 @@ use deltaloop_transport::rt;
 use deltaloop_transport::wire::{
     self, ControlKind, ControlMsg, RefSample, Sender, StateMsg, TorqueMsg,
 };
-use iceoryx2::port::listener::Listener;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -247,9 +247,11 @@ fn wait_state(
         }
         // The only timeout here is the silence limit (seconds), so iceoryx2's own timed wait (a
         // blocking receive, woken directly by the notification) is precise enough and cheapest.
-        listener
-            .timed_wait(|_| {}, core::time::Duration::from_nanos(until - now))
-            .ipc("wait for state")?;
+        // A signal (SIGCONT after a SIGSTOP, say) only interrupts the wait: look again.
+        match listener.timed_wait(|_| {}, core::time::Duration::from_nanos(until - now)) {
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
+            Err(e) => return Err(e).ipc("wait for state").map_err(Into::into),
+        }
     }
 }
 

@@ -110,8 +110,9 @@ pub fn apply(s: &Sched) -> Vec<String> {
     warnings
 }
 
-/// Signal set-up for a loop process started by the supervisor: SIGINT is ignored (a Ctrl-C in
-/// the terminal reaches the whole process group; the supervisor stops its children in order),
+/// Signal set-up for a loop process started by the supervisor: SIGINT and SIGHUP are ignored (a
+/// Ctrl-C, or the terminal closing, reaches the whole process group; the supervisor stops its
+/// children in order),
 /// SIGTERM sets the returned flag (checked once per tick: a clean stop), and the process gets
 /// SIGTERM if its parent dies, so no child outlives a killed supervisor.
 pub fn child_signals() -> std::sync::Arc<std::sync::atomic::AtomicBool> {
@@ -119,6 +120,7 @@ pub fn child_signals() -> std::sync::Arc<std::sync::atomic::AtomicBool> {
     // SAFETY: setting a signal disposition and the parent-death signal of this process.
     unsafe {
         libc::signal(libc::SIGINT, libc::SIG_IGN);
+        libc::signal(libc::SIGHUP, libc::SIG_IGN);
         libc::prctl(
             libc::PR_SET_PDEATHSIG,
             libc::SIGTERM as libc::c_ulong,
