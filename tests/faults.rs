@@ -252,7 +252,7 @@ fn assert_stalled_rows_are_honest(trace: &Path, stall: u64) {
         }
     }
     assert!(
-        before > 2900 && after > 200,
+        before > 2000 && after > 200,
         "{before} applied before, {after} rows after the stall"
     );
 }
@@ -428,22 +428,30 @@ fn interrupted_sweep_keeps_its_finished_rows() {
     unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
     let (code, err) = finish(child);
     assert_eq!(code, Some(130), "{err}");
-    let rows = std::fs::read_to_string(out.join("sweep.csv"))
+    let mut csv = csv::Reader::from_path(out.join("sweep.csv")).unwrap();
+    let status = csv
+        .headers()
         .unwrap()
-        .lines()
-        .count()
-        - 1;
+        .iter()
+        .position(|h| h == "status")
+        .unwrap();
+    let statuses: Vec<String> = csv
+        .records()
+        .map(|r| r.unwrap()[status].to_string())
+        .collect();
     let json: Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("sweep.json")).unwrap()).unwrap();
     assert_eq!(
         json.as_array().unwrap().len(),
-        rows,
-        "sweep.json holds the finished rows"
+        statuses.len(),
+        "sweep.json holds the same rows"
     );
-    assert!((4..600).contains(&rows), "{rows} rows");
+    // The points running at the stop are marked, not counted as results.
+    let finished = statuses.iter().filter(|s| *s != "interrupted").count();
+    assert!((4..600).contains(&finished), "{finished} finished rows");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(
-        report.contains("Interrupted") && report.contains(&format!("after {rows} of 600 runs")),
+        report.contains("Interrupted") && report.contains(&format!("after {finished} of 600 runs")),
         "{}",
         &report[..200.min(report.len())]
     );
@@ -479,4 +487,167 @@ fn regression_sigstop_sigcont_of_the_controller_is_a_non_event() {
     let s = summary(&out);
     assert_eq!(s["laws"]["tdc"]["completed"], true, "{s}");
     assert!(s["laws"]["tdc"]["fault"].is_null(), "{s}");
+}
+
+/// Regression: Ctrl-C during set-up was ignored: the supervisor still sent START and the loop ran
+/// for seconds. Now the handshake stops, STOP releases both children before tick 0, and the run
+/// ends as interrupted with no tick run.
+#[test]
+fn regression_ctrl_c_during_setup_sends_no_start() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    // A long hold makes the reference slice (and so the handshake) take a while.
+    let cfg = config(tmp.path(), 120.0, "");
+    let child = {
+        use std::os::unix::process::CommandExt;
+        Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+            .args(["run", &cfg, "--out", out.to_str().unwrap()])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .process_group(0)
+            .stderr(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let t0 = Instant::now();
+    while pids_of(&out, "deltaloop-plant").is_empty() {
+        assert!(t0.elapsed() < Duration::from_secs(30), "no plant started");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    // SAFETY: Ctrl-C to the process group we created.
+    unsafe { libc::kill(-(child.id() as i32), libc::SIGINT) };
+    let t1 = Instant::now();
+    let (code, err) = finish(child);
+    assert_eq!(code, Some(130), "{err}");
+    assert!(t1.elapsed() < Duration::from_secs(4), "{:?}", t1.elapsed());
+    let plant_log = std::fs::read_to_string(out.join("tdc.plant.log")).unwrap_or_default();
+    assert!(plant_log.contains("before start"), "plant: {plant_log}");
+    let s = summary(&out);
+    assert_eq!(s["interrupted"], true);
+    assert_eq!(s["laws"]["tdc"]["interrupted_at_tick"], 0, "{s}");
+    assert!(children_mentioning(out.to_str().unwrap()).is_empty());
+}
+
+/// Regression: a long safe stop (60 s is allowed) was cut off by the supervisor after ≈14 s, and
+/// the plant's reason was lost. Slow (≈50 s; the old limit was ≈30 s for this run): `cargo test --test faults -- --ignored`.
+#[test]
+#[ignore]
+fn regression_long_safe_stop_is_not_cut_off() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = config(
+        tmp.path(),
+        0.2,
+        "[faults]\ninject = \"stall@2800\"\nsafe_stop_ms = 45000\n",
+    );
+    let t0 = Instant::now();
+    let o = deltaloop(&["run", &cfg, "--out", out.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(t0.elapsed() > Duration::from_secs(45), "{:?}", t0.elapsed());
+    for needle in [
+        "no torque within the budget",
+        "braked for 45000 ms",
+        "safe stop",
+    ] {
+        assert!(err.contains(needle), "missing {needle:?}: {err}");
+    }
+    let s = summary(&out);
+    assert!(
+        s["laws"]["tdc"]["fault"]
+            .as_str()
+            .unwrap()
+            .contains("braked for 45000 ms")
+    );
+}
+
+/// Regression: a supervisor stopped for 3 s (SIGSTOP) lost part of the stream when its queues
+/// overflowed, and turned good data into a "divergence" at the first hole, dropping every tick
+/// after it. Now the lost ticks are counted and named, the run ends as "lost data", and every
+/// tick the supervisor saw, before and after the hole, is kept.
+#[test]
+fn regression_a_stopped_supervisor_loses_ticks_not_the_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = config(tmp.path(), 5.0, "");
+    let child = spawn(&["run", &cfg, "--out", out.to_str().unwrap()]);
+    signal_child(&out, "deltaloop-plant", 0, 800);
+    let sup = child.id() as i32;
+    // SAFETY: stopping and resuming our own child.
+    unsafe { libc::kill(sup, libc::SIGSTOP) };
+    std::thread::sleep(Duration::from_millis(3500));
+    unsafe { libc::kill(sup, libc::SIGCONT) };
+    let (code, err) = finish(child);
+    assert_eq!(code, Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("lost data") && err.contains("fell behind"),
+        "{err}"
+    );
+    let s = summary(&out);
+    let m = &s["laws"]["tdc"];
+    let lost = m["lost_ticks"].as_u64().unwrap();
+    assert!((300..12_000).contains(&lost), "lost {lost}: {m}");
+    assert!(
+        m["diverged_at_tick"].is_null() && m["fault"].is_null(),
+        "{m}"
+    );
+    let trace = std::fs::read_to_string(out.join("trace.csv")).unwrap();
+    let ks: Vec<u64> = trace
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1).unwrap().parse().unwrap())
+        .collect();
+    let n = s["ticks"].as_u64().unwrap();
+    assert_eq!(*ks.last().unwrap(), n, "the trace goes on to the last tick");
+    assert_eq!(
+        ks.len() as u64 + lost,
+        n + 1,
+        "every tick is either kept or counted lost"
+    );
+}
+
+/// Regression: a child killed during set-up left half-created iceoryx2 nodes that no later run
+/// removed, and every later run printed iceoryx2's "No config file was loaded" warning.
+#[test]
+fn regression_child_killed_during_setup_leaves_no_debris() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = config(tmp.path(), 0.0, "");
+    let child = spawn(&["run", &cfg, "--out", out.to_str().unwrap()]);
+    let t0 = Instant::now();
+    let (pid, run_id) = loop {
+        if let Some(&p) = pids_of(&out, "deltaloop-plant").first() {
+            let cmd = std::fs::read(format!("/proc/{p}/cmdline")).unwrap_or_default();
+            let args: Vec<String> = String::from_utf8_lossy(&cmd)
+                .split('\0')
+                .map(str::to_string)
+                .collect();
+            if let Some(i) = args.iter().position(|a| a == "--run-id") {
+                break (p, args[i + 1].clone());
+            }
+        }
+        assert!(t0.elapsed() < Duration::from_secs(20), "no plant started");
+        std::thread::sleep(Duration::from_micros(500));
+    };
+    // SAFETY: killing the plant we found by its command line, mid set-up.
+    unsafe { libc::kill(pid as i32, libc::SIGKILL) };
+    let (code, err) = finish(child);
+    assert_eq!(code, Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("plant"), "{err}");
+    assert!(common::iceoryx_leftovers(&run_id).is_empty(), "{err}");
+    // The next run starts clean and quiet.
+    let out2 = tmp.path().join("next");
+    let o = deltaloop(&[
+        "run",
+        &cfg,
+        "--mode",
+        "lockstep",
+        "--out",
+        out2.to_str().unwrap(),
+    ]);
+    let err2 = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err2}");
+    assert!(!err2.contains("No config file"), "{err2}");
 }

@@ -13,8 +13,9 @@ fn lockstep_is_bit_identical_to_inproc_and_leaves_nothing_behind() {
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = (tmp.path().join("inproc"), tmp.path().join("lockstep"));
     for cfg in ["configs/s2-fast.toml", "configs/paper/s2-fast.toml"] {
-        let si = run(cfg, "inproc", &a, &[]);
-        let sl = run(cfg, "lockstep", &b, &[]);
+        // The second config reuses both folders: --force empties them first.
+        let si = run(cfg, "inproc", &a, &["--force"]);
+        let sl = run(cfg, "lockstep", &b, &["--force"]);
         let ti = std::fs::read(a.join("trace.csv")).unwrap();
         let tl = std::fs::read(b.join("trace.csv")).unwrap();
         assert!(ti.len() > 100_000);

@@ -29,18 +29,24 @@ enum Command {
         mode: LoopMode,
         #[command(flatten)]
         overrides: run::Overrides,
-        /// Run folder (default: runs/<UTC time>-<scenario name>).
+        /// Run folder (default: runs/<UTC time>-<scenario name>). Must be new or empty.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Empty and reuse a non-empty --out folder (only one that holds a deltaloop run).
+        #[arg(long)]
+        force: bool,
     },
     /// Reproduce the paper: S1–S3 × both presets × four laws; tables, figures and report.md.
     Paper {
         /// Loop transport.
         #[arg(long, value_parser = LoopMode::parse, default_value = "inproc")]
         mode: LoopMode,
-        /// Output folder (default: runs/<UTC time>-paper).
+        /// Output folder (default: runs/<UTC time>-paper). Must be new or empty.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Empty and reuse a non-empty --out folder (only one that holds a deltaloop run).
+        #[arg(long)]
+        force: bool,
     },
     /// Run a grid of delays × laws × scenarios × presets (see configs/delay-sweep.toml).
     Sweep {
@@ -103,8 +109,9 @@ pub fn main() -> ExitCode {
             mode,
             overrides,
             out,
+            force,
         } => run::load_config(&config, &overrides)
-            .and_then(|cfg| run::run(cfg, mode, out, &command_line))
+            .and_then(|cfg| run::run(cfg, mode, out, force, &command_line))
             .map(|o| {
                 use std::io::Write;
                 // Never panic on a closed terminal or pipe: the run folder is already written.
@@ -126,11 +133,12 @@ pub fn main() -> ExitCode {
                     out,
                 },
         } => crate::bench_loop::run(lockstep_seconds, rt_seconds, &out),
-        Command::Paper { mode, out } => {
+        Command::Paper { mode, out, force } => {
             let out = out.unwrap_or_else(|| crate::output::default_run_dir("paper"));
             crate::paper::run(
                 mode,
                 &out,
+                force,
                 &command_line,
                 std::io::IsTerminal::is_terminal(&std::io::stderr()),
             )
@@ -148,13 +156,22 @@ pub fn main() -> ExitCode {
                 std::io::IsTerminal::is_terminal(&std::io::stderr()),
             )?;
             let n = |st: &str| rows.iter().filter(|r| r.status == st).count();
+            // An interrupted point is not a run that finished (and an interrupted sweep ends
+            // with an error above): it is counted apart, when there is one.
+            let interrupted = n("interrupted");
             println!(
-                "{} runs in {:.1} s: {} ok, {} diverged, {} errors\nsweep folder: {}",
-                rows.len(),
+                "{} runs in {:.1} s: {} ok, {} diverged, {} stopped, {} errors{}\nsweep folder: {}",
+                rows.len() - interrupted,
                 t0.elapsed().as_secs_f64(),
                 n("ok"),
                 n("diverged"),
+                n("stopped"),
                 n("error"),
+                if interrupted > 0 {
+                    format!(" ({interrupted} interrupted, not counted)")
+                } else {
+                    String::new()
+                },
                 out.display()
             );
             Ok(())

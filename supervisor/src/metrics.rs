@@ -17,8 +17,12 @@ pub struct LawMetrics {
     pub law: Law,
     /// Ticks after tick 0 the metrics cover (k = 0..=N); fewer if the run diverged.
     pub ticks: u64,
-    /// Whether every tick 0..=N ran.
+    /// Whether every tick 0..=N ran and was recorded.
     pub completed: bool,
+    /// Ticks the supervisor lost (its queues overflowed): not in the metrics.
+    pub lost_ticks: u64,
+    /// Why the run ended as "lost data", if it did.
+    pub lost_data: Option<String>,
     /// Tick at which the run diverged, if it did.
     pub diverged_at_tick: Option<u64>,
     pub diverged_reason: Option<String>,
@@ -157,32 +161,34 @@ pub fn compute(
     // Error metrics over k = 0..=N (or up to the divergence tick).
     let err = |i: usize| {
         recs.iter()
-            .enumerate()
-            .map(move |(k, r)| reference.rows[k].joint.q[i] - r.q_true[i])
+            .map(move |r| reference.rows[r.sample.k as usize].joint.q[i] - r.q_true[i])
     };
     let rms_rad = per_joint(|i| rms(err(i)));
     let max_abs_err_rad = per_joint(|i| err(i).fold(0.0, |m, e| m.max(e.abs())));
     let task_err_mm: Vec<f64> = recs
         .iter()
-        .enumerate()
-        .map(|(k, r)| match robot.fk(&r.q_true) {
-            Ok(x) => (x - reference.rows[k].task.x).norm() * 1e3,
+        .map(|r| match robot.fk(&r.q_true) {
+            Ok(x) => (x - reference.rows[r.sample.k as usize].task.x).norm() * 1e3,
             Err(_) => f64::NAN,
         })
         .collect();
     let task_rms_mm = rms(task_err_mm.iter().copied());
     let task_max_mm = task_err_mm.iter().fold(0.0f64, |m, &e| m.max(e));
 
-    // Torque metrics over k = 0..N−1: the intervals whose command the plant applied.
+    // Torque metrics over k = 0..N−1: the intervals whose command the plant applied. (With lost
+    // ticks the series has holes: differences across one are left out; the spectrum treats the
+    // series as evenly sampled.)
     let n_tau = recs
-        .len()
-        .min(reference.n)
+        .iter()
+        .take_while(|r| (r.sample.k as usize) < reference.n)
+        .count()
         .max(usize::from(!recs.is_empty()));
     let taus = &recs[..n_tau];
     let tau = |i: usize| taus.iter().map(move |r| r.tau[i]);
     let max_abs_tau_nm = per_joint(|i| tau(i).fold(0.0, |m, t| m.max(t.abs())));
     let torque_tv_nm = per_joint(|i| {
         taus.windows(2)
+            .filter(|w| w[1].sample.k == w[0].sample.k + 1)
             .map(|w| (w[1].tau[i] - w[0].tau[i]).abs())
             .sum()
     });
@@ -193,20 +199,17 @@ pub fn compute(
         std::array::from_fn(|i| high_frequency(&tau(i).collect::<Vec<_>>(), ts));
 
     // TDE error Ñ_k = N̂_k − N_k, N_k = (q̇_{k+1} − q̇_k)/Ts − τᵃ_{k+1}/M̄ from true rates, k = 0..N−1.
-    let next = |k: usize| -> Option<(Vec3, Vec3)> {
-        match recs.get(k + 1) {
-            Some(r) => Some((r.qd_true, r.sample.tau_applied)),
-            None => run.after.map(|(s, qd_true)| (qd_true, s.tau_applied)),
-        }
-    };
-    // A tick the controller never answered has no N̂: it is left out, and so are the differences
-    // that would span it.
+    // A tick the controller never answered, or whose next tick was lost, has no Ñ: it is left
+    // out, and so are the differences that would span it.
     let mut n_tilde: Vec<Option<Vec3>> = Vec::with_capacity(n_tau);
-    for (k, r) in taus.iter().enumerate() {
-        if let Some((qd1, tau1)) = next(k) {
-            let truth = (qd1 - r.qd_true) / ts - tau1 / params.m_bar;
-            n_tilde.push(r.out.map(|o| o.n_hat - truth));
+    for (i, r) in taus.iter().enumerate() {
+        if i > 0 && r.sample.k > taus[i - 1].sample.k + 1 {
+            n_tilde.push(None);
         }
+        let truth = run
+            .next_of(i)
+            .map(|(qd1, tau1)| (qd1 - r.qd_true) / ts - tau1 / params.m_bar);
+        n_tilde.push(r.out.zip(truth).map(|(o, t)| o.n_hat - t));
     }
     let uses_tde = run.law.uses_tde();
     let answered: Vec<Vec3> = n_tilde.iter().flatten().copied().collect();
@@ -221,6 +224,12 @@ pub fn compute(
     let delta_n_p999 = uses_tde.then(|| per_joint(|i| percentile_type7(&mut dn(i), 0.999)));
     let k2_req = delta_n_max.map(|d| k2_required(d.into_iter().fold(0.0, f64::max), params.k1));
 
+    let lost_data = match run.outcome {
+        Outcome::LostData { lost, first } => Some(format!(
+            "the supervisor lost {lost} ticks of the stream, the first at tick {first}: it fell behind the loop and its queues overflowed; every tick it saw is recorded"
+        )),
+        _ => None,
+    };
     let (completed, diverged_at_tick, diverged_reason) = match &run.outcome {
         Outcome::Diverged { tick, reason } => (false, Some(*tick), Some(reason.clone())),
         Outcome::Completed => (true, None, None),
@@ -234,6 +243,8 @@ pub fn compute(
     LawMetrics {
         law: run.law,
         ticks: recs.len().saturating_sub(1) as u64,
+        lost_ticks: run.lost_ticks,
+        lost_data,
         completed,
         diverged_at_tick,
         diverged_reason,

@@ -65,6 +65,85 @@ pub fn default_run_dir(name: &str) -> PathBuf {
     PathBuf::from("runs").join(format!("{stamp}-{name}"))
 }
 
+/// A run folder this process holds: created (or emptied with `force`), and locked for as long as
+/// this value lives, so no two runs ever write into one folder.
+#[derive(Debug)]
+pub struct RunFolder {
+    dir: PathBuf,
+    _lock: std::fs::File,
+}
+
+/// The lock file in every run folder; its presence also marks a folder as deltaloop's.
+const LOCK_FILE: &str = ".deltaloop-lock";
+
+impl RunFolder {
+    /// Claims `dir`: refuses a non-empty folder unless `force` (then empties it, but only if it
+    /// is a deltaloop folder: one with a lock file, `config.toml` or `summary.json`), and refuses a
+    /// folder another run holds, `force` or not.
+    pub fn claim(dir: &Path, force: bool) -> Result<Self> {
+        let shown = dir.display();
+        let entries: Vec<PathBuf> = match std::fs::read_dir(dir) {
+            Ok(rd) => rd.filter_map(|e| e.ok().map(|e| e.path())).collect(),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
+            Err(e) => anyhow::bail!("cannot read run folder {shown}: {e}"),
+        };
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create run folder {shown}"))?;
+        let lock = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(dir.join(LOCK_FILE))
+            .with_context(|| format!("cannot create {}", dir.join(LOCK_FILE).display()))?;
+        // SAFETY: flock on a descriptor we own; non-blocking, released when the file closes.
+        if unsafe {
+            libc::flock(
+                std::os::fd::AsRawFd::as_raw_fd(&lock),
+                libc::LOCK_EX | libc::LOCK_NB,
+            )
+        } != 0
+        {
+            anyhow::bail!(
+                "run folder {shown} is in use by another deltaloop run: choose another --out"
+            );
+        }
+        let theirs: Vec<&PathBuf> = entries.iter().filter(|p| !p.ends_with(LOCK_FILE)).collect();
+        if !theirs.is_empty() {
+            if !force {
+                anyhow::bail!(
+                    "run folder {shown} is not empty ({} entries): choose another --out, or pass --force to empty and reuse it",
+                    theirs.len()
+                );
+            }
+            let ours = entries.iter().any(|p| {
+                p.ends_with(LOCK_FILE) || p.ends_with("config.toml") || p.ends_with("summary.json")
+            });
+            if !ours {
+                anyhow::bail!(
+                    "run folder {shown} is not empty and does not look like a deltaloop run folder (no config.toml or summary.json): refusing to empty it, even with --force"
+                );
+            }
+            for p in theirs {
+                let r = if p.is_dir() && !p.is_symlink() {
+                    std::fs::remove_dir_all(p)
+                } else {
+                    std::fs::remove_file(p)
+                };
+                r.with_context(|| format!("--force: cannot remove {}", p.display()))?;
+            }
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            _lock: lock,
+        })
+    }
+
+    /// The folder.
+    pub fn path(&self) -> &Path {
+        &self.dir
+    }
+}
+
 /// UTC now, RFC 3339.
 pub fn now_utc() -> String {
     chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Secs, true)
@@ -116,18 +195,16 @@ pub fn write_trace(
 ) -> Result<()> {
     let mut w = csv::Writer::from_path(path)
         .with_context(|| format!("cannot create {}", path.display()))?;
-    w.write_record(header())?;
+    let named = || format!("cannot write {}", path.display());
+    w.write_record(header()).with_context(named)?;
     let ts = reference.ts;
     let mut row: Vec<String> = Vec::with_capacity(30);
     for run in runs {
-        for (k, r) in run.records.iter().enumerate() {
-            let rf = &reference.rows[k];
-            let next = run
-                .records
-                .get(k + 1)
-                .map(|n| (n.qd_true, n.sample.tau_applied))
-                .or(run.after.map(|(s, qd)| (qd, s.tau_applied)));
-            let truth = next.map(|(qd1, tau1)| (qd1 - r.qd_true) / ts - tau1 / m_bar);
+        for (i, r) in run.records.iter().enumerate() {
+            let rf = &reference.rows[r.sample.k as usize];
+            let truth = run
+                .next_of(i)
+                .map(|(qd1, tau1)| (qd1 - r.qd_true) / ts - tau1 / m_bar);
             row.clear();
             row.push(run.law.name().into());
             row.push(r.sample.k.to_string());
@@ -149,10 +226,10 @@ pub fn write_trace(
             opt3(truth.as_ref());
             row.push(r.fate.name().into());
             row.push(drives(r).into());
-            w.write_record(&row)?;
+            w.write_record(&row).with_context(named)?;
         }
     }
-    w.flush()?;
+    w.flush().with_context(named)?;
     Ok(())
 }
 

@@ -129,7 +129,7 @@ fn figures(
     };
     let n = study.reference.n + 1;
     let err = |r: &LawRun, k: usize, j: usize| {
-        study.reference.rows[k].joint.q[j] - r.records[k].q_true[j]
+        study.reference.rows[r.records[k].sample.k as usize].joint.q[j] - r.records[k].q_true[j]
     };
     let tau = |r: &LawRun, k: usize, j: usize| r.records[k].tau[j];
     let panels = |f: &dyn Fn(&LawRun, usize, usize) -> f64,
@@ -208,7 +208,15 @@ fn figures(
 }
 
 /// Runs the study into `out`.
-pub fn run(mode: LoopMode, out: &Path, command: &str, progress: bool) -> Result<PaperSummary> {
+/// `out` must be empty or new unless `force`.
+pub fn run(
+    mode: LoopMode,
+    out: &Path,
+    force: bool,
+    command: &str,
+    progress: bool,
+) -> Result<PaperSummary> {
+    let _folder = crate::output::RunFolder::claim(out, force)?;
     let t0 = Instant::now();
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let bar = crate::output::progress_bar(CONFIGS.len(), progress);
@@ -254,7 +262,7 @@ fn run_case(
     let table = paper_table(cfg.scenario.path).unwrap_or("-");
     let tau_max_nm = cfg.plant.tau_max_nm;
     let rel = PathBuf::from(preset.name()).join(&scn);
-    let o = run::run(cfg, mode, Some(out.join(&rel)), command)?;
+    let o = run::run(cfg, mode, Some(out.join(&rel)), false, command)?;
     let title = format!("{} ({} preset)", scn.to_uppercase(), preset.name());
     let figs = figures(
         &o.study,

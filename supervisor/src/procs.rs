@@ -102,11 +102,24 @@ impl Drop for Reaped {
 fn spawn(exe: &Path, args: &[String], log: &Path, name: &'static str) -> Result<Reaped> {
     let err =
         std::fs::File::create(log).with_context(|| format!("cannot create {}", log.display()))?;
-    let child = Command::new(exe)
-        .args(args)
+    let mut cmd = Command::new(exe);
+    cmd.args(args)
         .stdin(Stdio::null())
         .stdout(Stdio::null())
-        .stderr(err)
+        .stderr(err);
+    // The terminal's Ctrl-C and hang-up reach the whole process group, and may come before the
+    // child has set up its own signal handling: it starts with both ignored (kept across exec),
+    // and the supervisor stops it in order.
+    // SAFETY: signal() is async-signal-safe; nothing else runs between fork and exec.
+    unsafe {
+        use std::os::unix::process::CommandExt;
+        cmd.pre_exec(|| {
+            libc::signal(libc::SIGINT, libc::SIG_IGN);
+            libc::signal(libc::SIGHUP, libc::SIG_IGN);
+            Ok(())
+        });
+    }
+    let child = cmd
         .spawn()
         .with_context(|| format!("cannot start {} (expected next to deltaloop: build all binaries with `cargo build --release`)", exe.display()))?;
     Ok(Reaped(Some(child), name))
@@ -226,20 +239,24 @@ impl Pair {
     }
 }
 
-/// Polls the control channel until `done` says a handshake step is complete, failing (with the
-/// children's stderr) if a child exits first or the handshake timeout passes.
+/// Polls the control channel until `done` says a handshake step is complete (Ok(true)), failing
+/// (with the children's stderr) if a child exits first or the handshake timeout passes. Ok(false)
+/// if Ctrl-C / SIGTERM / SIGHUP arrived first.
 fn await_control(
     obs: &Observer,
     pair: &mut Pair,
     step: &str,
     done: &mut dyn FnMut(&ControlMsg) -> bool,
-) -> Result<()> {
+) -> Result<bool> {
     let deadline = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
     loop {
         while let Some(m) = obs.control.1.receive().ipc("receive control")? {
             if done(m.payload()) {
-                return Ok(());
+                return Ok(true);
             }
+        }
+        if crate::signals::interrupted() {
+            return Ok(false);
         }
         pair.check_alive()?;
         if rt::now_ns() > deadline {
@@ -253,10 +270,11 @@ fn await_control(
     }
 }
 
-/// READY from both children, the reference to the controller, ARMED from it.
-fn handshake(obs: &Observer, pair: &mut Pair, study: &Study) -> Result<()> {
+/// READY from both children, the reference to the controller, ARMED from it. Ok(false) if the
+/// run was interrupted first.
+fn handshake(obs: &Observer, pair: &mut Pair, study: &Study) -> Result<bool> {
     let (mut plant_ready, mut ctrl_ready) = (false, false);
-    await_control(
+    let ready = await_control(
         obs,
         pair,
         "the plant/controller pair reporting ready",
@@ -269,6 +287,9 @@ fn handshake(obs: &Observer, pair: &mut Pair, study: &Study) -> Result<()> {
             plant_ready && ctrl_ready
         },
     )?;
+    if !ready {
+        return Ok(false);
+    }
     let rows = &study.reference.rows;
     let sample = obs
         .reference
@@ -357,13 +378,14 @@ fn observe(
     let cfg = &study.config;
     let n = study.reference.n as u64;
     let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
-    let expected_ns = (n + 2) * ts_ns * 20 + 10_000_000_000;
-    let give_up =
-        rt::now_ns() + expected_ns.max(u64::from(cfg.loop_.silence_timeout_ms) * 3_000_000);
     // Bounded waits: after STOP, or after one child exits early, the other gets the safe stop
     // (plus the silence timeout for the plant to notice a dead controller), then it is stopped.
+    // The overall limit leaves room for the whole safe stop too (regression: a 60 s safe stop
+    // was cut off after 14 s, and the plant's reason with it).
     let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
     let grace_ns = u64::from(cfg.faults.safe_stop_ms) * 1_000_000 + 2_000_000_000;
+    let expected_ns = (n + 2) * ts_ns * 20 + 10_000_000_000;
+    let give_up = rt::now_ns() + expected_ns.max(silence_ns * 3) + silence_ns + grace_ns;
     let mut stop_sent: Option<u64> = None;
     let mut first_exit: Option<(u64, &'static str)> = None;
     loop {
@@ -421,10 +443,34 @@ pub fn run_law(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Resul
     let Some(layout) = mode.layout(cfg) else {
         bail!("mode {mode} runs no processes");
     };
+    // A full /dev/shm would kill a child with SIGBUS mid-set-up: say so up front instead.
+    if let Some(free) = ipc::shm_free_bytes() {
+        ipc::check_shm(ipc::shm_needed_bytes(study.reference.rows.len()), free)
+            .map_err(|e| anyhow!(e))?;
+    }
     let rid = new_run_id();
     let obs = Observer::open(&rid, study.reference.rows.len())?;
     let mut pair = Pair::spawn(&rid, law, mode, run_dir)?;
-    handshake(&obs, &mut pair, study)?;
+    let ready = match handshake(&obs, &mut pair, study) {
+        Ok(r) => r,
+        Err(e) => {
+            // A child that died during set-up leaves a half-created node: remove it now.
+            drop(pair);
+            drop(obs);
+            let removed = ipc::remove_dead_nodes();
+            return Err(if removed.is_empty() {
+                e
+            } else {
+                anyhow!(
+                    "{e:#}; removed the iceoryx2 resources of the {} dead node(s) it left",
+                    removed.len()
+                )
+            });
+        }
+    };
+    if !ready {
+        return Ok(stopped_before_start(&obs, pair, law, study, rid));
+    }
 
     let sched_warnings = rt::apply(&rt::Sched {
         core: Layout::cpu(layout.supervisor_cpu),
@@ -486,6 +532,43 @@ pub fn run_law(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Resul
     })
 }
 
+/// Ctrl-C (or SIGTERM, SIGHUP) during the handshake: no START is sent; STOP releases both
+/// children, which exit at once; the run holds no tick.
+fn stopped_before_start(
+    obs: &Observer,
+    mut pair: Pair,
+    law: Law,
+    study: &Study,
+    run_id: String,
+) -> ProcessRun {
+    let _ = obs
+        .control
+        .0
+        .send_copy(ControlMsg::new(ControlKind::Stop, Sender::Supervisor));
+    // A child that had not subscribed yet misses STOP: dropping the pair sends it SIGTERM.
+    let end = rt::now_ns() + 200_000_000;
+    while (pair.plant.exited().is_none() || pair.controller.exited().is_none())
+        && rt::now_ns() < end
+    {
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let plant_log = pair.plant_log.clone();
+    let ctrl_log = pair.ctrl_log.clone();
+    drop(pair);
+    let mut child_messages = read_log(&plant_log);
+    child_messages.extend(read_log(&ctrl_log));
+    let mut rec = Recorder::new(law, study.reference.n);
+    rec.interrupt();
+    ProcessRun {
+        fault: None,
+        interrupted: true,
+        run_id,
+        run: rec.finish(None),
+        timing: Timing::default(),
+        child_messages,
+    }
+}
+
 /// Feeds the observed streams through the [`Recorder`], tick by tick, exactly as the in-process
 /// loop feeds it.
 fn record(
@@ -500,11 +583,24 @@ fn record(
     if let Some(f) = cause {
         rec.fault(f.clone());
     }
+    // The last tick the supervisor saw anything of: a hole before it is a loss, not an end.
+    let last_seen = (0..streams.states.len())
+        .rev()
+        .find(|&i| {
+            streams.states[i].is_some() || streams.torques[i].is_some() || streams.tels[i].is_some()
+        })
+        .unwrap_or(0);
     for k in 0..=n {
         let (state, reply, tel) = (streams.states[k], streams.torques[k], streams.tels[k]);
         // A tick without telemetry never ran to its end (or the sample was lost): the loop
         // stopped here, unless the plant's telemetry says it held through a missing reply.
         let ran = tel.is_some() || reply.is_some();
+        if (state.is_none() || !ran) && k < last_seen {
+            // Regression: the supervisor stopped for 3 s lost part of the stream, and the run
+            // was called a divergence at the first hole, dropping every good tick after it.
+            rec.lost(k as u64);
+            continue;
+        }
         let Some(state) = state.filter(|_| ran) else {
             if interrupted {
                 rec.interrupt();
@@ -543,6 +639,7 @@ fn write_timing_csv(path: &Path, streams: &Streams) -> Result<()> {
     let (states, torques, tels) = (&streams.states, &streams.torques, &streams.tels);
     let mut w = csv::Writer::from_path(path)
         .with_context(|| format!("cannot create {}", path.display()))?;
+    let named = || format!("cannot write {}", path.display());
     w.write_record([
         "k",
         "deadline_ns",
@@ -555,7 +652,8 @@ fn write_timing_csv(path: &Path, streams: &Streams) -> Result<()> {
         "held",
         "clamped",
         "ctrl_skipped",
-    ])?;
+    ])
+    .with_context(named)?;
     let opt = |v: Option<u64>| v.map_or(String::new(), |x| x.to_string());
     for k in 0..tels.len().max(states.len()) {
         let (s, t, m) = (
@@ -579,9 +677,10 @@ fn write_timing_csv(path: &Path, streams: &Streams) -> Result<()> {
             flag(wire::TEL_HELD),
             flag(wire::TEL_CLAMPED),
             opt(t.map(|t| t.skipped)),
-        ])?;
+        ])
+        .with_context(named)?;
     }
-    w.flush()?;
+    w.flush().with_context(named)?;
     Ok(())
 }
 
@@ -651,9 +750,9 @@ fn fault_cause(ending: &Ending, pair: &Pair, streams: &Streams) -> Option<Fault>
             format!("the controller {what} ({line})")
         });
     }
+    let line = last_line(plant_log);
     if plant.is_some() && !ok(plant) {
         let what = plant.map_or("did not exit".into(), status_text);
-        let line = last_line(plant_log);
         parts.push(if line.is_empty() {
             format!("the plant {what}")
         } else {
@@ -662,6 +761,16 @@ fn fault_cause(ending: &Ending, pair: &Pair, streams: &Streams) -> Option<Fault>
                 line.trim_start_matches("deltaloop-plant: ")
             )
         });
+    }
+    // The plant said why it stopped the loop (FAULT): keep that, even if it could not finish
+    // (still braking when it was stopped, or its log says something else last).
+    if let Some(f) = &streams.plant_fault
+        && !line.contains(&f.cause)
+    {
+        parts.push(format!(
+            "the plant stopped the loop at tick {}: {}",
+            f.tick, f.cause
+        ));
     }
     // How long after the dead peer's last message the supervisor saw it exit.
     if let Some((noticed, who)) = ending.first_exit {

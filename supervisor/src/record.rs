@@ -70,6 +70,22 @@ fn measured(s: &StateMsg) -> PlantSample {
     }
 }
 
+impl LawRun {
+    /// What the truth N_k of record `i` needs from tick k + 1: (q̇_{k+1} true, τᵃ_{k+1}); None
+    /// if tick k + 1 was not seen.
+    pub fn next_of(&self, i: usize) -> Option<(Vec3, Vec3)> {
+        let k = self.records[i].sample.k;
+        match self.records.get(i + 1) {
+            Some(r) if r.sample.k == k + 1 => Some((r.qd_true, r.sample.tau_applied)),
+            Some(_) => None,
+            None => self
+                .after
+                .filter(|(s, _)| s.k == k + 1)
+                .map(|(s, qd)| (qd, s.tau_applied)),
+        }
+    }
+}
+
 /// A loop fault: the tick it happened at and a one-line cause.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Fault {
@@ -88,14 +104,21 @@ pub enum Outcome {
     Interrupted { tick: u64 },
     /// Stopped by the loop fault in [`LawRun::fault`] (a process died, stalled, or the plant failed).
     Faulted,
+    /// The loop ran to its end, but the supervisor lost `lost` ticks of the stream (it fell behind
+    /// the loop; its queues overflowed), the first at `first`. Every tick it saw is recorded.
+    LostData { lost: u64, first: u64 },
 }
 
 /// A finished run of one law.
 #[derive(Clone, Debug)]
 pub struct LawRun {
     pub law: Law,
-    /// Ticks 0..=last, in order.
+    /// The recorded ticks, in order: 0..=last but for the lost ones.
     pub records: Vec<TickRecord>,
+    /// Ticks the supervisor never saw (its queues overflowed): not in `records`.
+    pub lost_ticks: u64,
+    /// The first lost tick, if any.
+    pub first_lost: Option<u64>,
     /// The plant state after the last recorded tick (tick last + 1), if the plant got there.
     pub after: Option<(PlantSample, Vec3)>,
     pub outcome: Outcome,
@@ -117,6 +140,8 @@ impl Recorder {
             run: LawRun {
                 law,
                 records: Vec::with_capacity(n + 1),
+                lost_ticks: 0,
+                first_lost: None,
                 after: None,
                 outcome: Outcome::Completed,
                 fault: None,
@@ -129,12 +154,13 @@ impl Recorder {
     /// breaks the divergence rule; the caller must stop. Call [`Recorder::applied`] next.
     pub fn tick(&mut self, state: &StateMsg, reply: Option<&TorqueMsg>, q_des: &Vec3) -> bool {
         let sample = measured(state);
-        self.hold_previous(sample.tau_applied);
+        self.hold_previous(sample.k, sample.tau_applied);
         // A reply for tick k says how many older states the controller skipped to reach it.
         if let Some(r) = reply {
             let skipped = usize::try_from(r.skipped).unwrap_or(usize::MAX);
+            let oldest = state.tick.saturating_sub(r.skipped);
             for prev in self.run.records.iter_mut().rev().take(skipped) {
-                if prev.fate == ReplyFate::Missed {
+                if prev.sample.k >= oldest && prev.fate == ReplyFate::Missed {
                     prev.fate = ReplyFate::Skipped;
                 }
             }
@@ -190,13 +216,22 @@ impl Recorder {
         }
     }
 
-    /// A tick without a reply counts the torque the drives held over it: τᵃ of the next state.
-    fn hold_previous(&mut self, tau_next: Vec3) {
+    /// A tick without a reply counts the torque the drives held over it: τᵃ of the next state
+    /// (tick `next`; nothing is patched across a lost tick).
+    fn hold_previous(&mut self, next: u64, tau_next: Vec3) {
         if let Some(prev) = self.run.records.last_mut()
             && prev.out.is_none()
+            && prev.sample.k + 1 == next
         {
             prev.tau = tau_next;
         }
+    }
+
+    /// Tick k never reached the supervisor (its queues overflowed while it was not draining): it
+    /// is counted, and has no row.
+    pub fn lost(&mut self, k: u64) {
+        self.run.lost_ticks += 1;
+        self.run.first_lost.get_or_insert(k);
     }
 
     /// Marks what the plant did over the last recorded tick, from its telemetry (None: not seen).
@@ -236,9 +271,17 @@ impl Recorder {
     pub fn finish(mut self, after: Option<&StateMsg>) -> LawRun {
         self.run.after = after.map(|s| {
             let sample = measured(s);
-            self.hold_previous(sample.tau_applied);
+            self.hold_previous(sample.k, sample.tau_applied);
             (sample, Vec3::from(s.qd_true))
         });
+        if self.run.outcome == Outcome::Completed
+            && let Some(first) = self.run.first_lost
+        {
+            self.run.outcome = Outcome::LostData {
+                lost: self.run.lost_ticks,
+                first,
+            };
+        }
         self.run
     }
 }

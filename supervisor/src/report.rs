@@ -41,6 +41,7 @@ fn status(m: &LawMetrics) -> String {
         (Some(k), _, _) => format!("diverged at tick {k}"),
         (_, Some(k), _) => format!("interrupted at tick {k}"),
         (_, _, Some(k)) => format!("FAULT at tick {k}"),
+        _ if m.lost_data.is_some() => format!("LOST DATA ({} ticks)", m.lost_ticks),
         _ => "ok".into(),
     }
 }

@@ -75,20 +75,25 @@ pub fn load_config(path: &Path, o: &Overrides) -> Result<RunConfig> {
 }
 
 /// Runs every law of `cfg` in `mode` and writes the run folder `out` (default `runs/<time>-<name>`).
+///
+/// `out` must be empty or new unless `force` (see [`output::RunFolder::claim`]).
 pub fn run(
     cfg: RunConfig,
     mode: LoopMode,
     out: Option<PathBuf>,
+    force: bool,
     command: &str,
 ) -> Result<RunOutput> {
     let started = output::now_utc();
     let study = Study::new(cfg).context("the scenario's reference leaves the robot's workspace")?;
     let cfg = &study.config;
-    let dir = out.unwrap_or_else(|| output::default_run_dir(&cfg.name));
+    let folder = output::RunFolder::claim(
+        &out.unwrap_or_else(|| output::default_run_dir(&cfg.name)),
+        force,
+    )?;
+    let dir = folder.path().to_path_buf();
     // The resolved config goes first, and only here: the child processes read it, and it
     // documents a failed run. write_run_folder adds the results next to it.
-    std::fs::create_dir_all(&dir)
-        .with_context(|| format!("cannot create run folder {}", dir.display()))?;
     output::write_text(&dir.join("config.toml"), &cfg.to_toml_string())?;
     let laws = cfg.controller.laws.clone();
     let mut notes = Vec::new();
@@ -103,6 +108,7 @@ pub fn run(
     let mut run_ids = Vec::new();
     // A fault or an interrupt ends the run after this law; the folder is still written.
     let mut stopped: Option<(Law, Option<String>)> = None;
+    let mut failed: Option<anyhow::Error> = None;
     let (runs, timings): (Vec<LawRun>, Vec<Option<Timing>>) = match mode {
         LoopMode::Inproc => (inproc::run_laws(&study, &laws), vec![None; laws.len()]),
         pm => {
@@ -120,20 +126,32 @@ pub fn run(
                 if stopped.is_some() || crate::signals::interrupted() {
                     break;
                 }
-                let r = procs::run_law(&study, law, pm, &dir)
-                    .with_context(|| format!("{} run of `{law}`", mode.name()))?;
+                // A law that fails to run (or to write its files: a full disk) ends the run, but
+                // the laws before it still get their trace, summary and report.
+                let r = match procs::run_law(&study, law, pm, &dir) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        failed = Some(e.context(format!("{} run of `{law}`", mode.name())));
+                        break;
+                    }
+                };
                 for m in r.child_messages {
                     if !notes.contains(&m) {
                         notes.push(m);
                     }
                 }
-                r.timing.write_hgrm(&dir, &format!("{law}."))?;
+                if let Err(e) = r.timing.write_hgrm(&dir, &format!("{law}.")) {
+                    failed = Some(e.context(format!("{} run of `{law}`", mode.name())));
+                }
                 run_ids.push((law, r.run_id));
                 if r.interrupted || r.fault.is_some() {
                     stopped = Some((law, r.fault.as_ref().map(|f| f.cause.clone())));
                 }
                 runs.push(r.run);
                 timings.push(Some(r.timing));
+                if failed.is_some() {
+                    break;
+                }
             }
             (runs, timings)
         }
@@ -187,6 +205,12 @@ pub fn run(
     if mode.is_process() {
         table.push_str(&report::timing_table(&metrics, &timing_summaries));
     }
+    if let Some(e) = failed {
+        return Err(e.context(format!(
+            "the laws that finished are kept in {}",
+            dir.display()
+        )));
+    }
     if let Some((law, cause)) = &stopped {
         return Err(match cause {
             Some(c) => anyhow::anyhow!(
@@ -199,6 +223,15 @@ pub fn run(
     }
     if crate::signals::interrupted() {
         return Err(anyhow::Error::new(Interrupted(dir.clone())));
+    }
+    if let Some(m) = metrics.iter().find(|m| m.lost_data.is_some()) {
+        anyhow::bail!(
+            "{} run of `{}` lost data: {} (in {})",
+            mode.name(),
+            m.law,
+            m.lost_data.as_deref().unwrap_or_default(),
+            dir.display()
+        );
     }
     Ok(RunOutput {
         dir,
@@ -241,7 +274,7 @@ mod tests {
         let expected = cfg.to_toml_string();
         let dir = std::env::temp_dir().join(format!("deltaloop-run-cfg-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        let o = run(cfg, LoopMode::Inproc, Some(dir.clone()), "test");
+        let o = run(cfg, LoopMode::Inproc, Some(dir.clone()), false, "test");
         let written = std::fs::read_to_string(dir.join("config.toml"));
         let others: Vec<bool> = ["trace.csv", "summary.json", "report.md"]
             .iter()

@@ -9,8 +9,8 @@ use crate::plot::{self, Panel, Series};
 use crate::procs;
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
-use deltaloop_config::config::PathKind;
-use deltaloop_config::{Law, LoopMode, Preset, RunConfig};
+use deltaloop_config::config::{self as cfgfile, PathKind};
+use deltaloop_config::{ConfigError, Law, LoopMode, Preset, RunConfig};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -51,9 +51,13 @@ pub struct Row {
     pub tde_delay_samples: u32,
     pub transport_delay_samples: u32,
     pub compute_delay_us: u32,
-    /// ok | diverged | error
+    /// `ok`; `diverged` (the divergence rule ended the run); `stopped` (a loop fault ended it,
+    /// e.g. a controller too slow for its deadlines); `interrupted` (Ctrl-C / SIGTERM cut the
+    /// point short: not a result, no metrics); `error` (the point could not run).
     pub status: String,
+    /// Set only for `diverged`.
     pub diverged_at_tick: Option<u64>,
+    /// Why, for every status but `ok`.
     pub reason: String,
     /// Max over joints of the RMS joint error, rad.
     pub rms_rad: f64,
@@ -69,7 +73,16 @@ pub struct Row {
     pub hf_torque_share: f64,
     pub clamp_count: u64,
     pub deadline_misses: Option<u64>,
+    /// Empty when the run has no round-trip sample (never 0 for "no data").
     pub round_trip_p999_us: Option<f64>,
+}
+
+impl Row {
+    /// Whether the row is a result (every status but `interrupted`: a point cut short by
+    /// Ctrl-C / SIGTERM measured nothing complete).
+    pub fn is_result(&self) -> bool {
+        self.status != "interrupted"
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -83,11 +96,77 @@ struct Job {
     realtime: bool,
 }
 
+impl std::fmt::Display for Job {
+    /// `s1/matched/tdc ℓ=1 d=0`, and `c=200us (realtime)` for the compute-delay axis.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}/{}/{} ℓ={} d={}",
+            self.scenario.name(),
+            self.preset.name(),
+            self.law,
+            self.ell,
+            self.d
+        )?;
+        if self.realtime {
+            write!(f, " c={}us (realtime)", self.compute_us)?;
+        }
+        Ok(())
+    }
+}
+
 /// A metric read off a row.
 type Metric = fn(&Row) -> f64;
 
 fn maxj(v: [f64; 3]) -> f64 {
     v.into_iter().fold(0.0, f64::max)
+}
+
+/// Status and reason of a point (see [`Row::status`]). An interrupt comes first (the point did
+/// not finish, whatever else happened), then a loop fault (a stop on a fault is not a
+/// divergence, even when the robot drifted past the bound while the plant held the torque of
+/// a silent controller), then the divergence rule.
+fn status(m: Option<&LawMetrics>, err: Option<&str>) -> (&'static str, String) {
+    let Some(m) = m else {
+        let e = err.filter(|e| !e.is_empty()).unwrap_or("no result");
+        return ("error", e.to_string());
+    };
+    if let Some(e) = err {
+        return ("error", e.to_string());
+    }
+    let nonempty = |s: &Option<String>| s.clone().filter(|s| !s.trim().is_empty());
+    if let Some(k) = m.interrupted_at_tick {
+        return ("interrupted", format!("interrupted at tick {k}"));
+    }
+    if let Some(f) = nonempty(&m.fault).or_else(|| m.fault_at_tick.map(|_| "loop fault".into())) {
+        // The fault text usually names its tick already; otherwise say it.
+        let at = match m.fault_at_tick {
+            Some(k) if !f.contains(&format!("tick {k}")) => format!("fault at tick {k}: "),
+            _ => String::new(),
+        };
+        let drift = m.diverged_at_tick.map_or(String::new(), |k| {
+            format!(
+                " (the tracking error had passed the divergence bound at tick {k}: {})",
+                nonempty(&m.diverged_reason).unwrap_or_else(|| "diverged".into())
+            )
+        });
+        return ("stopped", format!("{at}{f}{drift}"));
+    }
+    if let Some(k) = m.diverged_at_tick {
+        let why = nonempty(&m.diverged_reason)
+            .unwrap_or_else(|| format!("diverged at tick {k} (no reason recorded)"));
+        return ("diverged", why);
+    }
+    if !m.completed {
+        return (
+            "stopped",
+            format!(
+                "the run ended after tick {} without a recorded cause",
+                m.ticks
+            ),
+        );
+    }
+    ("ok", String::new())
 }
 
 fn row(
@@ -97,25 +176,26 @@ fn row(
     err: Option<String>,
     timing: Option<&crate::timing::TimingSummary>,
 ) -> Row {
-    let (status, reason) = match (m, &err) {
-        (_, Some(e)) => ("error".to_string(), e.clone()),
-        (Some(m), None) if !m.completed => (
-            "diverged".into(),
-            m.diverged_reason.clone().unwrap_or_default(),
-        ),
-        _ => ("ok".into(), String::new()),
+    let (status, reason) = status(m, err.as_deref());
+    // A point that did not finish carries no metrics: nothing in it is a result.
+    let (m, timing) = if status == "interrupted" {
+        (None, None)
+    } else {
+        (m, timing)
     };
     let nan = f64::NAN;
     Row {
-        scenario: format!("{:?}", job.scenario).to_lowercase(),
+        scenario: job.scenario.name().into(),
         preset: job.preset.name().into(),
         law: job.law,
         mode,
         tde_delay_samples: job.ell,
         transport_delay_samples: job.d,
         compute_delay_us: job.compute_us,
-        status,
-        diverged_at_tick: m.and_then(|m| m.diverged_at_tick),
+        status: status.into(),
+        diverged_at_tick: m
+            .and_then(|m| m.diverged_at_tick)
+            .filter(|_| status == "diverged"),
         reason,
         rms_rad: m.map_or(nan, |m| maxj(m.rms_rad)),
         max_abs_err_rad: m.map_or(nan, |m| maxj(m.max_abs_err_rad)),
@@ -128,7 +208,9 @@ fn row(
         hf_torque_share: m.map_or(nan, |m| maxj(m.hf_torque_share)),
         clamp_count: m.map_or(0, |m| m.clamp_count),
         deadline_misses: timing.map(|t| t.deadline_misses),
-        round_trip_p999_us: timing.map(|t| t.round_trip.p999_us),
+        round_trip_p999_us: timing
+            .filter(|t| t.round_trip.count > 0)
+            .map(|t| t.round_trip.p999_us),
     }
 }
 
@@ -136,8 +218,8 @@ fn row(
 fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
     let mut c = base.clone();
     c.name = format!(
-        "{:?}-{}-{}-l{}-d{}-c{}",
-        job.scenario,
+        "{}-{}-{}-l{}-d{}-c{}",
+        job.scenario.name(),
         job.preset.name(),
         job.law,
         job.ell,
@@ -192,54 +274,119 @@ fn run_job(base: &RunConfig, job: &Job, mode: LoopMode, dir: &Path) -> Row {
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(attempt)) {
         Ok(Ok((m, t))) => row(job, mode, Some(&m), None, t.as_ref()),
         Ok(Err(e)) => row(job, mode, None, Some(format!("{e:#}")), None),
-        Err(p) => row(
-            job,
-            mode,
-            None,
-            Some(format!(
-                "panic: {:?}",
-                p.downcast_ref::<String>()
-                    .cloned()
-                    .or(p.downcast_ref::<&str>().map(|s| s.to_string()))
-            )),
-            None,
-        ),
+        Err(p) => {
+            let what = p
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "(no message)".into());
+            row(job, mode, None, Some(format!("panic: {what}")), None)
+        }
     }
 }
 
-/// Loads and checks a sweep file; returns it with the base config resolved.
-pub fn load(path: &Path) -> Result<(SweepFile, RunConfig)> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read sweep file {}", path.display()))?;
-    let sw: SweepFile = toml::from_str(&text).map_err(|e| {
-        anyhow::anyhow!(
-            "invalid sweep file {}: {}",
-            path.display(),
-            e.to_string().trim_end()
-        )
-    })?;
+/// The first value listed twice on a sweep axis, if any.
+fn repeated<T: PartialEq>(values: &[T]) -> Option<&T> {
+    values
+        .iter()
+        .enumerate()
+        .find(|&(i, v)| values[..i].contains(v))
+        .map(|(_, v)| v)
+}
+
+/// Checks the sweep file's own keys: name, mode, and every axis non-empty and without repeats
+/// (a repeated value would run the same point twice, and `run` rejects a repeated law too).
+fn check(sw: &SweepFile) -> Result<()> {
+    if !cfgfile::name_is_valid(&sw.name) {
+        bail!(
+            "sweep key `name` = {} is out of range: {}",
+            cfgfile::show_str(&sw.name),
+            cfgfile::NAME_RULE
+        );
+    }
     if sw.mode == LoopMode::Realtime {
         bail!(
             "sweep key `mode` = \"{}\" is out of range: inproc or lockstep (the compute_delay_us axis runs in realtime by itself)",
             sw.mode
         );
     }
-    for (k, empty) in [
-        ("scenarios", sw.scenarios.is_empty()),
-        ("presets", sw.presets.is_empty()),
-        ("laws", sw.laws.is_empty()),
-        ("tde_delay_samples", sw.tde_delay_samples.is_empty()),
+    let axes: [(&str, Vec<String>, bool); 6] = [
+        (
+            "scenarios",
+            sw.scenarios.iter().map(|s| s.name().to_string()).collect(),
+            true,
+        ),
+        (
+            "presets",
+            sw.presets.iter().map(|p| p.name().to_string()).collect(),
+            true,
+        ),
+        (
+            "laws",
+            sw.laws.iter().map(|l| l.name().to_string()).collect(),
+            true,
+        ),
+        (
+            "tde_delay_samples",
+            sw.tde_delay_samples.iter().map(u32::to_string).collect(),
+            true,
+        ),
         (
             "transport_delay_samples",
-            sw.transport_delay_samples.is_empty(),
+            sw.transport_delay_samples
+                .iter()
+                .map(u32::to_string)
+                .collect(),
+            true,
         ),
-    ] {
-        if empty {
+        (
+            "compute_delay_us",
+            sw.compute_delay_us.iter().map(u32::to_string).collect(),
+            false,
+        ),
+    ];
+    for (k, values, required) in axes {
+        if required && values.is_empty() {
             bail!("sweep key `{k}` = [] is out of range: at least one value");
         }
+        if let Some(v) = repeated(&values) {
+            bail!("sweep key `{k}` lists {v} twice: each value at most once");
+        }
     }
+    Ok(())
+}
+
+/// Reads the sweep's base scenario. Its text is never echoed: `base` may name any file (say
+/// `/etc/passwd`), so a parse error says only where it is.
+fn load_base(path: &Path) -> Result<RunConfig> {
+    RunConfig::from_file(path).map_err(|e| match e {
+        ConfigError::Parse { position, .. } => anyhow::anyhow!(
+            "sweep key `base`: {} is not a valid scenario config (parse error{}; `deltaloop run` on it shows the message)",
+            cfgfile::show_path(path),
+            position
+                .map(|(l, c)| format!(" at line {l}, column {c}"))
+                .unwrap_or_default()
+        ),
+        e => anyhow::anyhow!("sweep key `base`: {e}"),
+    })
+}
+
+/// Loads and checks a sweep file; returns it with the base config resolved. Like a scenario
+/// file, the sweep file and its base are read only if they are regular files of at most
+/// [`cfgfile::MAX_FILE_BYTES`].
+pub fn load(path: &Path) -> Result<(SweepFile, RunConfig)> {
+    let shown = cfgfile::show_path(path);
+    let text = cfgfile::read_text_file(path)
+        .map_err(|reason| anyhow::anyhow!("cannot read sweep file {shown}: {reason}"))?;
+    let sw: SweepFile = toml::from_str(&text).map_err(|e| {
+        anyhow::anyhow!(
+            "invalid sweep file {shown}: {}",
+            cfgfile::toml_error_line(&text, &e)
+        )
+    })?;
+    check(&sw)?;
     let base_path = path.parent().unwrap_or(Path::new(".")).join(&sw.base);
-    let base = RunConfig::from_file(&base_path)?;
+    let base = load_base(&base_path)?;
     Ok((sw, base))
 }
 
@@ -298,7 +445,7 @@ pub fn run_loaded(
     // Every point must be a valid config before anything runs.
     let all = jobs(sw);
     for j in &all {
-        point_config(base, j).with_context(|| format!("sweep point {j:?}"))?;
+        point_config(base, j).with_context(|| format!("sweep point {j}"))?;
     }
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     std::fs::write(out.join("sweep.toml"), toml::to_string_pretty(sw)?)?;
@@ -308,7 +455,16 @@ pub fn run_loaded(
     let figures = plots(sw, &rows, out)?;
     let mut md = report(sw, &rows, &figures, path);
     if crate::signals::interrupted() {
-        md.insert_str(0, &format!("> **Interrupted** (Ctrl-C / SIGTERM) after {} of {} runs: the tables hold the finished ones.\n\n", rows.len(), all.len()));
+        let finished = rows.iter().filter(|r| r.is_result()).count();
+        let cut = rows.len() - finished;
+        let cut = if cut > 0 {
+            format!(
+                " The {cut} point(s) running at the stop are marked `interrupted` in sweep.csv and are not results."
+            )
+        } else {
+            String::new()
+        };
+        md.insert_str(0, &format!("> **Interrupted** (Ctrl-C / SIGTERM) after {finished} of {} runs: the tables hold the finished ones.{cut}\n\n", all.len()));
         std::fs::write(out.join("report.md"), md)?;
         return Err(anyhow::Error::new(crate::run::Interrupted(
             out.to_path_buf(),
@@ -445,7 +601,7 @@ fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String
             let mut panels = Vec::new();
             for &sc in &sw.scenarios {
                 for &pr in &sw.presets {
-                    let scn = format!("{sc:?}").to_lowercase();
+                    let scn = sc.name();
                     let series = sw
                         .laws
                         .iter()
@@ -491,9 +647,13 @@ fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String
 fn cell(r: Option<&Row>, get: Metric) -> String {
     match r {
         None => "–".into(),
-        Some(r) if r.status == "ok" => format!("{:.2e}", get(r)),
-        Some(r) if r.status == "diverged" => format!("div@{}", r.diverged_at_tick.unwrap_or(0)),
-        Some(_) => "error".into(),
+        Some(r) => match r.status.as_str() {
+            "ok" => format!("{:.2e}", get(r)),
+            "diverged" => format!("div@{}", r.diverged_at_tick.unwrap_or(0)),
+            "stopped" => "stopped".into(),
+            "interrupted" => "–".into(),
+            _ => "error".into(),
+        },
     }
 }
 
@@ -531,15 +691,27 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
         sw.name,
         sw.description,
         path.display(),
-        rows.len(),
+        rows.iter().filter(|r| r.is_result()).count(),
         sw.mode
     );
-    let div = rows.iter().filter(|r| r.status == "diverged").count();
-    let err = rows.iter().filter(|r| r.status == "error").count();
+    let count = |st: &str| rows.iter().filter(|r| r.status == st).count();
+    let (div, stopped, err) = (count("diverged"), count("stopped"), count("error"));
+    // The stopped count only when there is one: a normal sweep's report stays as it was.
+    let stopped_count = if stopped > 0 {
+        format!("; stopped on a loop fault: {stopped}")
+    } else {
+        String::new()
+    };
     let _ = writeln!(
         s,
-        "Diverged: {div}; errors: {err}. A run diverges at the first tick with |e| > 0.5 rad, a non-finite value, or the robot leaving its workspace; it is recorded there (`div@tick`), never crashes the sweep.\n"
+        "Diverged: {div}{stopped_count}; errors: {err}. A run diverges at the first tick with |e| > 0.5 rad, a non-finite value, or the robot leaving its workspace; it is recorded there (`div@tick`), never crashes the sweep.\n"
     );
+    if stopped > 0 {
+        let _ = writeln!(
+            s,
+            "A stopped run ended on a loop fault, not by diverging: e.g. a controller that missed its torque budget `faults.controller_silence_ticks` times in a row, after which the plant braked to a safe stop. The fault is the row's `reason` in `sweep.csv`.\n"
+        );
+    }
     let tables: [(&str, Metric); 2] = [
         ("RMS joint error, max over joints (rad)", |r| r.rms_rad),
         ("TDE error RMS, max over joints (rad/s²)", |r| {
@@ -547,7 +719,7 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
         }),
     ];
     for &sc in &sw.scenarios {
-        let scn = format!("{sc:?}").to_lowercase();
+        let scn = sc.name();
         for &pr in &sw.presets {
             for (title, get) in tables {
                 let _ = writeln!(
@@ -595,20 +767,25 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
     if !sw.compute_delay_us.is_empty() {
         let _ = writeln!(
             s,
-            "## Controller compute delay (realtime)\n\n| scenario | preset | law | compute delay (µs) | status | RMS (rad) | misses | round trip p99.9 (µs) |\n|---|---|---|---|---|---|---|---|"
+            "## Controller compute delay (realtime)\n\n| scenario | preset | law | compute delay (µs) | status | RMS (rad) | misses | round trip p99.9 (µs) | reason |\n|---|---|---|---|---|---|---|---|---|"
         );
-        for r in rows.iter().filter(|r| r.mode == LoopMode::Realtime) {
+        for r in rows
+            .iter()
+            .filter(|r| r.mode == LoopMode::Realtime && r.is_result())
+        {
             let _ = writeln!(
                 s,
-                "| {} | {} | `{}` | {} | {} | {:.2e} | {} | {:.1} |",
+                "| {} | {} | `{}` | {} | {} | {:.2e} | {} | {} | {} |",
                 r.scenario,
                 r.preset,
                 r.law,
                 r.compute_delay_us,
                 r.status,
                 r.rms_rad,
-                r.deadline_misses.unwrap_or(0),
-                r.round_trip_p999_us.unwrap_or(f64::NAN)
+                r.deadline_misses.map_or("–".into(), |m| m.to_string()),
+                r.round_trip_p999_us
+                    .map_or("–".into(), |p| format!("{p:.1}")),
+                r.reason.replace('|', "\\|").replace('\n', " ")
             );
         }
         let _ = writeln!(s);
@@ -623,6 +800,323 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A scratch folder with a valid base, removed on drop.
+    struct Scratch(PathBuf);
+    impl Drop for Scratch {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+    fn scratch(tag: &str) -> Scratch {
+        let dir =
+            std::env::temp_dir().join(format!("deltaloop-sweep-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("base.toml"), "[scenario]\npath = \"s1\"\n").unwrap();
+        Scratch(dir)
+    }
+
+    const AXES: &str = "scenarios = [\"s1\"]\npresets = [\"matched\"]\nlaws = [\"tdc\"]\ntde_delay_samples = [1]\ntransport_delay_samples = [0]\n";
+
+    /// `load`'s error for a sweep file with `text` (the axes are appended when `axes`).
+    fn load_err(dir: &Path, text: &str) -> String {
+        let path = dir.join("sweep.toml");
+        std::fs::write(&path, text).unwrap();
+        let e = format!("{:#}", load(&path).unwrap_err());
+        assert!(!e.contains(['\n', '\r']), "one line: {e}");
+        e
+    }
+
+    #[test]
+    fn regression_sweep_name_escapes_the_run_folder() {
+        let d = scratch("name");
+        for bad in [
+            "../../../../tmp/victim",
+            "a/b",
+            "x\ny",
+            "\u{200f}x",
+            ".x",
+            "-x",
+            "",
+        ] {
+            let e = load_err(
+                &d.0,
+                &format!(
+                    "name = {}\nbase = \"base.toml\"\n{AXES}",
+                    toml::Value::from(bad)
+                ),
+            );
+            assert_eq!(
+                e,
+                format!(
+                    "sweep key `name` = {} is out of range: {}",
+                    cfgfile::show_str(bad),
+                    cfgfile::NAME_RULE
+                )
+            );
+        }
+    }
+
+    #[test]
+    fn regression_sweep_rejects_duplicate_axis_values() {
+        let d = scratch("dup");
+        let head = "name = \"dup\"\nbase = \"base.toml\"\n";
+        for (key, list, shown) in [
+            ("laws", "[\"tdc\", \"pid\", \"tdc\"]", "tdc"),
+            ("scenarios", "[\"s1\", \"s1\"]", "s1"),
+            ("presets", "[\"paper\", \"paper\"]", "paper"),
+            ("tde_delay_samples", "[1, 2, 2]", "2"),
+            ("transport_delay_samples", "[0, 0]", "0"),
+            ("compute_delay_us", "[50, 50]", "50"),
+        ] {
+            let axes: String = AXES
+                .lines()
+                .filter(|l| !l.starts_with(&format!("{key} ")))
+                .map(|l| format!("{l}\n"))
+                .collect();
+            let e = load_err(&d.0, &format!("{head}{axes}{key} = {list}\n"));
+            assert_eq!(
+                e,
+                format!("sweep key `{key}` lists {shown} twice: each value at most once")
+            );
+        }
+    }
+
+    #[test]
+    fn regression_sweep_base_content_is_never_echoed() {
+        let d = scratch("base");
+        std::fs::write(d.0.join("secret.toml"), "password = \"hunter2\"\n").unwrap();
+        std::fs::write(d.0.join("syntax.toml"), "[scenario]\nhunter2 hunter2\n").unwrap();
+        for (base, at) in [
+            ("/etc/passwd", Some("line 1, column")),
+            ("secret.toml", Some("line 1, column 1")),
+            ("syntax.toml", Some("line 2, column 9")),
+        ] {
+            if !Path::new(base).is_absolute() || Path::new(base).is_file() {
+                let e = load_err(&d.0, &format!("name = \"b\"\nbase = {base:?}\n{AXES}"));
+                assert!(
+                    e.starts_with("sweep key `base`: ")
+                        && e.contains("is not a valid scenario config (parse error at ")
+                        && at.is_none_or(|a| e.contains(a))
+                        && !e.contains("root:")
+                        && !e.contains("hunter2")
+                        && !e.contains("password"),
+                    "{e}"
+                );
+            }
+        }
+        // A valid TOML base that fails validation names the key and the value, as `run` would.
+        std::fs::write(
+            d.0.join("range.toml"),
+            "[scenario]\npath = \"s1\"\nhold_s = -1.0\n",
+        )
+        .unwrap();
+        let e = load_err(
+            &d.0,
+            &format!("name = \"b\"\nbase = \"range.toml\"\n{AXES}"),
+        );
+        assert!(
+            e.starts_with("sweep key `base`: config key `scenario.hold_s` = -1"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn regression_sweep_and_base_files_must_be_small_regular_files() {
+        let d = scratch("read");
+        // The sweep file itself.
+        for (path, kind) in [
+            (d.0.clone(), "a directory"),
+            (PathBuf::from("/dev/zero"), "a character device"),
+        ] {
+            let e = format!("{:#}", load(&path).unwrap_err());
+            assert_eq!(
+                e,
+                format!(
+                    "cannot read sweep file {}: it is {kind}, not a regular file",
+                    path.display()
+                )
+            );
+        }
+        let big = d.0.join("big.toml");
+        std::fs::write(&big, "#".repeat(cfgfile::MAX_FILE_BYTES as usize + 1)).unwrap();
+        let e = format!("{:#}", load(&big).unwrap_err());
+        assert!(e.contains("larger than 1 MiB"), "{e}");
+        // Its base.
+        for base in ["/dev/zero", "."] {
+            let e = load_err(&d.0, &format!("name = \"b\"\nbase = {base:?}\n{AXES}"));
+            assert!(
+                e.starts_with("sweep key `base`: cannot read config file ")
+                    && e.ends_with("not a regular file"),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
+    fn regression_sweep_parse_error_is_one_line() {
+        let d = scratch("parse");
+        let e = load_err(
+            &d.0,
+            &format!("name = \"p\"\nbase = \"base.toml\"\n{AXES}lawz = 1\n"),
+        );
+        assert!(
+            e.contains("invalid sweep file ")
+                && e.contains(": unknown field `lawz`, expected one of")
+                && e.ends_with(" at line 8, column 1"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn regression_sweep_point_error_has_no_debug_text() {
+        let d = scratch("point");
+        let path = d.0.join("sweep.toml");
+        std::fs::write(
+            &path,
+            "name = \"pt\"\nbase = \"base.toml\"\nscenarios = [\"s1\"]\npresets = [\"matched\"]\nlaws = [\"tdc\"]\ntde_delay_samples = [0]\ntransport_delay_samples = [0]\n",
+        )
+        .unwrap();
+        let (sw, base) = load(&path).unwrap();
+        let e = format!(
+            "{:#}",
+            run_loaded(&sw, &base, &path, &d.0.join("out"), false).unwrap_err()
+        );
+        assert_eq!(
+            e,
+            "sweep point s1/matched/tdc ℓ=0 d=0: config key `controller.tde_delay_samples` = 0 is out of range: 1 <= tde_delay_samples <= 10000 ticks"
+        );
+        let rt = Job {
+            scenario: PathKind::S2,
+            preset: Preset::Paper,
+            law: Law::TdeIs,
+            ell: 2,
+            d: 1,
+            compute_us: 200,
+            realtime: true,
+        };
+        assert_eq!(rt.to_string(), "s2/paper/tde-is ℓ=2 d=1 c=200us (realtime)");
+    }
+
+    /// Metrics of a real (short) run, to vary.
+    fn some_metrics() -> LawMetrics {
+        let cfg = RunConfig::from_toml_str(
+            "[scenario]\npath = \"s2\"\n[controller]\nlaws = [\"tdc\"]\n",
+            None,
+        )
+        .unwrap();
+        let study = Study::new(cfg).unwrap();
+        let run = inproc::run_law(&study, Law::Tdc);
+        metrics::compute(&run, &study.reference, &study.robot, &study.params)
+    }
+
+    #[test]
+    fn regression_sweep_row_status_and_reason() {
+        let job = Job {
+            scenario: PathKind::S2,
+            preset: Preset::Matched,
+            law: Law::Tdc,
+            ell: 1,
+            d: 0,
+            compute_us: 200,
+            realtime: true,
+        };
+        let ok = some_metrics();
+        assert!(ok.completed);
+        let rt = LoopMode::Realtime;
+        let empty_timing = crate::timing::Timing::default().summary();
+        assert_eq!(empty_timing.round_trip.count, 0);
+
+        let r = row(&job, rt, Some(&ok), None, Some(&empty_timing));
+        assert_eq!((r.status.as_str(), r.reason.as_str()), ("ok", ""));
+        // No round-trip sample: no percentile, not 0.
+        assert_eq!(r.round_trip_p999_us, None);
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.serialize(&r).unwrap();
+        let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        assert!(text.trim_end().ends_with(",0,"), "{text}");
+
+        // A controller too slow for its deadlines: the plant stops on a fault. Not a divergence,
+        // even if the error passed the bound while the torque was held.
+        let mut m = ok.clone();
+        m.completed = false;
+        m.fault_at_tick = Some(99);
+        m.fault = Some("no torque within the budget for 100 consecutive ticks".into());
+        let r = row(&job, rt, Some(&m), None, Some(&empty_timing));
+        assert_eq!(r.status, "stopped");
+        assert_eq!(
+            r.reason,
+            "fault at tick 99: no torque within the budget for 100 consecutive ticks"
+        );
+        m.diverged_at_tick = Some(120);
+        m.diverged_reason = Some("|e| > 0.5 rad".into());
+        let r = row(&job, rt, Some(&m), None, None);
+        assert_eq!((r.status.as_str(), r.diverged_at_tick), ("stopped", None));
+        assert!(r.reason.starts_with("fault at tick 99: ") && r.reason.contains("tick 120"));
+
+        // Interrupted: marked, no metrics, not a result.
+        let mut m = ok.clone();
+        m.completed = false;
+        m.interrupted_at_tick = Some(42);
+        let r = row(&job, rt, Some(&m), None, Some(&empty_timing));
+        assert_eq!(
+            (r.status.as_str(), r.reason.as_str()),
+            ("interrupted", "interrupted at tick 42")
+        );
+        assert!(!r.is_result() && r.rms_rad.is_nan() && r.deadline_misses.is_none());
+
+        // Diverged without a recorded reason still says why.
+        let mut m = ok.clone();
+        m.completed = false;
+        m.diverged_at_tick = Some(7);
+        let r = row(&job, rt, Some(&m), None, None);
+        assert_eq!(r.status, "diverged");
+        assert_eq!(r.diverged_at_tick, Some(7));
+        assert!(!r.reason.is_empty());
+        // Ended early with no cause at all: not ok, not diverged.
+        let mut m = ok.clone();
+        m.completed = false;
+        let r = row(&job, rt, Some(&m), None, None);
+        assert!(r.status == "stopped" && !r.reason.is_empty(), "{r:?}");
+        let r = row(&job, rt, None, Some("boom".into()), None);
+        assert_eq!((r.status.as_str(), r.reason.as_str()), ("error", "boom"));
+
+        // The report counts them apart and leaves the interrupted point out.
+        let sw: SweepFile = toml::from_str(
+            "name = \"r\"\nbase = \"b.toml\"\nscenarios = [\"s2\"]\npresets = [\"matched\"]\nlaws = [\"tdc\"]\ntde_delay_samples = [1]\ntransport_delay_samples = [0]\ncompute_delay_us = [200, 300]\n"
+        )
+        .unwrap();
+        let mut m = ok.clone();
+        m.completed = false;
+        m.fault_at_tick = Some(99);
+        m.fault = Some("too slow".into());
+        let stopped = row(&job, rt, Some(&m), None, Some(&empty_timing));
+        m.fault = None;
+        m.fault_at_tick = None;
+        m.interrupted_at_tick = Some(3);
+        let cut = row(
+            &Job {
+                compute_us: 300,
+                ..job.clone()
+            },
+            rt,
+            Some(&m),
+            None,
+            None,
+        );
+        let md = report(&sw, &[stopped, cut], &[], Path::new("s.toml"));
+        assert!(md.contains(" 1 runs;"), "{md}");
+        assert!(
+            md.contains("Diverged: 0; stopped on a loop fault: 1; errors: 0."),
+            "{md}"
+        );
+        assert!(
+            md.contains("| stopped |") && md.contains("fault at tick 99: too slow"),
+            "{md}"
+        );
+        assert!(!md.contains("interrupted"), "{md}");
+    }
 
     /// The file is read once: what `load` returned is what runs, even if the file is gone.
     #[test]

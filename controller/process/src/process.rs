@@ -114,7 +114,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         NAME,
         || ports.send_control(ControlKind::Ready),
     )?;
-    let Some(reference) = handshake(&ports)? else {
+    let Some(reference) = handshake(&ports, term)? else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
     let spin_ns = u64::from(layout.spin_us.unwrap_or(0)) * 1000;
@@ -122,14 +122,17 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
 }
 
 /// The handshake: take the reference (one slice sample), touch it, report ARMED, wait for START.
-/// None if the supervisor stopped the run first.
-fn handshake(ports: &Ports) -> Result<Option<iceoryx2::sample::Sample<Svc, [RefSample], ()>>> {
+/// None if the supervisor stopped the run first (STOP or SIGTERM).
+fn handshake(
+    ports: &Ports,
+    term: &AtomicBool,
+) -> Result<Option<iceoryx2::sample::Sample<Svc, [RefSample], ()>>> {
     let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
     let reference = loop {
         if let Some(r) = ports.reference.receive().ipc("receive reference")? {
             break r;
         }
-        if drain_control(&ports.control.1)?.1 {
+        if drain_control(&ports.control.1)?.1 || term.load(Ordering::Relaxed) {
             return Ok(None);
         }
         if rt::now_ns() > end {
@@ -146,6 +149,7 @@ fn handshake(ports: &Ports) -> Result<Option<iceoryx2::sample::Sample<Svc, [RefS
     loop {
         match drain_control(&ports.control.1)? {
             (_, true) => return Ok(None),
+            _ if term.load(Ordering::Relaxed) => return Ok(None),
             (true, _) => return Ok(Some(reference)),
             _ => {}
         }

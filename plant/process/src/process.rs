@@ -166,6 +166,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
     let Some(start) = wait_for_start(
         &ports.control.1,
         cfg.loop_.silence_timeout_ms.max(handshake_ms),
+        term,
     )?
     else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
@@ -417,10 +418,11 @@ fn stop_requested(sub: &Subscriber<Svc, ControlMsg, ()>) -> bool {
     false
 }
 
-/// Polls the control channel for START (1 ms steps) up to `timeout_ms`; None on STOP.
+/// Polls the control channel for START (1 ms steps) up to `timeout_ms`; None on STOP or SIGTERM.
 fn wait_for_start(
     sub: &Subscriber<Svc, ControlMsg, ()>,
     timeout_ms: u32,
+    term: &AtomicBool,
 ) -> Result<Option<ControlMsg>> {
     let end = rt::now_ns() + u64::from(timeout_ms) * 1_000_000;
     while rt::now_ns() < end {
@@ -430,6 +432,9 @@ fn wait_for_start(
                 Some(ControlKind::Stop) => return Ok(None),
                 _ => {}
             }
+        }
+        if term.load(Ordering::Relaxed) {
+            return Ok(None);
         }
         std::thread::sleep(std::time::Duration::from_millis(1));
     }

@@ -11,17 +11,25 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::Path;
 
-/// A config problem, naming the key, the value and what is allowed.
+/// A config problem, naming the key, the value and what is allowed. Every message is one line:
+/// echoed text has its control and format characters escaped and is cut to
+/// [`MAX_ECHO_CHARS`] characters.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum ConfigError {
-    /// The file could not be read.
+    /// The file could not be read (missing, not a regular file, too large, not UTF-8).
     #[error("cannot read config file {path}: {reason}")]
     Read { path: String, reason: String },
-    /// The text is not valid TOML for this schema (unknown key, wrong type, syntax).
-    #[error("invalid config{}: {message}", path.as_deref().map(|p| format!(" {p}")).unwrap_or_default())]
+    /// The text is not valid TOML for this schema (unknown key, wrong type, syntax), and where
+    /// (1-based line and column, in characters), if the parser said.
+    #[error(
+        "invalid config{}: {message}{}",
+        path.as_deref().map(|p| format!(" {p}")).unwrap_or_default(),
+        position.map(|(l, c)| format!(" at line {l}, column {c}")).unwrap_or_default()
+    )]
     Parse {
         path: Option<String>,
         message: String,
+        position: Option<(usize, usize)>,
     },
     /// A key has a value outside its allowed range.
     #[error("config key `{key}` = {value} is out of range: {allowed}")]
@@ -47,6 +55,16 @@ pub enum PathKind {
 }
 
 impl PathKind {
+    /// The config name (`s1`, `s2`, `s3`, `custom`).
+    pub fn name(self) -> &'static str {
+        match self {
+            PathKind::S1 => "s1",
+            PathKind::S2 => "s2",
+            PathKind::S3 => "s3",
+            PathKind::Custom => "custom",
+        }
+    }
+
     /// Motion duration T of the paper scenarios, s (None for `custom`: the segments say).
     pub fn paper_duration_s(self) -> Option<f64> {
         match self {
@@ -606,10 +624,255 @@ pub const MAX_TDE_DELAY: u32 = 10_000;
 /// things (one in the controller's estimate, one on the wire) and share a value by coincidence.
 pub const MAX_TRANSPORT_DELAY: u32 = 10_000;
 
+/// Largest accepted `plant.substeps`; the period bounds it further (RK4 step ≥ 1 µs).
+pub const MAX_SUBSTEPS: u32 = 1000;
+
+/// Largest config or sweep file read, bytes (1 MiB). A scenario file is a few hundred bytes.
+pub const MAX_FILE_BYTES: u64 = 1 << 20;
+
+/// Echoed user text (a value, a quoted part of a parser message) is cut to this many characters.
+pub const MAX_ECHO_CHARS: usize = 60;
+
+/// Longest parser message echoed, characters (the rest is cut with `…`).
+const MAX_MESSAGE_CHARS: usize = 300;
+
+/// Longest path echoed whole, characters (a longer one keeps its start and end).
+const MAX_PATH_CHARS: usize = 160;
+
+/// What a scenario or sweep `name` may be: it names a folder under `runs/`.
+pub const NAME_RULE: &str = "1 to 64 characters from A-Z a-z 0-9 . _ -, not starting with . or -";
+
+/// Pushes `c`, escaped as `{:?}` would when it is a control or format character (newline,
+/// right-to-left mark, …), so that no echoed text breaks the line or reorders it. With `quoted`,
+/// `"` and `\` are escaped too (the text is shown between our own quotes).
+fn push_escaped(out: &mut String, c: char, quoted: bool) {
+    let plain = matches!(c, '\'' | '"' | '\\') && !quoted;
+    if plain || c == '\'' {
+        out.push(c);
+    } else {
+        out.extend(c.escape_debug());
+    }
+}
+
+/// `s` escaped (see [`push_escaped`]) and cut to `max` characters of the original with `…`.
+fn escape_cut(s: &str, max: usize, quoted: bool) -> String {
+    let mut out = String::new();
+    for (i, c) in s.chars().enumerate() {
+        if i == max {
+            out.push('…');
+            break;
+        }
+        push_escaped(&mut out, c, quoted);
+    }
+    out
+}
+
+/// A user string as echoed in errors: quoted, escaped like `{:?}` (control and format
+/// characters visible), cut to [`MAX_ECHO_CHARS`] characters with `…`.
+pub fn show_str(s: &str) -> String {
+    format!("\"{}\"", escape_cut(s, MAX_ECHO_CHARS, true))
+}
+
+/// A path as echoed in errors: control and format characters escaped; a very long one keeps
+/// its start and its end around `…`.
+pub fn show_path(p: &Path) -> String {
+    let s = p.to_string_lossy();
+    let n = s.chars().count();
+    if n <= MAX_PATH_CHARS {
+        return escape_cut(&s, n, false);
+    }
+    let half = MAX_PATH_CHARS / 2;
+    let tail: String = s.chars().skip(n - half).collect();
+    format!(
+        "{}{}",
+        escape_cut(&s, half, false),
+        escape_cut(&tail, half, false)
+    )
+}
+
+/// A number as echoed in errors: plain between 1e-4 and 1e6, else in exponent form (`1e308`,
+/// not 309 digits).
+pub fn show_num(x: f64) -> String {
+    if x != 0.0 && x.is_finite() && !(1e-4..1e6).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        x.to_string()
+    }
+}
+
+/// A parser message made safe to echo on one line: control and format characters escaped,
+/// every quoted part (between backticks or double quotes, which is where the parser and serde
+/// put the offending text) cut to [`MAX_ECHO_CHARS`], and the whole to a few hundred characters.
+pub fn clean_message(msg: &str) -> String {
+    let mut out = String::new();
+    let mut chars = msg.trim_end().chars().peekable();
+    while let Some(c) = chars.next() {
+        if c == '`' || c == '"' {
+            // A quoted part: up to the matching delimiter (a `"` part may escape it with `\`).
+            let mut part = String::new();
+            let mut closed = false;
+            while let Some(d) = chars.next() {
+                if d == c {
+                    closed = true;
+                    break;
+                }
+                part.push(d);
+                if c == '"'
+                    && d == '\\'
+                    && let Some(e) = chars.next()
+                {
+                    part.push(e);
+                }
+            }
+            out.push(c);
+            out.push_str(&escape_cut(&part, MAX_ECHO_CHARS, false));
+            if closed {
+                out.push(c);
+            }
+        } else if c == '\n' {
+            out.push_str("; ");
+        } else {
+            push_escaped(&mut out, c, false);
+        }
+    }
+    if out.chars().count() > MAX_MESSAGE_CHARS {
+        out = out.chars().take(MAX_MESSAGE_CHARS).collect();
+        out.push('…');
+    }
+    out
+}
+
+/// Where a TOML error is: 1-based line and column (in characters) of the start of its span.
+pub fn toml_error_position(text: &str, e: &toml::de::Error) -> Option<(usize, usize)> {
+    let start = e.span()?.start.min(text.len());
+    let before = text.as_bytes().get(..start)?;
+    let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+    let line_start = before
+        .iter()
+        .rposition(|&b| b == b'\n')
+        .map_or(0, |i| i + 1);
+    let column = String::from_utf8_lossy(&before[line_start..])
+        .chars()
+        .count()
+        + 1;
+    Some((line, column))
+}
+
+/// A TOML error on one line: the parser's message (cleaned, see [`clean_message`]) and where,
+/// without the snippet of the offending line.
+pub fn toml_error_line(text: &str, e: &toml::de::Error) -> String {
+    let at = toml_error_position(text, e)
+        .map(|(l, c)| format!(" at line {l}, column {c}"))
+        .unwrap_or_default();
+    format!("{}{at}", clean_message(e.message()))
+}
+
+/// What kind of file a non-regular file is, for errors.
+fn file_kind(t: std::fs::FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return "a FIFO (named pipe)";
+        }
+        if t.is_char_device() {
+            return "a character device";
+        }
+        if t.is_block_device() {
+            return "a block device";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+    }
+    if t.is_dir() {
+        "a directory"
+    } else {
+        "a special file"
+    }
+}
+
+/// Reads a config-like text file: only a regular file (a FIFO would block, a device such as
+/// `/dev/zero` never ends), at most [`MAX_FILE_BYTES`], UTF-8. The error is the reason alone;
+/// the caller names the file.
+pub fn read_text_file(path: &Path) -> Result<String, String> {
+    use std::io::Read;
+    let too_big = || {
+        format!(
+            "it is larger than {} MiB, the limit for a config file",
+            MAX_FILE_BYTES >> 20
+        )
+    };
+    let regular = |m: &std::fs::Metadata| -> Result<(), String> {
+        let t = m.file_type();
+        if !t.is_file() {
+            return Err(format!("it is {}, not a regular file", file_kind(t)));
+        }
+        if m.len() > MAX_FILE_BYTES {
+            return Err(too_big());
+        }
+        Ok(())
+    };
+    // Check before opening: opening a FIFO for reading blocks until a writer comes.
+    regular(&std::fs::metadata(path).map_err(|e| e.to_string())?)?;
+    let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
+    // The path may have been replaced in between: check what was opened.
+    regular(&file.metadata().map_err(|e| e.to_string())?)?;
+    let mut bytes = Vec::new();
+    file.take(MAX_FILE_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| e.to_string())?;
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        return Err(too_big());
+    }
+    String::from_utf8(bytes).map_err(|e| {
+        format!(
+            "it is not UTF-8 text (invalid byte at offset {})",
+            e.utf8_error().valid_up_to()
+        )
+    })
+}
+
+/// Whether `name` may name a run folder: see [`NAME_RULE`].
+pub fn name_is_valid(name: &str) -> bool {
+    (1..=64).contains(&name.len())
+        && !name.starts_with(['.', '-'])
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-'))
+}
+
+/// The default name from a file stem: every character outside [`NAME_RULE`] becomes `_`, a
+/// leading `.` or `-` too, cut to 64 characters (`scenario` if nothing is left).
+fn name_from_stem(stem: &str) -> String {
+    let mut name: String = stem
+        .chars()
+        .take(64)
+        .enumerate()
+        .map(|(i, c)| {
+            let ok = c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-');
+            if ok && !(i == 0 && matches!(c, '.' | '-')) {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if name.is_empty() {
+        name = "scenario".into();
+    }
+    name
+}
+
 fn range(key: &str, value: impl fmt::Display, allowed: &str) -> ConfigError {
+    let value = value.to_string();
     ConfigError::Range {
         key: key.into(),
-        value: value.to_string(),
+        value: if value.chars().count() > MAX_ECHO_CHARS {
+            escape_cut(&value, MAX_ECHO_CHARS, false)
+        } else {
+            value
+        },
         allowed: allowed.into(),
     }
 }
@@ -618,8 +881,14 @@ fn check(key: &str, v: f64, ok: bool, allowed: &str) -> Result<(), ConfigError> 
     if v.is_finite() && ok {
         Ok(())
     } else {
-        Err(range(key, v, allowed))
+        Err(range(key, show_num(v), allowed))
     }
+}
+
+/// Seconds for an allowed range: rounded to 1 ns, so `(N − 1)·Ts` reads `0.7997`, not
+/// `0.7997000000000001`.
+fn secs(x: f64) -> String {
+    show_num((x * 1e9).round() / 1e9)
 }
 
 impl ScenarioSection {
@@ -682,11 +951,11 @@ impl PlantSection {
             self.tau_max_nm > 0.0 && self.tau_max_nm <= 1e4,
             "0 < tau_max_nm <= 10000 N m",
         )?;
-        if !(1..=1000).contains(&self.substeps) {
+        if !(1..=MAX_SUBSTEPS).contains(&self.substeps) {
             return Err(range(
                 "plant.substeps",
                 self.substeps,
-                "1 <= substeps <= 1000",
+                &format!("1 <= substeps <= {MAX_SUBSTEPS}"),
             ));
         }
         if self.transport_delay_samples > MAX_TRANSPORT_DELAY {
@@ -877,14 +1146,15 @@ impl RunConfig {
     /// Parses, fills the preset, and validates. `path` only labels errors.
     pub fn from_toml_str(text: &str, path: Option<&Path>) -> Result<Self, ConfigError> {
         let mut cfg: RunConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
-            path: path.map(|p| p.display().to_string()),
-            message: e.to_string().trim_end().to_string(),
+            path: path.map(show_path),
+            message: clean_message(e.message()),
+            position: toml_error_position(text, &e),
         })?;
         if cfg.name.is_empty() {
-            cfg.name = path
-                .and_then(|p| p.file_stem())
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "scenario".into());
+            cfg.name = path.and_then(|p| p.file_stem()).map_or_else(
+                || "scenario".into(),
+                |s| name_from_stem(&s.to_string_lossy()),
+            );
         }
         cfg.resolve_preset();
         let ts = cfg.loop_.ts_s;
@@ -898,11 +1168,12 @@ impl RunConfig {
         Ok(cfg)
     }
 
-    /// Reads and parses a file.
+    /// Reads and parses a file: a regular file of at most [`MAX_FILE_BYTES`] (see
+    /// [`read_text_file`]).
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
-            path: path.display().to_string(),
-            reason: e.to_string(),
+        let text = read_text_file(path).map_err(|reason| ConfigError::Read {
+            path: show_path(path),
+            reason,
         })?;
         Self::from_toml_str(&text, Some(path))
     }
@@ -935,12 +1206,68 @@ impl RunConfig {
 
     /// Checks every value against its allowed range, one section at a time.
     pub fn validate(&self) -> Result<(), ConfigError> {
+        if !name_is_valid(&self.name) {
+            return Err(ConfigError::Range {
+                key: "name".into(),
+                value: show_str(&self.name),
+                allowed: NAME_RULE.into(),
+            });
+        }
         self.scenario.validate()?;
         self.plant.validate()?;
         self.loop_.validate()?;
         self.sensor.validate()?;
         self.faults.validate()?;
-        self.controller.validate()
+        self.controller.validate()?;
+        self.validate_timing()
+    }
+
+    /// The keys bounded by the (already validated) control period Ts: every custom segment lasts
+    /// at least one period (so the run has at least one tick, and no segment falls between two
+    /// samples); the RK4 step Ts/substeps is at least 1 µs (the plant must keep up in realtime);
+    /// a payload step falls within the run.
+    fn validate_timing(&self) -> Result<(), ConfigError> {
+        let ts = self.loop_.ts_s;
+        for (i, seg) in self.scenario.segments.iter().enumerate() {
+            if seg.duration_s < ts {
+                return Err(range(
+                    &format!("scenario.segments[{i}].duration_s"),
+                    show_num(seg.duration_s),
+                    &format!(
+                        "Ts = {} s <= duration_s <= 3600 s (a segment lasts at least one control period)",
+                        secs(ts)
+                    ),
+                ));
+            }
+        }
+        // floor(Ts / 1 µs), tolerant of round-off (3e-4 s is 300 steps, not 299).
+        let max_substeps = ((ts * 1e6 + 1e-6).floor() as u32).min(MAX_SUBSTEPS);
+        if self.plant.substeps > max_substeps {
+            return Err(range(
+                "plant.substeps",
+                self.plant.substeps,
+                &format!(
+                    "1 <= substeps <= {max_substeps} for ts_s = {} s (the RK4 step ts_s/substeps must be >= 1 us)",
+                    secs(ts)
+                ),
+            ));
+        }
+        if let Some(t) = self.plant.payload_step_at_s {
+            let end = self.motion_duration_s() + self.scenario.hold_s;
+            let n = self.ticks(self.motion_duration_s());
+            if step_tick(t, ts) >= n {
+                return Err(range(
+                    "plant.payload_step_at_s",
+                    show_num(t),
+                    &format!(
+                        "0 <= payload_step_at_s <= {} s, the start of the last control period (motion + hold = {} s)",
+                        secs(n.saturating_sub(1) as f64 * ts),
+                        secs(end)
+                    ),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// Motion duration T of the scenario, s.
@@ -959,13 +1286,7 @@ impl RunConfig {
                 .plant
                 .payload_step_at_s
                 .unwrap_or(self.motion_duration_s() / 2.0);
-            let k = (t / self.loop_.ts_s).ceil();
-            // Guard against round-off pushing an exact multiple one tick up.
-            if ((k - 1.0) * self.loop_.ts_s - t).abs() < 1e-12 * t.max(1.0) {
-                (k - 1.0) as u64
-            } else {
-                k as u64
-            }
+            step_tick(t, self.loop_.ts_s)
         })
     }
 
@@ -975,9 +1296,21 @@ impl RunConfig {
     }
 }
 
+/// The first control tick k with k·Ts ≥ t.
+fn step_tick(t: f64, ts: f64) -> u64 {
+    let k = (t / ts).ceil();
+    // Guard against round-off pushing an exact multiple one tick up.
+    if ((k - 1.0) * ts - t).abs() < 1e-12 * t.max(1.0) {
+        (k - 1.0) as u64
+    } else {
+        k as u64
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::PathBuf;
 
     const MIN: &str = "[scenario]\npath = \"s1\"\n";
 
@@ -1176,6 +1509,213 @@ mod tests {
             .unwrap_err();
         let msg = e.to_string();
         assert!(msg.contains("lqr") && msg.contains("tdc-is-sta"), "{msg}");
+    }
+
+    /// One line, naming the key; for the assertions below.
+    fn err(text: &str) -> String {
+        let e = RunConfig::from_toml_str(text, Some(Path::new("configs/t.toml")))
+            .unwrap_err()
+            .to_string();
+        assert!(!e.contains('\n') && !e.contains('\r'), "not one line: {e}");
+        e
+    }
+
+    #[test]
+    fn regression_name_escapes_the_run_folder() {
+        for bad in [
+            "../../../../tmp/victim",
+            "a/b",
+            "x\ny",
+            "\u{202e}fdp.exe",
+            "\u{200f}abc",
+            ".hidden",
+            "-rf",
+            "..",
+            "tab\there",
+            "é",
+        ] {
+            let e = err(&format!("name = {}\n{MIN}", toml::Value::from(bad)));
+            let shown = show_str(bad);
+            assert_eq!(
+                e,
+                format!("config key `name` = {shown} is out of range: {NAME_RULE}"),
+                "{bad:?}"
+            );
+        }
+        // Control and format characters are visible, not acted upon.
+        assert!(err(&format!("name = \"x\\ny\"\n{MIN}")).contains(r#""x\ny""#));
+        assert!(err(&format!("name = \"\\u202eab\"\n{MIN}")).contains(r#""\u{202e}ab""#));
+        // A long name is cut in the message.
+        let e = err(&format!("name = \"{}\"\n{MIN}", "a".repeat(65)));
+        assert!(e.contains(&format!("\"{}…\"", "a".repeat(60))), "{e}");
+        for good in ["s2-fast", "A.b_c-1", "x", &"a".repeat(64)] {
+            let c = RunConfig::from_toml_str(&format!("name = {good:?}\n{MIN}"), None).unwrap();
+            assert_eq!(c.name, good);
+        }
+        // The default (the file stem) is made valid rather than rejected.
+        for (stem, name) in [
+            ("my scenario\n", "my_scenario_"),
+            (".x", "_x"),
+            ("-x", "_x"),
+            ("s1", "s1"),
+        ] {
+            let p = PathBuf::from(format!("/tmp/{stem}.toml"));
+            let c = RunConfig::from_toml_str(MIN, Some(&p)).unwrap();
+            assert_eq!(c.name, name, "{stem:?}");
+        }
+    }
+
+    #[test]
+    fn regression_parse_error_is_one_line_with_line_and_column() {
+        let e = err(&format!("{MIN}[plant]\nfrictoin = true\n"));
+        assert!(
+            e.starts_with(
+                "invalid config configs/t.toml: unknown field `frictoin`, expected one of"
+            ) && e.ends_with(" at line 4, column 1"),
+            "{e}"
+        );
+        let e = err("[scenario]\npath = \"s1\"\nhold_s = = 2\n");
+        assert!(e.ends_with("at line 3, column 10"), "{e}");
+        assert!(!e.contains('|') && !e.contains('^'), "no snippet: {e}");
+        // Columns count characters, not bytes.
+        let e = err("description = \"ℓℓ\" x\n[scenario]\npath = \"s1\"\n");
+        assert!(e.ends_with("at line 1, column 20"), "{e}");
+        // A value echoed by the parser has its control characters escaped.
+        let e = err("[scenario]\npath = \"s9\\nfoo\\u200f\"\n");
+        assert!(e.contains(r"`s9\nfoo\u{200f}`"), "{e}");
+    }
+
+    #[test]
+    fn regression_huge_values_are_echoed_compactly() {
+        let e = err(&format!("{MIN}[controller]\nm_bar = 1e308\n"));
+        assert_eq!(
+            e,
+            "config key `controller.m_bar` = 1e308 is out of range: 0 < m_bar <= 100 kg m^2"
+        );
+        let e = err(&format!("{MIN}[controller]\nkp = -1.5e-300\n"));
+        assert!(e.contains("`controller.kp` = -1.5e-300 is"), "{e}");
+        let e = err(&format!("{MIN}[controller]\nkp = 123456.5e10\n"));
+        assert!(e.contains("= 1.234565e15 is"), "{e}");
+        // Plain numbers stay plain.
+        let e = err(&format!("{MIN}[controller]\nkp = -2.5\n"));
+        assert!(e.contains("= -2.5 is"), "{e}");
+        // A 200 KB string is cut, whatever echoes it.
+        let long = "x".repeat(200_000);
+        for text in [
+            format!("[scenario]\npath = \"{long}\"\n"),
+            format!("{MIN}[faults]\ninject = \"{long}\"\n"),
+            format!("{MIN}[plant]\nsubsteps = \"{long}\"\n"),
+            format!("{MIN}{long} = 1\n"),
+            format!("name = \"{long}\"\n{MIN}"),
+        ] {
+            let e = err(&text);
+            assert!(
+                e.len() < 600 && e.contains('…'),
+                "{} chars: {}",
+                e.len(),
+                &e[..200]
+            );
+        }
+    }
+
+    #[test]
+    fn regression_run_shorter_than_one_period() {
+        let seg = |d: &str| {
+            format!(
+                "[scenario]\npath = \"custom\"\nsegments = [{{ from = [0.25, 0, -0.43], to = [-0.25, 0, -0.43], apex_m = 0.12, duration_s = {d} }}]\n"
+            )
+        };
+        assert_eq!(
+            err(&seg("1e-300")),
+            "config key `scenario.segments[0].duration_s` = 1e-300 is out of range: Ts = 0.0003 s <= duration_s <= 3600 s (a segment lasts at least one control period)"
+        );
+        assert!(err(&seg("2.9e-4")).contains("= 0.00029 is out of range"));
+        let c = RunConfig::from_toml_str(&seg("3e-4"), None).unwrap();
+        assert_eq!(c.ticks(c.motion_duration_s()), 1);
+    }
+
+    #[test]
+    fn regression_payload_step_after_the_run() {
+        let at = |t: &str| {
+            format!(
+                "[scenario]\npath = \"s1\"\nhold_s = 0.1\n[plant]\npayload_step_kg = 0.5\npayload_step_at_s = {t}\n"
+            )
+        };
+        // S1: T = 0.8 s, hold 0.1 s, N = 3000 ticks: the last interval starts at 2999·Ts.
+        assert_eq!(
+            err(&at("5.0")),
+            "config key `plant.payload_step_at_s` = 5 is out of range: 0 <= payload_step_at_s <= 0.8997 s, the start of the last control period (motion + hold = 0.9 s)"
+        );
+        assert!(err(&at("0.9")).contains("payload_step_at_s` = 0.9 is"));
+        let c = RunConfig::from_toml_str(&at("0.8997"), None).unwrap();
+        assert_eq!(c.payload_step_tick(), Some(2999));
+        // Even without a mass, a step time outside the run is not silently ignored.
+        let e = err("[scenario]\npath = \"s2\"\n[plant]\npayload_step_at_s = 1.0\n");
+        assert!(e.contains("plant.payload_step_at_s` = 1 is"), "{e}");
+    }
+
+    #[test]
+    fn regression_rk4_step_below_one_microsecond() {
+        assert_eq!(
+            err(&format!(
+                "{MIN}[loop]\nts_s = 1e-5\ntorque_budget_us = 5\n[plant]\nsubsteps = 1000\n"
+            )),
+            "config key `plant.substeps` = 1000 is out of range: 1 <= substeps <= 10 for ts_s = 1e-5 s (the RK4 step ts_s/substeps must be >= 1 us)"
+        );
+        assert!(RunConfig::from_toml_str(&format!("{MIN}[plant]\nsubsteps = 300\n"), None).is_ok());
+        assert!(
+            err(&format!("{MIN}[plant]\nsubsteps = 301\n")).contains("<= 300 for ts_s = 0.0003 s")
+        );
+        // The default (10) fits the shortest period.
+        assert!(
+            RunConfig::from_toml_str(
+                &format!("{MIN}[loop]\nts_s = 1e-5\ntorque_budget_us = 5\n"),
+                None
+            )
+            .is_ok()
+        );
+    }
+
+    #[test]
+    fn regression_config_file_must_be_a_small_regular_file() {
+        let dir = std::env::temp_dir().join(format!("deltaloop-cfg-read-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let read = |p: &Path| RunConfig::from_file(p).unwrap_err().to_string();
+        let e = read(&dir);
+        assert!(
+            e.contains(&dir.display().to_string())
+                && e.contains("it is a directory, not a regular file"),
+            "{e}"
+        );
+        let e = read(Path::new("/dev/zero"));
+        assert_eq!(
+            e,
+            "cannot read config file /dev/zero: it is a character device, not a regular file"
+        );
+        let fifo = dir.join("fifo.toml");
+        if std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .is_ok_and(|s| s.success())
+        {
+            let e = read(&fifo);
+            assert!(
+                e.contains("it is a FIFO (named pipe), not a regular file"),
+                "{e}"
+            );
+        }
+        let big = dir.join("big.toml");
+        let mut text = MIN.to_string();
+        text.push_str(&"#".repeat(MAX_FILE_BYTES as usize));
+        std::fs::write(&big, &text).unwrap();
+        let e = read(&big);
+        assert!(e.contains("larger than 1 MiB"), "{e}");
+        std::fs::write(&big, &text[..MAX_FILE_BYTES as usize]).unwrap();
+        assert!(RunConfig::from_file(&big).is_ok());
+        std::fs::write(&big, b"[scenario]\npath = \"s1\"\n#\xff\n").unwrap();
+        assert!(read(&big).contains("not UTF-8"));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -79,6 +79,11 @@ fn value() -> impl Strategy<Value = String> {
         prop::collection::vec(prop_oneof![Just("\"tdc\""), Just("\"pid\""), Just("\"lqr\""), Just("1"), Just("0.25")], 0..4).prop_map(|v| format!("[{}]", v.join(", "))),
         Just("[{ from = [0.25, 0, -0.43], to = [-0.25, 0, -0.43], apex_m = 0.12, duration_s = 0.5 }]".to_string()),
         Just("[{ from = [9, 9, 9], to = [1], apex_m = nan, duration_s = -1 }]".to_string()),
+        Just("[{ from = [0.25, 0, -0.43], to = [-0.25, 0, -0.43], apex_m = 0.12, duration_s = 1e-300 }]".to_string()),
+        // Hostile strings: path escapes, control and format characters, very long text.
+        prop_oneof![Just("../../../../tmp/victim"), Just("a/b"), Just("x\ny"), Just("\u{202e}gpj.exe"), Just(".x"), Just("-x"), Just("ok-name")]
+            .prop_map(|s| toml::Value::from(s).to_string()),
+        (1usize..5000).prop_map(|n| format!("\"{}\"", "\\n\\u200f".repeat(n))),
     ]
 }
 
@@ -106,7 +111,24 @@ fn document() -> impl Strategy<Value = String> {
 }
 
 fn check(text: &str) {
-    if let Ok(cfg) = RunConfig::from_toml_str(text, None) {
+    let parsed = RunConfig::from_toml_str(text, None);
+    if let Err(e) = &parsed {
+        // Errors are one line, and never echo a long value whole.
+        let e = e.to_string();
+        assert!(!e.contains(['\n', '\r']), "an error is one line: {e:?}");
+        assert!(e.chars().count() < 1000, "an error is short: {e:?}");
+    }
+    if let Ok(cfg) = parsed {
+        assert!(
+            !cfg.name.is_empty() && !cfg.name.contains(['/', '\n']) && !cfg.name.starts_with('.'),
+            "an accepted name is a plain folder name: {:?}",
+            cfg.name
+        );
+        assert!(
+            cfg.ticks(cfg.motion_duration_s()) >= 1,
+            "an accepted run has at least one tick"
+        );
+        assert!(cfg.loop_.ts_s / f64::from(cfg.plant.substeps) >= 0.999e-6);
         cfg.validate().expect("an accepted config validates");
         let again = RunConfig::from_toml_str(&cfg.to_toml_string(), None)
             .expect("the resolved config parses");

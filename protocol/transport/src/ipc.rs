@@ -44,7 +44,12 @@ impl<T, E: Debug> IpcContext<T> for Result<T, E> {
 /// The iceoryx2 configuration, set in code (defaults), so no process looks for a config file or
 /// warns that there is none. iceoryx2's own silent clean-up of dead nodes is off: the supervisor
 /// removes them explicitly before a run ([`remove_dead_nodes`]) and reports what it removed.
+///
+/// iceoryx2's own log is set to errors only (override with `IOX2_LOG_LEVEL`): its warnings, such as
+/// "No config file was loaded" when it removes a half-created node, are not the user's business;
+/// deltaloop reports what it cleaned itself.
 pub fn config() -> Config {
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
     let mut c = Config::default();
     c.global.node.cleanup_dead_nodes_on_creation = false;
     c.global.node.cleanup_dead_nodes_on_destruction = false;
@@ -169,6 +174,40 @@ pub fn wakeup(
         .ipc(format!("open event {what}"))
 }
 
+/// Free space of the shared-memory file system iceoryx2 uses (`/dev/shm`), bytes; None if it
+/// cannot be read.
+pub fn shm_free_bytes() -> Option<u64> {
+    let path = c"/dev/shm";
+    // SAFETY: statvfs writes into the struct we own; the path is a valid C string.
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    if unsafe { libc::statvfs(path.as_ptr(), &mut st) } != 0 {
+        return None;
+    }
+    Some(st.f_bavail as u64 * st.f_frsize as u64)
+}
+
+/// Shared memory one process run maps, bytes, for a reference of `rows` ticks: measured on
+/// iceoryx2 0.10 with `du --apparent-size /dev/shm` (≈ 7.7 MiB of services and queues, plus
+/// ≈ 361 B per reference row), with 10 % added.
+pub fn shm_needed_bytes(rows: usize) -> u64 {
+    let measured = 7_841 * 1024 + 361 * rows as u64;
+    measured + measured / 10
+}
+
+/// Err with one line if `needed` bytes of shared memory are not free (`free`), saying how much
+/// there is, how much the run needs and what to do.
+pub fn check_shm(needed: u64, free: u64) -> Result<(), String> {
+    if needed <= free {
+        return Ok(());
+    }
+    let mb = |b: u64| b as f64 / (1024.0 * 1024.0);
+    Err(format!(
+        "not enough shared memory for this run: /dev/shm has {:.1} MiB free, the run needs about {:.1} MiB (≈ 8.4 MiB per run plus ≈ 0.4 KiB per tick); free /dev/shm, shorten the run, or enlarge it (Docker: --shm-size; its default 64 MiB fits about 7 short runs)",
+        mb(free),
+        mb(needed)
+    ))
+}
+
 /// Removes the resources of iceoryx2 nodes whose process died (e.g. a run killed with SIGKILL).
 /// Returns the names of the nodes it cleaned.
 pub fn remove_dead_nodes() -> Vec<String> {
@@ -228,4 +267,23 @@ pub fn wait_event(
         });
     }
     Ok(r > 0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shm_check_names_free_and_needed_space() {
+        let need = shm_needed_bytes(2_668);
+        // A short S1 run needs ≈ 9–10 MiB: seven fit in Docker's 64 MiB, not eight.
+        assert!((9 << 20..11 << 20).contains(&need), "{need}");
+        assert!(check_shm(need, 64 << 20).is_ok());
+        let err = check_shm(shm_needed_bytes(12_000_000), 64 << 20).unwrap_err();
+        assert!(
+            err.contains("64.0 MiB free") && err.contains("--shm-size"),
+            "{err}"
+        );
+        assert_eq!(err.lines().count(), 1);
+    }
 }

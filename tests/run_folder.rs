@@ -1,0 +1,171 @@
+//! The run folder belongs to one run: a non-empty `--out` is refused unless `--force` (which
+//! only ever empties a deltaloop folder), and two runs never share a folder.
+
+mod common;
+
+use common::deltaloop;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn run(cfg: &str, mode: &str, out: &Path, extra: &[&str]) -> (Option<i32>, String) {
+    let mut args = vec![
+        "run",
+        cfg,
+        "--mode",
+        mode,
+        "--law",
+        "tdc",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let o = deltaloop(&args);
+    (
+        o.status.code(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+/// Starts `deltaloop <args>` in the background and waits until its run folder `out` holds the
+/// resolved config (the run has claimed the folder and is under way).
+fn start(args: &[&str], out: &Path) -> std::process::Child {
+    let child = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while !out.join("config.toml").exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the run never started"
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    child
+}
+
+/// Regression: two runs with the same --out both exited 0 and mixed their files.
+#[test]
+fn regression_reused_out_is_refused_unless_forced() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = "configs/s1-nominal.toml";
+    assert_eq!(run(cfg, "inproc", &out, &[]).0, Some(0));
+    std::fs::write(out.join("stale.txt"), "from an old run").unwrap();
+
+    let (code, err) = run(cfg, "inproc", &out, &[]);
+    assert_eq!(code, Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("is not empty") && err.contains("--force"),
+        "{err}"
+    );
+    assert!(
+        out.join("stale.txt").exists(),
+        "a refused run touches nothing"
+    );
+
+    let (code, err) = run(cfg, "inproc", &out, &["--force"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(
+        !out.join("stale.txt").exists(),
+        "--force empties the old run first"
+    );
+    assert!(out.join("trace.csv").exists() && out.join("summary.json").exists());
+}
+
+#[test]
+fn force_never_empties_a_folder_that_is_not_a_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let keep = tmp.path().join("notes.txt");
+    std::fs::write(&keep, "precious").unwrap();
+    let (code, err) = run(
+        "configs/s1-nominal.toml",
+        "inproc",
+        tmp.path(),
+        &["--force"],
+    );
+    assert_eq!(code, Some(1), "{err}");
+    assert!(
+        err.contains("does not look like a deltaloop run folder"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_to_string(&keep).unwrap(), "precious");
+}
+
+/// Two runs at once into one folder: the second is refused while the first holds it, even with
+/// --force, and the first completes untouched.
+#[test]
+fn regression_concurrent_runs_never_share_a_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = tmp.path().join("cfg.toml");
+    std::fs::write(
+        &cfg,
+        "name = \"held\"\n[scenario]\npath = \"s1\"\nhold_s = 1.0\n[controller]\nlaws = [\"tdc\"]\n",
+    )
+    .unwrap();
+    let first = start(
+        &[
+            "run",
+            cfg.to_str().unwrap(),
+            "--mode",
+            "realtime",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &out,
+    );
+    let (code, err) = run(cfg.to_str().unwrap(), "inproc", &out, &["--force"]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("in use by another deltaloop run"), "{err}");
+    let o = first.wait_with_output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = common::summary(&out);
+    assert_eq!(s["laws"]["tdc"]["completed"], true);
+    assert_eq!(s["mode"], "realtime");
+}
+
+/// Regression: on a full disk the error ("No space left on device") named no file, and laws that
+/// had finished lost their trace and summary. Simulated by a write that fails for the second law
+/// (its timing.csv path is taken by a folder): the error names the file, and the first law's
+/// trace, summary and report are written.
+#[test]
+fn regression_a_failed_write_names_its_file_and_keeps_finished_laws() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let child = start(
+        &[
+            "run",
+            "configs/s1-nominal.toml",
+            "--mode",
+            "lockstep",
+            "--law",
+            "tdc",
+            "--law",
+            "tde-is",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &out,
+    );
+    let blocker = out.join("tde-is.timing.csv");
+    std::fs::create_dir(&blocker).unwrap();
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains(&blocker.display().to_string()),
+        "names the file: {err}"
+    );
+    let s = common::summary(&out);
+    assert_eq!(s["laws"]["tdc"]["completed"], true, "{s}");
+    let trace = std::fs::read_to_string(out.join("trace.csv")).unwrap();
+    assert!(trace.lines().filter(|l| l.starts_with("tdc,")).count() > 2000);
+    assert!(out.join("report.md").exists() && out.join("tdc.timing.csv").is_file());
+}
