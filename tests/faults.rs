@@ -651,3 +651,28 @@ fn regression_child_killed_during_setup_leaves_no_debris() {
     assert!(o.status.success(), "{err2}");
     assert!(!err2.contains("No config file"), "{err2}");
 }
+
+/// Regression: the supervisor allocated its per-tick tables after START; for a long run that took
+/// long enough for the loop to overflow the observer's queues, so a 10-minute lockstep run lost
+/// its first 32 k ticks (and an hour-long realtime run all of them). Lockstep loses nothing.
+#[test]
+fn regression_long_lockstep_run_loses_no_tick_at_start() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = tmp.path().join("long.toml");
+    std::fs::write(
+        &cfg,
+        "name = \"long\"\n[scenario]\npath = \"s2\"\nhold_s = 300.0\n[controller]\nlaws = [\"tdc\"]\n",
+    )
+    .unwrap();
+    let s = common::run(cfg.to_str().unwrap(), "lockstep", &out, &[]);
+    let m = &s["laws"]["tdc"];
+    assert_eq!(m["lost_ticks"], 0, "{m}");
+    assert_eq!(m["completed"], true, "{m}");
+    let lost = &s["timing"]["tdc"]["supervisor_lost_samples"];
+    assert_eq!(
+        (&lost["state"], &lost["torque"]),
+        (&0.into(), &0.into()),
+        "{lost}"
+    );
+}

@@ -389,9 +389,13 @@ fn intro(o: &mut String, s: &PaperSummary) {
         o,
         "Produced by `{}` in {:.1} s ({} mode). Each scenario ran `tde-is` (the paper's TDC+IS, eq. 44), `tdc-is-sta` (its proposal, eq. 12–14) \
          and our baselines `tdc` and `pid`, on our Delta robot model with friction on, under both presets: `matched` \
-         (M̄ = 0.03 I kg m², the method as intended on this robot) and `paper` (M̄ = 3·10⁻⁴ I kg m², the paper's Table I literally). \
+         (M̄ = {} I kg m², the method as intended on this robot) and `paper` (M̄ = {} I kg m², the paper's Table I literally). \
          Per-run folders (trace, summary, report) are under `<preset>/<scenario>/`.\n",
-        s.command, s.elapsed_s, s.mode
+        s.command,
+        s.elapsed_s,
+        s.mode,
+        fmt_unicode_sci(ControllerParams::preset(Preset::Matched).m_bar),
+        fmt_unicode_sci(ControllerParams::preset(Preset::Paper).m_bar),
     );
     let _ = writeln!(
         o,
@@ -636,5 +640,37 @@ mod tests {
         let p = published_rms();
         assert_eq!(p.keys().collect::<Vec<_>>(), ["s1", "s2", "s3"]);
         assert_eq!(p["s2"]["tdc-is-sta"], [0.0044, 0.0047, 0.0047]);
+    }
+}
+
+/// A constant for prose: plain from 0.01 up (`0.03`), else `m·10ⁿ` with a superscript exponent
+/// (`3·10⁻⁴`).
+fn fmt_unicode_sci(x: f64) -> String {
+    if x == 0.0 || x.abs() >= 0.01 {
+        return format!("{x}");
+    }
+    let e = x.abs().log10().floor() as i32;
+    let m = x / 10f64.powi(e);
+    let sup: String = e
+        .to_string()
+        .chars()
+        .map(|c| match c {
+            '-' => '⁻',
+            d => ['⁰', '¹', '²', '³', '⁴', '⁵', '⁶', '⁷', '⁸', '⁹']
+                [d.to_digit(10).unwrap_or(0) as usize],
+        })
+        .collect();
+    format!("{}·10{sup}", (m * 1e6).round() / 1e6)
+}
+
+#[cfg(test)]
+mod unicode_sci_tests {
+    use super::fmt_unicode_sci;
+
+    #[test]
+    fn prose_constants_read_as_in_the_report() {
+        assert_eq!(fmt_unicode_sci(0.03), "0.03");
+        assert_eq!(fmt_unicode_sci(3e-4), "3·10⁻⁴");
+        assert_eq!(fmt_unicode_sci(2.5e-12), "2.5·10⁻¹²");
     }
 }

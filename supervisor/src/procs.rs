@@ -478,6 +478,10 @@ pub fn run_law(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Resul
         lock_memory: false,
     });
     let n = study.reference.n as u64;
+    // Allocate (and touch) everything the observer fills before START, not after: for a long run
+    // that takes seconds, during which the loop would overflow the observer's queues (regression:
+    // a 10-minute lockstep run lost its first 32 k ticks; an hour-long realtime run, all of them).
+    let mut streams = Streams::new(n as usize + 2);
     let mut start = ControlMsg::new(ControlKind::Start, Sender::Supervisor);
     start.ticks = n;
     start.q0 = study.reference.q0().into();
@@ -486,7 +490,6 @@ pub fn run_law(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Resul
     let steal_before = crate::timing::steal_jiffies();
     obs.control.0.send_copy(start).ipc("send START")?;
 
-    let mut streams = Streams::new(n as usize + 2);
     let ending = observe(&obs, &mut pair, study, &mut streams)?;
     let mut child_messages = pair.messages();
     let cause = if ending.interrupted {

@@ -1,5 +1,6 @@
 //! How the deltaloop processes talk: the wire types ([`wire`]), the iceoryx2 services of a run
-//! ([`ipc`]), and the real-time helpers both loop processes use ([`rt`]). The config schema lives
+//! ([`ipc`]), the real-time helpers both loop processes use ([`rt`]), and their command line
+//! ([`args`]) and exit codes ([`exit`]). The config schema lives
 //! apart, in `deltaloop-config`; this crate knows nothing of scenarios or physics.
 
 pub mod args;
