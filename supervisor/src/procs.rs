@@ -53,6 +53,15 @@ where
     Ok(())
 }
 
+/// How messages name a process.
+fn role(who: Sender) -> &'static str {
+    match who {
+        Sender::Plant => "plant",
+        Sender::Controller => "controller",
+        Sender::Supervisor => "supervisor",
+    }
+}
+
 /// Where the child executables are: next to the running one.
 pub fn exe_dir() -> Result<PathBuf> {
     let exe = std::env::current_exe().context("cannot locate the deltaloop executable")?;
@@ -71,7 +80,7 @@ pub fn new_run_id() -> String {
 }
 
 /// Kills and reaps a child on drop, so no process outlives the run, whatever happens.
-struct Reaped(Option<Child>, &'static str);
+struct Reaped(Option<Child>, Sender);
 
 impl Reaped {
     fn exited(&mut self) -> Option<std::process::ExitStatus> {
@@ -99,7 +108,7 @@ impl Drop for Reaped {
     }
 }
 
-fn spawn(exe: &Path, args: &[String], log: &Path, name: &'static str) -> Result<Reaped> {
+fn spawn(exe: &Path, args: &[String], log: &Path, who: Sender) -> Result<Reaped> {
     let err =
         std::fs::File::create(log).with_context(|| format!("cannot create {}", log.display()))?;
     let mut cmd = Command::new(exe);
@@ -122,7 +131,7 @@ fn spawn(exe: &Path, args: &[String], log: &Path, name: &'static str) -> Result<
     let child = cmd
         .spawn()
         .with_context(|| format!("cannot start {} (expected next to deltaloop: build all binaries with `cargo build --release`)", exe.display()))?;
-    Ok(Reaped(Some(child), name))
+    Ok(Reaped(Some(child), who))
 }
 
 fn read_log(path: &Path) -> Vec<String> {
@@ -197,14 +206,19 @@ impl Pair {
         ];
         let plant_log = run_dir.join(format!("{law}.plant.log"));
         let ctrl_log = run_dir.join(format!("{law}.controller.log"));
-        let plant = spawn(&exe.join("deltaloop-plant"), &common, &plant_log, "plant")?;
+        let plant = spawn(
+            &exe.join("deltaloop-plant"),
+            &common,
+            &plant_log,
+            Sender::Plant,
+        )?;
         let mut ctrl_args = common;
         ctrl_args.extend(["--law".to_string(), law.name().to_string()]);
         let controller = spawn(
             &exe.join("deltaloop-controller"),
             &ctrl_args,
             &ctrl_log,
-            "controller",
+            Sender::Controller,
         )?;
         Ok(Self {
             plant,
@@ -225,7 +239,7 @@ impl Pair {
     fn check_alive(&mut self) -> Result<()> {
         for child in [&mut self.plant, &mut self.controller] {
             if let Some(status) = child.exited() {
-                let who = child.1;
+                let who = role(child.1);
                 let (plant_log, ctrl_log) = (&self.plant_log, &self.ctrl_log);
                 let mut messages = read_log(plant_log);
                 messages.extend(read_log(ctrl_log));
@@ -362,7 +376,7 @@ struct Ending {
     plant: Option<ExitStatus>,
     controller: Option<ExitStatus>,
     /// When the first child exited while the other still ran, and which.
-    first_exit: Option<(u64, &'static str)>,
+    first_exit: Option<(u64, Sender)>,
     /// The supervisor sent STOP (Ctrl-C / SIGTERM).
     interrupted: bool,
 }
@@ -387,15 +401,15 @@ fn observe(
     let expected_ns = (n + 2) * ts_ns * 20 + 10_000_000_000;
     let give_up = rt::now_ns() + expected_ns.max(silence_ns * 3) + silence_ns + grace_ns;
     let mut stop_sent: Option<u64> = None;
-    let mut first_exit: Option<(u64, &'static str)> = None;
+    let mut first_exit: Option<(u64, Sender)> = None;
     loop {
         streams.drain(obs)?;
         let (p, c) = (pair.plant.exited(), pair.controller.exited());
         let now = rt::now_ns();
         if first_exit.is_none() {
             first_exit = match (p.is_some(), c.is_some()) {
-                (false, true) => Some((now, "controller")),
-                (true, false) => Some((now, "plant")),
+                (false, true) => Some((now, Sender::Controller)),
+                (true, false) => Some((now, Sender::Plant)),
                 _ => None,
             };
         }
@@ -413,7 +427,7 @@ fn observe(
             // The plant is gone. If it exited by itself it released the controller with a final
             // state: give the controller 1 s to finish and say why. If it was killed by a signal
             // nothing will release the controller: stop it now.
-            Some((t, "plant")) => {
+            Some((t, Sender::Plant)) => {
                 use std::os::unix::process::ExitStatusExt;
                 let killed = p.is_some_and(|s| s.signal().is_some());
                 now > t + if killed { 20_000_000 } else { 1_000_000_000 }
@@ -777,14 +791,15 @@ fn fault_cause(ending: &Ending, pair: &Pair, streams: &Streams) -> Option<Fault>
     }
     // How long after the dead peer's last message the supervisor saw it exit.
     if let Some((noticed, who)) = ending.first_exit {
-        let last = if who == "controller" {
+        let last = if who == Sender::Controller {
             last_torque.map(|t| t.t_publish_ns)
         } else {
             last_tel.map(|m| m.t_wake_ns)
         };
         if let Some(t) = last {
             parts.push(format!(
-                "the supervisor saw the {who} exit {:.1} ms after its last message",
+                "the supervisor saw the {} exit {:.1} ms after its last message",
+                role(who),
                 noticed.saturating_sub(t) as f64 * 1e-6
             ));
         }
