@@ -27,6 +27,27 @@ fn sweep_records_divergence_and_writes_table_and_plots() {
         out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The folder belongs to that sweep: a second sweep into it is refused unless --force, which
+    // empties it first (regression: sweeps, like runs, once reused a folder silently).
+    let again = |extra: &[&str]| {
+        let mut args = vec![
+            "sweep",
+            sweep.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        deltaloop(&args)
+    };
+    let o = again(&[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("is not empty") && err.contains("--force"),
+        "{err}"
+    );
+    let o = again(&["--force"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let rows = json(&out.join("sweep.json"));
     let rows = rows.as_array().unwrap();
     assert_eq!(rows.len(), 2 * 3 * 2);

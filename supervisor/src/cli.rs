@@ -52,9 +52,12 @@ enum Command {
     Sweep {
         /// Sweep file (TOML).
         sweep: PathBuf,
-        /// Output folder (default: runs/<UTC time>-sweep-<name>).
+        /// Output folder (default: runs/<UTC time>-sweep-<name>). Must be new or empty.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Empty and reuse a non-empty --out folder (only one that holds a deltaloop run).
+        #[arg(long)]
+        force: bool,
     },
     /// Benchmarks.
     Bench {
@@ -144,9 +147,10 @@ pub fn main() -> ExitCode {
             )
             .map(|s| print!("{}", crate::paper::terminal(&s, &out)))
         }
-        Command::Sweep { sweep, out } => crate::sweep::load(&sweep).and_then(|(sw, base)| {
+        Command::Sweep { sweep, out, force } => crate::sweep::load(&sweep).and_then(|(sw, base)| {
             let out = out
                 .unwrap_or_else(|| crate::output::default_run_dir(&format!("sweep-{}", sw.name)));
+            let _folder = crate::output::RunFolder::claim(&out, force)?;
             let t0 = std::time::Instant::now();
             let rows = crate::sweep::run_loaded(
                 &sw,

@@ -78,7 +78,8 @@ const LOCK_FILE: &str = ".deltaloop-lock";
 
 impl RunFolder {
     /// Claims `dir`: refuses a non-empty folder unless `force` (then empties it, but only if it
-    /// is a deltaloop folder: one with a lock file, `config.toml` or `summary.json`), and refuses a
+    /// is a deltaloop folder: one with a lock file, `config.toml`, `summary.json` or a sweep's
+    /// `sweep.toml`), and refuses a
     /// folder another run holds, `force` or not.
     pub fn claim(dir: &Path, force: bool) -> Result<Self> {
         let shown = dir.display();
@@ -116,11 +117,13 @@ impl RunFolder {
                 );
             }
             let ours = entries.iter().any(|p| {
-                p.ends_with(LOCK_FILE) || p.ends_with("config.toml") || p.ends_with("summary.json")
+                ["config.toml", "summary.json", "sweep.toml", LOCK_FILE]
+                    .iter()
+                    .any(|f| p.ends_with(f))
             });
             if !ours {
                 anyhow::bail!(
-                    "run folder {shown} is not empty and does not look like a deltaloop run folder (no config.toml or summary.json): refusing to empty it, even with --force"
+                    "run folder {shown} is not empty and does not look like a deltaloop run folder (no config.toml, summary.json or sweep.toml): refusing to empty it, even with --force"
                 );
             }
             for p in theirs {
