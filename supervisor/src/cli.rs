@@ -159,18 +159,23 @@ pub fn main() -> ExitCode {
                 &out,
                 std::io::IsTerminal::is_terminal(&std::io::stderr()),
             )?;
-            let n = |st: &str| rows.iter().filter(|r| r.status == st).count();
+            use crate::sweep::Status;
+            let n = |st: Status| rows.iter().filter(|r| r.status == st).count();
             // An interrupted point is not a run that finished (and an interrupted sweep ends
             // with an error above): it is counted apart, when there is one.
-            let interrupted = n("interrupted");
+            let interrupted = n(Status::Interrupted);
             println!(
-                "{} runs in {:.1} s: {} ok, {} diverged, {} stopped, {} errors{}\nsweep folder: {}",
+                "{} runs in {:.1} s: {} ok, {} diverged, {} stopped, {} errors{}{}\nsweep folder: {}",
                 rows.len() - interrupted,
                 t0.elapsed().as_secs_f64(),
-                n("ok"),
-                n("diverged"),
-                n("stopped"),
-                n("error"),
+                n(Status::Ok),
+                n(Status::Diverged),
+                n(Status::Stopped),
+                n(Status::Error),
+                match n(Status::LostData) {
+                    0 => String::new(),
+                    l => format!(", {l} lost data"),
+                },
                 if interrupted > 0 {
                     format!(" ({interrupted} interrupted, not counted)")
                 } else {

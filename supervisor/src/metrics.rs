@@ -224,9 +224,10 @@ pub fn compute(
     let delta_n_p999 = uses_tde.then(|| per_joint(|i| percentile_type7(&mut dn(i), 0.999)));
     let k2_req = delta_n_max.map(|d| k2_required(d.into_iter().fold(0.0, f64::max), params.k1));
 
-    let lost_data = match run.outcome {
-        Outcome::LostData { lost, first } => Some(format!(
-            "the supervisor lost {lost} ticks of the stream, the first at tick {first}: it fell behind the loop and its queues overflowed; every tick it saw is recorded"
+    let lost_data = match (&run.outcome, run.first_lost) {
+        (Outcome::LostData, Some(first)) => Some(format!(
+            "the supervisor lost {} ticks of the stream, the first at tick {first}: it fell behind the loop and its queues overflowed; every tick it saw is recorded",
+            run.lost_ticks
         )),
         _ => None,
     };

@@ -188,8 +188,23 @@ impl Observer {
 struct Pair {
     plant: Reaped,
     controller: Reaped,
-    plant_log: PathBuf,
-    ctrl_log: PathBuf,
+    logs: Logs,
+}
+
+/// The children's stderr logs.
+#[derive(Clone)]
+struct Logs {
+    plant: PathBuf,
+    controller: PathBuf,
+}
+
+impl Logs {
+    /// Every non-empty line both children printed.
+    fn messages(&self) -> Vec<String> {
+        let mut m = read_log(&self.plant);
+        m.extend(read_log(&self.controller));
+        m
+    }
 }
 
 impl Pair {
@@ -223,16 +238,11 @@ impl Pair {
         Ok(Self {
             plant,
             controller,
-            plant_log,
-            ctrl_log,
+            logs: Logs {
+                plant: plant_log,
+                controller: ctrl_log,
+            },
         })
-    }
-
-    /// Every non-empty line both children printed.
-    fn messages(&self) -> Vec<String> {
-        let mut m = read_log(&self.plant_log);
-        m.extend(read_log(&self.ctrl_log));
-        m
     }
 
     /// Fails, with the children's stderr, if either child has exited.
@@ -240,12 +250,9 @@ impl Pair {
         for child in [&mut self.plant, &mut self.controller] {
             if let Some(status) = child.exited() {
                 let who = role(child.1);
-                let (plant_log, ctrl_log) = (&self.plant_log, &self.ctrl_log);
-                let mut messages = read_log(plant_log);
-                messages.extend(read_log(ctrl_log));
                 bail!(
                     "{who} exited before the run started ({status}): {}",
-                    messages.join(" | ")
+                    self.logs.messages().join(" | ")
                 );
             }
         }
@@ -277,7 +284,7 @@ fn await_control(
             bail!(
                 "{step} did not happen within {} s: {}",
                 ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000,
-                pair.messages().join(" | ")
+                pair.logs.messages().join(" | ")
             );
         }
         std::thread::sleep(Duration::from_micros(200));
@@ -505,7 +512,7 @@ pub fn run_law(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Resul
     obs.control.0.send_copy(start).ipc("send START")?;
 
     let ending = observe(&obs, &mut pair, study, &mut streams)?;
-    let mut child_messages = pair.messages();
+    let mut child_messages = pair.logs.messages();
     let cause = if ending.interrupted {
         None
     } else {
@@ -569,11 +576,10 @@ fn stopped_before_start(
     {
         std::thread::sleep(Duration::from_millis(2));
     }
-    let plant_log = pair.plant_log.clone();
-    let ctrl_log = pair.ctrl_log.clone();
+    // Read the logs after the children are gone, so their last lines are in.
+    let logs = pair.logs.clone();
     drop(pair);
-    let mut child_messages = read_log(&plant_log);
-    child_messages.extend(read_log(&ctrl_log));
+    let child_messages = logs.messages();
     let mut rec = Recorder::new(law, study.reference.n);
     rec.interrupt();
     ProcessRun {
@@ -740,7 +746,7 @@ fn last_line(path: &Path) -> String {
 /// The tick is the one the plant's FAULT message names, else the tick after its last telemetry.
 fn fault_cause(ending: &Ending, pair: &Pair, streams: &Streams) -> Option<Fault> {
     let (plant, ctrl) = (ending.plant, ending.controller);
-    let (plant_log, ctrl_log) = (&pair.plant_log, &pair.ctrl_log);
+    let (plant_log, ctrl_log) = (&pair.logs.plant, &pair.logs.controller);
     let ok = |s: Option<ExitStatus>| s.is_some_and(|s| s.success());
     if ok(plant) && ok(ctrl) {
         return None;

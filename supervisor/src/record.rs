@@ -104,9 +104,10 @@ pub enum Outcome {
     Interrupted { tick: u64 },
     /// Stopped by the loop fault in [`LawRun::fault`] (a process died, stalled, or the plant failed).
     Faulted,
-    /// The loop ran to its end, but the supervisor lost `lost` ticks of the stream (it fell behind
-    /// the loop; its queues overflowed), the first at `first`. Every tick it saw is recorded.
-    LostData { lost: u64, first: u64 },
+    /// The loop ran to its end, but the supervisor lost ticks of the stream (it fell behind the
+    /// loop; its queues overflowed): [`LawRun::lost_ticks`] of them, the first at
+    /// [`LawRun::first_lost`]. Every tick it saw is recorded.
+    LostData,
 }
 
 /// A finished run of one law.
@@ -274,13 +275,8 @@ impl Recorder {
             self.hold_previous(sample.k, sample.tau_applied);
             (sample, Vec3::from(s.qd_true))
         });
-        if self.run.outcome == Outcome::Completed
-            && let Some(first) = self.run.first_lost
-        {
-            self.run.outcome = Outcome::LostData {
-                lost: self.run.lost_ticks,
-                first,
-            };
+        if self.run.outcome == Outcome::Completed && self.run.first_lost.is_some() {
+            self.run.outcome = Outcome::LostData;
         }
         self.run
     }

@@ -51,10 +51,8 @@ pub struct Row {
     pub tde_delay_samples: u32,
     pub transport_delay_samples: u32,
     pub compute_delay_us: u32,
-    /// `ok`; `diverged` (the divergence rule ended the run); `stopped` (a loop fault ended it,
-    /// e.g. a controller too slow for its deadlines); `interrupted` (Ctrl-C / SIGTERM cut the
-    /// point short: not a result, no metrics); `error` (the point could not run).
-    pub status: String,
+    /// How the point ended (see [`Status`]).
+    pub status: Status,
     /// Set only for `diverged`.
     pub diverged_at_tick: Option<u64>,
     /// Why, for every status but `ok`.
@@ -77,11 +75,49 @@ pub struct Row {
     pub round_trip_p999_us: Option<f64>,
 }
 
+/// How a sweep point ended (`sweep.csv` column `status`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Status {
+    /// Every tick ran and was recorded.
+    Ok,
+    /// The divergence rule ended the run (the physics).
+    Diverged,
+    /// A loop fault ended it, e.g. a controller too slow for its deadlines.
+    Stopped,
+    /// The loop finished, but the supervisor lost part of the stream.
+    LostData,
+    /// Ctrl-C / SIGTERM cut the point short: not a result, no metrics.
+    Interrupted,
+    /// The point could not run.
+    Error,
+}
+
+impl Status {
+    /// The `sweep.csv` word.
+    pub fn name(self) -> &'static str {
+        match self {
+            Status::Ok => "ok",
+            Status::Diverged => "diverged",
+            Status::Stopped => "stopped",
+            Status::LostData => "lost-data",
+            Status::Interrupted => "interrupted",
+            Status::Error => "error",
+        }
+    }
+}
+
+impl std::fmt::Display for Status {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(self.name())
+    }
+}
+
 impl Row {
     /// Whether the row is a result (every status but `interrupted`: a point cut short by
     /// Ctrl-C / SIGTERM measured nothing complete).
     pub fn is_result(&self) -> bool {
-        self.status != "interrupted"
+        self.status != Status::Interrupted
     }
 }
 
@@ -126,17 +162,17 @@ fn maxj(v: [f64; 3]) -> f64 {
 /// not finish, whatever else happened), then a loop fault (a stop on a fault is not a
 /// divergence, even when the robot drifted past the bound while the plant held the torque of
 /// a silent controller), then the divergence rule.
-fn status(m: Option<&LawMetrics>, err: Option<&str>) -> (&'static str, String) {
+fn status(m: Option<&LawMetrics>, err: Option<&str>) -> (Status, String) {
     let Some(m) = m else {
         let e = err.filter(|e| !e.is_empty()).unwrap_or("no result");
-        return ("error", e.to_string());
+        return (Status::Error, e.to_string());
     };
     if let Some(e) = err {
-        return ("error", e.to_string());
+        return (Status::Error, e.to_string());
     }
     let nonempty = |s: &Option<String>| s.clone().filter(|s| !s.trim().is_empty());
     if let Some(k) = m.interrupted_at_tick {
-        return ("interrupted", format!("interrupted at tick {k}"));
+        return (Status::Interrupted, format!("interrupted at tick {k}"));
     }
     if let Some(f) = nonempty(&m.fault).or_else(|| m.fault_at_tick.map(|_| "loop fault".into())) {
         // The fault text usually names its tick already; otherwise say it.
@@ -150,23 +186,27 @@ fn status(m: Option<&LawMetrics>, err: Option<&str>) -> (&'static str, String) {
                 nonempty(&m.diverged_reason).unwrap_or_else(|| "diverged".into())
             )
         });
-        return ("stopped", format!("{at}{f}{drift}"));
+        return (Status::Stopped, format!("{at}{f}{drift}"));
     }
     if let Some(k) = m.diverged_at_tick {
         let why = nonempty(&m.diverged_reason)
             .unwrap_or_else(|| format!("diverged at tick {k} (no reason recorded)"));
-        return ("diverged", why);
+        return (Status::Diverged, why);
+    }
+    if let Some(lost) = nonempty(&m.lost_data) {
+        // The loop finished, but the supervisor did not see all of it: not a clean result.
+        return (Status::LostData, lost);
     }
     if !m.completed {
         return (
-            "stopped",
+            Status::Stopped,
             format!(
                 "the run ended after tick {} without a recorded cause",
                 m.ticks
             ),
         );
     }
-    ("ok", String::new())
+    (Status::Ok, String::new())
 }
 
 fn row(
@@ -178,7 +218,7 @@ fn row(
 ) -> Row {
     let (status, reason) = status(m, err.as_deref());
     // A point that did not finish carries no metrics: nothing in it is a result.
-    let (m, timing) = if status == "interrupted" {
+    let (m, timing) = if status == Status::Interrupted {
         (None, None)
     } else {
         (m, timing)
@@ -192,10 +232,10 @@ fn row(
         tde_delay_samples: job.ell,
         transport_delay_samples: job.d,
         compute_delay_us: job.compute_us,
-        status: status.into(),
+        status,
         diverged_at_tick: m
             .and_then(|m| m.diverged_at_tick)
-            .filter(|_| status == "diverged"),
+            .filter(|_| status == Status::Diverged),
         reason,
         rms_rad: m.map_or(nan, |m| maxj(m.rms_rad)),
         max_abs_err_rad: m.map_or(nan, |m| maxj(m.max_abs_err_rad)),
@@ -615,7 +655,7 @@ fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String
                                         && r.scenario == scn
                                         && r.preset == pr.name()
                                         && r.law == *law
-                                        && r.status == "ok"
+                                        && r.status == Status::Ok
                                 })
                                 .map(|r| (x_of(r), get(r)))
                                 .collect(),
@@ -647,12 +687,11 @@ fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String
 fn cell(r: Option<&Row>, get: Metric) -> String {
     match r {
         None => "–".into(),
-        Some(r) => match r.status.as_str() {
-            "ok" => format!("{:.2e}", get(r)),
-            "diverged" => format!("div@{}", r.diverged_at_tick.unwrap_or(0)),
-            "stopped" => "stopped".into(),
-            "interrupted" => "–".into(),
-            _ => "error".into(),
+        Some(r) => match r.status {
+            Status::Ok => format!("{:.2e}", get(r)),
+            Status::Diverged => format!("div@{}", r.diverged_at_tick.unwrap_or(0)),
+            Status::Interrupted => "–".into(),
+            other => other.name().into(),
         },
     }
 }
@@ -694,14 +733,22 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
         rows.iter().filter(|r| r.is_result()).count(),
         sw.mode
     );
-    let count = |st: &str| rows.iter().filter(|r| r.status == st).count();
-    let (div, stopped, err) = (count("diverged"), count("stopped"), count("error"));
-    // The stopped count only when there is one: a normal sweep's report stays as it was.
-    let stopped_count = if stopped > 0 {
-        format!("; stopped on a loop fault: {stopped}")
-    } else {
-        String::new()
-    };
+    let count = |st: Status| rows.iter().filter(|r| r.status == st).count();
+    let (div, stopped, lost, err) = (
+        count(Status::Diverged),
+        count(Status::Stopped),
+        count(Status::LostData),
+        count(Status::Error),
+    );
+    // These counts only when there are some: a normal sweep's report stays as it was.
+    let stopped_count = [
+        (stopped, "stopped on a loop fault"),
+        (lost, "lost data (the supervisor fell behind)"),
+    ]
+    .iter()
+    .filter(|(n, _)| *n > 0)
+    .map(|(n, what)| format!("; {what}: {n}"))
+    .collect::<String>();
     let _ = writeln!(
         s,
         "Diverged: {div}{stopped_count}; errors: {err}. A run diverges at the first tick with |e| > 0.5 rad, a non-finite value, or the robot leaving its workspace; it is recorded there (`div@tick`), never crashes the sweep.\n"
@@ -1029,7 +1076,7 @@ mod tests {
         assert_eq!(empty_timing.round_trip.count, 0);
 
         let r = row(&job, rt, Some(&ok), None, Some(&empty_timing));
-        assert_eq!((r.status.as_str(), r.reason.as_str()), ("ok", ""));
+        assert_eq!((r.status, r.reason.as_str()), (Status::Ok, ""));
         // No round-trip sample: no percentile, not 0.
         assert_eq!(r.round_trip_p999_us, None);
         let mut w = csv::Writer::from_writer(Vec::new());
@@ -1044,7 +1091,7 @@ mod tests {
         m.fault_at_tick = Some(99);
         m.fault = Some("no torque within the budget for 100 consecutive ticks".into());
         let r = row(&job, rt, Some(&m), None, Some(&empty_timing));
-        assert_eq!(r.status, "stopped");
+        assert_eq!(r.status, Status::Stopped);
         assert_eq!(
             r.reason,
             "fault at tick 99: no torque within the budget for 100 consecutive ticks"
@@ -1052,7 +1099,7 @@ mod tests {
         m.diverged_at_tick = Some(120);
         m.diverged_reason = Some("|e| > 0.5 rad".into());
         let r = row(&job, rt, Some(&m), None, None);
-        assert_eq!((r.status.as_str(), r.diverged_at_tick), ("stopped", None));
+        assert_eq!((r.status, r.diverged_at_tick), (Status::Stopped, None));
         assert!(r.reason.starts_with("fault at tick 99: ") && r.reason.contains("tick 120"));
 
         // Interrupted: marked, no metrics, not a result.
@@ -1061,8 +1108,8 @@ mod tests {
         m.interrupted_at_tick = Some(42);
         let r = row(&job, rt, Some(&m), None, Some(&empty_timing));
         assert_eq!(
-            (r.status.as_str(), r.reason.as_str()),
-            ("interrupted", "interrupted at tick 42")
+            (r.status, r.reason.as_str()),
+            (Status::Interrupted, "interrupted at tick 42")
         );
         assert!(!r.is_result() && r.rms_rad.is_nan() && r.deadline_misses.is_none());
 
@@ -1071,16 +1118,37 @@ mod tests {
         m.completed = false;
         m.diverged_at_tick = Some(7);
         let r = row(&job, rt, Some(&m), None, None);
-        assert_eq!(r.status, "diverged");
+        assert_eq!(r.status, Status::Diverged);
         assert_eq!(r.diverged_at_tick, Some(7));
         assert!(!r.reason.is_empty());
         // Ended early with no cause at all: not ok, not diverged.
         let mut m = ok.clone();
         m.completed = false;
         let r = row(&job, rt, Some(&m), None, None);
-        assert!(r.status == "stopped" && !r.reason.is_empty(), "{r:?}");
+        assert!(r.status == Status::Stopped && !r.reason.is_empty(), "{r:?}");
         let r = row(&job, rt, None, Some("boom".into()), None);
-        assert_eq!((r.status.as_str(), r.reason.as_str()), ("error", "boom"));
+        assert_eq!((r.status, r.reason.as_str()), (Status::Error, "boom"));
+        // The loop finished but the supervisor lost ticks: its own status, with the reason; the
+        // csv says `lost-data`.
+        let mut m = ok.clone();
+        m.completed = false;
+        m.lost_ticks = 1600;
+        m.lost_data = Some("the supervisor lost 1600 ticks of the stream".into());
+        let r = row(&job, rt, Some(&m), None, None);
+        assert_eq!(
+            (r.status, r.reason.as_str()),
+            (
+                Status::LostData,
+                "the supervisor lost 1600 ticks of the stream"
+            )
+        );
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.serialize(&r).unwrap();
+        assert!(
+            String::from_utf8(w.into_inner().unwrap())
+                .unwrap()
+                .contains(",lost-data,")
+        );
 
         // The report counts them apart and leaves the interrupted point out.
         let sw: SweepFile = toml::from_str(
@@ -1139,6 +1207,6 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         let rows = rows.unwrap();
         assert_eq!(rows.len(), 1);
-        assert_eq!((rows[0].law, rows[0].status.as_str()), (Law::Pid, "ok"));
+        assert_eq!((rows[0].law, rows[0].status), (Law::Pid, Status::Ok));
     }
 }

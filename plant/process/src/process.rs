@@ -296,18 +296,9 @@ fn end_run(
         .0
         .send_copy(ControlMsg::with_text(kind, Sender::Plant, tick, &cause));
     // Release the controller (it may be blocked waiting for a state): the run is over.
-    let last = side.plant().sample();
-    let _ = ports.publish_state(StateMsg {
-        tick,
-        flags: wire::STATE_FINAL,
-        q: last.q.into(),
-        qd: last.qd.into(),
-        tau_applied: last.tau_applied.into(),
-        q_true: last.q.into(),
-        qd_true: last.qd.into(),
-        t_publish_ns: rt::now_ns(),
-        ..StateMsg::default()
-    });
+    let mut last = side.final_state(tick);
+    last.t_publish_ns = rt::now_ns();
+    let _ = ports.publish_state(last);
     let end = |why: String| {
         if requested {
             ProcessEnd::Stopped(why)

@@ -140,6 +140,22 @@ impl PlantSide {
         }
     }
 
+    /// The state that ends a run early, numbered `tick`: the plant's true state (no sensor noise,
+    /// and the noise stream is not advanced) with `STATE_FINAL`, which releases the controller.
+    pub fn final_state(&self, tick: u64) -> StateMsg {
+        let s = self.plant.sample();
+        StateMsg {
+            tick,
+            flags: wire::STATE_FINAL,
+            q: s.q.into(),
+            qd: s.qd.into(),
+            tau_applied: s.tau_applied.into(),
+            q_true: s.q.into(),
+            qd_true: s.qd.into(),
+            ..StateMsg::default()
+        }
+    }
+
     /// Counts a reply that came too late to be applied (realtime).
     pub fn late_reply(&mut self) {
         self.late += 1;
@@ -233,6 +249,11 @@ mod tests {
             assert_eq!(s.tick, k + 1);
             assert_eq!(s.flags == wire::STATE_FINAL, k + 1 == 3, "tick {}", s.tick);
         }
+        // An early end releases the controller with the true state, under any tick number.
+        let f = p.final_state(9);
+        assert_eq!((f.tick, f.flags), (9, wire::STATE_FINAL));
+        assert_eq!((f.q, f.qd), (f.q_true, f.qd_true));
+        assert_eq!(f.q, <[f64; 3]>::from(p.plant().sample().q));
     }
 
     #[test]
