@@ -34,12 +34,24 @@ pub struct Mismatch {
 pub fn mismatch(robot: &DeltaRobot, reference: &JointReference, p: &ControllerParams) -> Mismatch {
     let ts = reference.ts;
     let (mut lo, mut hi, mut diag_sum, mut count) = (f64::MAX, 0.0f64, 0.0, 0usize);
-    for row in &reference.rows[..=reference.n] {
-        let m = robot.mass(&robot.pose_at(&row.joint.q, &row.task.x));
-        let eig = m.symmetric_eigenvalues();
-        lo = lo.min(eig.min());
-        hi = hi.max(eig.max());
-        diag_sum += m.diagonal().sum();
+    // The rows of the hold are all alike: evaluate the mass matrix once per distinct row.
+    let mut held: Option<(f64, f64, f64)> = None;
+    for k in 0..=reference.n {
+        let (min, max, diag) = match held {
+            Some(h) if reference.in_hold(k) => h,
+            _ => {
+                let row = reference.row(k);
+                let m = robot.mass(&robot.pose_at(&row.joint.q, &row.task.x));
+                let eig = m.symmetric_eigenvalues();
+                (eig.min(), eig.max(), m.diagonal().sum())
+            }
+        };
+        if reference.in_hold(k) {
+            held = Some((min, max, diag));
+        }
+        lo = lo.min(min);
+        hi = hi.max(max);
+        diag_sum += diag;
         count += 3;
     }
     let m_mean = diag_sum / count as f64;

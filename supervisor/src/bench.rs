@@ -1,6 +1,7 @@
 //! `deltaloop bench plant`: how many wall seconds the plant needs per simulated second.
 
 use crate::inproc;
+use crate::lawrun::Keep;
 use crate::study::Study;
 use anyhow::Result;
 use deltaloop_config::{Law, RunConfig};
@@ -74,8 +75,8 @@ pub fn plant(seconds: f64, repeats: u32) -> Result<()> {
         friction_t.push(plant_only(seconds, true)?);
         // Whole in-process loop on S1 + hold with friction: reference lookup, tdc-is-sta, plant, recording.
         let t0 = Instant::now();
-        let run = inproc::run_law(&study, Law::TdcIsSta);
-        let sim_s = run.records.len() as f64 * ts;
+        let run = inproc::run_law(&study, Law::TdcIsSta, &Keep::default())?;
+        let sim_s = (run.end.records as f64) * ts;
         loop_t.push(t0.elapsed().as_secs_f64() / sim_s);
         std::hint::black_box(&run);
     }

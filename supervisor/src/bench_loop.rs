@@ -8,6 +8,7 @@
 
 use crate::bench::s1_hold_study;
 use crate::inproc;
+use crate::lawrun::Keep;
 use crate::procs;
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
@@ -50,16 +51,16 @@ pub fn uds_controller(socket: &Path, config: &Path, cpu: Option<usize>) -> Resul
     let mut s =
         UnixStream::connect(socket).with_context(|| format!("connect {}", socket.display()))?;
     let mut ctrl = study.controller_side(Law::TdcIsSta);
-    let rows = &study.reference.rows;
+    let last = study.reference.n + 1;
     loop {
         let st: StateMsg = match read_msg(&mut s) {
             Ok(m) => m,
             Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
             Err(e) => return Err(e.into()),
         };
-        let r = &rows[(st.tick as usize).min(rows.len() - 1)].joint;
+        let r = study.reference.row((st.tick as usize).min(last)).joint;
         // The same controller tick every mode runs, so the baseline does the same work.
-        s.write_all(bytes_of(&ctrl.answer(&st, r)))?;
+        s.write_all(bytes_of(&ctrl.answer(&st, &r)))?;
     }
 }
 
@@ -133,14 +134,20 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, out: &Path) -> Result<()> {
 
     // (c) inproc first (no pinning yet), then (a) iceoryx2 lockstep, then (b) the socket baseline.
     let t0 = Instant::now();
-    let run = inproc::run_law(&ls, Law::TdcIsSta);
-    let inproc_hz = run.records.len() as f64 / t0.elapsed().as_secs_f64();
+    let run = inproc::run_law(&ls, Law::TdcIsSta, &Keep::default())?;
+    let inproc_hz = run.end.records as f64 / t0.elapsed().as_secs_f64();
     println!(
         "(c) inproc:            {inproc_hz:>12.0} cycles/s  ({:.3} us/cycle)",
         1e6 / inproc_hz
     );
 
-    let pr = procs::run_law(&ls, Law::TdcIsSta, LoopMode::Lockstep, &ls_dir)?;
+    let pr = procs::run_law(
+        &ls,
+        Law::TdcIsSta,
+        LoopMode::Lockstep,
+        &ls_dir,
+        &Keep::default(),
+    )?;
     let iox_hz = pr.timing.cycle_hz();
     let rtt = pr.timing.summary().round_trip;
     println!(
@@ -175,7 +182,13 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, out: &Path) -> Result<()> {
     let rt_dir = out.join("realtime");
     std::fs::create_dir_all(&rt_dir)?;
     std::fs::write(rt_dir.join("config.toml"), rs.config.to_toml_string())?;
-    let pr = procs::run_law(&rs, Law::TdcIsSta, LoopMode::Realtime, &rt_dir)?;
+    let pr = procs::run_law(
+        &rs,
+        Law::TdcIsSta,
+        LoopMode::Realtime,
+        &rt_dir,
+        &Keep::default(),
+    )?;
     pr.timing.write_hgrm(&rt_dir, "")?;
     let t = pr.timing.summary();
     for m in &pr.child_messages {

@@ -114,7 +114,7 @@ pub fn main() -> ExitCode {
             out,
             force,
         } => run::load_config(&config, &overrides)
-            .and_then(|cfg| run::run(cfg, mode, out, force, &command_line))
+            .and_then(|cfg| run::run(cfg, mode, out, force, false, &command_line))
             .map(|o| {
                 use std::io::Write;
                 // Never panic on a closed terminal or pipe: the run folder is already written.

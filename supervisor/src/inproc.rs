@@ -4,51 +4,58 @@
 //!
 //! [`PlantSide`]: deltaloop_plant::PlantSide
 //! [`ControllerSide`]: deltaloop_controller::ControllerSide
+//! [`Recorder`]: crate::record::Recorder
 
-use crate::record::{LawRun, Recorder};
+use crate::lawrun::{self, Keep, LawRun};
 use crate::study::Study;
+use anyhow::Result;
 use deltaloop_config::Law;
 use deltaloop_plant::Arrival;
 
 /// Runs one law over the study's reference, ticks 0..=N, then takes the final state N + 1.
-pub fn run_law(study: &Study, law: Law) -> LawRun {
+/// Fails only if the trace cannot be written.
+pub fn run_law(study: &Study, law: Law, keep: &Keep) -> Result<LawRun> {
     let reference = &study.reference;
-    let mut rec = Recorder::new(law, reference.n);
+    let mut rec = lawrun::recorder(study, law, keep)?;
     let mut plant = match study.plant_side() {
         Ok(p) => p,
         Err(e) => {
             rec.plant_failed(e.to_string());
-            return rec.finish(None);
+            return lawrun::finish(rec, None);
         }
     };
     let mut ctrl = study.controller_side(law);
-    for row in &reference.rows[..=reference.n] {
+    for k in 0..=reference.n {
         if crate::signals::interrupted() {
             rec.interrupt();
-            return rec.finish(None);
+            return lawrun::finish(rec, None);
         }
         let state = plant.state();
-        let reply = ctrl.answer(&state, &row.joint);
-        if !rec.tick(&state, Some(&reply), &row.joint.q) {
-            return rec.finish(None);
+        let reply = ctrl.answer(&state, &reference.row(k).joint);
+        if !rec.tick(&state, Some(&reply)) {
+            return lawrun::finish(rec, None);
         }
         match plant.advance(Arrival::Reply(reply)) {
             Ok(tel) => rec.applied(Some(&tel)),
             Err(stop) => {
                 rec.plant_failed(stop.cause().to_string());
-                return rec.finish(None);
+                return lawrun::finish(rec, None);
             }
         }
     }
-    rec.finish(Some(&plant.state()))
+    lawrun::finish(rec, Some(&plant.state()))
 }
 
-/// Runs several laws, each on its own thread (they share nothing but the read-only study).
-pub fn run_laws(study: &Study, laws: &[Law]) -> Vec<LawRun> {
+/// Runs several laws, each on its own thread (they share nothing but the read-only study), each
+/// with what `keep(law)` asks for.
+pub fn run_laws(study: &Study, laws: &[Law], keep: impl Fn(Law) -> Keep) -> Vec<Result<LawRun>> {
     std::thread::scope(|scope| {
         let handles: Vec<_> = laws
             .iter()
-            .map(|&law| scope.spawn(move || run_law(study, law)))
+            .map(|&law| {
+                let keep = keep(law);
+                scope.spawn(move || run_law(study, law, &keep))
+            })
             .collect();
         handles
             .into_iter()

@@ -3,11 +3,12 @@
 
 use crate::analysis::Mismatch;
 use crate::metrics::LawMetrics;
-use crate::record::{LawRun, TickRecord};
-use crate::reference::JointReference;
+use crate::record::TickRecord;
+use crate::reference::RefRow;
 use crate::timing::TimingSummary;
 use anyhow::{Context, Result};
-use deltaloop_law::ControllerParams;
+use deltaloop_law::{ControllerParams, Law};
+use deltaloop_model::Vec3;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -183,56 +184,126 @@ fn drives(r: &TickRecord) -> &'static str {
     }
 }
 
-/// Writes `trace.csv`: one row per tick per law, every float in shortest round-trip exponent form
-/// (e.g. `-7.776579935558914e-10`). Columns: law, k, t_s, then per joint q_des (rad), q (rad,
+/// `trace.csv` rows of one law, written as the ticks are recorded (the file's part for that law;
+/// [`join_trace`] puts the parts behind the header). Every float in shortest round-trip exponent
+/// form (e.g. `-7.776579935558914e-10`). Columns: law, k, t_s, then per joint q_des (rad), q (rad,
 /// true), qdot (rad/s, true), e (rad), tau (commanded τ_k, N m), tau_applied (τᵃ_k, N m), s
 /// (rad/s), n_hat (rad/s²), n_true (rad/s²); then `reply` (what became of the controller's reply
 /// to tick k: applied, late, skipped, missed) and `drives` (what the drives did over
 /// [t_k, t_{k+1}): commanded, clamped, held, rejected). tau, s and n_hat are empty on a tick the
 /// controller never answered; n_true is empty where the next state is unknown.
-pub fn write_trace(
-    path: &Path,
-    runs: &[LawRun],
-    reference: &JointReference,
-    m_bar: f64,
-) -> Result<()> {
-    let mut w = csv::Writer::from_path(path)
-        .with_context(|| format!("cannot create {}", path.display()))?;
-    let named = || format!("cannot write {}", path.display());
-    w.write_record(header()).with_context(named)?;
-    let ts = reference.ts;
-    let mut row: Vec<String> = Vec::with_capacity(30);
-    for run in runs {
-        for (i, r) in run.records.iter().enumerate() {
-            let rf = &reference.rows[r.sample.k as usize];
-            let truth = run
-                .next_of(i)
-                .map(|(qd1, tau1)| (qd1 - r.qd_true) / ts - tau1 / m_bar);
-            row.clear();
-            row.push(run.law.name().into());
-            row.push(r.sample.k.to_string());
-            row.push(format!("{:e}", rf.t));
-            let mut push3 =
-                |v: &deltaloop_model::Vec3| row.extend(v.iter().map(|x| format!("{x:e}")));
-            push3(&rf.joint.q);
-            push3(&r.q_true);
-            push3(&r.qd_true);
-            push3(&(rf.joint.q - r.q_true));
-            let mut opt3 = |v: Option<&deltaloop_model::Vec3>| match v {
-                Some(v) => row.extend(v.iter().map(|x| format!("{x:e}"))),
-                None => row.extend(std::iter::repeat_n(String::new(), 3)),
-            };
-            opt3(r.out.as_ref().map(|o| &o.tau));
-            opt3(Some(&r.sample.tau_applied));
-            opt3(r.out.as_ref().map(|o| &o.s));
-            opt3(r.out.as_ref().map(|o| &o.n_hat));
-            opt3(truth.as_ref());
-            row.push(r.fate.name().into());
-            row.push(drives(r).into());
-            w.write_record(&row).with_context(named)?;
+///
+/// A write error is kept (the first one, naming the file) and returned by [`TraceWriter::finish`].
+pub struct TraceWriter {
+    path: PathBuf,
+    law: Law,
+    w: csv::Writer<std::fs::File>,
+    fields: Vec<String>,
+    error: Option<anyhow::Error>,
+}
+
+impl TraceWriter {
+    /// Creates the part file `path` for `law`'s rows.
+    pub fn create(path: &Path, law: Law) -> Result<Self> {
+        let w = csv::WriterBuilder::new()
+            .has_headers(false)
+            .from_path(path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            law,
+            w,
+            fields: vec![String::new(); header().len()],
+            error: None,
+        })
+    }
+
+    /// Writes tick k's row.
+    pub fn write(&mut self, r: &TickRecord, rf: &RefRow, n_true: Option<Vec3>) {
+        use std::fmt::Write as _;
+        if self.error.is_some() {
+            return;
+        }
+        let mut f = self.fields.iter_mut();
+        let mut put = |v: std::fmt::Arguments<'_>| {
+            if let Some(s) = f.next() {
+                s.clear();
+                let _ = s.write_fmt(v);
+            }
+        };
+        put(format_args!("{}", self.law.name()));
+        put(format_args!("{}", r.sample.k));
+        put(format_args!("{:e}", rf.t));
+        let e = rf.joint.q - r.q_true;
+        for v in [&rf.joint.q, &r.q_true, &r.qd_true, &e] {
+            v.iter().for_each(|x| put(format_args!("{x:e}")));
+        }
+        let out = r.out.as_ref();
+        for v in [
+            out.map(|o| o.tau),
+            Some(r.sample.tau_applied),
+            out.map(|o| o.s),
+            out.map(|o| o.n_hat),
+            n_true,
+        ] {
+            match v {
+                Some(v) => v.iter().for_each(|x| put(format_args!("{x:e}"))),
+                None => (0..3).for_each(|_| put(format_args!(""))),
+            }
+        }
+        put(format_args!("{}", r.fate.name()));
+        put(format_args!("{}", drives(r)));
+        if let Err(e) = self.w.write_record(&self.fields) {
+            self.error = Some(
+                anyhow::Error::new(e).context(format!("cannot write {}", self.path.display())),
+            );
         }
     }
-    w.flush().with_context(named)?;
+
+    /// Flushes the part file; the first write error, if any.
+    pub fn finish(mut self) -> Result<()> {
+        if let Some(e) = self.error.take() {
+            return Err(e);
+        }
+        self.w
+            .flush()
+            .with_context(|| format!("cannot write {}", self.path.display()))
+    }
+}
+
+/// The part file of `law`'s rows in run folder `dir`.
+pub fn trace_part(dir: &Path, law: Law) -> PathBuf {
+    dir.join(format!("trace.{law}.part"))
+}
+
+/// Writes `trace.csv` in `dir`: the header, then the part files of `laws` in order (each removed
+/// once copied). A missing part (the law never ran) adds no rows.
+pub fn join_trace(dir: &Path, laws: &[Law]) -> Result<()> {
+    let path = dir.join("trace.csv");
+    let named = || format!("cannot write {}", path.display());
+    let mut out = csv::Writer::from_path(&path)
+        .with_context(|| format!("cannot create {}", path.display()))?;
+    out.write_record(header()).with_context(named)?;
+    let mut out = out
+        .into_inner()
+        .map_err(|e| anyhow::anyhow!("{}", e.error()))
+        .with_context(named)?;
+    let mut parts = Vec::new();
+    for &law in laws {
+        let part = trace_part(dir, law);
+        let mut f = match std::fs::File::open(&part) {
+            Ok(f) => f,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(e) => return Err(e).with_context(|| format!("cannot read {}", part.display())),
+        };
+        std::io::copy(&mut f, &mut out).with_context(named)?;
+        parts.push(part);
+    }
+    use std::io::Write as _;
+    out.flush().with_context(named)?;
+    for p in parts {
+        let _ = std::fs::remove_file(p);
+    }
     Ok(())
 }
 
@@ -241,14 +312,13 @@ pub fn write_text(path: &Path, text: &str) -> Result<()> {
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// Writes `trace.csv`, `summary.json` and `report.md` into `dir`. The folder's `config.toml` is
-/// not written here: [`crate::run::run`] writes it once, before the runs (the child processes
-/// read it, and it documents a run that fails).
+/// Writes `summary.json` and `report.md` into `dir` and joins the laws' trace parts into
+/// `trace.csv`. The folder's `config.toml` is not written here: [`crate::run::run`] writes it
+/// once, before the runs (the child processes read it, and it documents a run that fails).
 pub fn write_run_folder(
     dir: &Path,
     summary: &Summary<'_>,
-    runs: &[LawRun],
-    reference: &JointReference,
+    laws: &[Law],
     report_md: &str,
 ) -> Result<()> {
     std::fs::create_dir_all(dir)
@@ -258,11 +328,5 @@ pub fn write_run_folder(
         &serde_json::to_string_pretty(summary)?,
     )?;
     write_text(&dir.join("report.md"), report_md)?;
-    write_trace(
-        &dir.join("trace.csv"),
-        runs,
-        reference,
-        summary.controller.m_bar,
-    )?;
-    Ok(())
+    join_trace(dir, laws)
 }

@@ -5,9 +5,9 @@
 //! (`<preset>/<scenario>/`: trace, summary, report) next to the figures.
 
 use crate::analysis::{Mismatch, mismatch};
+use crate::lawrun::LawRun;
 use crate::metrics::LawMetrics;
 use crate::plot::{self, Panel, Series, Series3};
-use crate::record::LawRun;
 use crate::report::{paper_rms, paper_table};
 use crate::run;
 use crate::study::Study;
@@ -129,7 +129,7 @@ fn figures(
     };
     let n = study.reference.n + 1;
     let err = |r: &LawRun, k: usize, j: usize| {
-        study.reference.rows[r.records[k].sample.k as usize].joint.q[j] - r.records[k].q_true[j]
+        study.reference.row(r.records[k].sample.k as usize).joint.q[j] - r.records[k].q_true[j]
     };
     let tau = |r: &LawRun, k: usize, j: usize| r.records[k].tau[j];
     let panels = |f: &dyn Fn(&LawRun, usize, usize) -> f64,
@@ -178,9 +178,9 @@ fn figures(
     let mut paths = vec![Series3 {
         name: "reference x_d".into(),
         color: plot::RGBColor(0, 0, 0),
-        points: study.reference.rows[..n]
-            .iter()
-            .map(|r| (r.task.x[0], r.task.x[1], r.task.x[2]))
+        points: (0..n)
+            .map(|k| study.reference.row(k).task.x)
+            .map(|x| (x[0], x[1], x[2]))
             .collect(),
         width: 2,
     }];
@@ -262,7 +262,7 @@ fn run_case(
     let table = paper_table(cfg.scenario.path).unwrap_or("-");
     let tau_max_nm = cfg.plant.tau_max_nm;
     let rel = PathBuf::from(preset.name()).join(&scn);
-    let o = run::run(cfg, mode, Some(out.join(&rel)), false, command)?;
+    let o = run::run(cfg, mode, Some(out.join(&rel)), false, true, command)?;
     let title = format!("{} ({} preset)", scn.to_uppercase(), preset.name());
     let figs = figures(
         &o.study,

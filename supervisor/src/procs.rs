@@ -1,24 +1,26 @@
 //! The process modes: one `deltaloop-plant` + `deltaloop-controller` pair per law, over iceoryx2.
 //!
 //! [`run_law`] goes through four phases: spawn the pair (found next to the supervisor's own
-//! executable), the handshake (READY from both, the joint reference to the controller as one
-//! slice sample, ARMED, START), observe (drain large queues every millisecond; never notify or
-//! wait on the loop) until both children exit, and classify how they ended. Then the observed
-//! streams go through the same [`Recorder`] the in-process loop fills, so every row and metric
-//! comes from the same code.
+//! executable), the handshake (READY from both, the first chunks of the joint reference to the
+//! controller, ARMED, START), observe (drain large queues every millisecond, send the reference
+//! ahead of the loop; never notify or wait on the loop) until both children exit, and classify
+//! how they ended. While it observes, every finished tick goes through the same
+//! [`Recorder`](crate::record::Recorder) the in-process loop fills (so every row and metric comes
+//! from the same code) and on to disk: memory does not grow with the run.
 
-use crate::record::{Fault, LawRun, Recorder};
+use crate::feed::ReferenceFeed;
+use crate::lawrun::{self, Keep, LawRecorder, LawRun};
+use crate::record::Fault;
 use crate::study::Study;
-use crate::timing::Timing;
+use crate::timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
 use anyhow::{Context, Result, anyhow, bail};
 use deltaloop_config::config::Layout;
 use deltaloop_config::{Law, LoopMode};
 use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, OBSERVER_BUFFER, Svc};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{
-    self, ControlKind, ControlMsg, RefSample, Sender, StateMsg, TelemetryMsg, TorqueMsg,
+    self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
 };
-use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use std::path::{Path, PathBuf};
@@ -38,19 +40,6 @@ pub struct ProcessRun {
     pub timing: Timing,
     /// Warnings and errors the children printed (one line each).
     pub child_messages: Vec<String>,
-}
-
-/// Files every waiting sample of `sub` into `slots` by its tick (a tick beyond `slots` is dropped).
-fn file_by_tick<T>(sub: &Subscriber<Svc, T, ()>, slots: &mut [Option<T>], what: &str) -> Result<()>
-where
-    T: wire::Ticked + Copy + std::fmt::Debug + ZeroCopySend,
-{
-    while let Some(s) = sub.receive().ipc(what)? {
-        if let Some(slot) = slots.get_mut(s.payload().tick() as usize) {
-            *slot = Some(*s.payload());
-        }
-    }
-    Ok(())
 }
 
 /// How messages name a process.
@@ -79,33 +68,78 @@ pub fn new_run_id() -> String {
     )
 }
 
-/// Kills and reaps a child on drop, so no process outlives the run, whatever happens.
-struct Reaped(Option<Child>, Sender);
+/// A child process, reaped with its resource usage (wait4), and killed and reaped on drop, so
+/// no process outlives the run, whatever happens.
+struct Reaped {
+    child: Option<Child>,
+    who: Sender,
+    status: Option<ExitStatus>,
+    /// Its peak resident set size, KiB, once it has exited.
+    peak_rss_kib: Option<u64>,
+}
 
 impl Reaped {
-    fn exited(&mut self) -> Option<std::process::ExitStatus> {
-        self.0.as_mut().and_then(|c| c.try_wait().ok().flatten())
+    fn new(child: Child, who: Sender) -> Self {
+        Self {
+            child: Some(child),
+            who,
+            status: None,
+            peak_rss_kib: None,
+        }
+    }
+
+    /// Its exit status, if it has exited (reaps it then).
+    fn exited(&mut self) -> Option<ExitStatus> {
+        use std::os::unix::process::ExitStatusExt;
+        if self.status.is_none()
+            && let Some(c) = &self.child
+        {
+            let (mut st, mut ru) = (0i32, std::mem::MaybeUninit::<libc::rusage>::zeroed());
+            // SAFETY: waiting for our own child, without blocking; both pointers are valid.
+            let r = unsafe { libc::wait4(c.id() as i32, &mut st, libc::WNOHANG, ru.as_mut_ptr()) };
+            if r == c.id() as i32 {
+                self.status = Some(ExitStatus::from_raw(st));
+                // SAFETY: wait4 filled it (it returned the pid).
+                self.peak_rss_kib = Some(unsafe { ru.assume_init() }.ru_maxrss as u64);
+            }
+        }
+        self.status
     }
 }
 
 impl Drop for Reaped {
     fn drop(&mut self) {
-        if let Some(mut c) = self.0.take() {
-            if c.try_wait().ok().flatten().is_none() {
-                // Ask politely first; then make sure.
-                // SAFETY: sending SIGTERM to our own child's pid.
-                unsafe { libc::kill(c.id() as i32, libc::SIGTERM) };
-                for _ in 0..200 {
-                    if c.try_wait().ok().flatten().is_some() {
-                        return;
-                    }
-                    std::thread::sleep(Duration::from_millis(5));
-                }
-                let _ = c.kill();
+        if self.exited().is_some() {
+            return;
+        }
+        let Some(pid) = self.child.as_ref().map(|c| c.id() as i32) else {
+            return;
+        };
+        // Ask politely first; then make sure.
+        // SAFETY: sending SIGTERM to our own child, which has not been reaped.
+        unsafe { libc::kill(pid, libc::SIGTERM) };
+        for _ in 0..200 {
+            if self.exited().is_some() {
+                return;
             }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
             let _ = c.wait();
         }
     }
+}
+
+/// The supervisor's own peak resident set size so far, KiB.
+fn own_peak_rss_kib() -> u64 {
+    let mut ru = std::mem::MaybeUninit::<libc::rusage>::zeroed();
+    // SAFETY: getrusage fills the struct we own.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, ru.as_mut_ptr()) } != 0 {
+        return 0;
+    }
+    // SAFETY: filled by the successful call.
+    unsafe { ru.assume_init() }.ru_maxrss as u64
 }
 
 fn spawn(exe: &Path, args: &[String], log: &Path, who: Sender) -> Result<Reaped> {
@@ -131,7 +165,7 @@ fn spawn(exe: &Path, args: &[String], log: &Path, who: Sender) -> Result<Reaped>
     let child = cmd
         .spawn()
         .with_context(|| format!("cannot start {} (expected next to deltaloop: build all binaries with `cargo build --release`)", exe.display()))?;
-    Ok(Reaped(Some(child), who))
+    Ok(Reaped::new(child, who))
 }
 
 fn read_log(path: &Path) -> Vec<String> {
@@ -143,19 +177,18 @@ fn read_log(path: &Path) -> Vec<String> {
         .collect()
 }
 
-/// The supervisor's ports: observers of the three loop streams, the control channel, and the
-/// reference publisher.
+/// The supervisor's ports: observers of the three loop streams and the control channel (the
+/// reference publisher is a [`ReferenceFeed`] on the same node).
 struct Observer {
     state: Subscriber<Svc, StateMsg, ()>,
     torque: Subscriber<Svc, TorqueMsg, ()>,
     telemetry: Subscriber<Svc, TelemetryMsg, ()>,
     control: ControlPorts,
-    reference: Publisher<Svc, [RefSample], ()>,
-    _node: Node<Svc>,
+    node: Node<Svc>,
 }
 
 impl Observer {
-    fn open(run_id: &str, reference_len: usize) -> Result<Self> {
+    fn open(run_id: &str) -> Result<Self> {
         let node = ipc::node("supervisor", run_id)?;
         Ok(Self {
             state: ipc::state(&node, run_id)?
@@ -174,12 +207,7 @@ impl Observer {
                 .create()
                 .ipc("telemetry observer")?,
             control: ipc::control_ports(&node, run_id)?,
-            reference: ipc::reference(&node, run_id)?
-                .publisher_builder()
-                .initial_max_slice_len(reference_len)
-                .create()
-                .ipc("reference publisher")?,
-            _node: node,
+            node,
         })
     }
 }
@@ -249,7 +277,7 @@ impl Pair {
     fn check_alive(&mut self) -> Result<()> {
         for child in [&mut self.plant, &mut self.controller] {
             if let Some(status) = child.exited() {
-                let who = role(child.1);
+                let who = role(child.who);
                 bail!(
                     "{who} exited before the run started ({status}): {}",
                     self.logs.messages().join(" | ")
@@ -291,9 +319,14 @@ fn await_control(
     }
 }
 
-/// READY from both children, the reference to the controller, ARMED from it. Ok(false) if the
-/// run was interrupted first.
-fn handshake(obs: &Observer, pair: &mut Pair, study: &Study) -> Result<bool> {
+/// READY from both children, the first chunks of the reference to the controller, ARMED from it.
+/// Ok(false) if the run was interrupted first.
+fn handshake(
+    obs: &Observer,
+    feed: &mut ReferenceFeed,
+    pair: &mut Pair,
+    study: &Study,
+) -> Result<bool> {
     let (mut plant_ready, mut ctrl_ready) = (false, false);
     let ready = await_control(
         obs,
@@ -311,53 +344,154 @@ fn handshake(obs: &Observer, pair: &mut Pair, study: &Study) -> Result<bool> {
     if !ready {
         return Ok(false);
     }
-    let rows = &study.reference.rows;
-    let sample = obs
-        .reference
-        .loan_slice_uninit(rows.len())
-        .ipc("loan reference")?;
-    let sample = sample.write_from_fn(|k| {
-        let j = &rows[k].joint;
-        RefSample {
-            q: j.q.into(),
-            qd: j.qd.into(),
-            qdd: j.qdd.into(),
-        }
-    });
-    sample.send().ipc("send reference")?;
+    feed.send_initial(&study.reference)?;
     await_control(obs, pair, "the controller taking the reference", &mut |m| {
         m.kind() == Some(ControlKind::Armed)
     })
 }
 
-/// The three loop streams as the supervisor saw them, indexed by tick (None: not seen), and what
-/// the plant said on the control channel.
-struct Streams {
-    states: Vec<Option<StateMsg>>,
-    torques: Vec<Option<TorqueMsg>>,
-    tels: Vec<Option<TelemetryMsg>>,
+/// Ticks the observer holds open at most (a ring indexed by tick).
+const WINDOW: u64 = 32_768;
+
+/// A tick is finished once the loop has been seen this far past it (2.5 s at Ts = 0.3 ms): a
+/// reply up to that late is still filed with its tick (and shows as late).
+const LAG: u64 = 8_192;
+
+/// The open ticks, a ring of [`WINDOW`] slots.
+struct Window {
+    slots: Vec<Seen>,
+    /// The next tick to finish.
+    next: u64,
+    /// The last tick kept (N + 1: the state after the run).
+    last: u64,
+}
+
+impl Window {
+    fn new(last: u64) -> Self {
+        let empty = Seen {
+            k: u64::MAX,
+            ..Seen::default()
+        };
+        Self {
+            slots: vec![empty; WINDOW as usize],
+            next: 0,
+            last,
+        }
+    }
+
+    /// The slot of tick k (cleared if it held an older tick).
+    fn slot(&mut self, k: u64) -> &mut Seen {
+        let s = &mut self.slots[(k % WINDOW) as usize];
+        if s.k != k {
+            *s = Seen {
+                k,
+                ..Seen::default()
+            };
+        }
+        s
+    }
+
+    /// Takes the next tick out of the window.
+    fn take(&mut self) -> Seen {
+        let k = self.next;
+        self.next += 1;
+        let s = &mut self.slots[(k % WINDOW) as usize];
+        let seen = if s.k == k {
+            *s
+        } else {
+            Seen {
+                k,
+                ..Seen::default()
+            }
+        };
+        s.k = u64::MAX;
+        seen
+    }
+}
+
+/// Everything the supervisor does with the loop's streams while they arrive: file each message
+/// by tick in the window, and hand every finished tick, in order, to `<law>.timing.csv`, the
+/// timing histograms and the recorder (trace and metrics). Memory is fixed at START.
+struct Observation<'a> {
+    window: Window,
+    rec: LawRecorder<'a>,
+    timing: TimingAcc,
+    csv: TimingCsv,
+    /// The last tick with a loop message (state, reply, or telemetry of the loop, not of the
+    /// safe stop after it).
+    last_seen: Option<u64>,
+    /// The newest reply seen (the controller has answered up to its tick).
+    last_torque: Option<TorqueMsg>,
+    /// The newest telemetry of the loop seen.
+    last_tel: Option<TelemetryMsg>,
     /// The plant's FAULT: it stopped the loop at this tick (and braked).
     plant_fault: Option<Fault>,
     /// The plant's DIVERGED: its model failed at this tick.
     diverged: Option<Fault>,
+    /// The first tick since the last complete one that was not complete: a loss if the loop
+    /// shows up again later, else where the run ended.
+    gap: Option<u64>,
+    /// The recorder stopped (the divergence rule).
+    stopped: bool,
+    /// The state after the last tick, N + 1.
+    after: Option<StateMsg>,
 }
 
-impl Streams {
-    fn new(len: usize) -> Self {
+fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
+    Some(a.map_or(b, |a| a.max(b)))
+}
+
+impl<'a> Observation<'a> {
+    fn new(rec: LawRecorder<'a>, n: u64, ts_ns: u64, realtime: bool, csv: TimingCsv) -> Self {
         Self {
-            states: vec![None; len],
-            torques: vec![None; len],
-            tels: vec![None; len],
+            window: Window::new(n + 1),
+            rec,
+            timing: TimingAcc::new(n, ts_ns, realtime),
+            csv,
+            last_seen: None,
+            last_torque: None,
+            last_tel: None,
             plant_fault: None,
             diverged: None,
+            gap: None,
+            stopped: false,
+            after: None,
         }
     }
 
-    /// Takes everything waiting on the observer's ports.
+    /// Takes everything waiting on the observer's ports, and finishes the ticks the loop has
+    /// left [`LAG`] behind.
     fn drain(&mut self, obs: &Observer) -> Result<()> {
-        file_by_tick(&obs.state, &mut self.states, "observe state")?;
-        file_by_tick(&obs.torque, &mut self.torques, "observe torque")?;
-        file_by_tick(&obs.telemetry, &mut self.tels, "observe telemetry")?;
+        while let Some(s) = obs.state.receive().ipc("observe state")? {
+            let m = *s.payload();
+            if self.open(m.tick)? {
+                self.window.slot(m.tick).state = Some(m);
+                self.last_seen = max_opt(self.last_seen, m.tick);
+            }
+        }
+        while let Some(s) = obs.torque.receive().ipc("observe torque")? {
+            let m = *s.payload();
+            if self.open(m.tick)? {
+                self.window.slot(m.tick).torque = Some(m);
+                self.last_seen = max_opt(self.last_seen, m.tick);
+            }
+            if self.last_torque.is_none_or(|t| t.tick < m.tick) {
+                self.last_torque = Some(m);
+            }
+        }
+        while let Some(s) = obs.telemetry.receive().ipc("observe telemetry")? {
+            let m = *s.payload();
+            let in_loop = m.flags & wire::TEL_SAFE_STOP == 0;
+            if self.open(m.tick)? {
+                self.window.slot(m.tick).tel = Some(m);
+                if in_loop {
+                    self.last_seen = max_opt(self.last_seen, m.tick);
+                }
+            }
+            if in_loop && self.last_tel.is_none_or(|t| t.tick < m.tick) {
+                self.last_tel = Some(m);
+            }
+        }
         while let Some(m) = obs.control.1.receive().ipc("receive control")? {
             let m = m.payload();
             let fault = || Fault {
@@ -374,7 +508,110 @@ impl Streams {
                 _ => {}
             }
         }
+        while let Some(seen) = self.last_seen
+            && self.window.next + LAG <= seen
+        {
+            let t = self.window.take();
+            self.finish_tick(t)?;
+        }
         Ok(())
+    }
+
+    /// Whether tick k goes into the window; makes room for it by finishing the oldest ticks (a
+    /// tick already finished, or beyond the run, is dropped).
+    fn open(&mut self, k: u64) -> Result<bool> {
+        if k > self.window.last || k < self.window.next {
+            return Ok(false);
+        }
+        while k >= self.window.next + WINDOW {
+            let t = self.window.take();
+            self.finish_tick(t)?;
+        }
+        Ok(true)
+    }
+
+    /// The ticks the controller has answered (the reference it no longer needs).
+    fn answered(&self) -> Option<u64> {
+        self.last_torque.map(|t| t.tick)
+    }
+
+    /// One finished tick to the timing file, the histograms and the recorder.
+    fn finish_tick(&mut self, seen: Seen) -> Result<()> {
+        self.csv.write(&seen)?;
+        self.timing.push(seen);
+        if seen.k == self.window.last {
+            self.after = seen.state;
+            return Ok(());
+        }
+        if self.stopped {
+            return Ok(());
+        }
+        let in_loop = seen.tel.filter(|m| m.flags & wire::TEL_SAFE_STOP == 0);
+        // A tick without telemetry never ran to its end (or the sample was lost), unless the
+        // plant's telemetry says it held through a missing reply.
+        let ran = in_loop.is_some() || seen.torque.is_some();
+        let Some(state) = seen.state.filter(|_| ran) else {
+            self.gap.get_or_insert(seen.k);
+            return Ok(());
+        };
+        // The loop went on after a hole: the hole is a loss, not an end (regression: the
+        // supervisor stopped for 3 s lost part of the stream, and the run was called a divergence
+        // at the first hole, dropping every good tick after it).
+        if let Some(g) = self.gap.take() {
+            (g..seen.k).for_each(|j| self.rec.lost(j));
+        }
+        if !self.rec.tick(&state, seen.torque.as_ref()) {
+            self.stopped = true;
+            return Ok(());
+        }
+        self.rec.applied(in_loop.as_ref());
+        if let Some(d) = &self.diverged
+            && d.tick == seen.k + 1
+        {
+            self.rec.plant_failed(d.cause.clone());
+            self.stopped = true;
+        }
+        Ok(())
+    }
+
+    /// After both children are gone: finishes every tick left, decides where and why the
+    /// stream ended, and returns the run and its timing.
+    fn finish(mut self, interrupted: bool, cause: Option<&Fault>) -> Result<(LawRun, Timing)> {
+        if let Some(f) = cause {
+            self.rec.fault(f.clone());
+        }
+        while self.window.next <= self.window.last {
+            let t = self.window.take();
+            self.finish_tick(t)?;
+        }
+        self.csv.finish()?;
+        let timing = self.timing.finish();
+        let mut rec = self.rec;
+        let n = self.window.last - 1;
+        let mut after = self.after.filter(|_| !self.stopped);
+        if let (Some(g), false) = (self.gap, self.stopped) {
+            // Incomplete ticks before the last tick seen were lost; the first one after it is
+            // where the loop stopped.
+            let seen = self.last_seen.unwrap_or(0);
+            (g..seen.min(n + 1)).for_each(|j| rec.lost(j));
+            if seen <= n {
+                let k = g.max(seen);
+                after = None;
+                if interrupted {
+                    rec.interrupt();
+                } else if cause.is_none() {
+                    let why = match &self.diverged {
+                        Some(d) if d.tick <= k + 1 => d.cause.clone(),
+                        _ => format!("the supervisor lost tick {k} of the stream"),
+                    };
+                    if k == 0 {
+                        bail!("{why}");
+                    }
+                    rec.plant_failed(why);
+                }
+            }
+        }
+        Ok((lawrun::finish(rec, after.as_ref())?, timing))
     }
 }
 
@@ -392,9 +629,10 @@ struct Ending {
 /// out), filing every message by tick.
 fn observe(
     obs: &Observer,
+    feed: &mut ReferenceFeed,
     pair: &mut Pair,
     study: &Study,
-    streams: &mut Streams,
+    streams: &mut Observation<'_>,
 ) -> Result<Ending> {
     let cfg = &study.config;
     let n = study.reference.n as u64;
@@ -411,6 +649,9 @@ fn observe(
     let mut first_exit: Option<(u64, Sender)> = None;
     loop {
         streams.drain(obs)?;
+        if let Some(a) = streams.answered() {
+            feed.feed(&study.reference, a)?;
+        }
         let (p, c) = (pair.plant.exited(), pair.controller.exited());
         let now = rt::now_ns();
         if first_exit.is_none() {
@@ -458,25 +699,33 @@ fn observe(
 }
 
 /// Runs `law` over the study with a real process pair. `run_dir` holds the resolved config the
-/// children read and receives their stderr logs and `<law>.timing.csv`.
-pub fn run_law(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Result<ProcessRun> {
+/// children read and receives their stderr logs and `<law>.timing.csv`; `keep` says where the
+/// trace goes.
+pub fn run_law(
+    study: &Study,
+    law: Law,
+    mode: LoopMode,
+    run_dir: &Path,
+    keep: &Keep,
+) -> Result<ProcessRun> {
     let cfg = &study.config;
     let Some(layout) = mode.layout(cfg) else {
         bail!("mode {mode} runs no processes");
     };
     // A full /dev/shm would kill a child with SIGBUS mid-set-up: say so up front instead.
     if let Some(free) = ipc::shm_free_bytes() {
-        ipc::check_shm(ipc::shm_needed_bytes(study.reference.rows.len()), free)
-            .map_err(|e| anyhow!(e))?;
+        ipc::check_shm(ipc::shm_needed_bytes(), free).map_err(|e| anyhow!(e))?;
     }
     let rid = new_run_id();
-    let obs = Observer::open(&rid, study.reference.rows.len())?;
+    let obs = Observer::open(&rid)?;
+    let mut feed = ReferenceFeed::create(&obs.node, &rid, study.reference.row_count())?;
     let mut pair = Pair::spawn(&rid, law, mode, run_dir)?;
-    let ready = match handshake(&obs, &mut pair, study) {
+    let ready = match handshake(&obs, &mut feed, &mut pair, study) {
         Ok(r) => r,
         Err(e) => {
             // A child that died during set-up leaves a half-created node: remove it now.
             drop(pair);
+            drop(feed);
             drop(obs);
             let removed = ipc::remove_dead_nodes();
             return Err(if removed.is_empty() {
@@ -490,7 +739,7 @@ pub fn run_law(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Resul
         }
     };
     if !ready {
-        return Ok(stopped_before_start(&obs, pair, law, study, rid));
+        return stopped_before_start(&obs, pair, law, study, rid, keep);
     }
 
     let sched_warnings = rt::apply(&rt::Sched {
@@ -499,10 +748,17 @@ pub fn run_law(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Resul
         lock_memory: false,
     });
     let n = study.reference.n as u64;
-    // Allocate (and touch) everything the observer fills before START, not after: for a long run
-    // that takes seconds, during which the loop would overflow the observer's queues (regression:
-    // a 10-minute lockstep run lost its first 32 k ticks; an hour-long realtime run, all of them).
-    let mut streams = Streams::new(n as usize + 2);
+    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
+    // Allocate (and touch) everything the observer fills before START, not after: the loop does
+    // not wait for the supervisor (regression: a 10-minute lockstep run lost its first 32 k
+    // ticks while the supervisor allocated per-tick tables after START).
+    let mut streams = Observation::new(
+        lawrun::recorder(study, law, keep)?,
+        n,
+        ts_ns,
+        mode == LoopMode::Realtime,
+        TimingCsv::create(&run_dir.join(format!("{law}.timing.csv")))?,
+    );
     let mut start = ControlMsg::new(ControlKind::Start, Sender::Supervisor);
     start.ticks = n;
     start.q0 = study.reference.q0().into();
@@ -511,13 +767,14 @@ pub fn run_law(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Resul
     let steal_before = crate::timing::steal_jiffies();
     obs.control.0.send_copy(start).ipc("send START")?;
 
-    let ending = observe(&obs, &mut pair, study, &mut streams)?;
+    let ending = observe(&obs, &mut feed, &mut pair, study, &mut streams)?;
     let mut child_messages = pair.logs.messages();
     let cause = if ending.interrupted {
         None
     } else {
         fault_cause(&ending, &pair, &streams)
     };
+    let (plant_rss, ctrl_rss) = (pair.plant.peak_rss_kib, pair.controller.peak_rss_kib);
     drop(pair);
     // A child killed by a signal leaves its iceoryx2 node behind: the surviving supervisor
     // removes it now (and says so) rather than leaving it to the next run.
@@ -534,18 +791,9 @@ pub fn run_law(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Resul
             .into_iter()
             .map(|w| format!("deltaloop: warning: {w}")),
     );
-    write_timing_csv(&run_dir.join(format!("{law}.timing.csv")), &streams)?;
-    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
-    let mut timing = Timing::from_streams(
-        &streams.states,
-        &streams.torques,
-        &streams.tels,
-        n,
-        ts_ns,
-        mode == LoopMode::Realtime,
-    );
+    let (run, mut timing) = streams.finish(ending.interrupted, cause.as_ref())?;
     timing.steal = crate::timing::steal_ms_between(&steal_before, &crate::timing::steal_jiffies());
-    let run = record(ending.interrupted, cause.as_ref(), law, study, &streams)?;
+    timing.peak_rss = PeakRss::from_kib(own_peak_rss_kib(), plant_rss, ctrl_rss);
     Ok(ProcessRun {
         fault: cause,
         interrupted: ending.interrupted,
@@ -564,7 +812,8 @@ fn stopped_before_start(
     law: Law,
     study: &Study,
     run_id: String,
-) -> ProcessRun {
+    keep: &Keep,
+) -> Result<ProcessRun> {
     let _ = obs
         .control
         .0
@@ -580,131 +829,16 @@ fn stopped_before_start(
     let logs = pair.logs.clone();
     drop(pair);
     let child_messages = logs.messages();
-    let mut rec = Recorder::new(law, study.reference.n);
+    let mut rec = lawrun::recorder(study, law, keep)?;
     rec.interrupt();
-    ProcessRun {
+    Ok(ProcessRun {
         fault: None,
         interrupted: true,
         run_id,
-        run: rec.finish(None),
+        run: lawrun::finish(rec, None)?,
         timing: Timing::default(),
         child_messages,
-    }
-}
-
-/// Feeds the observed streams through the [`Recorder`], tick by tick, exactly as the in-process
-/// loop feeds it.
-fn record(
-    interrupted: bool,
-    cause: Option<&Fault>,
-    law: Law,
-    study: &Study,
-    streams: &Streams,
-) -> Result<LawRun> {
-    let n = study.reference.n;
-    let mut rec = Recorder::new(law, n);
-    if let Some(f) = cause {
-        rec.fault(f.clone());
-    }
-    // The last tick the supervisor saw anything of: a hole before it is a loss, not an end.
-    let last_seen = (0..streams.states.len())
-        .rev()
-        .find(|&i| {
-            streams.states[i].is_some() || streams.torques[i].is_some() || streams.tels[i].is_some()
-        })
-        .unwrap_or(0);
-    for k in 0..=n {
-        let (state, reply, tel) = (streams.states[k], streams.torques[k], streams.tels[k]);
-        // A tick without telemetry never ran to its end (or the sample was lost): the loop
-        // stopped here, unless the plant's telemetry says it held through a missing reply.
-        let ran = tel.is_some() || reply.is_some();
-        if (state.is_none() || !ran) && k < last_seen {
-            // Regression: the supervisor stopped for 3 s lost part of the stream, and the run
-            // was called a divergence at the first hole, dropping every good tick after it.
-            rec.lost(k as u64);
-            continue;
-        }
-        let Some(state) = state.filter(|_| ran) else {
-            if interrupted {
-                rec.interrupt();
-                return Ok(rec.finish(None));
-            }
-            if cause.is_some() {
-                return Ok(rec.finish(None));
-            }
-            let why = match &streams.diverged {
-                Some(d) if d.tick as usize <= k + 1 => d.cause.clone(),
-                _ => format!("the supervisor lost tick {k} of the stream"),
-            };
-            if k == 0 {
-                return Err(anyhow!("{why}"));
-            }
-            rec.plant_failed(why);
-            return Ok(rec.finish(None));
-        };
-        if !rec.tick(&state, reply.as_ref(), &study.reference.rows[k].joint.q) {
-            return Ok(rec.finish(None));
-        }
-        rec.applied(tel.as_ref());
-        if let Some(d) = &streams.diverged
-            && d.tick as usize == k + 1
-        {
-            rec.plant_failed(d.cause.clone());
-            return Ok(rec.finish(None));
-        }
-    }
-    Ok(rec.finish(streams.states[n + 1].as_ref()))
-}
-
-/// `<law>.timing.csv`: the raw CLOCK_MONOTONIC stamps of every tick (ns) and the plant's flags,
-/// so any latency can be recomputed. Empty cells: the supervisor did not see that message.
-fn write_timing_csv(path: &Path, streams: &Streams) -> Result<()> {
-    let (states, torques, tels) = (&streams.states, &streams.torques, &streams.tels);
-    let mut w = csv::Writer::from_path(path)
-        .with_context(|| format!("cannot create {}", path.display()))?;
-    let named = || format!("cannot write {}", path.display());
-    w.write_record([
-        "k",
-        "deadline_ns",
-        "wake_ns",
-        "state_pub_ns",
-        "ctrl_rx_ns",
-        "ctrl_pub_ns",
-        "torque_rx_ns",
-        "missed",
-        "held",
-        "clamped",
-        "ctrl_skipped",
-    ])
-    .with_context(named)?;
-    let opt = |v: Option<u64>| v.map_or(String::new(), |x| x.to_string());
-    for k in 0..tels.len().max(states.len()) {
-        let (s, t, m) = (
-            states.get(k).copied().flatten(),
-            torques.get(k).copied().flatten(),
-            tels.get(k).copied().flatten(),
-        );
-        if s.is_none() && t.is_none() && m.is_none() {
-            continue;
-        }
-        let flag = |bit: u32| opt(m.map(|m| u64::from(m.flags & bit != 0)));
-        w.write_record([
-            k.to_string(),
-            opt(s.map(|s| s.t_deadline_ns)),
-            opt(s.map(|s| s.t_wake_ns)),
-            opt(s.map(|s| s.t_publish_ns)),
-            opt(t.map(|t| t.t_state_rx_ns)),
-            opt(t.map(|t| t.t_publish_ns)),
-            opt(m.and_then(|m| (m.t_torque_rx_ns > 0).then_some(m.t_torque_rx_ns))),
-            flag(wire::TEL_MISSED),
-            flag(wire::TEL_HELD),
-            flag(wire::TEL_CLAMPED),
-            opt(t.map(|t| t.skipped)),
-        ])
-        .with_context(named)?;
-    }
-    w.flush().with_context(named)?;
-    Ok(())
+    })
 }
 
 fn status_text(s: ExitStatus) -> String {
@@ -744,20 +878,14 @@ fn last_line(path: &Path) -> String {
 
 /// One line saying what went wrong, or None when both children finished normally.
 /// The tick is the one the plant's FAULT message names, else the tick after its last telemetry.
-fn fault_cause(ending: &Ending, pair: &Pair, streams: &Streams) -> Option<Fault> {
+fn fault_cause(ending: &Ending, pair: &Pair, streams: &Observation<'_>) -> Option<Fault> {
     let (plant, ctrl) = (ending.plant, ending.controller);
     let (plant_log, ctrl_log) = (&pair.logs.plant, &pair.logs.controller);
     let ok = |s: Option<ExitStatus>| s.is_some_and(|s| s.success());
     if ok(plant) && ok(ctrl) {
         return None;
     }
-    let last_torque = streams.torques.iter().rev().flatten().next();
-    let last_tel = streams
-        .tels
-        .iter()
-        .rev()
-        .flatten()
-        .find(|m| m.flags & wire::TEL_SAFE_STOP == 0);
+    let (last_torque, last_tel) = (streams.last_torque, streams.last_tel);
     let tick = streams
         .plant_fault
         .as_ref()

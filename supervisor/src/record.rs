@@ -1,12 +1,15 @@
-//! What a run leaves behind: one [`TickRecord`] per control tick, the state after the last tick,
-//! and how the run ended. Every loop mode feeds the same [`Recorder`] the same three message
-//! streams (state, reply, telemetry, tick by tick and in order), so a row of `trace.csv`, the
-//! divergence rule and every metric come from one place whatever the transport.
+//! What a run leaves behind: one [`TickRecord`] per control tick, streamed to a [`TickSink`] as
+//! soon as it is final, and how the run ended ([`RunEnd`]). Every loop mode feeds the same
+//! [`Recorder`] the same three message streams (state, reply, telemetry, tick by tick and in
+//! order), so a row of `trace.csv`, the divergence rule and every metric come from one place
+//! whatever the transport, and memory does not grow with the run.
 
+use crate::reference::{JointReference, RefRow};
 use deltaloop_config::Law;
 use deltaloop_law::Output;
 use deltaloop_model::{PlantSample, Vec3};
 use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
+use std::collections::VecDeque;
 
 /// Error bound of the divergence rule, rad (docs/controllers.md: |e_i| > 0.5 rad).
 pub const DIVERGENCE_ERR_RAD: f64 = 0.5;
@@ -70,22 +73,6 @@ fn measured(s: &StateMsg) -> PlantSample {
     }
 }
 
-impl LawRun {
-    /// What the truth N_k of record `i` needs from tick k + 1: (q̇_{k+1} true, τᵃ_{k+1}); None
-    /// if tick k + 1 was not seen.
-    pub fn next_of(&self, i: usize) -> Option<(Vec3, Vec3)> {
-        let k = self.records[i].sample.k;
-        match self.records.get(i + 1) {
-            Some(r) if r.sample.k == k + 1 => Some((r.qd_true, r.sample.tau_applied)),
-            Some(_) => None,
-            None => self
-                .after
-                .filter(|(s, _)| s.k == k + 1)
-                .map(|(s, qd)| (qd, s.tau_applied)),
-        }
-    }
-}
-
 /// A loop fault: the tick it happened at and a one-line cause.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Fault {
@@ -102,65 +89,84 @@ pub enum Outcome {
     Diverged { tick: u64, reason: String },
     /// Stopped at `tick` by Ctrl-C / SIGTERM; the ticks before it are kept.
     Interrupted { tick: u64 },
-    /// Stopped by the loop fault in [`LawRun::fault`] (a process died, stalled, or the plant failed).
+    /// Stopped by the loop fault in [`RunEnd::fault`] (a process died, stalled, or the plant failed).
     Faulted,
     /// The loop ran to its end, but the supervisor lost ticks of the stream (it fell behind the
-    /// loop; its queues overflowed): [`LawRun::lost_ticks`] of them, the first at
-    /// [`LawRun::first_lost`]. Every tick it saw is recorded.
+    /// loop; its queues overflowed): [`RunEnd::lost_ticks`] of them, the first at
+    /// [`RunEnd::first_lost`]. Every tick it saw is recorded.
     LostData,
 }
 
-/// A finished run of one law.
-#[derive(Clone, Debug)]
-pub struct LawRun {
+/// How a law's recording ended: everything but the ticks themselves (those went to the sink).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunEnd {
     pub law: Law,
-    /// The recorded ticks, in order: 0..=last but for the lost ones.
-    pub records: Vec<TickRecord>,
-    /// Ticks the supervisor never saw (its queues overflowed): not in `records`.
+    /// Ticks recorded (handed to the sink).
+    pub records: u64,
+    /// Ticks the supervisor never saw (its queues overflowed): not recorded.
     pub lost_ticks: u64,
     /// The first lost tick, if any.
     pub first_lost: Option<u64>,
-    /// The plant state after the last recorded tick (tick last + 1), if the plant got there.
-    pub after: Option<(PlantSample, Vec3)>,
     pub outcome: Outcome,
     /// A loop fault. Kept even when the divergence rule ended the trace first (e.g. the robot
     /// drifting while the plant held the torque of a dead controller).
     pub fault: Option<Fault>,
 }
 
-/// Collects ticks and applies the divergence rule. Pre-allocated for the whole run.
-#[derive(Debug)]
-pub struct Recorder {
-    run: LawRun,
+/// Where finished ticks go, in tick order (the trace file, the streaming metrics, …).
+pub trait TickSink {
+    /// Tick k is final: its record, its reference row and the TDE truth
+    /// N_k = (q̇_{k+1} − q̇_k)/Ts − τᵃ_{k+1}/M̄ (rad/s², true rates; None if tick k + 1 is unknown).
+    fn take(&mut self, r: &TickRecord, row: &RefRow, n_true: Option<Vec3>);
 }
 
-impl Recorder {
-    /// Room for ticks 0..=n.
-    pub fn new(law: Law, n: usize) -> Self {
+/// Ticks kept open after they are recorded: a later reply can still mark them skipped (a
+/// controller skips at most a few states: its queue holds `LOOP_BUFFER`), and the next tick
+/// completes the held torque and the TDE truth. Older ticks go to the sink.
+pub const OPEN_TICKS: usize = 64;
+
+/// Collects ticks, applies the divergence rule and streams finished ticks to a [`TickSink`].
+/// Holds [`OPEN_TICKS`] ticks at most, whatever the run's length.
+pub struct Recorder<'a, S: TickSink> {
+    reference: &'a JointReference,
+    m_bar: f64,
+    open: VecDeque<(TickRecord, RefRow)>,
+    last_k: Option<u64>,
+    end: RunEnd,
+    sink: S,
+}
+
+impl<'a, S: TickSink> Recorder<'a, S> {
+    /// A recorder for `law` over `reference`; `m_bar` (kg m²) is the M̄ of the TDE truth.
+    pub fn new(law: Law, reference: &'a JointReference, m_bar: f64, sink: S) -> Self {
         Self {
-            run: LawRun {
+            reference,
+            m_bar,
+            open: VecDeque::with_capacity(OPEN_TICKS + 1),
+            last_k: None,
+            end: RunEnd {
                 law,
-                records: Vec::with_capacity(n + 1),
+                records: 0,
                 lost_ticks: 0,
                 first_lost: None,
-                after: None,
                 outcome: Outcome::Completed,
                 fault: None,
             },
+            sink,
         }
     }
 
     /// Records tick k: the state the plant published and the controller's reply to it (None: it
     /// never answered this state). Returns false, having marked the run diverged, if the tick
     /// breaks the divergence rule; the caller must stop. Call [`Recorder::applied`] next.
-    pub fn tick(&mut self, state: &StateMsg, reply: Option<&TorqueMsg>, q_des: &Vec3) -> bool {
+    pub fn tick(&mut self, state: &StateMsg, reply: Option<&TorqueMsg>) -> bool {
         let sample = measured(state);
         self.hold_previous(sample.k, sample.tau_applied);
         // A reply for tick k says how many older states the controller skipped to reach it.
         if let Some(r) = reply {
             let skipped = usize::try_from(r.skipped).unwrap_or(usize::MAX);
             let oldest = state.tick.saturating_sub(r.skipped);
-            for prev in self.run.records.iter_mut().rev().take(skipped) {
+            for (prev, _) in self.open.iter_mut().rev().take(skipped) {
                 if prev.sample.k >= oldest && prev.fate == ReplyFate::Missed {
                     prev.fate = ReplyFate::Skipped;
                 }
@@ -172,7 +178,8 @@ impl Recorder {
             n_hat: Vec3::from(t.n_hat),
             u: Vec3::from(t.u),
         });
-        self.run.records.push(TickRecord {
+        let row = self.reference.row(sample.k as usize);
+        let record = TickRecord {
             sample,
             q_true: Vec3::from(state.q_true),
             qd_true: Vec3::from(state.qd_true),
@@ -186,8 +193,9 @@ impl Recorder {
             clamped: false,
             held: false,
             rejected: false,
-        });
-        let e = q_des - sample.q;
+        };
+        self.push(record, row);
+        let e = row.joint.q - sample.q;
         let reason = if !(sample
             .q
             .iter()
@@ -207,7 +215,7 @@ impl Recorder {
         };
         match reason {
             Some(reason) => {
-                self.run.outcome = Outcome::Diverged {
+                self.end.outcome = Outcome::Diverged {
                     tick: sample.k,
                     reason,
                 };
@@ -217,10 +225,38 @@ impl Recorder {
         }
     }
 
+    /// Opens a tick; the oldest open tick goes to the sink once more than [`OPEN_TICKS`] are open.
+    fn push(&mut self, record: TickRecord, row: RefRow) {
+        self.last_k = Some(record.sample.k);
+        self.end.records += 1;
+        self.open.push_back((record, row));
+        if self.open.len() > OPEN_TICKS {
+            self.close_oldest(None);
+        }
+    }
+
+    /// Hands the oldest open tick to the sink, with its TDE truth from the tick after it (the
+    /// next open one, else `after`).
+    fn close_oldest(&mut self, after: Option<&(PlantSample, Vec3)>) {
+        let Some((r, row)) = self.open.pop_front() else {
+            return;
+        };
+        let k = r.sample.k;
+        let next = match self.open.front() {
+            Some((n, _)) => (n.sample.k == k + 1).then_some((n.qd_true, n.sample.tau_applied)),
+            None => after
+                .filter(|(s, _)| s.k == k + 1)
+                .map(|(s, qd)| (*qd, s.tau_applied)),
+        };
+        let ts = self.reference.ts;
+        let n_true = next.map(|(qd1, tau1)| (qd1 - r.qd_true) / ts - tau1 / self.m_bar);
+        self.sink.take(&r, &row, n_true);
+    }
+
     /// A tick without a reply counts the torque the drives held over it: τᵃ of the next state
     /// (tick `next`; nothing is patched across a lost tick).
     fn hold_previous(&mut self, next: u64, tau_next: Vec3) {
-        if let Some(prev) = self.run.records.last_mut()
+        if let Some((prev, _)) = self.open.back_mut()
             && prev.out.is_none()
             && prev.sample.k + 1 == next
         {
@@ -231,14 +267,14 @@ impl Recorder {
     /// Tick k never reached the supervisor (its queues overflowed while it was not draining): it
     /// is counted, and has no row.
     pub fn lost(&mut self, k: u64) {
-        self.run.lost_ticks += 1;
-        self.run.first_lost.get_or_insert(k);
+        self.end.lost_ticks += 1;
+        self.end.first_lost.get_or_insert(k);
     }
 
     /// Marks what the plant did over the last recorded tick, from its telemetry (None: not seen).
     pub fn applied(&mut self, tel: Option<&TelemetryMsg>) {
         let flags = tel.map_or(0, |m| m.flags);
-        if let Some(r) = self.run.records.last_mut() {
+        if let Some((r, _)) = self.open.back_mut() {
             r.clamped = flags & wire::TEL_CLAMPED != 0;
             r.held = flags & wire::TEL_HELD != 0;
             r.rejected = flags & wire::TEL_REJECTED != 0;
@@ -248,49 +284,80 @@ impl Recorder {
         }
     }
 
+    /// The tick after the last recorded one (0 before any).
+    fn next_tick(&self) -> u64 {
+        self.last_k.map_or(0, |k| k + 1)
+    }
+
     /// The plant failed while integrating the last recorded tick (e.g. left the workspace).
     pub fn plant_failed(&mut self, reason: String) {
-        let tick = self.run.records.last().map_or(0, |r| r.sample.k + 1);
-        self.run.outcome = Outcome::Diverged { tick, reason };
+        let tick = self.next_tick();
+        self.end.outcome = Outcome::Diverged { tick, reason };
     }
 
     /// The run was interrupted by a signal after the last recorded tick.
     pub fn interrupt(&mut self) {
-        let tick = self.run.records.last().map_or(0, |r| r.sample.k + 1);
-        self.run.outcome = Outcome::Interrupted { tick };
+        let tick = self.next_tick();
+        self.end.outcome = Outcome::Interrupted { tick };
     }
 
-    /// The loop faulted at `tick`. Unless something later ends the trace otherwise (divergence,
-    /// an interrupt), the run ends as [`Outcome::Faulted`]; the fault is kept either way.
+    /// The loop faulted at `fault.tick`. It ends the run as [`Outcome::Faulted`] unless something
+    /// else ended the trace (divergence, an interrupt), before or after; the fault is kept either
+    /// way.
     pub fn fault(&mut self, fault: Fault) {
-        self.run.fault = Some(fault);
-        self.run.outcome = Outcome::Faulted;
+        self.end.fault = Some(fault);
+        if self.end.outcome == Outcome::Completed {
+            self.end.outcome = Outcome::Faulted;
+        }
     }
 
-    /// Stores the state after the last tick (N + 1, or wherever the plant stopped), if the plant
-    /// got there, and returns the run.
-    pub fn finish(mut self, after: Option<&StateMsg>) -> LawRun {
-        self.run.after = after.map(|s| {
+    /// Takes the state after the last tick (N + 1, or wherever the plant stopped), if the plant
+    /// got there, closes every open tick and returns how the run ended, with the sink.
+    pub fn finish(mut self, after: Option<&StateMsg>) -> (RunEnd, S) {
+        let after = after.map(|s| {
             let sample = measured(s);
             self.hold_previous(sample.k, sample.tau_applied);
             (sample, Vec3::from(s.qd_true))
         });
-        if self.run.outcome == Outcome::Completed && self.run.first_lost.is_some() {
-            self.run.outcome = Outcome::LostData;
+        while !self.open.is_empty() {
+            self.close_oldest(after.as_ref());
         }
-        self.run
+        if self.end.outcome == Outcome::Completed && self.end.first_lost.is_some() {
+            self.end.outcome = Outcome::LostData;
+        }
+        (self.end, self.sink)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scenario::TaskPath;
+    use deltaloop_config::RunConfig;
+    use deltaloop_model::DeltaRobot;
 
-    fn state(k: u64, q: f64, tau_applied: f64) -> StateMsg {
+    type Ticks = Vec<(TickRecord, Option<Vec3>)>;
+
+    impl TickSink for Ticks {
+        fn take(&mut self, r: &TickRecord, _: &RefRow, n_true: Option<Vec3>) {
+            self.push((*r, n_true));
+        }
+    }
+
+    fn reference() -> JointReference {
+        let cfg =
+            RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s1\"\n", None).unwrap();
+        let path = TaskPath::from_section(&cfg.scenario);
+        JointReference::build(&DeltaRobot::default(), &path, 3e-4, 0.0).unwrap()
+    }
+
+    /// State k at the reference plus `dq` rad on every joint.
+    fn state(r: &JointReference, k: u64, dq: f64, tau_applied: f64) -> StateMsg {
+        let q: [f64; 3] = (r.row(k as usize).joint.q + Vec3::repeat(dq)).into();
         StateMsg {
             tick: k,
-            q: [q; 3],
-            q_true: [q; 3],
+            q,
+            q_true: q,
             tau_applied: [tau_applied; 3],
             ..StateMsg::default()
         }
@@ -305,38 +372,49 @@ mod tests {
         }
     }
 
-    fn tick(rec: &mut Recorder, k: u64, q: f64) -> bool {
-        rec.tick(&state(k, q, 0.0), Some(&reply(k, 0.0, 0)), &Vec3::zeros())
+    fn tick(rec: &mut Recorder<'_, Ticks>, r: &JointReference, k: u64, dq: f64) -> bool {
+        rec.tick(&state(r, k, dq, 0.0), Some(&reply(k, 0.0, 0)))
     }
 
     #[test]
     fn a_fault_ends_an_otherwise_healthy_trace() {
-        let mut rec = Recorder::new(Law::Tdc, 10);
+        let r = reference();
+        let mut rec = Recorder::new(Law::Tdc, &r, 1.0, Ticks::new());
         let fault = Fault {
             tick: 3,
             cause: "controller died".into(),
         };
         rec.fault(fault.clone());
-        assert!(tick(&mut rec, 0, 0.0) && tick(&mut rec, 1, 0.0));
-        let run = rec.finish(None);
-        assert_eq!(run.outcome, Outcome::Faulted);
-        assert_eq!(run.fault, Some(fault));
+        assert!(tick(&mut rec, &r, 0, 0.0) && tick(&mut rec, &r, 1, 0.0));
+        let (end, ticks) = rec.finish(None);
+        assert_eq!(end.outcome, Outcome::Faulted);
+        assert_eq!(end.fault, Some(fault));
+        assert_eq!((end.records, ticks.len()), (2, 2));
     }
 
     /// The robot can drift out of bounds while the plant holds a dead controller's torque: the
-    /// run is diverged, and the fault that caused it stays on record (once patched on afterwards).
+    /// run is diverged, and the fault that caused it stays on record, whichever is noticed first.
     #[test]
     fn fault_kept_when_divergence_ends_the_trace_first() {
-        let mut rec = Recorder::new(Law::Tdc, 10);
-        rec.fault(Fault {
-            tick: 5,
-            cause: "controller died".into(),
-        });
-        assert!(tick(&mut rec, 0, 0.0));
-        assert!(!tick(&mut rec, 1, 2.0 * DIVERGENCE_ERR_RAD));
-        let run = rec.finish(None);
-        assert!(matches!(run.outcome, Outcome::Diverged { tick: 1, .. }));
-        assert_eq!(run.fault.map(|f| f.tick), Some(5));
+        let r = reference();
+        for fault_first in [true, false] {
+            let mut rec = Recorder::new(Law::Tdc, &r, 1.0, Ticks::new());
+            let fault = Fault {
+                tick: 5,
+                cause: "controller died".into(),
+            };
+            if fault_first {
+                rec.fault(fault.clone());
+            }
+            assert!(tick(&mut rec, &r, 0, 0.0));
+            assert!(!tick(&mut rec, &r, 1, 2.0 * DIVERGENCE_ERR_RAD));
+            if !fault_first {
+                rec.fault(fault.clone());
+            }
+            let (end, _) = rec.finish(None);
+            assert!(matches!(end.outcome, Outcome::Diverged { tick: 1, .. }));
+            assert_eq!(end.fault.map(|f| f.tick), Some(5));
+        }
     }
 
     /// Regression: a missed realtime tick was recorded with the next state's τᵃ and the previous
@@ -344,34 +422,77 @@ mod tests {
     /// why, and only the torque metrics see the torque the drives held.
     #[test]
     fn regression_missed_tick_has_no_invented_controller_output() {
-        let mut rec = Recorder::new(Law::Tdc, 10);
+        let r = reference();
+        let mut rec = Recorder::new(Law::Tdc, &r, 1.0, Ticks::new());
         let missed = TelemetryMsg {
             flags: wire::TEL_MISSED | wire::TEL_HELD,
             ..TelemetryMsg::default()
         };
         // Tick 0 answered; tick 1 missed; tick 2 skipped (tick 3's reply skipped one state);
         // tick 3 answered; tick 4 answered late.
-        assert!(rec.tick(&state(0, 0.0, 1.0), Some(&reply(0, 2.0, 0)), &Vec3::zeros()));
+        assert!(rec.tick(&state(&r, 0, 0.0, 1.0), Some(&reply(0, 2.0, 0))));
         rec.applied(None);
-        assert!(rec.tick(&state(1, 0.0, 2.0), None, &Vec3::zeros()));
+        assert!(rec.tick(&state(&r, 1, 0.0, 2.0), None));
         rec.applied(Some(&missed));
-        assert!(rec.tick(&state(2, 0.0, 2.0), None, &Vec3::zeros()));
+        assert!(rec.tick(&state(&r, 2, 0.0, 2.0), None));
         rec.applied(Some(&missed));
-        assert!(rec.tick(&state(3, 0.0, 2.0), Some(&reply(3, 5.0, 1)), &Vec3::zeros()));
+        assert!(rec.tick(&state(&r, 3, 0.0, 2.0), Some(&reply(3, 5.0, 1))));
         rec.applied(None);
-        assert!(rec.tick(&state(4, 0.0, 5.0), Some(&reply(4, 6.0, 0)), &Vec3::zeros()));
+        assert!(rec.tick(&state(&r, 4, 0.0, 5.0), Some(&reply(4, 6.0, 0))));
         rec.applied(Some(&missed));
-        let run = rec.finish(Some(&state(5, 0.0, 5.0)));
-        let fates: Vec<_> = run.records.iter().map(|r| r.fate).collect();
+        let (_, ticks) = rec.finish(Some(&state(&r, 5, 0.0, 5.0)));
+        let fates: Vec<_> = ticks.iter().map(|(t, _)| t.fate).collect();
         use ReplyFate::*;
         assert_eq!(fates, [Applied, Missed, Skipped, Applied, Late]);
-        assert!(run.records[1].out.is_none() && run.records[2].out.is_none());
-        assert_eq!(run.records[1].tau, Vec3::repeat(2.0), "held τᵃ_2");
+        assert!(ticks[1].0.out.is_none() && ticks[2].0.out.is_none());
+        assert_eq!(ticks[1].0.tau, Vec3::repeat(2.0), "held τᵃ_2");
         assert_eq!(
-            run.records[4].tau,
+            ticks[4].0.tau,
             Vec3::repeat(6.0),
             "a late reply keeps its own τ"
         );
-        assert!(run.records[1].held && !run.records[0].held);
+        assert!(ticks[1].0.held && !ticks[0].0.held);
+    }
+
+    /// A long run streams: no more than OPEN_TICKS ticks are held, every tick reaches the sink in
+    /// order with the TDE truth from its successor, and a lost tick leaves a hole without truth.
+    #[test]
+    fn ticks_stream_in_order_with_their_truth_and_holes_stay_holes() {
+        let r = reference();
+        let m_bar = 0.5;
+        let mut rec = Recorder::new(Law::Tdc, &r, m_bar, Ticks::new());
+        let n = 3 * OPEN_TICKS as u64;
+        let qd = |k: u64| [k as f64 * 1e-3; 3];
+        for k in 0..n {
+            if k == 100 {
+                rec.lost(k);
+                continue;
+            }
+            let mut s = state(&r, k, 0.0, k as f64);
+            s.qd_true = qd(k);
+            assert!(rec.tick(&s, Some(&reply(k, 0.0, 0))));
+            rec.applied(None);
+            assert!(rec.open.len() <= OPEN_TICKS);
+        }
+        let mut last = state(&r, n, 0.0, n as f64);
+        last.qd_true = qd(n);
+        let (end, ticks) = rec.finish(Some(&last));
+        assert_eq!(end.outcome, Outcome::LostData);
+        assert_eq!(
+            (end.lost_ticks, end.first_lost, end.records),
+            (1, Some(100), n - 1)
+        );
+        let ks: Vec<u64> = ticks.iter().map(|(t, _)| t.sample.k).collect();
+        assert_eq!(ks, (0..n).filter(|&k| k != 100).collect::<Vec<_>>());
+        for (t, truth) in &ticks {
+            let k = t.sample.k;
+            if k == 99 {
+                assert!(truth.is_none(), "no truth across the hole");
+                continue;
+            }
+            let want = (Vec3::from(qd(k + 1)) - Vec3::from(qd(k))) / r.ts
+                - Vec3::repeat((k + 1) as f64) / m_bar;
+            assert_eq!(*truth, Some(want), "tick {k}");
+        }
     }
 }

@@ -2,10 +2,10 @@
 
 use crate::analysis::mismatch;
 use crate::inproc;
-use crate::metrics::{self, LawMetrics};
+use crate::lawrun::{Keep, LawRun};
+use crate::metrics::LawMetrics;
 use crate::output::{self, Summary};
 use crate::procs;
-use crate::record::LawRun;
 use crate::report;
 use crate::study::Study;
 use crate::timing::{Timing, TimingSummary};
@@ -21,7 +21,7 @@ pub struct RunOutput {
     pub table: String,
     /// Lines for the user: scheduling warnings, cleaned stale resources.
     pub notes: Vec<String>,
-    /// What was run, and the runs themselves (for figures).
+    /// What was run, and the runs themselves (their records only if asked for, for figures).
     pub study: Study,
     pub runs: Vec<LawRun>,
 }
@@ -44,6 +44,9 @@ pub struct Overrides {
     /// Sensor noise seed (sensor.seed).
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Hold at the end point after the motion, s (scenario.hold_s, 0..=3600).
+    #[arg(long)]
+    pub hold_s: Option<f64>,
 }
 
 impl Overrides {
@@ -64,6 +67,9 @@ impl Overrides {
         if let Some(v) = self.seed {
             cfg.sensor.seed = v;
         }
+        if let Some(v) = self.hold_s {
+            cfg.scenario.hold_s = v;
+        }
         cfg.validate()?;
         Ok(cfg)
     }
@@ -76,12 +82,16 @@ pub fn load_config(path: &Path, o: &Overrides) -> Result<RunConfig> {
 
 /// Runs every law of `cfg` in `mode` and writes the run folder `out` (default `runs/<time>-<name>`).
 ///
-/// `out` must be empty or new unless `force` (see [`output::RunFolder::claim`]).
+/// `out` must be empty or new unless `force` (see [`output::RunFolder::claim`]). With
+/// `keep_records` every tick's record stays in memory too (for figures of short runs); otherwise
+/// the ticks are only streamed to `trace.csv` and the metrics, and memory does not grow with the
+/// run.
 pub fn run(
     cfg: RunConfig,
     mode: LoopMode,
     out: Option<PathBuf>,
     force: bool,
+    keep_records: bool,
     command: &str,
 ) -> Result<RunOutput> {
     let started = output::now_utc();
@@ -109,8 +119,24 @@ pub fn run(
     // A fault or an interrupt ends the run after this law; the folder is still written.
     let mut stopped: Option<(Law, Option<String>)> = None;
     let mut failed: Option<anyhow::Error> = None;
+    let keep = |law| Keep {
+        trace: Some(output::trace_part(&dir, law)),
+        records: keep_records,
+    };
     let (runs, timings): (Vec<LawRun>, Vec<Option<Timing>>) = match mode {
-        LoopMode::Inproc => (inproc::run_laws(&study, &laws), vec![None; laws.len()]),
+        LoopMode::Inproc => {
+            let mut runs = Vec::new();
+            for r in inproc::run_laws(&study, &laws, keep) {
+                match r {
+                    Ok(r) => runs.push(r),
+                    Err(e) => {
+                        failed.get_or_insert(e);
+                    }
+                }
+            }
+            let n = runs.len();
+            (runs, vec![None; n])
+        }
         pm => {
             let removed = ipc::remove_dead_nodes();
             if !removed.is_empty() {
@@ -128,7 +154,7 @@ pub fn run(
                 }
                 // A law that fails to run (or to write its files: a full disk) ends the run, but
                 // the laws before it still get their trace, summary and report.
-                let r = match procs::run_law(&study, law, pm, &dir) {
+                let r = match procs::run_law(&study, law, pm, &dir, &keep(law)) {
                     Ok(r) => r,
                     Err(e) => {
                         failed = Some(e.context(format!("{} run of `{law}`", mode.name())));
@@ -156,10 +182,7 @@ pub fn run(
             (runs, timings)
         }
     };
-    let metrics: Vec<LawMetrics> = runs
-        .iter()
-        .map(|r| metrics::compute(r, &study.reference, &study.robot, &study.params))
-        .collect();
+    let metrics: Vec<LawMetrics> = runs.iter().map(|r| r.metrics.clone()).collect();
     let timing_summaries: Vec<Option<TimingSummary>> = timings
         .iter()
         .map(|t| t.as_ref().map(Timing::summary))
@@ -200,7 +223,7 @@ pub fn run(
             &timing_summaries,
         ));
     }
-    output::write_run_folder(&dir, &summary, &runs, &study.reference, &md)?;
+    output::write_run_folder(&dir, &summary, &laws, &md)?;
     let mut table = report::terminal_table(cfg, &metrics);
     if mode.is_process() {
         table.push_str(&report::timing_table(&metrics, &timing_summaries));
@@ -274,7 +297,14 @@ mod tests {
         let expected = cfg.to_toml_string();
         let dir = std::env::temp_dir().join(format!("deltaloop-run-cfg-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        let o = run(cfg, LoopMode::Inproc, Some(dir.clone()), false, "test");
+        let o = run(
+            cfg,
+            LoopMode::Inproc,
+            Some(dir.clone()),
+            false,
+            false,
+            "test",
+        );
         let written = std::fs::read_to_string(dir.join("config.toml"));
         let others: Vec<bool> = ["trace.csv", "summary.json", "report.md"]
             .iter()

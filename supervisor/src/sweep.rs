@@ -4,7 +4,8 @@
 //! `report.md` and plots of RMS error, TDE error and δ_N against each delay.
 
 use crate::inproc;
-use crate::metrics::{self, LawMetrics};
+use crate::lawrun::Keep;
+use crate::metrics::LawMetrics;
 use crate::plot::{self, Panel, Series};
 use crate::procs;
 use crate::study::Study;
@@ -296,15 +297,12 @@ fn run_job(base: &RunConfig, job: &Job, mode: LoopMode, dir: &Path) -> Row {
             let pdir = dir.join("points").join(&study.config.name);
             std::fs::create_dir_all(&pdir)?;
             std::fs::write(pdir.join("config.toml"), study.config.to_toml_string())?;
-            let r = procs::run_law(&study, job.law, mode, &pdir)?;
+            let r = procs::run_law(&study, job.law, mode, &pdir, &Keep::default())?;
             (r.run, Some(r.timing.summary()))
         } else {
-            (inproc::run_law(&study, job.law), None)
+            (inproc::run_law(&study, job.law, &Keep::default())?, None)
         };
-        Ok((
-            metrics::compute(&run, &study.reference, &study.robot, &study.params),
-            timing,
-        ))
+        Ok((run.metrics, timing))
     };
     let mode = if job.realtime {
         LoopMode::Realtime
@@ -1054,8 +1052,9 @@ mod tests {
         )
         .unwrap();
         let study = Study::new(cfg).unwrap();
-        let run = inproc::run_law(&study, Law::Tdc);
-        metrics::compute(&run, &study.reference, &study.robot, &study.params)
+        inproc::run_law(&study, Law::Tdc, &Keep::default())
+            .unwrap()
+            .metrics
     }
 
     #[test]

@@ -73,6 +73,30 @@ pub struct Timing {
     pub span_ns: (u64, u64),
     /// Hypervisor steal per CPU during the run.
     pub steal: Vec<StealMs>,
+    /// Peak memory of the three processes.
+    pub peak_rss: PeakRss,
+}
+
+/// Peak resident set size (VmHWM) of each process of a run, MiB: the supervisor's over its whole
+/// life so far, each child's over its life (None: it did not exit by itself). Shared memory the
+/// process touched counts.
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
+pub struct PeakRss {
+    pub supervisor: f64,
+    pub plant: Option<f64>,
+    pub controller: Option<f64>,
+}
+
+impl PeakRss {
+    /// From KiB, as getrusage and wait4 give it.
+    pub fn from_kib(supervisor: u64, plant: Option<u64>, controller: Option<u64>) -> Self {
+        let mib = |k: u64| (k as f64 / 1024.0 * 10.0).round() / 10.0;
+        Self {
+            supervisor: mib(supervisor),
+            plant: plant.map(mib),
+            controller: controller.map(mib),
+        }
+    }
 }
 
 /// `summary.json` timing block.
@@ -92,6 +116,8 @@ pub struct TimingSummary {
     pub loop_wall_s: f64,
     /// Time the hypervisor stole from each CPU during the run, ms (VMs; 0 on bare metal).
     pub cpu_steal_ms: Vec<StealMs>,
+    /// Peak memory of each process, MiB.
+    pub peak_rss_mib: PeakRss,
     pub wake_lateness: Percentiles,
     pub period_jitter: Percentiles,
     pub state_to_controller: Percentiles,
@@ -131,89 +157,134 @@ impl Default for Timing {
             lost: [0; 3],
             span_ns: (0, 0),
             steal: Vec::new(),
+            peak_rss: PeakRss::default(),
         }
     }
 }
 
-impl Timing {
-    /// Builds the distributions from the three streams, each indexed by tick (None where lost).
-    pub fn from_streams(
-        states: &[Option<StateMsg>],
-        torques: &[Option<TorqueMsg>],
-        tels: &[Option<TelemetryMsg>],
-        ticks: u64,
-        ts_ns: u64,
-        realtime: bool,
-    ) -> Self {
-        // A run stopped early (fault, interrupt) only covers the ticks it reached.
-        let reached = tels
-            .iter()
-            .rposition(|m| m.is_some_and(|m| m.flags & wire::TEL_SAFE_STOP == 0))
-            .map_or(0, |k| k + 1);
-        let n = reached.min((ticks + 1) as usize);
-        let mut t = Timing {
-            ticks: n as u64,
-            ..Timing::default()
-        };
-        // A missing torque on a tick the plant marked missed was never sent (the controller answered
-        // a newer state): that is a miss, not a loss.
-        let missed = |k: usize| {
-            tels.get(k)
-                .copied()
-                .flatten()
-                .is_some_and(|m| m.flags & wire::TEL_MISSED != 0)
-        };
-        t.lost = [
-            states.iter().take(n + 1).filter(|s| s.is_none()).count() as u64,
-            (0..n)
-                .filter(|&k| torques.get(k).copied().flatten().is_none() && !missed(k))
-                .count() as u64,
-            tels.iter().take(n).filter(|s| s.is_none()).count() as u64,
-        ];
-        let mut prev_wake: Option<u64> = None;
-        for k in 0..n {
-            let (s, q, m) = (
-                states.get(k).copied().flatten(),
-                torques.get(k).copied().flatten(),
-                tels.get(k).copied().flatten(),
-            );
-            if let Some(m) = m {
-                if t.span_ns.0 == 0 {
-                    t.span_ns.0 = m.t_wake_ns;
-                }
-                t.span_ns.1 = m.t_wake_ns;
-                if realtime {
-                    t.wake_lateness
-                        .record(m.t_wake_ns.saturating_sub(m.t_deadline_ns));
-                    if let Some(p) = prev_wake {
-                        t.period_jitter
-                            .record(m.t_wake_ns.saturating_sub(p).abs_diff(ts_ns));
-                    }
-                }
-                prev_wake = Some(m.t_wake_ns);
-                if m.flags & wire::TEL_MISSED != 0 {
-                    t.misses += 1;
-                } else if m.t_torque_rx_ns > 0 {
-                    t.round_trip
-                        .record(m.t_torque_rx_ns.saturating_sub(m.t_state_pub_ns));
-                }
-                t.late_dropped = t.late_dropped.max(m.late_dropped);
-            } else {
-                prev_wake = None;
-            }
-            if let (Some(s), Some(q)) = (s, q) {
-                t.state_to_controller
-                    .record(q.t_state_rx_ns.saturating_sub(s.t_publish_ns));
-            }
-            if let Some(q) = q {
-                t.compute
-                    .record(q.t_publish_ns.saturating_sub(q.t_state_rx_ns));
-                t.skipped += q.skipped;
-            }
+/// Ticks held back by [`TimingAcc`] at most while it cannot yet tell whether they belong to the
+/// loop (after the last telemetry so far) or to its end.
+const PENDING_MAX: usize = 4096;
+
+/// One tick as the supervisor saw it: each message, if it saw it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Seen {
+    pub k: u64,
+    pub state: Option<StateMsg>,
+    pub torque: Option<TorqueMsg>,
+    pub tel: Option<TelemetryMsg>,
+}
+
+/// [`Timing`] built one tick at a time, in tick order, in fixed memory. A run stopped early (fault,
+/// interrupt) only covers the ticks it reached: the ticks after the last telemetry of the loop are
+/// held back until another telemetry shows the loop went on, and left out at the end.
+pub struct TimingAcc {
+    t: Timing,
+    /// N: the run's last tick.
+    n: u64,
+    ts_ns: u64,
+    realtime: bool,
+    prev_wake: Option<u64>,
+    /// Ticks after the last loop telemetry so far.
+    pending: Vec<Seen>,
+    /// One past the last tick with loop telemetry.
+    reached: u64,
+}
+
+impl TimingAcc {
+    /// For ticks 0..=`ticks` at period `ts_ns` (ns); wake lateness and jitter only in realtime.
+    pub fn new(ticks: u64, ts_ns: u64, realtime: bool) -> Self {
+        Self {
+            t: Timing::default(),
+            n: ticks,
+            ts_ns,
+            realtime,
+            prev_wake: None,
+            pending: Vec::with_capacity(PENDING_MAX),
+            reached: 0,
         }
-        t
     }
 
+    /// Adds the next tick. Ticks of the safe stop after the loop are not part of it.
+    pub fn push(&mut self, s: Seen) {
+        let tel_flags = s.tel.map(|m| m.flags);
+        if tel_flags.is_some_and(|f| f & wire::TEL_SAFE_STOP != 0) {
+            return;
+        }
+        if tel_flags.is_none() {
+            if self.pending.len() == PENDING_MAX {
+                let oldest = self.pending.remove(0);
+                self.commit(&oldest);
+            }
+            self.pending.push(s);
+            return;
+        }
+        for p in std::mem::take(&mut self.pending) {
+            self.commit(&p);
+        }
+        self.pending.reserve(PENDING_MAX);
+        self.commit(&s);
+        self.reached = s.k + 1;
+    }
+
+    /// Counts tick k as part of the loop.
+    fn commit(&mut self, seen: &Seen) {
+        let t = &mut self.t;
+        let (s, q, m) = (seen.state, seen.torque, seen.tel);
+        t.ticks += 1;
+        // A missing torque on a tick the plant marked missed was never sent (the controller
+        // answered a newer state): that is a miss, not a loss.
+        let missed = m.is_some_and(|m| m.flags & wire::TEL_MISSED != 0);
+        t.lost[0] += u64::from(s.is_none());
+        t.lost[1] += u64::from(q.is_none() && !missed);
+        t.lost[2] += u64::from(m.is_none());
+        if let Some(m) = m {
+            if t.span_ns.0 == 0 {
+                t.span_ns.0 = m.t_wake_ns;
+            }
+            t.span_ns.1 = m.t_wake_ns;
+            if self.realtime {
+                t.wake_lateness
+                    .record(m.t_wake_ns.saturating_sub(m.t_deadline_ns));
+                if let Some(p) = self.prev_wake {
+                    t.period_jitter
+                        .record(m.t_wake_ns.saturating_sub(p).abs_diff(self.ts_ns));
+                }
+            }
+            self.prev_wake = Some(m.t_wake_ns);
+            if missed {
+                t.misses += 1;
+            } else if m.t_torque_rx_ns > 0 {
+                t.round_trip
+                    .record(m.t_torque_rx_ns.saturating_sub(m.t_state_pub_ns));
+            }
+            t.late_dropped = t.late_dropped.max(m.late_dropped);
+        } else {
+            self.prev_wake = None;
+        }
+        if let (Some(s), Some(q)) = (s, q) {
+            t.state_to_controller
+                .record(q.t_state_rx_ns.saturating_sub(s.t_publish_ns));
+        }
+        if let Some(q) = q {
+            t.compute
+                .record(q.t_publish_ns.saturating_sub(q.t_state_rx_ns));
+            t.skipped += q.skipped;
+        }
+    }
+
+    /// The timing of ticks 0..n, n = the first tick the loop did not reach (at most N + 1); a
+    /// state missing at tick n itself counts as lost too.
+    pub fn finish(mut self) -> Timing {
+        let n = self.reached.min(self.n + 1);
+        if self.pending.iter().any(|p| p.k == n && p.state.is_none()) {
+            self.t.lost[0] += 1;
+        }
+        self.t
+    }
+}
+
+impl Timing {
     /// Loop cycles per second over the observed span (0 if fewer than two ticks).
     pub fn cycle_hz(&self) -> f64 {
         let (a, b) = self.span_ns;
@@ -251,6 +322,7 @@ impl Timing {
             },
             loop_wall_s: self.span_ns.1.saturating_sub(self.span_ns.0) as f64 * 1e-9,
             cpu_steal_ms: self.steal.clone(),
+            peak_rss_mib: self.peak_rss.clone(),
             wake_lateness: p(&self.wake_lateness),
             period_jitter: p(&self.period_jitter),
             state_to_controller: p(&self.state_to_controller),
@@ -267,6 +339,79 @@ impl Timing {
                 .with_context(|| format!("cannot write {}", path.display()))?;
         }
         Ok(())
+    }
+}
+
+/// `<law>.timing.csv`, written a tick at a time: the raw CLOCK_MONOTONIC stamps of every tick (ns)
+/// and the plant's flags, so any latency can be recomputed. Empty cells: the supervisor did not
+/// see that message.
+pub struct TimingCsv {
+    path: std::path::PathBuf,
+    w: csv::Writer<std::fs::File>,
+    fields: [String; 11],
+}
+
+impl TimingCsv {
+    pub fn create(path: &Path) -> Result<Self> {
+        let mut w = csv::Writer::from_path(path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        w.write_record([
+            "k",
+            "deadline_ns",
+            "wake_ns",
+            "state_pub_ns",
+            "ctrl_rx_ns",
+            "ctrl_pub_ns",
+            "torque_rx_ns",
+            "missed",
+            "held",
+            "clamped",
+            "ctrl_skipped",
+        ])
+        .with_context(|| format!("cannot write {}", path.display()))?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            w,
+            fields: Default::default(),
+        })
+    }
+
+    /// Writes tick k's row, unless the supervisor saw nothing of it.
+    pub fn write(&mut self, seen: &Seen) -> Result<()> {
+        let (s, t, m) = (seen.state, seen.torque, seen.tel);
+        if s.is_none() && t.is_none() && m.is_none() {
+            return Ok(());
+        }
+        let flag = |bit: u32| m.map(|m| u64::from(m.flags & bit != 0));
+        let cells = [
+            Some(seen.k),
+            s.map(|s| s.t_deadline_ns),
+            s.map(|s| s.t_wake_ns),
+            s.map(|s| s.t_publish_ns),
+            t.map(|t| t.t_state_rx_ns),
+            t.map(|t| t.t_publish_ns),
+            m.and_then(|m| (m.t_torque_rx_ns > 0).then_some(m.t_torque_rx_ns)),
+            flag(wire::TEL_MISSED),
+            flag(wire::TEL_HELD),
+            flag(wire::TEL_CLAMPED),
+            t.map(|t| t.skipped),
+        ];
+        for (f, v) in self.fields.iter_mut().zip(cells) {
+            use std::fmt::Write as _;
+            f.clear();
+            if let Some(v) = v {
+                let _ = write!(f, "{v}");
+            }
+        }
+        self.w
+            .write_record(&self.fields)
+            .with_context(|| format!("cannot write {}", self.path.display()))
+    }
+
+    pub fn finish(mut self) -> Result<()> {
+        self.w
+            .flush()
+            .with_context(|| format!("cannot write {}", self.path.display()))
     }
 }
 

@@ -2,8 +2,9 @@
 //! the limit cycle; a diverging configuration is reported, not crashed; runs are deterministic.
 
 use deltaloop_config::{Law, RunConfig};
-use deltaloop_supervisor::inproc::{run_law, run_laws};
-use deltaloop_supervisor::metrics::{LawMetrics, compute};
+use deltaloop_supervisor::inproc;
+use deltaloop_supervisor::lawrun::{Keep, LawRun};
+use deltaloop_supervisor::metrics::LawMetrics;
 use deltaloop_supervisor::record::Outcome;
 use deltaloop_supervisor::report::limit_cycle;
 use deltaloop_supervisor::study::Study;
@@ -13,17 +14,36 @@ fn study(extra: &str) -> Study {
     Study::new(RunConfig::from_toml_str(&text, None).unwrap()).unwrap()
 }
 
+/// Keep every record (these runs are short).
+fn keep() -> Keep {
+    Keep {
+        trace: None,
+        records: true,
+    }
+}
+
+fn run_law(s: &Study, law: Law) -> LawRun {
+    inproc::run_law(s, law, &keep()).unwrap()
+}
+
+fn run_laws(s: &Study, laws: &[Law]) -> Vec<LawRun> {
+    inproc::run_laws(s, laws, |_| keep())
+        .into_iter()
+        .map(Result::unwrap)
+        .collect()
+}
+
 fn metrics(s: &Study, law: Law) -> LawMetrics {
-    compute(&run_law(s, law), &s.reference, &s.robot, &s.params)
+    run_law(s, law).metrics
 }
 
 #[test]
 fn every_law_tracks_s1_with_bounded_error_matched_preset() {
     let s = study("");
     for (run, law) in run_laws(&s, &Law::ALL).iter().zip(Law::ALL) {
-        assert_eq!(run.outcome, Outcome::Completed, "{law}");
+        assert_eq!(run.end.outcome, Outcome::Completed, "{law}");
         assert_eq!(run.records.len(), 2668);
-        let m = compute(run, &s.reference, &s.robot, &s.params);
+        let m = &run.metrics;
         // The model-free TDC family tracks to well under a milliradian; PID to ~1 mrad.
         let bound = if law == Law::Pid { 2e-3 } else { 1e-4 };
         for i in 0..3 {
@@ -80,8 +100,8 @@ fn diverging_configuration_is_reported_with_its_tick() {
     // M̄ far above the joint inertia makes TDC unstable: it must stop, not crash.
     let s = study("[controller]\nm_bar = 5.0\n");
     let run = run_law(&s, Law::Tdc);
-    let Outcome::Diverged { tick, reason } = &run.outcome else {
-        panic!("expected divergence, got {:?}", run.outcome)
+    let Outcome::Diverged { tick, reason } = &run.end.outcome else {
+        panic!("expected divergence, got {:?}", run.end.outcome)
     };
     assert!(*tick < 2667, "{tick}");
     assert_eq!(run.records.last().unwrap().sample.k, *tick);
@@ -91,7 +111,7 @@ fn diverging_configuration_is_reported_with_its_tick() {
             || reason.contains("joint configuration"),
         "{reason}"
     );
-    let m = compute(&run, &s.reference, &s.robot, &s.params);
+    let m = &run.metrics;
     assert!(!m.completed && m.diverged_at_tick == Some(*tick));
 }
 
@@ -125,7 +145,7 @@ fn truth_n_matches_closed_form_with_exact_tde() {
         sq += (n_hat - truth).powi(2);
     }
     let rms = (sq / s.reference.n as f64).sqrt();
-    let m = compute(&run, &s.reference, &s.robot, &s.params);
+    let m = &run.metrics;
     assert!(
         (m.tde_err_rms.unwrap()[0] - rms).abs() <= 1e-12 * rms,
         "{} vs {rms}",

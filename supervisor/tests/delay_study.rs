@@ -1,10 +1,19 @@
 //! The delay study's building blocks: TDE delay, transport delay, sensor noise, payload step.
 
 use deltaloop_config::{Law, RunConfig};
-use deltaloop_supervisor::inproc::run_law;
-use deltaloop_supervisor::metrics::compute;
-use deltaloop_supervisor::record::{LawRun, Outcome};
+use deltaloop_supervisor::inproc;
+use deltaloop_supervisor::lawrun::{Keep, LawRun};
+use deltaloop_supervisor::record::Outcome;
 use deltaloop_supervisor::study::Study;
+
+/// The in-process run of `law`, every record kept.
+fn run_law(s: &Study, law: Law) -> LawRun {
+    let keep = Keep {
+        trace: None,
+        records: true,
+    };
+    inproc::run_law(s, law, &keep).unwrap()
+}
 
 fn study(scenario: &str, extra: &str) -> Study {
     let text = format!("[scenario]\npath = \"{scenario}\"\n[plant]\nfriction = true\n{extra}");
@@ -18,7 +27,8 @@ fn with_plant(key: &str) -> Study {
 }
 
 fn tde_rms(s: &Study, law: Law) -> f64 {
-    compute(&run_law(s, law), &s.reference, &s.robot, &s.params)
+    run_law(s, law)
+        .metrics
         .tde_err_rms
         .unwrap()
         .into_iter()
@@ -109,7 +119,7 @@ fn sensor_noise_with_a_fixed_seed_is_reproducible() {
     for i in 0..3 {
         assert!(((r.sample.q[i] / step) - (r.sample.q[i] / step).round()).abs() < 1e-6);
     }
-    assert_eq!(a.outcome, Outcome::Completed);
+    assert_eq!(a.end.outcome, Outcome::Completed);
 }
 
 #[test]
@@ -119,7 +129,7 @@ fn encoder_only_sensing_tracks_s1() {
         "[sensor]\nencoder_counts_per_rev = 1048576\nvelocity = \"encoder-difference\"\n",
     );
     for law in [Law::Tdc, Law::TdeIs] {
-        let m = compute(&run_law(&s, law), &s.reference, &s.robot, &s.params);
+        let m = run_law(&s, law).metrics;
         assert!(
             m.completed && m.max_abs_err_rad.into_iter().fold(0.0, f64::max) < 2e-3,
             "{law}: {m:?}"
@@ -139,7 +149,7 @@ fn payload_step_changes_the_plant_at_its_tick_only() {
     // Ticks 0..=1334 see the same state (the mass changes over [t_1334, t_1335)).
     assert_eq!(records_equal_until(&a, &b), 1335);
     // The robust laws absorb the step: still tracking.
-    let m = compute(&b, &loaded.reference, &loaded.robot, &loaded.params);
+    let m = &b.metrics;
     assert!(
         m.completed && m.max_abs_err_rad.into_iter().fold(0.0, f64::max) < 1e-3,
         "{m:?}"

@@ -109,3 +109,37 @@ pub fn json(p: &Path) -> Value {
 pub fn summary(dir: &Path) -> Value {
     json(&dir.join("summary.json"))
 }
+
+/// A long run of `law` in `out` completed with every tick on disk and nothing lost on any stream;
+/// returns its peak RSS (MiB) of supervisor, plant and controller.
+pub fn assert_complete_and_kept(summary: &Value, out: &Path, law: &str) -> [f64; 3] {
+    let m = &summary["laws"][law];
+    assert_eq!(m["completed"], true, "{m}");
+    assert_eq!(m["lost_ticks"], 0, "{m}");
+    let t = &summary["timing"][law];
+    let lost = &t["supervisor_lost_samples"];
+    for stream in ["state", "torque", "telemetry"] {
+        assert_eq!(lost[stream], 0, "{lost}");
+    }
+    let f = std::fs::File::open(out.join("trace.csv")).unwrap();
+    let lines = std::io::BufRead::lines(std::io::BufReader::new(f)).count() as u64;
+    assert_eq!(
+        lines,
+        m["ticks"].as_u64().unwrap() + 2,
+        "header + ticks 0..=N"
+    );
+    let rss = &t["peak_rss_mib"];
+    ["supervisor", "plant", "controller"].map(|w| rss[w].as_f64().unwrap())
+}
+
+/// Each process's peak memory in the long run is at most 1.2× the short run's.
+pub fn assert_memory_flat(short: [f64; 3], long: [f64; 3]) {
+    for (i, who) in ["supervisor", "plant", "controller"].iter().enumerate() {
+        assert!(
+            long[i] <= 1.2 * short[i],
+            "{who}: {} MiB in the long run vs {} MiB",
+            long[i],
+            short[i]
+        );
+    }
+}

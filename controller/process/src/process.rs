@@ -1,13 +1,18 @@
 //! The controller process (`deltaloop-controller`): waits for each plant state, runs the
 //! controller's tick ([`ControllerSide::answer`], the same every mode uses), and answers with the
-//! torque. It knows no kinematics: the joint reference arrives from the supervisor as one
-//! zero-copy slice sample.
+//! torque. It knows no kinematics: the joint reference arrives from the supervisor in chunks of
+//! `REF_CHUNK` rows, which it copies into a fixed ring ([`RefRing`]) allocated before READY; the
+//! supervisor sends the next chunk only as the loop moves on (the rule is in
+//! `deltaloop_transport::ipc`), so memory stays the same however long the run. If a tick's row has
+//! not arrived when the tick must be answered, the controller waits for it up to the silence
+//! timeout, then ends with a fault.
 //!
 //! It always answers the newest state (older ones it skipped are counted in the reply). If the
 //! plant is silent longer than the silence timeout, it ends with a fault. Exit codes: the table
 //! in `deltaloop_transport::exit` (0 done, 2 arguments, 3 set-up, 4 fault, 5 stopped).
 
 use crate::ControllerSide;
+use crate::ring::RefRing;
 use anyhow::{Result, bail};
 use clap::Parser;
 use deltaloop_config::config::{FaultInjection, Layout};
@@ -26,6 +31,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
 
 const NAME: &str = "deltaloop-controller";
 
@@ -81,10 +87,7 @@ impl Ports {
                 .notifier_builder()
                 .create()
                 .ipc("torque notifier")?,
-            reference: ipc::reference(&node, run_id)?
-                .subscriber_builder()
-                .create()
-                .ipc("reference subscriber")?,
+            reference: ipc::reference_subscriber(&node, run_id)?,
             control: ipc::control_ports(&node, run_id)?,
             _node: node,
         })
@@ -105,6 +108,8 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         bail!("mode {} has no processes", args.run.mode);
     };
     let ports = Ports::open(&args.run.run_id)?;
+    // Allocated and touched before READY: the loop files rows without allocating or faulting.
+    let mut ring = RefRing::new();
     rt::schedule_and_report_ready(
         &rt::Sched {
             core: Layout::cpu(layout.controller_cpu),
@@ -114,25 +119,28 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         NAME,
         || ports.send_control(ControlKind::Ready),
     )?;
-    let Some(reference) = handshake(&ports, term)? else {
+    let Some(n) = handshake(&ports, &mut ring, term)? else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
     let spin_ns = u64::from(layout.spin_us.unwrap_or(0)) * 1000;
-    answer_states(&ports, &cfg, args.law, reference.payload(), spin_ns, term)
+    let lp = Loop {
+        cfg: &cfg,
+        law: args.law,
+        rows: n + 2,
+        spin_ns,
+    };
+    answer_states(&ports, &lp, &mut ring, term)
 }
 
-/// The handshake: take the reference (one slice sample), touch it, report ARMED, wait for START.
-/// None if the supervisor stopped the run first (STOP or SIGTERM).
-fn handshake(
-    ports: &Ports,
-    term: &AtomicBool,
-) -> Result<Option<iceoryx2::sample::Sample<Svc, [RefSample], ()>>> {
+/// The handshake: file the chunks the supervisor sends before START, report ARMED once tick 0's
+/// row is there, and wait for START (filing the rest of the first chunks meanwhile, so the loop
+/// starts with them in the ring). Returns START's N; None if the supervisor stopped the run first
+/// (STOP or SIGTERM).
+fn handshake(ports: &Ports, ring: &mut RefRing, term: &AtomicBool) -> Result<Option<u64>> {
     let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
-    let reference = loop {
-        if let Some(r) = ports.reference.receive().ipc("receive reference")? {
-            break r;
-        }
-        if drain_control(&ports.control.1)?.1 || term.load(Ordering::Relaxed) {
+    while ring.get(0).is_none() {
+        drain_reference(&ports.reference, ring)?;
+        if drain_control(&ports.control.1)?.stop || term.load(Ordering::Relaxed) {
             return Ok(None);
         }
         if rt::now_ns() > end {
@@ -141,17 +149,17 @@ fn handshake(
                 ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000
             );
         }
-        std::thread::sleep(std::time::Duration::from_millis(1));
-    };
-    // Touch every row now, so no tick page-faults on its reference; then report ARMED.
-    std::hint::black_box(reference.payload().iter().map(|r| r.q[0]).sum::<f64>());
+        std::thread::sleep(Duration::from_millis(1));
+    }
     ports.send_control(ControlKind::Armed)?;
     loop {
-        match drain_control(&ports.control.1)? {
-            (_, true) => return Ok(None),
-            _ if term.load(Ordering::Relaxed) => return Ok(None),
-            (true, _) => return Ok(Some(reference)),
-            _ => {}
+        drain_reference(&ports.reference, ring)?;
+        let control = drain_control(&ports.control.1)?;
+        if control.stop || term.load(Ordering::Relaxed) {
+            return Ok(None);
+        }
+        if control.start.is_some() {
+            return Ok(control.start);
         }
         if rt::now_ns() > end {
             bail!(
@@ -159,25 +167,34 @@ fn handshake(
                 ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000
             );
         }
-        std::thread::sleep(std::time::Duration::from_micros(200));
+        std::thread::sleep(Duration::from_micros(200));
     }
+}
+
+/// What the loop runs with.
+struct Loop<'c> {
+    cfg: &'c RunConfig,
+    law: Law,
+    /// Rows of the reference, N + 2 (ticks 0..=N + 1), from START.
+    rows: u64,
+    /// Busy-poll time before blocking on the state wake-up, ns.
+    spin_ns: u64,
 }
 
 /// The loop: answer every state until the final one, the plant's silence, or a stop.
 fn answer_states(
     ports: &Ports,
-    cfg: &RunConfig,
-    law: Law,
-    rows: &[RefSample],
-    spin_ns: u64,
+    lp: &Loop,
+    ring: &mut RefRing,
     term: &AtomicBool,
 ) -> Result<ProcessEnd> {
+    let cfg = lp.cfg;
     let compute_delay_us = cfg.controller.compute_delay_us;
     let inject = cfg.faults.inject;
-    let mut side = ControllerSide::from_config(cfg, law);
+    let mut side = ControllerSide::from_config(cfg, lp.law);
     let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
     loop {
-        let waited = wait_state(&ports.state, &ports.state_ready, silence_ns, spin_ns);
+        let waited = wait_state(&ports.state, &ports.state_ready, silence_ns, lp.spin_ns);
         if term.load(Ordering::Relaxed) {
             return Ok(ProcessEnd::Stopped("stopped by SIGTERM".into()));
         }
@@ -198,14 +215,17 @@ fn answer_states(
             }
             _ => {}
         }
-        let Some(r) = rows.get(state.tick as usize) else {
+        if state.tick >= lp.rows {
             return Ok(ProcessEnd::Fault(format!(
                 "state tick {} is beyond the reference ({} ticks)",
-                state.tick,
-                rows.len()
+                state.tick, lp.rows
             )));
+        }
+        let r = match await_row(ports, ring, state.tick, cfg.loop_.silence_timeout_ms, term)? {
+            Ok(r) => r,
+            Err(end) => return Ok(end),
         };
-        let mut msg = side.answer(&state, &crate::reference(r));
+        let mut msg = side.answer(&state, &crate::reference(&r));
         if matches!(inject, FaultInjection::NanTorque(k) if state.tick == k) {
             msg.tau = [f64::NAN; 3];
         }
@@ -218,7 +238,55 @@ fn answer_states(
         msg.t_publish_ns = rt::now_ns();
         ports.torque.send_copy(msg).ipc("publish torque")?;
         ports.torque_ready.notify().ipc("notify torque")?;
+        // File any chunk that arrived now, in the slack before the next state, so copying its
+        // 320 KiB never delays a reply (before the next answer, as the rule needs).
+        drain_reference(&ports.reference, ring)?;
     }
+}
+
+/// Tick `k`'s reference row: from the ring, where it normally already is. If it is not, the
+/// supervisor has fallen behind the loop: file chunks as they arrive (polling every 50 µs) for up
+/// to the silence timeout, stopping early on SIGTERM or STOP. Err says how the wait ended.
+fn await_row(
+    ports: &Ports,
+    ring: &mut RefRing,
+    k: u64,
+    silence_timeout_ms: u32,
+    term: &AtomicBool,
+) -> Result<Result<RefSample, ProcessEnd>> {
+    if let Some(r) = ring.get(k) {
+        return Ok(Ok(*r));
+    }
+    let until = rt::now_ns() + u64::from(silence_timeout_ms) * 1_000_000;
+    loop {
+        drain_reference(&ports.reference, ring)?;
+        if let Some(r) = ring.get(k) {
+            return Ok(Ok(*r));
+        }
+        if term.load(Ordering::Relaxed) {
+            return Ok(Err(ProcessEnd::Stopped("stopped by SIGTERM".into())));
+        }
+        if drain_control(&ports.control.1)?.stop {
+            return Ok(Err(ProcessEnd::Stopped("stopped by STOP".into())));
+        }
+        if rt::now_ns() >= until {
+            return Ok(Err(ProcessEnd::Fault(format!(
+                "no reference for tick {k} from the supervisor within {silence_timeout_ms} ms: it fell behind the loop"
+            ))));
+        }
+        std::thread::sleep(Duration::from_micros(50));
+    }
+}
+
+/// Copies every chunk waiting on the reference subscriber into the ring, each row under its own
+/// tick, and releases the samples at once (the supervisor reuses their memory).
+fn drain_reference(sub: &Subscriber<Svc, [RefSample], ()>, ring: &mut RefRing) -> Result<()> {
+    while let Some(chunk) = sub.receive().ipc("receive reference")? {
+        for row in chunk.payload() {
+            ring.put(row);
+        }
+    }
+    Ok(())
 }
 
 /// Waits for the next state (busy-polls for `spin_ns`, then blocks on the wake-up event) and
@@ -259,12 +327,26 @@ fn wait_state(
     }
 }
 
-/// Drains the control channel: (saw START, saw STOP).
-fn drain_control(sub: &Subscriber<Svc, ControlMsg, ()>) -> Result<(bool, bool)> {
-    let (mut start, mut stop) = (false, false);
+/// What the control channel said since it was last drained.
+struct Control {
+    /// START's N (the last tick that gets a command), if START came.
+    start: Option<u64>,
+    /// STOP came.
+    stop: bool,
+}
+
+/// Drains the control channel.
+fn drain_control(sub: &Subscriber<Svc, ControlMsg, ()>) -> Result<Control> {
+    let mut c = Control {
+        start: None,
+        stop: false,
+    };
     while let Some(m) = sub.receive().ipc("receive control")? {
-        start |= m.payload().kind() == Some(ControlKind::Start);
-        stop |= m.payload().kind() == Some(ControlKind::Stop);
+        match m.payload().kind() {
+            Some(ControlKind::Start) => c.start = Some(m.payload().ticks),
+            Some(ControlKind::Stop) => c.stop = true,
+            _ => {}
+        }
     }
-    Ok((start, stop))
+    Ok(c)
 }

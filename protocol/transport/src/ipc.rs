@@ -143,7 +143,39 @@ pub fn control_ports(node: &Node<Svc>, run_id: &str) -> Result<ControlPorts, Ipc
     Ok((publisher, subscriber))
 }
 
-/// Supervisor → controller: the whole joint reference as one slice sample.
+/// Rows of the joint reference per sample (one chunk): 4096 ticks, 1.2 s at Ts = 0.3 ms, 320 KiB.
+///
+/// # The reference hand-off
+///
+/// The supervisor sends the joint reference (total = N + 2 rows, ticks 0..=N + 1) in chunks, so
+/// neither shared memory nor the controller grows with the run. With C = `REF_CHUNK`:
+///
+/// - chunk c holds ticks [c·C, min((c + 1)·C, total)), each row stamped with its
+///   [`RefSample::tick`];
+/// - the controller keeps a ring of [`REF_RING`]·C rows: the row of tick k sits in slot
+///   k mod (`REF_RING`·C) and is valid iff that slot's `tick == k`;
+/// - the supervisor sends chunks 0..min(`REF_RING`, chunks) before START, and chunk c ≥ `REF_RING`
+///   only once it has seen a torque reply for some tick a with a + 1 ≥ (c − `REF_RING` + 1)·C.
+///   Chunk c overwrites chunk c − `REF_RING` in the ring; that reply shows the controller is past
+///   the last tick of that chunk, and it never goes back, so the chunk is dead.
+///
+/// The same reply shows the controller has taken chunks 0..=c − `REF_RING` off its queue (it
+/// needed tick a's row, and the queue is in order), so at most `REF_RING` chunks are ever queued:
+/// a subscriber buffer of `REF_RING` never overflows and the supervisor never waits. If the
+/// supervisor falls behind anyway, the controller waits for the row up to the silence timeout and
+/// then ends with a fault that says so.
+pub const REF_CHUNK: usize = 4096;
+/// Chunks the controller's reference ring holds (and its subscriber queues): 16, so the
+/// supervisor may run up to 15 chunks (18 s at Ts = 0.3 ms) ahead of the loop; the ring costs the
+/// controller 5 MiB.
+pub const REF_RING: usize = 16;
+
+/// Supervisor → controller: the joint reference in chunks of up to [`REF_CHUNK`] rows (the rule is
+/// at [`REF_CHUNK`]). One publisher, one subscriber, no history (the subscriber exists before the
+/// first chunk is sent: the controller reports READY after opening it). The queue holds
+/// [`REF_RING`] chunks, which the rule never exceeds; safe overflow keeps the supervisor from ever
+/// blocking should it be exceeded (the controller would then miss a row and say so). The
+/// controller copies each chunk into its ring and drops it at once, so it borrows one at a time.
 pub fn reference(
     node: &Node<Svc>,
     run_id: &str,
@@ -153,10 +185,38 @@ pub fn reference(
         .max_publishers(1)
         .max_subscribers(1)
         .max_nodes(4)
-        .subscriber_max_buffer_size(1)
+        .subscriber_max_buffer_size(REF_RING)
+        .subscriber_max_borrowed_samples(1)
         .history_size(0)
+        .enable_safe_overflow(true)
         .open_or_create()
         .ipc("open service reference")
+}
+
+/// The supervisor's end of the reference: chunks of up to [`REF_CHUNK`] rows, one loaned at a
+/// time (it fills and sends each before the next).
+pub fn reference_publisher(
+    node: &Node<Svc>,
+    run_id: &str,
+) -> Result<iceoryx2::port::publisher::Publisher<Svc, [RefSample], ()>, IpcError> {
+    reference(node, run_id)?
+        .publisher_builder()
+        .initial_max_slice_len(REF_CHUNK)
+        .max_loaned_samples(1)
+        .create()
+        .ipc("reference publisher")
+}
+
+/// The controller's end of the reference, queueing up to [`REF_RING`] chunks.
+pub fn reference_subscriber(
+    node: &Node<Svc>,
+    run_id: &str,
+) -> Result<iceoryx2::port::subscriber::Subscriber<Svc, [RefSample], ()>, IpcError> {
+    reference(node, run_id)?
+        .subscriber_builder()
+        .buffer_size(REF_RING)
+        .create()
+        .ipc("reference subscriber")
 }
 
 /// A wake-up event: `state-ready` wakes the controller, `torque-ready` wakes the plant.
@@ -186,11 +246,17 @@ pub fn shm_free_bytes() -> Option<u64> {
     Some(st.f_bavail as u64 * st.f_frsize as u64)
 }
 
-/// Shared memory one process run maps, bytes, for a reference of `rows` ticks: measured on
-/// iceoryx2 0.10 with `du --apparent-size /dev/shm` (≈ 7.7 MiB of services and queues, plus
-/// ≈ 361 B per reference row), with 10 % added.
-pub fn shm_needed_bytes(rows: usize) -> u64 {
-    let measured = 7_841 * 1024 + 361 * rows as u64;
+/// Shared memory one process run maps, bytes: the same for a run of seconds or of hours, since the
+/// reference travels in bounded chunks. Measured on iceoryx2 0.10 by summing the sizes of the
+/// `/dev/shm` files that the three nodes of a run create with all their ports (what
+/// `du --apparent-size` counts): 13,603 KiB, of which 7,842 KiB are the loop, control and event
+/// services and 5,761 KiB the reference publisher's data segment. That segment holds
+/// `REF_RING` queued + 1 borrowed + 1 loaned = 18 chunks of `REF_CHUNK` rows of 80 B (5,760 KiB),
+/// so it is computed here from the constants; 10 % is added as a margin (≈ 14.6 MiB in all).
+pub const fn shm_needed_bytes() -> u64 {
+    const SERVICES: u64 = 7_841 * 1024;
+    const REFERENCE: u64 = ((REF_RING + 2) * REF_CHUNK * std::mem::size_of::<RefSample>()) as u64;
+    let measured = SERVICES + REFERENCE;
     measured + measured / 10
 }
 
@@ -202,7 +268,7 @@ pub fn check_shm(needed: u64, free: u64) -> Result<(), String> {
     }
     let mb = |b: u64| b as f64 / (1024.0 * 1024.0);
     Err(format!(
-        "not enough shared memory for this run: /dev/shm has {:.1} MiB free, the run needs about {:.1} MiB (≈ 8.4 MiB per run plus ≈ 0.4 KiB per tick); free /dev/shm, shorten the run, or enlarge it (Docker: --shm-size; its default 64 MiB fits about 7 short runs)",
+        "not enough shared memory for this run: /dev/shm has {:.1} MiB free, the run needs about {:.1} MiB (≈ 14.6 MiB per run, whatever its length); free /dev/shm or enlarge it (Docker: --shm-size; its default 64 MiB fits 4 runs)",
         mb(free),
         mb(needed)
     ))
@@ -275,13 +341,14 @@ mod tests {
 
     #[test]
     fn shm_check_names_free_and_needed_space() {
-        let need = shm_needed_bytes(2_668);
-        // A short S1 run needs ≈ 9–10 MiB: seven fit in Docker's 64 MiB, not eight.
-        assert!((9 << 20..11 << 20).contains(&need), "{need}");
-        assert!(check_shm(need, 64 << 20).is_ok());
-        let err = check_shm(shm_needed_bytes(12_000_000), 64 << 20).unwrap_err();
+        let need = shm_needed_bytes();
+        // ≈ 14.6 MiB, whatever the run's length: four fit in Docker's 64 MiB, not five.
+        assert!((14 << 20..15 << 20).contains(&need), "{need}");
+        assert!(check_shm(4 * need, 64 << 20).is_ok());
+        assert!(check_shm(5 * need, 64 << 20).is_err());
+        let err = check_shm(need, 8 << 20).unwrap_err();
         assert!(
-            err.contains("64.0 MiB free") && err.contains("--shm-size"),
+            err.contains("8.0 MiB free") && err.contains("--shm-size"),
             "{err}"
         );
         assert_eq!(err.lines().count(), 1);

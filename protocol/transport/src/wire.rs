@@ -116,7 +116,8 @@ pub enum ControlKind {
     /// The plant stopped the loop at `tick` and brakes (e.g. the controller went silent); `text`
     /// says why.
     Fault = 4,
-    /// The controller holds the reference (mapped and touched) and can answer tick 0.
+    /// The controller has tick 0's reference row (its reference ring allocated and touched) and
+    /// can answer tick 0.
     Armed = 6,
     /// The plant's model failed at `tick` (left the workspace, non-finite state): the run
     /// diverged, as the study's divergence rule counts it; `text` says how.
@@ -224,11 +225,16 @@ impl ControlMsg {
     }
 }
 
-/// One tick of the joint reference (supervisor → controller, all ticks in one slice sample).
+/// One tick of the joint reference, joint frame (supervisor → controller, up to
+/// [`REF_CHUNK`](crate::ipc::REF_CHUNK) rows per slice sample; the chunking rule is in
+/// [`crate::ipc`]). The row names its own tick, so the controller files it without knowing which
+/// chunk it came in. Layout: 80 bytes, `tick` at 0, `q` at 8, `qd` at 32, `qdd` at 56.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("deltaloop::RefSample/v1")]
+#[type_name("deltaloop::RefSample/v2")]
 pub struct RefSample {
+    /// The control tick k this row is for (t = k·Ts).
+    pub tick: u64,
     /// q_d,k, rad.
     pub q: [f64; 3],
     /// q̇_d,k, rad/s.
@@ -269,5 +275,21 @@ mod tests {
         assert_eq!(ControlKind::from_wire(5), None);
         assert_eq!(Sender::from_wire(3), Some(Sender::Supervisor));
         assert_eq!(Sender::from_wire(0), None);
+    }
+    /// The reference row's layout is part of the wire format (its type name says v2): pin it.
+    #[test]
+    fn ref_sample_layout_is_fixed() {
+        use std::mem::{align_of, offset_of, size_of};
+        assert_eq!(size_of::<RefSample>(), 80);
+        assert_eq!(align_of::<RefSample>(), 8);
+        assert_eq!(
+            [
+                offset_of!(RefSample, tick),
+                offset_of!(RefSample, q),
+                offset_of!(RefSample, qd),
+                offset_of!(RefSample, qdd)
+            ],
+            [0, 8, 32, 56]
+        );
     }
 }
