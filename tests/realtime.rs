@@ -1,5 +1,6 @@
 //! A realtime run of the real process pair: it tracks S1 as well as the inproc run allows, given
-//! the deadlines it missed, and writes its timing histograms. Its own test binary, so no other
+//! its measured latency and the deadlines it missed, writes its timing histograms, and replays
+//! byte for byte. Its own test binary, so no other
 //! test's processes share the CPUs with it (cargo runs test binaries one at a time).
 
 mod common;
@@ -57,5 +58,24 @@ fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
     }
     let report = std::fs::read_to_string(b.join("report.md")).unwrap();
     assert!(report.contains("## Loop timing (realtime)") && report.contains("deadline misses"));
+    assert!(report.contains("measured latency cost: RMS ×"), "{report}");
+    // Each reply acted at its measured arrival, recorded per tick: the run replays in-process
+    // byte for byte from its folder alone.
+    let trace = std::fs::read_to_string(b.join("trace.csv")).unwrap();
+    let arrivals: Vec<u64> = trace
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.rsplit(',').next()?.parse().ok())
+        .collect();
+    assert!(arrivals.len() > 5000 && arrivals.iter().all(|&a| a > 0 && a < 150_000));
+    let o = common::deltaloop(&["replay", b.to_str().unwrap()]);
+    let (out, err) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert!(
+        o.status.success() && out.contains("byte for byte"),
+        "{out}{err}"
+    );
     assert_clean(&b, &sr);
 }

@@ -59,6 +59,19 @@ enum Command {
         #[arg(long)]
         force: bool,
     },
+    /// Re-run a finished run in-process from its folder (config, replies and arrivals in its
+    /// trace) and check that it reproduces `trace.csv` byte for byte.
+    Replay {
+        /// The run folder.
+        run_dir: PathBuf,
+        /// Where the replayed trace goes (default: RUN_DIR/replay).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Also run the same scenario with ideal timing (no latency, no misses) and say what the
+        /// measured latency cost.
+        #[arg(long)]
+        ideal: bool,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -99,6 +112,34 @@ enum BenchCommand {
         #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
         repeats: u32,
     },
+}
+
+/// `deltaloop replay`: exit 0 when the trace is reproduced byte for byte, 1 otherwise.
+fn replay(run_dir: &std::path::Path, out: Option<PathBuf>, ideal: bool) -> anyhow::Result<()> {
+    use crate::replay;
+    let out = out.unwrap_or_else(|| run_dir.join("replay"));
+    let folder = crate::output::RunFolder::claim(&out, true)?;
+    let (verdict, runs) = replay::replay(run_dir, folder.path())?;
+    let line = replay::describe(&verdict, run_dir);
+    if ideal {
+        let cfg = deltaloop_config::RunConfig::from_file(&run_dir.join("config.toml"))?;
+        let study = crate::study::Study::new(cfg)?;
+        let best = replay::ideal_rms(&study)?;
+        let measured: Vec<_> = runs
+            .iter()
+            .map(|r| (r.law, replay::max_rms(&r.metrics)))
+            .collect();
+        for l in replay::latency_cost(&measured, &best) {
+            println!("{l}");
+        }
+    }
+    match verdict {
+        replay::Verdict::Identical { .. } => {
+            println!("{line}");
+            Ok(())
+        }
+        _ => anyhow::bail!("{line}"),
+    }
 }
 
 /// Entry point of the `deltaloop` binary.
@@ -185,6 +226,11 @@ pub fn main() -> ExitCode {
             );
             Ok(())
         }),
+        Command::Replay {
+            run_dir,
+            out,
+            ideal,
+        } => replay(&run_dir, out, ideal),
         Command::UdsController {
             socket,
             config,

@@ -15,6 +15,7 @@ pub mod plot;
 pub mod procs;
 pub mod record;
 pub mod reference;
+pub mod replay;
 pub mod report;
 pub mod run;
 pub mod scenario;

@@ -170,7 +170,7 @@ fn header() -> Vec<String> {
             h.push(format!("{name}_{j}"));
         }
     }
-    h.extend(["reply".into(), "drives".into()]);
+    h.extend(["reply".into(), "drives".into(), "arrival_ns".into()]);
     h
 }
 
@@ -190,8 +190,10 @@ fn drives(r: &TickRecord) -> &'static str {
 /// true), qdot (rad/s, true), e (rad), tau (commanded τ_k, N m), tau_applied (τᵃ_k, N m), s
 /// (rad/s), n_hat (rad/s²), n_true (rad/s²); then `reply` (what became of the controller's reply
 /// to tick k: applied, late, skipped, missed) and `drives` (what the drives did over
-/// [t_k, t_{k+1}): commanded, clamped, held, rejected). tau, s and n_hat are empty on a tick the
-/// controller never answered; n_true is empty where the next state is unknown.
+/// [t_k, t_{k+1}): commanded, clamped, held, rejected), and `arrival_ns` (A_k − t_k, when the
+/// command reached the drives: the transport delay plus, in realtime, its measured latency).
+/// tau, s and n_hat are empty on a tick the controller never answered; n_true is empty where the
+/// next state is unknown; arrival_ns where no command was applied.
 ///
 /// A write error is kept (the first one, naming the file) and returned by [`TraceWriter::finish`].
 pub struct TraceWriter {
@@ -253,6 +255,10 @@ impl TraceWriter {
         }
         put(format_args!("{}", r.fate.name()));
         put(format_args!("{}", drives(r)));
+        match r.arrival_ns {
+            Some(a) => put(format_args!("{a}")),
+            None => put(format_args!("")),
+        }
         if let Err(e) = self.w.write_record(&self.fields) {
             self.error = Some(
                 anyhow::Error::new(e).context(format!("cannot write {}", self.path.display())),

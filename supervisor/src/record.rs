@@ -61,6 +61,9 @@ pub struct TickRecord {
     pub held: bool,
     /// The plant rejected the command (non-finite, or over the limit under `reject`).
     pub rejected: bool,
+    /// When the command reached the drives, A_k − t_k (ns: transport delay plus, in realtime, its
+    /// measured latency); None if it was not applied or the telemetry was not seen.
+    pub arrival_ns: Option<u64>,
 }
 
 /// The measured part of a state message: tick k, q, q̇ and τᵃ_k as the controller saw them.
@@ -193,6 +196,7 @@ impl<'a, S: TickSink> Recorder<'a, S> {
             clamped: false,
             held: false,
             rejected: false,
+            arrival_ns: None,
         };
         self.push(record, row);
         let e = row.joint.q - sample.q;
@@ -281,6 +285,9 @@ impl<'a, S: TickSink> Recorder<'a, S> {
             if r.out.is_some() && flags & wire::TEL_MISSED != 0 {
                 r.fate = ReplyFate::Late;
             }
+            r.arrival_ns = tel
+                .filter(|m| m.flags & wire::TEL_MISSED == 0)
+                .map(|m| m.arrival_ns);
         }
     }
 

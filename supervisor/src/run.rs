@@ -38,6 +38,9 @@ pub struct Overrides {
     /// Transport delay d in ticks (plant.transport_delay_samples).
     #[arg(long)]
     pub transport_delay: Option<u32>,
+    /// Transport delay beyond whole ticks, µs (plant.transport_delay_us; adds to --transport-delay).
+    #[arg(long)]
+    pub transport_delay_us: Option<f64>,
     /// Extra controller compute time per tick, µs (controller.compute_delay_us; realtime).
     #[arg(long)]
     pub compute_delay_us: Option<u32>,
@@ -60,6 +63,9 @@ impl Overrides {
         }
         if let Some(v) = self.transport_delay {
             cfg.plant.transport_delay_samples = v;
+        }
+        if let Some(v) = self.transport_delay_us {
+            cfg.plant.transport_delay_us = v;
         }
         if let Some(v) = self.compute_delay_us {
             cfg.controller.compute_delay_us = v;
@@ -223,6 +229,9 @@ pub fn run(
             &timing_summaries,
         ));
     }
+    if mode == LoopMode::Realtime && !metrics.is_empty() {
+        md.push_str(&latency_cost_markdown(&study, &metrics)?);
+    }
     output::write_run_folder(&dir, &summary, &laws, &md)?;
     let mut table = report::terminal_table(cfg, &metrics);
     if mode.is_process() {
@@ -264,6 +273,23 @@ pub fn run(
         study,
         runs,
     })
+}
+
+/// The report section that says what the measured latency cost: each law's tracking against the
+/// same scenario with ideal timing (in-process, same config).
+fn latency_cost_markdown(study: &Study, metrics: &[LawMetrics]) -> Result<String> {
+    let ideal = crate::replay::ideal_rms(study)?;
+    let measured: Vec<_> = metrics
+        .iter()
+        .map(|m| (m.law, crate::replay::max_rms(m)))
+        .collect();
+    let mut md = String::from(
+        "\n## Measured latency cost\n\nEach reply acted on the physics when it arrived (`apply_torque`); the same scenario with ideal timing (no latency, no misses) runs in-process for comparison. Max-joint RMS tracking error:\n\n",
+    );
+    for line in crate::replay::latency_cost(&measured, &ideal) {
+        md.push_str(&format!("- {line}\n"));
+    }
+    Ok(md)
 }
 
 /// The run was stopped by Ctrl-C / SIGTERM; its folder holds the data gathered so far.

@@ -348,7 +348,7 @@ impl Timing {
 pub struct TimingCsv {
     path: std::path::PathBuf,
     w: csv::Writer<std::fs::File>,
-    fields: [String; 11],
+    fields: [String; 12],
 }
 
 impl TimingCsv {
@@ -367,6 +367,7 @@ impl TimingCsv {
             "held",
             "clamped",
             "ctrl_skipped",
+            "arrival_ns",
         ])
         .with_context(|| format!("cannot write {}", path.display()))?;
         Ok(Self {
@@ -395,6 +396,8 @@ impl TimingCsv {
             flag(wire::TEL_HELD),
             flag(wire::TEL_CLAMPED),
             t.map(|t| t.skipped),
+            m.filter(|m| m.flags & (wire::TEL_MISSED | wire::TEL_SAFE_STOP) == 0)
+                .map(|m| m.arrival_ns),
         ];
         for (f, v) in self.fields.iter_mut().zip(cells) {
             use std::fmt::Write as _;

@@ -156,3 +156,45 @@ fn payload_step_changes_the_plant_at_its_tick_only() {
     );
     assert_ne!(b.records[1400].sample.q, a.records[1400].sample.q);
 }
+
+/// `transport_delay_us` = d·Ts is `transport_delay_samples` = d, bit for bit: a whole-tick delay
+/// cuts no interval.
+#[test]
+fn whole_tick_delays_in_us_are_the_sample_delays_bit_for_bit() {
+    for d in [1u32, 2] {
+        let by_ticks = with_plant(&format!("transport_delay_samples = {d}"));
+        let by_us = with_plant(&format!("transport_delay_us = {}", f64::from(d) * 300.0));
+        for law in [Law::Tdc, Law::TdcIsSta] {
+            let (a, b) = (run_law(&by_ticks, law), run_law(&by_us, law));
+            assert_eq!(a.records, b.records, "d = {d}, {law}");
+            assert_eq!(a.metrics, b.metrics);
+        }
+    }
+}
+
+/// A sub-tick delay acts as the rule says: S2, matched preset, 45 µs. An independent
+/// implementation of the rule gave max-joint RMS 9.454e-5 (tdc) and 2.013e-6 rad (tde-is), against
+/// 7.209e-5 and 1.384e-6 rad with no delay.
+#[test]
+fn a_45_us_delay_matches_the_independent_implementation() {
+    let max_rms = |s: &Study, law| {
+        run_law(s, law)
+            .metrics
+            .rms_rad
+            .into_iter()
+            .fold(0.0, f64::max)
+    };
+    for (us, tdc, tde_is) in [(0.0, 7.209e-5, 1.384e-6), (45.0, 9.454e-5, 2.013e-6)] {
+        let s = study(
+            "s2",
+            &format!("transport_delay_us = {us}\n[controller]\npreset = \"matched\"\n"),
+        );
+        for (law, want) in [(Law::Tdc, tdc), (Law::TdeIs, tde_is)] {
+            let got = max_rms(&s, law);
+            assert!(
+                ((got - want) / want).abs() < 1e-3,
+                "{us} µs, {law}: {got:e} vs {want:e}"
+            );
+        }
+    }
+}

@@ -14,7 +14,7 @@
 use crate::{Arrival, PlantSide, PlantStop};
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use deltaloop_config::config::Layout;
+use deltaloop_config::config::{ApplyTorque, Layout};
 use deltaloop_config::{LoopMode, RunConfig};
 use deltaloop_model::Vec3;
 use deltaloop_transport::args::LoopArgs;
@@ -109,6 +109,8 @@ struct Clock {
     silence_ns: u64,
     spin_ns: u64,
     early_ns: u64,
+    /// Replies act on the physics at their measured arrival (realtime, `apply_torque = "arrival"`).
+    at_arrival: bool,
 }
 
 impl Clock {
@@ -181,6 +183,8 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         silence_ns: u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000,
         spin_ns: u64::from(layout.spin_us.unwrap_or(0)) * 1000,
         early_ns: u64::from(layout.wake_early_us.unwrap_or(0)) * 1000,
+        at_arrival: args.run.mode == LoopMode::Realtime
+            && cfg.plant.apply_torque == ApplyTorque::Arrival,
     };
     let Some(stop) = run_loop(&ports, &mut side, &clock, &cfg, term)? else {
         // No DONE message: the final state and the exit status say it, and the controller's ports
@@ -234,6 +238,11 @@ fn run_loop(
             side,
         )?;
         let arrival = match reply {
+            // The reply acts on the physics when it became visible: its publish time, mapped
+            // into simulated time as an offset from the tick's deadline.
+            Some((t, _)) if clock.at_arrival => {
+                Arrival::ReplyAfter(t, t.t_publish_ns.saturating_sub(deadline))
+            }
             Some((t, _)) => Arrival::Reply(t),
             None if clock.mode != LoopMode::Realtime => {
                 return Ok(Some(LoopStop {

@@ -30,7 +30,7 @@ pub fn plant_from_config(cfg: &RunConfig, q0: Vec3) -> Result<Plant, KinematicsE
         DeltaRobot::default(),
         sim_config(cfg),
         cfg.plant.tau_max_nm,
-        cfg.plant.transport_delay_samples as usize,
+        cfg.transport_delay_ns(),
         q0,
     )?
     .reject_over_limit(cfg.faults.torque_limit == TorqueLimit::Reject);
@@ -50,8 +50,12 @@ pub fn plant_from_config(cfg: &RunConfig, q0: Vec3) -> Result<Plant, KinematicsE
 /// What reached the plant for the current tick.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Arrival {
-    /// The controller's reply to this tick, in time.
+    /// The controller's reply to this tick, in time, reaching the drives at its tick (plus the
+    /// configured transport delay).
     Reply(TorqueMsg),
+    /// The reply, in time, reaching the drives a measured latency (ns) after its tick's deadline
+    /// (plus the configured transport delay): realtime with `apply_torque = "arrival"`.
+    ReplyAfter(TorqueMsg, u64),
     /// No reply in time (realtime): the drives hold the last applied torque.
     Missed,
 }
@@ -88,6 +92,8 @@ pub struct PlantSide {
     /// N: the last tick that gets a command; the plant then publishes tick N + 1 as final.
     last_tick: u64,
     ts_s: f64,
+    /// The configured transport delay D, ns.
+    delay_ns: u64,
     silence_ticks: u64,
     misses: u64,
     late: u64,
@@ -101,6 +107,7 @@ impl PlantSide {
             plant: plant_from_config(cfg, q0)?,
             last_tick,
             ts_s: cfg.loop_.ts_s,
+            delay_ns: cfg.transport_delay_ns(),
             silence_ticks: u64::from(cfg.faults.controller_silence_ticks),
             misses: 0,
             late: 0,
@@ -169,10 +176,15 @@ impl PlantSide {
             tick: k,
             ..TelemetryMsg::default()
         };
-        let cmd = match arrival {
-            Arrival::Reply(t) => {
+        let (cmd, latency_ns) = match arrival {
+            Arrival::Reply(t) | Arrival::ReplyAfter(t, _) => {
                 self.consecutive = 0;
-                Some(Vec3::from(t.tau))
+                let latency = match arrival {
+                    Arrival::ReplyAfter(_, l) => l,
+                    _ => 0,
+                };
+                tel.arrival_ns = self.delay_ns + latency;
+                (Some(Vec3::from(t.tau)), latency)
             }
             Arrival::Missed => {
                 self.misses += 1;
@@ -189,13 +201,16 @@ impl PlantSide {
                         ),
                     });
                 }
-                None
+                (None, 0)
             }
         };
-        let a = self.plant.advance(cmd).map_err(|e| PlantStop::Diverged {
-            tick: k + 1,
-            cause: e.to_string(),
-        })?;
+        let a = self
+            .plant
+            .advance_after(cmd, latency_ns)
+            .map_err(|e| PlantStop::Diverged {
+                tick: k + 1,
+                cause: e.to_string(),
+            })?;
         tel.flags |= if a.clamped { wire::TEL_CLAMPED } else { 0 }
             | if a.held { wire::TEL_HELD } else { 0 }
             | if a.rejected { wire::TEL_REJECTED } else { 0 };

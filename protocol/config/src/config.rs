@@ -118,9 +118,19 @@ pub struct PlantSection {
     /// RK4 steps per control period (h = Ts/substeps).
     #[serde(default = "default_substeps")]
     pub substeps: u32,
-    /// Transport delay d: the plant applies τ_k over [t_{k+d}, t_{k+d+1}), ticks.
+    /// Transport delay in whole ticks d: with `transport_delay_us` = 0 the plant applies τ_k over
+    /// [t_{k+d}, t_{k+d+1}). The delay D is d·Ts + `transport_delay_us`.
     #[serde(default)]
     pub transport_delay_samples: u32,
+    /// Transport delay beyond the whole ticks, µs (any value ≥ 0; converted to integer ns): τ_k
+    /// takes effect at t_k + D, cutting the interval it falls in (docs/delta-robot.md §5).
+    #[serde(default)]
+    pub transport_delay_us: f64,
+    /// In realtime mode, when a reply takes effect: at its measured arrival (`arrival`: its
+    /// publish time minus the tick's deadline, plus D) or at its tick (`tick`: as if the reply
+    /// had been instantaneous; plus D). Other modes have no measured arrival.
+    #[serde(default)]
+    pub apply_torque: ApplyTorque,
     /// Payload step (docs/delta-robot.md §4.3): m_pay jumps from 0 to this mass, kg (0: no step).
     #[serde(default)]
     pub payload_step_kg: f64,
@@ -143,10 +153,23 @@ impl Default for PlantSection {
             tau_max_nm: default_tau_max(),
             substeps: default_substeps(),
             transport_delay_samples: 0,
+            transport_delay_us: 0.0,
+            apply_torque: ApplyTorque::default(),
             payload_step_kg: 0.0,
             payload_step_at_s: None,
         }
     }
+}
+
+/// When a realtime reply takes effect (`[plant] apply_torque`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum ApplyTorque {
+    /// At its measured arrival (plus the configured transport delay).
+    #[default]
+    Arrival,
+    /// At its tick (plus the configured transport delay), whatever the reply really took.
+    Tick,
 }
 
 /// What the drives do with a command beyond ±τ_max (non-finite commands are always rejected).
@@ -624,6 +647,9 @@ pub const MAX_TDE_DELAY: u32 = 10_000;
 /// things (one in the controller's estimate, one on the wire) and share a value by coincidence.
 pub const MAX_TRANSPORT_DELAY: u32 = 10_000;
 
+/// Largest accepted `plant.transport_delay_us`, µs (1 s).
+pub const MAX_TRANSPORT_DELAY_US: f64 = 1e6;
+
 /// Largest accepted `plant.substeps`; the period bounds it further (RK4 step ≥ 1 µs).
 pub const MAX_SUBSTEPS: u32 = 1000;
 
@@ -966,6 +992,12 @@ impl PlantSection {
             ));
         }
         check(
+            "plant.transport_delay_us",
+            self.transport_delay_us,
+            (0.0..=MAX_TRANSPORT_DELAY_US).contains(&self.transport_delay_us),
+            &format!("0 <= transport_delay_us <= {MAX_TRANSPORT_DELAY_US} µs"),
+        )?;
+        check(
             "plant.payload_step_kg",
             self.payload_step_kg,
             (0.0..=10.0).contains(&self.payload_step_kg),
@@ -1288,6 +1320,17 @@ impl RunConfig {
                 .unwrap_or(self.motion_duration_s() / 2.0);
             step_tick(t, self.loop_.ts_s)
         })
+    }
+
+    /// The control period Ts, ns.
+    pub fn ts_ns(&self) -> u64 {
+        (self.loop_.ts_s * 1e9).round() as u64
+    }
+
+    /// The transport delay D = d·Ts + `transport_delay_us`, ns.
+    pub fn transport_delay_ns(&self) -> u64 {
+        u64::from(self.plant.transport_delay_samples) * self.ts_ns()
+            + (self.plant.transport_delay_us * 1e3).round() as u64
     }
 
     /// Number of control ticks after tick 0 for the whole run: round((T + hold)/Ts).

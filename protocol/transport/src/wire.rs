@@ -72,7 +72,7 @@ pub const TEL_SAFE_STOP: u32 = 16;
 /// Plant → supervisor after each tick: what happened to the command, and the timing.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("deltaloop::TelemetryMsg/v1")]
+#[type_name("deltaloop::TelemetryMsg/v2")]
 pub struct TelemetryMsg {
     pub tick: u64,
     /// Bit set of `TEL_*`.
@@ -87,6 +87,10 @@ pub struct TelemetryMsg {
     pub late_dropped: u64,
     /// Deadline misses so far.
     pub misses: u64,
+    /// When this tick's command reached the drives, A_k − t_k, ns: the transport delay plus, in
+    /// realtime with `apply_torque = "arrival"`, the reply's measured latency (its publish time
+    /// minus the tick's deadline). 0 when no command was applied (`TEL_MISSED`).
+    pub arrival_ns: u64,
 }
 
 /// A loop message stamped with the tick it belongs to (the supervisor files them by it).
