@@ -30,6 +30,12 @@ pub fn law_color(law: &str) -> RGBColor {
     }
 }
 
+/// A lighter tone of `c` (halfway to white), for a second series of the same law.
+pub fn lighter(c: RGBColor) -> RGBColor {
+    let up = |x: u8| x + (255 - x) / 2;
+    RGBColor(up(c.0), up(c.1), up(c.2))
+}
+
 /// A series: its legend name, colour, and (x, y) points.
 pub struct Series {
     pub name: String,

@@ -36,6 +36,10 @@ pub struct SweepFile {
     pub laws: Vec<Law>,
     pub tde_delay_samples: Vec<u32>,
     pub transport_delay_samples: Vec<u32>,
+    /// Sub-tick transport delay axis, µs: each value runs every law × scenario × preset at the
+    /// first ℓ and d above, with `plant.transport_delay_us` set. Empty: none.
+    #[serde(default)]
+    pub transport_delay_us: Vec<f64>,
     /// Realtime axis: each value runs every law × scenario × preset in realtime mode at the first
     /// ℓ and d above. Empty: no realtime runs.
     #[serde(default)]
@@ -51,6 +55,10 @@ pub struct Row {
     pub mode: LoopMode,
     pub tde_delay_samples: u32,
     pub transport_delay_samples: u32,
+    /// The sub-tick transport delay, µs (the delay D is d·Ts plus this).
+    pub transport_delay_us: f64,
+    /// The effective estimation delay L_eff/Ts = ℓ + D/Ts, ticks.
+    pub effective_delay_ticks: f64,
     pub compute_delay_us: u32,
     /// How the point ended (see [`Status`]).
     pub status: Status,
@@ -129,6 +137,8 @@ struct Job {
     law: Law,
     ell: u32,
     d: u32,
+    /// Sub-tick transport delay, µs.
+    us: f64,
     compute_us: u32,
     realtime: bool,
 }
@@ -145,6 +155,9 @@ impl std::fmt::Display for Job {
             self.ell,
             self.d
         )?;
+        if self.us > 0.0 {
+            write!(f, " D+={}us", self.us)?;
+        }
         if self.realtime {
             write!(f, " c={}us (realtime)", self.compute_us)?;
         }
@@ -212,6 +225,7 @@ fn status(m: Option<&LawMetrics>, err: Option<&str>) -> (Status, String) {
 
 fn row(
     job: &Job,
+    ts_s: f64,
     mode: LoopMode,
     m: Option<&LawMetrics>,
     err: Option<String>,
@@ -232,6 +246,8 @@ fn row(
         mode,
         tde_delay_samples: job.ell,
         transport_delay_samples: job.d,
+        transport_delay_us: job.us,
+        effective_delay_ticks: f64::from(job.ell) + f64::from(job.d) + job.us * 1e-6 / ts_s,
         compute_delay_us: job.compute_us,
         status,
         diverged_at_tick: m
@@ -259,12 +275,13 @@ fn row(
 fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
     let mut c = base.clone();
     c.name = format!(
-        "{}-{}-{}-l{}-d{}-c{}",
+        "{}-{}-{}-l{}-d{}-u{}-c{}",
         job.scenario.name(),
         job.preset.name(),
         job.law,
         job.ell,
         job.d,
+        (job.us * 1e3).round(),
         job.compute_us
     )
     .to_lowercase();
@@ -280,11 +297,13 @@ fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
     c.controller.tde_delay_samples = job.ell;
     c.controller.compute_delay_us = job.compute_us;
     c.plant.transport_delay_samples = job.d;
+    c.plant.transport_delay_us = job.us;
     c.validate()?;
     Ok(c)
 }
 
 fn run_job(base: &RunConfig, job: &Job, mode: LoopMode, dir: &Path) -> Row {
+    let ts_s = base.loop_.ts_s;
     let attempt = || -> Result<(LawMetrics, Option<crate::timing::TimingSummary>)> {
         let cfg = point_config(base, job)?;
         let study = Study::new(cfg).context("reference")?;
@@ -310,15 +329,15 @@ fn run_job(base: &RunConfig, job: &Job, mode: LoopMode, dir: &Path) -> Row {
         mode
     };
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(attempt)) {
-        Ok(Ok((m, t))) => row(job, mode, Some(&m), None, t.as_ref()),
-        Ok(Err(e)) => row(job, mode, None, Some(format!("{e:#}")), None),
+        Ok(Ok((m, t))) => row(job, ts_s, mode, Some(&m), None, t.as_ref()),
+        Ok(Err(e)) => row(job, ts_s, mode, None, Some(format!("{e:#}")), None),
         Err(p) => {
             let what = p
                 .downcast_ref::<String>()
                 .cloned()
                 .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
                 .unwrap_or_else(|| "(no message)".into());
-            row(job, mode, None, Some(format!("panic: {what}")), None)
+            row(job, ts_s, mode, None, Some(format!("panic: {what}")), None)
         }
     }
 }
@@ -348,7 +367,18 @@ fn check(sw: &SweepFile) -> Result<()> {
             sw.mode
         );
     }
-    let axes: [(&str, Vec<String>, bool); 6] = [
+    if let Some(&us) = sw
+        .transport_delay_us
+        .iter()
+        .find(|us| !(us.is_finite() && (0.0..=cfgfile::MAX_TRANSPORT_DELAY_US).contains(*us)))
+    {
+        bail!(
+            "sweep key `transport_delay_us` lists {}: each value 0 <= us <= {} µs",
+            cfgfile::show_num(us),
+            cfgfile::MAX_TRANSPORT_DELAY_US
+        );
+    }
+    let axes: [(&str, Vec<String>, bool); 7] = [
         (
             "scenarios",
             sw.scenarios.iter().map(|s| s.name().to_string()).collect(),
@@ -376,6 +406,11 @@ fn check(sw: &SweepFile) -> Result<()> {
                 .map(u32::to_string)
                 .collect(),
             true,
+        ),
+        (
+            "transport_delay_us",
+            sw.transport_delay_us.iter().map(f64::to_string).collect(),
+            false,
         ),
         (
             "compute_delay_us",
@@ -441,10 +476,24 @@ fn jobs(sw: &SweepFile) -> Vec<Job> {
                             law,
                             ell,
                             d,
+                            us: 0.0,
                             compute_us: 0,
                             realtime: false,
                         });
                     }
+                }
+                // D = 0 is the grid point (ℓ, d) itself.
+                for &us in sw.transport_delay_us.iter().filter(|&&us| us > 0.0) {
+                    v.push(Job {
+                        scenario,
+                        preset,
+                        law,
+                        ell: sw.tde_delay_samples[0],
+                        d: sw.transport_delay_samples[0],
+                        us,
+                        compute_us: 0,
+                        realtime: false,
+                    });
                 }
                 for &c in &sw.compute_delay_us {
                     v.push(Job {
@@ -453,6 +502,7 @@ fn jobs(sw: &SweepFile) -> Vec<Job> {
                         law,
                         ell: sw.tde_delay_samples[0],
                         d: sw.transport_delay_samples[0],
+                        us: 0.0,
                         compute_us: c,
                         realtime: true,
                     });
@@ -589,6 +639,11 @@ fn run_grid(
         .collect())
 }
 
+/// A point of the ℓ × d grid (not of the realtime or the sub-tick delay axis).
+fn on_grid(r: &Row) -> bool {
+    r.mode != LoopMode::Realtime && r.transport_delay_us == 0.0
+}
+
 /// (file stem, x axis, metric) of every figure written.
 fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String)>> {
     let mut written = Vec::new();
@@ -620,8 +675,8 @@ fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String
         let on_axis = |r: &Row| -> bool {
             let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
             match axis {
-                "tde_delay" => r.mode != LoopMode::Realtime && r.transport_delay_samples == d0,
-                "transport_delay" => r.mode != LoopMode::Realtime && r.tde_delay_samples == l0,
+                "tde_delay" => on_grid(r) && r.transport_delay_samples == d0,
+                "transport_delay" => on_grid(r) && r.tde_delay_samples == l0,
                 _ => r.mode == LoopMode::Realtime,
             }
         };
@@ -679,7 +734,124 @@ fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String
             written.push((stem, format!("{y_label} vs {x_label}")));
         }
     }
+    if !sw.transport_delay_us.is_empty() {
+        written.extend(effective_delay_figures(sw, rows, out)?);
+    }
     Ok(written)
+}
+
+/// The delay study's headline: tracking and TDE error against the effective estimation delay
+/// L_eff/Ts = ℓ + D/Ts from 1 to 3 ticks, integer ℓ (D = d·Ts at the first d) and the transport
+/// delay D (at the first ℓ, whole and sub-tick) as two series per law on the same axes.
+fn effective_delay_figures(
+    sw: &SweepFile,
+    rows: &[Row],
+    out: &Path,
+) -> Result<Vec<(String, String)>> {
+    let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
+    let max_x = f64::from(l0) + f64::from(d0) + 2.0 + 1e-9;
+    let metrics: [(&str, &str, Metric); 2] = [
+        ("rms", "RMS joint error, max over joints (rad)", |r| {
+            r.rms_rad
+        }),
+        ("tde_err", "TDE error RMS, max over joints (rad/s²)", |r| {
+            r.tde_err_rms
+        }),
+    ];
+    let mut written = Vec::new();
+    for (mname, y_label, get) in metrics {
+        let mut panels = Vec::new();
+        for &sc in &sw.scenarios {
+            for &pr in &sw.presets {
+                let here = |r: &&Row| {
+                    r.mode != LoopMode::Realtime
+                        && r.scenario == sc.name()
+                        && r.preset == pr.name()
+                        && r.status == Status::Ok
+                        && r.effective_delay_ticks <= max_x
+                };
+                let mut series = Vec::new();
+                for &law in &sw.laws {
+                    let points = |by_ell: bool| -> Vec<(f64, f64)> {
+                        let mut p: Vec<(f64, f64)> = rows
+                            .iter()
+                            .filter(here)
+                            .filter(|r| r.law == law)
+                            .filter(|r| {
+                                if by_ell {
+                                    on_grid(r) && r.transport_delay_samples == d0
+                                } else {
+                                    r.tde_delay_samples == l0
+                                }
+                            })
+                            .map(|r| (r.effective_delay_ticks, get(r)))
+                            .collect();
+                        p.sort_by(|a, b| a.0.total_cmp(&b.0));
+                        p
+                    };
+                    series.push(Series {
+                        name: format!("{law}: ℓ"),
+                        color: plot::law_color(law.name()),
+                        points: points(true),
+                    });
+                    series.push(Series {
+                        name: format!("{law}: D (µs)"),
+                        color: plot::lighter(plot::law_color(law.name())),
+                        points: points(false),
+                    });
+                }
+                panels.push(Panel {
+                    title: format!("{} — preset {}", sc.name().to_uppercase(), pr.name()),
+                    x_label: "effective estimation delay L_eff/Ts = ℓ + D/Ts".into(),
+                    y_label: y_label.to_string(),
+                    log_x: false,
+                    log_y: true,
+                    series,
+                });
+            }
+        }
+        let stem = format!("{mname}_vs_effective_delay");
+        let title = format!("{y_label} vs the effective delay ℓ + D/Ts");
+        plot::figure(&out.join(&stem), &title, &panels, sw.presets.len())?;
+        written.push((stem, title));
+    }
+    Ok(written)
+}
+
+/// The largest sub-tick transport delay (µs) on the grid up to which a law's tracking RMS stays
+/// within 2× its value at D = 0 (every delay up to it included), and the RMS there; None without
+/// a D = 0 result.
+fn latency_budget(
+    sw: &SweepFile,
+    rows: &[Row],
+    scenario: &str,
+    preset: &str,
+    law: Law,
+) -> Option<(f64, f64, f64)> {
+    let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
+    let at = |us: f64| {
+        rows.iter().find(|r| {
+            r.mode != LoopMode::Realtime
+                && r.scenario == scenario
+                && r.preset == preset
+                && r.law == law
+                && r.tde_delay_samples == l0
+                && r.transport_delay_samples == d0
+                && r.transport_delay_us == us
+        })
+    };
+    let zero = at(0.0).filter(|r| r.status == Status::Ok)?.rms_rad;
+    let mut grid: Vec<f64> = sw.transport_delay_us.clone();
+    grid.retain(|&us| us > 0.0);
+    grid.sort_by(f64::total_cmp);
+    let mut best = (0.0, zero);
+    for us in grid {
+        match at(us) {
+            Some(r) if r.status == Status::Ok && r.rms_rad <= 2.0 * zero => best = (us, r.rms_rad),
+            _ => break,
+        }
+    }
+    Some((zero, best.0, best.1))
 }
 
 fn cell(r: Option<&Row>, get: Metric) -> String {
@@ -774,9 +946,7 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
                     pr.name()
                 );
                 let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
-                let base = |r: &&Row| {
-                    r.mode != LoopMode::Realtime && r.scenario == scn && r.preset == pr.name()
-                };
+                let base = |r: &&Row| on_grid(r) && r.scenario == scn && r.preset == pr.name();
                 let by_ell = |law: Law, l: u32| {
                     rows.iter().filter(base).find(|r| {
                         r.law == law && r.tde_delay_samples == l && r.transport_delay_samples == d0
@@ -832,6 +1002,30 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
                     .map_or("–".into(), |p| format!("{p:.1}")),
                 r.reason.replace('|', "\\|").replace('\n', " ")
             );
+        }
+        let _ = writeln!(s);
+    }
+    if !sw.transport_delay_us.is_empty() {
+        let _ = writeln!(
+            s,
+            "## Latency budget\n\nThe largest transport delay D on the grid (at ℓ = {}, d = {}) up to which each law's tracking RMS stays within 2× its value at D = 0. Delays are sub-tick: a command takes effect at t_k + D, cutting the interval (docs/delta-robot.md §5.2).\n\n| scenario | preset | law | RMS at D = 0 (rad) | latency budget (µs) | RMS there (rad) |\n|---|---|---|---|---|---|",
+            sw.tde_delay_samples[0], sw.transport_delay_samples[0]
+        );
+        for &sc in &sw.scenarios {
+            for &pr in &sw.presets {
+                for &law in &sw.laws {
+                    if let Some((zero, us, rms)) =
+                        latency_budget(sw, rows, sc.name(), pr.name(), law)
+                    {
+                        let _ = writeln!(
+                            s,
+                            "| {} | {} | `{law}` | {zero:.3e} | {us} | {rms:.3e} |",
+                            sc.name(),
+                            pr.name()
+                        );
+                    }
+                }
+            }
         }
         let _ = writeln!(s);
     }
@@ -1038,6 +1232,7 @@ mod tests {
             law: Law::TdeIs,
             ell: 2,
             d: 1,
+            us: 0.0,
             compute_us: 200,
             realtime: true,
         };
@@ -1065,6 +1260,7 @@ mod tests {
             law: Law::Tdc,
             ell: 1,
             d: 0,
+            us: 0.0,
             compute_us: 200,
             realtime: true,
         };
@@ -1074,7 +1270,7 @@ mod tests {
         let empty_timing = crate::timing::Timing::default().summary();
         assert_eq!(empty_timing.round_trip.count, 0);
 
-        let r = row(&job, rt, Some(&ok), None, Some(&empty_timing));
+        let r = row(&job, 3e-4, rt, Some(&ok), None, Some(&empty_timing));
         assert_eq!((r.status, r.reason.as_str()), (Status::Ok, ""));
         // No round-trip sample: no percentile, not 0.
         assert_eq!(r.round_trip_p999_us, None);
@@ -1089,7 +1285,7 @@ mod tests {
         m.completed = false;
         m.fault_at_tick = Some(99);
         m.fault = Some("no torque within the budget for 100 consecutive ticks".into());
-        let r = row(&job, rt, Some(&m), None, Some(&empty_timing));
+        let r = row(&job, 3e-4, rt, Some(&m), None, Some(&empty_timing));
         assert_eq!(r.status, Status::Stopped);
         assert_eq!(
             r.reason,
@@ -1097,7 +1293,7 @@ mod tests {
         );
         m.diverged_at_tick = Some(120);
         m.diverged_reason = Some("|e| > 0.5 rad".into());
-        let r = row(&job, rt, Some(&m), None, None);
+        let r = row(&job, 3e-4, rt, Some(&m), None, None);
         assert_eq!((r.status, r.diverged_at_tick), (Status::Stopped, None));
         assert!(r.reason.starts_with("fault at tick 99: ") && r.reason.contains("tick 120"));
 
@@ -1105,7 +1301,7 @@ mod tests {
         let mut m = ok.clone();
         m.completed = false;
         m.interrupted_at_tick = Some(42);
-        let r = row(&job, rt, Some(&m), None, Some(&empty_timing));
+        let r = row(&job, 3e-4, rt, Some(&m), None, Some(&empty_timing));
         assert_eq!(
             (r.status, r.reason.as_str()),
             (Status::Interrupted, "interrupted at tick 42")
@@ -1116,16 +1312,16 @@ mod tests {
         let mut m = ok.clone();
         m.completed = false;
         m.diverged_at_tick = Some(7);
-        let r = row(&job, rt, Some(&m), None, None);
+        let r = row(&job, 3e-4, rt, Some(&m), None, None);
         assert_eq!(r.status, Status::Diverged);
         assert_eq!(r.diverged_at_tick, Some(7));
         assert!(!r.reason.is_empty());
         // Ended early with no cause at all: not ok, not diverged.
         let mut m = ok.clone();
         m.completed = false;
-        let r = row(&job, rt, Some(&m), None, None);
+        let r = row(&job, 3e-4, rt, Some(&m), None, None);
         assert!(r.status == Status::Stopped && !r.reason.is_empty(), "{r:?}");
-        let r = row(&job, rt, None, Some("boom".into()), None);
+        let r = row(&job, 3e-4, rt, None, Some("boom".into()), None);
         assert_eq!((r.status, r.reason.as_str()), (Status::Error, "boom"));
         // The loop finished but the supervisor lost ticks: its own status, with the reason; the
         // csv says `lost-data`.
@@ -1133,7 +1329,7 @@ mod tests {
         m.completed = false;
         m.lost_ticks = 1600;
         m.lost_data = Some("the supervisor lost 1600 ticks of the stream".into());
-        let r = row(&job, rt, Some(&m), None, None);
+        let r = row(&job, 3e-4, rt, Some(&m), None, None);
         assert_eq!(
             (r.status, r.reason.as_str()),
             (
@@ -1158,7 +1354,7 @@ mod tests {
         m.completed = false;
         m.fault_at_tick = Some(99);
         m.fault = Some("too slow".into());
-        let stopped = row(&job, rt, Some(&m), None, Some(&empty_timing));
+        let stopped = row(&job, 3e-4, rt, Some(&m), None, Some(&empty_timing));
         m.fault = None;
         m.fault_at_tick = None;
         m.interrupted_at_tick = Some(3);
@@ -1167,6 +1363,7 @@ mod tests {
                 compute_us: 300,
                 ..job.clone()
             },
+            3e-4,
             rt,
             Some(&m),
             None,
@@ -1207,5 +1404,53 @@ mod tests {
         let rows = rows.unwrap();
         assert_eq!(rows.len(), 1);
         assert_eq!((rows[0].law, rows[0].status), (Law::Pid, Status::Ok));
+    }
+
+    /// The sub-tick delay axis: its points sit on L_eff/Ts = ℓ + D/Ts, D = 300 µs is the grid's
+    /// d = 1 bit for bit, and the latency budget is the largest D within 2× the zero-delay RMS
+    /// (S2, matched, tdc: 7.2e-5 rad at 0, 9.5e-5 at 45 µs, 2.0e-4 at 300 µs).
+    #[test]
+    fn sub_tick_delay_axis_effective_delay_and_latency_budget() {
+        let dir = scratch("us");
+        let path = dir.0.join("sweep.toml");
+        std::fs::write(
+            dir.0.join("base.toml"),
+            "[scenario]\npath = \"s2\"\n[plant]\nfriction = true\n",
+        )
+        .unwrap();
+        std::fs::write(
+            &path,
+            "name = \"us\"\nbase = \"base.toml\"\nscenarios = [\"s2\"]\npresets = [\"matched\"]\n\
+             laws = [\"tdc\"]\ntde_delay_samples = [1]\ntransport_delay_samples = [0, 1]\n\
+             transport_delay_us = [0, 45, 300]\n",
+        )
+        .unwrap();
+        let rows = run(&path, &dir.0.join("out"), false).unwrap();
+        let leff: Vec<(u32, f64, f64)> = rows
+            .iter()
+            .map(|r| {
+                (
+                    r.transport_delay_samples,
+                    r.transport_delay_us,
+                    r.effective_delay_ticks,
+                )
+            })
+            .collect();
+        assert_eq!(
+            leff,
+            [
+                (0, 0.0, 1.0),
+                (1, 0.0, 2.0),
+                (0, 45.0, 1.15),
+                (0, 300.0, 2.0)
+            ]
+        );
+        assert_eq!(rows[3].rms_rad, rows[1].rms_rad, "300 µs is d = 1");
+        let md = std::fs::read_to_string(dir.0.join("out/report.md")).unwrap();
+        assert!(
+            md.contains("| s2 | matched | `tdc` | 7.209e-5 | 45 | 9.454e-5 |"),
+            "{md}"
+        );
+        assert!(dir.0.join("out/rms_vs_effective_delay.png").is_file());
     }
 }
