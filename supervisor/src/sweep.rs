@@ -482,30 +482,22 @@ fn jobs(sw: &SweepFile) -> Vec<Job> {
                         });
                     }
                 }
-                // D = 0 is the grid point (ℓ, d) itself.
+                // The side axes run at the first ℓ and d; D = 0 is the grid point itself.
+                let side = |us, compute_us, realtime| Job {
+                    scenario,
+                    preset,
+                    law,
+                    ell: sw.tde_delay_samples[0],
+                    d: sw.transport_delay_samples[0],
+                    us,
+                    compute_us,
+                    realtime,
+                };
                 for &us in sw.transport_delay_us.iter().filter(|&&us| us > 0.0) {
-                    v.push(Job {
-                        scenario,
-                        preset,
-                        law,
-                        ell: sw.tde_delay_samples[0],
-                        d: sw.transport_delay_samples[0],
-                        us,
-                        compute_us: 0,
-                        realtime: false,
-                    });
+                    v.push(side(us, 0, false));
                 }
                 for &c in &sw.compute_delay_us {
-                    v.push(Job {
-                        scenario,
-                        preset,
-                        law,
-                        ell: sw.tde_delay_samples[0],
-                        d: sw.transport_delay_samples[0],
-                        us: 0.0,
-                        compute_us: c,
-                        realtime: true,
-                    });
+                    v.push(side(0.0, c, true));
                 }
             }
         }
