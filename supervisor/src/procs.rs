@@ -15,7 +15,7 @@ use crate::study::Study;
 use crate::timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
 use anyhow::{Context, Result, anyhow, bail};
 use deltaloop_config::config::Layout;
-use deltaloop_config::{Law, LoopMode};
+use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, OBSERVER_BUFFER, Svc};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{
@@ -142,11 +142,47 @@ fn own_peak_rss_kib() -> u64 {
     unsafe { ru.assume_init() }.ru_maxrss as u64
 }
 
-fn spawn(exe: &Path, args: &[String], log: &Path, who: Sender) -> Result<Reaped> {
+/// What to execute for one child: a program and the arguments that come before the standard
+/// ones.
+struct Launch {
+    program: PathBuf,
+    args: Vec<String>,
+    /// The user's own command (not the built-in executable).
+    custom: bool,
+}
+
+impl Launch {
+    /// The config's `command` if it has one, else the built-in `name` in `dir`.
+    fn of(command: &[String], dir: &Path, name: &str) -> Self {
+        match command.split_first() {
+            Some((program, args)) => Self {
+                program: PathBuf::from(program),
+                args: args.to_vec(),
+                custom: true,
+            },
+            None => Self {
+                program: dir.join(name),
+                args: Vec::new(),
+                custom: false,
+            },
+        }
+    }
+
+    /// The command line as the user would type it.
+    fn shown(&self) -> String {
+        std::iter::once(self.program.display().to_string())
+            .chain(self.args.iter().cloned())
+            .collect::<Vec<_>>()
+            .join(" ")
+    }
+}
+
+fn spawn(launch: &Launch, args: &[String], log: &Path, who: Sender) -> Result<Reaped> {
     let err =
         std::fs::File::create(log).with_context(|| format!("cannot create {}", log.display()))?;
-    let mut cmd = Command::new(exe);
-    cmd.args(args)
+    let mut cmd = Command::new(&launch.program);
+    cmd.args(&launch.args)
+        .args(args)
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(err);
@@ -162,9 +198,21 @@ fn spawn(exe: &Path, args: &[String], log: &Path, who: Sender) -> Result<Reaped>
             Ok(())
         });
     }
-    let child = cmd
-        .spawn()
-        .with_context(|| format!("cannot start {} (expected next to deltaloop: build all binaries with `cargo build --release`)", exe.display()))?;
+    let child = cmd.spawn().with_context(|| {
+        if launch.custom {
+            format!(
+                "cannot start the {} command `{}` ({}.command)",
+                role(who),
+                launch.shown(),
+                role(who)
+            )
+        } else {
+            format!(
+                "cannot start {} (expected next to deltaloop: build all binaries with `cargo build --release`)",
+                launch.program.display()
+            )
+        }
+    })?;
     Ok(Reaped::new(child, who))
 }
 
@@ -217,6 +265,8 @@ struct Pair {
     plant: Reaped,
     controller: Reaped,
     logs: Logs,
+    /// The plant's and the controller's command lines, for messages.
+    shown: (String, String),
 }
 
 /// The children's stderr logs.
@@ -236,8 +286,15 @@ impl Logs {
 }
 
 impl Pair {
-    /// Starts both children with the run id, the resolved config and the mode.
-    fn spawn(run_id: &str, law: Law, mode: LoopMode, run_dir: &Path) -> Result<Self> {
+    /// Starts both children with the run id, the resolved config and the mode: the built-in
+    /// executables next to `deltaloop`, or the config's `command`s in their place.
+    fn spawn(
+        run_id: &str,
+        law: Law,
+        mode: LoopMode,
+        run_dir: &Path,
+        cfg: &RunConfig,
+    ) -> Result<Self> {
         let exe = exe_dir()?;
         let common = vec![
             "--run-id".to_string(),
@@ -249,20 +306,14 @@ impl Pair {
         ];
         let plant_log = run_dir.join(format!("{law}.plant.log"));
         let ctrl_log = run_dir.join(format!("{law}.controller.log"));
-        let plant = spawn(
-            &exe.join("deltaloop-plant"),
-            &common,
-            &plant_log,
-            Sender::Plant,
-        )?;
+        let (pl, cl) = (
+            Launch::of(&cfg.plant.command, &exe, "deltaloop-plant"),
+            Launch::of(&cfg.controller.command, &exe, "deltaloop-controller"),
+        );
+        let plant = spawn(&pl, &common, &plant_log, Sender::Plant)?;
         let mut ctrl_args = common;
         ctrl_args.extend(["--law".to_string(), law.name().to_string()]);
-        let controller = spawn(
-            &exe.join("deltaloop-controller"),
-            &ctrl_args,
-            &ctrl_log,
-            Sender::Controller,
-        )?;
+        let controller = spawn(&cl, &ctrl_args, &ctrl_log, Sender::Controller)?;
         Ok(Self {
             plant,
             controller,
@@ -270,6 +321,7 @@ impl Pair {
                 plant: plant_log,
                 controller: ctrl_log,
             },
+            shown: (pl.shown(), cl.shown()),
         })
     }
 
@@ -294,7 +346,7 @@ impl Pair {
 fn await_control(
     obs: &Observer,
     pair: &mut Pair,
-    step: &str,
+    step: &dyn Fn() -> String,
     done: &mut dyn FnMut(&ControlMsg) -> bool,
 ) -> Result<bool> {
     let deadline = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
@@ -309,10 +361,12 @@ fn await_control(
         }
         pair.check_alive()?;
         if rt::now_ns() > deadline {
+            let said = pair.logs.messages().join(" | ");
             bail!(
-                "{step} did not happen within {} s: {}",
+                "{} within {} s{}{said}",
+                step(),
                 ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000,
-                pair.logs.messages().join(" | ")
+                if said.is_empty() { "" } else { ": " }
             );
         }
         std::thread::sleep(Duration::from_micros(200));
@@ -327,25 +381,39 @@ fn handshake(
     pair: &mut Pair,
     study: &Study,
 ) -> Result<bool> {
-    let (mut plant_ready, mut ctrl_ready) = (false, false);
-    let ready = await_control(
-        obs,
-        pair,
-        "the plant/controller pair reporting ready",
-        &mut |m| {
-            match (m.kind(), m.sender()) {
-                (Some(ControlKind::Ready), Some(Sender::Plant)) => plant_ready = true,
-                (Some(ControlKind::Ready), Some(Sender::Controller)) => ctrl_ready = true,
-                _ => {}
-            }
-            plant_ready && ctrl_ready
-        },
-    )?;
+    let pair_shown = pair.shown.clone();
+    let ready_from = [std::cell::Cell::new(false), std::cell::Cell::new(false)];
+    let silent = || {
+        let who: Vec<String> = [
+            (Sender::Plant, &pair_shown.0),
+            (Sender::Controller, &pair_shown.1),
+        ]
+        .iter()
+        .zip(&ready_from)
+        .filter(|(_, r)| !r.get())
+        .map(|((w, cmd), _)| format!("the {} (`{cmd}`)", role(*w)))
+        .collect();
+        format!("{} never said READY", who.join(" and "))
+    };
+    let ready = await_control(obs, pair, &silent, &mut |m| {
+        match (m.kind(), m.sender()) {
+            (Some(ControlKind::Ready), Some(Sender::Plant)) => ready_from[0].set(true),
+            (Some(ControlKind::Ready), Some(Sender::Controller)) => ready_from[1].set(true),
+            _ => {}
+        }
+        ready_from.iter().all(std::cell::Cell::get)
+    })?;
     if !ready {
         return Ok(false);
     }
     feed.send_initial(&study.reference)?;
-    await_control(obs, pair, "the controller taking the reference", &mut |m| {
+    let unarmed = || {
+        format!(
+            "the controller (`{}`) never said ARMED (it takes the reference first)",
+            pair_shown.1
+        )
+    };
+    await_control(obs, pair, &unarmed, &mut |m| {
         m.kind() == Some(ControlKind::Armed)
     })
 }
@@ -719,7 +787,7 @@ pub fn run_law(
     let rid = new_run_id();
     let obs = Observer::open(&rid)?;
     let mut feed = ReferenceFeed::create(&obs.node, &rid, study.reference.row_count())?;
-    let mut pair = Pair::spawn(&rid, law, mode, run_dir)?;
+    let mut pair = Pair::spawn(&rid, law, mode, run_dir, cfg)?;
     let ready = match handshake(&obs, &mut feed, &mut pair, study) {
         Ok(r) => r,
         Err(e) => {

@@ -50,6 +50,13 @@ pub struct Overrides {
     /// Hold at the end point after the motion, s (scenario.hold_s, 0..=3600).
     #[arg(long)]
     pub hold_s: Option<f64>,
+    /// Run this command in place of the built-in plant process (plant.command; split at
+    /// whitespace: put arguments with spaces in the scenario file's array).
+    #[arg(long, value_name = "CMD")]
+    pub plant_cmd: Option<String>,
+    /// Run this command in place of the built-in controller process (controller.command).
+    #[arg(long, value_name = "CMD")]
+    pub controller_cmd: Option<String>,
 }
 
 impl Overrides {
@@ -75,6 +82,13 @@ impl Overrides {
         }
         if let Some(v) = self.hold_s {
             cfg.scenario.hold_s = v;
+        }
+        let words = |c: &str| c.split_whitespace().map(str::to_string).collect::<Vec<_>>();
+        if let Some(c) = &self.plant_cmd {
+            cfg.plant.command = words(c);
+        }
+        if let Some(c) = &self.controller_cmd {
+            cfg.controller.command = words(c);
         }
         cfg.validate()?;
         Ok(cfg)

@@ -126,6 +126,11 @@ pub struct PlantSection {
     /// takes effect at t_k + D, cutting the interval it falls in (docs/delta-robot.md §5).
     #[serde(default)]
     pub transport_delay_us: f64,
+    /// Run this executable (program, then arguments) in place of the built-in `deltaloop-plant`;
+    /// it gets the same arguments after these (`--run-id`, `--config`, `--mode`) and must speak
+    /// the wire contract (docs/protocol.md). Empty: the built-in plant.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub command: Vec<String>,
     /// In realtime mode, when a reply takes effect: at its measured arrival (`arrival`: its
     /// publish time minus the tick's deadline, plus D) or at its tick (`tick`: as if the reply
     /// had been instantaneous; plus D). Other modes have no measured arrival.
@@ -155,6 +160,7 @@ impl Default for PlantSection {
             transport_delay_samples: 0,
             transport_delay_us: 0.0,
             apply_torque: ApplyTorque::default(),
+            command: Vec::new(),
             payload_step_kg: 0.0,
             payload_step_at_s: None,
         }
@@ -344,6 +350,12 @@ pub struct ControllerSection {
     /// misses; lockstep: only slower; inproc: no effect).
     #[serde(default)]
     pub compute_delay_us: u32,
+    /// Run this executable (program, then arguments) in place of the built-in
+    /// `deltaloop-controller` in the process modes; it gets the same arguments after these
+    /// (`--run-id`, `--config`, `--mode`, `--law`) and must speak the wire contract
+    /// (docs/protocol.md). Empty: the built-in controller.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub command: Vec<String>,
     /// Overrides (None: the preset's value). See [`ControllerParams`] for units.
     pub m_bar: Option<f64>,
     pub kp: Option<f64>,
@@ -903,6 +915,22 @@ fn range(key: &str, value: impl fmt::Display, allowed: &str) -> ConfigError {
     }
 }
 
+/// A process command: empty (the built-in process), or a program and its arguments, each a
+/// non-empty string without NUL of at most 4096 bytes.
+fn check_command(key: &str, cmd: &[String]) -> Result<(), ConfigError> {
+    match cmd
+        .iter()
+        .find(|a| a.is_empty() || a.contains('\0') || a.len() > 4096)
+    {
+        Some(bad) => Err(range(
+            key,
+            show_str(bad),
+            "a program and its arguments, each a non-empty string of at most 4096 bytes without NUL",
+        )),
+        None => Ok(()),
+    }
+}
+
 fn check(key: &str, v: f64, ok: bool, allowed: &str) -> Result<(), ConfigError> {
     if v.is_finite() && ok {
         Ok(())
@@ -991,6 +1019,7 @@ impl PlantSection {
                 &format!("0 <= transport_delay_samples <= {MAX_TRANSPORT_DELAY} ticks"),
             ));
         }
+        check_command("plant.command", &self.command)?;
         check(
             "plant.transport_delay_us",
             self.transport_delay_us,
@@ -1138,6 +1167,7 @@ impl ControllerSection {
                 return Err(range("controller.laws", l, "each law at most once"));
             }
         }
+        check_command("controller.command", &self.command)?;
         if !(1..=MAX_TDE_DELAY).contains(&self.tde_delay_samples) {
             return Err(range(
                 "controller.tde_delay_samples",
