@@ -205,12 +205,15 @@ pub struct TraceWriter {
 }
 
 impl TraceWriter {
-    /// Creates the part file `path` for `law`'s rows.
+    /// Creates the part file `path` for `law`'s rows, starting with the header (a part is a valid
+    /// CSV on its own: what a killed run leaves is readable).
     pub fn create(path: &Path, law: Law) -> Result<Self> {
-        let w = csv::WriterBuilder::new()
+        let mut w = csv::WriterBuilder::new()
             .has_headers(false)
             .from_path(path)
             .with_context(|| format!("cannot create {}", path.display()))?;
+        w.write_record(header())
+            .with_context(|| format!("cannot write {}", path.display()))?;
         Ok(Self {
             path: path.to_path_buf(),
             law,
@@ -282,35 +285,41 @@ pub fn trace_part(dir: &Path, law: Law) -> PathBuf {
     dir.join(format!("trace.{law}.part"))
 }
 
-/// Writes `trace.csv` in `dir`: the header, then the part files of `laws` in order (each removed
-/// once copied). A missing part (the law never ran) adds no rows.
+/// Writes `trace.csv` in `dir` from the part files of `laws`, in order: the first part becomes the
+/// file (renamed, not copied: an hour-long trace is gigabytes), the others are appended without
+/// their header lines, and each part is removed once it is in. A missing part (the law never ran)
+/// adds no rows; with no part at all the file is the header alone.
 pub fn join_trace(dir: &Path, laws: &[Law]) -> Result<()> {
+    use std::io::{BufRead, Write as _};
     let path = dir.join("trace.csv");
     let named = || format!("cannot write {}", path.display());
-    let mut out = csv::Writer::from_path(&path)
-        .with_context(|| format!("cannot create {}", path.display()))?;
-    out.write_record(header()).with_context(named)?;
-    let mut out = out
-        .into_inner()
-        .map_err(|e| anyhow::anyhow!("{}", e.error()))
+    let parts: Vec<PathBuf> = laws
+        .iter()
+        .map(|&l| trace_part(dir, l))
+        .filter(|p| p.is_file())
+        .collect();
+    let Some((first, rest)) = parts.split_first() else {
+        let mut w = csv::Writer::from_path(&path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        w.write_record(header()).with_context(named)?;
+        return w.flush().with_context(named);
+    };
+    std::fs::rename(first, &path).with_context(named)?;
+    let mut out = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&path)
         .with_context(named)?;
-    let mut parts = Vec::new();
-    for &law in laws {
-        let part = trace_part(dir, law);
-        let mut f = match std::fs::File::open(&part) {
-            Ok(f) => f,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
-            Err(e) => return Err(e).with_context(|| format!("cannot read {}", part.display())),
-        };
-        std::io::copy(&mut f, &mut out).with_context(named)?;
-        parts.push(part);
+    for part in rest {
+        let mut r = std::io::BufReader::new(
+            std::fs::File::open(part).with_context(|| format!("cannot read {}", part.display()))?,
+        );
+        let mut head = String::new();
+        r.read_line(&mut head)
+            .with_context(|| format!("cannot read {}", part.display()))?;
+        std::io::copy(&mut r, &mut out).with_context(named)?;
+        let _ = std::fs::remove_file(part);
     }
-    use std::io::Write as _;
-    out.flush().with_context(named)?;
-    for p in parts {
-        let _ = std::fs::remove_file(p);
-    }
-    Ok(())
+    out.flush().with_context(named)
 }
 
 /// Writes a text file, naming it on failure.

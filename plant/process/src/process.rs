@@ -5,7 +5,9 @@
 //! - realtime: wake at the absolute deadline t0 + k·Ts, publish state k, wait for τ_k at most the
 //!   torque budget (counted from the state's publication); if it is not there, hold the last
 //!   applied torque and count a miss. A reply sent after its budget, or for an earlier tick, is
-//!   dropped: never applied late or to the wrong tick.
+//!   dropped: never applied late or to the wrong tick. A reply in time takes effect at its arrival
+//!   (`apply_torque = "arrival"`, the default): its publish time minus the tick's deadline, plus
+//!   the configured transport delay, cuts the interval there (docs/delta-robot.md §5.2).
 //!
 //! After a fault (or a STOP) the drives brake for `safe_stop_ms` before the process exits. Exit
 //! codes: the table in `deltaloop_transport::exit` (0 done, 2 arguments, 3 set-up, 4 fault,
