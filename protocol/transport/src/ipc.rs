@@ -73,6 +73,14 @@ pub fn service_name(run_id: &str, what: &str) -> Result<ServiceName, IpcError> {
     ServiceName::new(&format!("deltaloop/{run_id}/{what}")).ipc(format!("service name {what}"))
 }
 
+/// Subscriber slots the loop's services (`state`, `torque`, `telemetry`, `control`) keep free
+/// beyond the run's own: an external tool can watch a live run without taking a slot the loop
+/// needs.
+pub const SPARE: usize = 1;
+
+/// Nodes a service admits: supervisor, plant, controller, and one spare for an observer.
+pub const MAX_NODES: usize = 4;
+
 fn pubsub<T: ZeroCopySend + Debug + Copy + 'static>(
     node: &Node<Svc>,
     run_id: &str,
@@ -85,7 +93,7 @@ fn pubsub<T: ZeroCopySend + Debug + Copy + 'static>(
         .publish_subscribe::<T>()
         .max_publishers(publishers)
         .max_subscribers(subscribers)
-        .max_nodes(4)
+        .max_nodes(MAX_NODES)
         .subscriber_max_buffer_size(buffer)
         .history_size(0)
         // A slow observer loses its oldest samples (counted by tick gaps); it never blocks the loop.
@@ -99,7 +107,7 @@ pub fn state(
     node: &Node<Svc>,
     run_id: &str,
 ) -> Result<publish_subscribe::PortFactory<Svc, StateMsg, ()>, IpcError> {
-    pubsub(node, run_id, "state", 1, 2, OBSERVER_BUFFER)
+    pubsub(node, run_id, "state", 1, 2 + SPARE, OBSERVER_BUFFER)
 }
 
 /// Controller → plant + supervisor.
@@ -107,7 +115,7 @@ pub fn torque(
     node: &Node<Svc>,
     run_id: &str,
 ) -> Result<publish_subscribe::PortFactory<Svc, TorqueMsg, ()>, IpcError> {
-    pubsub(node, run_id, "torque", 1, 2, OBSERVER_BUFFER)
+    pubsub(node, run_id, "torque", 1, 2 + SPARE, OBSERVER_BUFFER)
 }
 
 /// Plant → supervisor.
@@ -115,7 +123,7 @@ pub fn telemetry(
     node: &Node<Svc>,
     run_id: &str,
 ) -> Result<publish_subscribe::PortFactory<Svc, TelemetryMsg, ()>, IpcError> {
-    pubsub(node, run_id, "telemetry", 1, 1, OBSERVER_BUFFER)
+    pubsub(node, run_id, "telemetry", 1, 1 + SPARE, OBSERVER_BUFFER)
 }
 
 /// Handshake, start, stop, faults: everyone publishes and subscribes.
@@ -123,7 +131,7 @@ pub fn control(
     node: &Node<Svc>,
     run_id: &str,
 ) -> Result<publish_subscribe::PortFactory<Svc, ControlMsg, ()>, IpcError> {
-    pubsub(node, run_id, "control", 3, 3, 64)
+    pubsub(node, run_id, "control", 3, 3 + SPARE, 64)
 }
 
 /// A process's two ends of the control channel (publisher, subscriber).
@@ -183,8 +191,10 @@ pub fn reference(
     node.service_builder(&service_name(run_id, "reference")?)
         .publish_subscribe::<[RefSample]>()
         .max_publishers(1)
+        // No spare here: the reference is the controller's input, not the loop's output, and each
+        // subscriber slot would cost REF_RING chunks (5 MiB) of shared memory.
         .max_subscribers(1)
-        .max_nodes(4)
+        .max_nodes(MAX_NODES)
         .subscriber_max_buffer_size(REF_RING)
         .subscriber_max_borrowed_samples(1)
         .history_size(0)
@@ -248,13 +258,13 @@ pub fn shm_free_bytes() -> Option<u64> {
 
 /// Shared memory one process run maps, bytes: the same for a run of seconds or of hours, since the
 /// reference travels in bounded chunks. Measured on iceoryx2 0.10 by summing the sizes of the
-/// `/dev/shm` files that the three nodes of a run create with all their ports (what
-/// `du --apparent-size` counts): 13,603 KiB, of which 7,842 KiB are the loop, control and event
-/// services and 5,761 KiB the reference publisher's data segment. That segment holds
+/// `/dev/shm` files that a run creates (what `du --apparent-size /dev/shm` counts during a
+/// lockstep run): 17,889 KiB, of which 12,129 KiB are the loop, control and event services (with
+/// their spare observer slot) and 5,760 KiB the reference publisher's data segment. That segment holds
 /// `REF_RING` queued + 1 borrowed + 1 loaned = 18 chunks of `REF_CHUNK` rows of 80 B (5,760 KiB),
-/// so it is computed here from the constants; 10 % is added as a margin (≈ 14.6 MiB in all).
+/// so it is computed here from the constants; 10 % is added as a margin (≈ 19.2 MiB in all).
 pub const fn shm_needed_bytes() -> u64 {
-    const SERVICES: u64 = 7_841 * 1024;
+    const SERVICES: u64 = 12_129 * 1024;
     const REFERENCE: u64 = ((REF_RING + 2) * REF_CHUNK * std::mem::size_of::<RefSample>()) as u64;
     let measured = SERVICES + REFERENCE;
     measured + measured / 10
@@ -268,7 +278,7 @@ pub fn check_shm(needed: u64, free: u64) -> Result<(), String> {
     }
     let mb = |b: u64| b as f64 / (1024.0 * 1024.0);
     Err(format!(
-        "not enough shared memory for this run: /dev/shm has {:.1} MiB free, the run needs about {:.1} MiB (≈ 14.6 MiB per run, whatever its length); free /dev/shm or enlarge it (Docker: --shm-size; its default 64 MiB fits 4 runs)",
+        "not enough shared memory for this run: /dev/shm has {:.1} MiB free, the run needs about {:.1} MiB (≈ 19.2 MiB per run, whatever its length); free /dev/shm or enlarge it (Docker: --shm-size; its default 64 MiB fits 3 runs)",
         mb(free),
         mb(needed)
     ))
@@ -342,10 +352,10 @@ mod tests {
     #[test]
     fn shm_check_names_free_and_needed_space() {
         let need = shm_needed_bytes();
-        // ≈ 14.6 MiB, whatever the run's length: four fit in Docker's 64 MiB, not five.
-        assert!((14 << 20..15 << 20).contains(&need), "{need}");
-        assert!(check_shm(4 * need, 64 << 20).is_ok());
-        assert!(check_shm(5 * need, 64 << 20).is_err());
+        // ≈ 19.2 MiB, whatever the run's length: three fit in Docker's 64 MiB, not four.
+        assert!((19 << 20..20 << 20).contains(&need), "{need}");
+        assert!(check_shm(3 * need, 64 << 20).is_ok());
+        assert!(check_shm(4 * need, 64 << 20).is_err());
         let err = check_shm(need, 8 << 20).unwrap_err();
         assert!(
             err.contains("8.0 MiB free") && err.contains("--shm-size"),
