@@ -675,9 +675,11 @@ fn regression_long_run_memory_is_flat_and_no_tick_is_lost() {
     for hold in [40, 400] {
         let out = tmp.path().join(format!("run{hold}"));
         let cfg = tmp.path().join(format!("long{hold}.toml"));
+        // Memory locked (as in realtime), so every mapped page counts from the start: a longer run
+        // touching more of the fixed-size shared-memory segments does not pass for growth.
         std::fs::write(
             &cfg,
-            format!("name = \"long\"\n[scenario]\npath = \"s2\"\nhold_s = {hold}.0\n[controller]\nlaws = [\"tdc\"]\n"),
+            format!("name = \"long\"\n[scenario]\npath = \"s2\"\nhold_s = {hold}.0\n[controller]\nlaws = [\"tdc\"]\n[loop.lockstep]\nlock_memory = true\n"),
         )
         .unwrap();
         let s = common::run(cfg.to_str().unwrap(), "lockstep", &out, &[]);
