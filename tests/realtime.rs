@@ -67,7 +67,17 @@ fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
         .skip(1)
         .filter_map(|l| l.rsplit(',').next()?.parse().ok())
         .collect();
-    assert!(arrivals.len() > 5000 && arrivals.iter().all(|&a| a > 0 && a < 150_000));
+    // Measured from the tick's deadline: a real latency (tens of µs at the median), longer when
+    // the plant woke late, never absurd.
+    let mut sorted = arrivals.clone();
+    sorted.sort_unstable();
+    assert!(arrivals.len() > 5000, "{} arrivals", arrivals.len());
+    assert!(
+        sorted[sorted.len() / 2] > 1_000,
+        "median arrival {} ns",
+        sorted[sorted.len() / 2]
+    );
+    assert!(*sorted.last().unwrap() < 1_000_000_000);
     let o = common::deltaloop(&["replay", b.to_str().unwrap()]);
     let (out, err) = (
         String::from_utf8_lossy(&o.stdout),
