@@ -132,13 +132,14 @@ pub fn assert_complete_and_kept(summary: &Value, out: &Path, law: &str) -> [f64;
     ["supervisor", "plant", "controller"].map(|w| rss[w].as_f64().unwrap())
 }
 
-/// Each process's peak memory in the long run is at most 1.2× the short run's, or at most 2 MiB
-/// more: a small process's peak includes pages of fixed-size shared-memory segments that a longer
-/// run has more time to touch (bounded by the segments, not by the run).
+/// Each process's peak memory in the long run is at most 1.2× the short run's, or at most 10 MiB
+/// more: a process's peak includes the pages of fixed-size shared-memory segments (≈ 19 MiB per
+/// run in all) that it touches as its queues fill, which depends on how far the load lets it fall
+/// behind, not on the run's length. Growth per tick would show as hundreds of MiB here.
 pub fn assert_memory_flat(short: [f64; 3], long: [f64; 3]) {
     for (i, who) in ["supervisor", "plant", "controller"].iter().enumerate() {
         assert!(
-            long[i] <= 1.2 * short[i] || long[i] - short[i] <= 2.0,
+            long[i] <= 1.2 * short[i] || long[i] - short[i] <= 10.0,
             "{who}: {} MiB in the long run vs {} MiB",
             long[i],
             short[i]
