@@ -119,11 +119,6 @@ impl JointReference {
         k >= self.hold_from
     }
 
-    /// Rows 0..=N + 1 in order.
-    pub fn rows(&self) -> impl Iterator<Item = RefRow> + '_ {
-        (0..=self.n + 1).map(|k| self.row(k))
-    }
-
     /// The number of rows, N + 2.
     pub fn row_count(&self) -> usize {
         self.n + 2

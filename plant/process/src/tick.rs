@@ -176,17 +176,18 @@ impl PlantSide {
             tick: k,
             ..TelemetryMsg::default()
         };
-        let (cmd, latency_ns) = match arrival {
-            Arrival::Reply(t) | Arrival::ReplyAfter(t, _) => {
+        let reply = match arrival {
+            Arrival::Reply(t) => Some((t, 0)),
+            Arrival::ReplyAfter(t, latency) => Some((t, latency)),
+            Arrival::Missed => None,
+        };
+        let (cmd, latency_ns) = match reply {
+            Some((t, latency)) => {
                 self.consecutive = 0;
-                let latency = match arrival {
-                    Arrival::ReplyAfter(_, l) => l,
-                    _ => 0,
-                };
                 tel.arrival_ns = self.delay_ns + latency;
                 (Some(Vec3::from(t.tau)), latency)
             }
-            Arrival::Missed => {
+            None => {
                 self.misses += 1;
                 self.consecutive += 1;
                 tel.flags |= wire::TEL_MISSED;
