@@ -10,6 +10,8 @@
 
 mod common;
 
+use common::python::{py_snippet, python, root, run_cmd, text};
+
 use deltaloop_transport::ipc;
 use deltaloop_transport::wire::{
     self, ControlKind, ControlMsg, RefSample, Sender, StateMsg, TelemetryMsg, TorqueMsg,
@@ -17,158 +19,8 @@ use deltaloop_transport::wire::{
 use iceoryx2::prelude::ZeroCopySend;
 use serde_json::{Value, json};
 use std::mem::{align_of, offset_of, size_of};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-use std::sync::OnceLock;
+use std::process::Command;
 
-/// The iceoryx2 of Cargo.lock, which python/requirements.txt pins.
-const ICEORYX2: &str = "0.10.0";
-
-fn root() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn run_cmd(cmd: &mut Command, what: &str) -> Output {
-    cmd.output()
-        .unwrap_or_else(|e| panic!("{what}: cannot run {cmd:?}: {e}"))
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-/// The virtual environment's python, set up once per test process (tests in this file share it;
-/// a file lock keeps two test processes from building it at the same time).
-fn python() -> &'static Path {
-    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
-    PYTHON.get_or_init(set_up_venv)
-}
-
-/// What the venv lacks: "" when it has iceoryx2 == ICEORYX2 and the current python/ package.
-fn venv_lacks(py: &Path) -> String {
-    const CHECK: &str = r#"
-import importlib.metadata as m, pathlib, sys
-lacks = []
-try:
-    if m.version("iceoryx2") != sys.argv[2]:
-        lacks.append("iceoryx2")
-except m.PackageNotFoundError:
-    lacks.append("iceoryx2")
-try:
-    import deltaloop
-    inst = pathlib.Path(deltaloop.__file__).parent
-    src = pathlib.Path(sys.argv[1])
-    if any(not (inst / f.name).is_file() or (inst / f.name).read_bytes() != f.read_bytes()
-           for f in src.glob("*.py")):
-        lacks.append("deltaloop")
-except ImportError:
-    lacks.append("deltaloop")
-print(" ".join(lacks))
-"#;
-    if !py.is_file() {
-        return "venv".into();
-    }
-    let o = Command::new(py)
-        .args(["-c", CHECK])
-        .arg(root().join("python/deltaloop"))
-        .arg(ICEORYX2)
-        .output();
-    match o {
-        Ok(o) if o.status.success() => text(&o.stdout).trim().to_string(),
-        _ => "venv".into(),
-    }
-}
-
-fn set_up_venv() -> PathBuf {
-    let target = root().join("target");
-    std::fs::create_dir_all(&target).unwrap();
-    let venv = target.join("python-venv");
-    let py = venv.join("bin/python");
-    let lock = std::fs::File::create(target.join("python-venv.lock")).unwrap();
-    // SAFETY: flock on a descriptor we own; released when `lock` is dropped at the end.
-    assert_eq!(
-        unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&lock), libc::LOCK_EX) },
-        0
-    );
-    let mut lacks = venv_lacks(&py);
-    if lacks.is_empty() {
-        return py;
-    }
-    if lacks == "venv" {
-        let install = "install Python >= 3.11 with its venv module (Debian/Ubuntu: `apt install python3 python3-venv`)";
-        let v = Command::new("python3")
-            .args(["-c", "import sys, venv; print(sys.version_info >= (3, 11))"])
-            .output();
-        match v {
-            Err(e) => panic!("the Python interop tests need `python3` ({e}): {install}"),
-            Ok(o) if !o.status.success() => panic!(
-                "`python3` has no venv module ({}): {install}",
-                text(&o.stderr).trim()
-            ),
-            Ok(o) if text(&o.stdout).trim() != "True" => {
-                panic!(
-                    "`python3` is older than 3.11 (the helper reads TOML with tomllib): {install}"
-                )
-            }
-            Ok(_) => {}
-        }
-        let o = run_cmd(
-            Command::new("python3")
-                .args(["-m", "venv", "--clear"])
-                .arg(&venv),
-            "create the venv",
-        );
-        assert!(
-            o.status.success() && py.is_file(),
-            "`python3 -m venv {}` failed: {}\n{install}",
-            venv.display(),
-            text(&o.stderr)
-        );
-        lacks = venv_lacks(&py);
-    }
-    let pip = |args: &[&str]| {
-        let o = run_cmd(
-            Command::new(&py)
-                .args(["-m", "pip", "install", "--disable-pip-version-check", "-q"])
-                .args(args)
-                .current_dir(root()),
-            "pip",
-        );
-        assert!(
-            o.status.success(),
-            "`pip install {}` in {} failed (PyPI reachable?):\n{}{}",
-            args.join(" "),
-            venv.display(),
-            text(&o.stdout),
-            text(&o.stderr)
-        );
-    };
-    if lacks.contains("iceoryx2") {
-        pip(&["-r", "python/requirements.txt"]);
-    }
-    if lacks.contains("deltaloop") || lacks.contains("iceoryx2") {
-        pip(&["--force-reinstall", "--no-deps", "./python"]);
-    }
-    let left = venv_lacks(&py);
-    assert!(
-        left.is_empty(),
-        "{} still lacks {left} after pip install",
-        venv.display()
-    );
-    py
-}
-
-/// Runs `code` with the venv's python from the repository root; its stdout, asserted to succeed.
-fn py_snippet(code: &str) -> String {
-    let o = run_cmd(
-        Command::new(python())
-            .args(["-c", code])
-            .current_dir(root()),
-        "python snippet",
-    );
-    assert!(o.status.success(), "python failed:\n{}", text(&o.stderr));
-    text(&o.stdout)
-}
 
 /// The size of a field's type, through a projection `|m: &T| &m.field`.
 fn field_size<T, F>(_: fn(&T) -> &F) -> usize {

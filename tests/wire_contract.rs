@@ -327,6 +327,13 @@ fn iceoryx2_version_is_the_locked_one() {
         stated, locked,
         "iceoryx2 version in docs/protocol.md vs Cargo.lock"
     );
+    let pin = format!("iceoryx2=={locked}");
+    for f in ["python/requirements.txt", "python/pyproject.toml"] {
+        assert!(
+            read(f).contains(&pin),
+            "{f} does not pin `{pin}` (the version of Cargo.lock)"
+        );
+    }
 }
 
 /// The value of the table row that has a cell exactly `` `key` ``: its first cell that is a

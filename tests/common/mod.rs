@@ -3,6 +3,8 @@
 
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
+pub mod python;
+
 use serde_json::Value;
 use std::path::Path;
 use std::process::{Command, Output};
