@@ -21,7 +21,6 @@ use serde_json::{Value, json};
 use std::mem::{align_of, offset_of, size_of};
 use std::process::Command;
 
-
 /// The size of a field's type, through a projection `|m: &T| &m.field`.
 fn field_size<T, F>(_: fn(&T) -> &F) -> usize {
     size_of::<F>()
@@ -219,13 +218,22 @@ fn a_python_controller_tracks_s1_in_lockstep_like_the_builtin() {
 /// A Python controller that meets a service of another payload type (here the run's `state`
 /// created with `TorqueMsg`) ends at set-up with exit 3 and one line naming the service and the
 /// type it expected.
-#[test]
-fn a_python_controller_names_a_service_of_another_type() {
-    let run_id = format!("pyinterop-{:x}", std::process::id());
+/// A state message of an older wire layout: the name of StateMsg/v1, 8 bytes shorter.
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+#[type_name("deltaloop::StateMsg/v1")]
+struct ShorterState {
+    bytes: [u64; 19],
+}
+
+/// Creates the run's `state` service with payload `T`, as a supervisor of another wire version
+/// would, starts the example Python controller against it and returns its exit code and stderr.
+fn python_controller_against_state<T: std::fmt::Debug + ZeroCopySend>(tag: &str) -> (i32, String) {
+    let run_id = format!("pyinterop-{tag}-{:x}", std::process::id());
     let node = ipc::node("supervisor", &run_id).unwrap();
     let state = node
         .service_builder(&ipc::service_name(&run_id, "state").unwrap())
-        .publish_subscribe::<TorqueMsg>()
+        .publish_subscribe::<T>()
         .max_publishers(1)
         .max_subscribers(2)
         .max_nodes(4)
@@ -251,17 +259,99 @@ fn a_python_controller_names_a_service_of_another_type() {
         "python controller",
     );
     let err = text(&o.stderr);
-    assert_eq!(o.status.code(), Some(3), "{err}");
-    assert_eq!(err.trim().lines().count(), 1, "{err}");
-    for want in [
-        format!("deltaloop/{run_id}/state"),
-        "IncompatibleTypes".into(),
-        "deltaloop::StateMsg/v1".into(),
-    ] {
-        assert!(err.contains(&want), "no `{want}` in: {err}");
-    }
     // The Python process removed its node on the way out.
     drop((state, node));
     let left = common::iceoryx_leftovers(&run_id);
     assert!(left.is_empty(), "left behind: {left:?}");
+    (o.status.code().unwrap_or(-1), err)
+}
+
+/// A peer of another wire version gets one line naming the service, what the run carries and what
+/// it expected (type name, size, alignment), and exit code 3 (set-up failed).
+#[test]
+fn a_python_controller_names_the_expected_and_found_types() {
+    let state = format!(
+        "deltaloop::StateMsg/v1 ({} B, align 8)",
+        size_of::<StateMsg>()
+    );
+    let cases = [
+        (
+            python_controller_against_state::<TorqueMsg>("type"),
+            format!(
+                "deltaloop::TorqueMsg/v1 ({} B, align 8)",
+                size_of::<TorqueMsg>()
+            ),
+        ),
+        (
+            python_controller_against_state::<ShorterState>("size"),
+            format!(
+                "deltaloop::StateMsg/v1 ({} B, align 8)",
+                size_of::<ShorterState>()
+            ),
+        ),
+    ];
+    for ((code, err), carried) in cases {
+        assert_eq!(code, 3, "{err}");
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        for want in [
+            "/state: IncompatibleTypes".to_string(),
+            format!("the run carries {carried}"),
+            format!("expects {state} on iceoryx2 0.10.0"),
+        ] {
+            assert!(err.contains(&want), "no `{want}` in: {err}");
+        }
+    }
+}
+
+/// `examples/python-watcher/watch.py` attaches to a live run through the spare slots, follows it
+/// to its last tick, and the run completes with nothing lost, as if nobody had watched.
+#[test]
+fn a_python_watcher_follows_a_live_run_without_disturbing_it() {
+    let py = python();
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let run = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["run", "configs/s1-nominal.toml", "--mode", "lockstep"])
+        .args(["--law", "tdc", "--hold-s", "10", "--out"])
+        .arg(&out)
+        .current_dir(root())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Run ids start with the supervisor's pid in hex.
+    let watch = run_cmd(
+        Command::new(py)
+            .arg("examples/python-watcher/watch.py")
+            .arg(format!("{:x}-", run.id()))
+            .args(["--wait", "30"])
+            .current_dir(root()),
+        "watcher",
+    );
+    let run_out = run.wait_with_output().unwrap();
+    assert!(run_out.status.success(), "{}", text(&run_out.stderr));
+    let said = text(&watch.stdout);
+    assert!(watch.status.success(), "{said}{}", text(&watch.stderr));
+    let summary = common::summary(&out);
+    common::assert_complete_and_kept(&summary, &out, "tdc");
+    let run_id = summary["run_ids"]["tdc"].as_str().unwrap();
+    assert!(
+        said.starts_with(&format!("watching run {run_id}\n")),
+        "{said}"
+    );
+    let last = said.lines().last().unwrap();
+    let ticks = summary["laws"]["tdc"]["ticks"].as_u64().unwrap();
+    let (watched, last_tick): (u64, u64) = {
+        let n: Vec<u64> = last
+            .split(|c: char| !c.is_ascii_digit())
+            .filter_map(|w| w.parse().ok())
+            .collect();
+        (n[n.len() - 3], n[n.len() - 2])
+    };
+    assert!(last.starts_with(&format!("run {run_id} is over")), "{said}");
+    assert_eq!(
+        last_tick, ticks,
+        "the watcher saw the run's last tick: {last}"
+    );
+    assert!(watched > 0 && watched <= ticks + 1, "{last}");
 }

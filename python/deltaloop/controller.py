@@ -31,7 +31,7 @@ import traceback
 
 import iceoryx2 as iox2
 
-from . import wire
+from . import services, wire
 from .wire import ControlMsg, RefSample, StateMsg, TorqueMsg
 
 # protocol/transport/src/ipc.rs
@@ -44,14 +44,6 @@ HANDSHAKE_TIMEOUT_NS = 30_000_000_000
 EXIT_SETUP, EXIT_FAULT, EXIT_STOPPED = 3, 4, 5
 
 _WAIT_SLICE_NS = 100_000_000  # longest block on an event before looking at STOP / SIGTERM
-
-
-# What a failed service open means here (iceoryx2's error names).
-_OPEN_HINTS = {
-    "IncompatibleTypes": "the run's payload type differs: another wire version or layout",
-    "VersionMismatch": "the run uses another iceoryx2 version",
-    "DoesNotExist": "no such service: the run is gone, or the run id is wrong",
-}
 
 
 def now_ns() -> int:
@@ -201,14 +193,7 @@ class Controller:
         try:
             return b.open()
         except Exception as e:
-            elem = t.__args__[0] if hasattr(t, "__args__") else t  # Slice[RefSample] -> RefSample
-            kind = e.args[0] if e.args else repr(e)
-            raise End(
-                EXIT_SETUP,
-                f"cannot open service {name}: {kind} ({_OPEN_HINTS.get(kind, 'see iceoryx2')}); "
-                f"this controller expects {'slices of ' if elem is not t else ''}{elem.type_name()} "
-                f"({ctypes.sizeof(elem)} B, align {ctypes.alignment(elem)}) on iceoryx2 0.10.0",
-            )
+            raise End(EXIT_SETUP, services.open_error(name, t, e, "controller"))
 
     def _event(self, what):
         """Opens (or creates: whichever of plant and controller comes first) a wake-up event."""

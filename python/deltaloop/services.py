@@ -1,0 +1,69 @@
+"""What a live deltaloop service carries, for error messages that say expected and found.
+
+iceoryx2's Python bindings (0.10.0) expose a service's static configuration only as text (the
+Rust `Debug` form of `ServiceDetails`); this module reads the payload type and the iceoryx2 version
+out of it. Anything it cannot read is reported as unknown, never guessed.
+"""
+
+import ctypes
+import re
+
+import iceoryx2 as iox2
+
+# The iceoryx2 of deltaloop's Cargo.lock (docs/protocol.md §1).
+ICEORYX2_VERSION = "0.10.0"
+
+_PAYLOAD = re.compile(
+    r'payload: TypeDetail \{\s*variant: (\w+),\s*type_name: StaticString<\d+> '
+    r'\{ len: \d+, data: "([^"]*)" \},\s*size: (\d+),\s*alignment: (\d+)'
+)
+_VERSION = re.compile(r"iceoryx2_version: PackageVersion \{\s*major: (\d+),\s*minor: (\d+),\s*patch: (\d+)")
+
+# What a failed service open means here (iceoryx2's error names).
+OPEN_HINTS = {
+    "IncompatibleTypes": "another wire version or layout",
+    "VersionMismatch": "the run uses another iceoryx2 version",
+    "DoesNotExist": "no such service: the run is gone, or the run id is wrong",
+}
+
+
+def describe(t) -> str:
+    """A ctypes wire type (or iceoryx2.Slice of one) as "[slices of ]NAME (SIZE B, align A)"."""
+    elem = t.__args__[0] if hasattr(t, "__args__") else t  # Slice[RefSample] -> RefSample
+    slices = "slices of " if elem is not t else ""
+    return f"{slices}{elem.type_name()} ({ctypes.sizeof(elem)} B, align {ctypes.alignment(elem)})"
+
+
+def carried(name: str) -> str:
+    """What the live publish-subscribe service `name` carries, in `describe`'s form, with its
+    iceoryx2 version when it is not ours; "unknown" when the details cannot be read."""
+    try:
+        d = str(
+            iox2.Service.details(
+                iox2.ServiceName.new(name),
+                iox2.config.default(),
+                iox2.MessagingPattern.PublishSubscribe,
+                iox2.ServiceType.Ipc,
+            )
+        )
+    except Exception:  # noqa: BLE001 - only for a message; the open error is what matters
+        return "unknown"
+    p, v = _PAYLOAD.search(d), _VERSION.search(d)
+    if not p:
+        return "unknown"
+    variant, tname, size, align = p.groups()
+    what = f"{'slices of ' if variant == 'Dynamic' else ''}{tname} ({size} B, align {align})"
+    if v and ".".join(v.groups()) != ICEORYX2_VERSION:
+        what += f" on iceoryx2 {'.'.join(v.groups())}"
+    return what
+
+
+def open_error(name: str, t, e: Exception, who: str) -> str:
+    """The one-line message for a publish-subscribe service `name` that would not open with type
+    `t`: the iceoryx2 error, what the run's service carries and what `who` expected."""
+    kind = e.args[0] if e.args else repr(e)
+    hint = OPEN_HINTS.get(kind, "see iceoryx2")
+    return (
+        f"cannot open service {name}: {kind} ({hint}): the run carries {carried(name)}, "
+        f"this {who} expects {describe(t)} on iceoryx2 {ICEORYX2_VERSION}"
+    )
