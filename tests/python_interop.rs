@@ -52,56 +52,10 @@ macro_rules! layout {
 /// and fields (name, offset, size, element type, order); the flag and kind constants agree.
 #[test]
 fn python_wire_types_match_the_rust_layouts() {
-    let rust: serde_json::Map<String, Value> = [
-        layout!(StateMsg {
-            tick,
-            flags,
-            _pad,
-            q,
-            qd,
-            tau_applied,
-            q_true,
-            qd_true,
-            t_deadline_ns,
-            t_wake_ns,
-            t_publish_ns
-        }),
-        layout!(TorqueMsg {
-            tick,
-            skipped,
-            tau,
-            s,
-            n_hat,
-            u,
-            t_state_rx_ns,
-            t_publish_ns
-        }),
-        layout!(TelemetryMsg {
-            tick,
-            flags,
-            _pad,
-            t_deadline_ns,
-            t_wake_ns,
-            t_state_pub_ns,
-            t_torque_rx_ns,
-            late_dropped,
-            misses,
-            arrival_ns
-        }),
-        layout!(ControlMsg {
-            kind,
-            from,
-            tick,
-            ticks,
-            q0,
-            t0_ns,
-            text
-        }),
-        layout!(RefSample { tick, q, qd, qdd }),
-    ]
-    .into_iter()
-    .map(|(k, v)| (k.to_string(), v))
-    .collect();
+    let rust: serde_json::Map<String, Value> = common::wire_types!(layout)
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect();
     let constants = json!({
         "STATE_FINAL": wire::STATE_FINAL,
         "TEL_CLAMPED": wire::TEL_CLAMPED,
@@ -218,10 +172,10 @@ fn a_python_controller_tracks_s1_in_lockstep_like_the_builtin() {
 /// A Python controller that meets a service of another payload type (here the run's `state`
 /// created with `TorqueMsg`) ends at set-up with exit 3 and one line naming the service and the
 /// type it expected.
-/// A state message of an older wire layout: the name of StateMsg/v1, 8 bytes shorter.
+/// A state message of another layout under the current name: StateMsg/v2, 16 bytes shorter.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
-#[type_name("deltaloop::StateMsg/v1")]
+#[type_name("deltaloop::StateMsg/v2")]
 struct ShorterState {
     bytes: [u64; 19],
 }
@@ -271,21 +225,21 @@ fn python_controller_against_state<T: std::fmt::Debug + ZeroCopySend>(tag: &str)
 #[test]
 fn a_python_controller_names_the_expected_and_found_types() {
     let state = format!(
-        "deltaloop::StateMsg/v1 ({} B, align 8)",
+        "deltaloop::StateMsg/v2 ({} B, align 8)",
         size_of::<StateMsg>()
     );
     let cases = [
         (
             python_controller_against_state::<TorqueMsg>("type"),
             format!(
-                "deltaloop::TorqueMsg/v1 ({} B, align 8)",
+                "deltaloop::TorqueMsg/v2 ({} B, align 8)",
                 size_of::<TorqueMsg>()
             ),
         ),
         (
             python_controller_against_state::<ShorterState>("size"),
             format!(
-                "deltaloop::StateMsg/v1 ({} B, align 8)",
+                "deltaloop::StateMsg/v2 ({} B, align 8)",
                 size_of::<ShorterState>()
             ),
         ),

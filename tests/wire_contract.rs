@@ -57,53 +57,7 @@ macro_rules! actual {
 }
 
 fn wire_types() -> Vec<Actual> {
-    vec![
-        actual!(StateMsg {
-            tick,
-            flags,
-            _pad,
-            q,
-            qd,
-            tau_applied,
-            q_true,
-            qd_true,
-            t_deadline_ns,
-            t_wake_ns,
-            t_publish_ns,
-        }),
-        actual!(TorqueMsg {
-            tick,
-            skipped,
-            tau,
-            s,
-            n_hat,
-            u,
-            t_state_rx_ns,
-            t_publish_ns,
-        }),
-        actual!(TelemetryMsg {
-            tick,
-            flags,
-            _pad,
-            t_deadline_ns,
-            t_wake_ns,
-            t_state_pub_ns,
-            t_torque_rx_ns,
-            late_dropped,
-            misses,
-            arrival_ns,
-        }),
-        actual!(ControlMsg {
-            kind,
-            from,
-            tick,
-            ticks,
-            q0,
-            t0_ns,
-            text,
-        }),
-        actual!(RefSample { tick, q, qd, qdd }),
-    ]
+    common::wire_types!(actual)
 }
 
 /// The fields of `pub struct <name>` in `wire.rs`, as (name, type) in declaration order.

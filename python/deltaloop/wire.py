@@ -48,11 +48,13 @@ class StateMsg(ctypes.Structure):
         ("t_deadline_ns", ctypes.c_uint64),
         ("t_wake_ns", ctypes.c_uint64),
         ("t_publish_ns", ctypes.c_uint64),
+        # Polls `torque` until then before blocking; 0: always notify (docs/protocol.md §6.1).
+        ("t_poll_until_ns", ctypes.c_uint64),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "deltaloop::StateMsg/v1"
+        return "deltaloop::StateMsg/v2"
 
 
 class TorqueMsg(ctypes.Structure):
@@ -67,11 +69,13 @@ class TorqueMsg(ctypes.Structure):
         ("u", Vec3),
         ("t_state_rx_ns", ctypes.c_uint64),
         ("t_publish_ns", ctypes.c_uint64),
+        # Polls `state` until then before blocking; 0: always notify (docs/protocol.md §6.1).
+        ("t_poll_until_ns", ctypes.c_uint64),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "deltaloop::TorqueMsg/v1"
+        return "deltaloop::TorqueMsg/v2"
 
 
 class TelemetryMsg(ctypes.Structure):

@@ -148,3 +148,60 @@ pub fn assert_memory_flat(short: [f64; 3], long: [f64; 3]) {
         );
     }
 }
+
+/// Every wire type with its fields in declaration order, each passed to the macro `$m` as
+/// `$m!(Type { field, … })`; a `Vec` of the results. The one list the layout tests share.
+macro_rules! wire_types {
+    ($m:ident) => {
+        vec![
+            $m!(StateMsg {
+                tick,
+                flags,
+                _pad,
+                q,
+                qd,
+                tau_applied,
+                q_true,
+                qd_true,
+                t_deadline_ns,
+                t_wake_ns,
+                t_publish_ns,
+                t_poll_until_ns
+            }),
+            $m!(TorqueMsg {
+                tick,
+                skipped,
+                tau,
+                s,
+                n_hat,
+                u,
+                t_state_rx_ns,
+                t_publish_ns,
+                t_poll_until_ns
+            }),
+            $m!(TelemetryMsg {
+                tick,
+                flags,
+                _pad,
+                t_deadline_ns,
+                t_wake_ns,
+                t_state_pub_ns,
+                t_torque_rx_ns,
+                late_dropped,
+                misses,
+                arrival_ns
+            }),
+            $m!(ControlMsg {
+                kind,
+                from,
+                tick,
+                ticks,
+                q0,
+                t0_ns,
+                text
+            }),
+            $m!(RefSample { tick, q, qd, qdd }),
+        ]
+    };
+}
+pub(crate) use wire_types;

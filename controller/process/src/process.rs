@@ -16,7 +16,7 @@ use crate::ring::RefRing;
 use anyhow::{Result, bail};
 use clap::Parser;
 use deltaloop_config::config::{FaultInjection, Layout};
-use deltaloop_config::{Law, RunConfig};
+use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
 use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, LOOP_BUFFER, Svc};
@@ -119,24 +119,32 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         NAME,
         || ports.send_control(ControlKind::Ready),
     )?;
-    let Some(n) = handshake(&ports, &mut ring, term)? else {
+    let Some(start) = handshake(&ports, &mut ring, term)? else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
     let spin_ns = u64::from(layout.spin_us.unwrap_or(0)) * 1000;
     let lp = Loop {
         cfg: &cfg,
         law: args.law,
-        rows: n + 2,
+        rows: start.ticks + 2,
         spin_ns,
+        schedule: match (args.run.mode, layout.controller_lead_ns()) {
+            (LoopMode::Realtime, Some(lead_ns)) => Some(Schedule {
+                t0_ns: start.t0_ns,
+                ts_ns: cfg.ts_ns(),
+                lead_ns,
+            }),
+            _ => None,
+        },
     };
     answer_states(&ports, &lp, &mut ring, term)
 }
 
 /// The handshake: file the chunks the supervisor sends before START, report ARMED once tick 0's
 /// row is there, and wait for START (filing the rest of the first chunks meanwhile, so the loop
-/// starts with them in the ring). Returns START's N; None if the supervisor stopped the run first
+/// starts with them in the ring). Returns START; None if the supervisor stopped the run first
 /// (STOP or SIGTERM).
-fn handshake(ports: &Ports, ring: &mut RefRing, term: &AtomicBool) -> Result<Option<u64>> {
+fn handshake(ports: &Ports, ring: &mut RefRing, term: &AtomicBool) -> Result<Option<ControlMsg>> {
     let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
     while ring.get(0).is_none() {
         drain_reference(&ports.reference, ring)?;
@@ -177,8 +185,42 @@ struct Loop<'c> {
     law: Law,
     /// Rows of the reference, N + 2 (ticks 0..=N + 1), from START.
     rows: u64,
-    /// Busy-poll time before blocking on the state wake-up, ns.
+    /// Busy-poll time before blocking on the state wake-up, ns (with a schedule: past the
+    /// deadline).
     spin_ns: u64,
+    /// Realtime with `controller_wake_early_us`: sleep to just before each deadline.
+    schedule: Option<Schedule>,
+}
+
+/// The plant's clock as START gave it: the controller sleeps until `lead_ns` before each
+/// deadline t0 + k·Ts and polls for the state from there.
+struct Schedule {
+    t0_ns: u64,
+    ts_ns: u64,
+    lead_ns: u64,
+}
+
+impl Schedule {
+    /// The deadline of tick `k`, ns.
+    fn deadline(&self, k: u64) -> u64 {
+        self.t0_ns + k * self.ts_ns
+    }
+}
+
+impl Loop<'_> {
+    /// Where the wait for the state after tick `k`'s reply starts (None: at once) and until when
+    /// it polls before blocking; the second is what the reply declares (`t_poll_until_ns`,
+    /// docs/protocol.md §6.1), never less than the last declaration.
+    fn next_wait(&self, k: u64, published_ns: u64, last_poll_until: u64) -> (Option<u64>, u64) {
+        let (wake, until) = match &self.schedule {
+            Some(s) => {
+                let d = s.deadline(k + 1);
+                (Some(d.saturating_sub(s.lead_ns)), d + self.spin_ns)
+            }
+            None => (None, published_ns + self.spin_ns),
+        };
+        (wake, until.max(last_poll_until))
+    }
 }
 
 /// The loop: answer every state until the final one, the plant's silence, or a stop.
@@ -193,8 +235,13 @@ fn answer_states(
     let inject = cfg.faults.inject;
     let mut side = ControllerSide::from_config(cfg, lp.law);
     let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
+    // The first state: no schedule to sleep by yet, poll as lockstep does.
+    let mut wait = Wait {
+        wake_ns: None,
+        poll_until_ns: rt::now_ns() + lp.spin_ns,
+    };
     loop {
-        let waited = wait_state(&ports.state, &ports.state_ready, silence_ns, lp.spin_ns);
+        let waited = wait_state(&ports.state, &ports.state_ready, silence_ns, &wait);
         if term.load(Ordering::Relaxed) {
             return Ok(ProcessEnd::Stopped("stopped by SIGTERM".into()));
         }
@@ -236,8 +283,17 @@ fn answer_states(
         msg.skipped = skipped;
         msg.t_state_rx_ns = rx;
         msg.t_publish_ns = rt::now_ns();
+        let (wake_ns, poll_until_ns) =
+            lp.next_wait(state.tick, msg.t_publish_ns, wait.poll_until_ns);
+        msg.t_poll_until_ns = poll_until_ns;
+        wait = Wait {
+            wake_ns,
+            poll_until_ns,
+        };
         ports.torque.send_copy(msg).ipc("publish torque")?;
-        ports.torque_ready.notify().ipc("notify torque")?;
+        if ipc::published_needs_notify(state.t_poll_until_ns) {
+            ports.torque_ready.notify().ipc("notify torque")?;
+        }
         // File any chunk that arrived now, in the slack before the next state, so copying its
         // 320 KiB never delays a reply (before the next answer, as the rule needs).
         drain_reference(&ports.reference, ring)?;
@@ -289,17 +345,31 @@ fn drain_reference(sub: &Subscriber<Svc, [RefSample], ()>, ring: &mut RefRing) -
     Ok(())
 }
 
-/// Waits for the next state (busy-polls for `spin_ns`, then blocks on the wake-up event) and
-/// returns the newest one, how many older ones it skipped, and when it was taken.
+/// How the controller waits for the next state.
+struct Wait {
+    /// Sleep until this time first (realtime with a schedule), ns.
+    wake_ns: Option<u64>,
+    /// Poll until at least this time before blocking on the wake-up event (the promise made in
+    /// the last reply), ns.
+    poll_until_ns: u64,
+}
+
+/// Waits for the next state: sleeps until `wait.wake_ns` if set, polls until
+/// `wait.poll_until_ns`, then blocks on the wake-up event; returns the newest state, how many
+/// older ones it skipped, and when it was taken. The clock is read before each look, so the
+/// look that precedes blocking happens at or after `poll_until_ns` (docs/protocol.md §6.1).
 fn wait_state(
     sub: &Subscriber<Svc, StateMsg, ()>,
     listener: &Listener<Svc>,
     silence_ns: u64,
-    spin_ns: u64,
+    wait: &Wait,
 ) -> Result<Option<(StateMsg, u64, u64)>> {
-    let start = rt::now_ns();
-    let (spin_end, until) = (start + spin_ns, start + silence_ns);
+    if let Some(t) = wait.wake_ns {
+        rt::sleep_until_ns(t);
+    }
+    let until = rt::now_ns() + silence_ns;
     loop {
+        let now = rt::now_ns();
         let mut newest: Option<StateMsg> = None;
         let mut seen = 0u64;
         while let Some(sample) = sub.receive().ipc("receive state")? {
@@ -309,11 +379,10 @@ fn wait_state(
         if let Some(s) = newest {
             return Ok(Some((s, seen - 1, rt::now_ns())));
         }
-        let now = rt::now_ns();
         if now >= until {
             return Ok(None);
         }
-        if now < spin_end {
+        if now < wait.poll_until_ns {
             std::hint::spin_loop();
             continue;
         }
@@ -329,8 +398,8 @@ fn wait_state(
 
 /// What the control channel said since it was last drained.
 struct Control {
-    /// START's N (the last tick that gets a command), if START came.
-    start: Option<u64>,
+    /// START (`ticks` = N, the last tick that gets a command; `t0_ns`), if it came.
+    start: Option<ControlMsg>,
     /// STOP came.
     stop: bool,
 }
@@ -343,7 +412,7 @@ fn drain_control(sub: &Subscriber<Svc, ControlMsg, ()>) -> Result<Control> {
     };
     while let Some(m) = sub.receive().ipc("receive control")? {
         match m.payload().kind() {
-            Some(ControlKind::Start) => c.start = Some(m.payload().ticks),
+            Some(ControlKind::Start) => c.start = Some(*m.payload()),
             Some(ControlKind::Stop) => c.stop = true,
             _ => {}
         }

@@ -95,9 +95,13 @@ impl Ports {
     }
 
     /// Publishes a state and wakes the controller.
-    fn publish_state(&self, msg: StateMsg) -> Result<()> {
+    /// Publishes a state and wakes the controller unless it declared it is polling
+    /// (`ctrl_poll_until_ns`, from its last reply; 0: always wake it).
+    fn publish_state(&self, msg: StateMsg, ctrl_poll_until_ns: u64) -> Result<()> {
         self.state.send_copy(msg).ipc("publish state")?;
-        self.state_ready.notify().ipc("notify state")?;
+        if ipc::published_needs_notify(ctrl_poll_until_ns) {
+            self.state_ready.notify().ipc("notify state")?;
+        }
         Ok(())
     }
 }
@@ -204,6 +208,8 @@ fn run_loop(
     cfg: &RunConfig,
     term: &AtomicBool,
 ) -> Result<Option<LoopStop>> {
+    // Until when the controller polls for the next state (its last reply's declaration).
+    let mut ctrl_poll_until = 0;
     loop {
         let k = side.tick();
         let (deadline, wake) = clock.wake(k);
@@ -220,25 +226,26 @@ fn run_loop(
         msg.t_deadline_ns = deadline;
         msg.t_wake_ns = wake;
         msg.t_publish_ns = rt::now_ns();
-        ports.publish_state(msg)?;
-        if msg.flags & wire::STATE_FINAL != 0 {
-            return Ok(None);
-        }
         let until = match clock.mode {
             // The budget runs from the state's publication, not from the deadline: after a late
             // wake the controller still gets its chance, instead of being starved (it runs below
             // the plant on the same CPU) while the plant races through its backlog.
             LoopMode::Realtime => msg.t_publish_ns + clock.budget_ns,
-            _ => rt::now_ns() + clock.silence_ns,
+            _ => msg.t_publish_ns + clock.silence_ns,
         };
+        msg.t_poll_until_ns = (msg.t_publish_ns + clock.spin_ns).min(until);
+        ports.publish_state(msg, ctrl_poll_until)?;
+        if msg.flags & wire::STATE_FINAL != 0 {
+            return Ok(None);
+        }
         let reply = wait_torque(
             &ports.torque,
             &ports.torque_ready,
             k,
-            until,
-            clock.spin_ns,
+            (msg.t_poll_until_ns, until),
             side,
         )?;
+        ctrl_poll_until = reply.map_or(0, |(t, _)| t.t_poll_until_ns);
         let arrival = match reply {
             // The reply acts on the physics when it became visible: its publish time, mapped
             // into simulated time as an offset from the tick's deadline.
@@ -309,7 +316,7 @@ fn end_run(
     // Release the controller (it may be blocked waiting for a state): the run is over.
     let mut last = side.final_state(tick);
     last.t_publish_ns = rt::now_ns();
-    let _ = ports.publish_state(last);
+    let _ = ports.publish_state(last, 0);
     let end = |why: String| {
         if requested {
             ProcessEnd::Stopped(why)
@@ -373,19 +380,20 @@ fn reply_verdict(m: &TorqueMsg, tick: u64, until_ns: u64) -> Reply {
     }
 }
 
-/// Waits for τ_k until `until_ns`: busy-polls for `spin_ns`, then blocks on the wake-up event.
-/// Replies judged late are dropped and counted on `side`; replies for later ticks are ignored.
-/// Returns the reply and its receive time.
+/// Waits for τ_k until `until_ns`: polls until `poll_until_ns` (what the state declared), then
+/// blocks on the wake-up event. The clock is read before each look, so the look that precedes
+/// blocking happens at or after `poll_until_ns` (docs/protocol.md §6.1). Replies judged late are
+/// dropped and counted on `side`; replies for later ticks are ignored. Returns the reply and its
+/// receive time.
 fn wait_torque(
     sub: &Subscriber<Svc, TorqueMsg, ()>,
     listener: &Listener<Svc>,
     tick: u64,
-    until_ns: u64,
-    spin_ns: u64,
+    (poll_until_ns, until_ns): (u64, u64),
     side: &mut PlantSide,
 ) -> Result<Option<(TorqueMsg, u64)>> {
-    let spin_end = rt::now_ns() + spin_ns;
     loop {
+        let now = rt::now_ns();
         while let Some(sample) = sub.receive().ipc("receive torque")? {
             let m = *sample.payload();
             match reply_verdict(&m, tick, until_ns) {
@@ -394,11 +402,10 @@ fn wait_torque(
                 Reply::Ignore => {}
             }
         }
-        let now = rt::now_ns();
         if now >= until_ns {
             return Ok(None);
         }
-        if now < spin_end {
+        if now < poll_until_ns {
             std::hint::spin_loop();
             continue;
         }

@@ -405,6 +405,11 @@ pub struct Layout {
     /// absorbing the timer's wake-up latency, µs (0: sleep to the deadline). At most one control
     /// period (Ts in µs).
     pub wake_early_us: Option<u32>,
+    /// Realtime: the controller knows the schedule (t0, Ts) from START; it sleeps until this
+    /// long before each deadline, then polls for the state (up to `spin_us` past the deadline)
+    /// before it blocks on the wake-up event, µs. −1: it blocks on the event right after each
+    /// reply and is woken by the plant's notification. At most one period. Lockstep ignores it.
+    pub controller_wake_early_us: Option<i32>,
 }
 
 /// How plant and controller are connected: one enum for the CLI, the sweep and the processes.
@@ -473,9 +478,29 @@ impl fmt::Display for LoopMode {
 }
 
 impl Layout {
-    /// Realtime default, the lowest tail measured on a 2-vCPU VM: plant and controller share CPU 1
-    /// under SCHED_FIFO (plant above controller), both blocking; the supervisor on CPU 0.
+    /// Realtime default, the shortest round trip measured on a 2-vCPU VM: the plant on CPU 1,
+    /// the controller on CPU 0, both SCHED_FIFO; the plant wakes 80 µs early and polls for the
+    /// torque through the budget, the controller sleeps until 100 µs before each deadline and
+    /// polls for the state; neither notifies a peer that is polling (docs/protocol.md §6.1). The
+    /// supervisor shares CPU 0 as SCHED_OTHER.
     pub fn realtime_default() -> Self {
+        Self {
+            plant_cpu: Some(1),
+            controller_cpu: Some(0),
+            supervisor_cpu: Some(0),
+            plant_priority: Some(80),
+            controller_priority: Some(70),
+            spin_us: Some(150),
+            lock_memory: Some(true),
+            wake_early_us: Some(80),
+            controller_wake_early_us: Some(100),
+        }
+    }
+
+    /// The realtime layout before the controller knew the schedule: plant and controller share
+    /// CPU 1 under SCHED_FIFO (plant above controller), both block on wake-up events; the
+    /// supervisor on CPU 0. `deltaloop bench loop` measures it next to the default.
+    pub fn realtime_shared_cpu() -> Self {
         Self {
             plant_cpu: Some(1),
             controller_cpu: Some(1),
@@ -485,6 +510,7 @@ impl Layout {
             spin_us: Some(0),
             lock_memory: Some(true),
             wake_early_us: Some(80),
+            controller_wake_early_us: Some(-1),
         }
     }
 
@@ -499,6 +525,7 @@ impl Layout {
             spin_us: Some(200),
             lock_memory: Some(false),
             wake_early_us: Some(0),
+            controller_wake_early_us: Some(-1),
         }
     }
 
@@ -511,6 +538,8 @@ impl Layout {
         self.spin_us = self.spin_us.or(d.spin_us);
         self.lock_memory = self.lock_memory.or(d.lock_memory);
         self.wake_early_us = self.wake_early_us.or(d.wake_early_us);
+        self.controller_wake_early_us =
+            self.controller_wake_early_us.or(d.controller_wake_early_us);
     }
 
     /// Checks one mode's layout; `section` names it in errors (`loop.realtime`, `loop.lockstep`),
@@ -561,7 +590,24 @@ impl Layout {
                 &format!("0 <= wake_early_us <= Ts = {period_us} us"),
             ));
         }
+        let cwake = self.controller_wake_early_us.unwrap_or(-1);
+        if cwake < -1 || f64::from(cwake) > period_us {
+            return Err(range(
+                &format!("{section}.controller_wake_early_us"),
+                cwake,
+                &format!(
+                    "-1 (wait for the notification) or 0 <= controller_wake_early_us <= Ts = {period_us} us"
+                ),
+            ));
+        }
         Ok(())
+    }
+
+    /// The controller's lead before each deadline in realtime, ns; None: it waits for the
+    /// notification instead.
+    pub fn controller_lead_ns(&self) -> Option<u64> {
+        let us = u64::try_from(self.controller_wake_early_us?).ok()?;
+        Some(us * 1000)
     }
 
     /// This layout with `wake_early_us` at most one period of `ts_s` (µs), so a default never
@@ -576,6 +622,13 @@ impl Layout {
         {
             // Truncation is the point: the largest whole µs within the period.
             self.wake_early_us = Some(period_us as u32);
+        }
+        if let Some(w) = self.controller_wake_early_us
+            && period_us.is_finite()
+            && period_us >= 0.0
+            && f64::from(w) > period_us
+        {
+            self.controller_wake_early_us = Some(period_us as i32);
         }
         self
     }
@@ -1523,9 +1576,39 @@ mod tests {
         )
         .unwrap();
         assert_eq!(c.loop_.realtime.wake_early_us, Some(50));
+        assert_eq!(c.loop_.realtime.controller_wake_early_us, Some(50));
         assert_eq!(c.loop_.lockstep.wake_early_us, Some(0));
         let again = RunConfig::from_toml_str(&c.to_toml_string(), None).unwrap();
         assert_eq!(c, again);
+    }
+
+    #[test]
+    fn controller_wake_early_us_is_minus_one_or_within_the_period() {
+        for (v, ok) in [
+            ("-1", true),
+            ("0", true),
+            ("300", true),
+            ("301", false),
+            ("-2", false),
+        ] {
+            let r = RunConfig::from_toml_str(
+                &format!("{MIN}[loop.realtime]\ncontroller_wake_early_us = {v}\n"),
+                None,
+            );
+            match (r, ok) {
+                (Ok(c), true) => assert_eq!(
+                    c.loop_.realtime.controller_lead_ns(),
+                    v.parse::<u64>().ok().map(|us| us * 1000)
+                ),
+                (Err(e), false) => assert_eq!(
+                    e.to_string(),
+                    format!(
+                        "config key `loop.realtime.controller_wake_early_us` = {v} is out of range: -1 (wait for the notification) or 0 <= controller_wake_early_us <= Ts = 300 us"
+                    )
+                ),
+                (r, _) => panic!("{v}: {r:?}"),
+            }
+        }
     }
 
     #[test]

@@ -51,6 +51,7 @@ const KEYS: &[&str] = &[
     "spin_us",
     "lock_memory",
     "wake_early_us",
+    "controller_wake_early_us",
     "encoder_counts_per_rev",
     "q_noise_std_rad",
     "qd_noise_std_rad_s",
@@ -139,6 +140,11 @@ fn check(text: &str) {
             assert!(
                 wake <= cfg.loop_.ts_s * 1e6,
                 "wake_early_us within one period"
+            );
+            let lead = layout.controller_lead_ns().unwrap_or(0) as f64 * 1e-9;
+            assert!(
+                lead <= cfg.loop_.ts_s,
+                "controller_wake_early_us within one period"
             );
         }
     }

@@ -307,6 +307,15 @@ pub fn remove_dead_nodes() -> Vec<String> {
     removed
 }
 
+/// After publishing a sample: whether the peer, which declared it polls until
+/// `peer_poll_until_ns`, must still be woken (docs/protocol.md §6.1). The fence makes the sample
+/// visible to the peer before the clock is read.
+#[inline]
+pub fn published_needs_notify(peer_poll_until_ns: u64) -> bool {
+    std::sync::atomic::fence(std::sync::atomic::Ordering::SeqCst);
+    crate::wire::needs_notify(crate::rt::now_ns(), peer_poll_until_ns)
+}
+
 /// Waits until a wake-up event is pending, for at most `timeout_ns`, with nanosecond precision.
 /// Does not consume it: the caller drains with `listener.try_wait` when it has time (the sample
 /// is already published when the event is, so the reader need not drain before reading).

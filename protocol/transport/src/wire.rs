@@ -10,7 +10,7 @@ pub const STATE_FINAL: u32 = 1;
 /// Plant → controller (and supervisor), once per tick.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("deltaloop::StateMsg/v1")]
+#[type_name("deltaloop::StateMsg/v2")]
 pub struct StateMsg {
     /// Control tick k (t = k·Ts).
     pub tick: u64,
@@ -33,12 +33,16 @@ pub struct StateMsg {
     pub t_wake_ns: u64,
     /// When the plant published this message, ns.
     pub t_publish_ns: u64,
+    /// The plant polls the torque queue until at least this time (ns, CLOCK_MONOTONIC) before it
+    /// blocks on `torque-ready`; a reply published and visible before it, less
+    /// [`POLL_MARGIN_NS`], needs no wake-up notification. 0: always notify.
+    pub t_poll_until_ns: u64,
 }
 
 /// Controller → plant (and supervisor): the answer to one state.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
-#[type_name("deltaloop::TorqueMsg/v1")]
+#[type_name("deltaloop::TorqueMsg/v2")]
 pub struct TorqueMsg {
     /// The tick of the state this answers.
     pub tick: u64,
@@ -56,6 +60,21 @@ pub struct TorqueMsg {
     pub t_state_rx_ns: u64,
     /// When the controller published this message, ns.
     pub t_publish_ns: u64,
+    /// The controller polls the state queue until at least this time (ns, CLOCK_MONOTONIC)
+    /// before it blocks on `state-ready`; a state published and visible before it, less
+    /// [`POLL_MARGIN_NS`], needs no wake-up notification. 0: always notify.
+    pub t_poll_until_ns: u64,
+}
+
+/// How far before a peer's `t_poll_until_ns` a message must be published, and visible, for its
+/// notification to be skipped: covers the clock reads on either side (ns).
+pub const POLL_MARGIN_NS: u64 = 5_000;
+
+/// Whether a message whose publication finished at `published_ns` (clock read after the send
+/// and a full fence) still needs the peer woken, given the peer's declared `poll_until_ns`.
+#[inline]
+pub fn needs_notify(published_ns: u64, poll_until_ns: u64) -> bool {
+    published_ns.saturating_add(POLL_MARGIN_NS) >= poll_until_ns
 }
 
 /// `TelemetryMsg::flags` bits.
