@@ -151,6 +151,7 @@ pub fn assert_memory_flat(short: [f64; 3], long: [f64; 3]) {
 
 /// Every wire type with its fields in declaration order, each passed to the macro `$m` as
 /// `$m!(Type { field, … })`; a `Vec` of the results. The one list the layout tests share.
+#[allow(unused_macros)]
 macro_rules! wire_types {
     ($m:ident) => {
         vec![
@@ -204,4 +205,5 @@ macro_rules! wire_types {
         ]
     };
 }
+#[allow(unused_imports)]
 pub(crate) use wire_types;
