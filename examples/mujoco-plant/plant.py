@@ -36,11 +36,13 @@ P = dict(
     m_pl=0.25, m_pay=0.0, Fv=0.05, Fc=0.30, eps=0.01,
 )
 
-# The constraint's softness. MuJoCo solves every constraint as a stiff spring-damper towards
-# the constraint surface (solref = time constant, damping ratio) whose force reaches only a share
-# solimp of what a hard constraint would apply. The stiffest settings MuJoCo accepts: a time
-# constant of two integration steps (MuJoCo's minimum for stability) and impedance 0.9999.
-SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
+# The constraint's softness. MuJoCo solves every constraint as a spring-damper towards the
+# constraint surface (solref = time constant, damping ratio) whose force reaches only a share
+# d (solimp) of what a hard constraint would apply. Default here: the stiffest settings MuJoCo
+# accepts, a time constant of two integration steps (its minimum for stability) and d = 0.9999.
+# `--solref TC RATIO` / `--solimp D` (e.g. MuJoCo's own defaults, 0.02 1 and 0.9) show what
+# softer constraints do.
+SOLIMP_MAX = 0.9999
 
 
 def axes(p=P):
@@ -71,8 +73,9 @@ def fk(q, p=P):
     return m + math.sqrt(h2) * nrm
 
 
-def mjcf(h, friction, tau_max, p=P):
-    """The MJCF of the robot, integrated with RK4 at step h (s)."""
+def mjcf(h, friction, tau_max, p=P, solref=None, solimp=SOLIMP_MAX):
+    """The MJCF of the robot, integrated with RK4 at step h (s); the forearm constraints with
+    solref (time constant s, damping ratio; default (2h, 1)) and impedance solimp."""
     u = axes(p)[0].tolist()  # plain floats: their repr is what MJCF reads
     m_el = p["m_el"] + p["alpha"] * p["m_fa"]  # point mass at the elbow, kg
     m_arm = p["m_ua"] + m_el
@@ -82,8 +85,8 @@ def mjcf(h, friction, tau_max, p=P):
     mn = p["m_pl"] + p["m_pay"] + 3.0 * (1.0 - p["alpha"]) * p["m_fa"]
     armature = p["Im"] * p["n"] ** 2
     damping = p["Fv"] if friction else 0.0
-    solref = f"{2 * h!r} 1"
-    solimp = " ".join(repr(x) for x in SOLIMP)
+    solref = " ".join(repr(float(x)) for x in (solref or (2 * h, 1.0)))
+    solimp = f"{solimp!r} {solimp!r} 0.001 0.5 2"
     arms, sites, tendons, eqs, motors = [], [], [], [], []
     for i in range(3):
         phi = math.radians(p["phi_deg"][i])
@@ -131,10 +134,10 @@ def mjcf(h, friction, tau_max, p=P):
 class DeltaMujoco:
     """The robot in MuJoCo, stepped in pieces of any length with at most h per RK4 step."""
 
-    def __init__(self, h, friction, tau_max, p=P):
+    def __init__(self, h, friction, tau_max, p=P, solref=None, solimp=SOLIMP_MAX):
         self.h, self.friction, self.p = h, friction, p
         mujoco.set_mjcb_passive(None)  # the callback is global: not another instance's
-        self.m = mujoco.MjModel.from_xml_string(mjcf(h, friction, tau_max, p))
+        self.m = mujoco.MjModel.from_xml_string(mjcf(h, friction, tau_max, p, solref, solimp))
         self.d = mujoco.MjData(self.m)
         # A tendon equality holds L − L(qpos0) at polycoef[0]: make the held length Lb.
         for i in range(3):
@@ -230,14 +233,26 @@ def main():
     if "--check" in sys.argv[1:]:
         check()
         return 0
-    plant = Plant(name="mujoco-plant")
+    import argparse
+
+    a = argparse.ArgumentParser(prog="mujoco-plant", add_help=False)
+    a.add_argument("--solref", nargs=2, type=float, metavar=("TC", "RATIO"))
+    a.add_argument("--solimp", type=float, default=SOLIMP_MAX, metavar="D")
+    own, rest = a.parse_known_args()
+    if own.solref is not None and not (own.solref[0] > 0 and own.solref[1] > 0):
+        print(f"mujoco-plant: --solref {own.solref[0]} {own.solref[1]}: both must be > 0", file=sys.stderr)
+        return 2
+    if not 0 < own.solimp <= SOLIMP_MAX:
+        print(f"mujoco-plant: --solimp {own.solimp}: allowed (0, {SOLIMP_MAX}]", file=sys.stderr)
+        return 2
+    plant = Plant(rest, name="mujoco-plant")
     pl, se = plant.config.get("plant", {}), plant.config.get("sensor", {})
     if float(pl.get("payload_step_kg", 0.0)) > 0.0:
         plant._die(3, f"plant.payload_step_kg = {pl['payload_step_kg']}: this example does not model the payload step (allowed: 0)")
     if any(float(se.get(k, 0) or 0) > 0 for k in ("q_noise_std_rad", "qd_noise_std_rad_s", "encoder_counts_per_rev")):
         plant._die(3, "[sensor]: this example reports the true state (allowed: no noise, no encoder quantisation)")
     substeps = int(pl.get("substeps", 10))
-    sim = DeltaMujoco(plant.ts / substeps, bool(pl.get("friction", False)), plant.tau_max)
+    sim = DeltaMujoco(plant.ts / substeps, bool(pl.get("friction", False)), plant.tau_max, P, own.solref, own.solimp)
 
     def start(q0):
         sim.set_state(np.array(q0))
