@@ -2,6 +2,7 @@
 each config) and prints the tracking side by side as a Markdown table.
 
     target/python-venv/bin/python examples/mujoco-plant/compare.py [--deltaloop PATH] [--out DIR]
+        [--plant-args "--solref 0.02 1 --solimp 0.9"]
 
 Per law and scenario: max-joint tracking RMS and max |e| (summary.json `rms_rad`,
 `max_abs_err_rad`), max |q_MuJoCo − q_Rust| between the two runs' trajectories (trace.csv), and
@@ -54,15 +55,17 @@ def main():
     a = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     a.add_argument("--deltaloop", default=None, help="the deltaloop executable (default: target/release, else target/debug)")
     a.add_argument("--out", default="target/mujoco-compare", help="where the run folders go")
+    a.add_argument("--plant-args", default="", help="options for examples/mujoco-plant/plant.py (--solref, --solimp)")
     o = a.parse_args()
     exe = Path(o.deltaloop) if o.deltaloop else next(
         (p for p in (ROOT / "target/release/deltaloop", ROOT / "target/debug/deltaloop") if p.is_file()), None
     )
     if exe is None:
         sys.exit("no deltaloop executable: run `cargo build --release` first, or pass --deltaloop")
-    plant_cmd = f"{sys.executable} {ROOT / 'examples/mujoco-plant/plant.py'}"
-    if any(c.isspace() for c in plant_cmd.replace(" ", "", 1)):
-        sys.exit(f"--plant-cmd is split at whitespace: move the checkout or the venv ({plant_cmd})")
+    script = f"{sys.executable} {ROOT / 'examples/mujoco-plant/plant.py'}"
+    if any(c.isspace() for c in script.replace(" ", "", 1)):
+        sys.exit(f"--plant-cmd is split at whitespace: move the checkout or the venv ({script})")
+    plant_cmd = f"{script} {o.plant_args}".strip()
     base = ROOT / o.out
     print("| scenario | law | RMS max joint (rad) built-in / MuJoCo | max \\|e\\| (rad) built-in / MuJoCo | max \\|q_MuJoCo − q_built-in\\| (rad) | max \\|L − Lb\\| (m) |")
     print("|---|---|---|---|---|---|")

@@ -71,6 +71,8 @@ from .wire import ControlMsg, StateMsg, TelemetryMsg, TorqueMsg
 
 __all__ = ["Plant", "Drives", "Diverged"]
 
+_POLL_NS = 10_000  # realtime: how long the plant sleeps between looks for the reply
+
 
 class Diverged(Exception):
     """Raise from `step` when the model failed (left its workspace, lost a constraint): the run
@@ -172,6 +174,7 @@ class Plant:
         self.budget_ns = int(lp.get("torque_budget_us", 150)) * 1000
         self.silence_ms = int(lp.get("silence_timeout_ms", 2000))
         self.layout = lp.get(self.mode, {})
+        self.early_ns = int(self.layout.get("wake_early_us", 0) or 0) * 1000
         self.tau_max = float(pl.get("tau_max_nm", 100.0))
         self.delay_ns = int(pl.get("transport_delay_samples", 0)) * self.ts_ns + round(
             float(pl.get("transport_delay_us", 0)) * 1000
@@ -357,8 +360,8 @@ class Plant:
     # ---- the loop ----------------------------------------------------------------------------
 
     def _wake(self, k):
-        """(deadline, wake time) of tick k. Realtime: sleep to 200 µs before t0 + k·Ts, then spin
-        (a sleep's wake-up is late by tens of µs). Lockstep: both now."""
+        """(deadline, wake time) of tick k. Realtime: sleep to `wake_early_us` before t0 + k·Ts,
+        then spin (a sleep's wake-up is late by tens of µs). Lockstep: both now."""
         if self.mode != "realtime":
             t = now_ns()
             return t, t
@@ -383,8 +386,13 @@ class Plant:
             t = now_ns()
             if t >= until_ns:
                 return None
-            if realtime or t < spin_end:
-                continue  # realtime spins: a Python timed_wait oversleeps by milliseconds
+            if t < spin_end:
+                continue
+            if realtime:
+                # Short sleeps, not the event: a Python timed_wait oversleeps by milliseconds. A
+                # sleep (not a spin) lets a controller on the same CPU, below us, run.
+                time.sleep(min(until_ns - t, _POLL_NS) * 1e-9)
+                continue
             try:
                 self.torque_ready.timed_wait(iox2.Duration.from_nanos(min(until_ns - t, _WAIT_SLICE_NS)))
             except Exception:
@@ -511,7 +519,7 @@ class Plant:
         raise End(EXIT_FAULT, f"fault at tick {k}: t = {t:.4f} s: {why}; {ended}")
 
     def _wake_abs(self, d):
-        rest = d - now_ns() - 200_000
+        rest = d - now_ns() - self.early_ns
         if rest > 0:
             time.sleep(rest * 1e-9)
         while (t := now_ns()) < d:
