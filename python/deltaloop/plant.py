@@ -37,6 +37,11 @@ it the last applied torque). `step` raising or returning non-finite numbers: DIV
 state, no brake. Exit codes as docs/protocol.md §10: 0 done, 2 arguments, 3 set-up, 4 fault,
 5 stopped; one line on stderr for every end but 0.
 
+Realtime: the helper sleeps to `wake_early_us` before each deadline and spins the rest; it polls
+for the reply spinning when the controller has its own CPU, else in 10 µs sleeps (a Python
+`timed_wait` oversleeps by milliseconds). Python leaves little margin at Ts = 0.3 ms
+(python/README.md).
+
 Not modelled by the helper: the `[sensor]` noise model (states carry the true q, q̇; `q_true`
 copies them) and the payload step (a model may do it itself from `Plant.tick`).
 """
@@ -175,6 +180,8 @@ class Plant:
         self.silence_ms = int(lp.get("silence_timeout_ms", 2000))
         self.layout = lp.get(self.mode, {})
         self.early_ns = int(self.layout.get("wake_early_us", 0) or 0) * 1000
+        cpus = (self.layout.get("plant_cpu", -1), self.layout.get("controller_cpu", -1))
+        self._share_cpu = cpus[0] is None or cpus[0] < 0 or cpus[0] == cpus[1]
         self.tau_max = float(pl.get("tau_max_nm", 100.0))
         self.delay_ns = int(pl.get("transport_delay_samples", 0)) * self.ts_ns + round(
             float(pl.get("transport_delay_us", 0)) * 1000
@@ -200,6 +207,8 @@ class Plant:
             self._signals()
             self._open_ports()
             self._schedule()
+            self._state, self._reply = StateMsg(), TorqueMsg()
+            gc.collect()  # before READY: a collection after START would eat into tick 0's deadline
             self._send(wire.READY)
             m = self._wait_start()
             self._loop(m, start, step, hold)
@@ -354,7 +363,7 @@ class Plant:
                     raise End(EXIT_STOPPED, "stopped before start")
             if self._stop:
                 raise End(EXIT_STOPPED, "stopped before start")
-            time.sleep(1e-3)
+            time.sleep(200e-6)  # tick 0's deadline is START + 10 ms
         raise End(EXIT_SETUP, f"no START from the supervisor within {timeout_ns // 1_000_000} ms")
 
     # ---- the loop ----------------------------------------------------------------------------
@@ -389,9 +398,11 @@ class Plant:
             if t < spin_end:
                 continue
             if realtime:
-                # Short sleeps, not the event: a Python timed_wait oversleeps by milliseconds. A
-                # sleep (not a spin) lets a controller on the same CPU, below us, run.
-                time.sleep(min(until_ns - t, _POLL_NS) * 1e-9)
+                # Not the event: a Python timed_wait oversleeps by milliseconds. Spin if the
+                # controller has a CPU of its own; else sleep in short slices, which let a
+                # controller on our CPU, below our priority, run.
+                if self._share_cpu:
+                    time.sleep(min(until_ns - t, _POLL_NS) * 1e-9)
                 continue
             try:
                 self.torque_ready.timed_wait(iox2.Duration.from_nanos(min(until_ns - t, _WAIT_SLICE_NS)))
@@ -415,7 +426,7 @@ class Plant:
     def _loop(self, start_msg, start, step, hold):
         self.ticks = n = start_msg.ticks
         self.t0_ns = start_msg.t0_ns
-        self._state, self._reply, tel = StateMsg(), TorqueMsg(), TelemetryMsg()
+        tel = TelemetryMsg()
         try:
             q, qd, tau_hold = start(tuple(start_msg.q0))
             q, qd = _vec3(q, "start's q"), _vec3(qd, "start's qd")
@@ -425,7 +436,6 @@ class Plant:
             raise End(EXIT_SETUP, f"start failed at q0 = {tuple(start_msg.q0)}: {type(e).__name__}: {e}")
         drives = Drives(self.tau_max, self.reject, self.delay_ns, self.ts_ns, tau_hold)
         consecutive = 0
-        gc.collect()
         gc.disable()  # no collector pauses inside the loop
         k = 0
         while True:
