@@ -477,8 +477,9 @@ class Plant:
             try:
                 acc = [0.0, 0.0, 0.0]
                 for length, tau in pieces:
-                    q, qd, ta = step(tau, length * 1e-9)
-                    q, qd = _vec3(q, "step's q"), _vec3(qd, "step's qd")
+                    q1, qd1, ta = step(tau, length * 1e-9)
+                    # Validated before they replace the last good state (the final state's).
+                    q, qd = _vec3(q1, "step's q"), _vec3(qd1, "step's qd")
                     ta = _vec3(ta, "step's tau_applied")
                     for i in range(3):
                         acc[i] += ta[i] * length
@@ -508,15 +509,16 @@ class Plant:
         self._publish_state(k, wire.STATE_FINAL, q, qd, drives.last)
         n_stop = round(self.safe_stop_ms * 1e-3 / self.ts)
         tel = TelemetryMsg()
-        brake = f"braked for {self.safe_stop_ms:g} ms (τ = hold(q) − {self.brake_damping:g} q̇)"
+        held = "hold(q)" if hold is not None else "the last applied torque"
+        brake = f"braked for {self.safe_stop_ms:g} ms (τ = {held} − {self.brake_damping:g} q̇)"
         try:
             for i in range(1, n_stop + 1):
                 if self.mode == "realtime":
                     self._wake_abs(deadline + i * self.ts_ns)
                 g = _vec3(hold(q), "hold(q)") if hold is not None else drives.last
                 tau = drives.apply_local(tuple(g[j] - self.brake_damping * qd[j] for j in range(3)))
-                q, qd, _ = step(tau, self.ts)
-                q, qd = _vec3(q, "step's q"), _vec3(qd, "step's qd")
+                q1, qd1, _ = step(tau, self.ts)
+                q, qd = _vec3(q1, "step's q"), _vec3(qd1, "step's qd")
                 tel.tick, tel.flags = k + i, wire.TEL_SAFE_STOP | wire.TEL_HELD
                 tel.misses, tel.late_dropped, tel.t_wake_ns = self.misses, self.late, now_ns()
                 self.telemetry.send_copy(tel)
