@@ -1,15 +1,20 @@
-"""deltaloop from Python: the wire types (`deltaloop.wire`) and a controller helper
-(`deltaloop.Controller`) for writing a controller process that joins a `deltaloop run`."""
+"""deltaloop from Python: the wire types (`deltaloop.wire`) and two helpers for writing a process
+that joins a `deltaloop run`: `deltaloop.Controller` (a controller is one `step`) and
+`deltaloop.Plant` (a plant is `start` + `step`)."""
 
 from .wire import ControlMsg, RefSample, StateMsg, TelemetryMsg, TorqueMsg
 
-__all__ = ["Controller", "ControlMsg", "RefSample", "StateMsg", "TelemetryMsg", "TorqueMsg"]
+__all__ = ["Controller", "Plant", "ControlMsg", "RefSample", "StateMsg", "TelemetryMsg", "TorqueMsg"]
 
 
 def __getattr__(name):
-    # The helper needs iceoryx2; the wire types alone do not (imported lazily).
+    # The helpers need iceoryx2; the wire types alone do not (imported lazily).
     if name == "Controller":
         from .controller import Controller
 
         return Controller
+    if name == "Plant":
+        from .plant import Plant
+
+        return Plant
     raise AttributeError(name)
