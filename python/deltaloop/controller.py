@@ -19,70 +19,41 @@ with these types), 4 the loop failed (plant silent, reference missing, `step` ra
 (STOP from the supervisor, or SIGTERM).
 """
 
-import argparse
 import ctypes
 import gc
-import os
-import signal
 import sys
 import time
-import tomllib
 import traceback
 
 import iceoryx2 as iox2
 
-from . import services, wire
+from . import wire
 from .wire import ControlMsg, RefSample, StateMsg, TorqueMsg
 
-# protocol/transport/src/ipc.rs
-LOOP_BUFFER = 4
-OBSERVER_BUFFER = 8192
-REF_CHUNK = 4096
-REF_RING = 16
-HANDSHAKE_TIMEOUT_NS = 30_000_000_000
-
-EXIT_SETUP, EXIT_FAULT, EXIT_STOPPED = 3, 4, 5
-
-_WAIT_SLICE_NS = 100_000_000  # longest block on an event before looking at STOP / SIGTERM
-
-
-def now_ns() -> int:
-    """CLOCK_MONOTONIC, ns: the clock of every `*_ns` field."""
-    return time.clock_gettime_ns(time.CLOCK_MONOTONIC)
-
-
-class End(Exception):
-    """Ends the process with `code`, printing `why` (one line) unless the code is 0."""
-
-    def __init__(self, code: int, why: str = ""):
-        super().__init__(why)
-        self.code = code
+from .peer import (  # noqa: F401 - re-exported: the constants were first defined here
+    _WAIT_SLICE_NS,
+    EXIT_FAULT,
+    EXIT_SETUP,
+    EXIT_STOPPED,
+    HANDSHAKE_TIMEOUT_NS,
+    LOOP_BUFFER,
+    OBSERVER_BUFFER,
+    REF_CHUNK,
+    REF_RING,
+    End,
+    Peer,
+    now_ns,
+)
 
 
-class Controller:
+class Controller(Peer):
     """One controller process of one run. Attributes: `run_id`, `mode`, `law`, `config` (dict),
     `ts` (s), `ticks` (N, after START), `name` (the prefix of its stderr lines)."""
 
+    role = "controller"
+
     def __init__(self, argv=None, name: str = "python-controller"):
-        p = argparse.ArgumentParser(prog=name, description="deltaloop controller (started by `deltaloop run`)")
-        p.add_argument("--run-id", required=True)
-        p.add_argument("--config", required=True)
-        p.add_argument("--mode", required=True, choices=["lockstep", "realtime"])
-        p.add_argument("--law", default="")
-        a = p.parse_args(argv)  # exits 2 on bad arguments
-        self.name = name
-        self.run_id, self.mode, self.law = a.run_id, a.mode, a.law
-        try:
-            with open(a.config, "rb") as f:
-                self.config = tomllib.load(f)
-        except (OSError, tomllib.TOMLDecodeError) as e:
-            self._die(EXIT_SETUP, f"cannot read the config {a.config}: {e}")
-        lp = self.config.get("loop", {})
-        self.ts = float(lp.get("ts_s", 3e-4))
-        self.silence_ms = int(lp.get("silence_timeout_ms", 2000))
-        self.layout = lp.get(self.mode, {})
-        self.ticks = None
-        self._stop = None  # why to stop: "STOP" or "SIGTERM"
+        super().__init__(argv, name, law=True)
 
     # ---- the process -------------------------------------------------------------------------
 
@@ -102,113 +73,23 @@ class Controller:
                 print(f"{self.name}: {e}", file=sys.stderr, flush=True)
             return e.code
 
-    def _die(self, code, why):
-        print(f"{self.name}: {why}", file=sys.stderr, flush=True)
-        sys.exit(code)
-
-    def _signals(self):
-        # As the built-in children: Ctrl-C / hang-up reach the whole group, the supervisor stops us
-        # in order; SIGTERM is a clean stop; the parent's death sends us SIGTERM.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGHUP, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, lambda *_: setattr(self, "_stop", "SIGTERM"))
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-        libc.prctl(29, 1, 0, 0, 0)  # PR_SET_TIMERSLACK: 1 ns
-        self._libc = libc
-
-    def _schedule(self):
-        """`[loop.<mode>]` controller_cpu / controller_priority / lock_memory, as the built-in
-        controller applies them; what is not permitted is a one-line warning, not an error."""
-        cpu, prio = self.layout.get("controller_cpu", -1), self.layout.get("controller_priority", 0)
-        warn = lambda w: print(f"{self.name}: warning: {w}", file=sys.stderr, flush=True)  # noqa: E731
-        if cpu is not None and cpu >= 0:
-            try:
-                os.sched_setaffinity(0, {cpu})
-            except OSError as e:
-                warn(f"cannot pin to CPU {cpu} ({e}): running unpinned")
-        if prio and prio > 0:
-            try:
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
-            except OSError as e:
-                warn(f"SCHED_FIFO priority {prio} not permitted ({e}): running SCHED_OTHER")
-        if self.layout.get("lock_memory") and self._libc.mlockall(3) != 0:  # MCL_CURRENT | MCL_FUTURE
-            warn(f"mlockall not permitted ({os.strerror(ctypes.get_errno())})")
-
-    # ---- iceoryx2 ----------------------------------------------------------------------------
-
-    def _open_ports(self):
-        iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
-        cfg = iox2.config.default()
-        # As deltaloop's own processes: no silent clean-up of dead nodes (the supervisor does it).
-        cfg.global_cfg.node.cleanup_dead_nodes_on_creation = False
-        cfg.global_cfg.node.cleanup_dead_nodes_on_destruction = False
-        cfg.global_cfg.service.cleanup_dead_nodes_on_open = False
-        node_name = f"deltaloop-controller-{self.run_id}"
-        try:
-            self.node = (
-                iox2.NodeBuilder.new()
-                .name(iox2.NodeName.new(node_name))
-                .config(cfg)
-                .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
-                .create(iox2.ServiceType.Ipc)
-            )
-        except Exception as e:
-            raise End(EXIT_SETUP, f"cannot create the iceoryx2 node {node_name}: {e!r}")
-        state = self._pubsub("state", StateMsg, 1, 2, OBSERVER_BUFFER)
-        torque = self._pubsub("torque", TorqueMsg, 1, 2, OBSERVER_BUFFER)
-        control = self._pubsub("control", ControlMsg, 3, 3, 64)
-        reference = self._pubsub("reference", iox2.Slice[RefSample], 1, 1, REF_RING, borrowed=1)
+    def _open_ports_with(self, ports):
+        state = ports.pubsub("state", StateMsg, 1, 2, OBSERVER_BUFFER)
+        torque = ports.pubsub("torque", TorqueMsg, 1, 2, OBSERVER_BUFFER)
+        control = ports.pubsub("control", ControlMsg, 3, 3, 64)
+        reference = ports.pubsub("reference", iox2.Slice[RefSample], 1, 1, REF_RING, borrowed=1)
         self.state = state.subscriber_builder().buffer_size(LOOP_BUFFER).create()
         self.torque = torque.publisher_builder().create()
         self.control_pub = control.publisher_builder().create()
         self.control_sub = control.subscriber_builder().create()
         self.reference = reference.subscriber_builder().buffer_size(REF_RING).create()
-        self.state_ready = self._event("state-ready").listener_builder().create()
-        self.torque_ready = self._event("torque-ready").notifier_builder().create()
+        self.state_ready = ports.event("state-ready").listener_builder().create()
+        self.torque_ready = ports.event("torque-ready").notifier_builder().create()
         # The reference ring: row of tick k in slot k mod len, valid iff its tick is k. Every byte
         # 0xFF: every slot empty (tick 2^64 - 1), and every page touched now, not in the loop.
         self.ring = (RefSample * (REF_RING * REF_CHUNK))()
         ctypes.memset(self.ring, 0xFF, ctypes.sizeof(self.ring))
         self._reply = TorqueMsg()
-
-    def _service_name(self, what):
-        return f"deltaloop/{self.run_id}/{what}"
-
-    def _pubsub(self, what, t, publishers, subscribers, buffer, borrowed=None):
-        """Opens a publish-subscribe service the supervisor created, with ipc.rs's settings."""
-        name = self._service_name(what)
-        b = (
-            self.node.service_builder(iox2.ServiceName.new(name))
-            .publish_subscribe(t)
-            .max_publishers(publishers)
-            .max_subscribers(subscribers)
-            .max_nodes(4)
-            .subscriber_max_buffer_size(buffer)
-            .history_size(0)
-            .enable_safe_overflow(True)
-        )
-        if borrowed is not None:
-            b = b.subscriber_max_borrowed_samples(borrowed)
-        try:
-            return b.open()
-        except Exception as e:
-            raise End(EXIT_SETUP, services.open_error(name, t, e, "controller"))
-
-    def _event(self, what):
-        """Opens (or creates: whichever of plant and controller comes first) a wake-up event."""
-        name = self._service_name(what)
-        try:
-            return (
-                self.node.service_builder(iox2.ServiceName.new(name))
-                .event()
-                .max_notifiers(2)
-                .max_listeners(2)
-                .max_nodes(4)
-                .open_or_create()
-            )
-        except Exception as e:
-            raise End(EXIT_SETUP, f"cannot open event {name} ({e!r}) on iceoryx2 0.10.0")
 
     def _send(self, kind):
         m = ControlMsg()

@@ -46,22 +46,17 @@ Not modelled by the helper: the `[sensor]` noise model (states carry the true q,
 copies them) and the payload step (a model may do it itself from `Plant.tick`).
 """
 
-import argparse
 import ctypes
 import gc
 import math
-import os
-import signal
 import sys
 import time
-import tomllib
 import traceback
 
 import iceoryx2 as iox2
 
 from . import wire
-from .controller import (
-    _OPEN_HINTS,
+from .peer import (
     _WAIT_SLICE_NS,
     EXIT_FAULT,
     EXIT_SETUP,
@@ -70,6 +65,7 @@ from .controller import (
     LOOP_BUFFER,
     OBSERVER_BUFFER,
     End,
+    Peer,
     now_ns,
 )
 from .wire import ControlMsg, StateMsg, TelemetryMsg, TorqueMsg
@@ -156,29 +152,17 @@ def _vec3(v, what):
     return t
 
 
-class Plant:
+class Plant(Peer):
     """One plant process of one run. Attributes: `run_id`, `mode`, `config` (dict), `ts` (s),
     `ticks` (N, after START), `tick` (the current k), `name` (the prefix of its stderr lines)."""
 
+    role = "plant"
+
     def __init__(self, argv=None, name: str = "python-plant"):
-        p = argparse.ArgumentParser(prog=name, description="deltaloop plant (started by `deltaloop run`)")
-        p.add_argument("--run-id", required=True)
-        p.add_argument("--config", required=True)
-        p.add_argument("--mode", required=True, choices=["lockstep", "realtime"])
-        a = p.parse_args(argv)  # exits 2 on bad arguments
-        self.name = name
-        self.run_id, self.mode = a.run_id, a.mode
-        try:
-            with open(a.config, "rb") as f:
-                self.config = tomllib.load(f)
-        except (OSError, tomllib.TOMLDecodeError) as e:
-            self._die(EXIT_SETUP, f"cannot read the config {a.config}: {e}")
+        super().__init__(argv, name)
         lp, pl, fa = (self.config.get(s, {}) for s in ("loop", "plant", "faults"))
-        self.ts = float(lp.get("ts_s", 3e-4))
         self.ts_ns = round(self.ts * 1e9)
         self.budget_ns = int(lp.get("torque_budget_us", 150)) * 1000
-        self.silence_ms = int(lp.get("silence_timeout_ms", 2000))
-        self.layout = lp.get(self.mode, {})
         self.early_ns = int(self.layout.get("wake_early_us", 0) or 0) * 1000
         cpus = (self.layout.get("plant_cpu", -1), self.layout.get("controller_cpu", -1))
         self._share_cpu = cpus[0] is None or cpus[0] < 0 or cpus[0] == cpus[1]
@@ -191,9 +175,7 @@ class Plant:
         self.silence_ticks = int(fa.get("controller_silence_ticks", 100))
         self.safe_stop_ms = float(fa.get("safe_stop_ms", 100))
         self.brake_damping = float(fa.get("brake_damping_nm_s", 2.0))
-        self.ticks = None
         self.tick = 0
-        self._stop = None  # why to stop: "STOP" or "SIGTERM"
         self.misses = self.late = 0
 
     # ---- the process -------------------------------------------------------------------------
@@ -218,112 +200,18 @@ class Plant:
                 print(f"{self.name}: {e}", file=sys.stderr, flush=True)
             return e.code
 
-    def _die(self, code, why):
-        print(f"{self.name}: {why}", file=sys.stderr, flush=True)
-        sys.exit(code)
-
-    def _signals(self):
-        # As the built-in children: Ctrl-C / hang-up reach the whole group, the supervisor stops us
-        # in order; SIGTERM is a clean stop; the parent's death sends us SIGTERM.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGHUP, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, lambda *_: setattr(self, "_stop", "SIGTERM"))
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-        libc.prctl(29, 1, 0, 0, 0)  # PR_SET_TIMERSLACK: 1 ns
-        self._libc = libc
-
-    def _schedule(self):
-        """`[loop.<mode>]` plant_cpu / plant_priority / lock_memory, as the built-in plant applies
-        them; what is not permitted is a one-line warning, not an error."""
-        cpu, prio = self.layout.get("plant_cpu", -1), self.layout.get("plant_priority", 0)
-        warn = lambda w: print(f"{self.name}: warning: {w}", file=sys.stderr, flush=True)  # noqa: E731
-        if cpu is not None and cpu >= 0:
-            try:
-                os.sched_setaffinity(0, {cpu})
-            except OSError as e:
-                warn(f"cannot pin to CPU {cpu} ({e}): running unpinned")
-        if prio and prio > 0:
-            try:
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
-            except OSError as e:
-                warn(f"SCHED_FIFO priority {prio} not permitted ({e}): running SCHED_OTHER")
-        if self.layout.get("lock_memory") and self._libc.mlockall(3) != 0:  # MCL_CURRENT | MCL_FUTURE
-            warn(f"mlockall not permitted ({os.strerror(ctypes.get_errno())})")
-
-    # ---- iceoryx2 ----------------------------------------------------------------------------
-
-    def _open_ports(self):
-        iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
-        cfg = iox2.config.default()
-        # As deltaloop's own processes: no silent clean-up of dead nodes (the supervisor does it).
-        cfg.global_cfg.node.cleanup_dead_nodes_on_creation = False
-        cfg.global_cfg.node.cleanup_dead_nodes_on_destruction = False
-        cfg.global_cfg.service.cleanup_dead_nodes_on_open = False
-        node_name = f"deltaloop-plant-{self.run_id}"
-        try:
-            self.node = (
-                iox2.NodeBuilder.new()
-                .name(iox2.NodeName.new(node_name))
-                .config(cfg)
-                .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
-                .create(iox2.ServiceType.Ipc)
-            )
-        except Exception as e:
-            raise End(EXIT_SETUP, f"cannot create the iceoryx2 node {node_name}: {e!r}")
-        state = self._pubsub("state", StateMsg, 1, 3, OBSERVER_BUFFER)
-        torque = self._pubsub("torque", TorqueMsg, 1, 3, OBSERVER_BUFFER)
-        telemetry = self._pubsub("telemetry", TelemetryMsg, 1, 2, OBSERVER_BUFFER)
-        control = self._pubsub("control", ControlMsg, 3, 4, 64)
+    def _open_ports_with(self, ports):
+        state = ports.pubsub("state", StateMsg, 1, 3, OBSERVER_BUFFER)
+        torque = ports.pubsub("torque", TorqueMsg, 1, 3, OBSERVER_BUFFER)
+        telemetry = ports.pubsub("telemetry", TelemetryMsg, 1, 2, OBSERVER_BUFFER)
+        control = ports.pubsub("control", ControlMsg, 3, 4, 64)
         self.state = state.publisher_builder().create()
         self.telemetry = telemetry.publisher_builder().create()
         self.torque = torque.subscriber_builder().buffer_size(LOOP_BUFFER).create()
         self.control_pub = control.publisher_builder().create()
         self.control_sub = control.subscriber_builder().create()
-        self.state_ready = self._event("state-ready").notifier_builder().create()
-        self.torque_ready = self._event("torque-ready").listener_builder().create()
-
-    def _service_name(self, what):
-        return f"deltaloop/{self.run_id}/{what}"
-
-    def _pubsub(self, what, t, publishers, subscribers, buffer):
-        """Opens a publish-subscribe service the supervisor created, with ipc.rs's settings."""
-        name = self._service_name(what)
-        b = (
-            self.node.service_builder(iox2.ServiceName.new(name))
-            .publish_subscribe(t)
-            .max_publishers(publishers)
-            .max_subscribers(subscribers)
-            .max_nodes(4)
-            .subscriber_max_buffer_size(buffer)
-            .history_size(0)
-            .enable_safe_overflow(True)
-        )
-        try:
-            return b.open()
-        except Exception as e:
-            kind = e.args[0] if e.args else repr(e)
-            raise End(
-                EXIT_SETUP,
-                f"cannot open service {name}: {kind} ({_OPEN_HINTS.get(kind, 'see iceoryx2')}); "
-                f"this plant expects {t.type_name()} ({ctypes.sizeof(t)} B, align {ctypes.alignment(t)}) "
-                f"on iceoryx2 0.10.0",
-            )
-
-    def _event(self, what):
-        """Opens (or creates: whichever of plant and controller comes first) a wake-up event."""
-        name = self._service_name(what)
-        try:
-            return (
-                self.node.service_builder(iox2.ServiceName.new(name))
-                .event()
-                .max_notifiers(2)
-                .max_listeners(2)
-                .max_nodes(4)
-                .open_or_create()
-            )
-        except Exception as e:
-            raise End(EXIT_SETUP, f"cannot open event {name} ({e!r}) on iceoryx2 0.10.0")
+        self.state_ready = ports.event("state-ready").notifier_builder().create()
+        self.torque_ready = ports.event("torque-ready").listener_builder().create()
 
     def _send(self, kind, tick=0, text=""):
         m = ControlMsg()

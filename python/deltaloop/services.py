@@ -67,3 +67,75 @@ def open_error(name: str, t, e: Exception, who: str) -> str:
         f"cannot open service {name}: {kind} ({hint}): the run carries {carried(name)}, "
         f"this {who} expects {describe(t)} on iceoryx2 {ICEORYX2_VERSION}"
     )
+
+
+class SetupError(Exception):
+    """A node or service of the run could not be opened; the message is one line."""
+
+
+def guest_config():
+    """iceoryx2's default configuration as deltaloop's processes use it: no silent clean-up of
+    dead nodes (the supervisor owns the run's resources)."""
+    cfg = iox2.config.default()
+    cfg.global_cfg.node.cleanup_dead_nodes_on_creation = False
+    cfg.global_cfg.node.cleanup_dead_nodes_on_destruction = False
+    cfg.global_cfg.service.cleanup_dead_nodes_on_open = False
+    return cfg
+
+
+class RunPorts:
+    """Opens the services of one run for one role (`plant`, `controller`) with the settings of
+    protocol/transport/src/ipc.rs; every failure is a SetupError naming what and why."""
+
+    def __init__(self, role: str, run_id: str):
+        self.role, self.run_id = role, run_id
+        iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
+        name = f"deltaloop-{role}-{run_id}"
+        try:
+            self.node = (
+                iox2.NodeBuilder.new()
+                .name(iox2.NodeName.new(name))
+                .config(guest_config())
+                .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
+                .create(iox2.ServiceType.Ipc)
+            )
+        except Exception as e:  # noqa: BLE001 - reported as one line
+            raise SetupError(f"cannot create the iceoryx2 node {name}: {e!r}") from None
+
+    def name(self, what: str) -> str:
+        return f"deltaloop/{self.run_id}/{what}"
+
+    def pubsub(self, what, t, publishers, subscribers, buffer, borrowed=None):
+        """Opens a publish-subscribe service the supervisor created."""
+        name = self.name(what)
+        b = (
+            self.node.service_builder(iox2.ServiceName.new(name))
+            .publish_subscribe(t)
+            .max_publishers(publishers)
+            .max_subscribers(subscribers)
+            .max_nodes(4)
+            .subscriber_max_buffer_size(buffer)
+            .history_size(0)
+            .enable_safe_overflow(True)
+        )
+        if borrowed is not None:
+            b = b.subscriber_max_borrowed_samples(borrowed)
+        try:
+            return b.open()
+        except Exception as e:  # noqa: BLE001 - reported as one line
+            raise SetupError(open_error(name, t, e, self.role)) from None
+
+    def event(self, what):
+        """Opens (or creates: whichever of plant and controller comes first) a wake-up event."""
+        name = self.name(what)
+        try:
+            return (
+                self.node.service_builder(iox2.ServiceName.new(name))
+                .event()
+                .max_notifiers(2)
+                .max_listeners(2)
+                .max_nodes(4)
+                .open_or_create()
+            )
+        except Exception as e:  # noqa: BLE001 - reported as one line
+            raise SetupError(f"cannot open event {name} ({e!r}) on iceoryx2 {ICEORYX2_VERSION}") from None

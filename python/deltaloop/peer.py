@@ -1,0 +1,114 @@
+"""What the Python plant and controller processes share: the command line the supervisor gives
+them, the config, signals, scheduling and the iceoryx2 ports (docs/protocol.md §1.2, §6)."""
+
+import argparse
+import ctypes
+import os
+import signal
+import sys
+import time
+import tomllib
+
+from . import services
+
+# protocol/transport/src/ipc.rs
+LOOP_BUFFER = 4
+OBSERVER_BUFFER = 8192
+REF_CHUNK = 4096
+REF_RING = 16
+HANDSHAKE_TIMEOUT_NS = 30_000_000_000
+
+EXIT_SETUP, EXIT_FAULT, EXIT_STOPPED = 3, 4, 5
+
+_WAIT_SLICE_NS = 100_000_000  # longest block on an event before looking at STOP / SIGTERM
+
+
+def now_ns() -> int:
+    """CLOCK_MONOTONIC, ns: the clock of every `*_ns` field."""
+    return time.clock_gettime_ns(time.CLOCK_MONOTONIC)
+
+
+class End(Exception):
+    """Ends the process with `code`, printing `why` (one line) unless the code is 0."""
+
+    def __init__(self, code: int, why: str = ""):
+        super().__init__(why)
+        self.code = code
+
+
+class Peer:
+    """One loop process of one run, in role `role` ("plant" or "controller"). Attributes:
+    `run_id`, `mode`, `config` (dict), `ts` (s), `silence_ms`, `layout` (`[loop.<mode>]`),
+    `ticks` (N, after START), `name` (the prefix of its stderr lines)."""
+
+    role = ""
+
+    def __init__(self, argv, name: str, law: bool = False):
+        p = argparse.ArgumentParser(prog=name, description=f"deltaloop {self.role} (started by `deltaloop run`)")
+        p.add_argument("--run-id", required=True)
+        p.add_argument("--config", required=True)
+        p.add_argument("--mode", required=True, choices=["lockstep", "realtime"])
+        if law:
+            p.add_argument("--law", default="")
+        a = p.parse_args(argv)  # exits 2 on bad arguments
+        self.name = name
+        self.run_id, self.mode = a.run_id, a.mode
+        self.law = getattr(a, "law", "")
+        try:
+            with open(a.config, "rb") as f:
+                self.config = tomllib.load(f)
+        except (OSError, tomllib.TOMLDecodeError) as e:
+            self._die(EXIT_SETUP, f"cannot read the config {a.config}: {e}")
+        lp = self.config.get("loop", {})
+        self.ts = float(lp.get("ts_s", 3e-4))
+        self.silence_ms = int(lp.get("silence_timeout_ms", 2000))
+        self.layout = lp.get(self.mode, {})
+        self.ticks = None
+        self._stop = None  # why to stop: "STOP" or "SIGTERM"
+
+    def _die(self, code, why):
+        print(f"{self.name}: {why}", file=sys.stderr, flush=True)
+        sys.exit(code)
+
+    def _signals(self):
+        # As the built-in children: Ctrl-C / hang-up reach the whole group, the supervisor stops us
+        # in order; SIGTERM is a clean stop; the parent's death sends us SIGTERM.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, lambda *_: setattr(self, "_stop", "SIGTERM"))
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+        libc.prctl(29, 1, 0, 0, 0)  # PR_SET_TIMERSLACK: 1 ns
+        self._libc = libc
+
+    def _schedule(self):
+        """`[loop.<mode>]` <role>_cpu / <role>_priority / lock_memory, as the built-in processes
+        apply them; what is not permitted is a one-line warning, not an error."""
+        cpu = self.layout.get(f"{self.role}_cpu", -1)
+        prio = self.layout.get(f"{self.role}_priority", 0)
+        warn = lambda w: print(f"{self.name}: warning: {w}", file=sys.stderr, flush=True)  # noqa: E731
+        if cpu is not None and cpu >= 0:
+            try:
+                os.sched_setaffinity(0, {cpu})
+            except OSError as e:
+                warn(f"cannot pin to CPU {cpu} ({e}): running unpinned")
+        if prio and prio > 0:
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
+            except OSError as e:
+                warn(f"SCHED_FIFO priority {prio} not permitted ({e}): running SCHED_OTHER")
+        if self.layout.get("lock_memory") and self._libc.mlockall(3) != 0:  # MCL_CURRENT | MCL_FUTURE
+            warn(f"mlockall not permitted ({os.strerror(ctypes.get_errno())})")
+
+    def _open_ports(self):
+        """Creates the node and opens every port (`_open_ports_with`); a failure ends the process
+        with exit code 3 and one line."""
+        try:
+            ports = services.RunPorts(self.role, self.run_id)
+            self.node = ports.node
+            self._open_ports_with(ports)
+        except services.SetupError as e:
+            raise End(EXIT_SETUP, str(e)) from None
+
+    def _open_ports_with(self, ports: services.RunPorts):
+        raise NotImplementedError
