@@ -607,6 +607,7 @@ impl<'a> Observation<'a> {
     fn finish_tick(&mut self, seen: Seen) -> Result<()> {
         self.csv.write(&seen)?;
         self.timing.push(seen);
+        crate::tick_hook::call(&seen);
         if seen.k == self.window.last {
             self.after = seen.state;
             return Ok(());
