@@ -31,6 +31,38 @@ pub fn parse_duration(s: &str) -> Result<Duration, String> {
     Ok(d)
 }
 
+/// Disk a run writes per tick, bytes: `trace.csv` ≈ 630 B and `<law>.timing.csv` ≈ 106 B a tick
+/// (measured on a lockstep S1 run of 202 668 ticks), rounded up.
+pub const BYTES_PER_TICK: u64 = 750;
+
+/// Free bytes of the file system that holds `path` (or its nearest existing ancestor).
+fn free_bytes(path: &Path) -> Option<u64> {
+    let abs = std::path::absolute(path).ok()?;
+    let dir = abs.ancestors().find(|p| p.exists())?;
+    let c = std::ffi::CString::new(dir.as_os_str().as_encoded_bytes()).ok()?;
+    // SAFETY: statvfs writes into the struct we own; the path is a valid C string.
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    if unsafe { libc::statvfs(c.as_ptr(), &mut st) } != 0 {
+        return None;
+    }
+    Some(st.f_bavail as u64 * st.f_frsize as u64)
+}
+
+/// Err with one line if a run of `ticks` ticks would not fit in `free` bytes.
+pub fn check_disk(ticks: u64, free: u64, dir: &Path, duration: &str) -> Result<(), String> {
+    let need = ticks.saturating_mul(BYTES_PER_TICK);
+    if need <= free {
+        return Ok(());
+    }
+    let gb = |b: u64| b as f64 / 1e9;
+    Err(format!(
+        "--duration {duration} writes about {:.1} GB ({ticks} ticks of ≈ {BYTES_PER_TICK} B in trace.csv and timing.csv) but {} has {:.1} GB free: choose a shorter --duration or another --out",
+        gb(need),
+        dir.display(),
+        gb(free)
+    ))
+}
+
 /// One minute of loop time (ticks k with ⌊k·Ts / 60 s⌋ = index − 1).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Minute {
@@ -261,6 +293,10 @@ pub fn soak(r: Request<'_>) -> Result<()> {
         .out
         .unwrap_or_else(|| crate::output::default_run_dir(&format!("soak-{}", cfg.name)));
 
+    let shown = humantime::format_duration(r.duration).to_string();
+    if let Some(free) = free_bytes(&out) {
+        check_disk(total, free, &out, &shown).map_err(|e| anyhow::anyhow!(e))?;
+    }
     let acc = Arc::new(Mutex::new(MinuteAcc::new(ts)));
     let hook = {
         let acc = acc.clone();
@@ -271,8 +307,7 @@ pub fn soak(r: Request<'_>) -> Result<()> {
         })
     };
     eprintln!(
-        "soak: {} of {} in {} mode ({} ticks; the motion, then a hold of {:.0} s); run folder {}",
-        humantime::format_duration(r.duration),
+        "soak: {shown} of {} in {} mode ({} ticks; the motion, then a hold of {:.1} s); run folder {}",
         cfg.name,
         r.mode.name(),
         total,
@@ -327,6 +362,10 @@ fn report(
     };
     let started = Instant::now();
     let mut last_plain = Instant::now();
+    // Sampled every few seconds, each process's newest reading kept: the last minute is printed
+    // after the children have exited.
+    let mut rss = Rss::default();
+    let mut last_rss: Option<Instant> = None;
     loop {
         let finished = done.load(std::sync::atomic::Ordering::Acquire);
         let (minutes, ticks, misses) = match acc.lock() {
@@ -339,8 +378,16 @@ fn report(
         );
         bar.set_position(ticks);
         bar.set_message(format!("{misses} misses"));
+        if !finished && last_rss.is_none_or(|t| t.elapsed() >= Duration::from_secs(2)) {
+            last_rss = Some(Instant::now());
+            let now = rss_now();
+            rss = Rss {
+                supervisor: now.supervisor.or(rss.supervisor),
+                plant: now.plant.or(rss.plant),
+                controller: now.controller.or(rss.controller),
+            };
+        }
         if !minutes.is_empty() {
-            let rss = rss_now();
             for m in &minutes {
                 let line = minute_line(m, &rss);
                 bar.suspend(|| {
@@ -442,6 +489,19 @@ mod tests {
             line.starts_with("minute 3 (2:00–2:30, partial): 30 ticks, 0 misses"),
             "{line}"
         );
+    }
+
+    #[test]
+    fn a_soak_that_would_fill_the_disk_is_refused_up_front() {
+        let ticks = 288_000_000; // 24 h at 3.3 kHz
+        let e = check_disk(ticks, 59_000_000_000, Path::new("runs/x"), "1day").unwrap_err();
+        assert!(
+            e.starts_with("--duration 1day writes about 216.0 GB"),
+            "{e}"
+        );
+        assert!(e.contains("runs/x has 59.0 GB free"), "{e}");
+        assert!(check_disk(12_000_000, 59_000_000_000, Path::new("."), "1h").is_ok());
+        assert!(free_bytes(Path::new("no/such/dir/below/cwd")).is_some_and(|b| b > 0));
     }
 
     #[test]

@@ -61,8 +61,9 @@ fn pct_row(name: &str, p: &Percentiles) -> String {
     )
 }
 
-fn mrad(e: &[f64; 3]) -> String {
-    format!("{:7.3} {:7.3} {:7.3}", e[0] * 1e3, e[1] * 1e3, e[2] * 1e3)
+/// Per joint, rad, as the run's own table prints them.
+fn rad(e: &[f64; 3]) -> String {
+    format!("{:>10.3e} {:>10.3e} {:>10.3e}", e[0], e[1], e[2])
 }
 
 /// The screen: a few lines of text.
@@ -80,6 +81,12 @@ pub fn lines(info: &RunInfo, total: Option<u64>, s: &Snapshot, status: &Status) 
     let since = s.since_tick.map_or("-".into(), |k| k.to_string());
     let mut l = vec![
         format!("run {}   law {law}   mode {mode}", info.run_id),
+        format!(
+            "config   {}",
+            info.config
+                .as_ref()
+                .map_or("? (not found)".into(), |c| c.display().to_string())
+        ),
         format!("status   {}", status.text()),
         format!("ticks    {progress}"),
         format!(
@@ -103,9 +110,16 @@ pub fn lines(info: &RunInfo, total: Option<u64>, s: &Snapshot, status: &Status) 
     ];
     match (&s.err_now, &s.err_rms) {
         (Some((k, now)), Some(rms)) => {
-            l.push("tracking error q_d - q, mrad   joint 1  joint 2  joint 3".into());
-            l.push(format!("  now (tick {k:>9})       {}", mrad(now)));
-            l.push(format!("  RMS since tick {since:<9}   {}", mrad(rms)));
+            l.push(format!(
+                "{:<26} {:>10} {:>10} {:>10}",
+                "tracking error q_d - q, rad", "joint 1", "joint 2", "joint 3"
+            ));
+            l.push(format!("{:<26} {}", format!("  now (tick {k})"), rad(now)));
+            l.push(format!(
+                "{:<26} {}",
+                format!("  RMS since tick {since}"),
+                rad(rms)
+            ));
         }
         _ => l.push(match &info.config {
             Some(_) => "tracking error: no state seen yet".into(),
@@ -144,9 +158,10 @@ pub fn plain(info: &RunInfo, s: &Snapshot, status: &Status) -> String {
         line.push_str(&p("wake", w));
     }
     if let (Some((_, now)), Some(rms)) = (&s.err_now, &s.err_rms) {
-        let max = |e: &[f64; 3]| e.iter().fold(0.0f64, |a, x| a.max(x.abs())) * 1e3;
+        // The largest joint's.
+        let max = |e: &[f64; 3]| e.iter().fold(0.0f64, |a, x| a.max(x.abs()));
         line.push_str(&format!(
-            " err_now_mrad={:.4} err_rms_mrad={:.4}",
+            " err_now_rad={:.3e} err_rms_rad={:.3e}",
             max(now),
             max(rms)
         ));
