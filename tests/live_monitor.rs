@@ -186,6 +186,14 @@ fn top_watches_a_lockstep_run_in_tmux_and_q_leaves_it_undisturbed() {
     );
     assert!(second.contains("wake lateness") && second.contains("no deadline in lockstep"));
 
+    // One spare slot: a second observer is refused, saying why.
+    let second = common::deltaloop(&["top", "--plain", &rid]);
+    let said = String::from_utf8_lossy(&second.stderr);
+    assert!(
+        !second.status.success() && said.contains("spare observer slot"),
+        "{said}"
+    );
+
     assert!(
         run.try_wait().unwrap().is_none(),
         "the run must still be going"
@@ -197,12 +205,32 @@ fn top_watches_a_lockstep_run_in_tmux_and_q_leaves_it_undisturbed() {
         "the run must outlive top's exit"
     );
 
+    // The slot is free again: `top --plain` attaches, and ends by itself with the run.
+    let plain = Command::new(BIN)
+        .args(["top", "--plain", "--interval", "200ms", &rid])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
     let status = run.wait().unwrap();
+    let plain = plain.wait_with_output().unwrap();
+    let lines = String::from_utf8_lossy(&plain.stdout).into_owned();
+    assert!(
+        plain.status.success(),
+        "{lines}{}",
+        String::from_utf8_lossy(&plain.stderr)
+    );
+    let last = lines.lines().last().unwrap_or_default().to_string();
     let mut stderr = String::new();
     std::io::Read::read_to_string(run.stderr.as_mut().unwrap(), &mut stderr).unwrap();
     assert!(status.success(), "the run failed: {stderr}");
     let summary = common::summary(&out);
     common::assert_complete_and_kept(&summary, &out, "tdc");
+    let n = summary["laws"]["tdc"]["ticks"].as_u64().unwrap();
+    assert!(
+        last.contains(&format!("status=completed ticks={} misses=0 ", n + 1)),
+        "{last}"
+    );
     common::assert_clean(&out, &summary);
     let replay = common::deltaloop(&["replay", out.to_str().unwrap()]);
     assert!(

@@ -39,7 +39,7 @@ struct Watch {
 /// Why attaching failed, in words the user can act on.
 fn attach_error(run_id: &str, what: &str, e: impl std::fmt::Debug) -> anyhow::Error {
     let detail = format!("{e:?}");
-    if detail.contains("ExceedsMaxNumberOf") || detail.contains("MaxNumberOf") {
+    if detail.contains("ExceedsMax") {
         anyhow!(
             "cannot watch run {run_id}: its spare observer slot on `{what}` is taken (another `deltaloop top` or observer is attached; the run keeps one spare slot)"
         )
