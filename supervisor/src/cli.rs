@@ -77,7 +77,8 @@ enum Command {
     Top {
         /// The run id (its iceoryx2 services are deltaloop/RUN_ID/...); default: the only live run.
         run_id: Option<String>,
-        /// One key=value line per refresh on stdout instead of the screen; ends with the run.
+        /// One key=value line per refresh on stdout instead of the screen (also when stdout is
+        /// not a terminal); ends with the run.
         #[arg(long)]
         plain: bool,
         /// Time between refreshes, e.g. 250ms, 1s.
