@@ -72,6 +72,39 @@ enum Command {
         #[arg(long)]
         ideal: bool,
     },
+    /// Watch a live lockstep or realtime run: ticks, misses, round-trip and wake-lateness
+    /// percentiles, tracking error. It only reads (the run's spare observer slot); q quits.
+    Top {
+        /// The run id (its iceoryx2 services are deltaloop/RUN_ID/...); default: the only live run.
+        run_id: Option<String>,
+        /// One key=value line per refresh on stdout instead of the screen (also when stdout is
+        /// not a terminal); ends with the run.
+        #[arg(long)]
+        plain: bool,
+        /// Time between refreshes, e.g. 250ms, 1s.
+        #[arg(long, default_value = "250ms", value_parser = parse_refresh)]
+        interval: std::time::Duration,
+    },
+    /// Run the loop for a long time: the scenario's motion, then its end point held for the rest
+    /// of --duration; a progress line, a summary per minute, every tick on disk (also on Ctrl-C).
+    Soak {
+        /// Scenario file (TOML), e.g. configs/soak.toml (one law, or choose one with --law).
+        config: PathBuf,
+        /// How long: 90s, 10m, 2h, 1h30m (up to 24h).
+        #[arg(long, value_parser = crate::soak::parse_duration)]
+        duration: std::time::Duration,
+        /// Loop transport (lockstep: --duration is loop time, run as fast as it goes).
+        #[arg(long, value_parser = LoopMode::parse_process, default_value = "realtime")]
+        mode: LoopMode,
+        #[command(flatten)]
+        overrides: run::Overrides,
+        /// Run folder (default: runs/<UTC time>-soak-<scenario name>). Must be new or empty.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Empty and reuse a non-empty --out folder (only one that holds a deltaloop run).
+        #[arg(long)]
+        force: bool,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -112,6 +145,16 @@ enum BenchCommand {
         #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
         repeats: u32,
     },
+}
+
+/// `top --interval`: 50 ms ..= 60 s.
+fn parse_refresh(s: &str) -> Result<std::time::Duration, String> {
+    let d = humantime::parse_duration(s.trim())
+        .map_err(|e| format!("`{s}` is not a duration ({e}): expected e.g. 250ms or 1s"))?;
+    if d < std::time::Duration::from_millis(50) || d > std::time::Duration::from_secs(60) {
+        return Err(format!("`{s}` is out of range: 50ms ..= 60s"));
+    }
+    Ok(d)
 }
 
 /// `deltaloop replay`: exit 0 when the trace is reproduced byte for byte, 1 otherwise.
@@ -231,6 +274,32 @@ pub fn main() -> ExitCode {
             out,
             ideal,
         } => replay(&run_dir, out, ideal),
+        Command::Top {
+            run_id,
+            plain,
+            interval,
+        } => crate::top::run(crate::top::Options {
+            run_id,
+            plain,
+            interval,
+        }),
+        Command::Soak {
+            config,
+            duration,
+            mode,
+            overrides,
+            out,
+            force,
+        } => crate::soak::soak(crate::soak::Request {
+            config: &config,
+            duration,
+            mode,
+            overrides: &overrides,
+            out,
+            force,
+            command: &command_line,
+            tty: std::io::IsTerminal::is_terminal(&std::io::stderr()),
+        }),
         Command::UdsController {
             socket,
             config,

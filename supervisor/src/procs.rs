@@ -607,6 +607,7 @@ impl<'a> Observation<'a> {
     fn finish_tick(&mut self, seen: Seen) -> Result<()> {
         self.csv.write(&seen)?;
         self.timing.push(seen);
+        crate::tick_hook::call(&seen);
         if seen.k == self.window.last {
             self.after = seen.state;
             return Ok(());
@@ -648,8 +649,16 @@ impl<'a> Observation<'a> {
         if let Some(f) = cause {
             self.rec.fault(f.clone());
         }
+        // Past the newest loop tick seen, a stopped run's window is empty up to N + 1: those
+        // ticks never ran, and only the first of them (where the loop stopped) and N + 1 go on
+        // (regression: an interrupted soak counted thousands of them as lost samples and ticks).
+        let stop = self.last_seen.map_or(0, |k| k + 1);
         while self.window.next <= self.window.last {
             let t = self.window.take();
+            let empty = t.state.is_none() && t.torque.is_none() && t.tel.is_none();
+            if empty && t.k > stop && t.k < self.window.last {
+                continue;
+            }
             self.finish_tick(t)?;
         }
         self.csv.finish()?;

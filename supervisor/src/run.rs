@@ -47,7 +47,7 @@ pub struct Overrides {
     /// Sensor noise seed (sensor.seed).
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Hold at the end point after the motion, s (scenario.hold_s, 0..=3600).
+    /// Hold at the end point after the motion, s (scenario.hold_s, 0..=86400).
     #[arg(long)]
     pub hold_s: Option<f64>,
     /// Run this command in place of the built-in plant process (plant.command; split at

@@ -162,6 +162,24 @@ impl Default for Timing {
     }
 }
 
+/// Wake lateness of one tick from its telemetry, ns: plant wake − absolute deadline (0 in
+/// lockstep, where the deadline is the wake). Live observers (`deltaloop top`, `soak`) use it too.
+pub fn wake_lateness_ns(m: &TelemetryMsg) -> u64 {
+    m.t_wake_ns.saturating_sub(m.t_deadline_ns)
+}
+
+/// Round trip of one tick from its telemetry, ns: state published → reply received by the plant;
+/// None when the tick was missed or no reply was received.
+pub fn round_trip_ns(m: &TelemetryMsg) -> Option<u64> {
+    (m.flags & wire::TEL_MISSED == 0 && m.t_torque_rx_ns > 0)
+        .then(|| m.t_torque_rx_ns.saturating_sub(m.t_state_pub_ns))
+}
+
+/// An empty histogram of ns with the bounds and precision of every loop timing histogram.
+pub fn latency_histogram() -> Histogram<u64> {
+    Dist::new("", "").hist
+}
+
 /// Ticks held back by [`TimingAcc`] at most while it cannot yet tell whether they belong to the
 /// loop (after the last telemetry so far) or to its end.
 const PENDING_MAX: usize = 4096;
@@ -244,8 +262,7 @@ impl TimingAcc {
             }
             t.span_ns.1 = m.t_wake_ns;
             if self.realtime {
-                t.wake_lateness
-                    .record(m.t_wake_ns.saturating_sub(m.t_deadline_ns));
+                t.wake_lateness.record(wake_lateness_ns(&m));
                 if let Some(p) = self.prev_wake {
                     t.period_jitter
                         .record(m.t_wake_ns.saturating_sub(p).abs_diff(self.ts_ns));
@@ -254,9 +271,8 @@ impl TimingAcc {
             self.prev_wake = Some(m.t_wake_ns);
             if missed {
                 t.misses += 1;
-            } else if m.t_torque_rx_ns > 0 {
-                t.round_trip
-                    .record(m.t_torque_rx_ns.saturating_sub(m.t_state_pub_ns));
+            } else if let Some(rt) = round_trip_ns(&m) {
+                t.round_trip.record(rt);
             }
             t.late_dropped = t.late_dropped.max(m.late_dropped);
         } else {

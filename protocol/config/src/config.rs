@@ -998,14 +998,17 @@ fn secs(x: f64) -> String {
     show_num((x * 1e9).round() / 1e9)
 }
 
+/// The longest hold, s: a day (a run streams, so only the disk bounds its length).
+pub const MAX_HOLD_S: f64 = 86_400.0;
+
 impl ScenarioSection {
     /// `[scenario]`: the hold, and the segments (only, and at least one, with `custom`).
     fn validate(&self) -> Result<(), ConfigError> {
         check(
             "scenario.hold_s",
             self.hold_s,
-            (0.0..=3600.0).contains(&self.hold_s),
-            "0 <= hold_s <= 3600 s",
+            (0.0..=MAX_HOLD_S).contains(&self.hold_s),
+            "0 <= hold_s <= 86400 s (24 h)",
         )?;
         match (self.path, self.segments.is_empty()) {
             (PathKind::Custom, true) => {

@@ -1,0 +1,512 @@
+//! `deltaloop soak CONFIG --duration 2h`: the loop for as long as asked. The scenario's motion
+//! runs once and the end point is held for the rest of the duration (`scenario.hold_s`), through
+//! the normal run path: the run folder, its trace, timing files and histograms are those of
+//! `deltaloop run`, streamed to disk as ticks finish (memory does not grow), and Ctrl-C leaves
+//! every tick so far on disk. On top of that soak shows a progress line and prints a summary per
+//! minute of loop time (ticks, misses, round-trip percentiles of that minute, the RSS of the three
+//! processes), fed by [`crate::tick_hook`] from the run's own observer: the run's spare observer
+//! slot stays free for `deltaloop top`.
+
+use crate::run::{self, Overrides};
+use crate::timing::{self, Percentiles, Seen};
+use anyhow::{Result, bail};
+use deltaloop_config::LoopMode;
+use deltaloop_transport::wire;
+use hdrhistogram::Histogram;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// The longest soak: the longest hold the config allows (a day).
+pub const MAX_DURATION: Duration = Duration::from_secs(deltaloop_config::config::MAX_HOLD_S as u64);
+
+/// Parses a duration such as `90s`, `10m`, `2h`, `1h30m` (humantime); 1 s ..= 24 h.
+pub fn parse_duration(s: &str) -> Result<Duration, String> {
+    let d = humantime::parse_duration(s.trim()).map_err(|e| {
+        format!("`{s}` is not a duration ({e}): expected e.g. 90s, 10m, 2h or 1h30m")
+    })?;
+    if d < Duration::from_secs(1) || d > MAX_DURATION {
+        return Err(format!("`{s}` is out of range: a soak lasts 1s ..= 24h"));
+    }
+    Ok(d)
+}
+
+/// Disk a run writes per tick, bytes: `trace.csv` ≈ 630 B and `<law>.timing.csv` ≈ 106 B a tick
+/// (measured on a lockstep S1 run of 202 668 ticks), rounded up.
+pub const BYTES_PER_TICK: u64 = 750;
+
+/// Free bytes of the file system that holds `path` (or its nearest existing ancestor).
+fn free_bytes(path: &Path) -> Option<u64> {
+    let abs = std::path::absolute(path).ok()?;
+    let dir = abs.ancestors().find(|p| p.exists())?;
+    let c = std::ffi::CString::new(dir.as_os_str().as_encoded_bytes()).ok()?;
+    // SAFETY: statvfs writes into the struct we own; the path is a valid C string.
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    if unsafe { libc::statvfs(c.as_ptr(), &mut st) } != 0 {
+        return None;
+    }
+    Some(st.f_bavail as u64 * st.f_frsize as u64)
+}
+
+/// Err with one line if a run of `ticks` ticks would not fit in `free` bytes.
+pub fn check_disk(ticks: u64, free: u64, dir: &Path, duration: &str) -> Result<(), String> {
+    let need = ticks.saturating_mul(BYTES_PER_TICK);
+    if need <= free {
+        return Ok(());
+    }
+    let gb = |b: u64| b as f64 / 1e9;
+    Err(format!(
+        "--duration {duration} writes about {:.1} GB ({ticks} ticks of ≈ {BYTES_PER_TICK} B in trace.csv and timing.csv) but {} has {:.1} GB free: choose a shorter --duration or another --out",
+        gb(need),
+        dir.display(),
+        gb(free)
+    ))
+}
+
+/// One minute of loop time (ticks k with ⌊k·Ts / 60 s⌋ = index − 1).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Minute {
+    /// 1-based.
+    pub index: u64,
+    /// Ticks of the loop seen in this minute (with telemetry).
+    pub ticks: u64,
+    /// Ticks the plant marked missed.
+    pub misses: u64,
+    /// Round trip of this minute's ticks, µs.
+    pub round_trip: Percentiles,
+    /// Loop time this minute covers, s (60 but for the last one).
+    pub span_s: f64,
+}
+
+/// Per-minute accounting of a run's finished ticks, in fixed memory (one histogram reused).
+pub struct MinuteAcc {
+    ticks_per_minute: u64,
+    ts_s: f64,
+    minute: u64,
+    ticks: u64,
+    misses: u64,
+    first_k: Option<u64>,
+    last_k: u64,
+    round_trip: Histogram<u64>,
+    /// Ticks and misses of the whole run so far.
+    pub total_ticks: u64,
+    pub total_misses: u64,
+    /// Finished minutes not yet printed.
+    pub done: Vec<Minute>,
+}
+
+impl MinuteAcc {
+    /// For a loop of period `ts_s` (s).
+    pub fn new(ts_s: f64) -> Self {
+        Self {
+            ticks_per_minute: (60.0 / ts_s).round().max(1.0) as u64,
+            ts_s,
+            minute: 0,
+            ticks: 0,
+            misses: 0,
+            first_k: None,
+            last_k: 0,
+            round_trip: timing::latency_histogram(),
+            total_ticks: 0,
+            total_misses: 0,
+            done: Vec::new(),
+        }
+    }
+
+    /// Adds a finished tick; ticks without loop telemetry (the state after the run, a safe stop)
+    /// are not part of the loop.
+    pub fn push(&mut self, seen: &Seen) {
+        let Some(m) = seen.tel.filter(|m| m.flags & wire::TEL_SAFE_STOP == 0) else {
+            return;
+        };
+        let minute = seen.k / self.ticks_per_minute;
+        if minute != self.minute && self.first_k.is_some() {
+            self.close();
+        }
+        self.minute = minute;
+        self.first_k.get_or_insert(seen.k);
+        self.last_k = seen.k;
+        self.ticks += 1;
+        self.total_ticks += 1;
+        if m.flags & wire::TEL_MISSED != 0 {
+            self.misses += 1;
+            self.total_misses += 1;
+        } else if let Some(rt) = timing::round_trip_ns(&m) {
+            self.round_trip.saturating_record(rt.max(1));
+        }
+    }
+
+    /// Ends the current minute (at the end of the run: a partial one), if it holds any tick.
+    pub fn close(&mut self) {
+        let Some(first) = self.first_k.take() else {
+            return;
+        };
+        self.done.push(Minute {
+            index: self.minute + 1,
+            ticks: self.ticks,
+            misses: self.misses,
+            round_trip: timing::percentiles(&self.round_trip),
+            span_s: (self.last_k - first + 1) as f64 * self.ts_s,
+        });
+        self.ticks = 0;
+        self.misses = 0;
+        self.round_trip.reset();
+    }
+}
+
+/// Resident memory of the three processes now, MiB (None: not found or not readable).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Rss {
+    pub supervisor: Option<f64>,
+    pub plant: Option<f64>,
+    pub controller: Option<f64>,
+}
+
+/// VmRSS of a process, MiB.
+fn vm_rss_mib(pid: &str) -> Option<f64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let kib: f64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kib / 1024.0)
+}
+
+/// The supervisor's (this process) and its children's resident memory: a child whose arguments
+/// carry `--law` is the controller, the other the plant.
+pub fn rss_now() -> Rss {
+    let me = std::process::id().to_string();
+    let mut rss = Rss {
+        supervisor: vm_rss_mib("self"),
+        ..Rss::default()
+    };
+    let Ok(dir) = std::fs::read_dir("/proc") else {
+        return rss;
+    };
+    for e in dir.flatten() {
+        let pid = e.file_name().to_string_lossy().into_owned();
+        if !pid.bytes().all(|b| b.is_ascii_digit()) {
+            continue;
+        }
+        // /proc/<pid>/stat: "pid (comm) state ppid …"; comm may hold spaces and parentheses.
+        let Ok(stat) = std::fs::read_to_string(e.path().join("stat")) else {
+            continue;
+        };
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1));
+        if ppid != Some(me.as_str()) {
+            continue;
+        }
+        let cmd = std::fs::read(e.path().join("cmdline")).unwrap_or_default();
+        let is_controller = cmd.split(|&b| b == 0).any(|a| a == b"--law");
+        let slot = if is_controller {
+            &mut rss.controller
+        } else {
+            &mut rss.plant
+        };
+        *slot = vm_rss_mib(&pid);
+    }
+    rss
+}
+
+/// `m:ss` or `h:mm:ss`.
+pub fn clock(s: f64) -> String {
+    let s = s.max(0.0).round() as u64;
+    if s >= 3600 {
+        format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
+    } else {
+        format!("{}:{:02}", s / 60, s % 60)
+    }
+}
+
+/// The summary line of one minute.
+pub fn minute_line(m: &Minute, rss: &Rss) -> String {
+    let mib = |v: Option<f64>| v.map_or("?".into(), |v| format!("{v:.1}"));
+    let from = (m.index - 1) as f64 * 60.0;
+    let rt = &m.round_trip;
+    format!(
+        "minute {} ({}–{}{}): {} ticks, {} misses, round trip p50 {:.1} µs p99.9 {:.1} µs max {:.1} µs; RSS MiB supervisor {} plant {} controller {}",
+        m.index,
+        clock(from),
+        clock(from + m.span_s),
+        if m.span_s < 59.5 { ", partial" } else { "" },
+        m.ticks,
+        m.misses,
+        rt.p50_us,
+        rt.p999_us,
+        rt.max_us,
+        mib(rss.supervisor),
+        mib(rss.plant),
+        mib(rss.controller)
+    )
+}
+
+/// What `deltaloop soak` was asked for.
+pub struct Request<'a> {
+    pub config: &'a Path,
+    pub duration: Duration,
+    pub mode: LoopMode,
+    pub overrides: &'a Overrides,
+    pub out: Option<PathBuf>,
+    pub force: bool,
+    pub command: &'a str,
+    /// Draw a progress bar (stderr is a terminal); else a plain progress line every 10 s.
+    pub tty: bool,
+}
+
+/// Runs the soak: the run's table and folder on stdout at the end, like `deltaloop run`.
+pub fn soak(r: Request<'_>) -> Result<()> {
+    if !r.mode.is_process() {
+        bail!(
+            "--mode {}: a soak runs the loop's processes (realtime or lockstep)",
+            r.mode.name()
+        );
+    }
+    let mut cfg = run::load_config(r.config, r.overrides)?;
+    if cfg.controller.laws.len() != 1 {
+        let names: Vec<String> = cfg.controller.laws.iter().map(|l| l.to_string()).collect();
+        bail!(
+            "a soak runs one law; {} lists {} ({}): choose one with --law",
+            r.config.display(),
+            names.len(),
+            names.join(", ")
+        );
+    }
+    let motion = cfg.motion_duration_s();
+    let want = r.duration.as_secs_f64();
+    if want < motion {
+        bail!(
+            "--duration {}: the scenario's motion alone lasts {motion} s; ask for at least that",
+            humantime::format_duration(r.duration)
+        );
+    }
+    cfg.scenario.hold_s = want - motion;
+    cfg.validate()?;
+    let ts = cfg.loop_.ts_s;
+    let total = cfg.ticks(motion) + 1;
+    let out = r
+        .out
+        .unwrap_or_else(|| crate::output::default_run_dir(&format!("soak-{}", cfg.name)));
+
+    let shown = humantime::format_duration(r.duration).to_string();
+    if let Some(free) = free_bytes(&out) {
+        check_disk(total, free, &out, &shown).map_err(|e| anyhow::anyhow!(e))?;
+    }
+    let acc = Arc::new(Mutex::new(MinuteAcc::new(ts)));
+    let hook = {
+        let acc = acc.clone();
+        crate::tick_hook::install(move |seen| {
+            if let Ok(mut a) = acc.lock() {
+                a.push(seen);
+            }
+        })
+    };
+    eprintln!(
+        "soak: {shown} of {} in {} mode ({} ticks; the motion, then a hold of {:.1} s); run folder {}",
+        cfg.name,
+        r.mode.name(),
+        total,
+        cfg.scenario.hold_s,
+        out.display()
+    );
+    let done = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let reporter = {
+        let (acc, done, tty) = (acc.clone(), done.clone(), r.tty);
+        std::thread::spawn(move || report(&acc, &done, total, ts, tty))
+    };
+    let result = run::run(cfg, r.mode, Some(out), r.force, false, r.command);
+    drop(hook);
+    if let Ok(mut a) = acc.lock() {
+        a.close();
+    }
+    done.store(true, std::sync::atomic::Ordering::Release);
+    let _ = reporter.join();
+    let o = result?;
+    use std::io::Write;
+    for n in &o.notes {
+        let _ = writeln!(std::io::stderr(), "{n}");
+    }
+    let mut stdout = std::io::stdout().lock();
+    let _ = write!(stdout, "{}", o.table);
+    let _ = writeln!(stdout, "run folder: {}", o.dir.display());
+    Ok(())
+}
+
+/// The reporter thread: the progress line, and each finished minute's summary on stdout (with
+/// the RSS read when the minute is printed).
+fn report(
+    acc: &Mutex<MinuteAcc>,
+    done: &std::sync::atomic::AtomicBool,
+    total: u64,
+    ts: f64,
+    tty: bool,
+) {
+    use std::io::Write;
+    let bar = if tty {
+        let pb = indicatif::ProgressBar::new(total);
+        pb.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{elapsed_precise} [{bar:30}] {pos}/{len} ticks  {msg}",
+            )
+            .expect("a valid template")
+            .progress_chars("=> "),
+        );
+        pb
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let started = Instant::now();
+    let mut last_plain = Instant::now();
+    // Sampled every few seconds, each process's newest reading kept: the last minute is printed
+    // after the children have exited.
+    let mut rss = Rss::default();
+    let mut last_rss: Option<Instant> = None;
+    loop {
+        let finished = done.load(std::sync::atomic::Ordering::Acquire);
+        let (minutes, ticks, misses) = match acc.lock() {
+            Ok(mut a) => (std::mem::take(&mut a.done), a.total_ticks, a.total_misses),
+            Err(_) => return,
+        };
+        let progress = format!(
+            "{ticks} ticks ({} of loop time), {misses} misses",
+            clock(ticks as f64 * ts)
+        );
+        bar.set_position(ticks);
+        bar.set_message(format!("{misses} misses"));
+        if !finished && last_rss.is_none_or(|t| t.elapsed() >= Duration::from_secs(2)) {
+            last_rss = Some(Instant::now());
+            let now = rss_now();
+            rss = Rss {
+                supervisor: now.supervisor.or(rss.supervisor),
+                plant: now.plant.or(rss.plant),
+                controller: now.controller.or(rss.controller),
+            };
+        }
+        if !minutes.is_empty() {
+            for m in &minutes {
+                let line = minute_line(m, &rss);
+                bar.suspend(|| {
+                    let _ = writeln!(std::io::stdout(), "{line}");
+                });
+            }
+        }
+        if !tty && last_plain.elapsed() >= Duration::from_secs(10) {
+            last_plain = Instant::now();
+            let _ = writeln!(
+                std::io::stderr(),
+                "soak: {} elapsed, {progress}",
+                clock(started.elapsed().as_secs_f64())
+            );
+        }
+        if finished {
+            bar.finish_and_clear();
+            let _ = writeln!(
+                std::io::stderr(),
+                "soak: ended after {}: {progress}",
+                clock(started.elapsed().as_secs_f64())
+            );
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(250));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use deltaloop_transport::wire::TelemetryMsg;
+
+    fn seen(k: u64, rt_ns: u64, flags: u32) -> Seen {
+        Seen {
+            k,
+            tel: Some(TelemetryMsg {
+                tick: k,
+                flags,
+                t_state_pub_ns: 1_000,
+                t_torque_rx_ns: if flags & wire::TEL_MISSED != 0 {
+                    0
+                } else {
+                    1_000 + rt_ns
+                },
+                ..TelemetryMsg::default()
+            }),
+            ..Seen::default()
+        }
+    }
+
+    #[test]
+    fn durations_parse_like_humantime_and_are_bounded() {
+        assert_eq!(parse_duration("90s"), Ok(Duration::from_secs(90)));
+        assert_eq!(parse_duration("10m"), Ok(Duration::from_secs(600)));
+        assert_eq!(parse_duration("2h"), Ok(Duration::from_secs(7200)));
+        assert_eq!(parse_duration("1h 30m"), Ok(Duration::from_secs(5400)));
+        let e = parse_duration("2 fortnights").unwrap_err();
+        assert!(
+            e.contains("`2 fortnights` is not a duration") && e.contains("2h"),
+            "{e}"
+        );
+        assert!(parse_duration("25h").unwrap_err().contains("1s ..= 24h"));
+        assert!(parse_duration("500ms").is_err());
+    }
+
+    /// Ticks fall into minutes by their loop time; each minute has its own percentiles and misses;
+    /// the safe stop and ticks without telemetry are not counted; the last minute is partial.
+    #[test]
+    fn minutes_split_by_loop_time_with_their_own_percentiles() {
+        // Ts = 1 s: 60 ticks a minute.
+        let mut a = MinuteAcc::new(1.0);
+        for k in 0..150 {
+            let rt = if k < 60 { 10_000 } else { 20_000 };
+            let flags = if k == 70 || k == 71 {
+                wire::TEL_MISSED
+            } else {
+                0
+            };
+            a.push(&seen(k, rt, flags));
+        }
+        a.push(&Seen {
+            k: 150,
+            ..Seen::default()
+        });
+        a.push(&seen(151, 1, wire::TEL_SAFE_STOP));
+        a.close();
+        let m = &a.done;
+        assert_eq!(m.len(), 3);
+        assert_eq!((m[0].index, m[0].ticks, m[0].misses), (1, 60, 0));
+        assert_eq!((m[1].index, m[1].ticks, m[1].misses), (2, 60, 2));
+        assert_eq!((m[2].index, m[2].ticks, m[2].span_s), (3, 30, 30.0));
+        assert!((m[0].round_trip.max_us - 10.0).abs() < 0.02);
+        assert!((m[1].round_trip.p50_us - 20.0).abs() < 0.03);
+        assert_eq!(m[1].round_trip.count, 58);
+        assert_eq!((a.total_ticks, a.total_misses), (150, 2));
+        let line = minute_line(&m[2], &Rss::default());
+        assert!(
+            line.starts_with("minute 3 (2:00–2:30, partial): 30 ticks, 0 misses"),
+            "{line}"
+        );
+    }
+
+    #[test]
+    fn a_soak_that_would_fill_the_disk_is_refused_up_front() {
+        let ticks = 288_000_000; // 24 h at 3.3 kHz
+        let e = check_disk(ticks, 59_000_000_000, Path::new("runs/x"), "1day").unwrap_err();
+        assert!(
+            e.starts_with("--duration 1day writes about 216.0 GB"),
+            "{e}"
+        );
+        assert!(e.contains("runs/x has 59.0 GB free"), "{e}");
+        assert!(check_disk(12_000_000, 59_000_000_000, Path::new("."), "1h").is_ok());
+        assert!(free_bytes(Path::new("no/such/dir/below/cwd")).is_some_and(|b| b > 0));
+    }
+
+    #[test]
+    fn rss_of_this_process_is_read() {
+        let r = rss_now();
+        assert!(r.supervisor.is_some_and(|m| m > 0.5), "{r:?}");
+    }
+}

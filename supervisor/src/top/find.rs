@@ -1,0 +1,149 @@
+//! Which runs are live on this machine, and what they run: run ids from the iceoryx2 nodes that
+//! are alive (`deltaloop-plant-<run id>`), and the law, mode and config of a run from the command
+//! lines of its processes (every loop process gets `--run-id`, `--config`, `--mode`, and the
+//! controller `--law`: docs/protocol.md §11).
+
+use deltaloop_config::{Law, LoopMode};
+use deltaloop_transport::ipc::{self, Svc};
+use iceoryx2::node::NodeView;
+use iceoryx2::prelude::*;
+use std::path::PathBuf;
+
+/// The node name prefix of a run's plant: the plant publishes everything `top` reads, so a run
+/// is live while its plant's node is.
+const PLANT_NODE: &str = "deltaloop-plant-";
+
+/// Run ids whose plant node is alive, sorted.
+pub fn live_run_ids() -> Vec<String> {
+    let mut ids = Vec::new();
+    let _ = Node::<Svc>::list(&ipc::config(), |state| {
+        if let NodeState::Alive(view) = state
+            && let Some(d) = view.details()
+            && let Some(rid) = d.name().to_string().strip_prefix(PLANT_NODE)
+        {
+            ids.push(rid.to_string());
+        }
+        CallbackProgression::Continue
+    });
+    ids.sort();
+    ids.dedup();
+    ids
+}
+
+/// Whether run `run_id`'s plant node is alive.
+pub fn is_live(run_id: &str) -> bool {
+    live_run_ids().iter().any(|r| r == run_id)
+}
+
+/// What the command lines of a run's processes say about it (None: not found, e.g. a process in
+/// another PID namespace).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RunInfo {
+    pub run_id: String,
+    pub law: Option<Law>,
+    pub mode: Option<LoopMode>,
+    /// The resolved config the children read (`<run folder>/config.toml`).
+    pub config: Option<PathBuf>,
+}
+
+impl RunInfo {
+    /// Fills in what one process's arguments say, if they carry `--run-id <run_id>`.
+    pub fn learn_from(&mut self, args: &[String]) {
+        let value = |flag: &str| {
+            args.iter()
+                .position(|a| a == flag)
+                .and_then(|i| args.get(i + 1))
+        };
+        if value("--run-id") != Some(&self.run_id) {
+            return;
+        }
+        if let Some(l) = value("--law").and_then(|l| Law::parse(l).ok()) {
+            self.law = Some(l);
+        }
+        if let Some(m) = value("--mode").and_then(|m| LoopMode::parse(m).ok()) {
+            self.mode = Some(m);
+        }
+        if let Some(c) = value("--config") {
+            self.config = Some(PathBuf::from(c));
+        }
+    }
+
+    /// One line for a list of runs.
+    pub fn describe(&self) -> String {
+        format!(
+            "{}  law {}  mode {}  config {}",
+            self.run_id,
+            self.law.map_or("?".into(), |l| l.to_string()),
+            self.mode.map_or("?", LoopMode::name),
+            self.config
+                .as_ref()
+                .map_or("?".into(), |c| c.display().to_string())
+        )
+    }
+}
+
+/// Reads `/proc/*/cmdline` for the processes of `run_id`.
+pub fn run_info(run_id: &str) -> RunInfo {
+    let mut info = RunInfo {
+        run_id: run_id.to_string(),
+        ..RunInfo::default()
+    };
+    let Ok(dir) = std::fs::read_dir("/proc") else {
+        return info;
+    };
+    for entry in dir.flatten() {
+        if !entry
+            .file_name()
+            .to_string_lossy()
+            .bytes()
+            .all(|b| b.is_ascii_digit())
+        {
+            continue;
+        }
+        let Ok(raw) = std::fs::read(entry.path().join("cmdline")) else {
+            continue;
+        };
+        if !raw.windows(run_id.len()).any(|w| w == run_id.as_bytes()) {
+            continue;
+        }
+        let args: Vec<String> = raw
+            .split(|&b| b == 0)
+            .map(|a| String::from_utf8_lossy(a).into_owned())
+            .collect();
+        info.learn_from(&args);
+    }
+    info
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(s: &str) -> Vec<String> {
+        s.split(' ').map(str::to_string).collect()
+    }
+
+    /// The plant says mode and config, the controller the law too; another run's process and a
+    /// flag without a value say nothing.
+    #[test]
+    fn run_info_comes_from_the_run_s_own_command_lines() {
+        let mut i = RunInfo {
+            run_id: "ab-1".into(),
+            ..RunInfo::default()
+        };
+        i.learn_from(&args(
+            "deltaloop-plant --run-id ab-1 --config /r/config.toml --mode lockstep",
+        ));
+        i.learn_from(&args(
+            "deltaloop-controller --run-id ab-2 --law pid --mode realtime",
+        ));
+        assert_eq!(i.law, None);
+        i.learn_from(&args(
+            "ctl --run-id ab-1 --mode lockstep --law tdc-is-sta --config",
+        ));
+        assert_eq!(i.mode, Some(LoopMode::Lockstep));
+        assert_eq!(i.law, Some(Law::TdcIsSta));
+        assert_eq!(i.config, Some(PathBuf::from("/r/config.toml")));
+        assert!(i.describe().contains("law tdc-is-sta  mode lockstep"));
+    }
+}
