@@ -9,6 +9,27 @@ use std::time::{Duration, Instant};
 const BIN: &str = env!("CARGO_BIN_EXE_deltaloop");
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
+/// Installs tmux with apt-get, as the Python tests install their venv: only where that works
+/// without asking (root, apt-get present, no standard input); otherwise the caller's assertion
+/// says what to install.
+fn install_tmux() {
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 || Command::new("apt-get").arg("--version").output().is_err()
+    {
+        return;
+    }
+    for args in [
+        &["update", "-qq"][..],
+        &["install", "-y", "-qq", "tmux"][..],
+    ] {
+        let _ = Command::new("apt-get")
+            .args(args)
+            .env("DEBIAN_FRONTEND", "noninteractive")
+            .stdin(std::process::Stdio::null())
+            .output();
+    }
+}
+
 /// A private tmux server (its own socket), killed when dropped.
 struct Tmux {
     socket: String,
@@ -16,10 +37,18 @@ struct Tmux {
 
 impl Tmux {
     fn new() -> Self {
-        let found = Command::new("tmux").arg("-V").output();
+        let has_tmux = || {
+            Command::new("tmux")
+                .arg("-V")
+                .output()
+                .is_ok_and(|o| o.status.success())
+        };
+        if !has_tmux() {
+            install_tmux();
+        }
         assert!(
-            found.is_ok_and(|o| o.status.success()),
-            "tmux is not installed: this test drives `deltaloop top` in a tmux pane; install it (apt-get install tmux)"
+            has_tmux(),
+            "tmux is not installed and could not be installed here: this test drives `deltaloop top` in a tmux pane; install it (apt-get install tmux)"
         );
         Self {
             socket: format!("deltaloop-top-test-{}", std::process::id()),
