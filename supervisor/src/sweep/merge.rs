@@ -105,6 +105,7 @@ pub fn gather(dirs: &[PathBuf], opts: Options) -> Result<Merged> {
     let n = plan.points.len();
     let mut slot: Vec<Option<(Row, usize)>> = vec![None; n];
     let mut listed: Vec<Option<usize>> = vec![None; n];
+    let mut dups: Vec<(usize, usize, usize)> = Vec::new();
     for (k, (d, m)) in dirs.iter().zip(&manifests).enumerate() {
         let shown = d.display();
         for id in &m.points {
@@ -155,23 +156,35 @@ pub fn gather(dirs: &[PathBuf], opts: Options) -> Result<Merged> {
             }
             match &slot[i] {
                 // An interrupted row is no result: a finished one replaces it.
-                Some((old, _)) if old.is_result() && r.is_result() => {
-                    let (_, k0) = slot[i].as_ref().expect("slot");
-                    let whr = if *k0 == k {
-                        format!("twice in shard {shown}")
-                    } else {
-                        format!("in two shards: {} and {shown}", dirs[*k0].display())
-                    };
-                    bail!(
-                        "sweep merge: point {} ({}) is {whr}; merge each point once (drop one of the folders, or re-run one without it)",
-                        p.id,
-                        p.label()
-                    );
-                }
+                Some((old, k0)) if old.is_result() && r.is_result() => dups.push((i, *k0, k)),
                 Some((old, _)) if old.is_result() => {}
                 _ => slot[i] = Some((r, k)),
             }
         }
+    }
+    if !dups.is_empty() {
+        dups.sort_unstable();
+        let mut named: Vec<String> = dups
+            .iter()
+            .take(10)
+            .map(|&(i, k0, k)| {
+                let p = &plan.points[i];
+                let whr = if k0 == k {
+                    format!("twice in {}", dirs[k].display())
+                } else {
+                    format!("in {} and {}", dirs[k0].display(), dirs[k].display())
+                };
+                format!("{} ({}) {whr}", p.id, p.label())
+            })
+            .collect();
+        if dups.len() > 10 {
+            named.push(format!("and {} more", dups.len() - 10));
+        }
+        bail!(
+            "sweep merge: {} point(s) merged more than once: {}; merge each point once (drop one of the folders, or re-run one without the point)",
+            dups.len(),
+            named.join(", ")
+        );
     }
     let missing: Vec<usize> = (0..n)
         .filter(|&i| !slot[i].as_ref().is_some_and(|(r, _)| r.is_result()))

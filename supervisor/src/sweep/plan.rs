@@ -297,3 +297,90 @@ pub fn ranges_text(indices: &[usize]) -> String {
     }
     parts.join(",")
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn points_and_shards_select_what_they_say() {
+        let p = |s: &str| Selection::parse_points(s).unwrap().indices(10);
+        assert_eq!(p("3").unwrap(), [3]);
+        assert_eq!(p("7-9,0,2-3").unwrap(), [0, 2, 3, 7, 8, 9]);
+        assert_eq!(
+            format!("{:#}", p("8-10").unwrap_err()),
+            "--points 8-10: the plan has 10 points, indices 0-9"
+        );
+        assert_eq!(
+            format!("{:#}", p("1-4,3").unwrap_err()),
+            "--points lists point 3 twice: each at most once"
+        );
+        for bad in ["", "a", "3-", "-3", "4-2", "1,,2", "1.5"] {
+            assert!(Selection::parse_points(bad).is_err(), "{bad:?}");
+        }
+        // Shards are strided, cover every point once, and may be empty.
+        let shard = |s: &str, n| Selection::parse_shard(s).unwrap().indices(n).unwrap();
+        assert_eq!(shard("2/4", 10), [1, 5, 9]);
+        let mut all: Vec<usize> = (1..=4).flat_map(|k| shard(&format!("{k}/4"), 10)).collect();
+        all.sort_unstable();
+        assert_eq!(all, (0..10).collect::<Vec<_>>());
+        assert!(shard("16/16", 10).is_empty());
+        for bad in ["0/3", "4/3", "1/0", "2", "a/b", "1/2/3"] {
+            assert_eq!(
+                Selection::parse_shard(bad).unwrap_err(),
+                format!("--shard {bad:?} is out of range: K/N with 1 <= K <= N, e.g. 2/16")
+            );
+        }
+        assert_eq!(ranges_text(&[0, 1, 2, 5, 7, 8]), "0-2,5,7-8");
+        assert_eq!(ranges_text(&[]), "");
+    }
+
+    fn plan_of(sweep: &str, base: &str) -> Plan {
+        let sw: SweepFile = toml::from_str(sweep).unwrap();
+        Plan::new(sw, RunConfig::from_toml_str(base, None).unwrap()).unwrap()
+    }
+
+    const SWEEP: &str = "name = \"ids\"\nbase = \"base.toml\"\nscenarios = [\"s1\", \"s2\"]\npresets = [\"matched\"]\nlaws = [\"tdc\", \"pid\"]\ntde_delay_samples = [1, 2]\ntransport_delay_samples = [0]\ntransport_delay_us = [0, 45]\n";
+    const BASE: &str = "[scenario]\npath = \"s1\"\n";
+
+    /// Ids are index + parameter hash: the same plan gives the same ids and hash whatever the
+    /// base file is called; a changed value changes the hash and the ids of the points it
+    /// touches, not the others'.
+    #[test]
+    fn point_ids_and_plan_hash_are_stable() {
+        let a = plan_of(SWEEP, BASE);
+        let ids: Vec<&str> = a.points.iter().map(|p| p.id.as_str()).collect();
+        assert_eq!(ids.len(), 12);
+        assert!(
+            ids.iter()
+                .enumerate()
+                .all(|(i, id)| id.starts_with(&format!("{i:04}-")) && id.len() == 13)
+        );
+        let b = plan_of(&SWEEP.replace("base.toml", "elsewhere/other.toml"), BASE);
+        assert_eq!(a.hash, b.hash);
+        assert!(a.points.iter().zip(&b.points).all(|(x, y)| x.id == y.id));
+        assert_eq!(a.find(&a.points[7].id), Some(7));
+        assert_eq!(a.find("0007-00000000"), None);
+        // The hash of point 0 is its parameters' alone.
+        let c = plan_of(&SWEEP.replace("[1, 2]", "[1, 3]"), BASE);
+        assert_ne!(a.hash, c.hash);
+        assert_eq!(a.points[0].id, c.points[0].id);
+        assert_ne!(a.points[1].id, c.points[1].id);
+        // A base constant is part of the plan, not of the ids.
+        let d = plan_of(
+            SWEEP,
+            "[scenario]\npath = \"s1\"\n[plant]\nfriction = true\n",
+        );
+        assert_ne!(a.hash, d.hash);
+        assert_eq!(a.points[5].id, d.points[5].id);
+        // Lockstep runs the same axes in another mode: other ids.
+        let e = plan_of(&format!("mode = \"lockstep\"\n{SWEEP}"), BASE);
+        assert_ne!(a.points[0].id, e.points[0].id);
+        // The shipped copy (as `plan --json` gives it) parses back to the same plan.
+        let back = plan_of(
+            &toml::to_string_pretty(&a.sweep).unwrap(),
+            &a.base.to_toml_string(),
+        );
+        assert_eq!(back.hash, a.hash);
+    }
+}
