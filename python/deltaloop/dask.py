@@ -4,8 +4,8 @@
     python -m deltaloop.dask configs/delay-sweep.toml --slurm configs/slurm.toml --out runs/sweep
 
 The driver asks the local ``deltaloop`` for the plan (``deltaloop sweep plan FILE --json``), submits
-one task per batch of points, writes each batch's shard folder as its result arrives, and at the
-end runs ``deltaloop sweep merge`` on them: the same ``sweep.csv``, ``sweep.json``, report and
+one task per batch of points, appends each batch's rows to its shard folder ``OUT.shard`` as they
+arrive, and at the end runs ``deltaloop sweep merge`` on it: the same ``sweep.csv``, ``sweep.json``, report and
 plots as ``deltaloop sweep FILE`` on one machine.
 
 Each task runs ``deltaloop sweep run`` on its worker, in a temporary folder, from a copy of the
@@ -165,23 +165,45 @@ class Result:
     tasks: int = 0
 
 
-def _write_shard(shards: Path, res: dict, sweep_file: str) -> Path:
-    idx = res["indices"]
-    d = shards / f"{idx[0]:06d}-{idx[-1]:06d}"
-    if d.exists():
-        shutil.rmtree(d)
-    d.mkdir(parents=True)
-    for name, text in res["files"].items():
-        if name == "shard.json":
-            # The worker ran a shipped copy: name the file the user gave, as the report does.
-            m = json.loads(text)
-            m["sweep_file"] = sweep_file
-            text = json.dumps(m, indent=2) + "\n"
-        (d / name).write_text(text)
-    if res["points_tar"]:
-        with tarfile.open(fileobj=io.BytesIO(res["points_tar"]), mode="r:gz") as t:
-            t.extractall(d, filter="data")
-    return d
+class _Shard:
+    """The driver's shard folder, grown as results arrive: one ``sweep.csv`` (rows appended),
+    the sweep and base, the points' run folders, and ``shard.json`` listing what arrived."""
+
+    def __init__(self, d: Path, sweep_file: str):
+        self.dir, self.sweep_file = d, sweep_file
+        self.csv = None
+        self.manifest = None
+        self.ids: list[str] = []
+
+    def add(self, res: dict) -> None:
+        files = res["files"]
+        m = json.loads(files["shard.json"])
+        if self.csv is None:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            for name in ("sweep.toml", "base.toml"):
+                (self.dir / name).write_text(files[name])
+            self.csv = open(self.dir / "sweep.csv", "w", newline="")
+            self.csv.write(files["sweep.csv"])
+            self.manifest = m
+        else:
+            # Same header (the same binary made it): append the rows only.
+            self.csv.write(files["sweep.csv"].split("\n", 1)[1])
+        self.csv.flush()
+        self.ids += m["points"]
+        if res["points_tar"]:
+            with tarfile.open(fileobj=io.BytesIO(res["points_tar"]), mode="r:gz") as t:
+                t.extractall(self.dir, filter="data")
+
+    def close(self) -> None:
+        """Writes ``shard.json`` (also after an interruption: it lists what arrived)."""
+        if self.csv is None:
+            return
+        self.csv.close()
+        m = dict(self.manifest)
+        # The worker ran a shipped copy: name the file the user gave, as the report does.
+        m["sweep_file"] = self.sweep_file
+        m["points"] = sorted(self.ids)
+        (self.dir / "shard.json").write_text(json.dumps(m, indent=2) + "\n")
 
 
 def _say(msg: str) -> None:
@@ -218,13 +240,12 @@ def run_sweep(
     wexe = worker_deltaloop or exe
     sweep_file = str(sweep_file)
     out = Path(out)
-    shards = Path(str(out) + ".shards")
+    shards = Path(str(out) + ".shard")
     for d in (out, shards):
         if d.exists() and any(d.iterdir()):
             if not force:
                 raise SweepError(f"{d} is not empty: choose another --out, or pass --force")
             shutil.rmtree(d)
-    shards.mkdir(parents=True, exist_ok=True)
     pl = plan(sweep_file, exe)
     points = pl["points"]
     if not isinstance(client, Client):
@@ -253,50 +274,53 @@ def run_sweep(
         return f
 
     t0 = time.monotonic()
+    shard = _Shard(shards, sweep_file)
     ac = as_completed([submit(b) for b in batches(points, batch)])
     tasks = len(futures)
     done = 0
-    for f in ac:
-        indices = futures.pop(f.key)
-        if f.status == "finished":
-            res = f.result()
-            _write_shard(shards, res, sweep_file)
-            done += len(indices)
-            first = points[indices[0]]
-            what = first["id"] if len(indices) == 1 else f"{first['id']} +{len(indices) - 1}"
-            progress(
-                f"[{done}/{len(points)}] {what} on {res['worker']} in {res['seconds']:.2f} s"
-            )
-        else:
-            err = f.exception()
-            msg = f"{type(err).__name__}: {err}"
-            if len(indices) > 1:
-                # Which point failed is unknown: retry them one by one.
-                progress(f"batch {ranges_text(indices)} failed ({msg}); retrying point by point")
-                for i in indices:
-                    errors[(i,)] = [msg]
-                    ac.add(submit([i]))
-                    tasks += 1
-                continue
-            key = tuple(indices)
-            seen = errors.setdefault(key, [])
-            seen.append(msg)
-            pid = points[indices[0]]["id"]
-            if (len(seen) >= 2 and seen[-1] == seen[-2]) or len(seen) >= 3:
-                failed[pid] = seen
-                progress(f"point {pid} ({points[indices[0]]['label']}) failed twice: {msg}")
+    try:
+        for f in ac:
+            indices = futures.pop(f.key)
+            if f.status == "finished":
+                res = f.result()
+                shard.add(res)
+                done += len(indices)
+                first = points[indices[0]]
+                what = first["id"] if len(indices) == 1 else f"{first['id']} +{len(indices) - 1}"
+                progress(
+                    f"[{done}/{len(points)}] {what} on {res['worker']} in {res['seconds']:.2f} s"
+                )
             else:
-                progress(f"point {pid} failed ({msg}); retrying")
-                ac.add(submit(indices))
-                tasks += 1
-        f.release()
+                err = f.exception()
+                msg = f"{type(err).__name__}: {err}"
+                if len(indices) > 1:
+                    # Which point failed is unknown: retry them one by one.
+                    progress(f"batch {ranges_text(indices)} failed ({msg}); retrying point by point")
+                    for i in indices:
+                        errors[(i,)] = [msg]
+                        ac.add(submit([i]))
+                        tasks += 1
+                    continue
+                key = tuple(indices)
+                seen = errors.setdefault(key, [])
+                seen.append(msg)
+                pid = points[indices[0]]["id"]
+                if (len(seen) >= 2 and seen[-1] == seen[-2]) or len(seen) >= 3:
+                    failed[pid] = seen
+                    progress(f"point {pid} ({points[indices[0]]['label']}) failed twice: {msg}")
+                else:
+                    progress(f"point {pid} failed ({msg}); retrying")
+                    ac.add(submit(indices))
+                    tasks += 1
+            f.release()
+    finally:
+        shard.close()
     run_seconds = time.monotonic() - t0
-    dirs = sorted(p for p in shards.iterdir() if p.is_dir())
-    cmd = [exe, "sweep", "merge", *map(str, dirs), "--out", str(out)]
+    if not shard.ids:
+        raise SweepError(f"no point finished; failed: {failed}")
+    cmd = [exe, "sweep", "merge", str(shards), "--out", str(out)]
     if failed:
         cmd.append("--allow-missing")
-    if not dirs:
-        raise SweepError(f"no point finished; failed: {failed}")
     m = subprocess.run(cmd, capture_output=True, text=True)
     result = Result(out, shards, len(points), failed, run_seconds, tasks)
     if failed:
@@ -410,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
     where.add_argument("--scheduler-file", help="a scheduler file (dask scheduler --scheduler-file)")
     where.add_argument("--slurm", nargs="?", const="", metavar="CONFIG",
                        help="start workers as Slurm jobs; CONFIG: a TOML file with a [slurm] section")  # fmt: skip
-    ap.add_argument("--out", required=True, help="the merged sweep folder (shards: OUT.shards)")
+    ap.add_argument("--out", required=True, help="the merged sweep folder (results: OUT.shard)")
     ap.add_argument("--force", action="store_true", help="empty and reuse a non-empty --out")
     ap.add_argument("--batch", type=int, default=1, help="points per task (default 1)")
     ap.add_argument("--deltaloop", help="the driver's deltaloop binary (default: $DELTALOOP or PATH)")

@@ -546,6 +546,7 @@ pub fn run_loaded(
     // Every point must be a valid config before anything runs.
     let plan = plan::Plan::new(sw.clone(), base.clone())?;
     let all: Vec<usize> = (0..plan.points.len()).collect();
+    plan.check_points(&all)?;
     let jobs = std::thread::available_parallelism().map_or(1, |n| n.get());
     let sweep_file = path.display().to_string();
     shard::run(&plan, &all, &sweep_file, out, jobs, progress)?;

@@ -126,6 +126,8 @@ pub fn main(a: SweepArgs) -> Result<()> {
         Some(Action::Plan { sweep, json }) => {
             let (sw, base) = super::load(&sweep)?;
             let plan = Plan::new(sw, base)?;
+            // Every point is checked here, once, before a cluster runs any.
+            plan.check_points(&(0..plan.points.len()).collect::<Vec<_>>())?;
             let shown = sweep.display().to_string();
             use std::io::Write;
             let text = if json {
@@ -150,6 +152,7 @@ pub fn main(a: SweepArgs) -> Result<()> {
             let plan = Plan::new(sw, base)?;
             let sel = points.or(shard).unwrap_or(Selection::All);
             let idx = sel.indices(plan.points.len())?;
+            plan.check_points(&idx)?;
             let out = out.unwrap_or_else(|| {
                 crate::output::default_run_dir(&format!("sweep-{}-shard", plan.sweep.name))
             });

@@ -83,13 +83,12 @@ fn params_key(job: &Job, mode: LoopMode) -> String {
 }
 
 impl Plan {
-    /// Expands `sweep` over `base`; checks the sweep's keys and that every point is a valid
-    /// config before anything runs.
+    /// Expands `sweep` over `base` and checks the sweep's keys (the points' configs are checked
+    /// by [`Plan::check_points`], for the points that run).
     pub fn new(sweep: SweepFile, base: RunConfig) -> Result<Self> {
         check(&sweep)?;
         let mut points = Vec::new();
         for (index, job) in jobs(&sweep).into_iter().enumerate() {
-            point_config(&base, &job).with_context(|| format!("sweep point {job}"))?;
             let mode = if job.realtime {
                 LoopMode::Realtime
             } else {
@@ -116,6 +115,15 @@ impl Plan {
             hash,
             points,
         })
+    }
+
+    /// Checks that the points `indices` are valid configs; the first that is not is the error.
+    pub fn check_points(&self, indices: &[usize]) -> Result<()> {
+        for &i in indices {
+            let job = &self.points[i].job;
+            point_config(&self.base, job).with_context(|| format!("sweep point {job}"))?;
+        }
+        Ok(())
     }
 
     /// The first 12 hex digits of the plan hash, for messages.
