@@ -295,6 +295,8 @@ fn dask_cluster_sweep_equals_one_machine_and_survives_a_killed_worker() {
         &d.join("scheduler.log"),
     );
     wait_for("the scheduler file", 60, || sched_file.is_file());
+    let tmpdir = d.join("tmp");
+    std::fs::create_dir(&tmpdir).unwrap();
     let workers: Vec<(u32, PathBuf)> = (0..2)
         .map(|i| {
             let log = d.join(format!("worker{i}.log"));
@@ -303,7 +305,9 @@ fn dask_cluster_sweep_equals_one_machine_and_survives_a_killed_worker() {
                     .args(["-m", "distributed.cli.dask_worker", "--scheduler-file"])
                     .arg(&sched_file)
                     .args(["--nthreads", "1", "--resources", "CPU=1", "--no-nanny"])
-                    .args(["--no-dashboard", "--host", "127.0.0.1"]),
+                    .args(["--no-dashboard", "--host", "127.0.0.1"])
+                    // A killed worker leaves its task's temporary folder: keep it in ours.
+                    .env("TMPDIR", &tmpdir),
                 &log,
             );
             (pid, log)
