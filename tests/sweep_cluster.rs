@@ -408,6 +408,27 @@ fn dask_cluster_sweep_equals_one_machine_and_survives_a_killed_worker() {
     assert!(!rows.contains(id3));
 }
 
+/// What a task holds: inproc points share batches and 1 CPU each; a realtime point runs alone
+/// with 2 CPUs and the worker's one realtime slot.
+#[test]
+fn realtime_points_run_alone_on_two_cpus() {
+    let out = common::python::py_snippet(
+        r#"
+from deltaloop.dask import batches, resources_for
+pts = [{"index": i, "mode": m} for i, m in enumerate(
+    ["inproc"] * 5 + ["realtime", "realtime"] + ["inproc"] * 3)]
+b = batches(pts, 4)
+print(b)
+print([resources_for(pts, x) for x in b])
+"#,
+    );
+    assert_eq!(
+        out.trim(),
+        "[[0, 1, 2, 3], [4], [5], [6], [7, 8, 9]]\n\
+         [{'CPU': 1}, {'CPU': 1}, {'CPU': 2, 'RT': 1}, {'CPU': 2, 'RT': 1}, {'CPU': 1}]"
+    );
+}
+
 /// The Slurm job script dask-jobqueue would submit, from a `[slurm]` section and flags.
 #[test]
 fn slurm_job_script_from_config_and_flags() {
