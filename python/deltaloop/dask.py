@@ -245,6 +245,9 @@ def run_sweep(
         if d.exists() and any(d.iterdir()):
             if not force:
                 raise SweepError(f"{d} is not empty: choose another --out, or pass --force")
+            # Like `deltaloop --force`: only a folder deltaloop wrote is emptied.
+            if not any((d / f).exists() for f in ("shard.json", "sweep.toml", ".deltaloop-lock")):
+                raise SweepError(f"{d} is not a deltaloop sweep folder: --force empties only those")
             shutil.rmtree(d)
     pl = plan(sweep_file, exe)
     points = pl["points"]
