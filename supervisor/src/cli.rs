@@ -48,17 +48,9 @@ enum Command {
         #[arg(long)]
         force: bool,
     },
-    /// Run a grid of delays × laws × scenarios × presets (see configs/delay-sweep.toml).
-    Sweep {
-        /// Sweep file (TOML).
-        sweep: PathBuf,
-        /// Output folder (default: runs/<UTC time>-sweep-<name>). Must be new or empty.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Empty and reuse a non-empty --out folder (only one that holds a deltaloop run).
-        #[arg(long)]
-        force: bool,
-    },
+    /// Run a grid of delays × laws × scenarios × presets (see configs/delay-sweep.toml); `plan`,
+    /// `run` and `merge` split it over machines.
+    Sweep(crate::sweep::cmd::SweepArgs),
     /// Re-run a finished run in-process from its folder (config, replies and arrivals in its
     /// trace) and check that it reproduces `trace.csv` byte for byte.
     Replay {
@@ -231,44 +223,7 @@ pub fn main() -> ExitCode {
             )
             .map(|s| print!("{}", crate::paper::terminal(&s, &out)))
         }
-        Command::Sweep { sweep, out, force } => crate::sweep::load(&sweep).and_then(|(sw, base)| {
-            let out = out
-                .unwrap_or_else(|| crate::output::default_run_dir(&format!("sweep-{}", sw.name)));
-            let _folder = crate::output::RunFolder::claim(&out, force)?;
-            let t0 = std::time::Instant::now();
-            let rows = crate::sweep::run_loaded(
-                &sw,
-                &base,
-                &sweep,
-                &out,
-                std::io::IsTerminal::is_terminal(&std::io::stderr()),
-            )?;
-            use crate::sweep::Status;
-            let n = |st: Status| rows.iter().filter(|r| r.status == st).count();
-            // An interrupted point is not a run that finished (and an interrupted sweep ends
-            // with an error above): it is counted apart, when there is one.
-            let interrupted = n(Status::Interrupted);
-            println!(
-                "{} runs in {:.1} s: {} ok, {} diverged, {} stopped, {} errors{}{}\nsweep folder: {}",
-                rows.len() - interrupted,
-                t0.elapsed().as_secs_f64(),
-                n(Status::Ok),
-                n(Status::Diverged),
-                n(Status::Stopped),
-                n(Status::Error),
-                match n(Status::LostData) {
-                    0 => String::new(),
-                    l => format!(", {l} lost data"),
-                },
-                if interrupted > 0 {
-                    format!(" ({interrupted} interrupted, not counted)")
-                } else {
-                    String::new()
-                },
-                out.display()
-            );
-            Ok(())
-        }),
+        Command::Sweep(args) => crate::sweep::cmd::main(args),
         Command::Replay {
             run_dir,
             out,

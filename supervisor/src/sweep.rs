@@ -2,6 +2,10 @@
 //! realtime compute-delay axis), each through the same code as `deltaloop run`. Writes
 //! `sweep.csv` (row by row, so an interrupted sweep keeps what finished), `sweep.json`,
 //! `report.md` and plots of RMS error, TDE error and δ_N against each delay.
+//!
+//! A sweep is a [`plan::Plan`] (every point with a stable id); [`shard`] runs any subset of it
+//! into a folder of its own, and [`merge`] turns shard folders into the sweep's outputs. The
+//! one-machine sweep is the same path: plan, run every point into the output folder, merge it.
 
 use crate::inproc;
 use crate::lawrun::Keep;
@@ -15,8 +19,11 @@ use deltaloop_config::{ConfigError, Law, LoopMode, Preset, RunConfig};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
+
+pub mod cmd;
+pub mod merge;
+pub mod plan;
+pub mod shard;
 
 /// The sweep file.
 #[derive(Debug, Clone, Deserialize, Serialize)]
@@ -47,8 +54,10 @@ pub struct SweepFile {
 }
 
 /// One grid point's result: a row of `sweep.csv`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Row {
+    /// The point's id in the plan (see [`plan::Plan`]).
+    pub point: String,
     pub scenario: String,
     pub preset: String,
     pub law: Law,
@@ -85,7 +94,7 @@ pub struct Row {
 }
 
 /// How a sweep point ended (`sweep.csv` column `status`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Status {
     /// Every tick ran and was recorded.
@@ -130,8 +139,9 @@ impl Row {
     }
 }
 
-#[derive(Debug, Clone)]
-struct Job {
+/// One point's parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Job {
     scenario: PathKind,
     preset: Preset,
     law: Law,
@@ -240,6 +250,7 @@ fn row(
     };
     let nan = f64::NAN;
     Row {
+        point: String::new(),
         scenario: job.scenario.name().into(),
         preset: job.preset.name().into(),
         law: job.law,
@@ -448,6 +459,12 @@ fn load_base(path: &Path) -> Result<RunConfig> {
 /// file, the sweep file and its base are read only if they are regular files of at most
 /// [`cfgfile::MAX_FILE_BYTES`].
 pub fn load(path: &Path) -> Result<(SweepFile, RunConfig)> {
+    load_with_base(path, None)
+}
+
+/// [`load`], with the base read from `base` instead of the file's `base` key when given (a copy
+/// shipped next to the sweep file; the key stays as written).
+pub fn load_with_base(path: &Path, base: Option<&Path>) -> Result<(SweepFile, RunConfig)> {
     let shown = cfgfile::show_path(path);
     let text = cfgfile::read_text_file(path)
         .map_err(|reason| anyhow::anyhow!("cannot read sweep file {shown}: {reason}"))?;
@@ -458,7 +475,10 @@ pub fn load(path: &Path) -> Result<(SweepFile, RunConfig)> {
         )
     })?;
     check(&sw)?;
-    let base_path = path.parent().unwrap_or(Path::new(".")).join(&sw.base);
+    let base_path = base.map_or_else(
+        || path.parent().unwrap_or(Path::new(".")).join(&sw.base),
+        Path::to_path_buf,
+    );
     let base = load_base(&base_path)?;
     Ok((sw, base))
 }
@@ -514,7 +534,8 @@ pub fn run(path: &Path, out: &Path, progress: bool) -> Result<Vec<Row>> {
 }
 
 /// Runs a sweep loaded by [`load`] from `path` (named in the report) into `out`; returns the
-/// rows (in grid order).
+/// rows (in plan order). The same path as a cluster sweep: the plan, every point run into `out`
+/// as one shard (`sweep.csv` grows row by row), then `out` merged into itself.
 pub fn run_loaded(
     sw: &SweepFile,
     base: &RunConfig,
@@ -523,112 +544,27 @@ pub fn run_loaded(
     progress: bool,
 ) -> Result<Vec<Row>> {
     // Every point must be a valid config before anything runs.
-    let all = jobs(sw);
-    for j in &all {
-        point_config(base, j).with_context(|| format!("sweep point {j}"))?;
-    }
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    std::fs::write(out.join("sweep.toml"), toml::to_string_pretty(sw)?)?;
-    std::fs::write(out.join("base.toml"), base.to_toml_string())?;
-    let rows = run_grid(sw, base, &all, out, progress)?;
-    std::fs::write(out.join("sweep.json"), serde_json::to_string_pretty(&rows)?)?;
-    let figures = plots(sw, &rows, out)?;
-    let mut md = report(sw, &rows, &figures, path);
-    if crate::signals::interrupted() {
-        let finished = rows.iter().filter(|r| r.is_result()).count();
-        let cut = rows.len() - finished;
-        let cut = if cut > 0 {
-            format!(
-                " The {cut} point(s) running at the stop are marked `interrupted` in sweep.csv and are not results."
-            )
-        } else {
-            String::new()
-        };
-        md.insert_str(0, &format!("> **Interrupted** (Ctrl-C / SIGTERM) after {finished} of {} runs: the tables hold the finished ones.{cut}\n\n", all.len()));
-        std::fs::write(out.join("report.md"), md)?;
+    let plan = plan::Plan::new(sw.clone(), base.clone())?;
+    let all: Vec<usize> = (0..plan.points.len()).collect();
+    plan.check_points(&all)?;
+    let jobs = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let sweep_file = path.display().to_string();
+    shard::run(&plan, &all, &sweep_file, out, jobs, progress)?;
+    let interrupted = crate::signals::interrupted();
+    let merged = merge::merge(
+        &[out.to_path_buf()],
+        out,
+        merge::Options {
+            allow_missing: interrupted,
+            interrupted,
+        },
+    )?;
+    if interrupted {
         return Err(anyhow::Error::new(crate::run::Interrupted(
             out.to_path_buf(),
         )));
     }
-    std::fs::write(out.join("report.md"), md)?;
-    Ok(rows)
-}
-
-/// Runs every job, appending each result to `sweep.csv` as it finishes: deterministic inproc
-/// points in parallel (one worker per CPU), process runs one at a time. Stops starting jobs on
-/// Ctrl-C / SIGTERM. Returns the finished rows in grid order.
-fn run_grid(
-    sw: &SweepFile,
-    base: &RunConfig,
-    all: &[Job],
-    out: &Path,
-    progress: bool,
-) -> Result<Vec<Row>> {
-    let bar = crate::output::progress_bar(all.len(), progress);
-    let writer = Mutex::new(
-        csv::Writer::from_path(out.join("sweep.csv")).context("cannot create sweep.csv")?,
-    );
-    let results: Mutex<Vec<Option<Row>>> = Mutex::new(vec![None; all.len()]);
-    let record = |i: usize, r: Row| -> Result<()> {
-        {
-            let mut w = writer.lock().expect("csv writer");
-            w.serialize(&r)?;
-            w.flush()?;
-        }
-        bar.set_message(format!(
-            "{} {} {} l={} d={} c={}us: {}",
-            r.scenario,
-            r.preset,
-            r.law,
-            r.tde_delay_samples,
-            r.transport_delay_samples,
-            r.compute_delay_us,
-            r.status
-        ));
-        bar.inc(1);
-        results.lock().expect("results")[i] = Some(r);
-        Ok(())
-    };
-    let (parallel, serial): (Vec<usize>, Vec<usize>) =
-        (0..all.len()).partition(|&i| !all[i].realtime && sw.mode == LoopMode::Inproc);
-    let next = AtomicUsize::new(0);
-    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
-    std::thread::scope(|s| -> Result<()> {
-        let handles: Vec<_> = (0..workers)
-            .map(|_| {
-                s.spawn(|| -> Result<()> {
-                    loop {
-                        if crate::signals::interrupted() {
-                            return Ok(());
-                        }
-                        let n = next.fetch_add(1, Ordering::Relaxed);
-                        let Some(&i) = parallel.get(n) else {
-                            return Ok(());
-                        };
-                        record(i, run_job(base, &all[i], sw.mode, out))?;
-                    }
-                })
-            })
-            .collect();
-        for h in handles {
-            h.join()
-                .map_err(|_| anyhow::anyhow!("sweep worker panicked"))??;
-        }
-        Ok(())
-    })?;
-    for i in serial {
-        if crate::signals::interrupted() {
-            break;
-        }
-        record(i, run_job(base, &all[i], sw.mode, out))?;
-    }
-    bar.finish_with_message("done");
-    Ok(results
-        .into_inner()
-        .expect("results")
-        .into_iter()
-        .flatten()
-        .collect())
+    Ok(merged.rows)
 }
 
 /// A point of the ℓ × d grid (not of the realtime or the sub-tick delay axis).
