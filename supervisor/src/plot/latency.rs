@@ -114,17 +114,41 @@ struct Line {
 }
 
 /// The percentile curve of `h` (ns) as (log10(1/(1 − p)), µs), up to 99.999 % or as deep as
-/// the count resolves (1/(1 − p) ≤ count).
+/// the count resolves (1/(1 − p) ≤ count), where it rises to the max (as the HdrHistogram
+/// plotter's last, infinite, point does).
 fn percentile_curve(h: &Histogram<u64>) -> Vec<(f64, f64)> {
     let deepest = (h.len() as f64).log10().min(MAX_NINES);
     let steps = (deepest * 100.0).ceil() as usize;
-    (0..=steps)
+    let mut curve: Vec<(f64, f64)> = (0..=steps)
         .map(|i| {
             let x = (i as f64 / 100.0).min(deepest);
             let p = 1.0 - 10f64.powf(-x);
             (x, h.value_at_quantile(p) as f64 / 1e3)
         })
-        .collect()
+        .collect();
+    curve.push((deepest, h.max() as f64 / 1e3));
+    curve
+}
+
+/// Labels of a log axis: plotters puts a key point at every 1..9 × 10ⁿ when the range spans
+/// less than two decades; only 1, 2 and 5 × 10ⁿ get a label, so they never crowd.
+fn log_label(v: f64) -> String {
+    if v <= 0.0 {
+        return String::new();
+    }
+    let m = v / 10f64.powf(v.log10().floor());
+    if [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .any(|k| (m - k).abs() < 1e-6 * k)
+    {
+        if v >= 10_000.0 {
+            format!("{v:.0}")
+        } else {
+            compact(v)
+        }
+    } else {
+        String::new()
+    }
 }
 
 /// A latency in µs to three significant digits or whole µs.
@@ -189,9 +213,9 @@ where
         .light_line_style(TRANSPARENT)
         .bold_line_style(RGBColor(225, 225, 225))
         .x_labels(6)
-        .y_labels(10)
+        .y_labels(20)
         .x_label_formatter(&|v| nines_label(*v))
-        .y_label_formatter(&|v| compact(*v))
+        .y_label_formatter(&|v| log_label(*v))
         .x_desc("percentile (log scale of 1/(1 − p))")
         .y_desc("latency (µs, log scale)")
         .label_style(("sans-serif", 15))
@@ -355,9 +379,9 @@ where
             .light_line_style(TRANSPARENT)
             .bold_line_style(RGBColor(225, 225, 225))
             .x_labels(10)
-            .y_labels(8)
+            .y_labels(20)
             .x_label_formatter(&|v| compact(*v))
-            .y_label_formatter(&|v| compact(*v))
+            .y_label_formatter(&|v| log_label(*v))
             .x_desc("run time k·Ts (s)")
             .y_desc(format!("{} (µs, log scale)", t.label))
             .label_style(("sans-serif", 14))
