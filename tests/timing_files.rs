@@ -172,3 +172,56 @@ fn hlogs_read_back_with_hdrhistogram_python_and_figures_are_embedded() {
     assert!(report.contains("![`tdc` latency by percentile](tdc.latency.png)"));
     assert!(report.contains("![`tdc` latency over run time](tdc.timeline.png)"));
 }
+
+/// A run killed outright (SIGKILL) leaves its completed seconds in the interval logs: whole
+/// one-second intervals from 0 s, each with the round trip of every tick of its second.
+#[test]
+fn a_killed_run_leaves_its_completed_intervals() {
+    use std::process::Stdio;
+    use std::time::{Duration, Instant};
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("killed");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["run", "configs/s1-nominal.toml", "--mode", "lockstep"])
+        .args(["--law", "tdc", "--hold-s", "120", "--out"])
+        .arg(&out)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let log = out.join("tdc.round_trip.hlog");
+    let intervals = || {
+        std::fs::read_to_string(&log)
+            .map(|t| {
+                t.lines()
+                    .filter(|l| l.starts_with(|c: char| c.is_ascii_digit()))
+                    .count()
+            })
+            .unwrap_or(0)
+    };
+    let until = Instant::now() + Duration::from_secs(60);
+    while intervals() < 3 && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    for p in common::children_mentioning(out.to_str().unwrap()) {
+        // SAFETY: signalling processes we found by their command line.
+        unsafe { libc::kill(p as i32, libc::SIGKILL) };
+    }
+    // SAFETY: as above, our own child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
+    let _ = child.wait();
+    let read = deltaloop_supervisor::hlog::read(&log).unwrap();
+    assert!(
+        read.intervals.len() >= 3,
+        "{} intervals",
+        read.intervals.len()
+    );
+    for (i, iv) in read.intervals.iter().enumerate() {
+        assert_eq!((iv.start_s, iv.length_s), (i as f64, 1.0), "interval {i}");
+        // 3333 or 3334 ticks per second at Ts = 0.3 ms; a loaded machine may make the supervisor
+        // lose a few samples, never add any.
+        let n = iv.hist.len();
+        assert!((3300..=3334).contains(&n), "interval {i}: {n} round trips");
+    }
+}
