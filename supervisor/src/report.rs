@@ -563,7 +563,7 @@ pub fn timing_markdown(
         s,
         "\n### Latency figures\n\nLatency by percentile, HdrHistogram style: x is the percentile on a log scale of \
          1/(1 − p) (0 %, 90 %, 99 %, … 99.999 %: each step one more nine), y the latency in µs (log scale); a line \
-         ends where its count stops resolving the percentile{}. Over run time: each band spans the min to the max of the \
+         ends where its count stops resolving the percentile, rising there to its max{}. Over run time: each band spans the min to the max of the \
          ticks in one bin (about one pixel column), the line is their mean{}. Files `<law>.latency.{{png,svg}}`, \
          `<law>.timeline.{{png,svg}}`; per-second HdrHistogram interval logs `<law>.<name>.hlog`.",
         if mode == "realtime" {
