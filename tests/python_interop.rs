@@ -21,6 +21,7 @@ use serde_json::{Value, json};
 use std::mem::{align_of, offset_of, size_of};
 use std::process::Command;
 
+
 /// The size of a field's type, through a projection `|m: &T| &m.field`.
 fn field_size<T, F>(_: fn(&T) -> &F) -> usize {
     size_of::<F>()

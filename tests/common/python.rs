@@ -153,9 +153,7 @@ fn set_up_venv() -> PathBuf {
 /// Runs `code` with the venv's python from the repository root; its stdout, asserted to succeed.
 pub fn py_snippet(code: &str) -> String {
     let o = run_cmd(
-        Command::new(python())
-            .args(["-c", code])
-            .current_dir(root()),
+        Command::new(python()).args(["-c", code]).current_dir(root()),
         "python snippet",
     );
     assert!(o.status.success(), "python failed:\n{}", text(&o.stderr));
