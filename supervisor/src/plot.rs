@@ -9,6 +9,9 @@ use plotters::prelude::*;
 use std::path::Path;
 use std::sync::Once;
 
+mod latency;
+pub use latency::{latency_percentiles, quantity_color, timeline, timing_figures};
+
 static FONT: Once = Once::new();
 
 fn register_font() {

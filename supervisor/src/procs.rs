@@ -510,11 +510,11 @@ fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
 }
 
 impl<'a> Observation<'a> {
-    fn new(rec: LawRecorder<'a>, n: u64, ts_ns: u64, realtime: bool, csv: TimingCsv) -> Self {
+    fn new(rec: LawRecorder<'a>, timing: TimingAcc, csv: TimingCsv) -> Self {
         Self {
-            window: Window::new(n + 1),
+            window: Window::new(timing.last_tick() + 1),
             rec,
-            timing: TimingAcc::new(n, ts_ns, realtime),
+            timing,
             csv,
             last_seen: None,
             last_torque: None,
@@ -606,7 +606,7 @@ impl<'a> Observation<'a> {
     /// One finished tick to the timing file, the histograms and the recorder.
     fn finish_tick(&mut self, seen: Seen) -> Result<()> {
         self.csv.write(&seen)?;
-        self.timing.push(seen);
+        self.timing.push(seen)?;
         crate::tick_hook::call(&seen);
         if seen.k == self.window.last {
             self.after = seen.state;
@@ -662,7 +662,7 @@ impl<'a> Observation<'a> {
             self.finish_tick(t)?;
         }
         self.csv.finish()?;
-        let timing = self.timing.finish();
+        let timing = self.timing.finish()?;
         let mut rec = self.rec;
         let n = self.window.last - 1;
         let mut after = self.after.filter(|_| !self.stopped);
@@ -831,9 +831,8 @@ pub fn run_law(
     // ticks while the supervisor allocated per-tick tables after START).
     let mut streams = Observation::new(
         lawrun::recorder(study, law, keep)?,
-        n,
-        ts_ns,
-        mode == LoopMode::Realtime,
+        TimingAcc::new(n, ts_ns, mode == LoopMode::Realtime)
+            .with_hlogs(run_dir, &format!("{law}.")),
         TimingCsv::create(&run_dir.join(format!("{law}.timing.csv")))?,
     );
     let mut start = ControlMsg::new(ControlKind::Start, Sender::Supervisor);

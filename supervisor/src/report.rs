@@ -559,6 +559,33 @@ pub fn timing_markdown(
         "\nOn a virtual machine, stolen CPU time is time the hypervisor gave the (virtual) CPU to someone else: the loop \
          cannot run then, whatever its priority. Compare misses with it before blaming the loop."
     );
+    let _ = writeln!(
+        s,
+        "\n### Latency figures\n\nLatency by percentile, HdrHistogram style: x is the percentile on a log scale of \
+         1/(1 − p) (0 %, 90 %, 99 %, … 99.999 %: each step one more nine), y the latency in µs (log scale); a line \
+         ends where its count stops resolving the percentile, rising there to its max{}. Over run time: each band spans the min to the max of the \
+         ticks in one bin (about one pixel column), the line is their mean{}. Files `<law>.latency.{{png,svg}}`, \
+         `<law>.timeline.{{png,svg}}`; per-second HdrHistogram interval logs `<law>.<name>.hlog`.",
+        if mode == "realtime" {
+            "; the dashed red line is the torque budget"
+        } else {
+            ""
+        },
+        if mode == "realtime" {
+            "; red triangles mark bins with deadline misses"
+        } else {
+            "; run time is simulated time k·Ts (lockstep does not keep the clock)"
+        }
+    );
+    for (m, t) in metrics.iter().zip(timing) {
+        if t.is_some() {
+            let law = m.law;
+            let _ = writeln!(
+                s,
+                "\n![`{law}` latency by percentile]({law}.latency.png)\n\n![`{law}` latency over run time]({law}.timeline.png)"
+            );
+        }
+    }
     s
 }
 

@@ -186,7 +186,19 @@ pub fn run(
                         notes.push(m);
                     }
                 }
-                if let Err(e) = r.timing.write_hgrm(&dir, &format!("{law}.")) {
+                let files = r
+                    .timing
+                    .write_hgrm(&dir, &format!("{law}."))
+                    .and_then(|()| {
+                        crate::plot::timing_figures(
+                            &dir,
+                            &format!("{law}."),
+                            &format!("{law}, {}", mode.name()),
+                            &r.timing,
+                            f64::from(cfg.loop_.torque_budget_us),
+                        )
+                    });
+                if let Err(e) = files {
                     failed = Some(e.context(format!("{} run of `{law}`", mode.name())));
                 }
                 run_ids.push((law, r.run_id));

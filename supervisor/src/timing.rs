@@ -1,12 +1,15 @@
 //! Loop timing from the timestamps in the messages (CLOCK_MONOTONIC ns), kept in HdrHistograms.
 //! The supervisor computes these after the fact, off the critical path.
 
+use crate::hlog::{self, HlogWriter};
+use crate::timeline::Timeline;
 use anyhow::{Context, Result};
 use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
 use hdrhistogram::Histogram;
 use serde::Serialize;
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 /// One named latency distribution, ns.
 #[derive(Debug, Clone)]
@@ -75,6 +78,12 @@ pub struct Timing {
     pub steal: Vec<StealMs>,
     /// Peak memory of the three processes.
     pub peak_rss: PeakRss,
+    /// Round trip, wake lateness and misses over run time, binned (for the timeline figure).
+    pub timeline: Timeline,
+    /// Ts, ns.
+    pub ts_ns: u64,
+    /// The run was realtime (wake lateness, jitter and misses are measured).
+    pub realtime: bool,
 }
 
 /// Peak resident set size (VmHWM) of each process of a run, MiB: the supervisor's over its whole
@@ -158,6 +167,9 @@ impl Default for Timing {
             span_ns: (0, 0),
             steal: Vec::new(),
             peak_rss: PeakRss::default(),
+            timeline: Timeline::default(),
+            ts_ns: 0,
+            realtime: false,
         }
     }
 }
@@ -193,6 +205,46 @@ pub struct Seen {
     pub tel: Option<TelemetryMsg>,
 }
 
+/// The interval logs of a run's distributions, `<prefix><name>.hlog`: one interval per second of
+/// run time (tick k is at k·Ts), created at the first tick (their base time is tick 0's).
+struct Hlogs {
+    dir: PathBuf,
+    prefix: String,
+    /// In the order of [`Timing::dists`].
+    writers: Option<[HlogWriter; 5]>,
+}
+
+impl Hlogs {
+    /// The writers, created at the first call: tick `k`, whose deadline (CLOCK_MONOTONIC, ns) is
+    /// `deadline_ns` if known, dates the base time.
+    fn writers(
+        &mut self,
+        t: &Timing,
+        k: u64,
+        deadline_ns: Option<u64>,
+    ) -> Result<&mut [HlogWriter; 5]> {
+        if self.writers.is_none() {
+            let base = deadline_ns.map_or_else(std::time::SystemTime::now, hlog::system_time_of)
+                - Duration::from_nanos(k.saturating_mul(t.ts_ns));
+            let mk = |d: &Dist| {
+                HlogWriter::create(
+                    &self.dir.join(format!("{}{}.hlog", self.prefix, d.name)),
+                    &format!(
+                        "deltaloop {}{}: {}; values in ns; interval = 1 s of run time (tick k at k*Ts)",
+                        self.prefix, d.name, d.what
+                    ),
+                    base,
+                    Duration::from_secs(1),
+                    &d.hist,
+                )
+            };
+            let [a, b, c, d, e] = t.dists();
+            self.writers = Some([mk(a)?, mk(b)?, mk(c)?, mk(d)?, mk(e)?]);
+        }
+        Ok(self.writers.as_mut().expect("just created"))
+    }
+}
+
 /// [`Timing`] built one tick at a time, in tick order, in fixed memory. A run stopped early (fault,
 /// interrupt) only covers the ticks it reached: the ticks after the last telemetry of the loop are
 /// held back until another telemetry shows the loop went on, and left out at the end.
@@ -207,46 +259,123 @@ pub struct TimingAcc {
     pending: Vec<Seen>,
     /// One past the last tick with loop telemetry.
     reached: u64,
+    /// The last tick counted.
+    last: Option<u64>,
+    hlogs: Option<Hlogs>,
 }
 
 impl TimingAcc {
     /// For ticks 0..=`ticks` at period `ts_ns` (ns); wake lateness and jitter only in realtime.
     pub fn new(ticks: u64, ts_ns: u64, realtime: bool) -> Self {
         Self {
-            t: Timing::default(),
+            t: Timing {
+                timeline: Timeline::new(ticks, ts_ns),
+                ts_ns,
+                realtime,
+                ..Timing::default()
+            },
             n: ticks,
             ts_ns,
             realtime,
             prev_wake: None,
             pending: Vec::with_capacity(PENDING_MAX),
             reached: 0,
+            last: None,
+            hlogs: None,
         }
     }
 
-    /// Adds the next tick. Ticks of the safe stop after the loop are not part of it.
-    pub fn push(&mut self, s: Seen) {
+    /// N: the run's last tick.
+    pub fn last_tick(&self) -> u64 {
+        self.n
+    }
+
+    /// Also writes each distribution's interval log, `<dir>/<prefix><name>.hlog`, as the ticks
+    /// come (the files appear with the first tick).
+    pub fn with_hlogs(mut self, dir: &Path, prefix: &str) -> Self {
+        self.hlogs = Some(Hlogs {
+            dir: dir.to_path_buf(),
+            prefix: prefix.to_string(),
+            writers: None,
+        });
+        self
+    }
+
+    /// Adds the next tick. Ticks of the safe stop after the loop are not part of it. Fails only
+    /// if an interval log cannot be written.
+    pub fn push(&mut self, s: Seen) -> Result<()> {
         let tel_flags = s.tel.map(|m| m.flags);
         if tel_flags.is_some_and(|f| f & wire::TEL_SAFE_STOP != 0) {
-            return;
+            return Ok(());
         }
         if tel_flags.is_none() {
             if self.pending.len() == PENDING_MAX {
                 let oldest = self.pending.remove(0);
-                self.commit(&oldest);
+                self.commit(&oldest)?;
             }
             self.pending.push(s);
-            return;
+            return Ok(());
         }
         for p in std::mem::take(&mut self.pending) {
-            self.commit(&p);
+            self.commit(&p)?;
         }
         self.pending.reserve(PENDING_MAX);
-        self.commit(&s);
+        self.commit(&s)?;
         self.reached = s.k + 1;
+        Ok(())
     }
 
-    /// Counts tick k as part of the loop.
-    fn commit(&mut self, seen: &Seen) {
+    /// Counts tick k as part of the loop: its histograms, timeline bin and interval logs.
+    fn commit(&mut self, seen: &Seen) -> Result<()> {
+        // In the order of `Timing::dists`: wake lateness, jitter, state → controller, compute,
+        // round trip (ns; None: not measured at this tick).
+        let mut v = [None; 5];
+        self.tally(seen, &mut v);
+        let t = &mut self.t;
+        for (d, v) in [
+            &mut t.wake_lateness,
+            &mut t.period_jitter,
+            &mut t.state_to_controller,
+            &mut t.compute,
+            &mut t.round_trip,
+        ]
+        .into_iter()
+        .zip(v)
+        {
+            if let Some(v) = v {
+                d.record(v);
+            }
+        }
+        let missed = seen.tel.is_some_and(|m| m.flags & wire::TEL_MISSED != 0);
+        if let Some(b) = t.timeline.bin_mut(seen.k) {
+            if let Some(w) = v[0] {
+                b.wake_lateness.add(w);
+            }
+            if let Some(r) = v[4] {
+                b.round_trip.add(r);
+            }
+            b.misses += u64::from(missed);
+        }
+        self.last = Some(seen.k);
+        if let Some(h) = &mut self.hlogs {
+            let deadline = seen
+                .state
+                .map(|s| s.t_deadline_ns)
+                .or(seen.tel.map(|m| m.t_deadline_ns))
+                .filter(|&d| d > 0);
+            let at = seen.k.saturating_mul(self.ts_ns);
+            for (w, v) in h.writers(&self.t, seen.k, deadline)?.iter_mut().zip(v) {
+                match v {
+                    Some(v) => w.record(at, v.max(1))?,
+                    None => w.advance(at)?,
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Counters of tick k, and its latencies into `v` (see [`TimingAcc::commit`]).
+    fn tally(&mut self, seen: &Seen, v: &mut [Option<u64>; 5]) {
         let t = &mut self.t;
         let (s, q, m) = (seen.state, seen.torque, seen.tel);
         t.ticks += 1;
@@ -262,41 +391,47 @@ impl TimingAcc {
             }
             t.span_ns.1 = m.t_wake_ns;
             if self.realtime {
-                t.wake_lateness.record(wake_lateness_ns(&m));
+                v[0] = Some(wake_lateness_ns(&m));
                 if let Some(p) = self.prev_wake {
-                    t.period_jitter
-                        .record(m.t_wake_ns.saturating_sub(p).abs_diff(self.ts_ns));
+                    v[1] = Some(m.t_wake_ns.saturating_sub(p).abs_diff(self.ts_ns));
                 }
             }
             self.prev_wake = Some(m.t_wake_ns);
             if missed {
                 t.misses += 1;
             } else if let Some(rt) = round_trip_ns(&m) {
-                t.round_trip.record(rt);
+                v[4] = Some(rt);
             }
             t.late_dropped = t.late_dropped.max(m.late_dropped);
         } else {
             self.prev_wake = None;
         }
         if let (Some(s), Some(q)) = (s, q) {
-            t.state_to_controller
-                .record(q.t_state_rx_ns.saturating_sub(s.t_publish_ns));
+            v[2] = Some(q.t_state_rx_ns.saturating_sub(s.t_publish_ns));
         }
         if let Some(q) = q {
-            t.compute
-                .record(q.t_publish_ns.saturating_sub(q.t_state_rx_ns));
+            v[3] = Some(q.t_publish_ns.saturating_sub(q.t_state_rx_ns));
             t.skipped += q.skipped;
         }
     }
 
     /// The timing of ticks 0..n, n = the first tick the loop did not reach (at most N + 1); a
-    /// state missing at tick n itself counts as lost too.
-    pub fn finish(mut self) -> Timing {
+    /// state missing at tick n itself counts as lost too. The interval logs end with the last
+    /// tick counted (a log is created, empty, if no tick was).
+    pub fn finish(mut self) -> Result<Timing> {
         let n = self.reached.min(self.n + 1);
         if self.pending.iter().any(|p| p.k == n && p.state.is_none()) {
             self.t.lost[0] += 1;
         }
-        self.t
+        if let Some(h) = &mut self.hlogs {
+            let end = self.last.map_or(0, |k| k + 1).saturating_mul(self.ts_ns);
+            let k = self.last.unwrap_or(0);
+            h.writers(&self.t, k, None)?;
+            for w in h.writers.take().into_iter().flatten() {
+                w.finish(end)?;
+            }
+        }
+        Ok(self.t)
     }
 }
 
@@ -312,7 +447,8 @@ impl Timing {
         }
     }
 
-    fn dists(&self) -> [&Dist; 5] {
+    /// The distributions, in the order of the `.hgrm` and `.hlog` files.
+    pub fn dists(&self) -> [&Dist; 5] {
         [
             &self.wake_lateness,
             &self.period_jitter,
@@ -545,4 +681,95 @@ pub fn steal_ms_between(before: &[(usize, u64)], after: &[(usize, u64)]) -> Vec<
 pub struct StealMs {
     pub cpu: usize,
     pub ms: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Tick k of a realtime loop at Ts = 0.3 ms with made-up stamps (a few µs to a few hundred
+    /// µs, varying from tick to tick); every 997th tick is missed.
+    fn tick(k: u64, ts: u64) -> Seen {
+        let r = |salt: u64| (k.wrapping_mul(6364136223846793005).wrapping_add(salt) >> 33) % 50_000;
+        let deadline = 1_000_000_000 + k * ts;
+        let wake = deadline + 1_000 + r(1);
+        let publish = wake + 500;
+        let rx = publish + 2_000 + r(2);
+        let sent = rx + 300 + r(3) / 10;
+        let missed = k % 997 == 500;
+        Seen {
+            k,
+            state: Some(StateMsg {
+                tick: k,
+                t_deadline_ns: deadline,
+                t_wake_ns: wake,
+                t_publish_ns: publish,
+                ..StateMsg::default()
+            }),
+            torque: (!missed).then_some(TorqueMsg {
+                tick: k,
+                t_state_rx_ns: rx,
+                t_publish_ns: sent,
+                ..TorqueMsg::default()
+            }),
+            tel: Some(TelemetryMsg {
+                tick: k,
+                flags: if missed { wire::TEL_MISSED } else { 0 },
+                t_deadline_ns: deadline,
+                t_wake_ns: wake,
+                t_state_pub_ns: publish,
+                t_torque_rx_ns: if missed { 0 } else { sent + 700 + r(4) },
+                ..TelemetryMsg::default()
+            }),
+        }
+    }
+
+    /// The interval logs hold every value of the run exactly once: per quantity, the intervals
+    /// add up to the whole-run histogram, one interval per second of run time (k·Ts), the last
+    /// one cut at the run's end; the timeline holds the same counts and misses.
+    #[test]
+    fn interval_logs_add_up_to_the_whole_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let ts = 300_000;
+        let n = 11_666; // 3.5 s
+        let mut acc = TimingAcc::new(n, ts, true).with_hlogs(dir.path(), "tdc.");
+        for k in 0..=n {
+            acc.push(tick(k, ts)).unwrap();
+        }
+        let t = acc.finish().unwrap();
+        assert_eq!(t.ticks, n + 1);
+        assert_eq!(t.misses, 12);
+        for d in t.dists() {
+            let log = crate::hlog::read(&dir.path().join(format!("tdc.{}.hlog", d.name))).unwrap();
+            let spans: Vec<(f64, f64)> = log
+                .intervals
+                .iter()
+                .map(|i| (i.start_s, i.length_s))
+                .collect();
+            assert_eq!(
+                spans,
+                [(0.0, 1.0), (1.0, 1.0), (2.0, 1.0), (3.0, 0.5)],
+                "{}",
+                d.name
+            );
+            let mut sum = Histogram::new_from(&d.hist);
+            for i in &log.intervals {
+                assert!(!i.hist.is_empty(), "{}: every second has values", d.name);
+                sum.add(&i.hist).unwrap();
+            }
+            assert!(d.hist.len() > n - 20, "{}: {}", d.name, d.hist.len());
+            assert_eq!(sum.len(), d.hist.len(), "{}", d.name);
+            let counts = |h: &Histogram<u64>| {
+                h.iter_recorded()
+                    .map(|v| (v.value_iterated_to(), v.count_at_value()))
+                    .collect::<Vec<_>>()
+            };
+            assert_eq!(counts(&sum), counts(&d.hist), "{}", d.name);
+        }
+        let bins: Vec<_> = t.timeline.bins().collect();
+        let total = |f: fn(&crate::timeline::Bin) -> u64| bins.iter().map(|b| f(b.2)).sum::<u64>();
+        assert_eq!(total(|b| b.round_trip.n), t.round_trip.hist.len());
+        assert_eq!(total(|b| b.wake_lateness.n), t.wake_lateness.hist.len());
+        assert_eq!(total(|b| b.misses), t.misses);
+    }
 }
