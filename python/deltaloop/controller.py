@@ -21,7 +21,6 @@ with these types), 4 the loop failed (plant silent, reference missing, `step` ra
 
 import ctypes
 import gc
-import sys
 import time
 import traceback
 
@@ -60,18 +59,7 @@ class Controller(Peer):
     def run(self, step) -> int:
         """Joins the run and answers states with `step(state, ref) -> (tau, s, n_hat, u)` until the
         run ends. Returns the exit code (print nothing more, just `sys.exit` it)."""
-        try:
-            self._signals()
-            self._open_ports()
-            self._schedule()
-            self._send(wire.READY)
-            self._handshake()
-            self._answer_states(step)
-            return 0
-        except End as e:
-            if e.code:
-                print(f"{self.name}: {e}", file=sys.stderr, flush=True)
-            return e.code
+        return self._join(lambda: None, lambda: (self._handshake(), self._answer_states(step)))
 
     def _open_ports_with(self, ports):
         state = ports.pubsub("state", StateMsg, 1, 2, OBSERVER_BUFFER)

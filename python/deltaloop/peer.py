@@ -9,7 +9,7 @@ import sys
 import time
 import tomllib
 
-from . import services
+from . import services, wire
 
 # protocol/transport/src/ipc.rs
 LOOP_BUFFER = 4
@@ -65,6 +65,23 @@ class Peer:
         self.layout = lp.get(self.mode, {})
         self.ticks = None
         self._stop = None  # why to stop: "STOP" or "SIGTERM"
+
+    def _join(self, prepare, loop) -> int:
+        """The process from start to exit code: signals, ports, scheduling, `prepare()` (what
+        must happen before READY), READY, then `loop()`. An End stops it with its code and, unless
+        0, its one line on stderr."""
+        try:
+            self._signals()
+            self._open_ports()
+            self._schedule()
+            prepare()
+            self._send(wire.READY)
+            loop()
+            return 0
+        except End as e:
+            if e.code:
+                print(f"{self.name}: {e}", file=sys.stderr, flush=True)
+            return e.code
 
     def _die(self, code, why):
         print(f"{self.name}: {why}", file=sys.stderr, flush=True)

@@ -49,7 +49,6 @@ copies them) and the payload step (a model may do it itself from `Plant.tick`).
 import ctypes
 import gc
 import math
-import sys
 import time
 import traceback
 
@@ -185,20 +184,11 @@ class Plant(Peer):
         `step(tau, dt) -> (q, qd, tau_applied)` for each piece of each interval, and optionally
         `hold(q) -> tau` (the gravity torque, N m) for the safe-stop brake. Returns the exit code
         (print nothing more, just `sys.exit` it)."""
-        try:
-            self._signals()
-            self._open_ports()
-            self._schedule()
+        def prepare():
             self._state, self._reply = StateMsg(), TorqueMsg()
             gc.collect()  # before READY: a collection after START would eat into tick 0's deadline
-            self._send(wire.READY)
-            m = self._wait_start()
-            self._loop(m, start, step, hold)
-            return 0
-        except End as e:
-            if e.code:
-                print(f"{self.name}: {e}", file=sys.stderr, flush=True)
-            return e.code
+
+        return self._join(prepare, lambda: self._loop(self._wait_start(), start, step, hold))
 
     def _open_ports_with(self, ports):
         state = ports.pubsub("state", StateMsg, 1, 3, OBSERVER_BUFFER)
