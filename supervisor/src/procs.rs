@@ -795,7 +795,11 @@ pub fn run_law(
     }
     let rid = new_run_id();
     let obs = Observer::open(&rid)?;
-    let mut feed = ReferenceFeed::create(&obs.node, &rid, study.reference.row_count())?;
+    let lead = match mode {
+        LoopMode::Lockstep => crate::feed::LOCKSTEP_LEAD_CHUNKS,
+        _ => ipc::REF_RING as u64,
+    };
+    let mut feed = ReferenceFeed::create(&obs.node, &rid, study.reference.row_count(), lead)?;
     let mut pair = Pair::spawn(&rid, law, mode, run_dir, cfg)?;
     let ready = match handshake(&obs, &mut feed, &mut pair, study) {
         Ok(r) => r,
