@@ -30,7 +30,6 @@ from . import wire
 from .wire import ControlMsg, RefSample, StateMsg, TorqueMsg
 
 from .peer import (  # noqa: F401 - re-exported: the constants were first defined here
-    _WAIT_SLICE_NS,
     EXIT_FAULT,
     EXIT_SETUP,
     EXIT_STOPPED,
@@ -175,12 +174,8 @@ class Controller(Peer):
                 raise End(EXIT_FAULT, f"plant silent for {self.silence_ms} ms")
             if t < spin_end:
                 continue
-            # Blocks until the plant notifies (it wakes at once), in slices so that STOP and
-            # SIGTERM are seen. (A short timed_wait oversleeps by milliseconds: never rely on it.)
-            try:
-                self.state_ready.timed_wait(iox2.Duration.from_nanos(min(until - t, _WAIT_SLICE_NS)))
-            except Exception:
-                pass  # interrupted by a signal: look again
+            # Blocks until the plant notifies (it wakes at once).
+            self._wait_event(self.state_ready, until - t)
             if self._stop:
                 raise End(EXIT_STOPPED, f"stopped by {self._stop}")
             if not self.state.has_samples():

@@ -9,6 +9,8 @@ import sys
 import time
 import tomllib
 
+import iceoryx2 as iox2
+
 from . import services, wire
 
 # protocol/transport/src/ipc.rs
@@ -82,6 +84,16 @@ class Peer:
             if e.code:
                 print(f"{self.name}: {e}", file=sys.stderr, flush=True)
             return e.code
+
+    @staticmethod
+    def _wait_event(listener, timeout_ns):
+        """Blocks on `listener` for at most `timeout_ns`, capped at one slice so that STOP and
+        SIGTERM are seen; a signal only ends the wait early. (A short timed_wait oversleeps by
+        milliseconds: use it only to block, never to time.)"""
+        try:
+            listener.timed_wait(iox2.Duration.from_nanos(min(timeout_ns, _WAIT_SLICE_NS)))
+        except Exception:  # noqa: BLE001 - interrupted by a signal: the caller looks again
+            pass
 
     def _die(self, code, why):
         print(f"{self.name}: {why}", file=sys.stderr, flush=True)

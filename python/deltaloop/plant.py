@@ -52,11 +52,8 @@ import math
 import time
 import traceback
 
-import iceoryx2 as iox2
-
 from . import wire
 from .peer import (
-    _WAIT_SLICE_NS,
     EXIT_FAULT,
     EXIT_SETUP,
     EXIT_STOPPED,
@@ -282,10 +279,7 @@ class Plant(Peer):
                 if self._share_cpu:
                     time.sleep(min(until_ns - t, _POLL_NS) * 1e-9)
                 continue
-            try:
-                self.torque_ready.timed_wait(iox2.Duration.from_nanos(min(until_ns - t, _WAIT_SLICE_NS)))
-            except Exception:
-                pass  # interrupted by a signal: look again
+            self._wait_event(self.torque_ready, until_ns - t)
             if self._stop:
                 return None
 
