@@ -102,6 +102,16 @@ enum Command {
         #[command(subcommand)]
         what: BenchCommand,
     },
+    /// Internal: the controller side of `bench loop`'s iceoryx2 baseline.
+    #[command(hide = true)]
+    IoxController {
+        #[arg(long)]
+        run_id: String,
+        #[arg(long)]
+        config: PathBuf,
+        #[arg(long)]
+        cpu: Option<usize>,
+    },
     /// Internal: the controller side of `bench loop`'s Unix-socket baseline.
     #[command(hide = true)]
     UdsController {
@@ -121,9 +131,12 @@ enum BenchCommand {
         /// Simulated seconds of the lockstep and inproc loops.
         #[arg(long, default_value_t = 20.0, value_parser = bench::parse_positive_seconds)]
         lockstep_seconds: f64,
-        /// Wall seconds of the realtime run at 3.3 kHz.
+        /// Wall seconds of each realtime run at 3.3 kHz.
         #[arg(long, default_value_t = 60.0, value_parser = bench::parse_positive_seconds)]
         rt_seconds: f64,
+        /// Interleaved rounds of the transport-alone measurements (the median is reported).
+        #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=100))]
+        repeats: u32,
         /// Where the configs, logs and histograms go.
         #[arg(long, default_value = "runs/bench-loop")]
         out: PathBuf,
@@ -209,9 +222,10 @@ pub fn main() -> ExitCode {
                 BenchCommand::Loop {
                     lockstep_seconds,
                     rt_seconds,
+                    repeats,
                     out,
                 },
-        } => crate::bench_loop::run(lockstep_seconds, rt_seconds, &out),
+        } => crate::bench_loop::run(lockstep_seconds, rt_seconds, repeats, &out),
         Command::Paper { mode, out, force } => {
             let out = out.unwrap_or_else(|| crate::output::default_run_dir("paper"));
             crate::paper::run(
@@ -260,6 +274,11 @@ pub fn main() -> ExitCode {
             config,
             cpu,
         } => crate::bench_loop::uds_controller(&socket, &config, cpu),
+        Command::IoxController {
+            run_id,
+            config,
+            cpu,
+        } => crate::bench_loop::iox_controller(&run_id, &config, cpu),
     };
     // After SIGHUP the terminal may be gone: a failed write to stderr must not panic.
     let say = |line: String| {

@@ -1,0 +1,265 @@
+//! The transport alone: the same plant and controller tick ([`deltaloop_plant::PlantSide`],
+//! [`deltaloop_controller::ControllerSide`]) with nothing recorded, (1) in one thread, (2) over
+//! iceoryx2 and (3) over a blocking Unix socket pair, plant in this process and controller in a
+//! helper process (`deltaloop iox-controller` / `uds-controller`), pinned like lockstep. The
+//! difference of (2) or (3) and (1) per cycle is what the transport costs.
+
+use crate::study::Study;
+use anyhow::{Context, Result, bail};
+use deltaloop_config::{Law, RunConfig};
+use deltaloop_plant::Arrival;
+use deltaloop_transport::ipc::{self, IpcContext};
+use deltaloop_transport::rt;
+use deltaloop_transport::wire::{StateMsg, TorqueMsg};
+use std::io::{Read, Write};
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// How long either side of a baseline waits for its peer before it gives up.
+const PEER_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// A probe the iceoryx2 helper echoes before the loop starts (tick numbers the loop never uses).
+const PROBE_TICK: u64 = u64::MAX;
+
+/// Pins this thread to `cpu` as SCHED_OTHER, as lockstep runs; warnings go to stderr.
+fn pin(who: &str, cpu: Option<usize>) {
+    for w in rt::apply(&rt::Sched {
+        core: cpu,
+        fifo_priority: 0,
+        lock_memory: false,
+    }) {
+        eprintln!("deltaloop {who}: warning: {w}");
+    }
+}
+
+/// The plant and controller tick in one thread on `cpu`, nothing recorded: cycles per second.
+pub fn raw_inproc(study: &Study, cpu: Option<usize>) -> Result<f64> {
+    pin("bench loop", cpu);
+    let mut plant = study.plant_side()?;
+    let mut ctrl = study.controller_side(Law::TdcIsSta);
+    let ticks = study.reference.n as u64;
+    let t0 = Instant::now();
+    for k in 0..=ticks {
+        let st = plant.state();
+        let r = study.reference.row(k as usize).joint;
+        if let Err(stop) = plant.advance(Arrival::Reply(ctrl.answer(&st, &r))) {
+            bail!("inproc baseline: {}", stop.cause());
+        }
+    }
+    Ok((ticks + 1) as f64 / t0.elapsed().as_secs_f64())
+}
+
+/// The controller side of the iceoryx2 baseline (hidden subcommand `iox-controller`): polls the
+/// state subscriber, answers every state, echoes probes, and ends after the last tick.
+pub fn iox_controller(run_id: &str, config: &Path, cpu: Option<usize>) -> Result<()> {
+    let study = Study::new(RunConfig::from_file(config)?)?;
+    pin("iox-controller", cpu);
+    let node = ipc::node("bench-controller", run_id)?;
+    let state = ipc::state(&node, run_id)?
+        .subscriber_builder()
+        .create()
+        .ipc("state subscriber")?;
+    let torque = ipc::torque(&node, run_id)?
+        .publisher_builder()
+        .create()
+        .ipc("torque publisher")?;
+    let mut ctrl = study.controller_side(Law::TdcIsSta);
+    let last = study.reference.n as u64;
+    let mut heard = Instant::now();
+    loop {
+        let Some(sample) = state.receive().ipc("receive state")? else {
+            if heard.elapsed() > PEER_TIMEOUT {
+                bail!("iox-controller: no state for {PEER_TIMEOUT:?}");
+            }
+            std::hint::spin_loop();
+            continue;
+        };
+        let st = *sample.payload();
+        drop(sample);
+        heard = Instant::now();
+        let reply = if st.tick == PROBE_TICK {
+            TorqueMsg {
+                tick: PROBE_TICK,
+                ..TorqueMsg::default()
+            }
+        } else {
+            let r = study.reference.row((st.tick.min(last + 1)) as usize).joint;
+            ctrl.answer(&st, &r)
+        };
+        torque.send_copy(reply).ipc("publish torque")?;
+        if st.tick == last {
+            return Ok(());
+        }
+    }
+}
+
+/// Lockstep over iceoryx2 with both sides polling, plant here on `plant_cpu`, controller in a
+/// helper process on `ctrl_cpu`: cycles per second.
+pub fn iox_lockstep(
+    study: &Study,
+    config_path: &Path,
+    plant_cpu: Option<usize>,
+    ctrl_cpu: Option<usize>,
+) -> Result<f64> {
+    let run_id = format!("bench-{}-{}", std::process::id(), rt::now_ns() % 1_000_000);
+    let node = ipc::node("bench-plant", &run_id)?;
+    let state = ipc::state(&node, &run_id)?
+        .publisher_builder()
+        .create()
+        .ipc("state publisher")?;
+    let torque = ipc::torque(&node, &run_id)?
+        .subscriber_builder()
+        .buffer_size(ipc::LOOP_BUFFER)
+        .create()
+        .ipc("torque subscriber")?;
+    let mut child = helper(
+        "iox-controller",
+        &["--run-id", &run_id],
+        config_path,
+        ctrl_cpu,
+    )?;
+    // Until the helper echoes a probe, its ports may not be connected yet.
+    let since = Instant::now();
+    'probe: loop {
+        state
+            .send_copy(StateMsg {
+                tick: PROBE_TICK,
+                ..StateMsg::default()
+            })
+            .ipc("publish probe")?;
+        std::thread::sleep(Duration::from_millis(1));
+        while let Some(s) = torque.receive().ipc("receive torque")? {
+            if s.payload().tick == PROBE_TICK {
+                break 'probe;
+            }
+        }
+        if since.elapsed() > PEER_TIMEOUT {
+            let _ = child.kill();
+            bail!("iox baseline: the helper did not answer within {PEER_TIMEOUT:?}");
+        }
+    }
+    while torque.receive().ipc("receive torque")?.is_some() {}
+    pin("bench loop", plant_cpu);
+    let mut plant = study.plant_side()?;
+    let ticks = study.reference.n as u64;
+    let t0 = Instant::now();
+    for k in 0..=ticks {
+        state.send_copy(plant.state()).ipc("publish state")?;
+        let sent = Instant::now();
+        let t = loop {
+            if let Some(s) = torque.receive().ipc("receive torque")? {
+                break *s.payload();
+            }
+            if sent.elapsed() > PEER_TIMEOUT {
+                let _ = child.kill();
+                bail!("iox baseline: no reply to tick {k} within {PEER_TIMEOUT:?}");
+            }
+            std::hint::spin_loop();
+        };
+        if t.tick != k {
+            bail!("iox baseline: reply for tick {} at tick {k}", t.tick);
+        }
+        if let Err(stop) = plant.advance(Arrival::Reply(t)) {
+            bail!("iox baseline: {}", stop.cause());
+        }
+    }
+    let hz = (ticks + 1) as f64 / t0.elapsed().as_secs_f64();
+    let status = child.wait()?;
+    if !status.success() {
+        bail!("iox baseline: the helper ended with {status}");
+    }
+    Ok(hz)
+}
+
+/// Starts `deltaloop <sub> <args> --config <config> [--cpu N]`.
+fn helper(
+    sub: &str,
+    args: &[&str],
+    config: &Path,
+    cpu: Option<usize>,
+) -> Result<std::process::Child> {
+    let mut cmd = std::process::Command::new(std::env::current_exe()?);
+    cmd.arg(sub).args(args).arg("--config").arg(config);
+    if let Some(c) = cpu {
+        cmd.args(["--cpu", &c.to_string()]);
+    }
+    cmd.spawn()
+        .with_context(|| format!("start the {sub} helper"))
+}
+
+/// Plain-data message as bytes (the wire types are `#[repr(C)]` with explicit padding).
+fn bytes_of<T: Copy>(v: &T) -> &[u8] {
+    // SAFETY: T is one of our repr(C) wire types: Copy, no references, no implicit padding.
+    unsafe { std::slice::from_raw_parts((v as *const T).cast::<u8>(), size_of::<T>()) }
+}
+
+fn read_msg<T: Copy + Default>(s: &mut UnixStream) -> std::io::Result<T> {
+    let mut v = T::default();
+    // SAFETY: as above; every bit pattern of these f64/u64/u32 fields is valid.
+    let buf =
+        unsafe { std::slice::from_raw_parts_mut((&mut v as *mut T).cast::<u8>(), size_of::<T>()) };
+    s.read_exact(buf)?;
+    Ok(v)
+}
+
+/// The controller side of the Unix-socket baseline (hidden subcommand `uds-controller`).
+pub fn uds_controller(socket: &Path, config: &Path, cpu: Option<usize>) -> Result<()> {
+    let study = Study::new(RunConfig::from_file(config)?)?;
+    pin("uds-controller", cpu);
+    let mut s =
+        UnixStream::connect(socket).with_context(|| format!("connect {}", socket.display()))?;
+    let mut ctrl = study.controller_side(Law::TdcIsSta);
+    let last = study.reference.n + 1;
+    loop {
+        let st: StateMsg = match read_msg(&mut s) {
+            Ok(m) => m,
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
+            Err(e) => return Err(e.into()),
+        };
+        let r = study.reference.row((st.tick as usize).min(last)).joint;
+        // The same controller tick every mode runs, so the baseline does the same work.
+        s.write_all(bytes_of(&ctrl.answer(&st, &r)))?;
+    }
+}
+
+/// Lockstep over a blocking Unix socket pair, plant on `plant_cpu`, controller on `ctrl_cpu`:
+/// cycles per second.
+pub fn uds_lockstep(
+    study: &Study,
+    config_path: &Path,
+    dir: &Path,
+    plant_cpu: Option<usize>,
+    ctrl_cpu: Option<usize>,
+) -> Result<f64> {
+    let sock = dir.join("uds.sock");
+    let _ = std::fs::remove_file(&sock);
+    let listener = UnixListener::bind(&sock).with_context(|| format!("bind {}", sock.display()))?;
+    let sock_arg = sock.display().to_string();
+    let mut child = helper(
+        "uds-controller",
+        &["--socket", &sock_arg],
+        config_path,
+        ctrl_cpu,
+    )?;
+    let (mut s, _) = listener.accept()?;
+    pin("bench loop", plant_cpu);
+    let mut plant = study.plant_side()?;
+    let ticks = study.reference.n as u64;
+    let t0 = Instant::now();
+    for k in 0..=ticks {
+        s.write_all(bytes_of(&plant.state()))?;
+        let t: TorqueMsg = read_msg(&mut s)?;
+        if t.tick != k {
+            bail!("uds baseline: reply for tick {} at tick {k}", t.tick);
+        }
+        if let Err(stop) = plant.advance(Arrival::Reply(t)) {
+            bail!("uds baseline: {}", stop.cause());
+        }
+    }
+    let hz = (ticks + 1) as f64 / t0.elapsed().as_secs_f64();
+    drop(s);
+    let _ = child.wait();
+    let _ = std::fs::remove_file(&sock);
+    Ok(hz)
+}

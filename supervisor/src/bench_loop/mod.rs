@@ -1,0 +1,334 @@
+//! `deltaloop bench loop`: the loop against the transport's own cost and the machine's limit,
+//! measured in one run.
+//!
+//! Lockstep: (1)–(3) the transport alone ([`baseline`]: the tick pair in one thread, over iceoryx2
+//! and over a Unix socket pair, nothing recorded, the median of several interleaved rounds), then
+//! the product's loops with the supervisor recording every tick: (c) inproc and (a) the real
+//! process pair. Realtime: (d) the default and the split-CPU layouts at 3.3 kHz, each with the
+//! CPU time the host took from its CPUs, and (e) the machine's own wake-up limit ([`machine`]).
+//! All of them step the same plant and controller tick on the same scenario.
+
+mod baseline;
+mod machine;
+
+pub use baseline::{iox_controller, uds_controller};
+
+use crate::bench::s1_hold_study;
+use crate::inproc;
+use crate::lawrun::Keep;
+use crate::procs;
+use crate::study::Study;
+use crate::timing::StealMs;
+use anyhow::{Context, Result};
+use deltaloop_config::Law;
+use deltaloop_config::LoopMode;
+use deltaloop_config::config::Layout;
+use hdrhistogram::Histogram;
+use std::path::Path;
+use std::time::Instant;
+
+/// The median and range of `v` (not empty).
+fn median_range(v: &[f64]) -> (f64, f64, f64) {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let n = s.len();
+    let med = if n % 2 == 1 {
+        s[n / 2]
+    } else {
+        0.5 * (s[n / 2 - 1] + s[n / 2])
+    };
+    (med, s[0], s[n - 1])
+}
+
+/// What the lockstep half measured.
+struct Lockstep {
+    /// Transport alone, µs per cycle over the one-thread tick pair (median of the rounds).
+    iox_us: f64,
+    uds_us: f64,
+    /// The product's lockstep loop: cycles/s of the process pair and of inproc, and the hand-off.
+    iox_hz: f64,
+    inproc_hz: f64,
+    handoff_us: f64,
+}
+
+/// Runs every measurement and prints; the last line is the machine-readable summary.
+pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    println!(
+        "deltaloop bench loop: lockstep/inproc {lockstep_seconds} s simulated ({} ticks) x {repeats} rounds, realtime {rt_seconds} s at 3.3 kHz; machine: {} logical CPUs, kernel {}",
+        (lockstep_seconds / 3e-4).round(),
+        std::thread::available_parallelism().map_or(0, |n| n.get()),
+        std::fs::read_to_string("/proc/sys/kernel/osrelease")
+            .map_or("?".into(), |s| s.trim().to_string())
+    );
+    let ls = s1_hold_study("bench-loop", lockstep_seconds)?;
+    let lsf = lockstep(&ls, repeats, out)?;
+    // (d) realtime, the default layout and the split-CPU one, then (e) the machine's own limit.
+    let budget_us = f64::from(ls.config.loop_.torque_budget_us);
+    let rt_default = realtime(out, "realtime", rt_seconds, Layout::realtime_default())?;
+    let rt_split = realtime(
+        out,
+        "realtime-split",
+        rt_seconds,
+        Layout::realtime_split_cpus(),
+    )?;
+    let split_cpu = Layout::cpu(Layout::realtime_split_cpus().controller_cpu);
+    let sp = rt_split.summary();
+    let split_steal = steal_share(&sp.cpu_steal_ms, sp.loop_wall_s, split_cpu);
+    if let (Some(c), Some((ms, share))) = (split_cpu, split_steal) {
+        println!(
+            "    the host took {ms:.0} ms from CPU {c}, the split layout's controller CPU, {share:.1e} of the run: a controller alone on a CPU cannot answer while the host holds it (a whole tick or more, up to 4-18 ms at a time here), so its miss ratio cannot stay much below that share; measured {:.1e}",
+            sp.miss_ratio
+        );
+    }
+    let lay = Layout::realtime_default();
+    let (cpu, prio) = (
+        Layout::cpu(lay.plant_cpu).unwrap_or(0),
+        lay.plant_priority.unwrap_or(0),
+    );
+    let ts_ns = ls.config.ts_ns();
+    let machine = machine::sleep_only_loop(cpu, prio, ts_ns, rt_seconds)?;
+    let cyclic = machine::cyclictest(cpu, prio, ts_ns / 1000, rt_seconds);
+    let m = |h: &Histogram<u64>, q: f64| h.value_at_quantile(q) as f64 / 1e3;
+    println!(
+        "(e) machine: a sleep-only loop on CPU {cpu} at SCHED_FIFO {prio}, every {} us: wake lateness p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
+        ts_ns / 1000,
+        m(&machine, 0.5),
+        m(&machine, 0.99),
+        m(&machine, 0.999),
+        machine.max() as f64 / 1e3
+    );
+    match &cyclic {
+        Ok(h) => println!(
+            "    cyclictest -m -p {prio} -i {} -a {cpu} -t 1: p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
+            ts_ns / 1000,
+            m(h, 0.5),
+            m(h, 0.99),
+            m(h, 0.999),
+            h.max() as f64 / 1e3
+        ),
+        Err(why) => println!("    cyclictest: not run ({why})"),
+    }
+    let d = rt_default.summary();
+    println!(
+        "loop vs machine (p99.9): round trip {:.1} us (default layout), {:.1} us (split CPUs) vs machine wake lateness {:.1} us; the plant's wake lateness {:.1} us after waking {} us early",
+        d.round_trip.p999_us,
+        sp.round_trip.p999_us,
+        m(&machine, 0.999),
+        d.wake_lateness.p999_us,
+        lay.wake_early_us.unwrap_or(0)
+    );
+    let mut hists: Vec<(&str, &Histogram<u64>)> = vec![
+        ("round trip, default", &rt_default.round_trip.hist),
+        ("round trip, split CPUs", &rt_split.round_trip.hist),
+        ("wake lateness, default", &rt_default.wake_lateness.hist),
+        ("sleep-only loop", &machine),
+    ];
+    if let Ok(h) = &cyclic {
+        hists.push(("cyclictest", h));
+    }
+    crate::plot::latency_percentiles(
+        &out.join("latency"),
+        "bench loop: realtime round trip and wake lateness vs the machine",
+        &hists,
+        Some(budget_us),
+    )?;
+    println!("figure: {}", out.join("latency.png").display());
+    println!(
+        "lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} machine_wake_p999_us={:.1} cyclictest_p999_us={}",
+        lsf.iox_us,
+        lsf.uds_us,
+        lsf.iox_hz,
+        lsf.inproc_hz,
+        1e6 / lsf.iox_hz - 1e6 / lsf.inproc_hz,
+        lsf.handoff_us,
+        d.round_trip.p50_us,
+        d.round_trip.p999_us,
+        d.miss_ratio,
+        sp.round_trip.p50_us,
+        sp.round_trip.p999_us,
+        sp.miss_ratio,
+        split_steal.map_or("na".to_string(), |(_, f)| format!("{f:.2e}")),
+        m(&machine, 0.999),
+        cyclic
+            .as_ref()
+            .map_or("na".to_string(), |h| format!("{:.1}", m(h, 0.999)))
+    );
+    Ok(())
+}
+
+/// The product's lockstep loops, then `repeats` interleaved rounds of the transport alone.
+fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
+    let ls_dir = out.join("lockstep");
+    std::fs::create_dir_all(&ls_dir)?;
+    let cfg_path = ls_dir.join("config.toml");
+    std::fs::write(&cfg_path, ls.config.to_toml_string())?;
+
+    // The product's loops first, before anything pins this process: (c) inproc, (a) lockstep.
+    let t0 = Instant::now();
+    let run = inproc::run_law(ls, Law::TdcIsSta, &Keep::default())?;
+    let inproc_hz = run.end.records as f64 / t0.elapsed().as_secs_f64();
+    let pr = procs::run_law(
+        ls,
+        Law::TdcIsSta,
+        LoopMode::Lockstep,
+        &ls_dir,
+        &Keep::default(),
+    )?;
+    let iox_hz = pr.timing.cycle_hz();
+    let summary = pr.timing.summary();
+    let rtt = summary.round_trip;
+    // The hand-off itself, both ways: state published → reply received, less the law's compute.
+    let handoff_us = rtt.p50_us - summary.controller_compute.p50_us;
+
+    // The transport alone, pinned as lockstep is; the socket's best layout is its baseline (one
+    // CPU each, or both on one CPU). Rounds interleave so that a drift of the machine hits all.
+    let lay = &ls.config.loop_.lockstep;
+    let (pc, cc) = (Layout::cpu(lay.plant_cpu), Layout::cpu(lay.controller_cpu));
+    let (mut raw, mut iox, mut uds) = (vec![], vec![], vec![]);
+    let (mut iox_cost, mut uds_cost) = (vec![], vec![]);
+    for _ in 0..repeats.max(1) {
+        let r = baseline::raw_inproc(ls, pc)?;
+        let i = baseline::iox_lockstep(ls, &cfg_path, pc, cc)?;
+        let u = baseline::uds_lockstep(ls, &cfg_path, &ls_dir, pc, cc)?
+            .max(baseline::uds_lockstep(ls, &cfg_path, &ls_dir, cc, cc)?);
+        iox_cost.push(1e6 / i - 1e6 / r);
+        uds_cost.push(1e6 / u - 1e6 / r);
+        raw.push(r);
+        iox.push(i);
+        uds.push(u);
+    }
+    let line = |name: &str, v: &[f64]| {
+        let (m, lo, hi) = median_range(v);
+        println!(
+            "{name:<34} {m:>9.0} cycles/s  ({:.3} us/cycle; rounds {lo:.0}..{hi:.0}/s)",
+            1e6 / m
+        );
+    };
+    println!(
+        "lockstep, the transport alone (the tick pair, nothing recorded; plant CPU {}, controller CPU {}; median of {} rounds):",
+        fmt_cpu(pc),
+        fmt_cpu(cc),
+        raw.len()
+    );
+    line("(1) one thread:", &raw);
+    line("(2) iceoryx2, both sides polling:", &iox);
+    line("(3) Unix socket, blocking:", &uds);
+    let (iox_us, ilo, ihi) = median_range(&iox_cost);
+    let (uds_us, ulo, uhi) = median_range(&uds_cost);
+    println!(
+        "transport cost per cycle ((2) or (3) less (1)): iceoryx2 {iox_us:.3} us (rounds {ilo:.3}..{ihi:.3}), Unix socket {uds_us:.3} us (rounds {ulo:.3}..{uhi:.3}): iceoryx2 {:.1}x cheaper",
+        uds_us / iox_us
+    );
+    println!("lockstep, the product's loops (the supervisor records every tick):");
+    println!(
+        "(c) inproc:                        {inproc_hz:>9.0} cycles/s  ({:.3} us/cycle)",
+        1e6 / inproc_hz
+    );
+    println!(
+        "(a) lockstep, the process pair:    {iox_hz:>9.0} cycles/s  ({:.3} us/cycle, {:.3} us over inproc; round trip p50 {:.2} us, p99 {:.2} us, p99.9 {:.2} us)",
+        1e6 / iox_hz,
+        1e6 / iox_hz - 1e6 / inproc_hz,
+        rtt.p50_us,
+        rtt.p99_us,
+        rtt.p999_us
+    );
+    println!(
+        "    the hand-off itself (round trip p50 less the law's compute p50): {handoff_us:.2} us per cycle, both ways, no system call; beyond the transport, the pair shares the 2 CPUs with the supervisor reading and writing every tick"
+    );
+    Ok(Lockstep {
+        iox_us,
+        uds_us,
+        iox_hz,
+        inproc_hz,
+        handoff_us,
+    })
+}
+
+/// CPU time the host took from `cpu` during the run (ms) and its share of the loop's wall time.
+fn steal_share(steal: &[StealMs], loop_wall_s: f64, cpu: Option<usize>) -> Option<(f64, f64)> {
+    let c = cpu?;
+    let ms = steal.iter().find(|s| s.cpu == c)?.ms;
+    (loop_wall_s > 0.0).then(|| (ms, ms * 1e-3 / loop_wall_s))
+}
+
+fn fmt_cpu(c: Option<usize>) -> String {
+    c.map_or("any".into(), |c| c.to_string())
+}
+
+/// One realtime run of `seconds` on the S1 hold with `layout`, in `out/<name>`; its timing, with
+/// the `.hgrm` files and figures written there.
+fn realtime(out: &Path, name: &str, seconds: f64, layout: Layout) -> Result<crate::timing::Timing> {
+    let mut rs = s1_hold_study("bench-loop", seconds)?;
+    rs.config.loop_.realtime = layout;
+    // A virtual CPU the host freezes for 30 ms must not end the measurement: count the misses.
+    rs.config.faults.controller_silence_ticks =
+        rs.config.faults.controller_silence_ticks.max(10_000);
+    let dir = out.join(name);
+    std::fs::create_dir_all(&dir)?;
+    std::fs::write(dir.join("config.toml"), rs.config.to_toml_string())?;
+    let pr = procs::run_law(
+        &rs,
+        Law::TdcIsSta,
+        LoopMode::Realtime,
+        &dir,
+        &Keep::default(),
+    )?;
+    pr.timing.write_hgrm(&dir, "tdc-is-sta.")?;
+    let budget = f64::from(rs.config.loop_.torque_budget_us);
+    crate::plot::timing_figures(
+        &dir,
+        "tdc-is-sta.",
+        &format!("tdc-is-sta, {name}"),
+        &pr.timing,
+        budget,
+    )?;
+    for m in &pr.child_messages {
+        eprintln!("{m}");
+    }
+    let t = pr.timing.summary();
+    let steal: Vec<String> = t
+        .cpu_steal_ms
+        .iter()
+        .map(|c| format!("cpu{} {:.0} ms", c.cpu, c.ms))
+        .collect();
+    println!(
+        "(d) {name:<15} round trip p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us; wake lateness p99.9 {:.1} us; misses {} of {} ({:.2e}); CPU stolen by the host: {}",
+        t.round_trip.p50_us,
+        t.round_trip.p99_us,
+        t.round_trip.p999_us,
+        t.round_trip.max_us,
+        t.wake_lateness.p999_us,
+        t.deadline_misses,
+        t.ticks,
+        t.miss_ratio,
+        if steal.is_empty() {
+            "n/a".into()
+        } else {
+            steal.join(", ")
+        }
+    );
+    Ok(pr.timing)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_range_takes_the_middle_or_the_mean_of_the_two_middles() {
+        assert_eq!(median_range(&[3.0, 1.0, 2.0]), (2.0, 1.0, 3.0));
+        assert_eq!(median_range(&[4.0, 1.0, 2.0, 3.0]), (2.5, 1.0, 4.0));
+        assert_eq!(median_range(&[5.0]), (5.0, 5.0, 5.0));
+    }
+
+    #[test]
+    fn steal_share_is_the_stolen_time_of_that_cpu_over_the_loop_time() {
+        let steal = [StealMs { cpu: 0, ms: 30.0 }, StealMs { cpu: 1, ms: 90.0 }];
+        assert_eq!(steal_share(&steal, 60.0, Some(1)), Some((90.0, 1.5e-3)));
+        assert_eq!(steal_share(&steal, 60.0, Some(0)), Some((30.0, 5e-4)));
+        assert_eq!(steal_share(&steal, 60.0, Some(2)), None);
+        assert_eq!(steal_share(&steal, 60.0, None), None);
+        assert_eq!(steal_share(&steal, 0.0, Some(0)), None);
+    }
+}
