@@ -617,6 +617,55 @@ fn regression_a_stopped_supervisor_loses_ticks_not_the_run() {
     );
 }
 
+/// Regression: a realtime soak whose robot diverged (tracking error above 0.5 rad) after two
+/// minutes ran on for the rest of its hour, recording nothing. Now the supervisor stops the loop
+/// at the divergence: the plant brakes, the run says where it diverged, as inproc does.
+#[test]
+fn regression_a_diverged_process_run_stops_the_loop() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = |mode: &str| {
+        let out = tmp.path().join(mode);
+        // S2, paper preset, tdc, d = 8: diverges within the motion (tests/delay_injection.rs);
+        // the 300 s hold is 10^6 ticks the loop must not run.
+        let o = deltaloop(&[
+            "run",
+            "configs/paper/s2-fast.toml",
+            "--mode",
+            mode,
+            "--law",
+            "tdc",
+            "--transport-delay",
+            "8",
+            "--hold-s",
+            "300",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        (summary(&out), out)
+    };
+    let (inproc, _) = run("inproc");
+    let (lockstep, out) = run("lockstep");
+    let tick = inproc["laws"]["tdc"]["diverged_at_tick"].as_u64().unwrap();
+    let m = &lockstep["laws"]["tdc"];
+    assert_eq!(m["diverged_at_tick"].as_u64(), Some(tick), "{m}");
+    assert!(
+        m["fault"].is_null() && lockstep["interrupted"] == false,
+        "{m}"
+    );
+    let ran = lockstep["timing"]["tdc"]["ticks"].as_u64().unwrap();
+    assert!(
+        ran < tick + 50_000,
+        "the loop ran {ran} ticks after diverging at {tick}"
+    );
+    let plant_log = std::fs::read_to_string(out.join("tdc.plant.log")).unwrap();
+    assert!(
+        plant_log.contains("stopped by the supervisor") && plant_log.contains("safe stop"),
+        "{plant_log}"
+    );
+    assert!(children_mentioning(out.to_str().unwrap()).is_empty());
+}
+
 /// Regression: a child killed during set-up left half-created iceoryx2 nodes that no later run
 /// removed, and every later run printed iceoryx2's "No config file was loaded" warning.
 #[test]

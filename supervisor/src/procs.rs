@@ -700,6 +700,9 @@ struct Ending {
     first_exit: Option<(u64, Sender)>,
     /// The supervisor sent STOP (Ctrl-C / SIGTERM).
     interrupted: bool,
+    /// The supervisor sent STOP because the run diverged (the record ended by the divergence
+    /// rule): the run's status is the divergence, not a fault or an interruption.
+    diverged_stop: bool,
 }
 
 /// Observes until both children exit (or the bounded waits after a STOP or one child's exit run
@@ -723,6 +726,7 @@ fn observe(
     let expected_ns = (n + 2) * ts_ns * 20 + 10_000_000_000;
     let give_up = rt::now_ns() + expected_ns.max(silence_ns * 3) + silence_ns + grace_ns;
     let mut stop_sent: Option<u64> = None;
+    let mut diverged_stop = false;
     let mut first_exit: Option<(u64, Sender)> = None;
     loop {
         streams.drain(obs)?;
@@ -741,12 +745,17 @@ fn observe(
         if p.is_some() && c.is_some() {
             break;
         }
-        if crate::signals::interrupted() && stop_sent.is_none() {
+        // Ctrl-C, or the divergence rule ended the record: stop the loop (the plant brakes)
+        // rather than let it run on to the scenario's end (regression: a realtime soak whose
+        // robot diverged after 2 minutes ran on for the rest of its hour, unrecorded).
+        let interrupted = crate::signals::interrupted();
+        if (interrupted || streams.stopped) && stop_sent.is_none() {
             let _ = obs
                 .control
                 .0
                 .send_copy(ControlMsg::new(ControlKind::Stop, Sender::Supervisor));
             stop_sent = Some(now);
+            diverged_stop = !interrupted;
         }
         let waited_out = match first_exit {
             // The plant is gone. If it exited by itself it released the controller with a final
@@ -771,7 +780,8 @@ fn observe(
         plant: pair.plant.exited(),
         controller: pair.controller.exited(),
         first_exit,
-        interrupted: stop_sent.is_some(),
+        interrupted: stop_sent.is_some() && !diverged_stop,
+        diverged_stop,
     })
 }
 
@@ -849,7 +859,7 @@ pub fn run_law(
 
     let ending = observe(&obs, &mut feed, &mut pair, study, &mut streams)?;
     let mut child_messages = pair.logs.messages();
-    let cause = if ending.interrupted {
+    let cause = if ending.interrupted || ending.diverged_stop {
         None
     } else {
         fault_cause(&ending, &pair, &streams)
