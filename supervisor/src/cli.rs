@@ -111,6 +111,9 @@ enum Command {
         config: PathBuf,
         #[arg(long)]
         cpu: Option<usize>,
+        /// Block on the wake-up event instead of polling.
+        #[arg(long)]
+        blocking: bool,
     },
     /// Internal: the controller side of `bench loop`'s Unix-socket baseline.
     #[command(hide = true)]
@@ -278,7 +281,17 @@ pub fn main() -> ExitCode {
             run_id,
             config,
             cpu,
-        } => crate::bench_loop::iox_controller(&run_id, &config, cpu),
+            blocking,
+        } => crate::bench_loop::iox_controller(
+            &run_id,
+            &config,
+            cpu,
+            if blocking {
+                crate::bench_loop::Handoff::Blocking
+            } else {
+                crate::bench_loop::Handoff::Polling
+            },
+        ),
     };
     // After SIGHUP the terminal may be gone: a failed write to stderr must not panic.
     let say = |line: String| {

@@ -11,6 +11,7 @@ use deltaloop_plant::Arrival;
 use deltaloop_transport::ipc::{self, IpcContext};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{StateMsg, TorqueMsg};
+use hdrhistogram::Histogram;
 use std::io::{Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::Path;
@@ -21,6 +22,21 @@ const PEER_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// A probe the iceoryx2 helper echoes before the loop starts (tick numbers the loop never uses).
 const PROBE_TICK: u64 = u64::MAX;
+
+/// One lockstep baseline run: its cycle rate and the hand-off measured on every cycle.
+pub struct Measured {
+    /// Cycles per second.
+    pub hz: f64,
+    /// Per cycle, ns: state sent → reply received, less the helper's time from receiving the
+    /// state to sending the reply (both sides read CLOCK_MONOTONIC): the two one-way hand-offs.
+    pub handoff: Histogram<u64>,
+}
+
+/// The hand-off of one cycle: `sent` → `received` less the controller's own time (its stamps).
+fn record_handoff(h: &mut Histogram<u64>, sent: u64, received: u64, t: &TorqueMsg) {
+    let ctrl = t.t_publish_ns.saturating_sub(t.t_state_rx_ns);
+    let _ = h.record(received.saturating_sub(sent).saturating_sub(ctrl).max(1));
+}
 
 /// Pins this thread to `cpu` as SCHED_OTHER, as lockstep runs; warnings go to stderr.
 fn pin(who: &str, cpu: Option<usize>) {
@@ -50,9 +66,24 @@ pub fn raw_inproc(study: &Study, cpu: Option<usize>) -> Result<f64> {
     Ok((ticks + 1) as f64 / t0.elapsed().as_secs_f64())
 }
 
-/// The controller side of the iceoryx2 baseline (hidden subcommand `iox-controller`): polls the
-/// state subscriber, answers every state, echoes probes, and ends after the last tick.
-pub fn iox_controller(run_id: &str, config: &Path, cpu: Option<usize>) -> Result<()> {
+/// How the two sides of the iceoryx2 baseline wait for each other.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Handoff {
+    /// Both poll their subscriber: the transport's own cost (needs a CPU each).
+    Polling,
+    /// Both block on a wake-up event after each message, as the default realtime layout does on
+    /// one CPU: a notification and a context switch each way.
+    Blocking,
+}
+
+/// The controller side of the iceoryx2 baseline (hidden subcommand `iox-controller`): waits for
+/// each state as `handoff` says, answers it, echoes probes, and ends after the last tick.
+pub fn iox_controller(
+    run_id: &str,
+    config: &Path,
+    cpu: Option<usize>,
+    handoff: Handoff,
+) -> Result<()> {
     let study = Study::new(RunConfig::from_file(config)?)?;
     pin("iox-controller", cpu);
     let node = ipc::node("bench-controller", run_id)?;
@@ -64,6 +95,14 @@ pub fn iox_controller(run_id: &str, config: &Path, cpu: Option<usize>) -> Result
         .publisher_builder()
         .create()
         .ipc("torque publisher")?;
+    let state_ready = ipc::wakeup(&node, run_id, "state-ready")?
+        .listener_builder()
+        .create()
+        .ipc("state listener")?;
+    let torque_ready = ipc::wakeup(&node, run_id, "torque-ready")?
+        .notifier_builder()
+        .create()
+        .ipc("torque notifier")?;
     let mut ctrl = study.controller_side(Law::TdcIsSta);
     let last = study.reference.n as u64;
     let mut heard = Instant::now();
@@ -72,13 +111,20 @@ pub fn iox_controller(run_id: &str, config: &Path, cpu: Option<usize>) -> Result
             if heard.elapsed() > PEER_TIMEOUT {
                 bail!("iox-controller: no state for {PEER_TIMEOUT:?}");
             }
-            std::hint::spin_loop();
+            match handoff {
+                Handoff::Polling => std::hint::spin_loop(),
+                Handoff::Blocking => {
+                    // A signal only cuts the wait short; the loop looks again.
+                    let _ = state_ready.timed_wait(|_| {}, Duration::from_millis(10));
+                }
+            }
             continue;
         };
+        let rx = rt::now_ns();
         let st = *sample.payload();
         drop(sample);
         heard = Instant::now();
-        let reply = if st.tick == PROBE_TICK {
+        let mut reply = if st.tick == PROBE_TICK {
             TorqueMsg {
                 tick: PROBE_TICK,
                 ..TorqueMsg::default()
@@ -87,21 +133,27 @@ pub fn iox_controller(run_id: &str, config: &Path, cpu: Option<usize>) -> Result
             let r = study.reference.row((st.tick.min(last + 1)) as usize).joint;
             ctrl.answer(&st, &r)
         };
+        reply.t_state_rx_ns = rx;
+        reply.t_publish_ns = rt::now_ns();
         torque.send_copy(reply).ipc("publish torque")?;
+        if handoff == Handoff::Blocking {
+            torque_ready.notify().ipc("notify torque")?;
+        }
         if st.tick == last {
             return Ok(());
         }
     }
 }
 
-/// Lockstep over iceoryx2 with both sides polling, plant here on `plant_cpu`, controller in a
-/// helper process on `ctrl_cpu`: cycles per second.
+/// Lockstep over iceoryx2, each side waiting as `handoff` says, plant here on `plant_cpu`,
+/// controller in a helper process on `ctrl_cpu`: cycles per second.
 pub fn iox_lockstep(
     study: &Study,
     config_path: &Path,
     plant_cpu: Option<usize>,
     ctrl_cpu: Option<usize>,
-) -> Result<f64> {
+    handoff: Handoff,
+) -> Result<Measured> {
     let run_id = format!("bench-{}-{}", std::process::id(), rt::now_ns() % 1_000_000);
     let node = ipc::node("bench-plant", &run_id)?;
     let state = ipc::state(&node, &run_id)?
@@ -113,12 +165,19 @@ pub fn iox_lockstep(
         .buffer_size(ipc::LOOP_BUFFER)
         .create()
         .ipc("torque subscriber")?;
-    let mut child = helper(
-        "iox-controller",
-        &["--run-id", &run_id],
-        config_path,
-        ctrl_cpu,
-    )?;
+    let state_ready = ipc::wakeup(&node, &run_id, "state-ready")?
+        .notifier_builder()
+        .create()
+        .ipc("state notifier")?;
+    let torque_ready = ipc::wakeup(&node, &run_id, "torque-ready")?
+        .listener_builder()
+        .create()
+        .ipc("torque listener")?;
+    let mut args = vec!["--run-id", &run_id];
+    if handoff == Handoff::Blocking {
+        args.push("--blocking");
+    }
+    let mut child = helper("iox-controller", &args, config_path, ctrl_cpu)?;
     // Until the helper echoes a probe, its ports may not be connected yet.
     let since = Instant::now();
     'probe: loop {
@@ -128,6 +187,7 @@ pub fn iox_lockstep(
                 ..StateMsg::default()
             })
             .ipc("publish probe")?;
+        state_ready.notify().ipc("notify probe")?;
         std::thread::sleep(Duration::from_millis(1));
         while let Some(s) = torque.receive().ipc("receive torque")? {
             if s.payload().tick == PROBE_TICK {
@@ -143,9 +203,14 @@ pub fn iox_lockstep(
     pin("bench loop", plant_cpu);
     let mut plant = study.plant_side()?;
     let ticks = study.reference.n as u64;
+    let mut hist = crate::timing::latency_histogram();
     let t0 = Instant::now();
     for k in 0..=ticks {
+        let sent_ns = rt::now_ns();
         state.send_copy(plant.state()).ipc("publish state")?;
+        if handoff == Handoff::Blocking {
+            state_ready.notify().ipc("notify state")?;
+        }
         let sent = Instant::now();
         let t = loop {
             if let Some(s) = torque.receive().ipc("receive torque")? {
@@ -155,8 +220,19 @@ pub fn iox_lockstep(
                 let _ = child.kill();
                 bail!("iox baseline: no reply to tick {k} within {PEER_TIMEOUT:?}");
             }
-            std::hint::spin_loop();
+            match handoff {
+                Handoff::Polling => std::hint::spin_loop(),
+                Handoff::Blocking => {
+                    // Drop wake-ups already seen, look once more, then sleep until a new one
+                    // (the plant process waits the same way).
+                    torque_ready.try_wait(|_| {}).ipc("drain torque events")?;
+                    if !torque.has_samples().unwrap_or(true) {
+                        ipc::wait_event(&torque_ready, 10_000_000)?;
+                    }
+                }
+            }
         };
+        record_handoff(&mut hist, sent_ns, rt::now_ns(), &t);
         if t.tick != k {
             bail!("iox baseline: reply for tick {} at tick {k}", t.tick);
         }
@@ -169,7 +245,7 @@ pub fn iox_lockstep(
     if !status.success() {
         bail!("iox baseline: the helper ended with {status}");
     }
-    Ok(hz)
+    Ok(Measured { hz, handoff: hist })
 }
 
 /// Starts `deltaloop <sub> <args> --config <config> [--cpu N]`.
@@ -217,9 +293,13 @@ pub fn uds_controller(socket: &Path, config: &Path, cpu: Option<usize>) -> Resul
             Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
             Err(e) => return Err(e.into()),
         };
+        let rx = rt::now_ns();
         let r = study.reference.row((st.tick as usize).min(last)).joint;
         // The same controller tick every mode runs, so the baseline does the same work.
-        s.write_all(bytes_of(&ctrl.answer(&st, &r)))?;
+        let mut reply = ctrl.answer(&st, &r);
+        reply.t_state_rx_ns = rx;
+        reply.t_publish_ns = rt::now_ns();
+        s.write_all(bytes_of(&reply))?;
     }
 }
 
@@ -231,7 +311,7 @@ pub fn uds_lockstep(
     dir: &Path,
     plant_cpu: Option<usize>,
     ctrl_cpu: Option<usize>,
-) -> Result<f64> {
+) -> Result<Measured> {
     let sock = dir.join("uds.sock");
     let _ = std::fs::remove_file(&sock);
     let listener = UnixListener::bind(&sock).with_context(|| format!("bind {}", sock.display()))?;
@@ -247,9 +327,12 @@ pub fn uds_lockstep(
     let mut plant = study.plant_side()?;
     let ticks = study.reference.n as u64;
     let t0 = Instant::now();
+    let mut hist = crate::timing::latency_histogram();
     for k in 0..=ticks {
+        let sent_ns = rt::now_ns();
         s.write_all(bytes_of(&plant.state()))?;
         let t: TorqueMsg = read_msg(&mut s)?;
+        record_handoff(&mut hist, sent_ns, rt::now_ns(), &t);
         if t.tick != k {
             bail!("uds baseline: reply for tick {} at tick {k}", t.tick);
         }
@@ -261,5 +344,5 @@ pub fn uds_lockstep(
     drop(s);
     let _ = child.wait();
     let _ = std::fs::remove_file(&sock);
-    Ok(hz)
+    Ok(Measured { hz, handoff: hist })
 }

@@ -11,7 +11,7 @@
 mod baseline;
 mod machine;
 
-pub use baseline::{iox_controller, uds_controller};
+pub use baseline::{Handoff, iox_controller, uds_controller};
 
 use crate::bench::s1_hold_study;
 use crate::inproc;
@@ -45,6 +45,11 @@ struct Lockstep {
     /// Transport alone, µs per cycle over the one-thread tick pair (median of the rounds).
     iox_us: f64,
     uds_us: f64,
+    /// The same over iceoryx2 on one CPU, both sides blocking on wake-up events.
+    one_cpu_us: f64,
+    /// The hand-off measured on every cycle, p50 over all rounds, µs: iceoryx2 polling, socket.
+    iox_handoff_us: f64,
+    uds_handoff_us: f64,
     /// The product's lockstep loop: cycles/s of the process pair and of inproc, and the hand-off.
     iox_hz: f64,
     inproc_hz: f64,
@@ -77,7 +82,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     let split_steal = steal_share(&sp.cpu_steal_ms, sp.loop_wall_s, split_cpu);
     if let (Some(c), Some((ms, share))) = (split_cpu, split_steal) {
         println!(
-            "    the host took {ms:.0} ms from CPU {c}, the split layout's controller CPU, {share:.1e} of the run: a controller alone on a CPU cannot answer while the host holds it (a whole tick or more, up to 4-18 ms at a time here), so its miss ratio cannot stay much below that share; measured {:.1e}",
+            "    the host took {ms:.0} ms from CPU {c}, the split layout's controller CPU: {share:.1e} of the run, against a miss ratio of {:.1e}; a controller alone on a CPU cannot answer while the host holds it (1 ms at a time, now and then 4-18 ms), so its misses follow the host's share, not the loop",
             sp.miss_ratio
         );
     }
@@ -135,9 +140,12 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     )?;
     println!("figure: {}", out.join("latency.png").display());
     println!(
-        "lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} machine_wake_p999_us={:.1} cyclictest_p999_us={}",
+        "lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} transport_one_cpu_blocking_us={:.3} handoff_iox_p50_us={:.2} handoff_uds_p50_us={:.2} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} machine_wake_p999_us={:.1} cyclictest_p999_us={}",
         lsf.iox_us,
         lsf.uds_us,
+        lsf.one_cpu_us,
+        lsf.iox_handoff_us,
+        lsf.uds_handoff_us,
         lsf.iox_hz,
         lsf.inproc_hz,
         1e6 / lsf.iox_hz - 1e6 / lsf.inproc_hz,
@@ -185,18 +193,32 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
     // CPU each, or both on one CPU). Rounds interleave so that a drift of the machine hits all.
     let lay = &ls.config.loop_.lockstep;
     let (pc, cc) = (Layout::cpu(lay.plant_cpu), Layout::cpu(lay.controller_cpu));
-    let (mut raw, mut iox, mut uds) = (vec![], vec![], vec![]);
-    let (mut iox_cost, mut uds_cost) = (vec![], vec![]);
+    let (mut raw, mut iox, mut one, mut uds) = (vec![], vec![], vec![], vec![]);
+    let (mut iox_cost, mut one_cost, mut uds_cost) = (vec![], vec![], vec![]);
+    let mut hands = [
+        crate::timing::latency_histogram(),
+        crate::timing::latency_histogram(),
+        crate::timing::latency_histogram(),
+    ];
     for _ in 0..repeats.max(1) {
         let r = baseline::raw_inproc(ls, pc)?;
-        let i = baseline::iox_lockstep(ls, &cfg_path, pc, cc)?;
-        let u = baseline::uds_lockstep(ls, &cfg_path, &ls_dir, pc, cc)?
-            .max(baseline::uds_lockstep(ls, &cfg_path, &ls_dir, cc, cc)?);
-        iox_cost.push(1e6 / i - 1e6 / r);
-        uds_cost.push(1e6 / u - 1e6 / r);
+        let i = baseline::iox_lockstep(ls, &cfg_path, pc, cc, Handoff::Polling)?;
+        let o = baseline::iox_lockstep(ls, &cfg_path, cc, cc, Handoff::Blocking)?;
+        let (us, uo) = (
+            baseline::uds_lockstep(ls, &cfg_path, &ls_dir, pc, cc)?,
+            baseline::uds_lockstep(ls, &cfg_path, &ls_dir, cc, cc)?,
+        );
+        let u = if us.hz >= uo.hz { us } else { uo };
+        iox_cost.push(1e6 / i.hz - 1e6 / r);
+        one_cost.push(1e6 / o.hz - 1e6 / r);
+        uds_cost.push(1e6 / u.hz - 1e6 / r);
+        for (h, m) in hands.iter_mut().zip([&i, &o, &u]) {
+            h.add(&m.handoff).context("merge hand-off histograms")?;
+        }
         raw.push(r);
-        iox.push(i);
-        uds.push(u);
+        iox.push(i.hz);
+        one.push(o.hz);
+        uds.push(u.hz);
     }
     let line = |name: &str, v: &[f64]| {
         let (m, lo, hi) = median_range(v);
@@ -214,11 +236,26 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
     line("(1) one thread:", &raw);
     line("(2) iceoryx2, both sides polling:", &iox);
     line("(3) Unix socket, blocking:", &uds);
+    line("(4) iceoryx2, one CPU, blocking:", &one);
     let (iox_us, ilo, ihi) = median_range(&iox_cost);
     let (uds_us, ulo, uhi) = median_range(&uds_cost);
+    let (one_us, olo, ohi) = median_range(&one_cost);
     println!(
         "transport cost per cycle ((2) or (3) less (1)): iceoryx2 {iox_us:.3} us (rounds {ilo:.3}..{ihi:.3}), Unix socket {uds_us:.3} us (rounds {ulo:.3}..{uhi:.3}): iceoryx2 {:.1}x cheaper",
         uds_us / iox_us
+    );
+    println!(
+        "    on one CPU, each side blocking on a wake-up event ((4) less (1), the default realtime layout's hand-offs): {one_us:.3} us (rounds {olo:.3}..{ohi:.3})"
+    );
+    let q = |h: &Histogram<u64>, p: f64| h.value_at_quantile(p) as f64 / 1e3;
+    println!(
+        "the hand-off measured on every cycle (state sent -> reply received, less the helper's own time; all rounds): iceoryx2 polling p50 {:.2} us, p99 {:.2} us; iceoryx2 one CPU blocking p50 {:.2} us, p99 {:.2} us; Unix socket p50 {:.2} us, p99 {:.2} us",
+        q(&hands[0], 0.5),
+        q(&hands[0], 0.99),
+        q(&hands[1], 0.5),
+        q(&hands[1], 0.99),
+        q(&hands[2], 0.5),
+        q(&hands[2], 0.99)
     );
     println!("lockstep, the product's loops (the supervisor records every tick):");
     println!(
@@ -237,7 +274,10 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
         "    the hand-off itself (round trip p50 less the law's compute p50): {handoff_us:.2} us per cycle, both ways, no system call; beyond the transport, the pair shares the 2 CPUs with the supervisor reading and writing every tick"
     );
     Ok(Lockstep {
+        iox_handoff_us: q(&hands[0], 0.5),
+        uds_handoff_us: q(&hands[2], 0.5),
         iox_us,
+        one_cpu_us: one_us,
         uds_us,
         iox_hz,
         inproc_hz,
