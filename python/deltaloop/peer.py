@@ -23,6 +23,7 @@ HANDSHAKE_TIMEOUT_NS = 30_000_000_000
 EXIT_SETUP, EXIT_FAULT, EXIT_STOPPED = 3, 4, 5
 
 _WAIT_SLICE_NS = 100_000_000  # longest block on an event before looking at STOP / SIGTERM
+_LINGER_S = 0.02  # ports kept this long after the last message (ipc::LINGER)
 
 
 def now_ns() -> int:
@@ -79,11 +80,20 @@ class Peer:
             prepare()
             self._send(wire.READY)
             loop()
+            self._linger()
             return 0
         except End as e:
             if e.code:
                 print(f"{self.name}: {e}", file=sys.stderr, flush=True)
+            self._linger()
             return e.code
+
+    def _linger(self):
+        """A subscriber drops what is still queued from a publisher that is gone: once its ports
+        are open, the process keeps them while the supervisor (it drains every millisecond) reads
+        its last messages, as the built-in processes do (`ipc::LINGER`)."""
+        if getattr(self, "node", None) is not None:
+            time.sleep(_LINGER_S)
 
     @staticmethod
     def _wait_event(listener, timeout_ns):

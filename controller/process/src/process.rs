@@ -137,7 +137,9 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
             _ => None,
         },
     };
-    answer_states(&ports, &lp, &mut ring, term)
+    let end = answer_states(&ports, &lp, &mut ring, term);
+    std::thread::sleep(ipc::LINGER);
+    end
 }
 
 /// The handshake: file the chunks the supervisor sends before START, report ARMED once tick 0's

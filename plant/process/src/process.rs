@@ -192,12 +192,14 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         at_arrival: args.run.mode == LoopMode::Realtime
             && cfg.plant.apply_torque == ApplyTorque::Arrival,
     };
-    let Some(stop) = run_loop(&ports, &mut side, &clock, &cfg, term)? else {
+    let end = match run_loop(&ports, &mut side, &clock, &cfg, term)? {
+        Some(stop) => end_run(&ports, &mut side, &clock, &cfg, stop),
         // No DONE message: the final state and the exit status say it, and the controller's ports
         // are already going away (a send now would race their teardown).
-        return Ok(ProcessEnd::Completed);
+        None => ProcessEnd::Completed,
     };
-    Ok(end_run(&ports, &mut side, &clock, &cfg, stop))
+    std::thread::sleep(ipc::LINGER);
+    Ok(end)
 }
 
 /// Ticks 0..=N, then the final state N + 1. Some(stop) if the loop ended early.

@@ -73,6 +73,12 @@ pub fn service_name(run_id: &str, what: &str) -> Result<ServiceName, IpcError> {
     ServiceName::new(&format!("deltaloop/{run_id}/{what}")).ipc(format!("service name {what}"))
 }
 
+/// How long a loop process keeps its ports after its last message. A subscriber drops what it
+/// has not yet taken from a publisher that is gone, and the supervisor drains every millisecond:
+/// without this, a controller released at once by a plant that diverged took its last replies
+/// with it, and the run was reported as a fault with its last tick lost.
+pub const LINGER: std::time::Duration = std::time::Duration::from_millis(20);
+
 /// Subscriber slots the loop's services (`state`, `torque`, `telemetry`, `control`) keep free
 /// beyond the run's own: an external tool can watch a live run without taking a slot the loop
 /// needs.
