@@ -7,6 +7,7 @@
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, RunConfig};
+use deltaloop_controller::ControllerSide;
 use deltaloop_plant::Arrival;
 use deltaloop_transport::ipc::{self, IpcContext};
 use deltaloop_transport::rt;
@@ -49,21 +50,53 @@ fn pin(who: &str, cpu: Option<usize>) {
     }
 }
 
+/// Steps the plant through the study's ticks; `exchange` takes each state to the controller and
+/// brings its reply back. The cycle rate and the hand-off of every cycle.
+fn drive(
+    study: &Study,
+    what: &str,
+    mut exchange: impl FnMut(StateMsg) -> Result<TorqueMsg>,
+) -> Result<Measured> {
+    let mut plant = study.plant_side()?;
+    let ticks = study.reference.n as u64;
+    let mut hist = crate::timing::latency_histogram();
+    let t0 = Instant::now();
+    for k in 0..=ticks {
+        let sent_ns = rt::now_ns();
+        let t = exchange(plant.state())?;
+        record_handoff(&mut hist, sent_ns, rt::now_ns(), &t);
+        if t.tick != k {
+            bail!("{what} baseline: reply for tick {} at tick {k}", t.tick);
+        }
+        if let Err(stop) = plant.advance(Arrival::Reply(t)) {
+            bail!("{what} baseline: {}", stop.cause());
+        }
+    }
+    Ok(Measured {
+        hz: (ticks + 1) as f64 / t0.elapsed().as_secs_f64(),
+        handoff: hist,
+    })
+}
+
+/// The controller's reply to `st`, received at `rx_ns`: the same controller tick every mode runs,
+/// so each baseline does the same work, with the helper's own stamps for the hand-off.
+fn answer(study: &Study, ctrl: &mut ControllerSide, st: &StateMsg, rx_ns: u64) -> TorqueMsg {
+    let last = study.reference.n + 1;
+    let r = study.reference.row((st.tick as usize).min(last)).joint;
+    let mut reply = ctrl.answer(st, &r);
+    reply.t_state_rx_ns = rx_ns;
+    reply.t_publish_ns = rt::now_ns();
+    reply
+}
+
 /// The plant and controller tick in one thread on `cpu`, nothing recorded: cycles per second.
 pub fn raw_inproc(study: &Study, cpu: Option<usize>) -> Result<f64> {
     pin("bench loop", cpu);
-    let mut plant = study.plant_side()?;
     let mut ctrl = study.controller_side(Law::TdcIsSta);
-    let ticks = study.reference.n as u64;
-    let t0 = Instant::now();
-    for k in 0..=ticks {
-        let st = plant.state();
-        let r = study.reference.row(k as usize).joint;
-        if let Err(stop) = plant.advance(Arrival::Reply(ctrl.answer(&st, &r))) {
-            bail!("inproc baseline: {}", stop.cause());
-        }
-    }
-    Ok((ticks + 1) as f64 / t0.elapsed().as_secs_f64())
+    let m = drive(study, "inproc", |st| {
+        Ok(answer(study, &mut ctrl, &st, rt::now_ns()))
+    })?;
+    Ok(m.hz)
 }
 
 /// How the two sides of the iceoryx2 baseline wait for each other.
@@ -124,17 +157,14 @@ pub fn iox_controller(
         let st = *sample.payload();
         drop(sample);
         heard = Instant::now();
-        let mut reply = if st.tick == PROBE_TICK {
+        let reply = if st.tick == PROBE_TICK {
             TorqueMsg {
                 tick: PROBE_TICK,
                 ..TorqueMsg::default()
             }
         } else {
-            let r = study.reference.row((st.tick.min(last + 1)) as usize).joint;
-            ctrl.answer(&st, &r)
+            answer(&study, &mut ctrl, &st, rx)
         };
-        reply.t_state_rx_ns = rx;
-        reply.t_publish_ns = rt::now_ns();
         torque.send_copy(reply).ipc("publish torque")?;
         if handoff == Handoff::Blocking {
             torque_ready.notify().ipc("notify torque")?;
@@ -154,7 +184,7 @@ pub fn iox_lockstep(
     ctrl_cpu: Option<usize>,
     handoff: Handoff,
 ) -> Result<Measured> {
-    let run_id = format!("bench-{}-{}", std::process::id(), rt::now_ns() % 1_000_000);
+    let run_id = crate::procs::new_run_id();
     let node = ipc::node("bench-plant", &run_id)?;
     let state = ipc::state(&node, &run_id)?
         .publisher_builder()
@@ -201,24 +231,21 @@ pub fn iox_lockstep(
     }
     while torque.receive().ipc("receive torque")?.is_some() {}
     pin("bench loop", plant_cpu);
-    let mut plant = study.plant_side()?;
-    let ticks = study.reference.n as u64;
-    let mut hist = crate::timing::latency_histogram();
-    let t0 = Instant::now();
-    for k in 0..=ticks {
-        let sent_ns = rt::now_ns();
-        state.send_copy(plant.state()).ipc("publish state")?;
+    let measured = drive(study, "iox", |st| {
+        state.send_copy(st).ipc("publish state")?;
         if handoff == Handoff::Blocking {
             state_ready.notify().ipc("notify state")?;
         }
         let sent = Instant::now();
-        let t = loop {
+        loop {
             if let Some(s) = torque.receive().ipc("receive torque")? {
-                break *s.payload();
+                return Ok(*s.payload());
             }
             if sent.elapsed() > PEER_TIMEOUT {
-                let _ = child.kill();
-                bail!("iox baseline: no reply to tick {k} within {PEER_TIMEOUT:?}");
+                bail!(
+                    "iox baseline: no reply to tick {} within {PEER_TIMEOUT:?}",
+                    st.tick
+                );
             }
             match handoff {
                 Handoff::Polling => std::hint::spin_loop(),
@@ -231,21 +258,17 @@ pub fn iox_lockstep(
                     }
                 }
             }
-        };
-        record_handoff(&mut hist, sent_ns, rt::now_ns(), &t);
-        if t.tick != k {
-            bail!("iox baseline: reply for tick {} at tick {k}", t.tick);
         }
-        if let Err(stop) = plant.advance(Arrival::Reply(t)) {
-            bail!("iox baseline: {}", stop.cause());
-        }
+    });
+    if measured.is_err() {
+        let _ = child.kill();
     }
-    let hz = (ticks + 1) as f64 / t0.elapsed().as_secs_f64();
+    let measured = measured?;
     let status = child.wait()?;
     if !status.success() {
         bail!("iox baseline: the helper ended with {status}");
     }
-    Ok(Measured { hz, handoff: hist })
+    Ok(measured)
 }
 
 /// Starts `deltaloop <sub> <args> --config <config> [--cpu N]`.
@@ -286,7 +309,6 @@ pub fn uds_controller(socket: &Path, config: &Path, cpu: Option<usize>) -> Resul
     let mut s =
         UnixStream::connect(socket).with_context(|| format!("connect {}", socket.display()))?;
     let mut ctrl = study.controller_side(Law::TdcIsSta);
-    let last = study.reference.n + 1;
     loop {
         let st: StateMsg = match read_msg(&mut s) {
             Ok(m) => m,
@@ -294,12 +316,7 @@ pub fn uds_controller(socket: &Path, config: &Path, cpu: Option<usize>) -> Resul
             Err(e) => return Err(e.into()),
         };
         let rx = rt::now_ns();
-        let r = study.reference.row((st.tick as usize).min(last)).joint;
-        // The same controller tick every mode runs, so the baseline does the same work.
-        let mut reply = ctrl.answer(&st, &r);
-        reply.t_state_rx_ns = rx;
-        reply.t_publish_ns = rt::now_ns();
-        s.write_all(bytes_of(&reply))?;
+        s.write_all(bytes_of(&answer(&study, &mut ctrl, &st, rx)))?;
     }
 }
 
@@ -324,25 +341,12 @@ pub fn uds_lockstep(
     )?;
     let (mut s, _) = listener.accept()?;
     pin("bench loop", plant_cpu);
-    let mut plant = study.plant_side()?;
-    let ticks = study.reference.n as u64;
-    let t0 = Instant::now();
-    let mut hist = crate::timing::latency_histogram();
-    for k in 0..=ticks {
-        let sent_ns = rt::now_ns();
-        s.write_all(bytes_of(&plant.state()))?;
-        let t: TorqueMsg = read_msg(&mut s)?;
-        record_handoff(&mut hist, sent_ns, rt::now_ns(), &t);
-        if t.tick != k {
-            bail!("uds baseline: reply for tick {} at tick {k}", t.tick);
-        }
-        if let Err(stop) = plant.advance(Arrival::Reply(t)) {
-            bail!("uds baseline: {}", stop.cause());
-        }
-    }
-    let hz = (ticks + 1) as f64 / t0.elapsed().as_secs_f64();
+    let measured = drive(study, "uds", |st| {
+        s.write_all(bytes_of(&st))?;
+        Ok(read_msg(&mut s)?)
+    });
     drop(s);
     let _ = child.wait();
     let _ = std::fs::remove_file(&sock);
-    Ok(Measured { hz, handoff: hist })
+    measured
 }
