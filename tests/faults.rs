@@ -331,7 +331,43 @@ fn sigterm_ctrl_c_and_sighup_stop_everything_and_keep_the_data() {
         let s = assert_kept_and_clean(&out);
         assert_eq!(s["interrupted"], true);
         assert!(s["laws"]["tdc"]["interrupted_at_tick"].as_u64().unwrap() > 100);
+        // No comparison with an in-process twin that the same Ctrl-C stops at its first tick.
+        let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+        assert!(
+            report.contains("Not computed: the run was interrupted") && !report.contains("RMS ×"),
+            "{report}"
+        );
     }
+}
+
+/// Regression: a realtime soak whose robot diverged 52 s into its hour spent two minutes after
+/// the loop simulating the whole ideal hour for its report's latency-cost line, and compared the
+/// 52 s it ran with 60 minutes of ideal tracking. A run that ends early (here an injected fault
+/// in a 1-hour hold) is compared with ideal timing over its own ticks, and reports at once.
+#[test]
+fn regression_a_run_that_ends_early_is_compared_with_ideal_timing_over_its_own_ticks() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = config(tmp.path(), 3600.0, "[faults]\ninject = \"panic@3000\"\n");
+    let t0 = Instant::now();
+    let o = deltaloop(&["run", &cfg, "--out", out.to_str().unwrap()]);
+    let took = t0.elapsed();
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let s = summary(&out);
+    let ticks = s["laws"]["tdc"]["ticks"].as_u64().unwrap();
+    assert!((3000..4000).contains(&ticks), "{ticks}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        report.contains(&format!("ticks 0..={ticks})")),
+        "compared over its own {ticks} ticks: {report}"
+    );
+    // 12 million ideal ticks take minutes in this build; 3,000 take a blink.
+    assert!(took < Duration::from_secs(60), "{took:?}");
 }
 
 #[test]

@@ -175,11 +175,8 @@ fn replay(run_dir: &std::path::Path, out: Option<PathBuf>, ideal: bool) -> anyho
     if ideal {
         let cfg = deltaloop_config::RunConfig::from_file(&run_dir.join("config.toml"))?;
         let study = crate::study::Study::new(cfg)?;
-        let best = replay::ideal_rms(&study)?;
-        let measured: Vec<_> = runs
-            .iter()
-            .map(|r| (r.law, replay::max_rms(&r.metrics)))
-            .collect();
+        let measured: Vec<_> = runs.iter().map(|r| &r.metrics).collect();
+        let best = replay::ideal_rms(&study, &measured)?;
         for l in replay::latency_cost(&measured, &best) {
             println!("{l}");
         }

@@ -15,7 +15,14 @@ use deltaloop_plant::Arrival;
 /// Runs one law over the study's reference, ticks 0..=N, then takes the final state N + 1.
 /// Fails only if the trace cannot be written.
 pub fn run_law(study: &Study, law: Law, keep: &Keep) -> Result<LawRun> {
+    run_law_through(study, law, keep, study.reference.n as u64)
+}
+
+/// [`run_law`] over ticks 0..=`last` only (all of them when `last` ≥ N): the in-process twin of
+/// a measured run that covered fewer ticks than its scenario planned.
+pub fn run_law_through(study: &Study, law: Law, keep: &Keep, last: u64) -> Result<LawRun> {
     let reference = &study.reference;
+    let last = usize::try_from(last).unwrap_or(usize::MAX).min(reference.n);
     let mut rec = lawrun::recorder(study, law, keep)?;
     let mut plant = match study.plant_side() {
         Ok(p) => p,
@@ -25,7 +32,7 @@ pub fn run_law(study: &Study, law: Law, keep: &Keep) -> Result<LawRun> {
         }
     };
     let mut ctrl = study.controller_side(law);
-    for k in 0..=reference.n {
+    for k in 0..=last {
         if crate::signals::interrupted() {
             rec.interrupt();
             return lawrun::finish(rec, None);
@@ -43,7 +50,8 @@ pub fn run_law(study: &Study, law: Law, keep: &Keep) -> Result<LawRun> {
             }
         }
     }
-    lawrun::finish(rec, Some(&plant.state()))
+    let after = (last == reference.n).then(|| plant.state());
+    lawrun::finish(rec, after.as_ref())
 }
 
 /// Runs several laws, each on its own thread (they share nothing but the read-only study), each

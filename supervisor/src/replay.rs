@@ -301,17 +301,21 @@ pub fn describe(v: &Verdict, run_dir: &Path) -> String {
     }
 }
 
-/// The max-joint RMS tracking error of each law of `study` with ideal timing (in-process: no
-/// latency beyond the configured transport delay, no misses), rad.
-pub fn ideal_rms(study: &Study) -> Result<Vec<(Law, f64)>> {
-    study
-        .config
-        .controller
-        .laws
+/// The max-joint RMS tracking error with ideal timing (in-process: no latency beyond the
+/// configured transport delay, no misses), rad, of each measured law over the same ticks its
+/// metrics cover (0..=`ticks`): a run that diverged, faulted or stopped early is compared with
+/// the ideal run over its own span, not over the whole scenario (regression: a realtime soak that
+/// diverged after 52 s of its hour spent two minutes simulating the ideal hour, and compared 52 s
+/// with 60 minutes).
+pub fn ideal_rms(
+    study: &Study,
+    measured: &[&crate::metrics::LawMetrics],
+) -> Result<Vec<(Law, f64)>> {
+    measured
         .iter()
-        .map(|&law| {
-            let run = crate::inproc::run_law(study, law, &Keep::default())?;
-            Ok((law, max_rms(&run.metrics)))
+        .map(|m| {
+            let run = crate::inproc::run_law_through(study, m.law, &Keep::default(), m.ticks)?;
+            Ok((m.law, max_rms(&run.metrics)))
         })
         .collect()
 }
@@ -321,14 +325,18 @@ pub fn max_rms(m: &crate::metrics::LawMetrics) -> f64 {
     m.rms_rad.into_iter().fold(0.0, f64::max)
 }
 
-/// "measured latency cost" lines: each law's RMS against the same run with ideal timing.
-pub fn latency_cost(runs: &[(Law, f64)], ideal: &[(Law, f64)]) -> Vec<String> {
-    runs.iter()
-        .filter_map(|&(law, rms)| {
+/// "measured latency cost" lines: each law's RMS against the same ticks with ideal timing.
+pub fn latency_cost(measured: &[&crate::metrics::LawMetrics], ideal: &[(Law, f64)]) -> Vec<String> {
+    measured
+        .iter()
+        .filter_map(|m| {
+            let law = m.law;
             let &(_, best) = ideal.iter().find(|(l, _)| *l == law)?;
+            let rms = max_rms(m);
             Some(format!(
-                "`{law}`: measured latency cost: RMS ×{:.3} vs the same run with ideal timing ({rms:.4e} vs {best:.4e} rad)",
-                rms / best
+                "`{law}`: measured latency cost: RMS ×{:.3} vs the same run with ideal timing ({rms:.4e} vs {best:.4e} rad, ticks 0..={})",
+                rms / best,
+                m.ticks
             ))
         })
         .collect()
