@@ -1,14 +1,21 @@
 //! A realtime run of the real process pair: it tracks S1 as well as the inproc run allows, given
 //! its measured latency and the deadlines it missed, writes its timing histograms, and replays
-//! byte for byte. Its own test binary, so no other
-//! test's processes share the CPUs with it (cargo runs test binaries one at a time).
+//! byte for byte; and `deltaloop bench loop` end to end. Their own test binary, so no other
+//! test's processes share the CPUs with them (cargo runs test binaries one at a time), and one
+//! at a time within it (both pin SCHED_FIFO loops to the same CPU).
 
 mod common;
 
 use common::{assert_clean, run};
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+
+/// Held by each test: two FIFO loops on one CPU would starve each other.
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 #[test]
 fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = (tmp.path().join("inproc"), tmp.path().join("rt"));
     let laws = ["--law", "tde-is", "--law", "pid"];
@@ -88,4 +95,122 @@ fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
         "{out}{err}"
     );
     assert_clean(&b, &sr);
+}
+
+/// `deltaloop bench loop`, short: every baseline and loop runs to its end, the helpers exit, the
+/// last line carries every key with a number, and the files the README points at are there.
+#[test]
+fn bench_loop_runs_every_measurement_and_ends_with_its_key_value_line() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("bench");
+    let o = common::deltaloop(&[
+        "bench",
+        "loop",
+        "--lockstep-seconds",
+        "0.1",
+        "--rt-seconds",
+        "0.1",
+        "--repeats",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert!(o.status.success(), "{stdout}{stderr}");
+    let last = stdout.lines().last().unwrap();
+    let kv: BTreeMap<&str, &str> = last
+        .split_whitespace()
+        .map(|p| {
+            p.split_once('=')
+                .unwrap_or_else(|| panic!("{p:?} in {last}"))
+        })
+        .collect();
+    // Either a number or, for what this machine may not give (cyclictest not installed, no
+    // steal accounting), "na".
+    let may_be_na = ["rt_split_steal_share", "cyclictest_p999_us"];
+    let keys = [
+        "lockstep_transport_shm_us",
+        "lockstep_transport_iox_us",
+        "lockstep_transport_uds_us",
+        "transport_one_cpu_blocking_us",
+        "handoff_shm_p50_us",
+        "handoff_iox_p50_us",
+        "handoff_uds_p50_us",
+        "lockstep_iox_hz",
+        "inproc_hz",
+        "lockstep_loop_us",
+        "lockstep_handoff_us",
+        "rt_rtt_p50_us",
+        "rt_rtt_p999_us",
+        "rt_miss_ratio",
+        "rt_split_rtt_p50_us",
+        "rt_split_rtt_p999_us",
+        "rt_split_miss_ratio",
+        "rt_split_steal_share",
+        "machine_wake_p999_us",
+        "cyclictest_p999_us",
+    ];
+    assert_eq!(
+        kv.keys().copied().collect::<Vec<_>>(),
+        {
+            let mut k = keys.to_vec();
+            k.sort_unstable();
+            k
+        },
+        "{last}"
+    );
+    for (k, v) in &kv {
+        if *v == "na" && may_be_na.contains(k) {
+            continue;
+        }
+        let x: f64 = v.parse().unwrap_or_else(|_| panic!("{k}={v}"));
+        assert!(x.is_finite(), "{k}={v}");
+        // Per-cycle costs are differences of two rates and may dip below zero in a noisy round;
+        // everything else is a rate, a latency or a ratio measured on real cycles.
+        if !(k.starts_with("lockstep_transport") || *k == "transport_one_cpu_blocking_us")
+            && *k != "lockstep_loop_us"
+        {
+            let may_be_zero = k.ends_with("miss_ratio") || k.ends_with("steal_share");
+            assert!(x > 0.0 || (may_be_zero && x == 0.0), "{k}={v}");
+        }
+    }
+    // Both realtime layouts ran every tick of S1 (0.8 s, ticks 0..=2667).
+    for layout in ["realtime ", "realtime-split "] {
+        let line = stdout
+            .lines()
+            .find(|l| l.starts_with(&format!("(d) {layout}")))
+            .unwrap_or_else(|| panic!("no (d) {layout} line: {stdout}"));
+        assert!(line.contains(" of 2668 ("), "{line}");
+    }
+    for f in [
+        "latency.png",
+        "latency.svg",
+        "lockstep/config.toml",
+        "realtime/tdc-is-sta.round_trip.hgrm",
+        "realtime/tdc-is-sta.latency.png",
+        "realtime/tdc-is-sta.timeline.svg",
+        "realtime-split/tdc-is-sta.round_trip.hgrm",
+        "realtime-split/tdc-is-sta.timeline.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    assert!(
+        !out.join("lockstep/uds.sock").exists(),
+        "socket left behind"
+    );
+    // The helper controllers exited with their baselines.
+    let needle = out.to_str().unwrap();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        if let Ok(cmd) = std::fs::read(entry.path().join("cmdline")) {
+            let cmd = String::from_utf8_lossy(&cmd);
+            assert!(
+                !(cmd.contains("-controller") && cmd.contains(needle)),
+                "a helper outlived the bench: {cmd}"
+            );
+        }
+    }
 }

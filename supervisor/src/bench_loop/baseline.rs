@@ -1,8 +1,11 @@
 //! The transport alone: the same plant and controller tick ([`deltaloop_plant::PlantSide`],
 //! [`deltaloop_controller::ControllerSide`]) with nothing recorded, (1) in one thread, (2) over
 //! iceoryx2 and (3) over a blocking Unix socket pair, plant in this process and controller in a
-//! helper process (`deltaloop iox-controller` / `uds-controller`), pinned like lockstep. The
-//! difference of (2) or (3) and (1) per cycle is what the transport costs.
+//! helper process (`deltaloop iox-controller` / `uds-controller`), pinned like lockstep, and (4)
+//! over iceoryx2 on one CPU, both sides blocking. The difference of (2), (3) or (4) and (1) per
+//! cycle is what the transport costs. (0) moves the same messages between two threads through one
+//! shared slot each way, no transport at all: the machine's own floor for a hand-off between the
+//! two CPUs.
 
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
@@ -13,9 +16,11 @@ use deltaloop_transport::ipc::{self, IpcContext};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{StateMsg, TorqueMsg};
 use hdrhistogram::Histogram;
+use std::cell::UnsafeCell;
 use std::io::{Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 /// How long either side of a baseline waits for its peer before it gives up.
@@ -97,6 +102,90 @@ pub fn raw_inproc(study: &Study, cpu: Option<usize>) -> Result<f64> {
         Ok(answer(study, &mut ctrl, &st, rt::now_ns()))
     })?;
     Ok(m.hz)
+}
+
+/// One message at a time from one thread to another: the payload, and the count of messages put
+/// so far, which publishes it. Aligned apart so that the two directions share no cache line.
+#[repr(align(128))]
+#[derive(Default)]
+struct Slot<T> {
+    count: AtomicU64,
+    msg: UnsafeCell<T>,
+}
+
+// SAFETY: `put` and `take` hand the payload over strictly in turn (see `put`), so the writer and
+// the reader never touch `msg` at the same time.
+unsafe impl<T: Send> Sync for Slot<T> {}
+
+impl<T: Copy> Slot<T> {
+    /// Puts message number `n` (1, 2, …). The caller must know that the reader has taken message
+    /// `n − 1`: in a ping-pong, the reply to it has arrived.
+    fn put(&self, m: T, n: u64) {
+        // SAFETY: the reader took message n − 1 and reads again only after `count` reaches n.
+        unsafe { *self.msg.get() = m };
+        self.count.store(n, Ordering::Release);
+    }
+
+    /// Spins until message `n` is there and copies it out; `None` after [`PEER_TIMEOUT`].
+    fn take(&self, n: u64) -> Option<T> {
+        let since = Instant::now();
+        let mut spins = 0u32;
+        while self.count.load(Ordering::Acquire) < n {
+            std::hint::spin_loop();
+            spins = spins.wrapping_add(1);
+            if spins.is_multiple_of(4096) && since.elapsed() > PEER_TIMEOUT {
+                return None;
+            }
+        }
+        // SAFETY: the writer published message n (Acquire pairs with its Release) and writes
+        // message n + 1 only after our reply.
+        Some(unsafe { *self.msg.get() })
+    }
+}
+
+/// (0) The plant here on `plant_cpu`, the controller in a second thread on `ctrl_cpu`, each
+/// message copied through a shared slot and polled for: no transport, no system call. What a
+/// hand-off between these two CPUs costs at the least (cache lines moving between them).
+pub fn shared_memory(
+    study: &Study,
+    plant_cpu: Option<usize>,
+    ctrl_cpu: Option<usize>,
+) -> Result<Measured> {
+    let state = Slot::<StateMsg>::default();
+    let torque = Slot::<TorqueMsg>::default();
+    let last = study.reference.n as u64;
+    std::thread::scope(|scope| {
+        let controller = scope.spawn(|| -> Result<()> {
+            pin("bench loop (shared-memory controller)", ctrl_cpu);
+            let mut ctrl = study.controller_side(Law::TdcIsSta);
+            for n in 1..=last + 1 {
+                let Some(st) = state.take(n) else {
+                    bail!("shared-memory baseline: no state {n} within {PEER_TIMEOUT:?}");
+                };
+                let rx = rt::now_ns();
+                torque.put(answer(study, &mut ctrl, &st, rx), n);
+            }
+            Ok(())
+        });
+        pin("bench loop", plant_cpu);
+        let mut n = 0;
+        let measured = drive(study, "shared memory", |st| {
+            n += 1;
+            state.put(st, n);
+            torque.take(n).with_context(|| {
+                format!(
+                    "shared-memory baseline: no reply to tick {} within {PEER_TIMEOUT:?}",
+                    st.tick
+                )
+            })
+        });
+        let helper = controller.join();
+        let measured = measured?;
+        helper.map_err(|_| {
+            anyhow::anyhow!("shared-memory baseline: the controller thread panicked")
+        })??;
+        Ok(measured)
+    })
 }
 
 /// How the two sides of the iceoryx2 baseline wait for each other.

@@ -1,8 +1,9 @@
 //! `deltaloop bench loop`: the loop against the transport's own cost and the machine's limit,
 //! measured in one run.
 //!
-//! Lockstep: (1)–(3) the transport alone ([`baseline`]: the tick pair in one thread, over iceoryx2
-//! and over a Unix socket pair, nothing recorded, the median of several interleaved rounds), then
+//! Lockstep: (0)–(4) the transport alone ([`baseline`]: the tick pair in one thread, in two threads
+//! through shared memory, over iceoryx2 and over a Unix socket pair, nothing recorded, the median
+//! of several interleaved rounds), then
 //! the product's loops with the supervisor recording every tick: (c) inproc and (a) the real
 //! process pair. Realtime: (d) the default and the split-CPU layouts at 3.3 kHz, each with the
 //! CPU time the host took from its CPUs, and (e) the machine's own wake-up limit ([`machine`]).
@@ -42,12 +43,16 @@ fn median_range(v: &[f64]) -> (f64, f64, f64) {
 
 /// What the lockstep half measured.
 struct Lockstep {
-    /// Transport alone, µs per cycle over the one-thread tick pair (median of the rounds).
+    /// Transport alone, µs per cycle over the one-thread tick pair (median of the rounds): two
+    /// threads through shared memory (no transport), iceoryx2, a Unix socket.
+    shm_us: f64,
     iox_us: f64,
     uds_us: f64,
     /// The same over iceoryx2 on one CPU, both sides blocking on wake-up events.
     one_cpu_us: f64,
-    /// The hand-off measured on every cycle, p50 over all rounds, µs: iceoryx2 polling, socket.
+    /// The hand-off measured on every cycle, p50 over all rounds, µs: shared memory, iceoryx2
+    /// polling, socket.
+    shm_handoff_us: f64,
     iox_handoff_us: f64,
     uds_handoff_us: f64,
     /// The product's lockstep loop: cycles/s of the process pair and of inproc, and the hand-off.
@@ -140,10 +145,12 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     )?;
     println!("figure: {}", out.join("latency.png").display());
     println!(
-        "lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} transport_one_cpu_blocking_us={:.3} handoff_iox_p50_us={:.2} handoff_uds_p50_us={:.2} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} machine_wake_p999_us={:.1} cyclictest_p999_us={}",
+        "lockstep_transport_shm_us={:.3} lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} transport_one_cpu_blocking_us={:.3} handoff_shm_p50_us={:.2} handoff_iox_p50_us={:.2} handoff_uds_p50_us={:.2} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} machine_wake_p999_us={:.1} cyclictest_p999_us={}",
+        lsf.shm_us,
         lsf.iox_us,
         lsf.uds_us,
         lsf.one_cpu_us,
+        lsf.shm_handoff_us,
         lsf.iox_handoff_us,
         lsf.uds_handoff_us,
         lsf.iox_hz,
@@ -193,15 +200,13 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
     // CPU each, or both on one CPU). Rounds interleave so that a drift of the machine hits all.
     let lay = &ls.config.loop_.lockstep;
     let (pc, cc) = (Layout::cpu(lay.plant_cpu), Layout::cpu(lay.controller_cpu));
-    let (mut raw, mut iox, mut one, mut uds) = (vec![], vec![], vec![], vec![]);
-    let (mut iox_cost, mut one_cost, mut uds_cost) = (vec![], vec![], vec![]);
-    let mut hands = [
-        crate::timing::latency_histogram(),
-        crate::timing::latency_histogram(),
-        crate::timing::latency_histogram(),
-    ];
+    let (mut raw, mut shm, mut iox, mut one, mut uds) = (vec![], vec![], vec![], vec![], vec![]);
+    let (mut shm_cost, mut iox_cost, mut one_cost, mut uds_cost) = (vec![], vec![], vec![], vec![]);
+    let mut hands: [Histogram<u64>; 4] =
+        std::array::from_fn(|_| crate::timing::latency_histogram());
     for _ in 0..repeats.max(1) {
         let r = baseline::raw_inproc(ls, pc)?;
+        let s = baseline::shared_memory(ls, pc, cc)?;
         let i = baseline::iox_lockstep(ls, &cfg_path, pc, cc, Handoff::Polling)?;
         let o = baseline::iox_lockstep(ls, &cfg_path, cc, cc, Handoff::Blocking)?;
         let (us, uo) = (
@@ -209,13 +214,15 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
             baseline::uds_lockstep(ls, &cfg_path, &ls_dir, cc, cc)?,
         );
         let u = if us.hz >= uo.hz { us } else { uo };
+        shm_cost.push(1e6 / s.hz - 1e6 / r);
         iox_cost.push(1e6 / i.hz - 1e6 / r);
         one_cost.push(1e6 / o.hz - 1e6 / r);
         uds_cost.push(1e6 / u.hz - 1e6 / r);
-        for (h, m) in hands.iter_mut().zip([&i, &o, &u]) {
+        for (h, m) in hands.iter_mut().zip([&s, &i, &o, &u]) {
             h.add(&m.handoff).context("merge hand-off histograms")?;
         }
         raw.push(r);
+        shm.push(s.hz);
         iox.push(i.hz);
         one.push(o.hz);
         uds.push(u.hz);
@@ -233,10 +240,12 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
         fmt_cpu(cc),
         raw.len()
     );
+    line("(0) two threads, shared memory:", &shm);
     line("(1) one thread:", &raw);
     line("(2) iceoryx2, both sides polling:", &iox);
     line("(3) Unix socket, blocking:", &uds);
     line("(4) iceoryx2, one CPU, blocking:", &one);
+    let (shm_us, slo, shi) = median_range(&shm_cost);
     let (iox_us, ilo, ihi) = median_range(&iox_cost);
     let (uds_us, ulo, uhi) = median_range(&uds_cost);
     let (one_us, olo, ohi) = median_range(&one_cost);
@@ -245,17 +254,27 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
         uds_us / iox_us
     );
     println!(
+        "    the machine's floor, two threads polling one shared slot each way ((0) less (1), no transport, no system call): {shm_us:.3} us (rounds {slo:.3}..{shi:.3})"
+    );
+    println!(
         "    on one CPU, each side blocking on a wake-up event ((4) less (1), the default realtime layout's hand-offs): {one_us:.3} us (rounds {olo:.3}..{ohi:.3})"
     );
     let q = |h: &Histogram<u64>, p: f64| h.value_at_quantile(p) as f64 / 1e3;
     println!(
-        "the hand-off measured on every cycle (state sent -> reply received, less the helper's own time; all rounds): iceoryx2 polling p50 {:.2} us, p99 {:.2} us; iceoryx2 one CPU blocking p50 {:.2} us, p99 {:.2} us; Unix socket p50 {:.2} us, p99 {:.2} us",
+        "the hand-off measured on every cycle (state sent -> reply received, less the helper's own time; all rounds): shared memory p50 {:.2} us, p99 {:.2} us; iceoryx2 polling p50 {:.2} us, p99 {:.2} us; iceoryx2 one CPU blocking p50 {:.2} us, p99 {:.2} us; Unix socket p50 {:.2} us, p99 {:.2} us",
         q(&hands[0], 0.5),
         q(&hands[0], 0.99),
         q(&hands[1], 0.5),
         q(&hands[1], 0.99),
         q(&hands[2], 0.5),
-        q(&hands[2], 0.99)
+        q(&hands[2], 0.99),
+        q(&hands[3], 0.5),
+        q(&hands[3], 0.99)
+    );
+    println!(
+        "    iceoryx2 over the machine's floor: {:.2} us per cycle (p50 hand-off), {:.3} us (cycle rate)",
+        q(&hands[1], 0.5) - q(&hands[0], 0.5),
+        iox_us - shm_us
     );
     println!("lockstep, the product's loops (the supervisor records every tick):");
     println!(
@@ -274,8 +293,10 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
         "    the hand-off itself (round trip p50 less the law's compute p50): {handoff_us:.2} us per cycle, both ways, no system call; beyond the transport, the pair shares the 2 CPUs with the supervisor reading and writing every tick"
     );
     Ok(Lockstep {
-        iox_handoff_us: q(&hands[0], 0.5),
-        uds_handoff_us: q(&hands[2], 0.5),
+        shm_handoff_us: q(&hands[0], 0.5),
+        iox_handoff_us: q(&hands[1], 0.5),
+        uds_handoff_us: q(&hands[3], 0.5),
+        shm_us,
         iox_us,
         one_cpu_us: one_us,
         uds_us,
