@@ -340,9 +340,9 @@ fn sigterm_ctrl_c_and_sighup_stop_everything_and_keep_the_data() {
     }
 }
 
-/// Regression: a realtime soak whose robot diverged 52 s into its hour spent two minutes after
+/// Regression: a realtime soak whose robot diverged 49 s into its hour spent two minutes after
 /// the loop simulating the whole ideal hour for its report's latency-cost line, and compared the
-/// 52 s it ran with 60 minutes of ideal tracking. A run that ends early (here an injected fault
+/// 49 s it ran with 60 minutes of ideal tracking. A run that ends early (here an injected fault
 /// in a 1-hour hold) is compared with ideal timing over its own ticks, and reports at once.
 #[test]
 fn regression_a_run_that_ends_early_is_compared_with_ideal_timing_over_its_own_ticks() {

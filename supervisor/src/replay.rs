@@ -305,7 +305,7 @@ pub fn describe(v: &Verdict, run_dir: &Path) -> String {
 /// configured transport delay, no misses), rad, of each measured law over the same ticks its
 /// metrics cover (0..=`ticks`): a run that diverged, faulted or stopped early is compared with
 /// the ideal run over its own span, not over the whole scenario (regression: a realtime soak that
-/// diverged after 52 s of its hour spent two minutes simulating the ideal hour, and compared 52 s
+/// diverged 49 s into its hour spent two minutes simulating the ideal hour, and compared 49 s
 /// with 60 minutes).
 pub fn ideal_rms(
     study: &Study,
