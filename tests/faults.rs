@@ -503,6 +503,26 @@ fn interrupted_sweep_keeps_its_finished_rows() {
     );
 }
 
+/// The pid of `who` of the run in `out`, once the pair runs (the controller's log exists).
+fn pid_once_running(out: &Path, who: &str) -> i32 {
+    loop {
+        if let Some(&p) = pids_of(out, who).first()
+            && out.join("tdc.controller.log").exists()
+        {
+            return p as i32;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// Stops `pid` (SIGSTOP) for `d`, then lets it go on (SIGCONT).
+fn pause(pid: i32, d: Duration) {
+    // SAFETY: signalling our own grandchild, found by its command line.
+    unsafe { libc::kill(pid, libc::SIGSTOP) };
+    std::thread::sleep(d);
+    unsafe { libc::kill(pid, libc::SIGCONT) };
+}
+
 /// Regression: a 5 ms SIGSTOP/SIGCONT of the controller killed it ("wait for state:
 /// InterruptSignal", exit 3), although 5 ms is well inside the hold window. SIGCONT must be a
 /// non-event: the run completes, and the pause shows at most as a few missed ticks.
@@ -512,20 +532,10 @@ fn regression_sigstop_sigcont_of_the_controller_is_a_non_event() {
     let out = tmp.path().join("run");
     let cfg = config(tmp.path(), 0.5, "");
     let child = spawn(&["run", &cfg, "--out", out.to_str().unwrap()]);
-    let ctrl = loop {
-        if let Some(&p) = pids_of(&out, "deltaloop-controller").first()
-            && out.join("tdc.controller.log").exists()
-        {
-            break p as i32;
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    };
+    let ctrl = pid_once_running(&out, "deltaloop-controller");
     std::thread::sleep(Duration::from_millis(400));
     for _ in 0..3 {
-        // SAFETY: signalling our own grandchild, found by its command line.
-        unsafe { libc::kill(ctrl, libc::SIGSTOP) };
-        std::thread::sleep(Duration::from_millis(5));
-        unsafe { libc::kill(ctrl, libc::SIGCONT) };
+        pause(ctrl, Duration::from_millis(5));
         std::thread::sleep(Duration::from_millis(50));
     }
     let (code, err) = finish(child);
@@ -533,6 +543,47 @@ fn regression_sigstop_sigcont_of_the_controller_is_a_non_event() {
     let s = summary(&out);
     assert_eq!(s["laws"]["tdc"]["completed"], true, "{s}");
     assert!(s["laws"]["tdc"]["fault"].is_null(), "{s}");
+}
+
+/// A realtime loop frozen for longer than ten ticks is named as such, with its tick, whatever
+/// the run's outcome: a 1-hour soak on a VM faulted 4 minutes in after the host froze the VM for
+/// 40 ms, and its error spoke only of a singularity. Here the plant is stopped (SIGSTOP) for
+/// 60 ms in the hold, the way a host freezes a virtual CPU.
+#[test]
+fn a_frozen_realtime_loop_is_named_with_its_tick() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = config(tmp.path(), 1.5, "");
+    let child = spawn(&["run", &cfg, "--out", out.to_str().unwrap()]);
+    let plant = pid_once_running(&out, "deltaloop-plant");
+    // In the hold after the motion (t > 0.8 s).
+    std::thread::sleep(Duration::from_millis(1200));
+    pause(plant, Duration::from_millis(60));
+    let (code, err) = finish(child);
+    let s = summary(&out);
+    let t = &s["timing"]["tdc"];
+    let max_ms = t["wake_lateness"]["max_us"].as_f64().unwrap() / 1e3;
+    let tick = t["wake_lateness_max_tick"].as_u64().unwrap();
+    assert!(max_ms >= 55.0, "{t}");
+    assert!(tick > 2667, "frozen in the hold: tick {tick}");
+    // "… the plant once woke X ms late (tick K, t = …": X as in the summary (which rounds to the
+    // histogram's 3 significant digits), K the same tick.
+    let noted = |text: &str| {
+        let (_, rest) = text.split_once("the plant once woke ")?;
+        let (ms, rest) = rest.split_once(" ms late (tick ")?;
+        let (k, _) = rest.split_once(", t = ")?;
+        Some((ms.parse::<f64>().ok()?, k.parse::<u64>().ok()?))
+    };
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let (ms, k) = noted(&report).unwrap_or_else(|| panic!("no freeze note: {report}"));
+    assert!(report.contains("**Frozen loop**"), "{report}");
+    assert!(
+        (ms - max_ms).abs() < 0.2 && k == tick,
+        "{ms} ms at {k}: {t}"
+    );
+    // Said on the terminal too: among the notes of a run that ended, on the fault's line if the
+    // freeze brought the robot down.
+    assert_eq!(noted(&err), Some((ms, k)), "{code:?}: {err}");
 }
 
 /// Regression: Ctrl-C during set-up was ignored: the supervisor still sent START and the loop ran

@@ -136,6 +136,8 @@ pub fn run(
         ));
     }
     let mut run_ids = Vec::new();
+    // Each law whose plant once woke ten ticks late or more (realtime): see Timing::freeze_note.
+    let mut freezes: Vec<String> = Vec::new();
     // A fault or an interrupt ends the run after this law; the folder is still written.
     let mut stopped: Option<(Law, Option<String>)> = None;
     let mut failed: Option<anyhow::Error> = None;
@@ -201,6 +203,9 @@ pub fn run(
                 if let Err(e) = files {
                     failed = Some(e.context(format!("{} run of `{law}`", mode.name())));
                 }
+                if let Some(n) = r.timing.freeze_note() {
+                    freezes.push(format!("`{law}`: {n}"));
+                }
                 run_ids.push((law, r.run_id));
                 if r.interrupted || r.fault.is_some() {
                     stopped = Some((law, r.fault.as_ref().map(|f| f.cause.clone())));
@@ -255,6 +260,9 @@ pub fn run(
             &timing_summaries,
         ));
     }
+    for f in &freezes {
+        md.push_str(&format!("\n**Frozen loop**: {f}.\n"));
+    }
     if mode == LoopMode::Realtime && !metrics.is_empty() {
         md.push_str(&latency_cost_markdown(&study, &metrics)?);
     }
@@ -270,9 +278,14 @@ pub fn run(
         )));
     }
     if let Some((law, cause)) = &stopped {
+        // A fault right after the loop froze is the machine's: say so on the same line.
+        let frozen = freezes
+            .iter()
+            .find(|f| f.starts_with(&format!("`{law}`")))
+            .map_or(String::new(), |f| format!("; before it, {f}"));
         return Err(match cause {
             Some(c) => anyhow::anyhow!(
-                "{} run of `{law}` stopped by a fault: {c} (data so far in {})",
+                "{} run of `{law}` stopped by a fault: {c}{frozen} (data so far in {})",
                 mode.name(),
                 dir.display()
             ),
@@ -291,6 +304,7 @@ pub fn run(
             dir.display()
         );
     }
+    notes.extend(freezes);
     Ok(RunOutput {
         dir,
         metrics,

@@ -60,6 +60,8 @@ pub struct Timing {
     pub round_trip: Dist,
     /// Ticks that got a command (0..=N).
     pub ticks: u64,
+    /// The plant's latest wake-up (realtime): lateness (ns) and its tick.
+    pub worst_wake: Option<(u64, u64)>,
     /// Ticks whose torque was not applied (realtime): the controller sent none for the tick within
     /// the torque budget, counted from the state's publication (not from the tick's deadline).
     pub misses: u64,
@@ -128,6 +130,8 @@ pub struct TimingSummary {
     /// Peak memory of each process, MiB.
     pub peak_rss_mib: PeakRss,
     pub wake_lateness: Percentiles,
+    /// The tick of the plant's latest wake-up (`wake_lateness.max_us`), realtime.
+    pub wake_lateness_max_tick: Option<u64>,
     pub period_jitter: Percentiles,
     pub state_to_controller: Percentiles,
     pub controller_compute: Percentiles,
@@ -160,6 +164,7 @@ impl Default for Timing {
             ),
             round_trip: Dist::new("round_trip", "plant: state published -> torque received"),
             ticks: 0,
+            worst_wake: None,
             misses: 0,
             late_dropped: 0,
             skipped: 0,
@@ -346,6 +351,11 @@ impl TimingAcc {
                 d.record(v);
             }
         }
+        if let Some(w) = v[0]
+            && t.worst_wake.is_none_or(|(worst, _)| w > worst)
+        {
+            t.worst_wake = Some((w, seen.k));
+        }
         let missed = seen.tel.is_some_and(|m| m.flags & wire::TEL_MISSED != 0);
         if let Some(b) = t.timeline.bin_mut(seen.k) {
             if let Some(w) = v[0] {
@@ -476,11 +486,39 @@ impl Timing {
             cpu_steal_ms: self.steal.clone(),
             peak_rss_mib: self.peak_rss.clone(),
             wake_lateness: p(&self.wake_lateness),
+            wake_lateness_max_tick: self.worst_wake.map(|(_, k)| k),
             period_jitter: p(&self.period_jitter),
             state_to_controller: p(&self.state_to_controller),
             controller_compute: p(&self.compute),
             round_trip: p(&self.round_trip),
         }
+    }
+
+    /// If the plant once woke ten ticks or more late (realtime), what that means for the run: the
+    /// loop ran without control that long, whatever froze it (on a VM, usually the host: see
+    /// `cpu_steal_ms`). A run that diverged or faulted just after such a freeze fell to the
+    /// machine, not to the law.
+    pub fn freeze_note(&self) -> Option<String> {
+        let (ns, k) = self.worst_wake?;
+        if self.ts_ns == 0 || ns < 10 * self.ts_ns {
+            return None;
+        }
+        let stolen: Vec<String> = self
+            .steal
+            .iter()
+            .map(|c| format!("{:.0} ms of CPU {}", c.ms, c.cpu))
+            .collect();
+        Some(format!(
+            "the plant once woke {:.1} ms late (tick {k}, t = {:.3} s): the loop ran without control for about {} ticks{}",
+            ns as f64 * 1e-6,
+            k as f64 * self.ts_ns as f64 * 1e-9,
+            ns / self.ts_ns,
+            if stolen.is_empty() {
+                String::new()
+            } else {
+                format!("; the host took {} during the run", stolen.join(" and "))
+            }
+        ))
     }
 
     /// Writes one `<prefix><name>.hgrm` percentile file per distribution into `dir`.
