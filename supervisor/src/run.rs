@@ -137,7 +137,7 @@ pub fn run(
     }
     let mut run_ids = Vec::new();
     // Each law whose plant once woke ten ticks late or more (realtime): see Timing::freeze_note.
-    let mut freezes: Vec<String> = Vec::new();
+    let mut freezes: Vec<(Law, String)> = Vec::new();
     // A fault or an interrupt ends the run after this law; the folder is still written.
     let mut stopped: Option<(Law, Option<String>)> = None;
     let mut failed: Option<anyhow::Error> = None;
@@ -204,7 +204,7 @@ pub fn run(
                     failed = Some(e.context(format!("{} run of `{law}`", mode.name())));
                 }
                 if let Some(n) = r.timing.freeze_note() {
-                    freezes.push(format!("`{law}`: {n}"));
+                    freezes.push((law, n));
                 }
                 run_ids.push((law, r.run_id));
                 if r.interrupted || r.fault.is_some() {
@@ -260,8 +260,8 @@ pub fn run(
             &timing_summaries,
         ));
     }
-    for f in &freezes {
-        md.push_str(&format!("\n**Frozen loop**: {f}.\n"));
+    for (law, f) in &freezes {
+        md.push_str(&format!("\n**Frozen loop**: `{law}`: {f}.\n"));
     }
     if mode == LoopMode::Realtime && !metrics.is_empty() {
         md.push_str(&latency_cost_markdown(&study, &metrics)?);
@@ -281,8 +281,8 @@ pub fn run(
         // A fault right after the loop froze is the machine's: say so on the same line.
         let frozen = freezes
             .iter()
-            .find(|f| f.starts_with(&format!("`{law}`")))
-            .map_or(String::new(), |f| format!("; before it, {f}"));
+            .find(|(l, _)| l == law)
+            .map_or(String::new(), |(l, f)| format!("; before it, `{l}`: {f}"));
         return Err(match cause {
             Some(c) => anyhow::anyhow!(
                 "{} run of `{law}` stopped by a fault: {c}{frozen} (data so far in {})",
@@ -304,7 +304,7 @@ pub fn run(
             dir.display()
         );
     }
-    notes.extend(freezes);
+    notes.extend(freezes.into_iter().map(|(l, f)| format!("`{l}`: {f}")));
     Ok(RunOutput {
         dir,
         metrics,
