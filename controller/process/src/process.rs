@@ -213,11 +213,18 @@ impl Loop<'_> {
     /// Where the wait for the state after tick `k`'s reply starts (None: at once) and until when
     /// it polls before blocking; the second is what the reply declares (`t_poll_until_ns`,
     /// docs/protocol.md §6.1), never less than the last declaration.
+    ///
+    /// With a schedule the poll runs to `spin_ns` past the next deadline, or past the reply if
+    /// that deadline has gone by: after a freeze the plant publishes its backlog of states back to
+    /// back, and a controller that blocked on each would be woken across CPUs for every one.
     fn next_wait(&self, k: u64, published_ns: u64, last_poll_until: u64) -> (Option<u64>, u64) {
         let (wake, until) = match &self.schedule {
             Some(s) => {
                 let d = s.deadline(k + 1);
-                (Some(d.saturating_sub(s.lead_ns)), d + self.spin_ns)
+                (
+                    Some(d.saturating_sub(s.lead_ns)),
+                    d.max(published_ns) + self.spin_ns,
+                )
             }
             None => (None, published_ns + self.spin_ns),
         };
@@ -243,7 +250,12 @@ fn answer_states(
         poll_until_ns: rt::now_ns() + lp.spin_ns,
     };
     loop {
-        let waited = wait_state(&ports.state, &ports.state_ready, silence_ns, &wait);
+        let waited = wait_state(
+            &ports.state,
+            &ports.state_ready,
+            (silence_ns, lp.spin_ns),
+            &wait,
+        );
         if term.load(Ordering::Relaxed) {
             return Ok(ProcessEnd::Stopped("stopped by SIGTERM".into()));
         }
@@ -357,17 +369,19 @@ struct Wait {
 }
 
 /// Waits for the next state: sleeps until `wait.wake_ns` if set, polls until
-/// `wait.poll_until_ns`, then blocks on the wake-up event; returns the newest state, how many
+/// `wait.poll_until_ns` (or `spin_ns` past a late wake-up), then blocks on the wake-up event; returns the newest state, how many
 /// older ones it skipped, and when it was taken. The clock is read before each look, so the
 /// look that precedes blocking happens at or after `poll_until_ns` (docs/protocol.md §6.1).
 fn wait_state(
     sub: &Subscriber<Svc, StateMsg, ()>,
     listener: &Listener<Svc>,
-    silence_ns: u64,
+    (silence_ns, spin_ns): (u64, u64),
     wait: &Wait,
 ) -> Result<Option<(StateMsg, u64, u64)>> {
+    let mut poll_until_ns = wait.poll_until_ns;
     if let Some(t) = wait.wake_ns {
         rt::sleep_until_ns(t);
+        poll_until_ns = poll_after_wake(poll_until_ns, rt::now_ns(), spin_ns);
     }
     let until = rt::now_ns() + silence_ns;
     loop {
@@ -384,7 +398,7 @@ fn wait_state(
         if now >= until {
             return Ok(None);
         }
-        if now < wait.poll_until_ns {
+        if now < poll_until_ns {
             std::hint::spin_loop();
             continue;
         }
@@ -396,6 +410,14 @@ fn wait_state(
             Err(e) => return Err(e).ipc("wait for state").map_err(Into::into),
         }
     }
+}
+
+/// Until when to poll after the scheduled sleep: the promise, or `spin_ns` past the wake-up if
+/// the sleep ended after the promise (the host froze this CPU, or its timer fired late), so the
+/// state the plant is about to publish is taken by polling, not by a cross-CPU wake-up. On time
+/// it changes nothing: the wake-up is before the deadline and the promise `spin_ns` after it.
+fn poll_after_wake(promised_ns: u64, woke_ns: u64, spin_ns: u64) -> u64 {
+    promised_ns.max(woke_ns + spin_ns)
 }
 
 /// What the control channel said since it was last drained.
@@ -420,4 +442,80 @@ fn drain_control(sub: &Subscriber<Svc, ControlMsg, ()>) -> Result<Control> {
         }
     }
     Ok(c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const US: u64 = 1_000;
+
+    fn realtime_loop(cfg: &RunConfig) -> Loop<'_> {
+        Loop {
+            cfg,
+            law: Law::TdcIsSta,
+            rows: 100,
+            spin_ns: 150 * US,
+            schedule: Some(Schedule {
+                t0_ns: 1_000_000,
+                ts_ns: 300 * US,
+                lead_ns: 100 * US,
+            }),
+        }
+    }
+
+    fn cfg() -> RunConfig {
+        RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s1\"\n", None).expect("config")
+    }
+
+    #[test]
+    fn on_schedule_the_controller_sleeps_to_before_the_next_deadline_and_polls_past_it() {
+        let cfg = cfg();
+        let lp = realtime_loop(&cfg);
+        let d6 = 1_000_000 + 6 * 300 * US;
+        // Tick 5 answered 4 µs after its deadline.
+        let (wake, until) = lp.next_wait(5, 1_000_000 + 5 * 300 * US + 4 * US, 0);
+        assert_eq!(wake, Some(d6 - 100 * US));
+        assert_eq!(until, d6 + 150 * US);
+    }
+
+    /// Regression: after the host froze both CPUs, the plant published its backlog of states back
+    /// to back while the controller's poll window (anchored at deadlines already gone) had closed,
+    /// so it blocked and was woken across CPUs for every state, and the backlog was missed tick
+    /// after tick (seen as runs of 2–5 misses in split-layout runs).
+    #[test]
+    fn regression_a_reply_sent_after_the_next_deadline_polls_past_the_reply_not_the_deadline() {
+        let cfg = cfg();
+        let lp = realtime_loop(&cfg);
+        let d6 = 1_000_000 + 6 * 300 * US;
+        let published = d6 + 630 * US;
+        let (_, until) = lp.next_wait(5, published, 0);
+        assert_eq!(until, published + 150 * US);
+    }
+
+    #[test]
+    fn a_late_wake_up_polls_spin_past_it_and_an_early_one_keeps_the_promise() {
+        let promised = 10_000 * US;
+        // On time: woke 100 µs before the deadline, the promise is 150 µs after it.
+        assert_eq!(
+            poll_after_wake(promised, promised - 250 * US, 150 * US),
+            promised
+        );
+        // Woke 480 µs after the promise: poll on for spin_ns from there.
+        assert_eq!(
+            poll_after_wake(promised, promised + 480 * US, 150 * US),
+            promised + 630 * US
+        );
+    }
+
+    #[test]
+    fn lockstep_polls_spin_past_each_reply_and_never_less_than_it_promised() {
+        let cfg = cfg();
+        let lp = Loop {
+            schedule: None,
+            ..realtime_loop(&cfg)
+        };
+        assert_eq!(lp.next_wait(5, 2_000 * US, 0), (None, 2_150 * US));
+        assert_eq!(lp.next_wait(5, 2_000 * US, 3_000 * US), (None, 3_000 * US));
+    }
 }
