@@ -85,6 +85,16 @@ fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
         sorted[sorted.len() / 2]
     );
     assert!(*sorted.last().unwrap() < 1_000_000_000);
+    // Regression: tick 0 was missed in most runs (iceoryx2 connected the ports, mapping each
+    // peer's data segment, inside tick 0's budget). The ports now connect at START.
+    for law in ["tde-is", "pid"] {
+        let row0 = trace
+            .lines()
+            .find(|l| l.starts_with(&format!("{law},0,")))
+            .unwrap_or_else(|| panic!("no tick 0 of {law}"));
+        let reply = row0.split(',').nth_back(2).unwrap();
+        assert_eq!(reply, "applied", "{law} tick 0: {row0}");
+    }
     let o = common::deltaloop(&["replay", b.to_str().unwrap()]);
     let (out, err) = (
         String::from_utf8_lossy(&o.stdout),
@@ -140,6 +150,8 @@ fn bench_loop_runs_every_measurement_and_ends_with_its_key_value_line() {
         "handoff_shm_p50_us",
         "handoff_iox_p50_us",
         "handoff_uds_p50_us",
+        "iox_one_thread_us",
+        "handoff_iox_one_thread_p50_us",
         "lockstep_iox_hz",
         "inproc_hz",
         "lockstep_loop_us",
@@ -171,7 +183,9 @@ fn bench_loop_runs_every_measurement_and_ends_with_its_key_value_line() {
         assert!(x.is_finite(), "{k}={v}");
         // Per-cycle costs are differences of two rates and may dip below zero in a noisy round;
         // everything else is a rate, a latency or a ratio measured on real cycles.
-        if !(k.starts_with("lockstep_transport") || *k == "transport_one_cpu_blocking_us")
+        if !(k.starts_with("lockstep_transport")
+            || *k == "transport_one_cpu_blocking_us"
+            || *k == "iox_one_thread_us")
             && *k != "lockstep_loop_us"
         {
             let may_be_zero = k.ends_with("miss_ratio") || k.ends_with("steal_share");

@@ -122,6 +122,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
     let Some(start) = handshake(&ports, &mut ring, term)? else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
+    ipc::connect_now(&[&ports.state, &ports.torque])?;
     let spin_ns = u64::from(layout.spin_us.unwrap_or(0)) * 1000;
     let lp = Loop {
         cfg: &cfg,
@@ -210,6 +211,21 @@ impl Schedule {
 }
 
 impl Loop<'_> {
+    /// The wait for state 0, starting at `now_ns`. With a schedule, as for every later tick:
+    /// sleep to just before t0 and poll past it. Without one, poll `spin_ns` as lockstep does.
+    fn first_wait(&self, now_ns: u64) -> Wait {
+        match &self.schedule {
+            Some(s) => Wait {
+                wake_ns: Some(s.deadline(0).saturating_sub(s.lead_ns)),
+                poll_until_ns: s.deadline(0).max(now_ns) + self.spin_ns,
+            },
+            None => Wait {
+                wake_ns: None,
+                poll_until_ns: now_ns + self.spin_ns,
+            },
+        }
+    }
+
     /// Where the wait for the state after tick `k`'s reply starts (None: at once) and until when
     /// it polls before blocking; the second is what the reply declares (`t_poll_until_ns`,
     /// docs/protocol.md §6.1), never less than the last declaration.
@@ -244,11 +260,7 @@ fn answer_states(
     let inject = cfg.faults.inject;
     let mut side = ControllerSide::from_config(cfg, lp.law);
     let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
-    // The first state: no schedule to sleep by yet, poll as lockstep does.
-    let mut wait = Wait {
-        wake_ns: None,
-        poll_until_ns: rt::now_ns() + lp.spin_ns,
-    };
+    let mut wait = lp.first_wait(rt::now_ns());
     loop {
         let waited = wait_state(
             &ports.state,
@@ -449,6 +461,8 @@ mod tests {
     use super::*;
 
     const US: u64 = 1_000;
+    /// t0 of the test schedule, ns.
+    const T0: u64 = 50_000_000;
 
     fn realtime_loop(cfg: &RunConfig) -> Loop<'_> {
         Loop {
@@ -457,7 +471,7 @@ mod tests {
             rows: 100,
             spin_ns: 150 * US,
             schedule: Some(Schedule {
-                t0_ns: 1_000_000,
+                t0_ns: T0,
                 ts_ns: 300 * US,
                 lead_ns: 100 * US,
             }),
@@ -472,9 +486,9 @@ mod tests {
     fn on_schedule_the_controller_sleeps_to_before_the_next_deadline_and_polls_past_it() {
         let cfg = cfg();
         let lp = realtime_loop(&cfg);
-        let d6 = 1_000_000 + 6 * 300 * US;
+        let d6 = T0 + 6 * 300 * US;
         // Tick 5 answered 4 µs after its deadline.
-        let (wake, until) = lp.next_wait(5, 1_000_000 + 5 * 300 * US + 4 * US, 0);
+        let (wake, until) = lp.next_wait(5, T0 + 5 * 300 * US + 4 * US, 0);
         assert_eq!(wake, Some(d6 - 100 * US));
         assert_eq!(until, d6 + 150 * US);
     }
@@ -487,10 +501,29 @@ mod tests {
     fn regression_a_reply_sent_after_the_next_deadline_polls_past_the_reply_not_the_deadline() {
         let cfg = cfg();
         let lp = realtime_loop(&cfg);
-        let d6 = 1_000_000 + 6 * 300 * US;
+        let d6 = T0 + 6 * 300 * US;
         let published = d6 + 630 * US;
         let (_, until) = lp.next_wait(5, published, 0);
         assert_eq!(until, published + 150 * US);
+    }
+
+    /// Regression: the controller waited for state 0 as lockstep does (polled 150 µs after START,
+    /// then blocked), so the state published at t0 = START + 10 ms woke it across CPUs, and tick 0
+    /// was missed in most split-layout runs (its state reached the controller 90–200 µs late).
+    #[test]
+    fn regression_tick_0_is_waited_for_on_the_schedule_not_blocked_for() {
+        let cfg = cfg();
+        let lp = realtime_loop(&cfg);
+        let start = T0 - 10_000 * US;
+        let w = lp.first_wait(start);
+        assert_eq!(w.wake_ns, Some(T0 - 100 * US));
+        assert_eq!(w.poll_until_ns, T0 + 150 * US);
+        let lockstep = Loop {
+            schedule: None,
+            ..realtime_loop(&cfg)
+        };
+        let w = lockstep.first_wait(start);
+        assert_eq!((w.wake_ns, w.poll_until_ns), (None, start + 150 * US));
     }
 
     #[test]

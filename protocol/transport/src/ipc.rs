@@ -84,6 +84,19 @@ pub const LINGER: std::time::Duration = std::time::Duration::from_millis(20);
 /// needs.
 pub const SPARE: usize = 1;
 
+/// Connects these loop ports to every peer port that exists now. iceoryx2 otherwise connects
+/// lazily, in the first send or receive that notices a new peer: it opens the connection and maps
+/// the peer's data segment there (a few MiB, every page locked under `mlockall`: hundreds of µs),
+/// which made tick 0 miss its budget. Called after START, when every loop port exists.
+pub fn connect_now(
+    ports: &[&dyn iceoryx2::port::update_connections::UpdateConnections],
+) -> Result<(), IpcError> {
+    for p in ports {
+        p.update_connections().ipc("connect the loop's ports")?;
+    }
+    Ok(())
+}
+
 /// Nodes a service admits: supervisor, plant, controller, and one spare for an observer.
 pub const MAX_NODES: usize = 4;
 

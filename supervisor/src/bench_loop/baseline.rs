@@ -5,7 +5,9 @@
 //! over iceoryx2 on one CPU, both sides blocking. The difference of (2), (3) or (4) and (1) per
 //! cycle is what the transport costs. (0) moves the same messages between two threads through one
 //! shared slot each way, no transport at all: the machine's own floor for a hand-off between the
-//! two CPUs.
+//! two CPUs. (5) sends both messages through iceoryx2 and takes them back in one thread: what
+//! iceoryx2's own code costs per cycle, with no second CPU and no cache line moving between CPUs.
+//! (2) costs about (5) plus (0): the library's instructions plus the lines the CPUs trade.
 
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
@@ -196,6 +198,49 @@ pub enum Handoff {
     /// Both block on a wake-up event after each message, as the default realtime layout does on
     /// one CPU: a notification and a context switch each way.
     Blocking,
+}
+
+/// (5) The plant and controller tick in one thread on `cpu`, each message published on the
+/// product's iceoryx2 service and taken back from a subscriber of the same thread: the library's
+/// own code per cycle (loan, copy, deliver, receive, release, reclaim), nothing between CPUs.
+pub fn iox_one_thread(study: &Study, cpu: Option<usize>) -> Result<Measured> {
+    let run_id = crate::procs::new_run_id();
+    let node = ipc::node("bench-one-thread", &run_id)?;
+    let state = ipc::state(&node, &run_id)?;
+    let torque = ipc::torque(&node, &run_id)?;
+    let state_tx = state.publisher_builder().create().ipc("state publisher")?;
+    let state_rx = state
+        .subscriber_builder()
+        .buffer_size(ipc::LOOP_BUFFER)
+        .create()
+        .ipc("state subscriber")?;
+    let torque_tx = torque
+        .publisher_builder()
+        .create()
+        .ipc("torque publisher")?;
+    let torque_rx = torque
+        .subscriber_builder()
+        .buffer_size(ipc::LOOP_BUFFER)
+        .create()
+        .ipc("torque subscriber")?;
+    pin("bench loop", cpu);
+    let mut ctrl = study.controller_side(Law::TdcIsSta);
+    drive(study, "iox one-thread", |st| {
+        state_tx.send_copy(st).ipc("publish state")?;
+        let Some(sample) = state_rx.receive().ipc("receive state")? else {
+            bail!("iox one-thread baseline: state {} not delivered", st.tick);
+        };
+        let rx = rt::now_ns();
+        let got = *sample.payload();
+        drop(sample);
+        torque_tx
+            .send_copy(answer(study, &mut ctrl, &got, rx))
+            .ipc("publish torque")?;
+        let Some(reply) = torque_rx.receive().ipc("receive torque")? else {
+            bail!("iox one-thread baseline: reply {} not delivered", st.tick);
+        };
+        Ok(*reply.payload())
+    })
 }
 
 /// The controller side of the iceoryx2 baseline (hidden subcommand `iox-controller`): waits for

@@ -50,6 +50,10 @@ struct Lockstep {
     uds_us: f64,
     /// The same over iceoryx2 on one CPU, both sides blocking on wake-up events.
     one_cpu_us: f64,
+    /// iceoryx2's own code per cycle: both messages through it in one thread, µs over the
+    /// one-thread tick pair (median of the rounds), and its per-cycle p50.
+    api_us: f64,
+    api_handoff_us: f64,
     /// The hand-off measured on every cycle, p50 over all rounds, µs: shared memory, iceoryx2
     /// polling, socket.
     shm_handoff_us: f64,
@@ -145,7 +149,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     )?;
     println!("figure: {}", out.join("latency.png").display());
     println!(
-        "lockstep_transport_shm_us={:.3} lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} transport_one_cpu_blocking_us={:.3} handoff_shm_p50_us={:.2} handoff_iox_p50_us={:.2} handoff_uds_p50_us={:.2} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} machine_wake_p999_us={:.1} cyclictest_p999_us={}",
+        "lockstep_transport_shm_us={:.3} lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} transport_one_cpu_blocking_us={:.3} handoff_shm_p50_us={:.2} handoff_iox_p50_us={:.2} handoff_uds_p50_us={:.2} iox_one_thread_us={:.3} handoff_iox_one_thread_p50_us={:.2} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} machine_wake_p999_us={:.1} cyclictest_p999_us={}",
         lsf.shm_us,
         lsf.iox_us,
         lsf.uds_us,
@@ -153,6 +157,8 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
         lsf.shm_handoff_us,
         lsf.iox_handoff_us,
         lsf.uds_handoff_us,
+        lsf.api_us,
+        lsf.api_handoff_us,
         lsf.iox_hz,
         lsf.inproc_hz,
         1e6 / lsf.iox_hz - 1e6 / lsf.inproc_hz,
@@ -202,11 +208,13 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
     let (pc, cc) = (Layout::cpu(lay.plant_cpu), Layout::cpu(lay.controller_cpu));
     let (mut raw, mut shm, mut iox, mut one, mut uds) = (vec![], vec![], vec![], vec![], vec![]);
     let (mut shm_cost, mut iox_cost, mut one_cost, mut uds_cost) = (vec![], vec![], vec![], vec![]);
-    let mut hands: [Histogram<u64>; 4] =
+    let (mut api, mut api_cost) = (vec![], vec![]);
+    let mut hands: [Histogram<u64>; 5] =
         std::array::from_fn(|_| crate::timing::latency_histogram());
     for _ in 0..repeats.max(1) {
         let r = baseline::raw_inproc(ls, pc)?;
         let s = baseline::shared_memory(ls, pc, cc)?;
+        let a = baseline::iox_one_thread(ls, pc)?;
         let i = baseline::iox_lockstep(ls, &cfg_path, pc, cc, Handoff::Polling)?;
         let o = baseline::iox_lockstep(ls, &cfg_path, cc, cc, Handoff::Blocking)?;
         let (us, uo) = (
@@ -218,7 +226,8 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
         iox_cost.push(1e6 / i.hz - 1e6 / r);
         one_cost.push(1e6 / o.hz - 1e6 / r);
         uds_cost.push(1e6 / u.hz - 1e6 / r);
-        for (h, m) in hands.iter_mut().zip([&s, &i, &o, &u]) {
+        api_cost.push(1e6 / a.hz - 1e6 / r);
+        for (h, m) in hands.iter_mut().zip([&s, &i, &o, &u, &a]) {
             h.add(&m.handoff).context("merge hand-off histograms")?;
         }
         raw.push(r);
@@ -226,6 +235,7 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
         iox.push(i.hz);
         one.push(o.hz);
         uds.push(u.hz);
+        api.push(a.hz);
     }
     let line = |name: &str, v: &[f64]| {
         let (m, lo, hi) = median_range(v);
@@ -245,10 +255,12 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
     line("(2) iceoryx2, both sides polling:", &iox);
     line("(3) Unix socket, blocking:", &uds);
     line("(4) iceoryx2, one CPU, blocking:", &one);
+    line("(5) iceoryx2, one thread:", &api);
     let (shm_us, slo, shi) = median_range(&shm_cost);
     let (iox_us, ilo, ihi) = median_range(&iox_cost);
     let (uds_us, ulo, uhi) = median_range(&uds_cost);
     let (one_us, olo, ohi) = median_range(&one_cost);
+    let (api_us, alo, ahi) = median_range(&api_cost);
     println!(
         "transport cost per cycle ((2) or (3) less (1)): iceoryx2 {iox_us:.3} us (rounds {ilo:.3}..{ihi:.3}), Unix socket {uds_us:.3} us (rounds {ulo:.3}..{uhi:.3}): iceoryx2 {:.1}x cheaper",
         uds_us / iox_us
@@ -276,6 +288,11 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
         q(&hands[1], 0.5) - q(&hands[0], 0.5),
         iox_us - shm_us
     );
+    println!(
+        "what bounds (2): iceoryx2's own code, both messages sent and taken back in one thread ((5) less (1), no second CPU): {api_us:.3} us per cycle (rounds {alo:.3}..{ahi:.3}; p50 {:.2} us measured on every cycle), plus the two CPUs' floor (0): {:.3} us together, against {iox_us:.3} us measured",
+        q(&hands[4], 0.5),
+        api_us + shm_us
+    );
     println!("lockstep, the product's loops (the supervisor records every tick):");
     println!(
         "(c) inproc:                        {inproc_hz:>9.0} cycles/s  ({:.3} us/cycle)",
@@ -294,6 +311,8 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
     );
     Ok(Lockstep {
         shm_handoff_us: q(&hands[0], 0.5),
+        api_handoff_us: q(&hands[4], 0.5),
+        api_us,
         iox_handoff_us: q(&hands[1], 0.5),
         uds_handoff_us: q(&hands[3], 0.5),
         shm_us,
