@@ -155,6 +155,7 @@ class Controller(Peer):
                 raise End(EXIT_SETUP, f"no {what} from the supervisor within 30 s")
             time.sleep(200e-6 if armed else 1e-3)
         self.ticks = start
+        self._connect_now([self.torque], [self.state])
 
     def _wait_state(self, state):
         """Copies the newest state into `state`; returns (older states skipped, when it was taken in ns)."""

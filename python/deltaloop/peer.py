@@ -139,6 +139,16 @@ class Peer:
         if self.layout.get("lock_memory") and self._libc.mlockall(3) != 0:  # MCL_CURRENT | MCL_FUTURE
             warn(f"mlockall not permitted ({os.strerror(ctypes.get_errno())})")
 
+    @staticmethod
+    def _connect_now(publishers, subscribers):
+        """Connects the loop ports to their peers now, after START (docs/protocol.md §6, step 7):
+        iceoryx2 otherwise connects in the first send or receive that sees a peer, inside tick 0's
+        budget. Python subscribers have no `update_connections`; `has_samples` connects them."""
+        for p in publishers:
+            p.update_connections()
+        for s in subscribers:
+            s.has_samples()
+
     def _open_ports(self):
         """Creates the node and opens every port (`_open_ports_with`); a failure ends the process
         with exit code 3 and one line."""

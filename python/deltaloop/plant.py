@@ -232,6 +232,7 @@ class Plant(Peer):
                     start = ControlMsg()
                     ctypes.memmove(ctypes.addressof(start), ctypes.addressof(m), ctypes.sizeof(ControlMsg))
                     smp.delete()
+                    self._connect_now([self.state, self.telemetry], [self.torque])
                     return start
                 smp.delete()
                 if kind == wire.STOP:
