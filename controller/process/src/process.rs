@@ -381,8 +381,8 @@ struct Wait {
 }
 
 /// Waits for the next state: sleeps until `wait.wake_ns` if set, polls until
-/// `wait.poll_until_ns` (or `spin_ns` past a late wake-up), then blocks on the wake-up event; returns the newest state, how many
-/// older ones it skipped, and when it was taken. The clock is read before each look, so the
+/// `wait.poll_until_ns` (or `spin_ns` past a late wake-up), then blocks on the wake-up event;
+/// returns the newest state, how many older ones it skipped, and when it was taken. The clock is read before each look, so the
 /// look that precedes blocking happens at or after `poll_until_ns` (docs/protocol.md §6.1).
 fn wait_state(
     sub: &Subscriber<Svc, StateMsg, ()>,
@@ -507,9 +507,10 @@ mod tests {
         assert_eq!(until, published + 150 * US);
     }
 
-    /// Regression: the controller waited for state 0 as lockstep does (polled 150 µs after START,
-    /// then blocked), so the state published at t0 = START + 10 ms woke it across CPUs, and tick 0
-    /// was missed in most split-layout runs (its state reached the controller 90–200 µs late).
+    /// Regression (one of the two causes of tick 0's miss; the other, the lazy port connection,
+    /// is checked in tests/realtime.rs): the controller waited for state 0 as lockstep does
+    /// (polled 150 µs after START, then blocked), so the state published at t0 = START + 10 ms
+    /// had to wake it across CPUs.
     #[test]
     fn regression_tick_0_is_waited_for_on_the_schedule_not_blocked_for() {
         let cfg = cfg();
