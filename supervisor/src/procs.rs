@@ -833,11 +833,18 @@ pub fn run_law(
         return stopped_before_start(&obs, pair, law, study, rid, keep);
     }
 
-    let sched_warnings = rt::apply(&rt::Sched {
+    let mut sched_warnings = rt::apply(&rt::Sched {
         core: Layout::cpu(layout.supervisor_cpu),
         fifo_priority: 0,
         lock_memory: false,
     });
+    if mode == LoopMode::Realtime {
+        sched_warnings.extend(fifo_share_warnings(
+            layout,
+            cfg.loop_.ts_s,
+            rt::rt_share_limit(),
+        ));
+    }
     let n = study.reference.n as u64;
     let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
     // Allocate (and touch) everything the observer fills before START, not after: the loop does
@@ -892,6 +899,50 @@ pub fn run_law(
         timing,
         child_messages,
     })
+}
+
+/// Warnings for realtime loop processes that poll at SCHED_FIFO for more of each period than the
+/// kernel's real-time limit (`limit`, a share of the CPU) allows: the kernel then stops them to
+/// run the other tasks waiting on their CPU, and the loop freezes for up to tens of ms (seen: a
+/// controller polling from 290 µs before each 300 µs deadline stalled 30 ms and the plant
+/// stopped the run). Each process polls at least from its early wake-up to the deadline.
+fn fifo_share_warnings(layout: &Layout, ts_s: f64, limit: Option<f64>) -> Vec<String> {
+    let Some(limit) = limit else {
+        return Vec::new();
+    };
+    let period_us = ts_s * 1e6;
+    let early = |us: Option<i64>| us.filter(|u| *u >= 0).map(|u| u as f64);
+    [
+        (
+            "plant",
+            "wake_early_us",
+            layout.plant_priority,
+            layout.plant_cpu,
+            early(layout.wake_early_us.map(i64::from)),
+        ),
+        (
+            "controller",
+            "controller_wake_early_us",
+            layout.controller_priority,
+            layout.controller_cpu,
+            early(layout.controller_wake_early_us.map(i64::from)),
+        ),
+    ]
+    .into_iter()
+    .filter_map(|(who, field, prio, cpu, us)| {
+        let us = us?;
+        let share = us / period_us;
+        (prio.unwrap_or(0) > 0 && share >= limit).then(|| {
+            format!(
+                "[loop.realtime] {field} = {us:.0}: the {who} polls at SCHED_FIFO {:.1} % of every {period_us:.0} µs period, above the kernel's real-time limit of {:.1} % (sched_rt_runtime_us); the kernel will stop it for up to tens of ms to run other tasks on CPU {}; keep {field} below {:.0}",
+                share * 100.0,
+                limit * 100.0,
+                Layout::cpu(cpu).map_or("(unpinned)".into(), |c| c.to_string()),
+                limit * period_us
+            )
+        })
+    })
+    .collect()
 }
 
 /// Ctrl-C (or SIGTERM, SIGHUP) during the handshake: no START is sent; STOP releases both
@@ -1032,4 +1083,60 @@ fn fault_cause(ending: &Ending, pair: &Pair, streams: &Observation<'_>) -> Optio
         tick,
         cause: parts.join("; "),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn split_with(controller_early_us: i32) -> Layout {
+        Layout {
+            controller_wake_early_us: Some(controller_early_us),
+            ..Layout::realtime_split_cpus()
+        }
+    }
+
+    /// Regression: a controller told to wake 290 µs before each 300 µs deadline polled 97 % of
+    /// the time at SCHED_FIFO; 22 s in, the kernel stopped it for 30 ms to run the supervisor on
+    /// its CPU, and the plant ended the run for a silent controller. Nothing had warned.
+    #[test]
+    fn regression_a_fifo_poll_above_the_kernels_real_time_limit_is_named_with_its_field() {
+        let w = fifo_share_warnings(&split_with(290), 3e-4, Some(0.95));
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].contains("controller_wake_early_us = 290")
+                && w[0].contains("96.7 %")
+                && w[0].contains("95.0 %")
+                && w[0].contains("CPU 0")
+                && w[0].contains("below 285"),
+            "{}",
+            w[0]
+        );
+    }
+
+    #[test]
+    fn the_shipped_layouts_and_unlimited_or_non_fifo_loops_get_no_warning() {
+        for layout in [Layout::realtime_default(), Layout::realtime_split_cpus()] {
+            assert!(fifo_share_warnings(&layout, 3e-4, Some(0.95)).is_empty());
+        }
+        assert!(fifo_share_warnings(&split_with(290), 3e-4, None).is_empty());
+        let other = Layout {
+            controller_priority: Some(0),
+            ..split_with(290)
+        };
+        assert!(fifo_share_warnings(&other, 3e-4, Some(0.95)).is_empty());
+        // The controller blocking on its event (−1) polls nothing early.
+        assert!(fifo_share_warnings(&split_with(-1), 3e-4, Some(0.95)).is_empty());
+    }
+
+    #[test]
+    fn the_plant_is_checked_too() {
+        let layout = Layout {
+            wake_early_us: Some(300),
+            ..Layout::realtime_default()
+        };
+        let w = fifo_share_warnings(&layout, 3e-4, Some(0.95));
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(w[0].contains("wake_early_us = 300") && w[0].contains("the plant"));
+    }
 }

@@ -63,7 +63,9 @@ pub fn check_disk(ticks: u64, free: u64, dir: &Path, duration: &str) -> Result<(
     ))
 }
 
-/// One minute of loop time (ticks k with ⌊k·Ts / 60 s⌋ = index − 1).
+/// One minute of loop time: the ticks at loop times in ((index − 1)·60 s, index·60 s], and tick 0
+/// (t = 0) in the first. Closed at its end, so a run of whole minutes (ticks 0 ..= N, N·Ts a
+/// whole number of minutes) ends with a whole minute, not with a lone tick.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Minute {
     /// 1-based.
@@ -85,7 +87,8 @@ pub struct MinuteAcc {
     minute: u64,
     ticks: u64,
     misses: u64,
-    first_k: Option<u64>,
+    /// The current minute holds a tick.
+    open: bool,
     last_k: u64,
     round_trip: Histogram<u64>,
     /// Ticks and misses of the whole run so far.
@@ -104,7 +107,7 @@ impl MinuteAcc {
             minute: 0,
             ticks: 0,
             misses: 0,
-            first_k: None,
+            open: false,
             last_k: 0,
             round_trip: timing::latency_histogram(),
             total_ticks: 0,
@@ -119,12 +122,12 @@ impl MinuteAcc {
         let Some(m) = seen.tel.filter(|m| m.flags & wire::TEL_SAFE_STOP == 0) else {
             return;
         };
-        let minute = seen.k / self.ticks_per_minute;
-        if minute != self.minute && self.first_k.is_some() {
+        let minute = seen.k.saturating_sub(1) / self.ticks_per_minute;
+        if minute != self.minute && self.open {
             self.close();
         }
         self.minute = minute;
-        self.first_k.get_or_insert(seen.k);
+        self.open = true;
         self.last_k = seen.k;
         self.ticks += 1;
         self.total_ticks += 1;
@@ -138,15 +141,15 @@ impl MinuteAcc {
 
     /// Ends the current minute (at the end of the run: a partial one), if it holds any tick.
     pub fn close(&mut self) {
-        let Some(first) = self.first_k.take() else {
+        if !std::mem::take(&mut self.open) {
             return;
-        };
+        }
         self.done.push(Minute {
             index: self.minute + 1,
             ticks: self.ticks,
             misses: self.misses,
             round_trip: timing::percentiles(&self.round_trip),
-            span_s: (self.last_k - first + 1) as f64 * self.ts_s,
+            span_s: (self.last_k - self.minute * self.ticks_per_minute) as f64 * self.ts_s,
         });
         self.ticks = 0;
         self.misses = 0;
@@ -460,8 +463,8 @@ mod tests {
     fn minutes_split_by_loop_time_with_their_own_percentiles() {
         // Ts = 1 s: 60 ticks a minute.
         let mut a = MinuteAcc::new(1.0);
-        for k in 0..150 {
-            let rt = if k < 60 { 10_000 } else { 20_000 };
+        for k in 0..=150 {
+            let rt = if k <= 60 { 10_000 } else { 20_000 };
             let flags = if k == 70 || k == 71 {
                 wire::TEL_MISSED
             } else {
@@ -470,25 +473,43 @@ mod tests {
             a.push(&seen(k, rt, flags));
         }
         a.push(&Seen {
-            k: 150,
+            k: 151,
             ..Seen::default()
         });
-        a.push(&seen(151, 1, wire::TEL_SAFE_STOP));
+        a.push(&seen(152, 1, wire::TEL_SAFE_STOP));
         a.close();
         let m = &a.done;
         assert_eq!(m.len(), 3);
-        assert_eq!((m[0].index, m[0].ticks, m[0].misses), (1, 60, 0));
+        assert_eq!(
+            (m[0].index, m[0].ticks, m[0].misses, m[0].span_s),
+            (1, 61, 0, 60.0)
+        );
         assert_eq!((m[1].index, m[1].ticks, m[1].misses), (2, 60, 2));
         assert_eq!((m[2].index, m[2].ticks, m[2].span_s), (3, 30, 30.0));
         assert!((m[0].round_trip.max_us - 10.0).abs() < 0.02);
         assert!((m[1].round_trip.p50_us - 20.0).abs() < 0.03);
         assert_eq!(m[1].round_trip.count, 58);
-        assert_eq!((a.total_ticks, a.total_misses), (150, 2));
+        assert_eq!((a.total_ticks, a.total_misses), (151, 2));
         let line = minute_line(&m[2], &Rss::default());
         assert!(
             line.starts_with("minute 3 (2:00–2:30, partial): 30 ticks, 0 misses"),
             "{line}"
         );
+    }
+
+    /// Regression: a 30 min soak (ticks 0 ..= 6 000 000) printed a 31st "minute" holding only
+    /// its last tick.
+    #[test]
+    fn regression_a_run_of_whole_minutes_ends_with_a_whole_minute_not_a_lone_tick() {
+        let mut a = MinuteAcc::new(1.0);
+        for k in 0..=120 {
+            a.push(&seen(k, 10_000, 0));
+        }
+        a.close();
+        let m = &a.done;
+        assert_eq!(m.len(), 2, "{m:?}");
+        assert_eq!((m[1].index, m[1].ticks, m[1].span_s), (2, 60, 60.0));
+        assert!(!minute_line(&m[1], &Rss::default()).contains("partial"));
     }
 
     #[test]

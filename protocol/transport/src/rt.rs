@@ -59,6 +59,21 @@ pub fn spin_for_us(us: u32) {
     }
 }
 
+/// The share of each period the kernel lets SCHED_FIFO tasks take on a CPU before it runs the
+/// others waiting there (`sched_rt_runtime_us` / `sched_rt_period_us`, 0.95 by default); None
+/// when unlimited (−1) or unreadable.
+pub fn rt_share_limit() -> Option<f64> {
+    let read = |f: &str| -> Option<i64> {
+        std::fs::read_to_string(format!("/proc/sys/kernel/{f}"))
+            .ok()?
+            .trim()
+            .parse()
+            .ok()
+    };
+    let (runtime, period) = (read("sched_rt_runtime_us")?, read("sched_rt_period_us")?);
+    (runtime >= 0 && period > 0).then(|| runtime as f64 / period as f64)
+}
+
 /// How one process should be scheduled.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sched {
