@@ -1446,6 +1446,34 @@ mod tests {
 
     const MIN: &str = "[scenario]\npath = \"s1\"\n";
 
+    /// Every run config the repo ships loads and validates (the sweep and Slurm files have their
+    /// own schema); `configs/soak-split.toml` is exactly the split-CPU layout the README measures.
+    #[test]
+    fn shipped_run_configs_load_and_soak_split_is_the_split_layout() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+        let mut seen = 0;
+        for dir in [root.clone(), root.join("paper")] {
+            for e in std::fs::read_dir(&dir).unwrap().flatten() {
+                let path = e.path();
+                let text = std::fs::read_to_string(&path).unwrap_or_default();
+                let sweep = text
+                    .lines()
+                    .any(|l| l.starts_with("[slurm]") || l.starts_with("scenarios = "));
+                if path.extension().is_some_and(|x| x == "toml") && !sweep {
+                    let c = RunConfig::from_toml_str(&text, Some(&path))
+                        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                    c.validate().unwrap();
+                    seen += 1;
+                }
+            }
+        }
+        assert!(seen >= 9, "{seen} configs");
+        let split = root.join("soak-split.toml");
+        let c = RunConfig::from_toml_str(&std::fs::read_to_string(&split).unwrap(), Some(&split))
+            .unwrap();
+        assert_eq!(c.loop_.realtime, Layout::realtime_split_cpus());
+    }
+
     #[test]
     fn minimal_file_gets_matched_preset_and_all_laws() {
         let c = RunConfig::from_toml_str(MIN, Some(Path::new("configs/x.toml"))).unwrap();
