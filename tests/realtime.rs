@@ -86,7 +86,9 @@ fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
     );
     assert!(*sorted.last().unwrap() < 1_000_000_000);
     // Regression: tick 0 was missed in most runs (iceoryx2 connected the ports, mapping each
-    // peer's data segment, inside tick 0's budget). The ports now connect at START.
+    // peer's data segment, inside tick 0's budget), and then once more on a clean clone (the
+    // notifiers still opened their listener's socket in the first notify: tick 0's round trip
+    // 135–190 µs of 150, against ≈ 20 later). Ports and notifiers now connect at START: ≈ 75 µs.
     for law in ["tde-is", "pid"] {
         let row0 = trace
             .lines()

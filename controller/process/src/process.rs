@@ -122,7 +122,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
     let Some(start) = handshake(&ports, &mut ring, term)? else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
-    ipc::connect_now(&[&ports.state, &ports.torque])?;
+    ipc::connect_now(&[&ports.state, &ports.torque, &ports.torque_ready])?;
     let spin_ns = u64::from(layout.spin_us.unwrap_or(0)) * 1000;
     let lp = Loop {
         cfg: &cfg,

@@ -179,7 +179,12 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
     else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
-    ipc::connect_now(&[&ports.state, &ports.telemetry, &ports.torque])?;
+    ipc::connect_now(&[
+        &ports.state,
+        &ports.telemetry,
+        &ports.torque,
+        &ports.state_ready,
+    ])?;
     let mut side = PlantSide::from_config(&cfg, Vec3::from(start.q0), start.ticks)
         .context("initial configuration")?;
     let clock = Clock {

@@ -84,10 +84,11 @@ pub const LINGER: std::time::Duration = std::time::Duration::from_millis(20);
 /// needs.
 pub const SPARE: usize = 1;
 
-/// Connects these loop ports to every peer port that exists now. iceoryx2 otherwise connects
-/// lazily, in the first send or receive that notices a new peer: it opens the connection and maps
-/// the peer's data segment there (a few MiB, every page locked under `mlockall`: hundreds of µs),
-/// which made tick 0 miss its budget. Called after START, when every loop port exists.
+/// Connects these loop ports (publishers, subscribers, notifiers) to every peer port that exists
+/// now. iceoryx2 otherwise connects lazily, in the first send, receive or notify that notices a
+/// new peer: it maps the peer's data segment there (a few MiB, every page locked under `mlockall`:
+/// hundreds of µs) or opens the listener's socket (≈ 100 µs), which made tick 0 miss its budget.
+/// Called after START, when every loop port exists.
 pub fn connect_now(
     ports: &[&dyn iceoryx2::port::update_connections::UpdateConnections],
 ) -> Result<(), IpcError> {
