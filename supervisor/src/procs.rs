@@ -911,21 +911,24 @@ fn fifo_share_warnings(layout: &Layout, ts_s: f64, limit: Option<f64>) -> Vec<St
         return Vec::new();
     };
     let period_us = ts_s * 1e6;
-    let early = |us: Option<i64>| us.filter(|u| *u >= 0).map(|u| u as f64);
     [
         (
             "plant",
             "wake_early_us",
             layout.plant_priority,
             layout.plant_cpu,
-            early(layout.wake_early_us.map(i64::from)),
+            layout.wake_early_us.map(f64::from),
         ),
         (
             "controller",
             "controller_wake_early_us",
             layout.controller_priority,
             layout.controller_cpu,
-            early(layout.controller_wake_early_us.map(i64::from)),
+            // −1: the controller blocks on its event and polls nothing early.
+            layout
+                .controller_wake_early_us
+                .filter(|u| *u >= 0)
+                .map(f64::from),
         ),
     ]
     .into_iter()

@@ -211,40 +211,25 @@ impl Schedule {
 }
 
 impl Loop<'_> {
-    /// The wait for state 0, starting at `now_ns`. With a schedule, as for every later tick:
-    /// sleep to just before t0 and poll past it. Without one, poll `spin_ns` as lockstep does.
-    fn first_wait(&self, now_ns: u64) -> Wait {
-        match &self.schedule {
-            Some(s) => Wait {
-                wake_ns: Some(s.deadline(0).saturating_sub(s.lead_ns)),
-                poll_until_ns: s.deadline(0).max(now_ns) + self.spin_ns,
-            },
-            None => Wait {
-                wake_ns: None,
-                poll_until_ns: now_ns + self.spin_ns,
-            },
-        }
-    }
-
-    /// Where the wait for the state after tick `k`'s reply starts (None: at once) and until when
-    /// it polls before blocking; the second is what the reply declares (`t_poll_until_ns`,
-    /// docs/protocol.md §6.1), never less than the last declaration.
-    ///
-    /// With a schedule the poll runs to `spin_ns` past the next deadline, or past the reply if
-    /// that deadline has gone by: after a freeze the plant publishes its backlog of states back to
-    /// back, and a controller that blocked on each would be woken across CPUs for every one.
-    fn next_wait(&self, k: u64, published_ns: u64, last_poll_until: u64) -> (Option<u64>, u64) {
-        let (wake, until) = match &self.schedule {
+    /// The wait for state `k`, from `from_ns` (START for state 0, else the last reply's
+    /// publication): with a schedule, sleep to `lead_ns` before its deadline and poll to `spin_ns`
+    /// past the deadline, or past `from_ns` if that deadline has gone by (after a freeze the plant
+    /// publishes its backlog of states back to back, and a controller that blocked on each would
+    /// be woken across CPUs for every one); without one, poll `spin_ns` from `from_ns`. State 0
+    /// is waited for like every later one. The poll end is what a reply declares
+    /// (`t_poll_until_ns`, docs/protocol.md §6.1), never less than the last declaration.
+    fn wait_for(&self, k: u64, from_ns: u64, last_poll_until: u64) -> Wait {
+        let (wake_ns, until) = match &self.schedule {
             Some(s) => {
-                let d = s.deadline(k + 1);
-                (
-                    Some(d.saturating_sub(s.lead_ns)),
-                    d.max(published_ns) + self.spin_ns,
-                )
+                let d = s.deadline(k);
+                (Some(d.saturating_sub(s.lead_ns)), d.max(from_ns))
             }
-            None => (None, published_ns + self.spin_ns),
+            None => (None, from_ns),
         };
-        (wake, until.max(last_poll_until))
+        Wait {
+            wake_ns,
+            poll_until_ns: (until + self.spin_ns).max(last_poll_until),
+        }
     }
 }
 
@@ -260,12 +245,13 @@ fn answer_states(
     let inject = cfg.faults.inject;
     let mut side = ControllerSide::from_config(cfg, lp.law);
     let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
-    let mut wait = lp.first_wait(rt::now_ns());
+    let mut wait = lp.wait_for(0, rt::now_ns(), 0);
     loop {
         let waited = wait_state(
             &ports.state,
             &ports.state_ready,
-            (silence_ns, lp.spin_ns),
+            silence_ns,
+            lp.spin_ns,
             &wait,
         );
         if term.load(Ordering::Relaxed) {
@@ -309,13 +295,8 @@ fn answer_states(
         msg.skipped = skipped;
         msg.t_state_rx_ns = rx;
         msg.t_publish_ns = rt::now_ns();
-        let (wake_ns, poll_until_ns) =
-            lp.next_wait(state.tick, msg.t_publish_ns, wait.poll_until_ns);
-        msg.t_poll_until_ns = poll_until_ns;
-        wait = Wait {
-            wake_ns,
-            poll_until_ns,
-        };
+        wait = lp.wait_for(state.tick + 1, msg.t_publish_ns, wait.poll_until_ns);
+        msg.t_poll_until_ns = wait.poll_until_ns;
         ports.torque.send_copy(msg).ipc("publish torque")?;
         if ipc::published_needs_notify(state.t_poll_until_ns) {
             ports.torque_ready.notify().ipc("notify torque")?;
@@ -382,12 +363,14 @@ struct Wait {
 
 /// Waits for the next state: sleeps until `wait.wake_ns` if set, polls until
 /// `wait.poll_until_ns` (or `spin_ns` past a late wake-up), then blocks on the wake-up event;
-/// returns the newest state, how many older ones it skipped, and when it was taken. The clock is read before each look, so the
-/// look that precedes blocking happens at or after `poll_until_ns` (docs/protocol.md §6.1).
+/// returns the newest state, how many older ones it skipped, and when it was taken. The clock is
+/// read before each look, so the look that precedes blocking happens at or after
+/// `poll_until_ns` (docs/protocol.md §6.1).
 fn wait_state(
     sub: &Subscriber<Svc, StateMsg, ()>,
     listener: &Listener<Svc>,
-    (silence_ns, spin_ns): (u64, u64),
+    silence_ns: u64,
+    spin_ns: u64,
     wait: &Wait,
 ) -> Result<Option<(StateMsg, u64, u64)>> {
     let mut poll_until_ns = wait.poll_until_ns;
@@ -488,9 +471,9 @@ mod tests {
         let lp = realtime_loop(&cfg);
         let d6 = T0 + 6 * 300 * US;
         // Tick 5 answered 4 µs after its deadline.
-        let (wake, until) = lp.next_wait(5, T0 + 5 * 300 * US + 4 * US, 0);
-        assert_eq!(wake, Some(d6 - 100 * US));
-        assert_eq!(until, d6 + 150 * US);
+        let w = lp.wait_for(6, T0 + 5 * 300 * US + 4 * US, 0);
+        assert_eq!(w.wake_ns, Some(d6 - 100 * US));
+        assert_eq!(w.poll_until_ns, d6 + 150 * US);
     }
 
     /// Regression: after the host froze both CPUs, the plant published its backlog of states back
@@ -503,8 +486,8 @@ mod tests {
         let lp = realtime_loop(&cfg);
         let d6 = T0 + 6 * 300 * US;
         let published = d6 + 630 * US;
-        let (_, until) = lp.next_wait(5, published, 0);
-        assert_eq!(until, published + 150 * US);
+        let w = lp.wait_for(6, published, 0);
+        assert_eq!(w.poll_until_ns, published + 150 * US);
     }
 
     /// Regression (one of the two causes of tick 0's miss; the other, the lazy port connection,
@@ -516,14 +499,14 @@ mod tests {
         let cfg = cfg();
         let lp = realtime_loop(&cfg);
         let start = T0 - 10_000 * US;
-        let w = lp.first_wait(start);
+        let w = lp.wait_for(0, start, 0);
         assert_eq!(w.wake_ns, Some(T0 - 100 * US));
         assert_eq!(w.poll_until_ns, T0 + 150 * US);
         let lockstep = Loop {
             schedule: None,
             ..realtime_loop(&cfg)
         };
-        let w = lockstep.first_wait(start);
+        let w = lockstep.wait_for(0, start, 0);
         assert_eq!((w.wake_ns, w.poll_until_ns), (None, start + 150 * US));
     }
 
@@ -549,7 +532,9 @@ mod tests {
             schedule: None,
             ..realtime_loop(&cfg)
         };
-        assert_eq!(lp.next_wait(5, 2_000 * US, 0), (None, 2_150 * US));
-        assert_eq!(lp.next_wait(5, 2_000 * US, 3_000 * US), (None, 3_000 * US));
+        let w = lp.wait_for(6, 2_000 * US, 0);
+        assert_eq!((w.wake_ns, w.poll_until_ns), (None, 2_150 * US));
+        let w = lp.wait_for(6, 2_000 * US, 3_000 * US);
+        assert_eq!((w.wake_ns, w.poll_until_ns), (None, 3_000 * US));
     }
 }
