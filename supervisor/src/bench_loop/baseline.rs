@@ -18,6 +18,7 @@ use deltaloop_transport::ipc::{self, IpcContext};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{StateMsg, TorqueMsg};
 use hdrhistogram::Histogram;
+use iceoryx2::port::subscriber::Subscriber;
 use std::cell::UnsafeCell;
 use std::io::{Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
@@ -363,7 +364,6 @@ pub fn iox_lockstep(
             bail!("iox baseline: the helper did not answer within {PEER_TIMEOUT:?}");
         }
     }
-    while torque.receive().ipc("receive torque")?.is_some() {}
     pin("bench loop", plant_cpu);
     let measured = drive(study, "iox", |st| {
         state.send_copy(st).ipc("publish state")?;
@@ -372,8 +372,8 @@ pub fn iox_lockstep(
         }
         let sent = Instant::now();
         loop {
-            if let Some(s) = torque.receive().ipc("receive torque")? {
-                return Ok(*s.payload());
+            if let Some(reply) = next_reply(&torque)? {
+                return Ok(reply);
             }
             if sent.elapsed() > PEER_TIMEOUT {
                 bail!(
@@ -403,6 +403,18 @@ pub fn iox_lockstep(
         bail!("iox baseline: the helper ended with {status}");
     }
     Ok(measured)
+}
+
+/// The next reply in `torque`, past any echo of a probe: the probes sent every millisecond until
+/// the first echo may have queued several at the helper, whose echoes come after the loop has
+/// started.
+fn next_reply(torque: &Subscriber<ipc::Svc, TorqueMsg, ()>) -> Result<Option<TorqueMsg>> {
+    while let Some(s) = torque.receive().ipc("receive torque")? {
+        if s.payload().tick != PROBE_TICK {
+            return Ok(Some(*s.payload()));
+        }
+    }
+    Ok(None)
 }
 
 /// Starts `deltaloop <sub> <args> --config <config> [--cpu N]`.
@@ -483,4 +495,38 @@ pub fn uds_lockstep(
     let _ = child.wait();
     let _ = std::fs::remove_file(&sock);
     measured
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Regression: a late echo of a queued probe reached the loop as tick 0's reply, and `bench
+    /// loop` stopped with "iox baseline: reply for tick 18446744073709551615 at tick 0".
+    #[test]
+    fn regression_a_late_probe_echo_is_not_taken_for_a_reply() {
+        let run_id = crate::procs::new_run_id();
+        let node = ipc::node("bench-test", &run_id).unwrap();
+        let torque = ipc::torque(&node, &run_id).unwrap();
+        let tx = torque.publisher_builder().create().unwrap();
+        let rx = torque
+            .subscriber_builder()
+            .buffer_size(ipc::LOOP_BUFFER)
+            .create()
+            .unwrap();
+        for tick in [PROBE_TICK, PROBE_TICK, 0] {
+            tx.send_copy(TorqueMsg {
+                tick,
+                ..TorqueMsg::default()
+            })
+            .unwrap();
+        }
+        assert_eq!(next_reply(&rx).unwrap().map(|r| r.tick), Some(0));
+        tx.send_copy(TorqueMsg {
+            tick: PROBE_TICK,
+            ..TorqueMsg::default()
+        })
+        .unwrap();
+        assert!(next_reply(&rx).unwrap().is_none());
+    }
 }
