@@ -169,3 +169,63 @@ fn regression_a_failed_write_names_its_file_and_keeps_finished_laws() {
     assert!(trace.lines().filter(|l| l.starts_with("tdc,")).count() > 2000);
     assert!(out.join("report.md").exists() && out.join("tdc.timing.csv").is_file());
 }
+
+/// `[record]` turns the per-tick files off one by one; the rest of the run folder (summary,
+/// report, histograms, interval logs, figures) and every metric stay the same, and replay of a
+/// run with no trace says why it cannot.
+#[test]
+fn record_section_turns_off_the_per_tick_files_and_nothing_else() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut rms = Vec::new();
+    for (trace, timing) in [(false, true), (true, false)] {
+        let out = tmp.path().join(format!("run-{trace}-{timing}"));
+        let cfg = tmp.path().join(format!("cfg-{trace}-{timing}.toml"));
+        std::fs::write(
+            &cfg,
+            format!("name = \"rec\"\n[scenario]\npath = \"s1\"\nhold_s = 0.2\n[controller]\nlaws = [\"tdc\", \"tde-is\"]\n[record]\ntrace = {trace}\ntiming_csv = {timing}\n"),
+        )
+        .unwrap();
+        let s = common::run(cfg.to_str().unwrap(), "lockstep", &out, &[]);
+        for law in ["tdc", "tde-is"] {
+            common::assert_complete(&s, &out, law);
+            assert_eq!(
+                out.join(format!("{law}.timing.csv")).exists(),
+                timing,
+                "{law}"
+            );
+            for f in [
+                "round_trip.hgrm",
+                "round_trip.hlog",
+                "latency.png",
+                "timeline.svg",
+            ] {
+                assert!(out.join(format!("{law}.{f}")).is_file(), "{law}.{f}");
+            }
+        }
+        assert_eq!(out.join("trace.csv").exists(), trace);
+        let names: Vec<String> = std::fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert!(!names.iter().any(|n| n.ends_with(".part")), "{names:?}");
+        assert!(out.join("report.md").is_file());
+        rms.push(s["laws"]["tde-is"]["rms_rad"].clone());
+        let o = deltaloop(&["replay", out.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        if trace {
+            assert!(o.status.success(), "{err}");
+        } else {
+            assert_eq!(o.status.code(), Some(1), "{err}");
+            assert!(
+                err.contains(
+                    "has no trace.csv to replay: the run was recorded with record.trace = false"
+                ),
+                "{err}"
+            );
+        }
+    }
+    assert_eq!(
+        rms[0], rms[1],
+        "lockstep metrics do not depend on what is written"
+    );
+}

@@ -327,13 +327,13 @@ pub fn write_text(path: &Path, text: &str) -> Result<()> {
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// Writes `summary.json` and `report.md` into `dir` and joins the laws' trace parts into
-/// `trace.csv`. The folder's `config.toml` is not written here: [`crate::run::run`] writes it
+/// Writes `summary.json` and `report.md` into `dir` and joins the trace parts of `laws` into
+/// `trace.csv` (None: the run wrote no trace, `record.trace = false`). The folder's `config.toml` is not written here: [`crate::run::run`] writes it
 /// once, before the runs (the child processes read it, and it documents a run that fails).
 pub fn write_run_folder(
     dir: &Path,
     summary: &Summary<'_>,
-    laws: &[Law],
+    laws: Option<&[Law]>,
     report_md: &str,
 ) -> Result<()> {
     std::fs::create_dir_all(dir)
@@ -343,5 +343,5 @@ pub fn write_run_folder(
         &serde_json::to_string_pretty(summary)?,
     )?;
     write_text(&dir.join("report.md"), report_md)?;
-    join_trace(dir, laws)
+    laws.map_or(Ok(()), |laws| join_trace(dir, laws))
 }

@@ -484,7 +484,8 @@ struct Observation<'a> {
     window: Window,
     rec: LawRecorder<'a>,
     timing: TimingAcc,
-    csv: TimingCsv,
+    /// `<law>.timing.csv`, unless `record.timing_csv = false`.
+    csv: Option<TimingCsv>,
     /// The last tick with a loop message (state, reply, or telemetry of the loop, not of the
     /// safe stop after it).
     last_seen: Option<u64>,
@@ -510,7 +511,7 @@ fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
 }
 
 impl<'a> Observation<'a> {
-    fn new(rec: LawRecorder<'a>, timing: TimingAcc, csv: TimingCsv) -> Self {
+    fn new(rec: LawRecorder<'a>, timing: TimingAcc, csv: Option<TimingCsv>) -> Self {
         Self {
             window: Window::new(timing.last_tick() + 1),
             rec,
@@ -605,7 +606,9 @@ impl<'a> Observation<'a> {
 
     /// One finished tick to the timing file, the histograms and the recorder.
     fn finish_tick(&mut self, seen: Seen) -> Result<()> {
-        self.csv.write(&seen)?;
+        if let Some(csv) = &mut self.csv {
+            csv.write(&seen)?;
+        }
         self.timing.push(seen)?;
         crate::tick_hook::call(&seen);
         if seen.k == self.window.last {
@@ -661,7 +664,9 @@ impl<'a> Observation<'a> {
             }
             self.finish_tick(t)?;
         }
-        self.csv.finish()?;
+        if let Some(csv) = self.csv {
+            csv.finish()?;
+        }
         let timing = self.timing.finish()?;
         let mut rec = self.rec;
         let n = self.window.last - 1;
@@ -854,7 +859,10 @@ pub fn run_law(
         lawrun::recorder(study, law, keep)?,
         TimingAcc::new(n, ts_ns, mode == LoopMode::Realtime)
             .with_hlogs(run_dir, &format!("{law}.")),
-        TimingCsv::create(&run_dir.join(format!("{law}.timing.csv")))?,
+        cfg.record
+            .timing_csv
+            .then(|| TimingCsv::create(&run_dir.join(format!("{law}.timing.csv"))))
+            .transpose()?,
     );
     let mut start = ControlMsg::new(ControlKind::Start, Sender::Supervisor);
     start.ticks = n;

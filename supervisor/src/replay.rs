@@ -211,6 +211,12 @@ pub enum Verdict {
 /// Replays the run in `run_dir` into `out` (its `trace.csv` and nothing else) and compares.
 pub fn replay(run_dir: &Path, out: &Path) -> Result<(Verdict, Vec<LawRun>)> {
     let cfg = RunConfig::from_file(&run_dir.join("config.toml"))?;
+    if !cfg.record.trace {
+        bail!(
+            "{} has no trace.csv to replay: the run was recorded with record.trace = false (its config.toml)",
+            run_dir.display()
+        );
+    }
     let study = Study::new(cfg).context("the recorded scenario")?;
     let recorded = run_dir.join("trace.csv");
     let mut rows = TraceRows::open(&recorded)?;

@@ -142,7 +142,7 @@ pub fn run(
     let mut stopped: Option<(Law, Option<String>)> = None;
     let mut failed: Option<anyhow::Error> = None;
     let keep = |law| Keep {
-        trace: Some(output::trace_part(&dir, law)),
+        trace: cfg.record.trace.then(|| output::trace_part(&dir, law)),
         records: keep_records,
     };
     let (runs, timings): (Vec<LawRun>, Vec<Option<Timing>>) = match mode {
@@ -266,7 +266,7 @@ pub fn run(
     if mode == LoopMode::Realtime && !metrics.is_empty() {
         md.push_str(&latency_cost_markdown(&study, &metrics)?);
     }
-    output::write_run_folder(&dir, &summary, &laws, &md)?;
+    output::write_run_folder(&dir, &summary, cfg.record.trace.then_some(&laws[..]), &md)?;
     let mut table = report::terminal_table(cfg, &metrics);
     if mode.is_process() {
         table.push_str(&report::timing_table(&metrics, &timing_summaries));
@@ -321,7 +321,11 @@ fn latency_cost_markdown(study: &Study, metrics: &[LawMetrics]) -> Result<String
     let mut md = String::from("\n## Measured latency cost\n\n");
     if crate::signals::interrupted() {
         // Ctrl-C asked for a prompt exit, and the in-process twin would stop at once too.
-        md.push_str("Not computed: the run was interrupted. `deltaloop replay <run folder> --ideal` computes it from the trace.\n");
+        md.push_str(if study.config.record.trace {
+            "Not computed: the run was interrupted. `deltaloop replay <run folder> --ideal` computes it from the trace.\n"
+        } else {
+            "Not computed: the run was interrupted (and wrote no trace to compute it from later: `record.trace = false`).\n"
+        });
         return Ok(md);
     }
     let measured: Vec<_> = metrics.iter().collect();

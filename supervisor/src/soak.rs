@@ -10,7 +10,7 @@
 use crate::run::{self, Overrides};
 use crate::timing::{self, Percentiles, Seen};
 use anyhow::{Result, bail};
-use deltaloop_config::LoopMode;
+use deltaloop_config::{LoopMode, RecordSection};
 use deltaloop_transport::wire;
 use hdrhistogram::Histogram;
 use std::path::{Path, PathBuf};
@@ -31,9 +31,25 @@ pub fn parse_duration(s: &str) -> Result<Duration, String> {
     Ok(d)
 }
 
-/// Disk a run writes per tick, bytes: `trace.csv` ≈ 630 B and `<law>.timing.csv` ≈ 106 B a tick
-/// (measured on a lockstep S1 run of 202 668 ticks), rounded up.
-pub const BYTES_PER_TICK: u64 = 750;
+/// Disk `trace.csv` takes per tick, bytes: ≈ 630 B (measured on a lockstep S1 run of 202 668
+/// ticks), rounded up.
+pub const TRACE_BYTES_PER_TICK: u64 = 640;
+
+/// Disk `<law>.timing.csv` takes per tick, bytes: ≈ 106 B (same run), rounded up.
+pub const TIMING_BYTES_PER_TICK: u64 = 110;
+
+/// Disk a run with `record` writes per tick, bytes, and the files that take it.
+pub fn per_tick_disk(record: &RecordSection) -> (u64, &'static str) {
+    match (record.trace, record.timing_csv) {
+        (true, true) => (
+            TRACE_BYTES_PER_TICK + TIMING_BYTES_PER_TICK,
+            "trace.csv and timing.csv",
+        ),
+        (true, false) => (TRACE_BYTES_PER_TICK, "trace.csv"),
+        (false, true) => (TIMING_BYTES_PER_TICK, "timing.csv"),
+        (false, false) => (0, "no per-tick file"),
+    }
+}
 
 /// Free bytes of the file system that holds `path` (or its nearest existing ancestor).
 fn free_bytes(path: &Path) -> Option<u64> {
@@ -48,15 +64,23 @@ fn free_bytes(path: &Path) -> Option<u64> {
     Some(st.f_bavail as u64 * st.f_frsize as u64)
 }
 
-/// Err with one line if a run of `ticks` ticks would not fit in `free` bytes.
-pub fn check_disk(ticks: u64, free: u64, dir: &Path, duration: &str) -> Result<(), String> {
-    let need = ticks.saturating_mul(BYTES_PER_TICK);
+/// Err with one line if a run of `ticks` ticks recording what `record` asks would not fit in
+/// `free` bytes.
+pub fn check_disk(
+    ticks: u64,
+    record: &RecordSection,
+    free: u64,
+    dir: &Path,
+    duration: &str,
+) -> Result<(), String> {
+    let (per_tick, files) = per_tick_disk(record);
+    let need = ticks.saturating_mul(per_tick);
     if need <= free {
         return Ok(());
     }
     let gb = |b: u64| b as f64 / 1e9;
     Err(format!(
-        "--duration {duration} writes about {:.1} GB ({ticks} ticks of ≈ {BYTES_PER_TICK} B in trace.csv and timing.csv) but {} has {:.1} GB free: choose a shorter --duration or another --out",
+        "--duration {duration} writes about {:.1} GB ({ticks} ticks of ≈ {per_tick} B in {files}) but {} has {:.1} GB free: choose a shorter --duration, another --out, or [record] trace = false in the config",
         gb(need),
         dir.display(),
         gb(free)
@@ -298,7 +322,7 @@ pub fn soak(r: Request<'_>) -> Result<()> {
 
     let shown = humantime::format_duration(r.duration).to_string();
     if let Some(free) = free_bytes(&out) {
-        check_disk(total, free, &out, &shown).map_err(|e| anyhow::anyhow!(e))?;
+        check_disk(total, &cfg.record, free, &out, &shown).map_err(|e| anyhow::anyhow!(e))?;
     }
     let acc = Arc::new(Mutex::new(MinuteAcc::new(ts)));
     let hook = {
@@ -515,13 +539,28 @@ mod tests {
     #[test]
     fn a_soak_that_would_fill_the_disk_is_refused_up_front() {
         let ticks = 288_000_000; // 24 h at 3.3 kHz
-        let e = check_disk(ticks, 59_000_000_000, Path::new("runs/x"), "1day").unwrap_err();
+        let all = RecordSection::default();
+        let e = check_disk(ticks, &all, 59_000_000_000, Path::new("runs/x"), "1day").unwrap_err();
         assert!(
-            e.starts_with("--duration 1day writes about 216.0 GB"),
+            e.starts_with("--duration 1day writes about 216.0 GB (288000000 ticks of ≈ 750 B in trace.csv and timing.csv)"),
             "{e}"
         );
         assert!(e.contains("runs/x has 59.0 GB free"), "{e}");
-        assert!(check_disk(12_000_000, 59_000_000_000, Path::new("."), "1h").is_ok());
+        assert!(check_disk(12_000_000, &all, 59_000_000_000, Path::new("."), "1h").is_ok());
+        // Without the trace the day takes 31.7 GB and fits; with no per-tick file nothing grows.
+        let timing_only = RecordSection {
+            trace: false,
+            timing_csv: true,
+        };
+        assert!(check_disk(ticks, &timing_only, 59_000_000_000, Path::new("."), "1day").is_ok());
+        let e =
+            check_disk(ticks, &timing_only, 30_000_000_000, Path::new("."), "1day").unwrap_err();
+        assert!(e.contains("≈ 110 B in timing.csv)"), "{e}");
+        let none = RecordSection {
+            trace: false,
+            timing_csv: false,
+        };
+        assert!(check_disk(u64::MAX, &none, 0, Path::new("."), "1day").is_ok());
         assert!(free_bytes(Path::new("no/such/dir/below/cwd")).is_some_and(|b| b > 0));
     }
 

@@ -115,14 +115,8 @@ pub fn summary(dir: &Path) -> Value {
 /// A long run of `law` in `out` completed with every tick on disk and nothing lost on any stream;
 /// returns its peak RSS (MiB) of supervisor, plant and controller.
 pub fn assert_complete_and_kept(summary: &Value, out: &Path, law: &str) -> [f64; 3] {
+    let rss = assert_complete(summary, out, law);
     let m = &summary["laws"][law];
-    assert_eq!(m["completed"], true, "{m}");
-    assert_eq!(m["lost_ticks"], 0, "{m}");
-    let t = &summary["timing"][law];
-    let lost = &t["supervisor_lost_samples"];
-    for stream in ["state", "torque", "telemetry"] {
-        assert_eq!(lost[stream], 0, "{lost}");
-    }
     let f = std::fs::File::open(out.join("trace.csv")).unwrap();
     let lines = std::io::BufRead::lines(std::io::BufReader::new(f)).count() as u64;
     assert_eq!(
@@ -130,6 +124,33 @@ pub fn assert_complete_and_kept(summary: &Value, out: &Path, law: &str) -> [f64;
         m["ticks"].as_u64().unwrap() + 2,
         "header + ticks 0..=N"
     );
+    rss
+}
+
+/// `law` ran every tick the scenario planned (0..=N) and the supervisor saw every message of
+/// each: the summary says so, and the round-trip interval log on disk holds N + 1 round trips.
+/// Each process's peak memory (MiB: supervisor, plant, controller).
+pub fn assert_complete(summary: &Value, out: &Path, law: &str) -> [f64; 3] {
+    let m = &summary["laws"][law];
+    assert_eq!(m["completed"], true, "{m}");
+    assert_eq!(m["lost_ticks"], 0, "{m}");
+    assert_eq!(m["ticks"], summary["ticks"], "{m}");
+    let t = &summary["timing"][law];
+    let lost = &t["supervisor_lost_samples"];
+    for stream in ["state", "torque", "telemetry"] {
+        assert_eq!(lost[stream], 0, "{lost}");
+    }
+    let ticks = m["ticks"].as_u64().unwrap() + 1;
+    assert_eq!(t["ticks"], ticks, "{t}");
+    assert_eq!(t["round_trip"]["count"], ticks, "{t}");
+    let log = out.join(format!("{law}.round_trip.hlog"));
+    let logged: u64 = deltaloop_supervisor::hlog::read(&log)
+        .unwrap()
+        .intervals
+        .iter()
+        .map(|iv| iv.hist.len())
+        .sum();
+    assert_eq!(logged, ticks, "round trips in {}", log.display());
     let rss = &t["peak_rss_mib"];
     ["supervisor", "plant", "controller"].map(|w| rss[w].as_f64().unwrap())
 }

@@ -704,6 +704,38 @@ pub struct RunConfig {
     pub sensor: SensorSection,
     #[serde(default)]
     pub faults: FaultSection,
+    #[serde(default)]
+    pub record: RecordSection,
+}
+
+/// `[record]`: which per-tick files a run writes. Both are on by default: every tick of every law
+/// on disk, which is what replay and offline analysis need. A soak that only watches timing can
+/// turn them off: the summary, report, histograms, interval logs and figures do not depend on
+/// them, and disk no longer grows with the run's length (≈ 630 B a tick for the trace, ≈ 106 B for
+/// the timing file).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordSection {
+    /// Write `trace.csv` (joint states, torques, errors and estimates of every tick). Without it a
+    /// run cannot be replayed.
+    #[serde(default = "yes")]
+    pub trace: bool,
+    /// Write `<law>.timing.csv` (the raw clock stamps of every tick) in realtime and lockstep runs.
+    #[serde(default = "yes")]
+    pub timing_csv: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+impl Default for RecordSection {
+    fn default() -> Self {
+        Self {
+            trace: true,
+            timing_csv: true,
+        }
+    }
 }
 
 /// Largest accepted TDE delay ℓ (`controller.tde_delay_samples`), ticks. The controller keeps ℓ
@@ -1518,6 +1550,39 @@ mod tests {
         assert!(
             msg.contains("kpp") && msg.contains("expected one of"),
             "{msg}"
+        );
+    }
+
+    #[test]
+    fn record_writes_every_per_tick_file_unless_told_not_to() {
+        let c = RunConfig::from_toml_str(MIN, None).unwrap();
+        assert_eq!(
+            c.record,
+            RecordSection {
+                trace: true,
+                timing_csv: true
+            }
+        );
+        let c = RunConfig::from_toml_str(&format!("{MIN}[record]\ntrace = false\n"), None).unwrap();
+        assert!(!c.record.trace && c.record.timing_csv);
+        // The resolved config (what the run folder keeps) says so, and reads back the same.
+        assert!(
+            c.to_toml_string()
+                .contains("[record]\ntrace = false\ntiming_csv = true")
+        );
+        assert_eq!(
+            RunConfig::from_toml_str(&c.to_toml_string(), None).unwrap(),
+            c
+        );
+        let e = err(&format!("{MIN}[record]\ntraces = false\n"));
+        assert!(
+            e.contains("unknown field `traces`, expected `trace` or `timing_csv`"),
+            "{e}"
+        );
+        let e = err(&format!("{MIN}[record]\ntrace = \"no\"\n"));
+        assert!(
+            e.contains("expected a boolean") && e.contains("line 4"),
+            "{e}"
         );
     }
 

@@ -4,5 +4,5 @@
 
 pub mod config;
 
-pub use config::{ConfigError, LoopMode, RunConfig};
+pub use config::{ConfigError, LoopMode, RecordSection, RunConfig};
 pub use deltaloop_law::{ControllerParams, Law, Preset, VelocitySource};
