@@ -104,8 +104,8 @@ pub fn load_config(path: &Path, o: &Overrides) -> Result<RunConfig> {
 ///
 /// `out` must be empty or new unless `force` (see [`output::RunFolder::claim`]). With
 /// `keep_records` every tick's record stays in memory too (for figures of short runs); otherwise
-/// the ticks are only streamed to `trace.csv` and the metrics, and memory does not grow with the
-/// run.
+/// the ticks are only streamed to `trace.csv` (unless `record.trace = false`) and the metrics,
+/// and memory does not grow with the run.
 pub fn run(
     cfg: RunConfig,
     mode: LoopMode,
