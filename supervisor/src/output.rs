@@ -328,8 +328,9 @@ pub fn write_text(path: &Path, text: &str) -> Result<()> {
 }
 
 /// Writes `summary.json` and `report.md` into `dir` and joins the trace parts of `laws` into
-/// `trace.csv` (None: the run wrote no trace, `record.trace = false`). The folder's `config.toml` is not written here: [`crate::run::run`] writes it
-/// once, before the runs (the child processes read it, and it documents a run that fails).
+/// `trace.csv` (None: the run wrote no trace, `record.trace = false`). The folder's
+/// `config.toml` is not written here: [`crate::run::run`] writes it once, before the runs (the
+/// child processes read it, and it documents a run that fails).
 pub fn write_run_folder(
     dir: &Path,
     summary: &Summary<'_>,

@@ -80,7 +80,7 @@ pub fn check_disk(
     }
     let gb = |b: u64| b as f64 / 1e9;
     Err(format!(
-        "--duration {duration} writes about {:.1} GB ({ticks} ticks of ≈ {per_tick} B in {files}) but {} has {:.1} GB free: choose a shorter --duration, another --out, or [record] trace = false in the config",
+        "--duration {duration} writes about {:.1} GB ({ticks} ticks of ≈ {per_tick} B in {files}) but {} has {:.1} GB free: choose a shorter --duration, another --out, or fewer per-tick files ([record] in the config)",
         gb(need),
         dir.display(),
         gb(free)
