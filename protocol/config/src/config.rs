@@ -714,19 +714,13 @@ pub struct RunConfig {
 /// them, and disk no longer grows with the run's length (≈ 630 B a tick for the trace, ≈ 106 B for
 /// the timing file).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct RecordSection {
     /// Write `trace.csv` (joint states, torques, errors and estimates of every tick). Without it a
     /// run cannot be replayed.
-    #[serde(default = "yes")]
     pub trace: bool,
     /// Write `<law>.timing.csv` (the raw clock stamps of every tick) in realtime and lockstep runs.
-    #[serde(default = "yes")]
     pub timing_csv: bool,
-}
-
-fn yes() -> bool {
-    true
 }
 
 impl Default for RecordSection {
