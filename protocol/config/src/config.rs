@@ -499,10 +499,13 @@ impl Layout {
     }
 
     /// The shortest round trip: plant on CPU 1, controller on CPU 0, both SCHED_FIFO; the plant
-    /// polls for the reply through the budget, the controller sleeps until 100 µs before each
-    /// deadline and polls for the state; neither wakes a peer that is polling
-    /// (docs/protocol.md §6.1). The supervisor shares CPU 0 as SCHED_OTHER. Needs CPUs the host
-    /// does not take away: a virtual CPU frozen for 30 ms is 100 misses in a row.
+    /// polls for the reply through the budget, both sleep until 200 µs before each deadline and
+    /// poll from there; neither wakes a peer that is polling (docs/protocol.md §6.1). Each polls
+    /// about two thirds of every 300 µs period, so a vCPU that the host wakes up to 200 µs late
+    /// still publishes and answers on time (waking 80 and 100 µs early missed about twice as
+    /// often on a 2-vCPU VM, README "Scheduling"). The supervisor shares CPU 0 as SCHED_OTHER.
+    /// Needs CPUs the host does not take away: a virtual CPU frozen for 30 ms is 100 misses in
+    /// a row.
     pub fn realtime_split_cpus() -> Self {
         Self {
             plant_cpu: Some(1),
@@ -512,8 +515,8 @@ impl Layout {
             controller_priority: Some(70),
             spin_us: Some(150),
             lock_memory: Some(true),
-            wake_early_us: Some(80),
-            controller_wake_early_us: Some(100),
+            wake_early_us: Some(200),
+            controller_wake_early_us: Some(200),
         }
     }
 

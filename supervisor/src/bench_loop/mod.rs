@@ -126,12 +126,14 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     }
     let d = rt_default.summary();
     println!(
-        "loop vs machine (p99.9): round trip {:.1} us (default layout), {:.1} us (split CPUs) vs machine wake lateness {:.1} us; the plant's wake lateness {:.1} us after waking {} us early",
+        "loop vs machine (p99.9): round trip {:.1} us (default layout), {:.1} us (split CPUs) vs machine wake lateness {:.1} us; the plant's wake lateness {:.1} us (default, waking {} us early), {:.1} us (split, {} us early)",
         d.round_trip.p999_us,
         sp.round_trip.p999_us,
         m(&machine, 0.999),
         d.wake_lateness.p999_us,
-        lay.wake_early_us.unwrap_or(0)
+        lay.wake_early_us.unwrap_or(0),
+        sp.wake_lateness.p999_us,
+        Layout::realtime_split_cpus().wake_early_us.unwrap_or(0)
     );
     let mut hists: Vec<(&str, &Histogram<u64>)> = vec![
         ("round trip, default", &rt_default.round_trip.hist),
@@ -150,7 +152,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     )?;
     println!("figure: {}", out.join("latency.png").display());
     println!(
-        "lockstep_transport_shm_us={:.3} lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} transport_one_cpu_blocking_us={:.3} handoff_shm_p50_us={:.2} handoff_iox_p50_us={:.2} handoff_uds_p50_us={:.2} iox_one_thread_us={:.3} handoff_iox_one_thread_p50_us={:.2} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} machine_wake_p999_us={:.1} cyclictest_p999_us={}",
+        "lockstep_transport_shm_us={:.3} lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} transport_one_cpu_blocking_us={:.3} handoff_shm_p50_us={:.2} handoff_iox_p50_us={:.2} handoff_uds_p50_us={:.2} iox_one_thread_us={:.3} handoff_iox_one_thread_p50_us={:.2} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_wake_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_wake_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} machine_wake_p999_us={:.1} cyclictest_p999_us={}",
         lsf.shm_us,
         lsf.iox_us,
         lsf.uds_us,
@@ -166,9 +168,11 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
         lsf.handoff_us,
         d.round_trip.p50_us,
         d.round_trip.p999_us,
+        d.wake_lateness.p999_us,
         d.miss_ratio,
         sp.round_trip.p50_us,
         sp.round_trip.p999_us,
+        sp.wake_lateness.p999_us,
         sp.miss_ratio,
         split_steal.map_or("na".to_string(), |(_, f)| format!("{f:.2e}")),
         m(&machine, 0.999),
