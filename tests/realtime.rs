@@ -167,6 +167,10 @@ fn bench_loop_runs_every_measurement_and_ends_with_its_key_value_line() {
         "rt_split_wake_p999_us",
         "rt_split_miss_ratio",
         "rt_split_steal_share",
+        "rt_yield_rtt_p50_us",
+        "rt_yield_rtt_p999_us",
+        "rt_yield_wake_p999_us",
+        "rt_yield_miss_ratio",
         "machine_wake_p999_us",
         "cyclictest_p999_us",
     ];
@@ -200,8 +204,14 @@ fn bench_loop_runs_every_measurement_and_ends_with_its_key_value_line() {
             assert!(x > 0.0 || (may_be_zero && x == 0.0), "{k}={v}");
         }
     }
-    // Both realtime layouts ran every tick of S1 (0.8 s, ticks 0..=2667).
-    for layout in ["realtime ", "realtime-split "] {
+    // Yielding hands the CPU over: a yield that did not (a spin, or a controller below the
+    // plant's priority) would leave the controller no CPU until the plant's 150 µs poll ran out,
+    // a miss on every tick.
+    let num = |k: &str| kv[k].parse::<f64>().unwrap();
+    assert!(num("rt_yield_miss_ratio") < 0.05, "{last}");
+    assert!(num("rt_yield_rtt_p50_us") < 100.0, "{last}");
+    // The three realtime layouts ran every tick of S1 (0.8 s, ticks 0..=2667).
+    for layout in ["realtime ", "realtime-split ", "realtime-yield "] {
         let line = stdout
             .lines()
             .find(|l| l.starts_with(&format!("(d) {layout}")))
@@ -217,6 +227,8 @@ fn bench_loop_runs_every_measurement_and_ends_with_its_key_value_line() {
         "realtime/tdc-is-sta.timeline.svg",
         "realtime-split/tdc-is-sta.round_trip.hgrm",
         "realtime-split/tdc-is-sta.timeline.png",
+        "realtime-yield/tdc-is-sta.round_trip.hgrm",
+        "realtime-yield/tdc-is-sta.latency.svg",
     ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }

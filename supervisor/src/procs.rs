@@ -1127,7 +1127,11 @@ mod tests {
 
     #[test]
     fn the_shipped_layouts_and_unlimited_or_non_fifo_loops_get_no_warning() {
-        for layout in [Layout::realtime_default(), Layout::realtime_split_cpus()] {
+        for layout in [
+            Layout::realtime_default(),
+            Layout::realtime_split_cpus(),
+            Layout::realtime_one_cpu_yield(),
+        ] {
             assert!(fifo_share_warnings(&layout, 3e-4, Some(0.95)).is_empty());
         }
         assert!(fifo_share_warnings(&split_with(290), 3e-4, None).is_empty());

@@ -15,7 +15,7 @@ use crate::ControllerSide;
 use crate::ring::RefRing;
 use anyhow::{Result, bail};
 use clap::Parser;
-use deltaloop_config::config::{FaultInjection, Layout};
+use deltaloop_config::config::{FaultInjection, Layout, Poll};
 use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
@@ -129,6 +129,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         law: args.law,
         rows: start.ticks + 2,
         spin_ns,
+        poll: layout.poll.unwrap_or_default(),
         schedule: match (args.run.mode, layout.controller_lead_ns()) {
             (LoopMode::Realtime, Some(lead_ns)) => Some(Schedule {
                 t0_ns: start.t0_ns,
@@ -191,6 +192,8 @@ struct Loop<'c> {
     /// Busy-poll time before blocking on the state wake-up, ns (with a schedule: past the
     /// deadline).
     spin_ns: u64,
+    /// Between looks for the state: spin, or yield to a plant on this CPU.
+    poll: Poll,
     /// Realtime with `controller_wake_early_us`: sleep to just before each deadline.
     schedule: Option<Schedule>,
 }
@@ -252,6 +255,7 @@ fn answer_states(
             &ports.state_ready,
             silence_ns,
             lp.spin_ns,
+            lp.poll,
             &wait,
         );
         if term.load(Ordering::Relaxed) {
@@ -300,6 +304,10 @@ fn answer_states(
         ports.torque.send_copy(msg).ipc("publish torque")?;
         if ipc::published_needs_notify(state.t_poll_until_ns) {
             ports.torque_ready.notify().ipc("notify torque")?;
+        }
+        // On the plant's CPU, hand it the CPU now: the reply is taken before our bookkeeping.
+        if lp.poll == Poll::Yield {
+            std::thread::yield_now();
         }
         // File any chunk that arrived now, in the slack before the next state, so copying its
         // 320 KiB never delays a reply (before the next answer, as the rule needs).
@@ -361,7 +369,8 @@ struct Wait {
     poll_until_ns: u64,
 }
 
-/// Waits for the next state: sleeps until `wait.wake_ns` if set, polls until
+/// Waits for the next state: sleeps until `wait.wake_ns` if set, polls (spinning or yielding,
+/// `poll`) until
 /// `wait.poll_until_ns` (or `spin_ns` past a late wake-up), then blocks on the wake-up event;
 /// returns the newest state, how many older ones it skipped, and when it was taken. The clock is
 /// read before each look, so the look that precedes blocking happens at or after
@@ -371,6 +380,7 @@ fn wait_state(
     listener: &Listener<Svc>,
     silence_ns: u64,
     spin_ns: u64,
+    poll: Poll,
     wait: &Wait,
 ) -> Result<Option<(StateMsg, u64, u64)>> {
     let mut poll_until_ns = wait.poll_until_ns;
@@ -394,7 +404,7 @@ fn wait_state(
             return Ok(None);
         }
         if now < poll_until_ns {
-            std::hint::spin_loop();
+            rt::poll_pause(poll);
             continue;
         }
         // The only timeout here is the silence limit (seconds), so iceoryx2's own timed wait (a
@@ -453,6 +463,7 @@ mod tests {
             law: Law::TdcIsSta,
             rows: 100,
             spin_ns: 150 * US,
+            poll: Poll::Spin,
             schedule: Some(Schedule {
                 t0_ns: T0,
                 ts_ns: 300 * US,

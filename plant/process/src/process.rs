@@ -16,7 +16,7 @@
 use crate::{Arrival, PlantSide, PlantStop};
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use deltaloop_config::config::{ApplyTorque, Layout};
+use deltaloop_config::config::{ApplyTorque, Layout, Poll};
 use deltaloop_config::{LoopMode, RunConfig};
 use deltaloop_model::Vec3;
 use deltaloop_transport::args::LoopArgs;
@@ -115,6 +115,8 @@ struct Clock {
     silence_ns: u64,
     spin_ns: u64,
     early_ns: u64,
+    /// Between looks for the reply: spin, or yield to a controller on this CPU.
+    poll: Poll,
     /// Replies act on the physics at their measured arrival (realtime, `apply_torque = "arrival"`).
     at_arrival: bool,
 }
@@ -195,6 +197,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         silence_ns: u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000,
         spin_ns: u64::from(layout.spin_us.unwrap_or(0)) * 1000,
         early_ns: u64::from(layout.wake_early_us.unwrap_or(0)) * 1000,
+        poll: layout.poll.unwrap_or_default(),
         at_arrival: args.run.mode == LoopMode::Realtime
             && cfg.plant.apply_torque == ApplyTorque::Arrival,
     };
@@ -251,6 +254,7 @@ fn run_loop(
             &ports.torque_ready,
             k,
             (msg.t_poll_until_ns, until),
+            clock.poll,
             side,
         )?;
         ctrl_poll_until = reply.map_or(0, |(t, _)| t.t_poll_until_ns);
@@ -388,7 +392,8 @@ fn reply_verdict(m: &TorqueMsg, tick: u64, until_ns: u64) -> Reply {
     }
 }
 
-/// Waits for τ_k until `until_ns`: polls until `poll_until_ns` (what the state declared), then
+/// Waits for τ_k until `until_ns`: polls (spinning or yielding, `poll`) until `poll_until_ns`
+/// (what the state declared), then
 /// blocks on the wake-up event. The clock is read before each look, so the look that precedes
 /// blocking happens at or after `poll_until_ns` (docs/protocol.md §6.1). Replies judged late are
 /// dropped and counted on `side`; replies for later ticks are ignored. Returns the reply and its
@@ -398,6 +403,7 @@ fn wait_torque(
     listener: &Listener<Svc>,
     tick: u64,
     (poll_until_ns, until_ns): (u64, u64),
+    poll: Poll,
     side: &mut PlantSide,
 ) -> Result<Option<(TorqueMsg, u64)>> {
     loop {
@@ -414,7 +420,7 @@ fn wait_torque(
             return Ok(None);
         }
         if now < poll_until_ns {
-            std::hint::spin_loop();
+            rt::poll_pause(poll);
             continue;
         }
         // Drop wake-ups already seen (e.g. a late reply's), so the poll sleeps until a new one.

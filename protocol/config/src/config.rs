@@ -410,6 +410,33 @@ pub struct Layout {
     /// before it blocks on the wake-up event, µs. −1: it blocks on the event right after each
     /// reply and is woken by the plant's notification. At most one period. Lockstep ignores it.
     pub controller_wake_early_us: Option<i32>,
+    /// What a process does between two looks for its peer's message while it polls: `spin` on
+    /// its CPU, or `yield` the CPU to a peer at the same SCHED_FIFO priority on the same CPU
+    /// (plant and controller share one CPU without a wake-up notification).
+    pub poll: Option<Poll>,
+}
+
+/// What a polling process does between two looks for its peer's message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Poll {
+    /// Busy-wait (a spin-loop hint): for a peer on another CPU.
+    #[default]
+    Spin,
+    /// `sched_yield`: the CPU goes to a peer of the same SCHED_FIFO priority waiting on it, and
+    /// comes back when that peer yields or sleeps. Needs plant and controller on one CPU at one
+    /// priority (checked): a process of lower priority would never get the CPU from a yield.
+    Yield,
+}
+
+impl Poll {
+    /// The config name (`spin`, `yield`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Poll::Spin => "spin",
+            Poll::Yield => "yield",
+        }
+    }
 }
 
 /// How plant and controller are connected: one enum for the CLI, the sweep and the processes.
@@ -495,6 +522,7 @@ impl Layout {
             lock_memory: Some(true),
             wake_early_us: Some(80),
             controller_wake_early_us: Some(50),
+            poll: Some(Poll::Spin),
         }
     }
 
@@ -517,6 +545,24 @@ impl Layout {
             lock_memory: Some(true),
             wake_early_us: Some(200),
             controller_wake_early_us: Some(200),
+            poll: Some(Poll::Spin),
+        }
+    }
+
+    /// Plant and controller on CPU 1 at the same SCHED_FIFO priority, handing the CPU to each
+    /// other with `sched_yield` (`poll = "yield"`): the plant wakes 80 µs early and yields while
+    /// it waits for the reply, the controller sleeps until 50 µs before each deadline and yields
+    /// while it waits for the state and once after each reply; no notifications. Two context
+    /// switches per round trip instead of two notifications and two wake-ups, and, as in the
+    /// default, a host that freezes CPU 1 stalls both together. The plant cannot preempt its
+    /// controller here: a reply computed for longer than the budget delays the plant's next wake
+    /// as well (it is still a miss). The supervisor on CPU 0.
+    pub fn realtime_one_cpu_yield() -> Self {
+        Self {
+            controller_priority: Some(80),
+            spin_us: Some(150),
+            poll: Some(Poll::Yield),
+            ..Self::realtime_default()
         }
     }
 
@@ -532,6 +578,7 @@ impl Layout {
             lock_memory: Some(false),
             wake_early_us: Some(0),
             controller_wake_early_us: Some(-1),
+            poll: Some(Poll::Spin),
         }
     }
 
@@ -546,6 +593,7 @@ impl Layout {
         self.wake_early_us = self.wake_early_us.or(d.wake_early_us);
         self.controller_wake_early_us =
             self.controller_wake_early_us.or(d.controller_wake_early_us);
+        self.poll = self.poll.or(d.poll);
     }
 
     /// Checks one mode's layout; `section` names it in errors (`loop.realtime`, `loop.lockstep`),
@@ -603,6 +651,33 @@ impl Layout {
                 cwake,
                 &format!(
                     "-1 (wait for the notification) or 0 <= controller_wake_early_us <= Ts = {period_us} us"
+                ),
+            ));
+        }
+        self.check_yield(section)
+    }
+
+    /// `poll = "yield"` hands the CPU over only to a peer of the same priority on the same CPU:
+    /// anywhere else a yield returns at once, or never reaches a peer of lower priority, which
+    /// would then starve behind the polling plant.
+    fn check_yield(&self, section: &str) -> Result<(), ConfigError> {
+        if self.poll != Some(Poll::Yield) {
+            return Ok(());
+        }
+        let (pc, cc) = (
+            self.plant_cpu.unwrap_or(-1),
+            self.controller_cpu.unwrap_or(-1),
+        );
+        let (pp, cp) = (
+            self.plant_priority.unwrap_or(0),
+            self.controller_priority.unwrap_or(0),
+        );
+        if pc < 0 || pc != cc || pp != cp {
+            return Err(range(
+                &format!("{section}.poll"),
+                "\"yield\"",
+                &format!(
+                    "\"yield\" needs plant_cpu = controller_cpu (pinned) and plant_priority = controller_priority; here plant_cpu {pc}, controller_cpu {cc}, plant_priority {pp}, controller_priority {cp} (or poll = \"spin\")"
                 ),
             ));
         }
@@ -1501,6 +1576,57 @@ mod tests {
         let c = RunConfig::from_toml_str(&std::fs::read_to_string(&split).unwrap(), Some(&split))
             .unwrap();
         assert_eq!(c.loop_.realtime, Layout::realtime_split_cpus());
+        let one = root.join("soak-yield.toml");
+        let c =
+            RunConfig::from_toml_str(&std::fs::read_to_string(&one).unwrap(), Some(&one)).unwrap();
+        assert_eq!(c.loop_.realtime, Layout::realtime_one_cpu_yield());
+    }
+
+    #[test]
+    fn yielding_needs_plant_and_controller_on_one_cpu_at_one_priority() {
+        let yield_with = |extra: &str| {
+            RunConfig::from_toml_str(
+                &format!("{MIN}[loop.realtime]\npoll = \"yield\"\n{extra}"),
+                None,
+            )
+        };
+        // The default layout has the plant above the controller: a yield would never reach it.
+        let e = yield_with("").unwrap_err().to_string();
+        assert!(
+            e.contains("`loop.realtime.poll` = \"yield\"")
+                && e.contains("plant_priority 80, controller_priority 70"),
+            "{e}"
+        );
+        let e = yield_with("controller_priority = 80\ncontroller_cpu = 0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("plant_cpu 1, controller_cpu 0"), "{e}");
+        let e = yield_with("controller_priority = 80\nplant_cpu = -1\ncontroller_cpu = -1\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("plant_cpu -1, controller_cpu -1"), "{e}");
+        let c = yield_with("controller_priority = 80\n").unwrap();
+        assert_eq!(c.loop_.realtime.poll, Some(Poll::Yield));
+        assert_eq!(
+            RunConfig::from_toml_str(&c.to_toml_string(), None).unwrap(),
+            c,
+            "the resolved config round-trips with its poll"
+        );
+        let e = yield_with("controller_priority = 80\npoll = \"nap\"\n");
+        assert!(e.is_err(), "a duplicate key or an unknown poll is refused");
+        let e = RunConfig::from_toml_str(&format!("{MIN}[loop.lockstep]\npoll = \"nap\"\n"), None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("nap") && e.contains("spin") && e.contains("yield"),
+            "{e}"
+        );
+        assert!(
+            Layout::realtime_one_cpu_yield()
+                .validate("loop.realtime", 3e-4)
+                .is_ok()
+        );
+        assert_eq!(Layout::realtime_default().poll, Some(Poll::Spin));
     }
 
     #[test]

@@ -1,6 +1,8 @@
 //! The real-time helpers both loop processes share: the monotonic clock, absolute sleeps, and
 //! scheduling (CPU pinning, SCHED_FIFO, mlockall, timer slack) with warnings where not permitted.
 
+use deltaloop_config::config::Poll;
+
 /// CLOCK_MONOTONIC now, ns.
 #[inline]
 pub fn now_ns() -> u64 {
@@ -37,7 +39,8 @@ pub fn sleep_until_ns(t_ns: u64) {
     }
 }
 
-/// Wakes at `t_ns` precisely: sleeps until `early_ns` before it, then busy-waits the rest.
+/// Wakes at `t_ns` precisely: sleeps until `early_ns` before it, then busy-waits the rest (never
+/// yielding: a peer given the CPU now would make this wake-up late by its time slice).
 #[inline]
 pub fn wake_at_ns(t_ns: u64, early_ns: u64) {
     if early_ns > 0 {
@@ -47,6 +50,16 @@ pub fn wake_at_ns(t_ns: u64, early_ns: u64) {
         }
     } else {
         sleep_until_ns(t_ns);
+    }
+}
+
+/// One pause between two looks for a peer's message: a spin-loop hint on this CPU, or a
+/// `sched_yield` that lets a peer of the same priority on this CPU run (`poll = "yield"`).
+#[inline]
+pub fn poll_pause(poll: Poll) {
+    match poll {
+        Poll::Spin => std::hint::spin_loop(),
+        Poll::Yield => std::thread::yield_now(),
     }
 }
 

@@ -5,8 +5,8 @@
 //! through shared memory, over iceoryx2 and over a Unix socket pair, nothing recorded, the median
 //! of several interleaved rounds), then
 //! the product's loops with the supervisor recording every tick: (c) inproc and (a) the real
-//! process pair. Realtime: (d) the default and the split-CPU layouts at 3.3 kHz, each with the
-//! CPU time the host took from its CPUs, and (e) the machine's own wake-up limit ([`machine`]).
+//! process pair. Realtime: (d) the default, the split-CPU and the one-CPU yielding layouts at
+//! 3.3 kHz, each with the CPU time the host took from its CPUs, and (e) the machine's own wake-up limit ([`machine`]).
 //! All of them step the same plant and controller tick on the same scenario.
 
 mod baseline;
@@ -77,7 +77,8 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     );
     let ls = s1_hold_study("bench-loop", lockstep_seconds)?;
     let lsf = lockstep(&ls, repeats, out)?;
-    // (d) realtime, the default layout and the split-CPU one, then (e) the machine's own limit.
+    // (d) realtime, the default layout, the split-CPU one and the one-CPU yielding one, then (e)
+    // the machine's own limit.
     let budget_us = f64::from(ls.config.loop_.torque_budget_us);
     let rt_default = realtime(out, "realtime", rt_seconds, Layout::realtime_default())?;
     let rt_split = realtime(
@@ -96,6 +97,12 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
             sp.miss_ratio
         );
     }
+    let rt_yield = realtime(
+        out,
+        "realtime-yield",
+        rt_seconds,
+        Layout::realtime_one_cpu_yield(),
+    )?;
     let lay = Layout::realtime_default();
     let (cpu, prio) = (
         Layout::cpu(lay.plant_cpu).unwrap_or(0),
@@ -125,19 +132,23 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
         Err(why) => println!("    cyclictest: not run ({why})"),
     }
     let d = rt_default.summary();
+    let y = rt_yield.summary();
     println!(
-        "loop vs machine (p99.9): round trip {:.1} us (default layout), {:.1} us (split CPUs) vs machine wake lateness {:.1} us; the plant's wake lateness {:.1} us (default, waking {} us early), {:.1} us (split, {} us early)",
+        "loop vs machine (p99.9): round trip {:.1} us (default layout), {:.1} us (split CPUs), {:.1} us (one CPU, yielding) vs machine wake lateness {:.1} us; the plant's wake lateness {:.1} us (default and yielding, waking {} us early: {:.1} us), {:.1} us (split, {} us early)",
         d.round_trip.p999_us,
         sp.round_trip.p999_us,
+        y.round_trip.p999_us,
         m(&machine, 0.999),
         d.wake_lateness.p999_us,
         lay.wake_early_us.unwrap_or(0),
+        y.wake_lateness.p999_us,
         sp.wake_lateness.p999_us,
         Layout::realtime_split_cpus().wake_early_us.unwrap_or(0)
     );
     let mut hists: Vec<(&str, &Histogram<u64>)> = vec![
         ("round trip, default", &rt_default.round_trip.hist),
         ("round trip, split CPUs", &rt_split.round_trip.hist),
+        ("round trip, one CPU yielding", &rt_yield.round_trip.hist),
         ("wake lateness, default", &rt_default.wake_lateness.hist),
         ("sleep-only loop", &machine),
     ];
@@ -152,7 +163,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     )?;
     println!("figure: {}", out.join("latency.png").display());
     println!(
-        "lockstep_transport_shm_us={:.3} lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} transport_one_cpu_blocking_us={:.3} handoff_shm_p50_us={:.2} handoff_iox_p50_us={:.2} handoff_uds_p50_us={:.2} iox_one_thread_us={:.3} handoff_iox_one_thread_p50_us={:.2} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_wake_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_wake_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} machine_wake_p999_us={:.1} cyclictest_p999_us={}",
+        "lockstep_transport_shm_us={:.3} lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} transport_one_cpu_blocking_us={:.3} handoff_shm_p50_us={:.2} handoff_iox_p50_us={:.2} handoff_uds_p50_us={:.2} iox_one_thread_us={:.3} handoff_iox_one_thread_p50_us={:.2} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_wake_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_wake_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} rt_yield_rtt_p50_us={:.1} rt_yield_rtt_p999_us={:.1} rt_yield_wake_p999_us={:.1} rt_yield_miss_ratio={:.2e} machine_wake_p999_us={:.1} cyclictest_p999_us={}",
         lsf.shm_us,
         lsf.iox_us,
         lsf.uds_us,
@@ -175,6 +186,10 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
         sp.wake_lateness.p999_us,
         sp.miss_ratio,
         split_steal.map_or("na".to_string(), |(_, f)| format!("{f:.2e}")),
+        y.round_trip.p50_us,
+        y.round_trip.p999_us,
+        y.wake_lateness.p999_us,
+        y.miss_ratio,
         m(&machine, 0.999),
         cyclic
             .as_ref()
