@@ -134,14 +134,14 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     let d = rt_default.summary();
     let y = rt_yield.summary();
     println!(
-        "loop vs machine (p99.9): round trip {:.1} us (default layout), {:.1} us (split CPUs), {:.1} us (one CPU, yielding) vs machine wake lateness {:.1} us; the plant's wake lateness {:.1} us (default and yielding, waking {} us early: {:.1} us), {:.1} us (split, {} us early)",
+        "loop vs machine (p99.9): round trip {:.1} us (default layout), {:.1} us (split CPUs), {:.1} us (one CPU, yielding) vs machine wake lateness {:.1} us; the plant's wake lateness {:.1} us (default), {:.1} us (yielding), both waking {} us early, {:.1} us (split, {} us early)",
         d.round_trip.p999_us,
         sp.round_trip.p999_us,
         y.round_trip.p999_us,
         m(&machine, 0.999),
         d.wake_lateness.p999_us,
-        lay.wake_early_us.unwrap_or(0),
         y.wake_lateness.p999_us,
+        lay.wake_early_us.unwrap_or(0),
         sp.wake_lateness.p999_us,
         Layout::realtime_split_cpus().wake_early_us.unwrap_or(0)
     );
