@@ -370,11 +370,10 @@ struct Wait {
 }
 
 /// Waits for the next state: sleeps until `wait.wake_ns` if set, polls (spinning or yielding,
-/// `poll`) until
-/// `wait.poll_until_ns` (or `spin_ns` past a late wake-up), then blocks on the wake-up event;
-/// returns the newest state, how many older ones it skipped, and when it was taken. The clock is
-/// read before each look, so the look that precedes blocking happens at or after
-/// `poll_until_ns` (docs/protocol.md §6.1).
+/// `poll`) until `wait.poll_until_ns` (or `spin_ns` past a late wake-up), then blocks on the
+/// wake-up event; returns the newest state, how many older ones it skipped, and when it was
+/// taken. The clock is read before each look, so the look that precedes blocking happens at or
+/// after `poll_until_ns` (docs/protocol.md §6.1).
 fn wait_state(
     sub: &Subscriber<Svc, StateMsg, ()>,
     listener: &Listener<Svc>,

@@ -393,9 +393,9 @@ fn reply_verdict(m: &TorqueMsg, tick: u64, until_ns: u64) -> Reply {
 }
 
 /// Waits for τ_k until `until_ns`: polls (spinning or yielding, `poll`) until `poll_until_ns`
-/// (what the state declared), then
-/// blocks on the wake-up event. The clock is read before each look, so the look that precedes
-/// blocking happens at or after `poll_until_ns` (docs/protocol.md §6.1). Replies judged late are
+/// (what the state declared), then blocks on the wake-up event. The clock is read before each
+/// look, so the look that precedes blocking happens at or after `poll_until_ns`
+/// (docs/protocol.md §6.1). Replies judged late are
 /// dropped and counted on `side`; replies for later ticks are ignored. Returns the reply and its
 /// receive time.
 fn wait_torque(

@@ -429,16 +429,6 @@ pub enum Poll {
     Yield,
 }
 
-impl Poll {
-    /// The config name (`spin`, `yield`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Poll::Spin => "spin",
-            Poll::Yield => "yield",
-        }
-    }
-}
-
 /// How plant and controller are connected: one enum for the CLI, the sweep and the processes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
@@ -1612,8 +1602,6 @@ mod tests {
             c,
             "the resolved config round-trips with its poll"
         );
-        let e = yield_with("controller_priority = 80\npoll = \"nap\"\n");
-        assert!(e.is_err(), "a duplicate key or an unknown poll is refused");
         let e = RunConfig::from_toml_str(&format!("{MIN}[loop.lockstep]\npoll = \"nap\"\n"), None)
             .unwrap_err()
             .to_string();
