@@ -1,8 +1,11 @@
 //! End-to-end: hostile input to `deltaloop run` and `deltaloop sweep` (issue 10). Every refusal is
 //! exit 1 with one line on stderr, quickly, and leaves nothing behind.
 
+mod common;
+
+use common::{finish_within, mkfifo, one_line_error, spawn};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_deltaloop");
@@ -14,46 +17,6 @@ fn deltaloop_in(cwd: &Path, args: &[&str]) -> Output {
         .current_dir(cwd)
         .output()
         .expect("deltaloop runs")
-}
-
-/// `deltaloop <args>` started from the repository root, output captured.
-fn spawn(args: &[&str]) -> Child {
-    Command::new(BIN)
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("deltaloop starts")
-}
-
-/// Waits for `child` at most `limit`; kills it (and fails) if it takes longer.
-fn finish_within(mut child: Child, limit: Duration, what: &str) -> Output {
-    let t0 = Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if t0.elapsed() > limit {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("{what}: still running after {limit:?}");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    child.wait_with_output().unwrap()
-}
-
-/// Asserts exit 1 with exactly one line on stderr, no panic; returns that line.
-fn one_line_error(out: &Output) -> String {
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_eq!(out.status.code(), Some(1), "{err}");
-    assert_eq!(err.lines().count(), 1, "not one line: {err:?}");
-    assert!(!err.contains("panicked"), "{err}");
-    err.trim_end().to_string()
-}
-
-fn mkfifo(path: &Path) {
-    let c = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
-    // SAFETY: a valid NUL-terminated path; mkfifo only reads it.
-    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0, "mkfifo");
 }
 
 /// Every entry under `dir`, recursively.

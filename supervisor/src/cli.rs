@@ -56,9 +56,13 @@ enum Command {
     Replay {
         /// The run folder.
         run_dir: PathBuf,
-        /// Where the replayed trace goes (default: RUN_DIR/replay).
+        /// Where the replayed trace goes (default: RUN_DIR/replay, reused). Must be new or empty,
+        /// and apart from RUN_DIR (neither inside it nor holding it).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Empty and reuse a non-empty --out folder (only one that holds a deltaloop run).
+        #[arg(long)]
+        force: bool,
         /// Also run the same scenario with ideal timing (no latency, no misses) and say what the
         /// measured latency cost.
         #[arg(long)]
@@ -166,10 +170,23 @@ fn parse_refresh(s: &str) -> Result<std::time::Duration, String> {
 }
 
 /// `deltaloop replay`: exit 0 when the trace is reproduced byte for byte, 1 otherwise.
-fn replay(run_dir: &std::path::Path, out: Option<PathBuf>, ideal: bool) -> anyhow::Result<()> {
+fn replay(
+    run_dir: &std::path::Path,
+    out: Option<PathBuf>,
+    force: bool,
+    ideal: bool,
+) -> anyhow::Result<()> {
+    use crate::output::RunFolder;
     use crate::replay;
-    let out = out.unwrap_or_else(|| run_dir.join("replay"));
-    let folder = crate::output::RunFolder::claim(&out, true)?;
+    let own = run_dir.join("replay");
+    // RUN_DIR/replay is the replay's own folder, reused; any other --out follows `run --out`'s
+    // rules, and may not be or hold the run folder (regression: `--out RUN` emptied the run).
+    let folder = match out {
+        Some(out) if !RunFolder::same(&out, &own) => {
+            RunFolder::claim_apart(&out, force, &[(run_dir, "the run folder being replayed")])?
+        }
+        _ => RunFolder::claim(&own, true)?,
+    };
     let (verdict, runs) = replay::replay(run_dir, folder.path())?;
     let line = replay::describe(&verdict, run_dir);
     if ideal {
@@ -241,8 +258,9 @@ pub fn main() -> ExitCode {
         Command::Replay {
             run_dir,
             out,
+            force,
             ideal,
-        } => replay(&run_dir, out, ideal),
+        } => replay(&run_dir, out, force, ideal),
         Command::Top {
             run_id,
             plain,

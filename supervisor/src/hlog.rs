@@ -142,9 +142,14 @@ pub struct Hlog {
     pub intervals: Vec<Interval>,
 }
 
+/// Largest interval log read back, bytes: a line per second of run time, of a few hundred bytes
+/// to a few KiB, so a day's soak (the longest) stays well under it.
+const MAX_LOG_BYTES: u64 = 512 << 20;
+
 /// Reads an interval log (whole file in memory: for tests and tools, not for the run).
 pub fn read(path: &Path) -> Result<Hlog> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let bytes = deltaloop_config::files::read_regular(path, MAX_LOG_BYTES, "an interval log")
+        .map_err(|e| anyhow!("cannot read {}: {e}", path.display()))?;
     let bad = |what: &str| anyhow!("{}: {what}", path.display());
     let mut log = Hlog {
         base_time_s: None,

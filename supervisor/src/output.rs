@@ -82,8 +82,42 @@ impl RunFolder {
     /// is a deltaloop folder: one with a lock file, `config.toml`, `summary.json` or a sweep's
     /// `sweep.toml`), and refuses a
     /// folder another run holds, `force` or not.
+    /// A symbolic link is refused, `force` or not: emptying it would empty whatever it points to.
     pub fn claim(dir: &Path, force: bool) -> Result<Self> {
+        Self::claim_apart(dir, force, &[])
+    }
+
+    /// [`RunFolder::claim`], refusing also, `force` or not, a folder that is, contains or lies
+    /// inside one of `sources` (what the command reads, with a few words naming it): emptying it
+    /// would destroy the command's own input. Paths are compared resolved (links, `..`), so no
+    /// spelling of the same folder slips through.
+    pub fn claim_apart(dir: &Path, force: bool, sources: &[(&Path, &str)]) -> Result<Self> {
         let shown = dir.display();
+        if std::fs::symlink_metadata(dir).is_ok_and(|m| m.file_type().is_symlink()) {
+            let to = std::fs::read_link(dir)
+                .map(|t| format!(" (to {})", t.display()))
+                .unwrap_or_default();
+            anyhow::bail!(
+                "run folder {shown} is a symbolic link{to}: deltaloop never writes through a link; give a real folder as --out"
+            );
+        }
+        let here = resolved(dir);
+        for (src, what) in sources {
+            let there = resolved(src);
+            let how = if here == there {
+                "is"
+            } else if there.starts_with(&here) {
+                "contains"
+            } else if here.starts_with(&there) {
+                "is inside"
+            } else {
+                continue;
+            };
+            anyhow::bail!(
+                "--out {shown} {how} {what} {}: writing there would destroy what is read; choose another --out (--force does not change this)",
+                src.display()
+            );
+        }
         let entries: Vec<PathBuf> = match std::fs::read_dir(dir) {
             Ok(rd) => rd.filter_map(|e| e.ok().map(|e| e.path())).collect(),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
@@ -142,10 +176,46 @@ impl RunFolder {
         })
     }
 
+    /// Whether two paths name the same folder (resolved: links, `..`), existing or not.
+    pub fn same(a: &Path, b: &Path) -> bool {
+        resolved(a) == resolved(b)
+    }
+
     /// The folder.
     pub fn path(&self) -> &Path {
         &self.dir
     }
+}
+
+/// `p` absolute, with links and `..` resolved as far as it exists; the part that does not exist
+/// yet is appended as written, `..` folded (nothing in it can be a link).
+fn resolved(p: &Path) -> PathBuf {
+    use std::path::Component;
+    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut base = abs.as_path();
+    let mut rest = Vec::new();
+    let mut out = loop {
+        if let Ok(c) = base.canonicalize() {
+            break c;
+        }
+        match (base.parent(), base.components().next_back()) {
+            (Some(up), Some(last)) => {
+                rest.push(last);
+                base = up;
+            }
+            _ => break PathBuf::from("/"),
+        }
+    };
+    for c in rest.into_iter().rev() {
+        match c {
+            Component::ParentDir => {
+                out.pop();
+            }
+            Component::Normal(n) => out.push(n),
+            _ => {}
+        }
+    }
+    out
 }
 
 /// UTC now, RFC 3339.
@@ -345,4 +415,61 @@ pub fn write_run_folder(
     )?;
     write_text(&dir.join("report.md"), report_md)?;
     laws.map_or(Ok(()), |laws| join_trace(dir, laws))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tmp(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("deltaloop-out-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(d.join("run")).unwrap();
+        d
+    }
+
+    /// A path is compared resolved: links and `..` in the part that exists, `..` folded in the
+    /// part that does not.
+    #[test]
+    fn paths_are_compared_resolved() {
+        let d = tmp("resolve");
+        std::os::unix::fs::symlink(d.join("run"), d.join("link")).unwrap();
+        let run = d.join("run").canonicalize().unwrap();
+        assert_eq!(resolved(&d.join("link")), run);
+        assert_eq!(resolved(&d.join("run/new/../.")), run);
+        assert_eq!(resolved(&d.join("run/a/b/../c")), run.join("a/c"));
+        assert!(RunFolder::same(&d.join("link/x"), &d.join("run/./x")));
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    /// Regression: replay claimed its --out with force on, and the run it read could be that
+    /// folder. A folder that is, holds or lies inside a source is refused before anything is
+    /// created; a link is refused, its target untouched.
+    #[test]
+    fn regression_claim_refuses_sources_and_links() {
+        let d = tmp("claim");
+        let run = d.join("run");
+        std::fs::write(run.join("config.toml"), "x").unwrap();
+        let src = [(run.as_path(), "the run folder")];
+        for (out, how) in [
+            (run.clone(), "is the run folder"),
+            (d.clone(), "contains the run folder"),
+            (run.join("sub"), "is inside the run folder"),
+        ] {
+            let e = RunFolder::claim_apart(&out, true, &src)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(how), "{e}");
+        }
+        assert!(!run.join("sub").exists() && run.join("config.toml").exists());
+        std::os::unix::fs::symlink(&run, d.join("link")).unwrap();
+        let e = RunFolder::claim(&d.join("link"), true)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("is a symbolic link"), "{e}");
+        assert!(run.join("config.toml").exists());
+        let other = RunFolder::claim_apart(&d.join("other"), false, &src).unwrap();
+        assert!(other.path().join(LOCK_FILE).exists());
+        let _ = std::fs::remove_dir_all(&d);
+    }
 }

@@ -12,6 +12,7 @@ use crate::lawrun::{self, Keep, LawRun};
 use crate::output;
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
+use deltaloop_config::files;
 use deltaloop_config::{Law, RunConfig};
 use deltaloop_plant::Arrival;
 use std::path::{Path, PathBuf};
@@ -38,18 +39,43 @@ enum Fate {
 /// The recorded ticks of a trace, read one row at a time.
 struct TraceRows {
     path: PathBuf,
-    rows: csv::StringRecordsIntoIter<std::fs::File>,
+    rows: csv::StringRecordsIntoIter<files::Capped>,
     line: u64,
     cols: [usize; 4],
+    /// What `arrival_ns` of an applied reply may be, ns (see [`arrivals`]).
+    arrival: std::ops::RangeInclusive<u64>,
     peeked: Option<Recorded>,
 }
 
+/// The longest `trace.csv` row, bytes: 30 numbers of at most 24 characters and three words make
+/// under 1 KiB.
+const MAX_ROW_BYTES: u64 = 4096;
+
+/// The largest `trace.csv` a run of `study` can have: a header and a row per law and tick
+/// 0..=N + 1. Reading stops there, whatever the file (a regular file only: see [`files`]).
+fn trace_cap(study: &Study) -> u64 {
+    let laws = study.config.controller.laws.len() as u64;
+    let rows = laws.saturating_mul(study.reference.n as u64 + 2);
+    rows.saturating_add(1).saturating_mul(MAX_ROW_BYTES)
+}
+
+/// What `arrival_ns` (A_k − t_k) of an applied reply may be in a run of `study`, ns: at least the
+/// transport delay D (the plant adds a latency ≥ 0 to it), and at most D plus the run's span
+/// (N + 1)·Ts. A command arriving after the run's end could not have acted in it, and the bound
+/// keeps every time the drives add up far from overflow (regression: `u64::MAX` was taken, and
+/// wrapped around inside the drives).
+fn arrivals(study: &Study) -> std::ops::RangeInclusive<u64> {
+    let d = study.config.transport_delay_ns();
+    let span_ns = (study.reference.n as f64 + 1.0) * study.config.loop_.ts_s * 1e9;
+    // `as` saturates: a span beyond u64 (not a valid config) cannot wrap.
+    d..=d.saturating_add(span_ns.round() as u64)
+}
+
 impl TraceRows {
-    fn open(path: &Path) -> Result<Self> {
-        let mut r = csv::ReaderBuilder::new()
-            .flexible(false)
-            .from_path(path)
-            .with_context(|| format!("cannot read {}", path.display()))?;
+    fn open(path: &Path, study: &Study) -> Result<Self> {
+        let file = files::open_regular(path, trace_cap(study), "this run's trace")
+            .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
+        let mut r = csv::ReaderBuilder::new().flexible(false).from_reader(file);
         let h = r
             .headers()
             .with_context(|| format!("{}: no header line", path.display()))?
@@ -68,6 +94,7 @@ impl TraceRows {
             rows: r.into_records(),
             line: 1,
             cols,
+            arrival: arrivals(study),
             peeked: None,
         })
     }
@@ -104,13 +131,24 @@ impl TraceRows {
             ),
         };
         let arrival_ns = match (fate, arrival) {
-            (Fate::Applied, a) => Some(a.parse().map_err(|_| {
-                anyhow::anyhow!(
-                    "{}: column arrival_ns = {}: an applied reply needs its arrival in ns",
-                    at(),
-                    deltaloop_config::config::show_str(a)
-                )
-            })?),
+            (Fate::Applied, a) => {
+                let ns: u64 = a.parse().map_err(|_| {
+                    anyhow::anyhow!(
+                        "{}: column arrival_ns = {}: an applied reply needs its arrival in ns",
+                        at(),
+                        deltaloop_config::config::show_str(a)
+                    )
+                })?;
+                if !self.arrival.contains(&ns) {
+                    bail!(
+                        "{} (tick {k}): column arrival_ns = {ns} is out of range: an applied reply arrives {}..={} ns after its tick (the transport delay, plus at most the run's span)",
+                        at(),
+                        self.arrival.start(),
+                        self.arrival.end()
+                    );
+                }
+                Some(ns)
+            }
             _ => None,
         };
         Ok(Some(Recorded {
@@ -198,10 +236,10 @@ fn replay_law(study: &Study, law: Law, rows: &mut TraceRows, keep: &Keep) -> Res
 pub enum Verdict {
     /// The replayed trace equals the recorded one, byte for byte (`ticks` rows).
     Identical { ticks: u64 },
-    /// They first differ on this line of `trace.csv`.
+    /// They first differ on this line of `trace.csv` (the header: no tick).
     Differs {
         line: u64,
-        tick: String,
+        tick: Option<String>,
         column: String,
         recorded: String,
         replayed: String,
@@ -219,7 +257,15 @@ pub fn replay(run_dir: &Path, out: &Path) -> Result<(Verdict, Vec<LawRun>)> {
     }
     let study = Study::new(cfg).context("the recorded scenario")?;
     let recorded = run_dir.join("trace.csv");
-    let mut rows = TraceRows::open(&recorded)?;
+    let mut rows = TraceRows::open(&recorded, &study)?;
+    // Regression: a header alone was "reproduced byte for byte (0 rows)".
+    rows.peeked = rows.next()?;
+    if rows.peeked.is_none() {
+        bail!(
+            "{} has no ticks (a header and no rows): there is nothing to replay",
+            recorded.display()
+        );
+    }
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut laws = Vec::new();
     let mut runs = Vec::new();
@@ -244,46 +290,110 @@ pub fn replay(run_dir: &Path, out: &Path) -> Result<(Verdict, Vec<LawRun>)> {
         while rows.next_of(first.law)?.is_some() {}
     }
     output::join_trace(out, &laws)?;
-    Ok((compare(&recorded, &out.join("trace.csv"))?, runs))
+    let cap = trace_cap(&study);
+    Ok((compare(&recorded, &out.join("trace.csv"), cap)?, runs))
 }
 
-/// Compares two trace files line by line.
-fn compare(recorded: &Path, replayed: &Path) -> Result<Verdict> {
+/// Compares two trace files byte for byte (header and line ends included), and names the line
+/// and column of the first difference. Lines are read one at a time (at most `cap` bytes of the
+/// recorded file): memory does not grow with the run.
+fn compare(recorded: &Path, replayed: &Path, cap: u64) -> Result<Verdict> {
     use std::io::BufRead;
-    let open = |p: &Path| -> Result<std::io::Lines<std::io::BufReader<std::fs::File>>> {
+    let open = |p: &Path| -> Result<std::io::BufReader<files::Capped>> {
         Ok(std::io::BufReader::new(
-            std::fs::File::open(p).with_context(|| format!("cannot read {}", p.display()))?,
-        )
-        .lines())
+            files::open_regular(p, cap, "this run's trace")
+                .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", p.display()))?,
+        ))
     };
     let (mut a, mut b) = (open(recorded)?, open(replayed)?);
-    let header: Vec<String> = match a.next() {
-        Some(h) => h?.split(',').map(str::to_string).collect(),
-        None => Vec::new(),
-    };
-    let _ = b.next();
-    let mut line = 1u64;
+    let (mut x, mut y) = (Vec::new(), Vec::new());
+    let mut header = Vec::new();
+    let mut line = 0u64;
     loop {
+        x.clear();
+        y.clear();
+        let read = |r: &mut std::io::BufReader<files::Capped>, buf: &mut Vec<u8>, p: &Path| {
+            r.read_until(b'\n', buf)
+                .with_context(|| format!("cannot read {}", p.display()))
+        };
+        let (nx, ny) = (
+            read(&mut a, &mut x, recorded)?,
+            read(&mut b, &mut y, replayed)?,
+        );
         line += 1;
-        let (x, y) = (a.next().transpose()?, b.next().transpose()?);
+        if line == 1 {
+            header = fields(&x);
+        }
         if x == y {
-            if x.is_none() {
-                return Ok(Verdict::Identical { ticks: line - 2 });
+            if nx == 0 {
+                return Ok(Verdict::Identical {
+                    ticks: line.saturating_sub(2),
+                });
             }
             continue;
         }
-        let (x, y) = (x.unwrap_or_default(), y.unwrap_or_default());
-        let (xs, ys): (Vec<&str>, Vec<&str>) = (x.split(',').collect(), y.split(',').collect());
-        let col = (0..xs.len().max(ys.len()))
-            .find(|&i| xs.get(i) != ys.get(i))
-            .unwrap_or(0);
-        return Ok(Verdict::Differs {
+        return Ok(first_difference(
             line,
-            tick: xs.get(1).or(ys.get(1)).unwrap_or(&"").to_string(),
-            column: header.get(col).cloned().unwrap_or_else(|| col.to_string()),
-            recorded: xs.get(col).unwrap_or(&"(no row)").to_string(),
-            replayed: ys.get(col).unwrap_or(&"(no row)").to_string(),
-        });
+            &header,
+            (nx > 0).then_some(&x),
+            (ny > 0).then_some(&y),
+        ));
+    }
+}
+
+/// The fields of a line, its line end cut.
+fn fields(line: &[u8]) -> Vec<String> {
+    let (body, _) = split_end(line);
+    String::from_utf8_lossy(body)
+        .split(',')
+        .map(str::to_string)
+        .collect()
+}
+
+/// A line and its end (`\n`, `\r\n`, or none at the end of a file).
+fn split_end(line: &[u8]) -> (&[u8], &[u8]) {
+    let body = line.strip_suffix(b"\n").unwrap_or(line);
+    let body = body.strip_suffix(b"\r").unwrap_or(body);
+    line.split_at(body.len())
+}
+
+/// Where two different lines (None: the file has ended) first differ.
+fn first_difference(
+    line: u64,
+    header: &[String],
+    x: Option<&Vec<u8>>,
+    y: Option<&Vec<u8>>,
+) -> Verdict {
+    use deltaloop_config::config::show_str;
+    let (xs, ys) = (
+        x.map_or_else(Vec::new, |x| fields(x)),
+        y.map_or_else(Vec::new, |y| fields(y)),
+    );
+    let tick = (line > 1).then(|| xs.get(1).or(ys.get(1)).cloned().unwrap_or_default());
+    let shown = |f: Option<&String>| f.map_or_else(|| "(no row)".to_string(), |f| show_str(f));
+    if let (Some(x), Some(y), true) = (x, y, xs == ys) {
+        // Same fields: the line ends differ.
+        let end = |l: &[u8]| match split_end(l).1 {
+            b"" => "none (the file ends)".to_string(),
+            e => show_str(&String::from_utf8_lossy(e)),
+        };
+        return Verdict::Differs {
+            line,
+            tick,
+            column: "line end".into(),
+            recorded: end(x),
+            replayed: end(y),
+        };
+    }
+    let col = (0..xs.len().max(ys.len()))
+        .find(|&i| xs.get(i) != ys.get(i))
+        .unwrap_or(0);
+    Verdict::Differs {
+        line,
+        tick,
+        column: header.get(col).cloned().unwrap_or_else(|| col.to_string()),
+        recorded: shown(xs.get(col)),
+        replayed: shown(ys.get(col)),
     }
 }
 
@@ -301,8 +411,10 @@ pub fn describe(v: &Verdict, run_dir: &Path) -> String {
             recorded,
             replayed,
         } => format!(
-            "replay of {}: trace.csv differs first at line {line} (tick {tick}), column {column}: recorded {recorded}, replayed {replayed}",
-            run_dir.display()
+            "replay of {}: trace.csv differs first at line {line} ({}), column {column}: recorded {recorded}, replayed {replayed}",
+            run_dir.display(),
+            tick.as_ref()
+                .map_or_else(|| "the header".to_string(), |t| format!("tick {t}"))
         ),
     }
 }
@@ -346,4 +458,56 @@ pub fn latency_cost(measured: &[&crate::metrics::LawMetrics], ideal: &[(Law, f64
             ))
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn differs(a: &str, b: &str) -> Verdict {
+        let header = fields(b"law,k,t_s\n");
+        first_difference(
+            3,
+            &header,
+            (!a.is_empty()).then(|| a.as_bytes().to_vec()).as_ref(),
+            (!b.is_empty()).then(|| b.as_bytes().to_vec()).as_ref(),
+        )
+    }
+
+    /// Regression: line ends were not compared (a CRLF trace was "byte for byte"). The first
+    /// difference is named: a field by its column, else the line end.
+    #[test]
+    fn regression_line_ends_count_and_the_first_difference_is_named() {
+        let d = |tick: &str, column: &str, recorded: &str, replayed: &str| Verdict::Differs {
+            line: 3,
+            tick: Some(tick.into()),
+            column: column.into(),
+            recorded: recorded.into(),
+            replayed: replayed.into(),
+        };
+        for (recorded, replayed, want) in [
+            (
+                "tdc,1,3e-4\r\n",
+                "tdc,1,3e-4\n",
+                d("1", "line end", "\"\\r\\n\"", "\"\\n\""),
+            ),
+            (
+                "tdc,1,3e-4",
+                "tdc,1,3e-4\n",
+                d("1", "line end", "none (the file ends)", "\"\\n\""),
+            ),
+            (
+                "tdc,1,3e-4\n",
+                "tdc,1,4e-4\n",
+                d("1", "t_s", "\"3e-4\"", "\"4e-4\""),
+            ),
+            ("tdc,1,3e-4\n", "", d("1", "law", "\"tdc\"", "(no row)")),
+        ] {
+            assert_eq!(
+                differs(recorded, replayed),
+                want,
+                "{recorded:?} vs {replayed:?}"
+            );
+        }
+    }
 }

@@ -353,13 +353,47 @@ fn run_job(base: &RunConfig, job: &Job, mode: LoopMode, dir: &Path) -> Row {
     }
 }
 
-/// The first value listed twice on a sweep axis, if any.
-fn repeated<T: PartialEq>(values: &[T]) -> Option<&T> {
-    values
-        .iter()
-        .enumerate()
-        .find(|&(i, v)| values[..i].contains(v))
-        .map(|(_, v)| v)
+/// The first value listed twice on a sweep axis, if any (linear: an axis may list thousands).
+fn repeated(values: &[String]) -> Option<&String> {
+    let mut seen = std::collections::HashSet::with_capacity(values.len());
+    values.iter().find(|v| !seen.insert(v.as_str()))
+}
+
+/// Most points a sweep may have. The plan, a merge's rows and `sweep plan --json` (what a
+/// cluster driver reads) hold every point in memory, a few hundred bytes each: 10⁵ points are
+/// tens of MB, and ≈ 40 CPU-minutes of the cheapest (in-process, ≈ 24 ms each) or days of
+/// realtime ones. That covers the largest study the README plans (a 10⁵-point Monte Carlo on a
+/// cluster); a grid beyond it is a typo in an axis, or several sweeps. Checked before anything
+/// is expanded (regression: a 118 KB file of about 10⁸ points aborted `sweep plan` and
+/// `sweep merge` on allocation).
+pub const MAX_POINTS: u64 = 100_000;
+
+/// How many points a sweep expands to: scenarios × presets × laws × (ℓ × d + the sub-tick
+/// delays above 0 + the compute delays), in checked arithmetic; the error names the axes, their
+/// product and [`MAX_POINTS`].
+fn point_count(sw: &SweepFile) -> Result<u64> {
+    let n = |v: usize| v as u64;
+    let us = sw.transport_delay_us.iter().filter(|&&us| us > 0.0).count();
+    let count = n(sw.tde_delay_samples.len())
+        .checked_mul(n(sw.transport_delay_samples.len()))
+        .and_then(|g| g.checked_add(n(us)))
+        .and_then(|g| g.checked_add(n(sw.compute_delay_us.len())))
+        .and_then(|g| g.checked_mul(n(sw.laws.len())))
+        .and_then(|g| g.checked_mul(n(sw.presets.len())))
+        .and_then(|g| g.checked_mul(n(sw.scenarios.len())));
+    match count {
+        Some(c) if c <= MAX_POINTS => Ok(c),
+        _ => bail!(
+            "the sweep has {} points: scenarios {} × presets {} × laws {} × (tde_delay_samples {} × transport_delay_samples {} + transport_delay_us {us} + compute_delay_us {}), more than the {MAX_POINTS} a sweep may have: split it into several sweep files",
+            count.map_or_else(|| "more than 2^64".to_string(), |c| c.to_string()),
+            sw.scenarios.len(),
+            sw.presets.len(),
+            sw.laws.len(),
+            sw.tde_delay_samples.len(),
+            sw.transport_delay_samples.len(),
+            sw.compute_delay_us.len()
+        ),
+    }
 }
 
 /// Checks the sweep file's own keys: name, mode, and every axis non-empty and without repeats
@@ -389,6 +423,7 @@ fn check(sw: &SweepFile) -> Result<()> {
             cfgfile::MAX_TRANSPORT_DELAY_US
         );
     }
+    point_count(sw)?;
     let axes: [(&str, Vec<String>, bool); 7] = [
         (
             "scenarios",
@@ -993,6 +1028,33 @@ mod tests {
         let e = format!("{:#}", load(&path).unwrap_err());
         assert!(!e.contains(['\n', '\r']), "one line: {e}");
         e
+    }
+
+    /// Regression: no cap on a sweep's size (10⁸ points aborted on allocation). The count is
+    /// the product of the axes, checked before expanding: the cap itself passes, one more
+    /// point does not, and the line names every axis.
+    #[test]
+    fn regression_sweep_points_are_counted_and_capped_before_expanding() {
+        let d = scratch("cap");
+        let list = |n: usize| {
+            let v: Vec<String> = (0..n).map(|i| i.to_string()).collect();
+            format!("[{}]", v.join(","))
+        };
+        let file = |ells: usize, ds: usize, compute: usize| {
+            format!(
+                "name = \"c\"\nbase = \"base.toml\"\nscenarios = [\"s1\", \"s2\"]\npresets = [\"matched\"]\nlaws = [\"tdc\"]\ntde_delay_samples = {}\ntransport_delay_samples = {}\ncompute_delay_us = {}\n",
+                list(ells),
+                list(ds),
+                list(compute)
+            )
+        };
+        let sw: SweepFile = toml::from_str(&file(250, 200, 0)).unwrap();
+        assert_eq!(point_count(&sw).unwrap(), MAX_POINTS);
+        let e = load_err(&d.0, &file(250, 200, 1));
+        assert_eq!(
+            e,
+            "the sweep has 100002 points: scenarios 2 × presets 1 × laws 1 × (tde_delay_samples 250 × transport_delay_samples 200 + transport_delay_us 0 + compute_delay_us 1), more than the 100000 a sweep may have: split it into several sweep files"
+        );
     }
 
     #[test]

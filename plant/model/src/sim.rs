@@ -271,7 +271,11 @@ impl Actuator {
 
     /// Tick `tick`'s command reaches the drives `latency_ns` after t_tick + D.
     fn submit(&mut self, tick: u64, cmd: Vec3, latency_ns: u64) {
-        let arrival = tick * self.ts_ns + self.delay_ns + latency_ns;
+        // Saturating: an absurd latency puts the command past any run's end, never back near t_0.
+        let arrival = tick
+            .saturating_mul(self.ts_ns)
+            .saturating_add(self.delay_ns)
+            .saturating_add(latency_ns);
         let due = arrival.max(self.last_due);
         self.last_due = due;
         self.pending.push_back((due, cmd));
@@ -543,5 +547,17 @@ mod tests {
         let a = p.advance_after(Some(c3), 0).unwrap();
         assert_eq!(a.tau, (c1 * 50_000.0 + c3 * 250_000.0) / 300_000.0);
         assert!(!a.held);
+    }
+
+    /// Regression: a latency of `u64::MAX` (read from a tampered trace) overflowed the arrival
+    /// time: it wrapped to before t_0 in a release build and panicked in a debug one. It now
+    /// arrives after any run's end: the drives hold, and the commands after it wait behind it.
+    #[test]
+    fn regression_huge_latency_never_wraps_around() {
+        let mut p = plant(45_000);
+        let a = p.advance_after(Some(Vec3::repeat(1.0)), u64::MAX).unwrap();
+        assert!(a.held);
+        let a = p.advance_after(Some(Vec3::repeat(2.0)), 0).unwrap();
+        assert!(a.held);
     }
 }

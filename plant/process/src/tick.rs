@@ -184,7 +184,8 @@ impl PlantSide {
         let (cmd, latency_ns) = match reply {
             Some((t, latency)) => {
                 self.consecutive = 0;
-                tel.arrival_ns = self.delay_ns + latency;
+                // Saturating: a latency from a peer or a file must not wrap the time around.
+                tel.arrival_ns = self.delay_ns.saturating_add(latency);
                 (Some(Vec3::from(t.tau)), latency)
             }
             None => {

@@ -955,70 +955,11 @@ pub fn toml_error_line(text: &str, e: &toml::de::Error) -> String {
     format!("{}{at}", clean_message(e.message()))
 }
 
-/// What kind of file a non-regular file is, for errors.
-fn file_kind(t: std::fs::FileType) -> &'static str {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::FileTypeExt;
-        if t.is_fifo() {
-            return "a FIFO (named pipe)";
-        }
-        if t.is_char_device() {
-            return "a character device";
-        }
-        if t.is_block_device() {
-            return "a block device";
-        }
-        if t.is_socket() {
-            return "a socket";
-        }
-    }
-    if t.is_dir() {
-        "a directory"
-    } else {
-        "a special file"
-    }
-}
-
 /// Reads a config-like text file: only a regular file (a FIFO would block, a device such as
-/// `/dev/zero` never ends), at most [`MAX_FILE_BYTES`], UTF-8. The error is the reason alone;
-/// the caller names the file.
+/// `/dev/zero` never ends), at most [`MAX_FILE_BYTES`], UTF-8 (see [`crate::files`]). The error is
+/// the reason alone; the caller names the file.
 pub fn read_text_file(path: &Path) -> Result<String, String> {
-    use std::io::Read;
-    let too_big = || {
-        format!(
-            "it is larger than {} MiB, the limit for a config file",
-            MAX_FILE_BYTES >> 20
-        )
-    };
-    let regular = |m: &std::fs::Metadata| -> Result<(), String> {
-        let t = m.file_type();
-        if !t.is_file() {
-            return Err(format!("it is {}, not a regular file", file_kind(t)));
-        }
-        if m.len() > MAX_FILE_BYTES {
-            return Err(too_big());
-        }
-        Ok(())
-    };
-    // Check before opening: opening a FIFO for reading blocks until a writer comes.
-    regular(&std::fs::metadata(path).map_err(|e| e.to_string())?)?;
-    let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
-    // The path may have been replaced in between: check what was opened.
-    regular(&file.metadata().map_err(|e| e.to_string())?)?;
-    let mut bytes = Vec::new();
-    file.take(MAX_FILE_BYTES + 1)
-        .read_to_end(&mut bytes)
-        .map_err(|e| e.to_string())?;
-    if bytes.len() as u64 > MAX_FILE_BYTES {
-        return Err(too_big());
-    }
-    String::from_utf8(bytes).map_err(|e| {
-        format!(
-            "it is not UTF-8 text (invalid byte at offset {})",
-            e.utf8_error().valid_up_to()
-        )
-    })
+    crate::files::read_text(path, MAX_FILE_BYTES, "a config file")
 }
 
 /// Whether `name` may name a run folder: see [`NAME_RULE`].

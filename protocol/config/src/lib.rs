@@ -3,6 +3,7 @@
 //! supervisor read a [`RunConfig`]; the law's constants come from `deltaloop-law`.
 
 pub mod config;
+pub mod files;
 
 pub use config::{ConfigError, LoopMode, RecordSection, RunConfig};
 pub use deltaloop_law::{ControllerParams, Law, Preset, VelocitySource};

@@ -114,7 +114,11 @@ pub fn main(a: SweepArgs) -> Result<()> {
             let out = a
                 .out
                 .unwrap_or_else(|| crate::output::default_run_dir(&format!("sweep-{}", sw.name)));
-            let _folder = crate::output::RunFolder::claim(&out, a.force)?;
+            let _folder = crate::output::RunFolder::claim_apart(
+                &out,
+                a.force,
+                &[(&sweep, "the sweep file")],
+            )?;
             let rows = super::run_loaded(&sw, &base, &sweep, &out, stderr_is_terminal())?;
             println!(
                 "{}\nsweep folder: {}",
@@ -156,7 +160,8 @@ pub fn main(a: SweepArgs) -> Result<()> {
             let out = out.unwrap_or_else(|| {
                 crate::output::default_run_dir(&format!("sweep-{}-shard", plan.sweep.name))
             });
-            let _folder = crate::output::RunFolder::claim(&out, force)?;
+            let _folder =
+                crate::output::RunFolder::claim_apart(&out, force, &[(&sweep, "the sweep file")])?;
             let jobs = jobs.map_or_else(
                 || std::thread::available_parallelism().map_or(1, |n| n.get()),
                 |j| j as usize,
@@ -198,23 +203,15 @@ fn merge_cmd(
     allow_missing: bool,
     t0: std::time::Instant,
 ) -> Result<()> {
-    if let Some(d) = dirs
-        .iter()
-        .find(|d| d.canonicalize().ok() == out.canonicalize().ok() && out.exists())
-    {
-        anyhow::bail!(
-            "sweep merge: --out {} is one of the shard folders ({}): merge into a new folder",
-            out.display(),
-            d.display()
-        );
-    }
     let opts = merge::Options {
         allow_missing,
         interrupted: false,
     };
     // Everything is read and checked before the output folder is made.
     let m = merge::gather(dirs, opts)?;
-    let _folder = crate::output::RunFolder::claim(out, force)?;
+    // Not a shard, nor a folder holding one or inside one: a merge never empties its input.
+    let shards: Vec<(&Path, &str)> = dirs.iter().map(|d| (d.as_path(), "shard folder")).collect();
+    let _folder = crate::output::RunFolder::claim_apart(out, force, &shards)?;
     merge::write(&m.plan, &m.rows, &m.missing, &m.sweep_file, out, opts)?;
     for d in dirs {
         merge::copy_points(d, out)?;

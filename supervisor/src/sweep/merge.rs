@@ -8,7 +8,12 @@ use super::shard::{MANIFEST, Manifest};
 use super::{Row, SweepFile, plots, report};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::RunConfig;
+use deltaloop_config::files;
 use std::path::{Path, PathBuf};
+
+/// Largest shard `sweep.csv` read, bytes: a row is well under 4 KiB (its longest field is the
+/// one-line reason), and a shard has at most [`super::MAX_POINTS`] of them.
+pub const MAX_CSV_BYTES: u64 = super::MAX_POINTS * 4096;
 
 /// How strict a merge is.
 #[derive(Debug, Clone, Copy, Default)]
@@ -117,8 +122,9 @@ pub fn gather(dirs: &[PathBuf], opts: Options) -> Result<Merged> {
             listed[i].get_or_insert(k);
         }
         let csv_path = d.join("sweep.csv");
-        let mut rdr = csv::Reader::from_path(&csv_path)
-            .with_context(|| format!("shard {shown}: cannot read sweep.csv"))?;
+        let file = files::open_regular(&csv_path, MAX_CSV_BYTES, "a shard's sweep.csv")
+            .map_err(|e| anyhow::anyhow!("shard {shown}: cannot read sweep.csv: {e}"))?;
+        let mut rdr = csv::Reader::from_reader(std::io::BufReader::new(file));
         for (line, r) in rdr.deserialize::<Row>().enumerate() {
             let r =
                 r.map_err(|e| anyhow::anyhow!("shard {shown}: sweep.csv row {}: {e}", line + 1))?;
@@ -218,6 +224,11 @@ pub fn gather(dirs: &[PathBuf], opts: Options) -> Result<Merged> {
             ranges_text(&missing)
         );
     }
+    // Only folders and regular files are copied from the shards' points/: checked before
+    // anything is written.
+    for d in dirs {
+        points_tree(d, None)?;
+    }
     let rows: Vec<Row> = slot.into_iter().flatten().map(|(r, _)| r).collect();
     let sweep_file = manifests[0].sweep_file.clone();
     Ok(Merged {
@@ -279,31 +290,66 @@ pub fn write(
 
 /// Copies a shard's `points/` (the run folders of process-mode points) into `out`.
 pub fn copy_points(shard: &Path, out: &Path) -> Result<()> {
-    let from = shard.join("points");
-    if !from.is_dir() || same_dir(shard, out) {
+    if crate::output::RunFolder::same(shard, out) {
         return Ok(());
     }
-    copy_tree(&from, &out.join("points"))
+    points_tree(shard, Some(&out.join("points")))
 }
 
-fn same_dir(a: &Path, b: &Path) -> bool {
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(a), Ok(b)) => a == b,
-        _ => a == b,
+/// Walks a shard's `points/` (none is fine), copying it to `to` when given. Anything but a
+/// folder or a regular file is refused with a line naming it, and a link is never followed
+/// (regression: a `points` link made a merge copy any folder it pointed to into the output).
+fn points_tree(shard: &Path, to: Option<&Path>) -> Result<()> {
+    let from = shard.join("points");
+    match std::fs::symlink_metadata(&from) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => bail!(
+            "shard {}: cannot read {}: {e}",
+            shard.display(),
+            from.display()
+        ),
+        Ok(m) => {
+            refuse_special(shard, &from, m.file_type(), true)?;
+            walk(shard, &from, to)
+        }
     }
 }
 
-fn copy_tree(from: &Path, to: &Path) -> Result<()> {
-    std::fs::create_dir_all(to).with_context(|| format!("cannot create {}", to.display()))?;
+/// Fails unless `t` is a folder (`dir_ok`) or a regular file.
+fn refuse_special(shard: &Path, p: &Path, t: std::fs::FileType, dir_ok: bool) -> Result<()> {
+    if t.is_file() || (dir_ok && t.is_dir()) {
+        return Ok(());
+    }
+    let to = std::fs::read_link(p)
+        .map(|l| format!(" (to {})", l.display()))
+        .unwrap_or_default();
+    bail!(
+        "shard {}: {} is {}{to}: a merge copies only folders and regular files from a shard's points/, and never follows a link",
+        shard.display(),
+        p.display(),
+        files::kind_of(t)
+    )
+}
+
+fn walk(shard: &Path, from: &Path, to: Option<&Path>) -> Result<()> {
+    if let Some(to) = to {
+        std::fs::create_dir_all(to).with_context(|| format!("cannot create {}", to.display()))?;
+    }
     for e in std::fs::read_dir(from).with_context(|| format!("cannot read {}", from.display()))? {
-        let e = e?;
-        let t = e.file_type()?;
-        let dst = to.join(e.file_name());
+        let e = e.with_context(|| format!("cannot read {}", from.display()))?;
+        let (p, t) = (e.path(), e.file_type()?);
+        refuse_special(shard, &p, t, true)?;
+        let dst = to.map(|to| to.join(e.file_name()));
         if t.is_dir() {
-            copy_tree(&e.path(), &dst)?;
-        } else if t.is_file() {
-            std::fs::copy(e.path(), &dst)
-                .with_context(|| format!("cannot copy {}", e.path().display()))?;
+            walk(shard, &p, dst.as_deref())?;
+        } else if let Some(dst) = dst {
+            // Opened as a regular file again: the entry may have changed since it was checked.
+            let mut src = files::open_regular(&p, u64::MAX, "a run folder's file")
+                .map_err(|e| anyhow::anyhow!("shard {}: {}: {e}", shard.display(), p.display()))?;
+            let mut w = std::fs::File::create(&dst)
+                .with_context(|| format!("cannot create {}", dst.display()))?;
+            std::io::copy(&mut src, &mut w)
+                .with_context(|| format!("cannot copy {}", p.display()))?;
         }
     }
     Ok(())

@@ -6,6 +6,7 @@ use super::plan::Plan;
 use super::{Row, run_job};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::LoopMode;
+use deltaloop_config::files;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::sync::Mutex;
@@ -14,6 +15,10 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 /// `shard.json`'s format tag.
 pub const FORMAT: &str = "deltaloop-sweep-shard/1";
 pub const MANIFEST: &str = "shard.json";
+
+/// Largest `shard.json` read, bytes: its point ids take about 30 bytes each, so 16 MiB holds
+/// [`super::MAX_POINTS`] of them many times over.
+pub const MAX_MANIFEST_BYTES: u64 = 16 << 20;
 
 /// `shard.json`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -59,16 +64,14 @@ impl Manifest {
     pub fn read(dir: &Path) -> Result<Self> {
         let path = dir.join(MANIFEST);
         let shown = dir.display();
-        let meta = std::fs::metadata(&path).map_err(|e| {
-            anyhow::anyhow!(
+        let bytes = match files::read_regular(&path, MAX_MANIFEST_BYTES, "a shard manifest") {
+            Ok(b) => b,
+            Err(e) if !path.exists() => bail!(
                 "{shown} is not a sweep shard folder: no readable {MANIFEST} ({e}); pass folders written by `deltaloop sweep run` or `deltaloop sweep`"
-            )
-        })?;
-        if !meta.is_file() {
-            bail!("{shown}: {MANIFEST} is not a regular file");
-        }
-        let file = std::fs::File::open(&path).with_context(|| format!("cannot read {shown}"))?;
-        let m: Manifest = serde_json::from_reader(std::io::BufReader::new(file))
+            ),
+            Err(e) => bail!("{shown}: cannot read {MANIFEST}: {e}"),
+        };
+        let m: Manifest = serde_json::from_slice(&bytes)
             .map_err(|e| anyhow::anyhow!("{shown}: {MANIFEST} is not a shard manifest: {e}"))?;
         if m.format != FORMAT {
             bail!(
