@@ -8,8 +8,9 @@ use std::fmt::Write as _;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 
-/// The longest line quoted from a peer, characters (after escaping), before the cut note.
-pub const MAX_CHARS: usize = 300;
+/// The longest line quoted from a peer, characters (after escaping), before the cut note: room
+/// for the plant's own longest reasons (≈ 300), not for a flood.
+pub const MAX_CHARS: usize = 1000;
 
 /// How much of a log's end is read, bytes.
 pub const TAIL_BYTES: u64 = 64 * 1024;
