@@ -259,25 +259,38 @@ fn regression_a_sigkilled_top_does_not_keep_the_observer_slot() {
     assert!(line.contains(&rid) || line.contains('='), "{line}");
 }
 
-/// Regression: a supervisor killed outright left its plant and controller running (the plant to
-/// the scenario's end).
+/// Regression: a supervisor killed outright left a foreign child (one that, unlike the built-in
+/// processes, sets no parent-death signal itself: here a Python plant still starting) running.
 #[test]
-fn regression_a_sigkilled_supervisor_takes_its_children_with_it() {
+fn regression_a_sigkilled_supervisor_takes_a_foreign_child_with_it() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
+    let plant = script(
+        tmp.path(),
+        "plant.sh",
+        "exec python3 -c 'import time; time.sleep(60)' \"$@\"",
+    );
     let mut run = spawn(&[
         "run",
         &config(tmp.path(), 30.0),
         "--mode",
         "realtime",
+        "--plant-cmd",
+        &format!("sh {}", plant.display()),
         "--out",
         out.to_str().unwrap(),
     ]);
-    run_id_of(&out);
+    let config = out.join("config.toml").display().to_string();
+    wait_until(20, "the foreign plant starts", || {
+        processes_mentioning(&config).iter().any(|p| {
+            std::fs::read(format!("/proc/{p}/cmdline"))
+                .is_ok_and(|c| String::from_utf8_lossy(&c).contains("time.sleep(60)"))
+        })
+    });
     kill(run.id(), libc::SIGKILL);
     let _ = run.wait();
     wait_until(5, "the children stop with their supervisor", || {
-        children_mentioning(out.to_str().unwrap()).is_empty()
+        processes_mentioning(&config).is_empty()
     });
 }
 
