@@ -106,7 +106,13 @@ impl Tail {
     }
 
     fn read_bytes(path: &Path, max: u64) -> std::io::Result<Self> {
-        let mut f = std::fs::File::open(path)?;
+        use std::os::unix::fs::OpenOptionsExt;
+        // Non-blocking: a log replaced by a FIFO must not hang the supervisor (only a regular
+        // file is read).
+        let mut f = std::fs::OpenOptions::new()
+            .read(true)
+            .custom_flags(libc::O_NONBLOCK)
+            .open(path)?;
         if !f.metadata()?.is_file() {
             return Ok(Tail {
                 lines: Vec::new(),
@@ -233,6 +239,12 @@ mod tests {
         std::fs::write(&p, "one\ntwo\n").unwrap();
         assert_eq!(Tail::read(&p).last_lines(3, &p), ["one", "two"]);
         assert!(Tail::read(&dir.path().join("none")).lines.is_empty());
+        // A FIFO in its place is not waited on.
+        let fifo = dir.path().join("fifo.log");
+        let c = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: a valid C string; creates a FIFO in our temporary folder.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        assert!(Tail::read(&fifo).lines.is_empty());
     }
 
     proptest! {

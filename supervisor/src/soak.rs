@@ -208,10 +208,13 @@ impl Rss {
         self.children_peak |= before != (self.plant, self.controller);
     }
 
-    /// How long until the next sample: short until both children have been read (they start
-    /// after the soak does, and a lockstep run may last well under a second), then 2 s.
-    fn next_sample_in(&self) -> Duration {
-        if self.plant.is_some() && self.controller.is_some() {
+    /// How long until the next sample, `running` into the soak: short until both children have
+    /// been read (they start after the soak does, and a lockstep run may last well under a
+    /// second), then 2 s; 2 s too after the first 10 s (children that cannot be read, e.g. in
+    /// another PID namespace, do not make it scan `/proc` 50 times a second for hours).
+    fn next_sample_in(&self, running: Duration) -> Duration {
+        if (self.plant.is_some() && self.controller.is_some()) || running > Duration::from_secs(10)
+        {
             Duration::from_secs(2)
         } else {
             Duration::from_millis(20)
@@ -494,7 +497,9 @@ fn report(
         );
         bar.set_position(ticks);
         bar.set_message(format!("{misses} misses"));
-        if !finished && last_rss.is_none_or(|t| t.elapsed() >= rss.next_sample_in()) {
+        if !finished
+            && last_rss.is_none_or(|t| t.elapsed() >= rss.next_sample_in(started.elapsed()))
+        {
             last_rss = Some(Instant::now());
             rss.update(rss_now());
         }
@@ -523,7 +528,10 @@ fn report(
             );
             return;
         }
-        std::thread::sleep(rss.next_sample_in().min(Duration::from_millis(250)));
+        std::thread::sleep(
+            rss.next_sample_in(started.elapsed())
+                .min(Duration::from_millis(250)),
+        );
     }
 }
 
@@ -655,7 +663,14 @@ mod tests {
             supervisor: Some(12.0),
             ..Rss::default()
         };
-        assert_eq!(rss.next_sample_in(), Duration::from_millis(20));
+        assert_eq!(
+            rss.next_sample_in(Duration::ZERO),
+            Duration::from_millis(20)
+        );
+        assert_eq!(
+            rss.next_sample_in(Duration::from_secs(11)),
+            Duration::from_secs(2)
+        );
         rss.fill_from_peak(&PeakRss {
             supervisor: 13.0,
             plant: Some(5.5),
@@ -681,7 +696,10 @@ mod tests {
             controller: Some(4.0),
             children_peak: false,
         };
-        assert_eq!(sampled.next_sample_in(), Duration::from_secs(2));
+        assert_eq!(
+            sampled.next_sample_in(Duration::ZERO),
+            Duration::from_secs(2)
+        );
         sampled.fill_from_peak(&PeakRss::default());
         assert!(!sampled.children_peak && sampled.plant == Some(6.0));
         // A value that could not be read says so rather than "?".
