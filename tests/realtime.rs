@@ -181,6 +181,8 @@ fn bench_loop_runs_every_measurement_and_ends_with_its_key_value_line() {
         "rt_yield_miss_ratio",
         "machine_wake_p999_us",
         "cyclictest_p999_us",
+        "lockstep_transport_disturbed",
+        "lockstep_transport_attempts",
     ];
     assert_eq!(
         kv.keys().copied().collect::<Vec<_>>(),

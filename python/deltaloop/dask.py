@@ -44,13 +44,24 @@ def default_deltaloop() -> str:
     return os.environ.get("DELTALOOP", "deltaloop")
 
 
+#: Tells a ``deltaloop`` child which process is its parent: it then stops (as on SIGTERM) when
+#: that process dies, e.g. a Dask worker killed with SIGKILL, instead of running on as an orphan.
+PARENT_PID_ENV = "DELTALOOP_PARENT_PID"
+
+
+def run_deltaloop(cmd: list[str], **kwargs) -> subprocess.CompletedProcess:
+    """``subprocess.run(cmd, capture_output=True, text=True)`` for a ``deltaloop`` command that
+    ends when this process dies (``DELTALOOP_PARENT_PID``; not inherited by its own children)."""
+    env = dict(kwargs.pop("env", None) or os.environ)
+    env[PARENT_PID_ENV] = str(os.getpid())
+    return subprocess.run(cmd, capture_output=True, text=True, env=env, **kwargs)
+
+
 def plan(sweep_file: str | os.PathLike, deltaloop: str | None = None) -> dict:
     """``deltaloop sweep plan FILE --json``: the sweep and base as TOML text, the plan hash, and
     every point (``index``, ``id``, ``label``, ``mode``, ``cpus``)."""
     exe = deltaloop or default_deltaloop()
-    p = subprocess.run(
-        [exe, "sweep", "plan", str(sweep_file), "--json"], capture_output=True, text=True
-    )
+    p = run_deltaloop([exe, "sweep", "plan", str(sweep_file), "--json"])
     if p.returncode != 0:
         raise SweepError(p.stderr.strip() or f"{exe} sweep plan failed ({p.returncode})")
     return json.loads(p.stdout)
@@ -122,7 +133,7 @@ def run_points(spec: dict) -> dict:
             "--out", str(out),
         ]  # fmt: skip
         try:
-            p = subprocess.run(cmd, capture_output=True, text=True, stdin=subprocess.DEVNULL)
+            p = run_deltaloop(cmd, stdin=subprocess.DEVNULL)
         except OSError as e:
             raise SweepError(f"cannot run {spec['deltaloop']!r} on {worker}: {e}") from None
         if p.returncode != 0:
@@ -324,7 +335,7 @@ def run_sweep(
     cmd = [exe, "sweep", "merge", str(shards), "--out", str(out)]
     if failed:
         cmd.append("--allow-missing")
-    m = subprocess.run(cmd, capture_output=True, text=True)
+    m = run_deltaloop(cmd)
     result = Result(out, shards, len(points), failed, run_seconds, tasks)
     if failed:
         lines = "; ".join(f"{k}: {v[-1]}" for k, v in failed.items())
@@ -425,6 +436,22 @@ def slurm_cluster(settings: dict, **cluster_kwargs):
 # --- command line ----------------------------------------------------------------------------
 
 
+def _missing_extras(slurm: bool) -> str | None:
+    """One line saying what to install when the ``dask`` extra is missing, else None."""
+    import importlib
+
+    for mod in ("distributed", "cloudpickle") + (("dask_jobqueue",) if slurm else ()):
+        try:
+            importlib.import_module(mod)
+        except ImportError as e:
+            return (
+                f"python -m deltaloop.dask needs the `dask` extra, and {e.name or mod!r} is not"
+                " installed: pip install './python[dask]' (from the repository), or"
+                " pip install -r python/requirements.txt"
+            )
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m deltaloop.dask",
@@ -451,6 +478,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--print-job-script", action="store_true",
                     help="Slurm: print the job script that would be submitted, and exit")  # fmt: skip
     a = ap.parse_args(argv)
+    missing = _missing_extras(slurm=a.slurm is not None)
+    if missing:
+        print(f"deltaloop.dask: error: {missing}", file=sys.stderr)
+        return 2
 
     from distributed import Client
 

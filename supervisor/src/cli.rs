@@ -211,6 +211,10 @@ fn replay(
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     crate::signals::install();
+    if let Err(e) = crate::signals::die_with_parent_from_env() {
+        eprintln!("deltaloop: error: {e}");
+        return ExitCode::FAILURE;
+    }
     let command_line = std::env::args().collect::<Vec<_>>().join(" ");
     let result = match cli.command {
         Command::Run {

@@ -13,6 +13,7 @@ pub mod live;
 pub mod metrics;
 pub mod output;
 pub mod paper;
+pub mod peer_text;
 pub mod plot;
 pub mod procs;
 pub mod record;

@@ -10,6 +10,7 @@
 
 use crate::feed::ReferenceFeed;
 use crate::lawrun::{self, Keep, LawRecorder, LawRun};
+use crate::peer_text::{self, Tail};
 use crate::record::Fault;
 use crate::study::Study;
 use crate::timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
@@ -189,12 +190,22 @@ fn spawn(launch: &Launch, args: &[String], log: &Path, who: Sender) -> Result<Re
     // The terminal's Ctrl-C and hang-up reach the whole process group, and may come before the
     // child has set up its own signal handling: it starts with both ignored (kept across exec),
     // and the supervisor stops it in order.
-    // SAFETY: signal() is async-signal-safe; nothing else runs between fork and exec.
+    // A supervisor killed outright (SIGKILL, the OOM killer) cannot stop its children: the kernel
+    // sends them SIGTERM then, and they stop as they would on STOP (regression: a SIGKILLed
+    // supervisor left its plant running to the scenario's end, a soak's up to 24 h).
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: signal(), prctl() and getppid() are async-signal-safe; nothing else runs between
+    // fork and exec.
     unsafe {
         use std::os::unix::process::CommandExt;
-        cmd.pre_exec(|| {
+        cmd.pre_exec(move || {
             libc::signal(libc::SIGINT, libc::SIG_IGN);
             libc::signal(libc::SIGHUP, libc::SIG_IGN);
+            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+            // The supervisor died before the line above: do not start an orphan.
+            if libc::getppid() != parent {
+                return Err(std::io::Error::other("the supervisor is gone"));
+            }
             Ok(())
         });
     }
@@ -214,15 +225,6 @@ fn spawn(launch: &Launch, args: &[String], log: &Path, who: Sender) -> Result<Re
         }
     })?;
     Ok(Reaped::new(child, who))
-}
-
-fn read_log(path: &Path) -> Vec<String> {
-    std::fs::read_to_string(path)
-        .unwrap_or_default()
-        .lines()
-        .filter(|l| !l.trim().is_empty())
-        .map(str::to_string)
-        .collect()
 }
 
 /// The supervisor's ports: observers of the three loop streams and the control channel (the
@@ -277,11 +279,25 @@ struct Logs {
 }
 
 impl Logs {
-    /// Every non-empty line both children printed.
+    /// The last lines both children printed (at most [`peer_text::MAX_LINES`] each, read from
+    /// the end of their logs, sanitized; a first line says where earlier ones are).
     fn messages(&self) -> Vec<String> {
-        let mut m = read_log(&self.plant);
-        m.extend(read_log(&self.controller));
+        let mut m = Tail::read(&self.plant).last_lines(peer_text::MAX_LINES, &self.plant);
+        m.extend(Tail::read(&self.controller).last_lines(peer_text::MAX_LINES, &self.controller));
         m
+    }
+
+    /// What each child said last, for a one-line error: `the plant: …; the controller: …`
+    /// (children that said nothing are left out).
+    fn said(&self) -> String {
+        [("plant", &self.plant), ("controller", &self.controller)]
+            .iter()
+            .filter_map(|(who, p)| {
+                let r = Tail::read(p).reason();
+                (!r.is_empty()).then(|| format!("the {who}: {r} (log: {})", p.display()))
+            })
+            .collect::<Vec<_>>()
+            .join("; ")
     }
 }
 
@@ -330,9 +346,11 @@ impl Pair {
         for child in [&mut self.plant, &mut self.controller] {
             if let Some(status) = child.exited() {
                 let who = role(child.who);
+                let said = self.logs.said();
                 bail!(
-                    "{who} exited before the run started ({status}): {}",
-                    self.logs.messages().join(" | ")
+                    "{who} {} before the run started{}{said}",
+                    status_text(status),
+                    if said.is_empty() { "" } else { ": " }
                 );
             }
         }
@@ -361,7 +379,7 @@ fn await_control(
         }
         pair.check_alive()?;
         if rt::now_ns() > deadline {
-            let said = pair.logs.messages().join(" | ");
+            let said = pair.logs.said();
             bail!(
                 "{} within {} s{}{said}",
                 step(),
@@ -993,39 +1011,44 @@ fn stopped_before_start(
     })
 }
 
+/// How a child ended, in words: a signal by its name, and SIGBUS with its likely cause.
 fn status_text(s: ExitStatus) -> String {
     use std::os::unix::process::ExitStatusExt;
     match (s.code(), s.signal()) {
-        (_, Some(9)) => "was killed (SIGKILL)".into(),
-        (_, Some(sig)) => format!("was killed by signal {sig}"),
+        (_, Some(sig)) => killed_by(sig),
         (Some(101), _) => "panicked (exit status 101)".into(),
         (Some(c), _) => format!("exited with status {c}"),
         _ => "exited".into(),
     }
 }
 
-/// The line of a child's log that says why it stopped: a panic's message, else its last line
-/// (backtraces and warnings skipped).
+/// "was killed by SIGBUS (…)" for signal `sig`. A loop process touches nothing but its shared
+/// memory mappings that could fault with SIGBUS: a page of a `/dev/shm` file that cannot be
+/// backed because the file system is full.
+fn killed_by(sig: i32) -> String {
+    let name = match sig {
+        libc::SIGKILL => "SIGKILL",
+        libc::SIGBUS => {
+            return "was killed by SIGBUS (signal 7: a bus error, most likely shared memory (/dev/shm) ran out; see `df -h /dev/shm`)".into();
+        }
+        libc::SIGSEGV => "SIGSEGV",
+        libc::SIGABRT => "SIGABRT",
+        libc::SIGTERM => "SIGTERM",
+        libc::SIGINT => "SIGINT",
+        libc::SIGHUP => "SIGHUP",
+        libc::SIGPIPE => "SIGPIPE",
+        libc::SIGFPE => "SIGFPE",
+        libc::SIGILL => "SIGILL",
+        libc::SIGQUIT => "SIGQUIT",
+        libc::SIGXCPU => "SIGXCPU",
+        _ => return format!("was killed by signal {sig}"),
+    };
+    format!("was killed ({name})")
+}
+
+/// The line of a child's log that says why it stopped (see [`peer_text::reason`]).
 fn last_line(path: &Path) -> String {
-    let lines = read_log(path);
-    if let Some(i) = lines.iter().position(|l| l.contains("panicked at")) {
-        return format!(
-            "{} {}",
-            lines[i].trim(),
-            lines.get(i + 1).map_or("", |l| l.trim())
-        );
-    }
-    lines
-        .into_iter()
-        .rev()
-        .find(|l| {
-            !l.contains("warning:")
-                && !l.trim_start().starts_with("at ")
-                && !l.trim_start().starts_with(|c: char| c.is_ascii_digit())
-                && !l.starts_with("note:")
-                && !l.starts_with("stack backtrace")
-        })
-        .unwrap_or_default()
+    Tail::read(path).reason()
 }
 
 /// One line saying what went wrong, or None when both children finished normally.
@@ -1090,9 +1113,11 @@ fn fault_cause(ending: &Ending, pair: &Pair, streams: &Observation<'_>) -> Optio
             ));
         }
     }
+    // The plant's FAULT text is a peer's too: one printable line, bounded.
+    let cause = parts.join("; ");
     Some(Fault {
         tick,
-        cause: parts.join("; "),
+        cause: peer_text::sanitize(cause.as_bytes(), 4 * peer_text::MAX_CHARS),
     })
 }
 
@@ -1142,6 +1167,20 @@ mod tests {
         assert!(fifo_share_warnings(&other, 3e-4, Some(0.95)).is_empty());
         // The controller blocking on its event (−1) polls nothing early.
         assert!(fifo_share_warnings(&split_with(-1), 3e-4, Some(0.95)).is_empty());
+    }
+
+    /// Regression: a full /dev/shm mid-run killed the plant with a bare "signal 7".
+    #[test]
+    fn regression_a_child_killed_by_sigbus_is_named_with_its_likely_cause() {
+        let bus = killed_by(libc::SIGBUS);
+        assert!(
+            bus.starts_with("was killed by SIGBUS")
+                && bus.contains("shared memory (/dev/shm) ran out"),
+            "{bus}"
+        );
+        assert_eq!(killed_by(libc::SIGKILL), "was killed (SIGKILL)");
+        assert_eq!(killed_by(libc::SIGSEGV), "was killed (SIGSEGV)");
+        assert_eq!(killed_by(64), "was killed by signal 64");
     }
 
     #[test]

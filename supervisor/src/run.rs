@@ -8,7 +8,7 @@ use crate::output::{self, Summary};
 use crate::procs;
 use crate::report;
 use crate::study::Study;
-use crate::timing::{Timing, TimingSummary};
+use crate::timing::{PeakRss, Timing, TimingSummary};
 use anyhow::{Context, Result};
 use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::ipc;
@@ -24,6 +24,8 @@ pub struct RunOutput {
     /// What was run, and the runs themselves (their records only if asked for, for figures).
     pub study: Study,
     pub runs: Vec<LawRun>,
+    /// The peak memory of the last process run's processes (None: inproc).
+    pub peak_rss: Option<PeakRss>,
 }
 
 /// Command-line overrides of a scenario file (None: keep the file's value).
@@ -219,6 +221,12 @@ pub fn run(
             (runs, timings)
         }
     };
+    let peak_rss = timings
+        .iter()
+        .rev()
+        .flatten()
+        .next()
+        .map(|t| t.peak_rss.clone());
     let metrics: Vec<LawMetrics> = runs.iter().map(|r| r.metrics.clone()).collect();
     let timing_summaries: Vec<Option<TimingSummary>> = timings
         .iter()
@@ -272,10 +280,8 @@ pub fn run(
         table.push_str(&report::timing_table(&metrics, &timing_summaries));
     }
     if let Some(e) = failed {
-        return Err(e.context(format!(
-            "the laws that finished are kept in {}",
-            dir.display()
-        )));
+        let finished: Vec<Law> = runs.iter().map(|r| r.metrics.law).collect();
+        return Err(e.context(kept_note(&finished, &dir, &child_logs(&dir))));
     }
     if let Some((law, cause)) = &stopped {
         // A fault right after the loop froze is the machine's: say so on the same line.
@@ -312,7 +318,44 @@ pub fn run(
         notes,
         study,
         runs,
+        peak_rss,
     })
+}
+
+/// The children's stderr logs in a run folder (`<law>.plant.log`, …), sorted.
+fn child_logs(dir: &Path) -> Vec<String> {
+    let mut logs: Vec<String> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".log"))
+        .collect();
+    logs.sort();
+    logs
+}
+
+/// What a failed run's folder keeps: the laws that finished, or, when none did, what is there
+/// (regression: "the laws that finished are kept in …" when none had).
+fn kept_note(finished: &[Law], dir: &Path, logs: &[String]) -> String {
+    if finished.is_empty() {
+        format!(
+            "no law finished: {} holds the resolved config.toml{}, and a summary and report without results",
+            dir.display(),
+            if logs.is_empty() {
+                String::new()
+            } else {
+                format!(", the children's logs ({})", logs.join(", "))
+            }
+        )
+    } else {
+        let names: Vec<String> = finished.iter().map(Law::to_string).collect();
+        format!(
+            "the laws that finished ({}) are kept in {}",
+            names.join(", "),
+            dir.display()
+        )
+    }
 }
 
 /// The report section that says what the measured latency cost: each law's tracking against the
@@ -362,6 +405,26 @@ impl std::error::Error for Interrupted {}
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression: a run whose first law failed to start said "the laws that finished are kept
+    /// in …" though none had.
+    #[test]
+    fn regression_a_failed_run_says_what_it_kept_when_no_law_finished() {
+        let dir = Path::new("runs/x");
+        let logs = ["tdc.controller.log".to_string(), "tdc.plant.log".into()];
+        assert_eq!(
+            kept_note(&[], dir, &logs),
+            "no law finished: runs/x holds the resolved config.toml, the children's logs (tdc.controller.log, tdc.plant.log), and a summary and report without results"
+        );
+        assert_eq!(
+            kept_note(&[], dir, &[]),
+            "no law finished: runs/x holds the resolved config.toml, and a summary and report without results"
+        );
+        assert_eq!(
+            kept_note(&[Law::Tdc, Law::Pid], dir, &logs),
+            "the laws that finished (tdc, pid) are kept in runs/x"
+        );
+    }
 
     /// `config.toml` is written once, before the runs, and is the resolved config.
     #[test]

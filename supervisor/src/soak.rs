@@ -8,7 +8,7 @@
 //! slot stays free for `deltaloop top`.
 
 use crate::run::{self, Overrides};
-use crate::timing::{self, Percentiles, Seen};
+use crate::timing::{self, PeakRss, Percentiles, Seen};
 use anyhow::{Result, bail};
 use deltaloop_config::{LoopMode, RecordSection};
 use deltaloop_transport::wire;
@@ -187,6 +187,39 @@ pub struct Rss {
     pub supervisor: Option<f64>,
     pub plant: Option<f64>,
     pub controller: Option<f64>,
+    /// A child's value is its peak, read when it exited (it exited before it was sampled).
+    pub children_peak: bool,
+}
+
+impl Rss {
+    /// Each process's newest reading: `now`'s, else the one kept.
+    fn update(&mut self, now: Rss) {
+        self.supervisor = now.supervisor.or(self.supervisor);
+        self.plant = now.plant.or(self.plant);
+        self.controller = now.controller.or(self.controller);
+    }
+
+    /// Children never sampled get their peak from when they exited (a run shorter than the
+    /// sampling period: regression, a short soak's minute printed RSS "?").
+    fn fill_from_peak(&mut self, peak: &PeakRss) {
+        let before = (self.plant, self.controller);
+        self.plant = self.plant.or(peak.plant);
+        self.controller = self.controller.or(peak.controller);
+        self.children_peak |= before != (self.plant, self.controller);
+    }
+
+    /// How long until the next sample, `running` into the soak: short until both children have
+    /// been read (they start after the soak does, and a lockstep run may last well under a
+    /// second), then 2 s; 2 s too after the first 10 s (children that cannot be read, e.g. in
+    /// another PID namespace, do not make it scan `/proc` 50 times a second for hours).
+    fn next_sample_in(&self, running: Duration) -> Duration {
+        if (self.plant.is_some() && self.controller.is_some()) || running > Duration::from_secs(10)
+        {
+            Duration::from_secs(2)
+        } else {
+            Duration::from_millis(20)
+        }
+    }
 }
 
 /// VmRSS of a process, MiB.
@@ -253,7 +286,7 @@ pub fn clock(s: f64) -> String {
 
 /// The summary line of one minute.
 pub fn minute_line(m: &Minute, rss: &Rss) -> String {
-    let mib = |v: Option<f64>| v.map_or("?".into(), |v| format!("{v:.1}"));
+    let mib = |v: Option<f64>| v.map_or("n/a (not readable)".into(), |v| format!("{v:.1}"));
     let from = (m.index - 1) as f64 * 60.0;
     let rt = &m.round_trip;
     format!(
@@ -270,7 +303,53 @@ pub fn minute_line(m: &Minute, rss: &Rss) -> String {
         mib(rss.supervisor),
         mib(rss.plant),
         mib(rss.controller)
-    )
+    ) + if rss.children_peak {
+        " (plant and controller: their peak, read when they exited)"
+    } else {
+        ""
+    }
+}
+
+/// How the soak ended, for its last progress line.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct End {
+    /// "diverged at tick k", "interrupted", "stopped by an error": None when it completed.
+    pub outcome: Option<String>,
+    /// The last run's peak memory (from `wait4`), for children never sampled.
+    pub peak: Option<PeakRss>,
+}
+
+impl End {
+    /// From what the run returned.
+    fn of(result: &Result<run::RunOutput>) -> Self {
+        match result {
+            Ok(o) => Self {
+                outcome: o
+                    .metrics
+                    .iter()
+                    .find_map(|m| m.diverged_at_tick)
+                    .map(|k| format!("diverged at tick {k}")),
+                peak: o.peak_rss.clone(),
+            },
+            Err(e) if e.downcast_ref::<run::Interrupted>().is_some() => Self {
+                outcome: Some("interrupted".into()),
+                peak: None,
+            },
+            Err(_) => Self {
+                outcome: Some("stopped by an error (below)".into()),
+                peak: None,
+            },
+        }
+    }
+}
+
+/// The soak's last progress line (regression: a soak whose robot diverged ended with a line that
+/// looked like a normal end).
+pub fn end_line(end: &End, elapsed_s: f64, progress: &str) -> String {
+    match &end.outcome {
+        Some(o) => format!("soak: {o}, after {}: {progress}", clock(elapsed_s)),
+        None => format!("soak: ended after {}: {progress}", clock(elapsed_s)),
+    }
 }
 
 /// What `deltaloop soak` was asked for.
@@ -342,14 +421,18 @@ pub fn soak(r: Request<'_>) -> Result<()> {
         out.display()
     );
     let done = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let end = Arc::new(Mutex::new(End::default()));
     let reporter = {
-        let (acc, done, tty) = (acc.clone(), done.clone(), r.tty);
-        std::thread::spawn(move || report(&acc, &done, total, ts, tty))
+        let (acc, done, end, tty) = (acc.clone(), done.clone(), end.clone(), r.tty);
+        std::thread::spawn(move || report(&acc, &done, &end, total, ts, tty))
     };
     let result = run::run(cfg, r.mode, Some(out), r.force, false, r.command);
     drop(hook);
     if let Ok(mut a) = acc.lock() {
         a.close();
+    }
+    if let Ok(mut e) = end.lock() {
+        *e = End::of(&result);
     }
     done.store(true, std::sync::atomic::Ordering::Release);
     let _ = reporter.join();
@@ -369,6 +452,7 @@ pub fn soak(r: Request<'_>) -> Result<()> {
 fn report(
     acc: &Mutex<MinuteAcc>,
     done: &std::sync::atomic::AtomicBool,
+    end: &Mutex<End>,
     total: u64,
     ts: f64,
     tty: bool,
@@ -395,6 +479,14 @@ fn report(
     let mut last_rss: Option<Instant> = None;
     loop {
         let finished = done.load(std::sync::atomic::Ordering::Acquire);
+        let end = if finished {
+            end.lock().map(|e| e.clone()).unwrap_or_default()
+        } else {
+            End::default()
+        };
+        if let Some(p) = &end.peak {
+            rss.fill_from_peak(p);
+        }
         let (minutes, ticks, misses) = match acc.lock() {
             Ok(mut a) => (std::mem::take(&mut a.done), a.total_ticks, a.total_misses),
             Err(_) => return,
@@ -405,14 +497,11 @@ fn report(
         );
         bar.set_position(ticks);
         bar.set_message(format!("{misses} misses"));
-        if !finished && last_rss.is_none_or(|t| t.elapsed() >= Duration::from_secs(2)) {
+        if !finished
+            && last_rss.is_none_or(|t| t.elapsed() >= rss.next_sample_in(started.elapsed()))
+        {
             last_rss = Some(Instant::now());
-            let now = rss_now();
-            rss = Rss {
-                supervisor: now.supervisor.or(rss.supervisor),
-                plant: now.plant.or(rss.plant),
-                controller: now.controller.or(rss.controller),
-            };
+            rss.update(rss_now());
         }
         if !minutes.is_empty() {
             for m in &minutes {
@@ -434,12 +523,15 @@ fn report(
             bar.finish_and_clear();
             let _ = writeln!(
                 std::io::stderr(),
-                "soak: ended after {}: {progress}",
-                clock(started.elapsed().as_secs_f64())
+                "{}",
+                end_line(&end, started.elapsed().as_secs_f64(), &progress)
             );
             return;
         }
-        std::thread::sleep(Duration::from_millis(250));
+        std::thread::sleep(
+            rss.next_sample_in(started.elapsed())
+                .min(Duration::from_millis(250)),
+        );
     }
 }
 
@@ -562,6 +654,70 @@ mod tests {
         };
         assert!(check_disk(u64::MAX, &none, 0, Path::new("."), "1day").is_ok());
         assert!(free_bytes(Path::new("no/such/dir/below/cwd")).is_some_and(|b| b > 0));
+    }
+
+    /// Regression: a soak shorter than the sampling period printed RSS "?" for both children.
+    #[test]
+    fn regression_children_never_sampled_get_their_peak_and_say_so() {
+        let mut rss = Rss {
+            supervisor: Some(12.0),
+            ..Rss::default()
+        };
+        assert_eq!(
+            rss.next_sample_in(Duration::ZERO),
+            Duration::from_millis(20)
+        );
+        assert_eq!(
+            rss.next_sample_in(Duration::from_secs(11)),
+            Duration::from_secs(2)
+        );
+        rss.fill_from_peak(&PeakRss {
+            supervisor: 13.0,
+            plant: Some(5.5),
+            controller: Some(4.25),
+        });
+        let m = Minute {
+            index: 1,
+            ticks: 10,
+            misses: 0,
+            round_trip: timing::percentiles(&timing::latency_histogram()),
+            span_s: 3.0,
+        };
+        let line = minute_line(&m, &rss);
+        assert!(
+            line.ends_with("RSS MiB supervisor 12.0 plant 5.5 controller 4.2 (plant and controller: their peak, read when they exited)"),
+            "{line}"
+        );
+        assert!(!line.contains('?'), "{line}");
+        // Sampled children keep their own reading, and the note is not added.
+        let mut sampled = Rss {
+            supervisor: Some(12.0),
+            plant: Some(6.0),
+            controller: Some(4.0),
+            children_peak: false,
+        };
+        assert_eq!(
+            sampled.next_sample_in(Duration::ZERO),
+            Duration::from_secs(2)
+        );
+        sampled.fill_from_peak(&PeakRss::default());
+        assert!(!sampled.children_peak && sampled.plant == Some(6.0));
+        // A value that could not be read says so rather than "?".
+        assert!(minute_line(&m, &Rss::default()).contains("plant n/a (not readable)"));
+    }
+
+    /// Regression: the last progress line of a soak that diverged looked like a normal end.
+    #[test]
+    fn regression_the_last_progress_line_says_diverged() {
+        let end = End {
+            outcome: Some("diverged at tick 4711".into()),
+            peak: None,
+        };
+        assert_eq!(
+            end_line(&end, 65.0, "4712 ticks (0:01 of loop time), 0 misses"),
+            "soak: diverged at tick 4711, after 1:05: 4712 ticks (0:01 of loop time), 0 misses"
+        );
+        assert!(end_line(&End::default(), 65.0, "x").starts_with("soak: ended after 1:05"));
     }
 
     #[test]

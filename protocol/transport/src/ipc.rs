@@ -307,6 +307,12 @@ pub fn check_shm(needed: u64, free: u64) -> Result<(), String> {
 /// Removes the resources of iceoryx2 nodes whose process died (e.g. a run killed with SIGKILL).
 /// Returns the names of the nodes it cleaned.
 pub fn remove_dead_nodes() -> Vec<String> {
+    remove_dead_nodes_where(|_| true)
+}
+
+/// [`remove_dead_nodes`], only for the dead nodes whose name `pick` accepts (e.g. a killed
+/// observer of one run, whose subscriber slots stay taken until its node is removed).
+pub fn remove_dead_nodes_where(pick: impl Fn(&str) -> bool) -> Vec<String> {
     let mut removed = Vec::new();
     let _ = Node::<Svc>::list(&config(), |state| {
         if let NodeState::Dead(view) = state {
@@ -315,9 +321,10 @@ pub fn remove_dead_nodes() -> Vec<String> {
                 .as_ref()
                 .map(|d| d.name().to_string())
                 .unwrap_or_else(|| "unnamed".into());
-            if view
-                .blocking_remove_stale_resources(core::time::Duration::from_secs(1))
-                .is_ok()
+            if pick(&name)
+                && view
+                    .blocking_remove_stale_resources(core::time::Duration::from_secs(1))
+                    .is_ok()
             {
                 removed.push(name);
             }

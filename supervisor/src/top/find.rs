@@ -35,6 +35,25 @@ pub fn is_live(run_id: &str) -> bool {
     live_run_ids().iter().any(|r| r == run_id)
 }
 
+/// Removes the iceoryx2 resources of the dead observers of `run_id` (its nodes other than the
+/// run's own plant, controller and supervisor, which the supervisor cleans and reports itself);
+/// returns their names.
+pub fn remove_dead_observers(run_id: &str) -> Vec<String> {
+    ipc::remove_dead_nodes_where(|name| is_observer_of(name, run_id))
+}
+
+/// Whether node `name` belongs to run `run_id` without being one of its loop processes.
+fn is_observer_of(name: &str, run_id: &str) -> bool {
+    let Some(role) = name
+        .strip_prefix("deltaloop-")
+        .and_then(|n| n.strip_suffix(run_id))
+        .and_then(|n| n.strip_suffix('-'))
+    else {
+        return false;
+    };
+    !matches!(role, "plant" | "controller" | "supervisor")
+}
+
 /// What the command lines of a run's processes say about it (None: not found, e.g. a process in
 /// another PID namespace).
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -118,6 +137,21 @@ pub fn run_info(run_id: &str) -> RunInfo {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_a_runs_observers_are_reclaimed() {
+        assert!(is_observer_of("deltaloop-top-ab-1", "ab-1"));
+        for other in [
+            "deltaloop-plant-ab-1",
+            "deltaloop-controller-ab-1",
+            "deltaloop-supervisor-ab-1",
+            "deltaloop-top-ab-12",
+            "deltaloop-top-xab-1x",
+            "someone-else",
+        ] {
+            assert!(!is_observer_of(other, "ab-1"), "{other}");
+        }
+    }
 
     fn args(s: &str) -> Vec<String> {
         s.split(' ').map(str::to_string).collect()

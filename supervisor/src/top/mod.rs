@@ -54,6 +54,9 @@ impl Watch {
     /// Opens (never creates) the run's services and subscribes. Insists on safe overflow: an
     /// observer on a service without it could make the loop's publishers wait.
     fn attach(run_id: &str) -> Result<Self> {
+        // A `top` killed outright (SIGKILL) keeps its subscriber slots until its node is
+        // removed: reclaim them, so the slot is refused only while a live observer holds it.
+        find::remove_dead_observers(run_id);
         let node = ipc::node("top", run_id).map_err(|e| {
             anyhow!("cannot watch run {run_id}: {e} (the run's spare node is taken?)")
         })?;
@@ -141,11 +144,12 @@ impl Watched {
         }
         while let Some(m) = w.control.receive().ipc("receive control")? {
             let m = m.payload();
+            // The text is the peer's: shown on the terminal only as one escaped line.
+            let text =
+                || crate::peer_text::sanitize(m.text().as_bytes(), crate::peer_text::MAX_CHARS);
             let why = match m.kind() {
-                Some(ControlKind::Fault) => format!("fault at tick {}: {}", m.tick, m.text()),
-                Some(ControlKind::Diverged) => {
-                    format!("diverged at tick {}: {}", m.tick, m.text())
-                }
+                Some(ControlKind::Fault) => format!("fault at tick {}: {}", m.tick, text()),
+                Some(ControlKind::Diverged) => format!("diverged at tick {}: {}", m.tick, text()),
                 Some(ControlKind::Stop) => "the supervisor sent STOP (Ctrl-C on the run)".into(),
                 _ => continue,
             };
