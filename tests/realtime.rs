@@ -118,7 +118,7 @@ fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
 }
 
 /// `deltaloop bench loop`, short: every baseline and loop runs to its end, the helpers exit, the
-/// last line carries every key with a number, and the files the README points at are there.
+/// last line carries every key with a number, and the files docs/performance.md points at are there.
 #[test]
 fn bench_loop_runs_every_measurement_and_ends_with_its_key_value_line() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());

@@ -6,7 +6,7 @@ mod common;
 /// `configs/soak.toml` for 3 minutes, then for 30: the long run loses no tick, keeps every tick on
 /// disk, and no process uses more than 1.2× the memory of the short run.
 #[test]
-#[ignore = "30-minute realtime soak; run it by name (README, \"Long runs\")"]
+#[ignore = "30-minute realtime soak; run it by name (docs/guide/live-and-soak.md, \"Long runs\")"]
 fn soak_30_min_realtime_loses_nothing_and_memory_stays_flat() {
     let tmp = tempfile::tempdir().unwrap();
     let cfg = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/soak.toml");

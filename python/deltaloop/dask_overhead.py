@@ -7,7 +7,7 @@
 - **round trip**: one no-op task at a time, submit to result (the latency a lone task sees).
 
 What a point adds on top (the ``deltaloop`` process, the plan check, the temporary folder) shows
-in ``python -m deltaloop.dask … --batch 1`` against ``--batch 50``: see the README.
+in ``python -m deltaloop.dask … --batch 1`` against ``--batch 50``: see docs/guide/cluster.md.
 Medians of ``--repeats`` measurements are printed.
 """
 

@@ -362,7 +362,7 @@ fn repeated(values: &[String]) -> Option<&String> {
 /// Most points a sweep may have. The plan, a merge's rows and `sweep plan --json` (what a
 /// cluster driver reads) hold every point in memory, a few hundred bytes each: 10⁵ points are
 /// tens of MB, and ≈ 40 CPU-minutes of the cheapest (in-process, ≈ 24 ms each) or days of
-/// realtime ones. That covers the largest study the README plans (a 10⁵-point Monte Carlo on a
+/// realtime ones. That covers the largest study docs/guide/cluster.md plans (a 10⁵-point Monte Carlo on a
 /// cluster); a grid beyond it is a typo in an axis, or several sweeps. Checked before anything
 /// is expanded (regression: a 118 KB file of about 10⁸ points aborted `sweep plan` and
 /// `sweep merge` on allocation).

@@ -249,7 +249,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     let split_steal = steal_share(&sp.cpu_steal_ms, sp.loop_wall_s, split_cpu);
     if let (Some(c), Some((ms, share))) = (split_cpu, split_steal) {
         println!(
-            "    the host took {ms:.0} ms from CPU {c}, the split layout's controller CPU: {share:.1e} of the run (counted in 10 ms steps: {:.1e}), against a miss ratio of {:.1e}; a controller alone on a CPU cannot answer while the host holds it (0.2-1 ms at a time, now and then 4-18 ms) or wakes it late from idle (not counted as taken; README \"Scheduling\"), so its misses follow the host, not the loop",
+            "    the host took {ms:.0} ms from CPU {c}, the split layout's controller CPU: {share:.1e} of the run (counted in 10 ms steps: {:.1e}), against a miss ratio of {:.1e}; a controller alone on a CPU cannot answer while the host holds it or wakes it late from idle (not counted as taken; docs/guide/loop-modes.md), so its misses follow the host, not the loop",
             10e-3 / sp.loop_wall_s.max(1e-9),
             sp.miss_ratio
         );
