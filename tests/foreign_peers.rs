@@ -46,6 +46,35 @@ fn run(tmp: &Path, config: &str, mode: &str, extra: &[&str]) -> (Output, PathBuf
     (deltaloop(&args), out)
 }
 
+/// S1 in lockstep with `tests/peers/<role>.py <args>` in place of the built-in `role` (`plant` or
+/// `controller`).
+fn s1_with(tmp: &Path, role: &str, args: &str) -> (Output, PathBuf) {
+    let cmd = peer(&format!("{role}.py"), args);
+    let flag = format!("--{role}-cmd");
+    run(tmp, "configs/s1-nominal.toml", "lockstep", &[&flag, &cmd])
+}
+
+/// Writes a scenario file `cfg.toml` into `tmp`.
+fn config(tmp: &Path, toml: &str) -> PathBuf {
+    let p = tmp.join("cfg.toml");
+    std::fs::write(&p, toml).unwrap();
+    p
+}
+
+/// Starts `deltaloop run <config> --mode lockstep` in the background; its folder.
+fn spawn_run(tmp: &Path, toml: &str) -> (std::process::Child, PathBuf) {
+    let (cfg, out) = (config(tmp, toml), tmp.join("run"));
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["run", cfg.to_str().unwrap(), "--mode", "lockstep", "--out"])
+        .arg(&out)
+        .current_dir(root())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    (child, out)
+}
+
 fn read(p: &Path) -> String {
     std::fs::read_to_string(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
 }
@@ -76,13 +105,7 @@ fn fates(out: &Path) -> Vec<(String, String, String)> {
 #[test]
 fn regression_a_controller_cannot_forge_start_stop_or_diverged() {
     let tmp = tempfile::tempdir().unwrap();
-    let cmd = peer("controller.py", "forge");
-    let (o, out) = run(
-        tmp.path(),
-        "configs/s1-nominal.toml",
-        "lockstep",
-        &["--controller-cmd", &cmd],
-    );
+    let (o, out) = s1_with(tmp.path(), "controller", "forge");
     let log = read(&out.join("tdc.controller.log"));
     assert!(o.status.success(), "{}\n{log}", text(&o.stderr));
     for refused in [
@@ -144,13 +167,11 @@ fn regression_a_process_that_speaks_for_the_plant_is_refused_and_named() {
 #[test]
 fn regression_forged_reply_stamps_are_replaced_by_what_the_plant_observed() {
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = tmp.path().join("cfg.toml");
     // A Python controller cannot answer within 150 µs: a 1 ms period, a fair layout.
-    std::fs::write(
-        &cfg,
+    let cfg = config(
+        tmp.path(),
         "name = \"stamps\"\n[scenario]\npath = \"s1\"\n[loop]\nts_s = 1e-3\ntorque_budget_us = 900\n[faults]\ncontroller_silence_ticks = 1000\n[loop.realtime]\nplant_cpu = -1\ncontroller_cpu = -1\nsupervisor_cpu = -1\nplant_priority = 0\ncontroller_priority = 0\nwake_early_us = 0\nlock_memory = false\n",
-    )
-    .unwrap();
+    );
     let cmd = peer("controller.py", "stamp-zero");
     let (o, out) = run(
         tmp.path(),
@@ -188,13 +209,7 @@ fn regression_forged_reply_stamps_are_replaced_by_what_the_plant_observed() {
 #[test]
 fn regression_a_second_reply_for_a_tick_is_counted_not_recorded() {
     let tmp = tempfile::tempdir().unwrap();
-    let cmd = peer("controller.py", "twice");
-    let (o, out) = run(
-        tmp.path(),
-        "configs/s1-nominal.toml",
-        "lockstep",
-        &["--controller-cmd", &cmd],
-    );
+    let (o, out) = s1_with(tmp.path(), "controller", "twice");
     assert!(o.status.success(), "{}", text(&o.stderr));
     let s = summary(&out);
     let m = &s["laws"]["tdc"];
@@ -217,12 +232,10 @@ fn regression_a_second_reply_for_a_tick_is_counted_not_recorded() {
 #[test]
 fn regression_a_non_finite_torque_ends_the_run_as_diverged_at_once() {
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = tmp.path().join("cfg.toml");
-    std::fs::write(
-        &cfg,
+    let cfg = config(
+        tmp.path(),
         "name = \"nan\"\n[scenario]\npath = \"s1\"\nhold_s = 5.0\n[controller]\nlaws = [\"tdc\"]\n[faults]\ninject = \"nan-torque@500\"\n",
-    )
-    .unwrap();
+    );
     let (o, out) = run(tmp.path(), cfg.to_str().unwrap(), "lockstep", &[]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let s = summary(&out);
@@ -243,13 +256,7 @@ fn regression_a_non_finite_torque_ends_the_run_as_diverged_at_once() {
 #[test]
 fn regression_a_plant_that_stops_sending_telemetry_is_lost_data_not_ok() {
     let tmp = tempfile::tempdir().unwrap();
-    let cmd = peer("plant.py", "mute-after 100");
-    let (o, out) = run(
-        tmp.path(),
-        "configs/s1-nominal.toml",
-        "lockstep",
-        &["--plant-cmd", &cmd],
-    );
+    let (o, out) = s1_with(tmp.path(), "plant", "mute-after 100");
     let err = text(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
@@ -283,13 +290,7 @@ fn regression_a_plant_that_stops_sending_telemetry_is_lost_data_not_ok() {
 #[test]
 fn regression_a_plant_that_exits_early_with_status_0_is_named() {
     let tmp = tempfile::tempdir().unwrap();
-    let cmd = peer("plant.py", "quit-after 200");
-    let (o, out) = run(
-        tmp.path(),
-        "configs/s1-nominal.toml",
-        "lockstep",
-        &["--plant-cmd", &cmd],
-    );
+    let (o, out) = s1_with(tmp.path(), "plant", "quit-after 200");
     let err = text(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     let s = summary(&out);
@@ -311,13 +312,7 @@ fn regression_a_plant_that_exits_early_with_status_0_is_named() {
 #[test]
 fn regression_the_controller_answers_a_duplicated_state_once() {
     let tmp = tempfile::tempdir().unwrap();
-    let cmd = peer("plant.py", "echo-state");
-    let (o, out) = run(
-        tmp.path(),
-        "configs/s1-nominal.toml",
-        "lockstep",
-        &["--plant-cmd", &cmd],
-    );
+    let (o, out) = s1_with(tmp.path(), "plant", "echo-state");
     assert!(o.status.success(), "{}", text(&o.stderr));
     let s = summary(&out);
     let m = &s["laws"]["tdc"];
@@ -362,21 +357,10 @@ fn signal(pid: u32, sig: i32) {
 #[test]
 fn regression_the_controller_stops_on_sigterm_while_blocked_waiting() {
     let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("run");
-    let cfg = tmp.path().join("cfg.toml");
-    std::fs::write(
-        &cfg,
+    let (mut sup, out) = spawn_run(
+        tmp.path(),
         "name = \"term\"\n[scenario]\npath = \"s1\"\nhold_s = 30.0\n[controller]\nlaws = [\"tdc\"]\n[loop]\nsilence_timeout_ms = 20000\n",
-    )
-    .unwrap();
-    let mut sup = std::process::Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(["run", cfg.to_str().unwrap(), "--mode", "lockstep", "--out"])
-        .arg(&out)
-        .current_dir(root())
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    );
     let (plant, ctrl) = (
         child(&out, "deltaloop-plant"),
         child(&out, "deltaloop-controller"),
@@ -404,21 +388,10 @@ fn regression_the_controller_stops_on_sigterm_while_blocked_waiting() {
 #[test]
 fn regression_the_controller_exits_5_on_stop() {
     let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("run");
-    let cfg = tmp.path().join("cfg.toml");
-    std::fs::write(
-        &cfg,
+    let (sup, out) = spawn_run(
+        tmp.path(),
         "name = \"stop\"\n[scenario]\npath = \"s1\"\nhold_s = 30.0\n[controller]\nlaws = [\"tdc\"]\n",
-    )
-    .unwrap();
-    let sup = std::process::Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(["run", cfg.to_str().unwrap(), "--mode", "lockstep", "--out"])
-        .arg(&out)
-        .current_dir(root())
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    );
     child(&out, "deltaloop-controller");
     std::thread::sleep(Duration::from_millis(300));
     signal(sup.id(), libc::SIGTERM);
