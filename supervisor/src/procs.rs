@@ -1348,6 +1348,20 @@ mod tests {
         assert!(fifo_share_warnings(&split_with(-1), 3e-4, Some(0.95)).is_empty());
     }
 
+    /// A child's control service is believed from the child or a process it started (a wrapper
+    /// script's child), never from another branch of the tree.
+    #[test]
+    fn a_process_belongs_to_its_own_tree_and_its_ancestors_not_to_others() {
+        let me = std::process::id();
+        // SAFETY: getppid has no preconditions.
+        let parent = unsafe { libc::getppid() } as u32;
+        assert!(in_process_tree(me, me));
+        assert!(in_process_tree(me, parent));
+        assert!(!in_process_tree(parent, me));
+        assert!(!in_process_tree(1, me));
+        assert!(!in_process_tree(u32::MAX, me), "no such process");
+    }
+
     #[test]
     fn the_plant_is_checked_too() {
         let layout = Layout {

@@ -496,6 +496,24 @@ mod tests {
         assert!(ticks[1].0.held && !ticks[0].0.held);
     }
 
+    /// Regression: ticks whose telemetry never came were recorded with invented fates and the run
+    /// was "ok". Now they are marked, counted, and the run is lost data.
+    #[test]
+    fn regression_a_tick_without_telemetry_is_marked_and_the_run_lost_data() {
+        let r = reference();
+        let mut rec = Recorder::new(Law::Tdc, &r, 1.0, Ticks::new());
+        let tel = TelemetryMsg::default();
+        for k in 0..4 {
+            assert!(tick(&mut rec, &r, k, 0.0));
+            rec.applied((k < 2).then_some(&tel));
+        }
+        let (end, ticks) = rec.finish(Some(&state(&r, 4, 0.0, 0.0)));
+        assert_eq!(end.outcome, Outcome::LostData);
+        assert_eq!((end.no_telemetry, end.first_no_telemetry), (2, Some(2)));
+        let seen: Vec<bool> = ticks.iter().map(|(t, _)| t.telemetry).collect();
+        assert_eq!(seen, [true, true, false, false]);
+    }
+
     /// A long run streams: no more than OPEN_TICKS ticks are held, every tick reaches the sink in
     /// order with the TDE truth from its successor, and a lost tick leaves a hole without truth.
     #[test]
