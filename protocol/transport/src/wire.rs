@@ -204,7 +204,7 @@ pub struct ControlMsg {
     pub q0: [f64; 3],
     /// START: the monotonic time of tick 0's deadline, ns.
     pub t0_ns: u64,
-    /// FAULT: UTF-8 text, NUL-padded.
+    /// FAULT / DIVERGED / STOPPED: UTF-8 text, NUL-padded; read it with [`ControlMsg::text`].
     pub text: [u8; 160],
 }
 
