@@ -423,6 +423,10 @@ fn wait_state(
     }
     let until = rt::now_ns() + silence_ns;
     loop {
+        // Before the states: SIGTERM ends the loop even while states keep coming.
+        if term.load(Ordering::Relaxed) {
+            return Ok(Waited::Stopped("stopped by SIGTERM"));
+        }
         let now = rt::now_ns();
         let mut newest: Option<StateMsg> = None;
         let mut seen = 0u64;
@@ -432,9 +436,6 @@ fn wait_state(
         }
         if let Some(s) = newest {
             return Ok(Waited::State(s, seen - 1, rt::now_ns()));
-        }
-        if term.load(Ordering::Relaxed) {
-            return Ok(Waited::Stopped("stopped by SIGTERM"));
         }
         if now >= until {
             return Ok(Waited::Silent);
