@@ -63,12 +63,14 @@ fn python_wire_types_match_the_rust_layouts() {
         "TEL_MISSED": wire::TEL_MISSED,
         "TEL_REJECTED": wire::TEL_REJECTED,
         "TEL_SAFE_STOP": wire::TEL_SAFE_STOP,
+        "TEL_STAMP_REPLACED": wire::TEL_STAMP_REPLACED,
         "READY": ControlKind::Ready as u32,
         "START": ControlKind::Start as u32,
         "STOP": ControlKind::Stop as u32,
         "FAULT": ControlKind::Fault as u32,
         "ARMED": ControlKind::Armed as u32,
         "DIVERGED": ControlKind::Diverged as u32,
+        "STOPPED": ControlKind::Stopped as u32,
         "FROM_PLANT": Sender::Plant as u32,
         "FROM_CONTROLLER": Sender::Controller as u32,
         "FROM_SUPERVISOR": Sender::Supervisor as u32,
@@ -96,8 +98,8 @@ types = {
     }
     for name, t in wire.TYPES.items()
 }
-names = ["STATE_FINAL", "TEL_CLAMPED", "TEL_HELD", "TEL_MISSED", "TEL_REJECTED", "TEL_SAFE_STOP",
-         "READY", "START", "STOP", "FAULT", "ARMED", "DIVERGED", "FROM_PLANT", "FROM_CONTROLLER", "FROM_SUPERVISOR"]
+names = ["STATE_FINAL", "TEL_CLAMPED", "TEL_HELD", "TEL_MISSED", "TEL_REJECTED", "TEL_SAFE_STOP", "TEL_STAMP_REPLACED",
+         "READY", "START", "STOP", "FAULT", "ARMED", "DIVERGED", "STOPPED", "FROM_PLANT", "FROM_CONTROLLER", "FROM_SUPERVISOR"]
 consts = {n: getattr(wire, n) for n in names}
 consts.update({n: getattr(controller, n) for n in ["REF_CHUNK", "REF_RING", "LOOP_BUFFER", "OBSERVER_BUFFER", "HANDSHAKE_TIMEOUT_NS"]})
 print(json.dumps({"types": types, "constants": consts}))

@@ -323,6 +323,7 @@ fn constants_and_enum_values_are_documented_exactly() {
         ("TEL_MISSED", u64::from(wire::TEL_MISSED)),
         ("TEL_REJECTED", u64::from(wire::TEL_REJECTED)),
         ("TEL_SAFE_STOP", u64::from(wire::TEL_SAFE_STOP)),
+        ("TEL_STAMP_REPLACED", u64::from(wire::TEL_STAMP_REPLACED)),
         ("EXIT_USAGE", u64::from(exit::EXIT_USAGE)),
         ("EXIT_SETUP", u64::from(exit::EXIT_SETUP)),
         ("EXIT_FAULT", u64::from(exit::EXIT_FAULT)),
@@ -458,6 +459,8 @@ fn services_table_matches_the_iceoryx2_services() {
             "torque",
             "telemetry",
             "control",
+            "control-plant",
+            "control-controller",
             "reference",
             "state-ready",
             "torque-ready"
@@ -516,8 +519,12 @@ fn services_table_matches_the_iceoryx2_services() {
                     fixed,
                 );
             }
-            "control" => {
-                let s = ipc::control(&node, &run_id).expect("control");
+            name @ ("control" | "control-plant" | "control-controller") => {
+                let from = [Sender::Supervisor, Sender::Plant, Sender::Controller]
+                    .into_iter()
+                    .find(|s| ipc::control_service(*s) == name)
+                    .expect("a sender of this control service");
+                let s = ipc::control(&node, &run_id, from).expect("control");
                 check_pubsub(
                     row,
                     s.static_config(),

@@ -63,12 +63,10 @@ class Controller(Peer):
     def _open_ports_with(self, ports):
         state = ports.pubsub("state", StateMsg, 1, 2, OBSERVER_BUFFER)
         torque = ports.pubsub("torque", TorqueMsg, 1, 2, OBSERVER_BUFFER)
-        control = ports.pubsub("control", ControlMsg, 3, 3, 64)
         reference = ports.pubsub("reference", iox2.Slice[RefSample], 1, 1, REF_RING, borrowed=1)
         self.state = state.subscriber_builder().buffer_size(LOOP_BUFFER).create()
         self.torque = torque.publisher_builder().create()
-        self.control_pub = control.publisher_builder().create()
-        self.control_sub = control.subscriber_builder().create()
+        self.control_pub, self.control_sub = ports.control(wire.FROM_CONTROLLER)
         self.reference = reference.subscriber_builder().buffer_size(REF_RING).create()
         self.state_ready = ports.event("state-ready").listener_builder().create()
         self.torque_ready = ports.event("torque-ready").notifier_builder().create()
@@ -187,13 +185,18 @@ class Controller(Peer):
         rows = self.ticks + 2  # ticks 0..=N + 1
         gc.collect()
         gc.disable()  # no collector pauses inside the loop (the loop allocates no cycles)
+        answered = None
         while True:
             skipped, rx = self._wait_state(state)
             if state.flags & wire.STATE_FINAL:
+                self._drain_control()  # the plant releases us after a STOP too: exit 5 then
                 return
             if self._stop:
                 raise End(EXIT_STOPPED, f"stopped by {self._stop}")
             k = state.tick
+            if answered is not None and k <= answered:
+                continue  # not newer than a state already answered: one reply per tick
+            answered = k
             if k >= rows:
                 raise End(EXIT_FAULT, f"state tick {k} is beyond the reference ({rows} ticks)")
             ref = self._await_row(k)

@@ -191,12 +191,10 @@ class Plant(Peer):
         state = ports.pubsub("state", StateMsg, 1, 3, OBSERVER_BUFFER)
         torque = ports.pubsub("torque", TorqueMsg, 1, 3, OBSERVER_BUFFER)
         telemetry = ports.pubsub("telemetry", TelemetryMsg, 1, 2, OBSERVER_BUFFER)
-        control = ports.pubsub("control", ControlMsg, 3, 4, 64)
         self.state = state.publisher_builder().create()
         self.telemetry = telemetry.publisher_builder().create()
         self.torque = torque.subscriber_builder().buffer_size(LOOP_BUFFER).create()
-        self.control_pub = control.publisher_builder().create()
-        self.control_sub = control.subscriber_builder().create()
+        self.control_pub, self.control_sub = ports.control(wire.FROM_PLANT)
         self.state_ready = ports.event("state-ready").notifier_builder().create()
         self.torque_ready = ports.event("torque-ready").listener_builder().create()
 
@@ -253,9 +251,16 @@ class Plant(Peer):
         d = self.t0_ns + k * self.ts_ns
         return d, self._wake_abs(d)
 
-    def _wait_torque(self, k, until_ns):
-        """The reply to tick k published by `until_ns` (realtime) / arriving by it (lockstep) and
-        its receive time, or None. Late replies are dropped and counted, later ticks ignored."""
+    @staticmethod
+    def _trusted_stamp(claimed, pub_ns, rx_ns):
+        """The reply's publish stamp if it can be true (inside [state published, reply received]),
+        else our own receive time; and whether it was replaced (docs/protocol.md §8)."""
+        return (claimed, False) if pub_ns <= claimed <= rx_ns else (rx_ns, True)
+
+    def _wait_torque(self, k, until_ns, pub_ns):
+        """The reply to tick k published by `until_ns` (realtime) / arriving by it (lockstep), its
+        receive time, its trusted publish time and whether its stamp was replaced; or None. Late
+        replies are dropped and counted, later ticks ignored."""
         spin_end = now_ns() + int(self.layout.get("spin_us", 0) or 0) * 1000
         realtime = self.mode == "realtime"
         reply = self._reply
@@ -264,8 +269,10 @@ class Plant(Peer):
             while (smp := self.torque.receive()) is not None:
                 ctypes.memmove(ctypes.addressof(reply), smp.payload_ptr, size)
                 smp.delete()
-                if reply.tick == k and (not realtime or reply.t_publish_ns <= until_ns):
-                    return reply, now_ns()
+                rx = now_ns()
+                stamp, replaced = self._trusted_stamp(reply.t_publish_ns, pub_ns, rx)
+                if reply.tick == k and (not realtime or stamp <= until_ns):
+                    return reply, rx, stamp, replaced
                 if reply.tick <= k:
                     self.late += 1
             t = now_ns()
@@ -315,19 +322,21 @@ class Plant(Peer):
             self.tick = k
             deadline, wake = self._wake(k)
             if self._stop_requested():
-                self._end(k, q, qd, drives, step, hold, "stopped by the supervisor", requested=True, deadline=deadline)
+                self._end(k, q, qd, drives, step, hold, self._stop_why(), requested=True, deadline=deadline)
             pub = self._publish_state(k, wire.STATE_FINAL if k > n else 0, q, qd, drives.last, deadline, wake)
             if k > n:
                 return
             until = pub + self.budget_ns if self.mode == "realtime" else now_ns() + self.silence_ms * 1_000_000
-            got = self._wait_torque(k, until)
+            got = self._wait_torque(k, until, pub)
             if self._stop:
-                self._end(k, q, qd, drives, step, hold, "stopped by the supervisor", requested=True, deadline=deadline)
+                self._end(k, q, qd, drives, step, hold, self._stop_why(), requested=True, deadline=deadline)
             tel.tick, tel.flags, tel.arrival_ns, tel.t_torque_rx_ns = k, 0, 0, 0
             if got is not None:
-                reply, rx = got
+                reply, rx, stamp, replaced = got
                 consecutive = 0
-                latency = max(0, reply.t_publish_ns - deadline) if self.at_arrival else 0
+                if replaced:
+                    tel.flags |= wire.TEL_STAMP_REPLACED
+                latency = max(0, stamp - deadline) if self.at_arrival else 0
                 drives.submit(k, tuple(reply.tau), latency)
                 tel.arrival_ns, tel.t_torque_rx_ns = self.delay_ns + latency, rx
             elif self.mode != "realtime":
@@ -375,10 +384,13 @@ class Plant(Peer):
         self._publish_state(k, wire.STATE_FINAL, q, qd, drives.last)
         raise End(EXIT_FAULT, f"model failed at tick {k} (t = {k * self.ts:.4f} s): {why}; no safe stop possible")
 
+    def _stop_why(self):
+        return "stopped by the supervisor (STOP)" if self._stop == "STOP" else f"stopped by {self._stop}"
+
     def _end(self, k, q, qd, drives, step, hold, why, requested=False, deadline=0):
-        """FAULT, the final state (releases the controller), the safe stop; End(4), or End(5) on
-        request."""
-        self._send(wire.FAULT, k, why)
+        """FAULT (STOPPED on request), the final state (releases the controller), the safe stop;
+        End(4), or End(5) on request."""
+        self._send(wire.STOPPED if requested else wire.FAULT, k, why)
         self._publish_state(k, wire.STATE_FINAL, q, qd, drives.last)
         n_stop = round(self.safe_stop_ms * 1e-3 / self.ts)
         tel = TelemetryMsg()

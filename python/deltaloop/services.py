@@ -10,6 +10,8 @@ import re
 
 import iceoryx2 as iox2
 
+from . import wire
+
 # The iceoryx2 of deltaloop's Cargo.lock (docs/protocol.md §1).
 ICEORYX2_VERSION = "0.10.0"
 
@@ -124,6 +126,19 @@ class RunPorts:
             return b.open()
         except Exception as e:  # noqa: BLE001 - reported as one line
             raise SetupError(open_error(name, t, e, self.role)) from None
+
+    def control(self, me):
+        """Run control for sender `me` (wire.FROM_PLANT / FROM_CONTROLLER): a publisher on its own
+        control service (one publisher slot: it fails if another process holds it), a subscriber
+        on the supervisor's `control`, which only the supervisor can publish on."""
+        own = self.pubsub(wire.CONTROL_SERVICE[me], wire.ControlMsg, 1, 3, 64)
+        sup = self.pubsub(wire.CONTROL_SERVICE[wire.FROM_SUPERVISOR], wire.ControlMsg, 1, 3, 64)
+        name = self.name(wire.CONTROL_SERVICE[me])
+        try:
+            pub = own.publisher_builder().create()
+        except Exception as e:  # noqa: BLE001 - reported as one line
+            raise SetupError(f"cannot publish on {name} ({e!r}): another process holds its only publisher slot") from None
+        return pub, sup.subscriber_builder().create()
 
     def event(self, what):
         """Opens (or creates: whichever of plant and controller comes first) a wake-up event."""

@@ -18,6 +18,7 @@ TEL_HELD = 2
 TEL_MISSED = 4
 TEL_REJECTED = 8
 TEL_SAFE_STOP = 16
+TEL_STAMP_REPLACED = 32  # the reply's t_publish_ns could not be true: the plant used its receive time
 
 # ControlMsg.kind (kind 5 is unused)
 READY = 1
@@ -26,11 +27,15 @@ STOP = 3
 FAULT = 4
 ARMED = 6
 DIVERGED = 7
+STOPPED = 8
 
 # ControlMsg.from
 FROM_PLANT = 1
 FROM_CONTROLLER = 2
 FROM_SUPERVISOR = 3
+
+# The control service each sender publishes on (one publisher each; docs/protocol.md §3, §5).
+CONTROL_SERVICE = {FROM_SUPERVISOR: "control", FROM_PLANT: "control-plant", FROM_CONTROLLER: "control-controller"}
 
 
 class StateMsg(ctypes.Structure):
@@ -117,7 +122,8 @@ class ControlMsg(ctypes.Structure):
         return "deltaloop::ControlMsg/v1"
 
     def text_str(self) -> str:
-        """The text field (FAULT / DIVERGED), NUL padding removed."""
+        """The text field (FAULT / DIVERGED / STOPPED), NUL padding removed. Another process
+        wrote it: escape it before showing it on a terminal."""
         return bytes(self.text).split(b"\0", 1)[0].decode("utf-8", "replace")
 
 

@@ -23,6 +23,13 @@ pub struct LawMetrics {
     pub lost_ticks: u64,
     /// Why the run ended as "lost data", if it did.
     pub lost_data: Option<String>,
+    /// Ticks recorded without the plant's telemetry (their `reply` and `drives` are `unknown`).
+    pub telemetry_missing: u64,
+    /// Second (and later) replies for a tick that already had one: the first is recorded.
+    pub duplicate_replies: u64,
+    /// Ticks whose applied reply carried a publish stamp outside [state published, reply
+    /// received] on the plant's clock: the plant used its own receive time instead.
+    pub stamps_replaced: u64,
     /// Tick at which the run diverged, if it did.
     pub diverged_at_tick: Option<u64>,
     pub diverged_reason: Option<String>,
@@ -454,13 +461,7 @@ impl<'a> MetricsAcc<'a> {
         let delta_n_max = uses_tde.then_some(self.dn_max);
         let delta_n_p999 = uses_tde.then(|| self.dn_tail.map(TailPercentile::value));
         let k2_req = delta_n_max.map(|d| k2_required(d.into_iter().fold(0.0, f64::max), params.k1));
-        let lost_data = match (&end.outcome, end.first_lost) {
-            (Outcome::LostData, Some(first)) => Some(format!(
-                "the supervisor lost {} ticks of the stream, the first at tick {first}: it fell behind the loop and its queues overflowed; every tick it saw is recorded",
-                end.lost_ticks
-            )),
-            _ => None,
-        };
+        let lost_data = (end.outcome == Outcome::LostData).then(|| lost_data_text(end));
         let (completed, diverged_at_tick, diverged_reason) = match &end.outcome {
             Outcome::Diverged { tick, reason } => (false, Some(*tick), Some(reason.clone())),
             Outcome::Completed => (true, None, None),
@@ -476,6 +477,9 @@ impl<'a> MetricsAcc<'a> {
             ticks: self.records.saturating_sub(1),
             lost_ticks: end.lost_ticks,
             lost_data,
+            telemetry_missing: end.no_telemetry,
+            duplicate_replies: end.duplicate_replies,
+            stamps_replaced: end.stamps_replaced,
             completed,
             diverged_at_tick,
             diverged_reason,
@@ -502,6 +506,25 @@ impl<'a> MetricsAcc<'a> {
             eq43_holds: k2_req.map(|r| params.k2 > r),
         }
     }
+}
+
+/// What a run that lost data lost: ticks of the stream, the plant's telemetry, or both.
+fn lost_data_text(end: &RunEnd) -> String {
+    let mut parts = Vec::new();
+    if let Some(first) = end.first_lost {
+        parts.push(format!(
+            "the supervisor lost {} ticks of the stream, the first at tick {first}: it fell behind the loop and its queues overflowed",
+            end.lost_ticks
+        ));
+    }
+    if let Some(first) = end.first_no_telemetry {
+        parts.push(format!(
+            "{} ticks came without the plant's telemetry, the first at tick {first} (the plant did not send it, or the supervisor's queue lost it): their `reply` and `drives` are `unknown` and they are missing from the timing",
+            end.no_telemetry
+        ));
+    }
+    parts.push("every tick the supervisor saw is recorded".into());
+    parts.join("; ")
 }
 
 #[cfg(test)]

@@ -260,7 +260,8 @@ fn drives(r: &TickRecord) -> &'static str {
 /// true), qdot (rad/s, true), e (rad), tau (commanded τ_k, N m), tau_applied (τᵃ_k, N m), s
 /// (rad/s), n_hat (rad/s²), n_true (rad/s²); then `reply` (what became of the controller's reply
 /// to tick k: applied, late, skipped, missed) and `drives` (what the drives did over
-/// [t_k, t_{k+1}): commanded, clamped, held, rejected), and `arrival_ns` (A_k − t_k, when the
+/// [t_k, t_{k+1}): commanded, clamped, held, rejected; both `unknown` on a tick whose telemetry
+/// never reached the supervisor), and `arrival_ns` (A_k − t_k, when the
 /// command reached the drives: the transport delay plus, in realtime, its measured latency).
 /// tau, s and n_hat are empty on a tick the controller never answered; n_true is empty where the
 /// next state is unknown; arrival_ns where no command was applied.
@@ -326,8 +327,14 @@ impl TraceWriter {
                 None => (0..3).for_each(|_| put(format_args!(""))),
             }
         }
-        put(format_args!("{}", r.fate.name()));
-        put(format_args!("{}", drives(r)));
+        // Without the plant's telemetry nothing says what it did with the reply: say so.
+        let (fate, drives) = if r.telemetry {
+            (r.fate.name(), drives(r))
+        } else {
+            ("unknown", "unknown")
+        };
+        put(format_args!("{fate}"));
+        put(format_args!("{drives}"));
         match r.arrival_ns {
             Some(a) => put(format_args!("{a}")),
             None => put(format_args!("")),

@@ -4,6 +4,7 @@
 //! line, cut to a bounded length that says where it was cut. Logs are read from their end with a
 //! bounded read, so a child that printed 20 MB costs 64 KiB.
 
+use deltaloop_transport::wire::escape_peer_text;
 use std::fmt::Write as _;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
@@ -18,13 +19,6 @@ pub const TAIL_BYTES: u64 = 64 * 1024;
 /// How many lines of each child's log are echoed after a run.
 pub const MAX_LINES: usize = 20;
 
-/// Whether `c` must not reach a terminal as is: control characters (C0, DEL, C1: escape
-/// sequences, carriage returns, newlines) and the bidirectional overrides that reorder what a
-/// terminal shows.
-fn unsafe_char(c: char) -> bool {
-    c.is_control() || matches!(c, '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}')
-}
-
 /// `raw` as one printable line of at most `max_chars` characters plus a note saying where it was
 /// cut: decoded lossily (invalid UTF-8 becomes U+FFFD), every control character escaped (`\n`,
 /// `\t`, `\u{1b}`), leading and trailing blanks trimmed.
@@ -35,14 +29,8 @@ pub fn sanitize(raw: &[u8], max_chars: usize) -> String {
     let mut out = String::new();
     let (mut used, mut shown) = (0usize, 0usize);
     for c in text.chars() {
-        let piece: String = if unsafe_char(c) {
-            match c {
-                '\n' | '\r' | '\t' => c.escape_default().collect(),
-                _ => c.escape_unicode().collect(),
-            }
-        } else {
-            c.to_string()
-        };
+        // The escaping rule is the transport's, the one `ControlMsg::text` applies.
+        let piece = escape_peer_text(c.encode_utf8(&mut [0; 4]));
         let n = piece.chars().count();
         if used + n > max_chars {
             let _ = write!(out, " … [cut after {shown} of {total} characters]");
@@ -256,7 +244,8 @@ mod tests {
             max in 0usize..400,
         ) {
             let s = sanitize(&raw, max);
-            prop_assert!(!s.chars().any(unsafe_char), "{s:?}");
+            // Nothing left that the escaping rule would touch.
+            prop_assert_eq!(&escape_peer_text(&s), &s);
             let note = " … [cut after 2000 of 2000 characters]".chars().count();
             prop_assert!(s.chars().count() <= max + note, "{} > {max}", s.chars().count());
             prop_assert_eq!(String::from_utf8(s.clone().into_bytes()).unwrap(), s);

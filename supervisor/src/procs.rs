@@ -17,13 +17,16 @@ use crate::timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
 use anyhow::{Context, Result, anyhow, bail};
 use deltaloop_config::config::Layout;
 use deltaloop_config::{Law, LoopMode, RunConfig};
-use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, OBSERVER_BUFFER, Svc};
+use deltaloop_transport::ipc::{self, IpcContext, OBSERVER_BUFFER, Svc};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{
     self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
 };
+use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
+use iceoryx2::service::header::payload_header::PayloadHeader;
+use std::cell::Cell;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -227,13 +230,131 @@ fn spawn(launch: &Launch, args: &[String], log: &Path, who: Sender) -> Result<Re
     Ok(Reaped::new(child, who))
 }
 
-/// The supervisor's ports: observers of the three loop streams and the control channel (the
-/// reference publisher is a [`ReferenceFeed`] on the same node).
+/// Whether process `pid` is `root` or one of its descendants (a child started through a wrapper
+/// script publishes from a grandchild of the supervisor), from `/proc/<pid>/stat`.
+fn in_process_tree(pid: u32, root: u32) -> bool {
+    let mut p = pid;
+    // A process tree deeper than this is no wrapper of ours.
+    for _ in 0..32 {
+        if p == root {
+            return true;
+        }
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) else {
+            return false;
+        };
+        // `pid (comm) state ppid …`: comm may hold spaces and parentheses; ppid follows the last ')'.
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|v| v.parse::<u32>().ok());
+        match ppid {
+            Some(pp) if pp > 1 => p = pp,
+            _ => return false,
+        }
+    }
+    false
+}
+
+/// What one child says, on its own control service, believed only from that child: the first
+/// publisher seen there must belong to the child's process (or a descendant of it), and after it
+/// only that publisher is heard. The service has one publisher slot, so once the child holds it
+/// no other process can publish there; if another process took it first, the run is refused.
+struct ControlIn {
+    sub: Subscriber<Svc, ControlMsg, ()>,
+    who: Sender,
+    /// The child's pid, once it is spawned.
+    root: Cell<Option<u32>>,
+    /// The child's publisher, once its first message proved it.
+    publisher: Cell<Option<iceoryx2::identifiers::UniquePublisherId>>,
+    /// The first process not the child's that published here (pid; 0 if its pid is unknown).
+    intruder: Cell<Option<u32>>,
+}
+
+impl ControlIn {
+    fn open(node: &Node<Svc>, run_id: &str, who: Sender) -> Result<Self> {
+        Ok(Self {
+            sub: ipc::control(node, run_id, who)?
+                .subscriber_builder()
+                .create()
+                .ipc(format!("subscriber on {}", ipc::control_service(who)))?,
+            who,
+            root: Cell::new(None),
+            publisher: Cell::new(None),
+            intruder: Cell::new(None),
+        })
+    }
+
+    /// The kinds `who` may send.
+    fn allowed(&self, kind: ControlKind) -> bool {
+        use ControlKind::*;
+        match self.who {
+            Sender::Plant => matches!(kind, Ready | Fault | Diverged | Stopped),
+            Sender::Controller => matches!(kind, Ready | Armed),
+            Sender::Supervisor => false,
+        }
+    }
+
+    /// The next message the child itself sent, of a kind it may send; everything else is dropped
+    /// (and a foreign publisher remembered).
+    fn receive(&self) -> Result<Option<ControlMsg>> {
+        while let Some(sample) = self.sub.receive().ipc("receive control")? {
+            let origin = sample.origin();
+            let trusted = match (self.publisher.get(), self.root.get()) {
+                (Some(id), _) => id == origin,
+                (None, Some(root)) => {
+                    let pid = sample
+                        .header()
+                        .node_id()
+                        .pid::<Svc>()
+                        .map_or(0, |p| p.value() as u32);
+                    let ok = pid != 0 && in_process_tree(pid, root);
+                    if ok {
+                        self.publisher.set(Some(origin));
+                    } else if self.intruder.get().is_none() {
+                        self.intruder.set(Some(pid));
+                    }
+                    ok
+                }
+                (None, None) => false,
+            };
+            let m = *sample.payload();
+            if trusted && m.sender() == Some(self.who) && m.kind().is_some_and(|k| self.allowed(k))
+            {
+                return Ok(Some(m));
+            }
+        }
+        Ok(None)
+    }
+
+    /// One line about a process that published on this child's service, if one did.
+    fn intrusion(&self) -> Option<String> {
+        let pid = self.intruder.get()?;
+        let who = role(self.who);
+        let cmd = std::fs::read(format!("/proc/{pid}/cmdline"))
+            .map(|c| {
+                let c = String::from_utf8_lossy(&c).replace('\0', " ");
+                wire::escape_peer_text(c.trim())
+            })
+            .unwrap_or_default();
+        Some(format!(
+            "a process that is not the {who} (pid {pid}{}{cmd}{}) published on the {who}'s control service `{}`; its messages were ignored: only the {who} may speak there",
+            if cmd.is_empty() { "" } else { ", `" },
+            if cmd.is_empty() { "" } else { "`" },
+            ipc::control_service(self.who),
+        ))
+    }
+}
+
+/// The supervisor's ports: observers of the three loop streams, run control (the reference
+/// publisher is a [`ReferenceFeed`] on the same node).
 struct Observer {
     state: Subscriber<Svc, StateMsg, ()>,
     torque: Subscriber<Svc, TorqueMsg, ()>,
     telemetry: Subscriber<Svc, TelemetryMsg, ()>,
-    control: ControlPorts,
+    /// START and STOP: the only publisher of `control`, taken before the children start.
+    control: Publisher<Svc, ControlMsg, ()>,
+    from_plant: ControlIn,
+    from_controller: ControlIn,
     node: Node<Svc>,
 }
 
@@ -256,9 +377,47 @@ impl Observer {
                 .buffer_size(OBSERVER_BUFFER)
                 .create()
                 .ipc("telemetry observer")?,
-            control: ipc::control_ports(&node, run_id)?,
+            control: ipc::control(&node, run_id, Sender::Supervisor)?
+                .publisher_builder()
+                .create()
+                .ipc("control publisher")?,
+            from_plant: ControlIn::open(&node, run_id, Sender::Plant)?,
+            from_controller: ControlIn::open(&node, run_id, Sender::Controller)?,
             node,
         })
+    }
+
+    /// The children's pids: from now on their control services are believed only from them.
+    fn trust(&self, pair: &Pair) {
+        for (c, child) in [
+            (&self.from_plant, &pair.plant),
+            (&self.from_controller, &pair.controller),
+        ] {
+            c.root.set(child.child.as_ref().map(Child::id));
+        }
+    }
+
+    /// The next message of either child (the plant's first).
+    fn receive(&self) -> Result<Option<ControlMsg>> {
+        match self.from_plant.receive()? {
+            Some(m) => Ok(Some(m)),
+            None => self.from_controller.receive(),
+        }
+    }
+
+    /// Lines about processes that published on a child's control service.
+    fn intrusions(&self) -> Vec<String> {
+        [&self.from_plant, &self.from_controller]
+            .iter()
+            .filter_map(|c| c.intrusion())
+            .collect()
+    }
+
+    /// Sends STOP to both children.
+    fn stop(&self) {
+        let _ = self
+            .control
+            .send_copy(ControlMsg::new(ControlKind::Stop, Sender::Supervisor));
     }
 }
 
@@ -369,10 +528,13 @@ fn await_control(
 ) -> Result<bool> {
     let deadline = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
     loop {
-        while let Some(m) = obs.control.1.receive().ipc("receive control")? {
-            if done(m.payload()) {
+        while let Some(m) = obs.receive()? {
+            if done(&m) {
                 return Ok(true);
             }
+        }
+        if let Some(i) = obs.intrusions().into_iter().next() {
+            bail!("{i}");
         }
         if crate::signals::interrupted() {
             return Ok(false);
@@ -520,6 +682,13 @@ struct Observation<'a> {
     gap: Option<u64>,
     /// The recorder stopped (the divergence rule).
     stopped: bool,
+    /// The first tick whose reply carried a non-finite torque: the run diverged there (the
+    /// recorder will say so when it gets to it), so the loop is stopped now, not 2.5 s later.
+    non_finite: Option<u64>,
+    /// Replies for a tick that already had one (only the first is kept: the plant applies it).
+    duplicate_replies: u64,
+    /// The tick of the first state with `STATE_FINAL` (N + 1 after a complete run).
+    final_tick: Option<u64>,
     /// The state after the last tick, N + 1.
     after: Option<StateMsg>,
 }
@@ -542,6 +711,9 @@ impl<'a> Observation<'a> {
             diverged: None,
             gap: None,
             stopped: false,
+            non_finite: None,
+            duplicate_replies: 0,
+            final_tick: None,
             after: None,
         }
     }
@@ -551,6 +723,9 @@ impl<'a> Observation<'a> {
     fn drain(&mut self, obs: &Observer) -> Result<()> {
         while let Some(s) = obs.state.receive().ipc("observe state")? {
             let m = *s.payload();
+            if m.flags & wire::STATE_FINAL != 0 && self.final_tick.is_none() {
+                self.final_tick = Some(m.tick);
+            }
             if self.open(m.tick)? {
                 self.window.slot(m.tick).state = Some(m);
                 self.last_seen = max_opt(self.last_seen, m.tick);
@@ -559,8 +734,19 @@ impl<'a> Observation<'a> {
         while let Some(s) = obs.torque.receive().ipc("observe torque")? {
             let m = *s.payload();
             if self.open(m.tick)? {
-                self.window.slot(m.tick).torque = Some(m);
+                // The first reply is the one the plant applied (a second one for the same tick
+                // is dropped by it): keep that one (regression: the trace recorded the second,
+                // and replay disagreed with the run).
+                let slot = self.window.slot(m.tick);
+                if slot.torque.is_none() {
+                    slot.torque = Some(m);
+                } else {
+                    self.duplicate_replies += 1;
+                }
                 self.last_seen = max_opt(self.last_seen, m.tick);
+                if m.tau.iter().any(|x| !x.is_finite()) && m.tick < self.window.last {
+                    self.non_finite.get_or_insert(m.tick);
+                }
             }
             if self.last_torque.is_none_or(|t| t.tick < m.tick) {
                 self.last_torque = Some(m);
@@ -579,8 +765,8 @@ impl<'a> Observation<'a> {
                 self.last_tel = Some(m);
             }
         }
-        while let Some(m) = obs.control.1.receive().ipc("receive control")? {
-            let m = m.payload();
+        while let Some(m) = obs.from_plant.receive()? {
+            let m = &m;
             let fault = || Fault {
                 tick: m.tick,
                 cause: m.text(),
@@ -654,10 +840,12 @@ impl<'a> Observation<'a> {
             self.stopped = true;
             return Ok(());
         }
-        self.rec.applied(in_loop.as_ref());
-        if let Some(d) = &self.diverged
-            && d.tick == seen.k + 1
-        {
+        // The plant's model failed integrating this tick: it sent no telemetry, as in-process.
+        let failed = self.diverged.as_ref().filter(|d| d.tick == seen.k + 1);
+        if in_loop.is_some() || failed.is_none() {
+            self.rec.applied(in_loop.as_ref());
+        }
+        if let Some(d) = failed {
             self.rec.plant_failed(d.cause.clone());
             self.stopped = true;
         }
@@ -670,6 +858,7 @@ impl<'a> Observation<'a> {
         if let Some(f) = cause {
             self.rec.fault(f.clone());
         }
+        self.rec.duplicate_replies(self.duplicate_replies);
         // Past the newest loop tick seen, a stopped run's window is empty up to N + 1: those
         // ticks never ran, and only the first of them (where the loop stopped) and N + 1 go on
         // (regression: an interrupted soak counted thousands of them as lost samples and ticks).
@@ -772,11 +961,9 @@ fn observe(
         // rather than let it run on to the scenario's end (regression: a realtime soak whose
         // robot diverged after 2 minutes ran on for the rest of its hour, unrecorded).
         let interrupted = crate::signals::interrupted();
-        if (interrupted || streams.stopped) && stop_sent.is_none() {
-            let _ = obs
-                .control
-                .0
-                .send_copy(ControlMsg::new(ControlKind::Stop, Sender::Supervisor));
+        let diverged = streams.stopped || streams.non_finite.is_some();
+        if (interrupted || diverged) && stop_sent.is_none() {
+            obs.stop();
             stop_sent = Some(now);
             diverged_stop = !interrupted;
         }
@@ -834,6 +1021,7 @@ pub fn run_law(
     };
     let mut feed = ReferenceFeed::create(&obs.node, &rid, study.reference.row_count(), lead)?;
     let mut pair = Pair::spawn(&rid, law, mode, run_dir, cfg)?;
+    obs.trust(&pair);
     let ready = match handshake(&obs, &mut feed, &mut pair, study) {
         Ok(r) => r,
         Err(e) => {
@@ -888,10 +1076,15 @@ pub fn run_law(
     // Both children poll for START every ≤ 1 ms: tick 0 comes 10 ms after it.
     start.t0_ns = rt::now_ns() + 10_000_000;
     let steal_before = crate::timing::steal_jiffies();
-    obs.control.0.send_copy(start).ipc("send START")?;
+    obs.control.send_copy(start).ipc("send START")?;
 
     let ending = observe(&obs, &mut feed, &mut pair, study, &mut streams)?;
     let mut child_messages = pair.logs.messages();
+    child_messages.extend(
+        obs.intrusions()
+            .into_iter()
+            .map(|i| format!("deltaloop: {i}")),
+    );
     let cause = if ending.interrupted || ending.diverged_stop {
         None
     } else {
@@ -984,10 +1177,7 @@ fn stopped_before_start(
     run_id: String,
     keep: &Keep,
 ) -> Result<ProcessRun> {
-    let _ = obs
-        .control
-        .0
-        .send_copy(ControlMsg::new(ControlKind::Stop, Sender::Supervisor));
+    obs.stop();
     // A child that had not subscribed yet misses STOP: dropping the pair sends it SIGTERM.
     let end = rt::now_ns() + 200_000_000;
     while (pair.plant.exited().is_none() || pair.controller.exited().is_none())
@@ -1057,15 +1247,29 @@ fn fault_cause(ending: &Ending, pair: &Pair, streams: &Observation<'_>) -> Optio
     let (plant, ctrl) = (ending.plant, ending.controller);
     let (plant_log, ctrl_log) = (&pair.logs.plant, &pair.logs.controller);
     let ok = |s: Option<ExitStatus>| s.is_some_and(|s| s.success());
-    if ok(plant) && ok(ctrl) {
+    let (last_torque, last_tel) = (streams.last_torque, streams.last_tel);
+    // A plant that exits 0 has finished the run: the final state N + 1 says so. Without it (and
+    // without DIVERGED) it quit early (regression: reported as a divergence, or as a fault of the
+    // controller that never said the plant had exited).
+    let n = streams.window.last - 1;
+    let plant_quit = ok(plant) && streams.diverged.is_none() && streams.final_tick != Some(n + 1);
+    if ok(plant) && ok(ctrl) && !plant_quit {
         return None;
     }
-    let (last_torque, last_tel) = (streams.last_torque, streams.last_tel);
     let tick = streams
         .plant_fault
         .as_ref()
         .map_or(last_tel.map_or(0, |m| m.tick + 1), |f| f.tick);
     let mut parts = Vec::new();
+    if plant_quit {
+        parts.push(match last_tel {
+            Some(m) => format!(
+                "the plant exited (status 0) after tick {} of {n}, before the end of the run",
+                m.tick
+            ),
+            None => format!("the plant exited (status 0) before tick 0 of {n}"),
+        });
+    }
     // A child still running when the supervisor stopped it is not a cause (status None).
     if ctrl.is_some() && !ok(ctrl) {
         let what = ctrl.map_or("did not exit".into(), status_text);
@@ -1181,6 +1385,20 @@ mod tests {
         assert_eq!(killed_by(libc::SIGKILL), "was killed (SIGKILL)");
         assert_eq!(killed_by(libc::SIGSEGV), "was killed (SIGSEGV)");
         assert_eq!(killed_by(64), "was killed by signal 64");
+    }
+
+    /// A child's control service is believed from the child or a process it started (a wrapper
+    /// script's child), never from another branch of the tree.
+    #[test]
+    fn a_process_belongs_to_its_own_tree_and_its_ancestors_not_to_others() {
+        let me = std::process::id();
+        // SAFETY: getppid has no preconditions.
+        let parent = unsafe { libc::getppid() } as u32;
+        assert!(in_process_tree(me, me));
+        assert!(in_process_tree(me, parent));
+        assert!(!in_process_tree(parent, me));
+        assert!(!in_process_tree(1, me));
+        assert!(!in_process_tree(u32::MAX, me), "no such process");
     }
 
     #[test]

@@ -64,6 +64,9 @@ pub struct TickRecord {
     /// When the command reached the drives, A_k − t_k (ns: transport delay plus, in realtime, its
     /// measured latency); None if it was not applied or the telemetry was not seen.
     pub arrival_ns: Option<u64>,
+    /// False when the plant's telemetry of this tick was expected and not seen: what the plant
+    /// did with the reply and the drives is then unknown (`trace.csv` says `unknown`, not a guess).
+    pub telemetry: bool,
 }
 
 /// The measured part of a state message: tick k, q, q̇ and τᵃ_k as the controller saw them.
@@ -96,7 +99,8 @@ pub enum Outcome {
     Faulted,
     /// The loop ran to its end, but the supervisor lost ticks of the stream (it fell behind the
     /// loop; its queues overflowed): [`RunEnd::lost_ticks`] of them, the first at
-    /// [`RunEnd::first_lost`]. Every tick it saw is recorded.
+    /// [`RunEnd::first_lost`]; or ticks came without the plant's telemetry
+    /// ([`RunEnd::no_telemetry`]). Every tick it saw is recorded.
     LostData,
 }
 
@@ -110,6 +114,16 @@ pub struct RunEnd {
     pub lost_ticks: u64,
     /// The first lost tick, if any.
     pub first_lost: Option<u64>,
+    /// Ticks recorded without the plant's telemetry (the plant did not send it, or the
+    /// supervisor's queue lost it), and the first of them.
+    pub no_telemetry: u64,
+    pub first_no_telemetry: Option<u64>,
+    /// Replies for a tick that already had one: the first is recorded (the plant applies the
+    /// first), the others counted here.
+    pub duplicate_replies: u64,
+    /// Ticks whose applied reply carried a publish stamp the plant could not believe
+    /// (`TEL_STAMP_REPLACED`): the plant used its own receive time.
+    pub stamps_replaced: u64,
     pub outcome: Outcome,
     /// A loop fault. Kept even when the divergence rule ended the trace first (e.g. the robot
     /// drifting while the plant held the torque of a dead controller).
@@ -152,6 +166,10 @@ impl<'a, S: TickSink> Recorder<'a, S> {
                 records: 0,
                 lost_ticks: 0,
                 first_lost: None,
+                no_telemetry: 0,
+                first_no_telemetry: None,
+                duplicate_replies: 0,
+                stamps_replaced: 0,
                 outcome: Outcome::Completed,
                 fault: None,
             },
@@ -197,6 +215,7 @@ impl<'a, S: TickSink> Recorder<'a, S> {
             held: false,
             rejected: false,
             arrival_ns: None,
+            telemetry: true,
         };
         self.push(record, row);
         let e = row.joint.q - sample.q;
@@ -268,6 +287,11 @@ impl<'a, S: TickSink> Recorder<'a, S> {
         }
     }
 
+    /// `n` replies came for ticks that already had one (the first was kept).
+    pub fn duplicate_replies(&mut self, n: u64) {
+        self.end.duplicate_replies += n;
+    }
+
     /// Tick k never reached the supervisor (its queues overflowed while it was not draining): it
     /// is counted, and has no row.
     pub fn lost(&mut self, k: u64) {
@@ -275,10 +299,19 @@ impl<'a, S: TickSink> Recorder<'a, S> {
         self.end.first_lost.get_or_insert(k);
     }
 
-    /// Marks what the plant did over the last recorded tick, from its telemetry (None: not seen).
+    /// Marks what the plant did over the last recorded tick, from its telemetry (None: not seen,
+    /// counted: the tick's fates are unknown).
     pub fn applied(&mut self, tel: Option<&TelemetryMsg>) {
         let flags = tel.map_or(0, |m| m.flags);
         if let Some((r, _)) = self.open.back_mut() {
+            r.telemetry = tel.is_some();
+            if tel.is_none() {
+                self.end.no_telemetry += 1;
+                self.end.first_no_telemetry.get_or_insert(r.sample.k);
+            }
+            if flags & wire::TEL_STAMP_REPLACED != 0 {
+                self.end.stamps_replaced += 1;
+            }
             r.clamped = flags & wire::TEL_CLAMPED != 0;
             r.held = flags & wire::TEL_HELD != 0;
             r.rejected = flags & wire::TEL_REJECTED != 0;
@@ -329,7 +362,9 @@ impl<'a, S: TickSink> Recorder<'a, S> {
         while !self.open.is_empty() {
             self.close_oldest(after.as_ref());
         }
-        if self.end.outcome == Outcome::Completed && self.end.first_lost.is_some() {
+        if self.end.outcome == Outcome::Completed
+            && (self.end.first_lost.is_some() || self.end.no_telemetry > 0)
+        {
             self.end.outcome = Outcome::LostData;
         }
         (self.end, self.sink)
@@ -459,6 +494,24 @@ mod tests {
             "a late reply keeps its own τ"
         );
         assert!(ticks[1].0.held && !ticks[0].0.held);
+    }
+
+    /// Regression: ticks whose telemetry never came were recorded with invented fates and the run
+    /// was "ok". Now they are marked, counted, and the run is lost data.
+    #[test]
+    fn regression_a_tick_without_telemetry_is_marked_and_the_run_lost_data() {
+        let r = reference();
+        let mut rec = Recorder::new(Law::Tdc, &r, 1.0, Ticks::new());
+        let tel = TelemetryMsg::default();
+        for k in 0..4 {
+            assert!(tick(&mut rec, &r, k, 0.0));
+            rec.applied((k < 2).then_some(&tel));
+        }
+        let (end, ticks) = rec.finish(Some(&state(&r, 4, 0.0, 0.0)));
+        assert_eq!(end.outcome, Outcome::LostData);
+        assert_eq!((end.no_telemetry, end.first_no_telemetry), (2, Some(2)));
+        let seen: Vec<bool> = ticks.iter().map(|(t, _)| t.telemetry).collect();
+        assert_eq!(seen, [true, true, false, false]);
     }
 
     /// A long run streams: no more than OPEN_TICKS ticks are held, every tick reaches the sink in

@@ -124,6 +124,22 @@ impl TraceRows {
             "late" => Fate::Late,
             "skipped" => Fate::Skipped,
             "missed" => Fate::Missed,
+            // The supervisor recorded the tick without the plant's telemetry: what the plant did
+            // is not known, so the run cannot be re-run from it. Name the whole stretch.
+            "unknown" => {
+                let (first, mut last) = (k, k);
+                while let Some(Ok(row)) = self.rows.next() {
+                    let [_, k, reply, _] = self.cols.map(|c| row.get(c).unwrap_or(""));
+                    match k.parse::<u64>() {
+                        Ok(k) if reply == "unknown" && k == last + 1 => last = k,
+                        _ => break,
+                    }
+                }
+                bail!(
+                    "{}: the run lost ticks {first}..{last} (the plant's telemetry of those ticks never reached the supervisor, so their `reply` is unknown); only a run with every tick can be replayed",
+                    at()
+                )
+            }
             other => bail!(
                 "{}: column reply = {}: expected applied, late, skipped or missed",
                 at(),
@@ -184,8 +200,16 @@ fn replay_law(study: &Study, law: Law, rows: &mut TraceRows, keep: &Keep) -> Res
     while let Some(r) = rows.next_of(law)? {
         let k = plant.tick();
         if r.k != k {
+            let why = if r.k > k {
+                format!(
+                    "the run lost ticks {k}..{} (or the file was edited)",
+                    r.k - 1
+                )
+            } else {
+                "the file was edited (ticks out of order)".into()
+            };
             bail!(
-                "{} line {}: tick {} where tick {k} was due: the run lost ticks (or the file was edited); only a run with every tick can be replayed",
+                "{} line {}: tick {} where tick {k} was due: {why}; only a run with every tick can be replayed",
                 rows.path.display(),
                 rows.line,
                 r.k

@@ -41,7 +41,9 @@ fn status(m: &LawMetrics) -> String {
         (Some(k), _, _) => format!("diverged at tick {k}"),
         (_, Some(k), _) => format!("interrupted at tick {k}"),
         (_, _, Some(k)) => format!("FAULT at tick {k}"),
-        _ if m.lost_data.is_some() => format!("LOST DATA ({} ticks)", m.lost_ticks),
+        _ if m.lost_data.is_some() => {
+            format!("LOST DATA ({} ticks)", m.lost_ticks + m.telemetry_missing)
+        }
         _ => "ok".into(),
     }
 }
@@ -121,6 +123,7 @@ pub fn markdown(
     accuracy_section(&mut s, metrics);
     tde_section(&mut s, &p, metrics);
     rejected_notes(&mut s, metrics);
+    peer_notes(&mut s, metrics);
     stopped_section(&mut s, metrics);
     diverged_section(&mut s, cfg, metrics);
     mismatch_section(&mut s, cfg, &p, metrics, mismatch);
@@ -327,6 +330,26 @@ fn rejected_notes(s: &mut String, metrics: &[LawMetrics]) {
             "\n**`{}`: the plant rejected {} torque command(s)** (non-finite, or beyond ±τ_max with `faults.torque_limit = \"reject\"`) and held the last applied torque instead; they never reached the integrator.",
             m.law, m.rejected_count
         );
+    }
+}
+
+/// One paragraph per law whose peer broke the protocol in a way the run survived.
+fn peer_notes(s: &mut String, metrics: &[LawMetrics]) {
+    for m in metrics {
+        if m.stamps_replaced > 0 {
+            let _ = writeln!(
+                s,
+                "\n**`{}`: {} reply stamp(s) could not be true** (`t_publish_ns` before the state was published or after the plant received the reply): the plant judged and applied those replies by its own receive time (telemetry flag `TEL_STAMP_REPLACED`).",
+                m.law, m.stamps_replaced
+            );
+        }
+        if m.duplicate_replies > 0 {
+            let _ = writeln!(
+                s,
+                "\n**`{}`: the controller sent {} extra reply(ies) for ticks it had already answered**: the plant applies the first reply of a tick, and the trace records that one.",
+                m.law, m.duplicate_replies
+            );
+        }
     }
 }
 

@@ -88,7 +88,7 @@ impl Ports {
                 .create()
                 .ipc("torque notifier")?,
             reference: ipc::reference_subscriber(&node, run_id)?,
-            control: ipc::control_ports(&node, run_id)?,
+            control: ipc::control_ports(&node, run_id, Sender::Controller)?,
             _node: node,
         })
     }
@@ -249,26 +249,35 @@ fn answer_states(
     let mut side = ControllerSide::from_config(cfg, lp.law);
     let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
     let mut wait = lp.wait_for(0, rt::now_ns(), 0);
-    loop {
-        let waited = wait_state(
-            &ports.state,
-            &ports.state_ready,
-            silence_ns,
-            lp.spin_ns,
-            lp.poll,
-            &wait,
-        );
-        if term.load(Ordering::Relaxed) {
-            return Ok(ProcessEnd::Stopped("stopped by SIGTERM".into()));
-        }
-        let Some((state, skipped, rx)) = waited? else {
-            return Ok(ProcessEnd::Fault(format!(
-                "plant silent for {} ms",
-                cfg.loop_.silence_timeout_ms
-            )));
+    // The last tick answered, and the states not newer than it that were ignored.
+    let mut answered: Option<u64> = None;
+    let mut stale = 0u64;
+    let end = loop {
+        let waited = wait_state(ports, silence_ns, lp.spin_ns, lp.poll, &wait, term)?;
+        let (state, skipped, rx) = match waited {
+            Waited::State(s, skipped, rx) => (s, skipped, rx),
+            Waited::Silent => {
+                break ProcessEnd::Fault(format!(
+                    "plant silent for {} ms",
+                    cfg.loop_.silence_timeout_ms
+                ));
+            }
+            Waited::Stopped(why) => break ProcessEnd::Stopped(why.into()),
         };
         if state.flags & wire::STATE_FINAL != 0 {
-            return Ok(ProcessEnd::Completed);
+            // The plant releases the controller with a final state after a STOP too: that is
+            // a stop on request, not a completed run.
+            break if drain_control(&ports.control.1)?.stop {
+                ProcessEnd::Stopped("stopped by the supervisor (STOP)".into())
+            } else {
+                ProcessEnd::Completed
+            };
+        }
+        // A state not newer than one already answered (a duplicate, or a replay of an old
+        // one) gets no second answer: the plant applies one reply per tick.
+        if answered.is_some_and(|a| state.tick <= a) {
+            stale += 1;
+            continue;
         }
         // Injected faults (drills and tests): stall = stop answering, panic = die loudly.
         match inject {
@@ -279,14 +288,14 @@ fn answer_states(
             _ => {}
         }
         if state.tick >= lp.rows {
-            return Ok(ProcessEnd::Fault(format!(
+            break ProcessEnd::Fault(format!(
                 "state tick {} is beyond the reference ({} ticks)",
                 state.tick, lp.rows
-            )));
+            ));
         }
         let r = match await_row(ports, ring, state.tick, cfg.loop_.silence_timeout_ms, term)? {
             Ok(r) => r,
-            Err(end) => return Ok(end),
+            Err(end) => break end,
         };
         let mut msg = side.answer(&state, &crate::reference(&r));
         if matches!(inject, FaultInjection::NanTorque(k) if state.tick == k) {
@@ -302,6 +311,7 @@ fn answer_states(
         wait = lp.wait_for(state.tick + 1, msg.t_publish_ns, wait.poll_until_ns);
         msg.t_poll_until_ns = wait.poll_until_ns;
         ports.torque.send_copy(msg).ipc("publish torque")?;
+        answered = Some(state.tick);
         if ipc::published_needs_notify(state.t_poll_until_ns) {
             ports.torque_ready.notify().ipc("notify torque")?;
         }
@@ -312,7 +322,14 @@ fn answer_states(
         // File any chunk that arrived now, in the slack before the next state, so copying its
         // 320 KiB never delays a reply (before the next answer, as the rule needs).
         drain_reference(&ports.reference, ring)?;
+    };
+    if stale > 0 {
+        eprintln!(
+            "{NAME}: warning: ignored {stale} state(s) whose tick was not newer than the last one answered{}",
+            answered.map_or(String::new(), |a| format!(" (tick {a})"))
+        );
     }
+    Ok(end)
 }
 
 /// Tick `k`'s reference row: from the ring, where it normally already is. If it is not, the
@@ -338,7 +355,9 @@ fn await_row(
             return Ok(Err(ProcessEnd::Stopped("stopped by SIGTERM".into())));
         }
         if drain_control(&ports.control.1)?.stop {
-            return Ok(Err(ProcessEnd::Stopped("stopped by STOP".into())));
+            return Ok(Err(ProcessEnd::Stopped(
+                "stopped by the supervisor (STOP)".into(),
+            )));
         }
         if rt::now_ns() >= until {
             return Ok(Err(ProcessEnd::Fault(format!(
@@ -369,19 +388,34 @@ struct Wait {
     poll_until_ns: u64,
 }
 
+/// How a wait for the next state ended.
+enum Waited {
+    /// The newest state, how many older ones were skipped, and when it was taken (ns).
+    State(StateMsg, u64, u64),
+    /// No state within the silence timeout.
+    Silent,
+    /// STOP from the supervisor, or SIGTERM: why.
+    Stopped(&'static str),
+}
+
+/// Longest single block on the wake-up event, ns: STOP sends no wake-up, so the blocked wait
+/// looks at the control channel (and SIGTERM's flag) at least this often.
+const BLOCK_SLICE_NS: u64 = 50_000_000;
+
 /// Waits for the next state: sleeps until `wait.wake_ns` if set, polls (spinning or yielding,
 /// `poll`) until `wait.poll_until_ns` (or `spin_ns` past a late wake-up), then blocks on the
-/// wake-up event; returns the newest state, how many older ones it skipped, and when it was
-/// taken. The clock is read before each look, so the look that precedes blocking happens at or
-/// after `poll_until_ns` (docs/protocol.md §6.1).
+/// wake-up event in slices of [`BLOCK_SLICE_NS`], looking for STOP and SIGTERM between them. The
+/// clock is read before each look, so the look that precedes blocking happens at or after
+/// `poll_until_ns` (docs/protocol.md §6.1).
 fn wait_state(
-    sub: &Subscriber<Svc, StateMsg, ()>,
-    listener: &Listener<Svc>,
+    ports: &Ports,
     silence_ns: u64,
     spin_ns: u64,
     poll: Poll,
     wait: &Wait,
-) -> Result<Option<(StateMsg, u64, u64)>> {
+    term: &AtomicBool,
+) -> Result<Waited> {
+    let (sub, listener) = (&ports.state, &ports.state_ready);
     let mut poll_until_ns = wait.poll_until_ns;
     if let Some(t) = wait.wake_ns {
         rt::sleep_until_ns(t);
@@ -389,6 +423,10 @@ fn wait_state(
     }
     let until = rt::now_ns() + silence_ns;
     loop {
+        // Before the states: SIGTERM ends the loop even while states keep coming.
+        if term.load(Ordering::Relaxed) {
+            return Ok(Waited::Stopped("stopped by SIGTERM"));
+        }
         let now = rt::now_ns();
         let mut newest: Option<StateMsg> = None;
         let mut seen = 0u64;
@@ -397,19 +435,23 @@ fn wait_state(
             seen += 1;
         }
         if let Some(s) = newest {
-            return Ok(Some((s, seen - 1, rt::now_ns())));
+            return Ok(Waited::State(s, seen - 1, rt::now_ns()));
         }
         if now >= until {
-            return Ok(None);
+            return Ok(Waited::Silent);
         }
         if now < poll_until_ns {
             rt::poll_pause(poll);
             continue;
         }
+        if drain_control(&ports.control.1)?.stop {
+            return Ok(Waited::Stopped("stopped by the supervisor (STOP)"));
+        }
         // The only timeout here is the silence limit (seconds), so iceoryx2's own timed wait (a
         // blocking receive, woken directly by the notification) is precise enough and cheapest.
-        // A signal (SIGCONT after a SIGSTOP, say) only interrupts the wait: look again.
-        match listener.timed_wait(|_| {}, core::time::Duration::from_nanos(until - now)) {
+        // A signal (SIGTERM, or SIGCONT after a SIGSTOP) only interrupts the wait: look again.
+        let slice = (until - now).min(BLOCK_SLICE_NS);
+        match listener.timed_wait(|_| {}, core::time::Duration::from_nanos(slice)) {
             Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
             Err(e) => return Err(e).ipc("wait for state").map_err(Into::into),
         }
@@ -432,7 +474,7 @@ struct Control {
     stop: bool,
 }
 
-/// Drains the control channel.
+/// Drains the supervisor's control service (only the supervisor can publish there).
 fn drain_control(sub: &Subscriber<Svc, ControlMsg, ()>) -> Result<Control> {
     let mut c = Control {
         start: None,

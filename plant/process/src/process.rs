@@ -89,12 +89,11 @@ impl Ports {
                 .listener_builder()
                 .create()
                 .ipc("torque listener")?,
-            control: ipc::control_ports(&node, run_id)?,
+            control: ipc::control_ports(&node, run_id, Sender::Plant)?,
             _node: node,
         })
     }
 
-    /// Publishes a state and wakes the controller.
     /// Publishes a state and wakes the controller unless it declared it is polling
     /// (`ctrl_poll_until_ns`, from its last reply; 0: always wake it).
     fn publish_state(&self, msg: StateMsg, ctrl_poll_until_ns: u64) -> Result<()> {
@@ -224,10 +223,17 @@ fn run_loop(
     loop {
         let k = side.tick();
         let (deadline, wake) = clock.wake(k);
-        if stop_requested(&ports.control.1) || term.load(Ordering::Relaxed) {
+        let why = if stop_requested(&ports.control.1) {
+            Some("stopped by the supervisor (STOP)")
+        } else if term.load(Ordering::Relaxed) {
+            Some("stopped by SIGTERM")
+        } else {
+            None
+        };
+        if let Some(why) = why {
             return Ok(Some(LoopStop {
                 tick: k,
-                cause: "stopped by the supervisor".into(),
+                cause: why.into(),
                 requested: true,
                 can_brake: true,
                 last_deadline_ns: deadline,
@@ -253,18 +259,18 @@ fn run_loop(
             &ports.torque,
             &ports.torque_ready,
             k,
-            (msg.t_poll_until_ns, until),
+            (msg.t_publish_ns, msg.t_poll_until_ns, until),
             clock.poll,
             side,
         )?;
-        ctrl_poll_until = reply.map_or(0, |(t, _)| t.t_poll_until_ns);
+        ctrl_poll_until = reply.map_or(0, |r| r.msg.t_poll_until_ns);
         let arrival = match reply {
-            // The reply acts on the physics when it became visible: its publish time, mapped
-            // into simulated time as an offset from the tick's deadline.
-            Some((t, _)) if clock.at_arrival => {
-                Arrival::ReplyAfter(t, t.t_publish_ns.saturating_sub(deadline))
+            // The reply acts on the physics when it became visible: its (trusted) publish time,
+            // mapped into simulated time as an offset from the tick's deadline.
+            Some(r) if clock.at_arrival => {
+                Arrival::ReplyAfter(r.msg, r.stamp_ns.saturating_sub(deadline))
             }
-            Some((t, _)) => Arrival::Reply(t),
+            Some(r) => Arrival::Reply(r.msg),
             None if clock.mode != LoopMode::Realtime => {
                 return Ok(Some(LoopStop {
                     tick: k,
@@ -294,7 +300,10 @@ fn run_loop(
         tel.t_deadline_ns = deadline;
         tel.t_wake_ns = wake;
         tel.t_state_pub_ns = msg.t_publish_ns;
-        tel.t_torque_rx_ns = reply.map_or(0, |(_, rx)| rx);
+        tel.t_torque_rx_ns = reply.map_or(0, |r| r.rx_ns);
+        if reply.is_some_and(|r| r.stamp_replaced) {
+            tel.flags |= wire::TEL_STAMP_REPLACED;
+        }
         ports.telemetry.send_copy(tel).ipc("publish telemetry")?;
     }
 }
@@ -316,11 +325,7 @@ fn end_run(
         last_deadline_ns,
     } = stop;
     let t = tick as f64 * cfg.loop_.ts_s;
-    let kind = if can_brake {
-        ControlKind::Fault
-    } else {
-        ControlKind::Diverged
-    };
+    let kind = end_kind(requested, can_brake);
     let _ = ports
         .control
         .0
@@ -346,6 +351,17 @@ fn end_run(
             cfg.faults.safe_stop_ms
         )),
         Err(e) => end(format!("t = {t:.4} s: {cause}; the safe stop failed: {e}")),
+    }
+}
+
+/// What the plant tells the supervisor when the loop ends early: STOPPED for a stop on request
+/// (regression: it said FAULT, as if it had failed), FAULT when it stops the loop itself and can
+/// brake, DIVERGED when the model failed.
+fn end_kind(requested: bool, can_brake: bool) -> ControlKind {
+    match (requested, can_brake) {
+        (true, _) => ControlKind::Stopped,
+        (false, true) => ControlKind::Fault,
+        (false, false) => ControlKind::Diverged,
     }
 }
 
@@ -381,37 +397,73 @@ enum Reply {
     Ignore,
 }
 
-/// Judges a reply by the controller's own send time, not by when the plant looks: a plant that
-/// was itself preempted past the budget must not apply a reply that came late (it would count a
-/// late controller as on time, and the miss statistics would depend on the plant's CPU).
-fn reply_verdict(m: &TorqueMsg, tick: u64, until_ns: u64) -> Reply {
+/// Judges a reply by the controller's own send time (`stamp_ns`, from [`trusted_stamp`]), not by
+/// when the plant looks: a plant that was itself preempted past the budget must not apply a reply
+/// that came late (it would count a late controller as on time, and the miss statistics would
+/// depend on the plant's CPU).
+fn reply_verdict(m: &TorqueMsg, stamp_ns: u64, tick: u64, until_ns: u64) -> Reply {
     match m.tick.cmp(&tick) {
-        std::cmp::Ordering::Equal if m.t_publish_ns <= until_ns => Reply::Apply,
+        std::cmp::Ordering::Equal if stamp_ns <= until_ns => Reply::Apply,
         std::cmp::Ordering::Equal | std::cmp::Ordering::Less => Reply::Late,
         std::cmp::Ordering::Greater => Reply::Ignore,
     }
+}
+
+/// The controller's publish stamp `claimed` if it can be true, else the plant's own receive time
+/// `rx_ns` (all CLOCK_MONOTONIC, ns); true when it was replaced. A reply cannot have been sent
+/// before the state it answers was published (`state_pub_ns`) nor after the plant received it:
+/// a stamp outside that window is a peer's lie (regression: a controller that stamped its replies
+/// with the state's deadline, or 0, was charged no latency and never missed its budget), and the
+/// physics then rests on what the plant itself observed.
+fn trusted_stamp(claimed: u64, state_pub_ns: u64, rx_ns: u64) -> (u64, bool) {
+    if (state_pub_ns..=rx_ns).contains(&claimed) {
+        (claimed, false)
+    } else {
+        (rx_ns, true)
+    }
+}
+
+/// A reply the plant applies.
+#[derive(Clone, Copy, Debug)]
+struct Received {
+    msg: TorqueMsg,
+    /// When the plant took it, ns.
+    rx_ns: u64,
+    /// When it was published, as far as the plant can trust the controller's stamp, ns.
+    stamp_ns: u64,
+    /// The controller's stamp was impossible and replaced by `rx_ns`.
+    stamp_replaced: bool,
 }
 
 /// Waits for τ_k until `until_ns`: polls (spinning or yielding, `poll`) until `poll_until_ns`
 /// (what the state declared), then blocks on the wake-up event. The clock is read before each
 /// look, so the look that precedes blocking happens at or after `poll_until_ns`
 /// (docs/protocol.md §6.1). Replies judged late are
-/// dropped and counted on `side`; replies for later ticks are ignored. Returns the reply and its
-/// receive time.
+/// dropped and counted on `side`; replies for later ticks are ignored. `state_pub_ns` is when
+/// state `tick` was published.
 fn wait_torque(
     sub: &Subscriber<Svc, TorqueMsg, ()>,
     listener: &Listener<Svc>,
     tick: u64,
-    (poll_until_ns, until_ns): (u64, u64),
+    (state_pub_ns, poll_until_ns, until_ns): (u64, u64, u64),
     poll: Poll,
     side: &mut PlantSide,
-) -> Result<Option<(TorqueMsg, u64)>> {
+) -> Result<Option<Received>> {
     loop {
         let now = rt::now_ns();
         while let Some(sample) = sub.receive().ipc("receive torque")? {
             let m = *sample.payload();
-            match reply_verdict(&m, tick, until_ns) {
-                Reply::Apply => return Ok(Some((m, rt::now_ns()))),
+            let rx_ns = rt::now_ns();
+            let (stamp_ns, stamp_replaced) = trusted_stamp(m.t_publish_ns, state_pub_ns, rx_ns);
+            match reply_verdict(&m, stamp_ns, tick, until_ns) {
+                Reply::Apply => {
+                    return Ok(Some(Received {
+                        msg: m,
+                        rx_ns,
+                        stamp_ns,
+                        stamp_replaced,
+                    }));
+                }
                 Reply::Late => side.late_reply(),
                 Reply::Ignore => {}
             }
@@ -432,6 +484,8 @@ fn wait_torque(
     }
 }
 
+/// Whether STOP came on the supervisor's control service (the only one the plant reads; only the
+/// supervisor can publish there).
 fn stop_requested(sub: &Subscriber<Svc, ControlMsg, ()>) -> bool {
     while let Ok(Some(m)) = sub.receive() {
         if m.payload().kind() == Some(ControlKind::Stop) {
@@ -476,10 +530,33 @@ mod tests {
         }
     }
 
+    fn verdict(m: &TorqueMsg, tick: u64, until_ns: u64) -> Reply {
+        reply_verdict(m, m.t_publish_ns, tick, until_ns)
+    }
+
     #[test]
     fn a_reply_in_budget_for_this_tick_is_applied() {
-        assert_eq!(reply_verdict(&reply(7, 1_000), 7, 1_000), Reply::Apply);
-        assert_eq!(reply_verdict(&reply(7, 999), 7, 1_000), Reply::Apply);
+        assert_eq!(verdict(&reply(7, 1_000), 7, 1_000), Reply::Apply);
+        assert_eq!(verdict(&reply(7, 999), 7, 1_000), Reply::Apply);
+    }
+
+    /// Regression: the plant took the controller's publish stamp as the arrival time, so a slow
+    /// controller that stamped its replies with the state's deadline (or 0) was charged zero
+    /// latency and never missed its budget. A stamp outside [state published, reply received]
+    /// is replaced by the plant's own receive time, and the tick says so.
+    #[test]
+    fn regression_a_forged_publish_stamp_is_replaced_by_the_plants_receive_time() {
+        // State published at 1 000, reply received at 1 400.
+        assert_eq!(trusted_stamp(1_200, 1_000, 1_400), (1_200, false));
+        assert_eq!(trusted_stamp(1_000, 1_000, 1_400), (1_000, false));
+        assert_eq!(trusted_stamp(1_400, 1_000, 1_400), (1_400, false));
+        // The deadline (before the state was published), 0, or the future: not believed.
+        assert_eq!(trusted_stamp(900, 1_000, 1_400), (1_400, true));
+        assert_eq!(trusted_stamp(0, 1_000, 1_400), (1_400, true));
+        assert_eq!(trusted_stamp(5_000, 1_000, 1_400), (1_400, true));
+        // A reply received after the budget with a stamp of 0 is late, not applied.
+        let (stamp, _) = trusted_stamp(0, 1_000, 1_400);
+        assert_eq!(reply_verdict(&reply(7, 0), stamp, 7, 1_150), Reply::Late);
     }
 
     /// Regression: a plant preempted past its budget applied the late reply it found on waking,
@@ -487,12 +564,19 @@ mod tests {
     /// flaky compute-delay test without SCHED_FIFO).
     #[test]
     fn regression_reply_sent_after_the_budget_is_late_even_if_the_plant_sees_it_late_too() {
-        assert_eq!(reply_verdict(&reply(7, 1_001), 7, 1_000), Reply::Late);
+        assert_eq!(verdict(&reply(7, 1_001), 7, 1_000), Reply::Late);
+    }
+
+    #[test]
+    fn regression_a_stop_on_request_is_reported_as_stopped_not_as_a_fault() {
+        assert_eq!(end_kind(true, true), ControlKind::Stopped);
+        assert_eq!(end_kind(false, true), ControlKind::Fault);
+        assert_eq!(end_kind(false, false), ControlKind::Diverged);
     }
 
     #[test]
     fn replies_for_earlier_ticks_are_late_and_for_later_ticks_ignored() {
-        assert_eq!(reply_verdict(&reply(6, 10), 7, 1_000), Reply::Late);
-        assert_eq!(reply_verdict(&reply(8, 10), 7, 1_000), Reply::Ignore);
+        assert_eq!(verdict(&reply(6, 10), 7, 1_000), Reply::Late);
+        assert_eq!(verdict(&reply(8, 10), 7, 1_000), Reply::Ignore);
     }
 }

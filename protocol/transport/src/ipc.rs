@@ -2,7 +2,7 @@
 //! settings agree (iceoryx2 refuses to open a service with different settings). Service and node
 //! names carry the run id: two runs, or two tests in parallel, never meet.
 
-use crate::wire::{ControlMsg, RefSample, StateMsg, TelemetryMsg, TorqueMsg};
+use crate::wire::{ControlMsg, RefSample, Sender, StateMsg, TelemetryMsg, TorqueMsg};
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
@@ -146,25 +146,46 @@ pub fn telemetry(
     pubsub(node, run_id, "telemetry", 1, 1 + SPARE, OBSERVER_BUFFER)
 }
 
-/// Handshake, start, stop, faults: everyone publishes and subscribes.
+/// The control service `from` publishes on: `control` (the supervisor: START, STOP),
+/// `control-plant` (READY, FAULT, DIVERGED, STOPPED), `control-controller` (READY, ARMED).
+///
+/// One service per sender, each with a single publisher slot, so a message's service says who
+/// sent it and no peer can speak for another: the supervisor creates all three, and takes the
+/// slot of `control`, before it starts the children; it checks that the slot of each child's
+/// service is held by that child's own process (docs/protocol.md §5, §12).
+pub fn control_service(from: Sender) -> &'static str {
+    match from {
+        Sender::Supervisor => "control",
+        Sender::Plant => "control-plant",
+        Sender::Controller => "control-controller",
+    }
+}
+
+/// Run control sent by `from` (see [`control_service`]): one publisher, the other two roles and
+/// an observer subscribe.
 pub fn control(
     node: &Node<Svc>,
     run_id: &str,
+    from: Sender,
 ) -> Result<publish_subscribe::PortFactory<Svc, ControlMsg, ()>, IpcError> {
-    pubsub(node, run_id, "control", 3, 3 + SPARE, 64)
+    pubsub(node, run_id, control_service(from), 1, 2 + SPARE, 64)
 }
 
-/// A process's two ends of the control channel (publisher, subscriber).
+/// A loop process's two ends of run control: its publisher on its own service, its subscriber on
+/// the supervisor's.
 pub type ControlPorts = (
     iceoryx2::port::publisher::Publisher<Svc, ControlMsg, ()>,
     iceoryx2::port::subscriber::Subscriber<Svc, ControlMsg, ()>,
 );
 
-/// Opens the control channel and creates this process's publisher and subscriber on it.
-pub fn control_ports(node: &Node<Svc>, run_id: &str) -> Result<ControlPorts, IpcError> {
-    let svc = control(node, run_id)?;
-    let publisher = svc.publisher_builder().create().ipc("control publisher")?;
-    let subscriber = svc
+/// Opens run control for the loop process `me`: a publisher on its own service, a subscriber on
+/// the supervisor's. The publisher fails if another process already holds the slot.
+pub fn control_ports(node: &Node<Svc>, run_id: &str, me: Sender) -> Result<ControlPorts, IpcError> {
+    let publisher = control(node, run_id, me)?
+        .publisher_builder()
+        .create()
+        .ipc(format!("publisher on {}", control_service(me)))?;
+    let subscriber = control(node, run_id, Sender::Supervisor)?
         .subscriber_builder()
         .create()
         .ipc("control subscriber")?;

@@ -87,6 +87,9 @@ pub const TEL_MISSED: u32 = 4;
 pub const TEL_REJECTED: u32 = 8;
 /// A safe-stop tick after a fault: the drives brake, no controller.
 pub const TEL_SAFE_STOP: u32 = 16;
+/// The applied reply's `t_publish_ns` lay outside [state published, reply received] on the
+/// plant's clock (a stamp no honest controller can write): the plant used its own receive time.
+pub const TEL_STAMP_REPLACED: u32 = 32;
 
 /// Plant → supervisor after each tick: what happened to the command, and the timing.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
@@ -145,6 +148,9 @@ pub enum ControlKind {
     /// The plant's model failed at `tick` (left the workspace, non-finite state): the run
     /// diverged, as the study's divergence rule counts it; `text` says how.
     Diverged = 7,
+    /// The plant stopped the loop at `tick` on request (STOP from the supervisor, or SIGTERM) and
+    /// brakes; `text` says which.
+    Stopped = 8,
 }
 
 impl ControlKind {
@@ -157,6 +163,7 @@ impl ControlKind {
             Self::Fault,
             Self::Armed,
             Self::Diverged,
+            Self::Stopped,
         ]
         .into_iter()
         .find(|k| *k as u32 == v)
@@ -197,7 +204,7 @@ pub struct ControlMsg {
     pub q0: [f64; 3],
     /// START: the monotonic time of tick 0's deadline, ns.
     pub t0_ns: u64,
-    /// FAULT: UTF-8 text, NUL-padded.
+    /// FAULT / DIVERGED / STOPPED: UTF-8 text, NUL-padded; read it with [`ControlMsg::text`].
     pub text: [u8; 160],
 }
 
@@ -237,15 +244,33 @@ impl ControlMsg {
         m
     }
 
-    /// The text field as a string.
+    /// The text field as one line of data, safe to store and show: decoded lossily, control
+    /// characters escaped ([`escape_peer_text`]). The text comes from another process, which may
+    /// put escape codes or newlines in it.
     pub fn text(&self) -> String {
         let end = self
             .text
             .iter()
             .position(|&b| b == 0)
             .unwrap_or(self.text.len());
-        String::from_utf8_lossy(&self.text[..end]).into_owned()
+        escape_peer_text(&String::from_utf8_lossy(&self.text[..end]))
     }
+}
+
+/// Text from another process as one line of inert data: every control character (newline,
+/// escape, DEL, C1) and every invisible format character that reorders or hides text (bidi
+/// overrides, zero-width marks) written as its Rust escape (`\n`, `\u{1b}`); all else kept.
+pub fn escape_peer_text(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        let hidden = matches!(c, '\u{200b}'..='\u{200f}' | '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}' | '\u{feff}');
+        if c.is_control() || hidden {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    out
 }
 
 /// One tick of the joint reference, joint frame (supervisor → controller, up to
@@ -292,12 +317,29 @@ mod tests {
             ControlKind::Fault,
             ControlKind::Armed,
             ControlKind::Diverged,
+            ControlKind::Stopped,
         ] {
             assert_eq!(ControlKind::from_wire(k as u32), Some(k));
         }
         assert_eq!(ControlKind::from_wire(5), None);
         assert_eq!(Sender::from_wire(3), Some(Sender::Supervisor));
         assert_eq!(Sender::from_wire(0), None);
+    }
+    /// Regression: a controller's DIVERGED text with escape codes and a newline landed verbatim
+    /// in summary.json and report.md (and on the terminal).
+    #[test]
+    fn regression_peer_text_with_escape_codes_and_newlines_is_escaped() {
+        let m = ControlMsg::with_text(
+            ControlKind::Diverged,
+            Sender::Plant,
+            3,
+            "bad\x1b[2J\nnext line\u{202e}é\t",
+        );
+        assert_eq!(m.text(), "bad\\u{1b}[2J\\nnext line\\u{202e}é\\t");
+        assert_eq!(m.text().lines().count(), 1);
+        let mut raw = ControlMsg::new(ControlKind::Fault, Sender::Plant);
+        raw.text[..3].copy_from_slice(&[b'a', 0xff, b'b']);
+        assert_eq!(raw.text(), "a\u{fffd}b");
     }
     /// The reference row's layout is part of the wire format (its type name says v2): pin it.
     #[test]

@@ -16,7 +16,7 @@ use crate::study::Study;
 use anyhow::{Context, Result, anyhow, bail};
 use deltaloop_config::{LoopMode, RunConfig};
 use deltaloop_transport::ipc::{self, IpcContext, OBSERVER_BUFFER, Svc};
-use deltaloop_transport::wire::{self, ControlKind, ControlMsg, StateMsg, TelemetryMsg};
+use deltaloop_transport::wire::{self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg};
 use find::RunInfo;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
@@ -77,7 +77,7 @@ impl Watch {
         Ok(Self {
             telemetry: sub!(TelemetryMsg, "telemetry", OBSERVER_BUFFER),
             state: sub!(StateMsg, "state", OBSERVER_BUFFER),
-            control: sub!(ControlMsg, "control", 64),
+            control: sub!(ControlMsg, ipc::control_service(Sender::Plant), 64),
             _node: node,
         })
     }
@@ -150,7 +150,7 @@ impl Watched {
             let why = match m.kind() {
                 Some(ControlKind::Fault) => format!("fault at tick {}: {}", m.tick, text()),
                 Some(ControlKind::Diverged) => format!("diverged at tick {}: {}", m.tick, text()),
-                Some(ControlKind::Stop) => "the supervisor sent STOP (Ctrl-C on the run)".into(),
+                Some(ControlKind::Stopped) => format!("stopped at tick {}: {}", m.tick, text()),
                 _ => continue,
             };
             match &mut self.status {

@@ -1,0 +1,413 @@
+//! Peers that cheat or forge (docs/protocol.md §12): small misbehaving plants and controllers
+//! (`tests/peers/`, on the `deltaloop` Python helper) and the built-in processes under fault
+//! injection. Each test names the defect it guards against; the run's record must stay true, or
+//! say that it is not.
+//!
+//! The Python peers need the test venv (`tests/common/python.rs`: Python ≥ 3.11, PyPI the first
+//! time).
+
+mod common;
+
+use common::python::{python, root, text};
+use common::{deltaloop, summary};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::Output;
+use std::time::{Duration, Instant};
+
+/// `<venv python> tests/peers/<script> <args>` as one `--plant-cmd` / `--controller-cmd`.
+fn peer(script: &str, args: &str) -> String {
+    let cmd = format!(
+        "{} {} {args}",
+        python().display(),
+        root().join("tests/peers").join(script).display()
+    );
+    assert!(
+        !cmd.contains("  "),
+        "--*-cmd splits at whitespace: move the checkout ({cmd})"
+    );
+    cmd
+}
+
+/// `deltaloop run <config> --mode <mode> --law tdc --out <tmp>/run <extra…>`: its output and folder.
+fn run(tmp: &Path, config: &str, mode: &str, extra: &[&str]) -> (Output, PathBuf) {
+    let out = tmp.join("run");
+    let mut args = vec![
+        "run",
+        config,
+        "--mode",
+        mode,
+        "--law",
+        "tdc",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    (deltaloop(&args), out)
+}
+
+/// S1 in lockstep with `tests/peers/<role>.py <args>` in place of the built-in `role` (`plant` or
+/// `controller`).
+fn s1_with(tmp: &Path, role: &str, args: &str) -> (Output, PathBuf) {
+    let cmd = peer(&format!("{role}.py"), args);
+    let flag = format!("--{role}-cmd");
+    run(tmp, "configs/s1-nominal.toml", "lockstep", &[&flag, &cmd])
+}
+
+/// Writes a scenario file `cfg.toml` into `tmp`.
+fn config(tmp: &Path, toml: &str) -> PathBuf {
+    let p = tmp.join("cfg.toml");
+    std::fs::write(&p, toml).unwrap();
+    p
+}
+
+/// Starts `deltaloop run <config> --mode lockstep` in the background; its folder.
+fn spawn_run(tmp: &Path, toml: &str) -> (std::process::Child, PathBuf) {
+    let (cfg, out) = (config(tmp, toml), tmp.join("run"));
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["run", cfg.to_str().unwrap(), "--mode", "lockstep", "--out"])
+        .arg(&out)
+        .current_dir(root())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    (child, out)
+}
+
+fn read(p: &Path) -> String {
+    std::fs::read_to_string(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+}
+
+/// The trace's rows as (reply, drives, arrival_ns).
+fn fates(out: &Path) -> Vec<(String, String, String)> {
+    let mut r = csv::Reader::from_path(out.join("trace.csv")).unwrap();
+    let h = r.headers().unwrap().clone();
+    let col = |n: &str| h.iter().position(|c| c == n).unwrap();
+    let (reply, drives, arrival) = (col("reply"), col("drives"), col("arrival_ns"));
+    r.records()
+        .map(|row| {
+            let row = row.unwrap();
+            (
+                row[reply].to_string(),
+                row[drives].to_string(),
+                row[arrival].to_string(),
+            )
+        })
+        .collect()
+}
+
+/// Regression: control messages were believed by their `from` field: a controller could forge
+/// START (the run "diverged at tick 0", exit 0), STOP (reported as "stopped by the supervisor")
+/// or DIVERGED (its text, with escape codes and a newline, landed verbatim in summary.json and
+/// report.md). Now it cannot publish on the supervisor's or the plant's control service, and what
+/// it says on its own is believed only if a controller may say it.
+#[test]
+fn regression_a_controller_cannot_forge_start_stop_or_diverged() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (o, out) = s1_with(tmp.path(), "controller", "forge");
+    let log = read(&out.join("tdc.controller.log"));
+    assert!(o.status.success(), "{}\n{log}", text(&o.stderr));
+    for refused in [
+        "publish on control: refused",
+        "publish on control-plant: refused",
+        "sent START, STOP, DIVERGED and FAULT",
+    ] {
+        assert!(log.contains(refused), "{refused}:\n{log}");
+    }
+    let s = summary(&out);
+    let m = &s["laws"]["tdc"];
+    assert_eq!(m["completed"], true, "{m}");
+    assert!(
+        m["diverged_at_tick"].is_null() && m["fault"].is_null() && s["interrupted"] == false,
+        "{m}"
+    );
+    for f in ["summary.json", "report.md"] {
+        let t = read(&out.join(f));
+        assert!(!t.contains('\u{1b}') && !t.contains("FORGED"), "{f}: {t}");
+    }
+    common::assert_clean(&out, &s);
+}
+
+/// Regression: whoever published on `control` with `from` = plant was the plant. A controller that
+/// takes the plant's control service before the plant does (here the plant never joins) now makes
+/// the run fail at set-up, naming the process; its READY and DIVERGED are not believed.
+#[test]
+fn regression_a_process_that_speaks_for_the_plant_is_refused_and_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (plant, ctrl) = (
+        peer("plant.py", "idle"),
+        peer("controller.py", "speak-for-plant"),
+    );
+    let t0 = Instant::now();
+    let (o, _) = run(
+        tmp.path(),
+        "configs/s1-nominal.toml",
+        "lockstep",
+        &["--plant-cmd", &plant, "--controller-cmd", &ctrl],
+    );
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("a process that is not the plant (pid ")
+            && err.contains("controller.py speak-for-plant")
+            && err.contains("control-plant"),
+        "{err}"
+    );
+    assert!(
+        t0.elapsed() < Duration::from_secs(20),
+        "refused at once, not after the handshake timeout"
+    );
+}
+
+/// Regression: the plant took the controller's publish stamp as the arrival time, so a controller
+/// stamping its replies with 0 was charged no latency (`arrival_ns` = 0 on every tick) and could
+/// not miss its budget. Now every such stamp is replaced by the plant's receive time, flagged,
+/// counted in summary.json and named in report.md.
+#[test]
+fn regression_forged_reply_stamps_are_replaced_by_what_the_plant_observed() {
+    let tmp = tempfile::tempdir().unwrap();
+    // A Python controller cannot answer within 150 µs: a 1 ms period, a fair layout.
+    let cfg = config(
+        tmp.path(),
+        "name = \"stamps\"\n[scenario]\npath = \"s1\"\n[loop]\nts_s = 1e-3\ntorque_budget_us = 900\n[faults]\ncontroller_silence_ticks = 1000\n[loop.realtime]\nplant_cpu = -1\ncontroller_cpu = -1\nsupervisor_cpu = -1\nplant_priority = 0\ncontroller_priority = 0\nwake_early_us = 0\nlock_memory = false\n",
+    );
+    let cmd = peer("controller.py", "stamp-zero");
+    let (o, out) = run(
+        tmp.path(),
+        cfg.to_str().unwrap(),
+        "realtime",
+        &["--controller-cmd", &cmd],
+    );
+    let s = summary(&out);
+    let m = &s["laws"]["tdc"];
+    let rows = fates(&out);
+    let applied: Vec<_> = rows.iter().filter(|r| r.0 == "applied").collect();
+    assert!(applied.len() > 100, "{}\n{m}", text(&o.stderr));
+    assert!(
+        applied.iter().all(|r| r.2.parse::<u64>().unwrap() > 0),
+        "an applied reply stamped 0 was charged no latency"
+    );
+    assert_eq!(
+        m["stamps_replaced"].as_u64(),
+        Some(applied.len() as u64),
+        "every applied reply carried a stamp of 0: {m}"
+    );
+    let report = read(&out.join("report.md"));
+    assert!(
+        report.contains(&format!(
+            "{} reply stamp(s) could not be true",
+            applied.len()
+        )),
+        "{report}"
+    );
+}
+
+/// Regression: a second reply for the same tick was what trace.csv recorded, while the plant had
+/// applied the first, and replay then disagreed with the run. Now the first is kept, the others
+/// are counted, and the run replays byte for byte.
+#[test]
+fn regression_a_second_reply_for_a_tick_is_counted_not_recorded() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (o, out) = s1_with(tmp.path(), "controller", "twice");
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let s = summary(&out);
+    let m = &s["laws"]["tdc"];
+    let ticks = m["ticks"].as_u64().unwrap();
+    assert_eq!(m["duplicate_replies"].as_u64(), Some(ticks + 1), "{m}");
+    assert!(read(&out.join("report.md")).contains("extra reply(ies)"));
+    let r = deltaloop(&["replay", out.to_str().unwrap()]);
+    assert!(
+        r.status.success() && text(&r.stdout).contains("reproduced byte for byte"),
+        "{}{}",
+        text(&r.stdout),
+        text(&r.stderr)
+    );
+}
+
+/// Regression: a non-finite torque was recorded as "diverged at tick k", but the loop went on:
+/// the drives held for ~2000 more ticks until the robot hit a singularity, and the run ended as
+/// a fault (exit 1, "no safe stop possible"). Now the supervisor stops the loop at once, as for
+/// any divergence: status diverged at that tick, exit 0.
+#[test]
+fn regression_a_non_finite_torque_ends_the_run_as_diverged_at_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = config(
+        tmp.path(),
+        "name = \"nan\"\n[scenario]\npath = \"s1\"\nhold_s = 5.0\n[controller]\nlaws = [\"tdc\"]\n[faults]\ninject = \"nan-torque@500\"\n",
+    );
+    let (o, out) = run(tmp.path(), cfg.to_str().unwrap(), "lockstep", &[]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let s = summary(&out);
+    let m = &s["laws"]["tdc"];
+    assert_eq!(m["diverged_at_tick"], 500, "{m}");
+    assert_eq!(m["diverged_reason"], "non-finite torque command", "{m}");
+    assert!(m["fault"].is_null() && s["interrupted"] == false, "{m}");
+    let ran = s["timing"]["tdc"]["ticks"].as_u64().unwrap();
+    assert!(ran < 1500, "the loop ran on to tick {ran}");
+    assert!(read(&out.join("tdc.plant.log")).contains("stopped by the supervisor (STOP)"));
+    common::assert_clean(&out, &s);
+}
+
+/// Regression: a plant that stopped sending telemetry after tick 100 left the run "ok" with the
+/// timing of 100 of 2668 ticks, its rows written with invented fates (`applied`, `commanded`), and
+/// replay then blamed `arrival_ns`. Now the rows say `unknown`, the run is lost data naming the
+/// telemetry, and replay refuses it naming the ticks the run lost.
+#[test]
+fn regression_a_plant_that_stops_sending_telemetry_is_lost_data_not_ok() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (o, out) = s1_with(tmp.path(), "plant", "mute-after 100");
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("lost data") && err.contains("without the plant's telemetry"),
+        "{err}"
+    );
+    let s = summary(&out);
+    let m = &s["laws"]["tdc"];
+    let n = s["ticks"].as_u64().unwrap();
+    assert_eq!(m["telemetry_missing"].as_u64(), Some(n - 100), "{m}");
+    let rows = fates(&out);
+    assert!(rows[..=100].iter().all(|r| r.0 == "applied"));
+    assert!(
+        rows[101..]
+            .iter()
+            .all(|r| r.0 == "unknown" && r.1 == "unknown" && r.2.is_empty()),
+        "rows without telemetry must not invent fates"
+    );
+    let r = deltaloop(&["replay", out.to_str().unwrap()]);
+    let rerr = text(&r.stderr);
+    assert!(!r.status.success(), "{rerr}");
+    assert!(
+        rerr.contains(&format!("the run lost ticks 101..{n}")),
+        "{rerr}"
+    );
+}
+
+/// Regression: a plant that ended early was reported as "diverged", or as a fault of the
+/// controller that never said the plant had exited. Now the run is a fault that says the plant
+/// exited with status 0 and after which tick.
+#[test]
+fn regression_a_plant_that_exits_early_with_status_0_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (o, out) = s1_with(tmp.path(), "plant", "quit-after 200");
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    let s = summary(&out);
+    let m = &s["laws"]["tdc"];
+    let said = format!(
+        "the plant exited (status 0) after tick 199 of {}",
+        s["ticks"]
+    );
+    assert!(err.contains(&said), "{err}");
+    assert!(
+        m["fault"].as_str().is_some_and(|f| f.contains(&said)) && m["diverged_at_tick"].is_null(),
+        "{m}"
+    );
+}
+
+/// Regression: the built-in controller answered a duplicated state twice (it had no check that
+/// a state is newer than the last it answered). A plant that publishes every state again after
+/// its reply now gets one reply per tick, and the controller says how many it ignored.
+#[test]
+fn regression_the_controller_answers_a_duplicated_state_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (o, out) = s1_with(tmp.path(), "plant", "echo-state");
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let s = summary(&out);
+    let m = &s["laws"]["tdc"];
+    assert_eq!(m["completed"], true, "{m}");
+    assert_eq!(m["duplicate_replies"], 0, "{m}");
+    let log = read(&out.join("tdc.controller.log"));
+    assert!(
+        log.contains("warning: ignored") && log.contains("not newer than the last one answered"),
+        "{log}"
+    );
+}
+
+/// The built-in children of the run in `out` whose command line names `who`.
+fn child(out: &Path, who: &str) -> u32 {
+    let t0 = Instant::now();
+    loop {
+        let pids: Vec<u32> = common::children_mentioning(out.to_str().unwrap())
+            .into_iter()
+            .filter(|p| {
+                std::fs::read(format!("/proc/{p}/cmdline"))
+                    .is_ok_and(|c| String::from_utf8_lossy(&c).contains(who))
+            })
+            .collect();
+        if let [p] = pids[..]
+            && out.join("tdc.timing.csv").exists()
+        {
+            return p;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(20), "no {who} running");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn signal(pid: u32, sig: i32) {
+    // SAFETY: signalling a child of this test's run, found by its command line.
+    unsafe { libc::kill(pid as i32, sig) };
+}
+
+/// Regression: the controller ignored SIGTERM while blocked waiting for a state (a signal only
+/// interrupted the wait, which began again) and ended only at the silence timeout. Now it exits
+/// 5 at once, "stopped by SIGTERM". (The plant is frozen with SIGSTOP, so the controller blocks.)
+#[test]
+fn regression_the_controller_stops_on_sigterm_while_blocked_waiting() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (mut sup, out) = spawn_run(
+        tmp.path(),
+        "name = \"term\"\n[scenario]\npath = \"s1\"\nhold_s = 30.0\n[controller]\nlaws = [\"tdc\"]\n[loop]\nsilence_timeout_ms = 20000\n",
+    );
+    let (plant, ctrl) = (
+        child(&out, "deltaloop-plant"),
+        child(&out, "deltaloop-controller"),
+    );
+    signal(plant, libc::SIGSTOP);
+    std::thread::sleep(Duration::from_millis(300));
+    signal(ctrl, libc::SIGTERM);
+    let t0 = Instant::now();
+    while Path::new(&format!("/proc/{ctrl}")).exists() && t0.elapsed() < Duration::from_secs(10) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let took = t0.elapsed();
+    signal(plant, libc::SIGKILL);
+    let _ = sup.wait();
+    assert!(
+        took < Duration::from_secs(2),
+        "the controller took {took:?} to stop on SIGTERM"
+    );
+    let log = read(&out.join("tdc.controller.log"));
+    assert!(log.contains("stopped by SIGTERM"), "{log}");
+}
+
+/// Regression: the controller did not watch for STOP during the loop and exited 0 as if the run
+/// had completed. Now a Ctrl-C of the run (STOP) ends it with 5, "stopped by the supervisor".
+#[test]
+fn regression_the_controller_exits_5_on_stop() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (sup, out) = spawn_run(
+        tmp.path(),
+        "name = \"stop\"\n[scenario]\npath = \"s1\"\nhold_s = 30.0\n[controller]\nlaws = [\"tdc\"]\n",
+    );
+    child(&out, "deltaloop-controller");
+    std::thread::sleep(Duration::from_millis(300));
+    signal(sup.id(), libc::SIGTERM);
+    let o = sup.wait_with_output().unwrap();
+    assert!(
+        text(&o.stderr).contains("interrupted"),
+        "{}",
+        text(&o.stderr)
+    );
+    let log = read(&out.join("tdc.controller.log"));
+    assert!(log.contains("stopped by the supervisor (STOP)"), "{log}");
+    let plant = read(&out.join("tdc.plant.log"));
+    assert!(
+        plant.contains("stopped by the supervisor (STOP)"),
+        "{plant}"
+    );
+    let s: Value = summary(&out);
+    assert!(s["laws"]["tdc"]["interrupted_at_tick"].as_u64().is_some());
+}
