@@ -1,12 +1,18 @@
 //! The crate graph keeps its promises: the model and the laws are pure math (no transport, CLI,
 //! error-reporting, signal or libc crate anywhere below them), the config schema carries no
-//! transport, and nothing on the controller side depends on the plant (model-free by
-//! construction). Read from `cargo tree`, so a new dependency that breaks a rule fails here.
+//! transport, the transport's default build carries no command-line parser, and nothing on the
+//! controller side depends on the plant (model-free by construction). Read from `cargo tree`, so a new dependency that breaks a rule fails here.
 
 use std::process::Command;
 
-/// Every package in the normal (non-dev, non-build) dependency graph of `pkg`.
+/// Every package in the normal (non-dev, non-build) dependency graph of `pkg` with its default
+/// features.
 fn graph(pkg: &str) -> Vec<String> {
+    graph_with(pkg, &[])
+}
+
+/// [`graph`] with more `cargo tree` arguments (`--features …`).
+fn graph_with(pkg: &str, extra: &[&str]) -> Vec<String> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let out = Command::new(cargo)
         .args([
@@ -22,6 +28,7 @@ fn graph(pkg: &str) -> Vec<String> {
             "--format",
             "{p}",
         ])
+        .args(extra)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .expect("run cargo tree");
@@ -91,6 +98,19 @@ fn config_schema_carries_no_transport() {
             "libc",
             "deltaloop-transport",
         ],
+    );
+}
+
+/// A peer that wants the wire types and the services gets no command-line parser: the loop
+/// processes' arguments (`args::LoopArgs`) are behind the transport's feature `args`, which the
+/// built-in plant and controller enable.
+#[test]
+fn transport_carries_no_command_line_parser_by_default() {
+    assert_none_of("deltaloop-transport", &["clap", "anyhow"]);
+    let with_args = graph_with("deltaloop-transport", &["--features", "args"]);
+    assert!(
+        with_args.iter().any(|n| n == "clap"),
+        "the feature `args` brings clap: {with_args:?}"
     );
 }
 

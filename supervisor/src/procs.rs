@@ -15,8 +15,8 @@ use crate::record::Fault;
 use crate::study::Study;
 use crate::timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
 use anyhow::{Context, Result, anyhow, bail};
-use deltaloop_config::config::Layout;
 use deltaloop_config::{Law, LoopMode, RunConfig};
+use deltaloop_config::{Priority, ResolvedLayout};
 use deltaloop_transport::ipc::{self, IpcContext, OBSERVER_BUFFER, Svc};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{
@@ -1045,13 +1045,13 @@ pub fn run_law(
     }
 
     let mut sched_warnings = rt::apply(&rt::Sched {
-        core: Layout::cpu(layout.supervisor_cpu),
-        fifo_priority: 0,
+        core: layout.supervisor_cpu,
+        priority: Priority::Other,
         lock_memory: false,
     });
     if mode == LoopMode::Realtime {
         sched_warnings.extend(fifo_share_warnings(
-            layout,
+            &layout,
             cfg.loop_.ts_s,
             rt::rt_share_limit(),
         ));
@@ -1125,7 +1125,7 @@ pub fn run_law(
 /// run the other tasks waiting on their CPU, and the loop freezes for up to tens of ms (seen: a
 /// controller polling from 290 µs before each 300 µs deadline stalled 30 ms and the plant
 /// stopped the run). Each process polls at least from its early wake-up to the deadline.
-fn fifo_share_warnings(layout: &Layout, ts_s: f64, limit: Option<f64>) -> Vec<String> {
+fn fifo_share_warnings(layout: &ResolvedLayout, ts_s: f64, limit: Option<f64>) -> Vec<String> {
     let Some(limit) = limit else {
         return Vec::new();
     };
@@ -1136,30 +1136,27 @@ fn fifo_share_warnings(layout: &Layout, ts_s: f64, limit: Option<f64>) -> Vec<St
             "wake_early_us",
             layout.plant_priority,
             layout.plant_cpu,
-            layout.wake_early_us.map(f64::from),
+            Some(f64::from(layout.wake_early_us)),
         ),
         (
             "controller",
             "controller_wake_early_us",
             layout.controller_priority,
             layout.controller_cpu,
-            // −1: the controller blocks on its event and polls nothing early.
-            layout
-                .controller_wake_early_us
-                .filter(|u| *u >= 0)
-                .map(f64::from),
+            // None: the controller blocks on its event and polls nothing early.
+            layout.controller_wake_early_us.map(f64::from),
         ),
     ]
     .into_iter()
     .filter_map(|(who, field, prio, cpu, us)| {
         let us = us?;
         let share = us / period_us;
-        (prio.unwrap_or(0) > 0 && share >= limit).then(|| {
+        (prio != Priority::Other && share >= limit).then(|| {
             format!(
                 "[loop.realtime] {field} = {us:.0}: the {who} polls at SCHED_FIFO {:.1} % of every {period_us:.0} µs period, above the kernel's real-time limit of {:.1} % (sched_rt_runtime_us); the kernel will stop it for up to tens of ms to run other tasks on CPU {}; keep {field} below {:.0}",
                 share * 100.0,
                 limit * 100.0,
-                Layout::cpu(cpu).map_or("(unpinned)".into(), |c| c.to_string()),
+                cpu.map_or("(unpinned)".into(), |c| c.to_string()),
                 limit * period_us
             )
         })
@@ -1328,12 +1325,14 @@ fn fault_cause(ending: &Ending, pair: &Pair, streams: &Observation<'_>) -> Optio
 #[cfg(test)]
 mod tests {
     use super::*;
+    use deltaloop_config::Layout;
 
-    fn split_with(controller_early_us: i32) -> Layout {
+    fn split_with(controller_early_us: i32) -> ResolvedLayout {
         Layout {
             controller_wake_early_us: Some(controller_early_us),
             ..Layout::realtime_split_cpus()
         }
+        .resolve()
     }
 
     /// Regression: a controller told to wake 290 µs before each 300 µs deadline polled 97 % of
@@ -1361,11 +1360,11 @@ mod tests {
             Layout::realtime_split_cpus(),
             Layout::realtime_one_cpu_yield(),
         ] {
-            assert!(fifo_share_warnings(&layout, 3e-4, Some(0.95)).is_empty());
+            assert!(fifo_share_warnings(&layout.resolve(), 3e-4, Some(0.95)).is_empty());
         }
         assert!(fifo_share_warnings(&split_with(290), 3e-4, None).is_empty());
-        let other = Layout {
-            controller_priority: Some(0),
+        let other = ResolvedLayout {
+            controller_priority: Priority::Other,
             ..split_with(290)
         };
         assert!(fifo_share_warnings(&other, 3e-4, Some(0.95)).is_empty());
@@ -1403,9 +1402,9 @@ mod tests {
 
     #[test]
     fn the_plant_is_checked_too() {
-        let layout = Layout {
-            wake_early_us: Some(300),
-            ..Layout::realtime_default()
+        let layout = ResolvedLayout {
+            wake_early_us: 300,
+            ..Layout::realtime_default().resolve()
         };
         let w = fifo_share_warnings(&layout, 3e-4, Some(0.95));
         assert_eq!(w.len(), 1, "{w:?}");

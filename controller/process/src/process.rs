@@ -15,7 +15,7 @@ use crate::ControllerSide;
 use crate::ring::RefRing;
 use anyhow::{Result, bail};
 use clap::Parser;
-use deltaloop_config::config::{FaultInjection, Layout, Poll};
+use deltaloop_config::config::{FaultInjection, Poll};
 use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
@@ -112,9 +112,9 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
     let mut ring = RefRing::new();
     rt::schedule_and_report_ready(
         &rt::Sched {
-            core: Layout::cpu(layout.controller_cpu),
-            fifo_priority: layout.controller_priority.unwrap_or(0),
-            lock_memory: layout.lock_memory.unwrap_or(false),
+            core: layout.controller_cpu,
+            priority: layout.controller_priority,
+            lock_memory: layout.lock_memory,
         },
         NAME,
         || ports.send_control(ControlKind::Ready),
@@ -123,13 +123,13 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
     ipc::connect_now(&[&ports.state, &ports.torque, &ports.torque_ready])?;
-    let spin_ns = u64::from(layout.spin_us.unwrap_or(0)) * 1000;
+    let spin_ns = layout.spin_ns();
     let lp = Loop {
         cfg: &cfg,
         law: args.law,
         rows: start.ticks + 2,
         spin_ns,
-        poll: layout.poll.unwrap_or_default(),
+        poll: layout.poll,
         schedule: match (args.run.mode, layout.controller_lead_ns()) {
             (LoopMode::Realtime, Some(lead_ns)) => Some(Schedule {
                 t0_ns: start.t0_ns,

@@ -16,7 +16,7 @@
 use crate::{Arrival, PlantSide, PlantStop};
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use deltaloop_config::config::{ApplyTorque, Layout, Poll};
+use deltaloop_config::config::{ApplyTorque, Poll};
 use deltaloop_config::{LoopMode, RunConfig};
 use deltaloop_model::Vec3;
 use deltaloop_transport::args::LoopArgs;
@@ -157,9 +157,9 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
     let ports = Ports::open(&args.run.run_id)?;
     rt::schedule_and_report_ready(
         &rt::Sched {
-            core: Layout::cpu(layout.plant_cpu),
-            fifo_priority: layout.plant_priority.unwrap_or(0),
-            lock_memory: layout.lock_memory.unwrap_or(false),
+            core: layout.plant_cpu,
+            priority: layout.plant_priority,
+            lock_memory: layout.lock_memory,
         },
         NAME,
         || -> Result<()> {
@@ -194,9 +194,9 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         ts_ns: (cfg.loop_.ts_s * 1e9).round() as u64,
         budget_ns: u64::from(cfg.loop_.torque_budget_us) * 1000,
         silence_ns: u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000,
-        spin_ns: u64::from(layout.spin_us.unwrap_or(0)) * 1000,
-        early_ns: u64::from(layout.wake_early_us.unwrap_or(0)) * 1000,
-        poll: layout.poll.unwrap_or_default(),
+        spin_ns: layout.spin_ns(),
+        early_ns: layout.wake_early_ns(),
+        poll: layout.poll,
         at_arrival: args.run.mode == LoopMode::Realtime
             && cfg.plant.apply_torque == ApplyTorque::Arrival,
     };

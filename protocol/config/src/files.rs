@@ -62,6 +62,7 @@ fn too_big(size: u64, cap: u64, what: &str) -> String {
 #[derive(Debug)]
 pub struct Capped {
     file: File,
+
     /// Bytes read so far.
     read: u64,
     cap: u64,
@@ -144,6 +145,15 @@ pub fn read_text(path: &Path, cap: u64, what: &str) -> Result<String, String> {
             e.utf8_error().valid_up_to()
         )
     })
+}
+
+/// Largest config or sweep file read, bytes (1 MiB). A scenario file is a few hundred bytes.
+pub const MAX_FILE_BYTES: u64 = 1 << 20;
+
+/// Reads a config-like text file (a scenario or a sweep file): [`read_text`] with
+/// [`MAX_FILE_BYTES`]. The error is the reason alone; the caller names the file.
+pub fn read_text_file(path: &Path) -> Result<String, String> {
+    read_text(path, MAX_FILE_BYTES, "a config file")
 }
 
 #[cfg(test)]

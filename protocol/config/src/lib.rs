@@ -1,9 +1,80 @@
 //! The scenario configuration (TOML): schema, presets and validation, with errors that name the
 //! key, the value and what is allowed. No transport and no physics: the processes and the
 //! supervisor read a [`RunConfig`]; the law's constants come from `deltaloop-law`.
+//!
+//! A file names a scenario, the plant options, the controller laws and a preset of controller
+//! constants (`matched` or `paper`, see docs/controllers.md), and may override any constant key by
+//! key. [`RunConfig::from_toml_str`] rejects unknown keys and out-of-range values with an error that
+//! names the key, the value and what is allowed. The resolved config ([`RunConfig::to_toml_string`])
+//! has every constant filled in and parses back to the same config.
+//!
+//! | module | holds |
+//! |---|---|
+//! | [`schema`] | the serde structs of the file's sections, their defaults, reading and writing a [`RunConfig`] |
+//! | [`layout`] | the `[loop.<mode>]` layouts: the TOML table, its defaults per mode, and [`ResolvedLayout`] in real types |
+//! | [`mode`] | [`LoopMode`]: inproc, lockstep, realtime |
+//! | `validate` | the allowed range of every key, checked section by section; the limits (`MAX_*`, [`NAME_RULE`]) |
+//! | [`text`] | echoing user text in one-line errors |
+//! | [`error`] | [`ConfigError`] |
+//! | [`files`] | the one way every input file is opened |
+//!
+//! Everything is re-exported here, and under [`config`], the path the workspace has used.
 
-pub mod config;
+pub mod error;
 pub mod files;
+pub mod layout;
+pub mod mode;
+pub mod schema;
+pub mod text;
+mod validate;
 
-pub use config::{ConfigError, LoopMode, RecordSection, RunConfig};
 pub use deltaloop_law::{ControllerParams, Law, Preset, VelocitySource};
+pub use error::ConfigError;
+pub use files::{MAX_FILE_BYTES, read_text_file};
+pub use layout::{Layout, Poll, Priority, ResolvedLayout};
+pub use mode::LoopMode;
+pub use schema::{
+    ApplyTorque, ControllerSection, FaultInjection, FaultSection, LoopSection, PathKind,
+    PlantSection, RecordSection, RunConfig, ScenarioSection, Segment, SensorSection, TorqueLimit,
+};
+pub use text::{
+    MAX_ECHO_CHARS, clean_message, show_num, show_path, show_str, toml_error_line,
+    toml_error_position,
+};
+pub use validate::{
+    MAX_HOLD_S, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TRANSPORT_DELAY, MAX_TRANSPORT_DELAY_US,
+    NAME_RULE, name_is_valid,
+};
+
+/// Every item of the scenario file under the path the workspace has always used
+/// (`deltaloop_config::config::PathKind`); the same items as the crate root.
+pub mod config {
+    pub use crate::{
+        ApplyTorque, ConfigError, ControllerParams, ControllerSection, FaultInjection,
+        FaultSection, Law, Layout, LoopMode, LoopSection, MAX_ECHO_CHARS, MAX_FILE_BYTES,
+        MAX_HOLD_S, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TRANSPORT_DELAY, MAX_TRANSPORT_DELAY_US,
+        NAME_RULE, PathKind, PlantSection, Poll, Preset, Priority, RecordSection, ResolvedLayout,
+        RunConfig, ScenarioSection, Segment, SensorSection, TorqueLimit, VelocitySource,
+        clean_message, name_is_valid, read_text_file, show_num, show_path, show_str,
+        toml_error_line, toml_error_position,
+    };
+}
+
+/// What the unit tests of several modules share.
+#[cfg(test)]
+mod test_util {
+    use crate::RunConfig;
+    use std::path::Path;
+
+    /// The smallest valid scenario file.
+    pub const MIN: &str = "[scenario]\npath = \"s1\"\n";
+
+    /// The error of `text` (labelled `configs/t.toml`), checked to be one line.
+    pub fn err(text: &str) -> String {
+        let e = RunConfig::from_toml_str(text, Some(Path::new("configs/t.toml")))
+            .unwrap_err()
+            .to_string();
+        assert!(!e.contains('\n') && !e.contains('\r'), "not one line: {e}");
+        e
+    }
+}

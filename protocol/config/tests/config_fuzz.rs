@@ -1,6 +1,6 @@
 //! Fuzzing the config parser: no input may panic it. Whatever it accepts is valid and round-trips.
 
-use deltaloop_config::RunConfig;
+use deltaloop_config::{LoopMode, RunConfig};
 use proptest::prelude::*;
 
 const SECTIONS: &[&str] = &[
@@ -135,10 +135,13 @@ fn check(text: &str) {
             .expect("the resolved config parses");
         assert_eq!(cfg, again, "the resolved config round-trips");
         assert!(cfg.loop_.ts_s.is_finite() && cfg.controller_params().m_bar > 0.0);
-        for layout in [&cfg.loop_.realtime, &cfg.loop_.lockstep] {
-            let wake = f64::from(layout.wake_early_us.unwrap_or(0));
+        for (raw, layout) in [
+            (&cfg.loop_.realtime, LoopMode::Realtime),
+            (&cfg.loop_.lockstep, LoopMode::Lockstep),
+        ] {
+            let layout = layout.layout(&cfg).expect("a process mode has a layout");
             assert!(
-                wake <= cfg.loop_.ts_s * 1e6,
+                f64::from(layout.wake_early_us) <= cfg.loop_.ts_s * 1e6,
                 "wake_early_us within one period"
             );
             let lead = layout.controller_lead_ns().unwrap_or(0) as f64 * 1e-9;
@@ -146,6 +149,27 @@ fn check(text: &str) {
                 lead <= cfg.loop_.ts_s,
                 "controller_wake_early_us within one period"
             );
+            // An accepted layout resolves without loss: each sentinel has its typed meaning.
+            let key = |v: Option<usize>| v.map_or(-1, |c| c as i32);
+            assert_eq!(raw.plant_cpu, Some(key(layout.plant_cpu)));
+            assert_eq!(raw.controller_cpu, Some(key(layout.controller_cpu)));
+            assert_eq!(raw.supervisor_cpu, Some(key(layout.supervisor_cpu)));
+            assert_eq!(
+                raw.plant_priority,
+                Some(i32::from(layout.plant_priority.key_value()))
+            );
+            assert_eq!(
+                raw.controller_priority,
+                Some(i32::from(layout.controller_priority.key_value()))
+            );
+            assert_eq!(
+                raw.controller_wake_early_us,
+                Some(layout.controller_wake_early_us.map_or(-1, |us| us as i32))
+            );
+            assert_eq!(raw.spin_us, Some(layout.spin_us));
+            assert_eq!(raw.wake_early_us, Some(layout.wake_early_us));
+            assert_eq!(raw.lock_memory, Some(layout.lock_memory));
+            assert_eq!(raw.poll, Some(layout.poll));
         }
     }
 }

@@ -1,8 +1,9 @@
 //! How the deltaloop processes talk: the wire types ([`wire`]), the iceoryx2 services of a run
-//! ([`ipc`]), the real-time helpers both loop processes use ([`rt`]), and their command line
-//! ([`args`]) and exit codes ([`exit`]). The config schema lives
+//! ([`ipc`]), the real-time helpers both loop processes use ([`rt`]), their exit codes
+//! ([`exit`]) and, with the cargo feature `args`, their command line (`args`). The config schema lives
 //! apart, in `deltaloop-config`; this crate knows nothing of scenarios or physics.
 
+#[cfg(feature = "args")]
 pub mod args;
 pub mod exit;
 pub mod ipc;

@@ -1,7 +1,7 @@
 //! The real-time helpers both loop processes share: the monotonic clock, absolute sleeps, and
 //! scheduling (CPU pinning, SCHED_FIFO, mlockall, timer slack) with warnings where not permitted.
 
-use deltaloop_config::config::Poll;
+use deltaloop_config::{Poll, Priority};
 
 /// CLOCK_MONOTONIC now, ns.
 #[inline]
@@ -92,8 +92,8 @@ pub fn rt_share_limit() -> Option<f64> {
 pub struct Sched {
     /// Pin to this CPU (None: leave the affinity alone).
     pub core: Option<usize>,
-    /// SCHED_FIFO priority 1..=99; 0 keeps SCHED_OTHER.
-    pub fifo_priority: i32,
+    /// SCHED_FIFO at a priority, or SCHED_OTHER left as it is.
+    pub priority: Priority,
     /// mlockall(MCL_CURRENT | MCL_FUTURE).
     pub lock_memory: bool,
 }
@@ -115,16 +115,15 @@ pub fn apply(s: &Sched) -> Vec<String> {
             ));
         }
     }
-    if s.fifo_priority > 0 {
+    if let Priority::Fifo(p) = s.priority {
         let param = libc::sched_param {
-            sched_priority: s.fifo_priority,
+            sched_priority: i32::from(p),
         };
         // SAFETY: as above.
         if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } != 0 {
             let e = std::io::Error::last_os_error();
             warnings.push(format!(
-                "SCHED_FIFO priority {} not permitted ({e}; needs root, CAP_SYS_NICE or an rtprio limit): running SCHED_OTHER",
-                s.fifo_priority
+                "SCHED_FIFO priority {p} not permitted ({e}; needs root, CAP_SYS_NICE or an rtprio limit): running SCHED_OTHER"
             ));
         }
     }

@@ -11,7 +11,7 @@
 
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
-use deltaloop_config::{Law, RunConfig};
+use deltaloop_config::{Law, Priority, RunConfig};
 use deltaloop_controller::ControllerSide;
 use deltaloop_plant::Arrival;
 use deltaloop_transport::ipc::{self, IpcContext};
@@ -51,7 +51,7 @@ fn record_handoff(h: &mut Histogram<u64>, sent: u64, received: u64, t: &TorqueMs
 fn pin(who: &str, cpu: Option<usize>) {
     for w in rt::apply(&rt::Sched {
         core: cpu,
-        fifo_priority: 0,
+        priority: Priority::Other,
         lock_memory: false,
     }) {
         eprintln!("deltaloop {who}: warning: {w}");

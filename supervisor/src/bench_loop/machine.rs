@@ -2,18 +2,24 @@
 //! cyclictest measures) and `cyclictest` itself when it is installed.
 
 use anyhow::Result;
+use deltaloop_config::Priority;
 use deltaloop_transport::rt;
 use hdrhistogram::Histogram;
 
-/// The machine's own limit, as cyclictest measures it: a thread on `cpu` at SCHED_FIFO `prio`
+/// The machine's own limit, as cyclictest measures it: a thread on `cpu` at `prio`
 /// sleeps to absolute deadlines every `ts_ns` for `seconds`; the histogram of its wake
 /// lateness (ns). Memory is locked and allocated before the loop, as in the plant.
-pub fn sleep_only_loop(cpu: usize, prio: i32, ts_ns: u64, seconds: f64) -> Result<Histogram<u64>> {
+pub fn sleep_only_loop(
+    cpu: usize,
+    prio: Priority,
+    ts_ns: u64,
+    seconds: f64,
+) -> Result<Histogram<u64>> {
     let n = (seconds * 1e9 / ts_ns as f64).round() as u64;
     let t = std::thread::spawn(move || {
         let warnings = rt::apply(&rt::Sched {
             core: Some(cpu),
-            fifo_priority: prio,
+            priority: prio,
             lock_memory: false,
         });
         let mut h = crate::timing::latency_histogram();
@@ -38,13 +44,13 @@ pub fn sleep_only_loop(cpu: usize, prio: i32, ts_ns: u64, seconds: f64) -> Resul
 /// latency histogram in ns (1 µs buckets; overflows beyond 10 ms counted at 10 ms).
 pub fn cyclictest(
     cpu: usize,
-    prio: i32,
+    prio: Priority,
     interval_us: u64,
     seconds: f64,
 ) -> Result<Histogram<u64>, String> {
     let o = std::process::Command::new("cyclictest")
         .args(["-m", "-q", "-t", "1", "-h", "10000"])
-        .args(["-p", &prio.to_string(), "-a", &cpu.to_string()])
+        .args(["-p", &prio.key_value().to_string(), "-a", &cpu.to_string()])
         .args(["-i", &interval_us.to_string()])
         .args(["-D", &format!("{}", seconds.ceil() as u64)])
         .stdin(std::process::Stdio::null())

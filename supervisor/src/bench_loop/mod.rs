@@ -244,7 +244,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
         rt_seconds,
         Layout::realtime_split_cpus(),
     )?;
-    let split_cpu = Layout::cpu(Layout::realtime_split_cpus().controller_cpu);
+    let split_cpu = Layout::realtime_split_cpus().resolve().controller_cpu;
     let sp = rt_split.summary();
     let split_steal = steal_share(&sp.cpu_steal_ms, sp.loop_wall_s, split_cpu);
     if let (Some(c), Some((ms, share))) = (split_cpu, split_steal) {
@@ -260,17 +260,14 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
         rt_seconds,
         Layout::realtime_one_cpu_yield(),
     )?;
-    let lay = Layout::realtime_default();
-    let (cpu, prio) = (
-        Layout::cpu(lay.plant_cpu).unwrap_or(0),
-        lay.plant_priority.unwrap_or(0),
-    );
+    let lay = Layout::realtime_default().resolve();
+    let (cpu, prio) = (lay.plant_cpu.unwrap_or(0), lay.plant_priority);
     let ts_ns = ls.config.ts_ns();
     let machine = machine::sleep_only_loop(cpu, prio, ts_ns, rt_seconds)?;
     let cyclic = machine::cyclictest(cpu, prio, ts_ns / 1000, rt_seconds);
     let m = |h: &Histogram<u64>, q: f64| h.value_at_quantile(q) as f64 / 1e3;
     println!(
-        "(e) machine: a sleep-only loop on CPU {cpu} at SCHED_FIFO {prio}, every {} us: wake lateness p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
+        "(e) machine: a sleep-only loop on CPU {cpu} at {prio}, every {} us: wake lateness p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
         ts_ns / 1000,
         m(&machine, 0.5),
         m(&machine, 0.99),
@@ -279,7 +276,8 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     );
     match &cyclic {
         Ok(h) => println!(
-            "    cyclictest -m -p {prio} -i {} -a {cpu} -t 1: p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
+            "    cyclictest -m -p {} -i {} -a {cpu} -t 1: p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
+            prio.key_value(),
             ts_ns / 1000,
             m(h, 0.5),
             m(h, 0.99),
@@ -298,9 +296,9 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
         m(&machine, 0.999),
         d.wake_lateness.p999_us,
         y.wake_lateness.p999_us,
-        lay.wake_early_us.unwrap_or(0),
+        lay.wake_early_us,
         sp.wake_lateness.p999_us,
-        Layout::realtime_split_cpus().wake_early_us.unwrap_or(0)
+        Layout::realtime_split_cpus().resolve().wake_early_us
     );
     let mut hists: Vec<(&str, &Histogram<u64>)> = vec![
         ("round trip, default", &rt_default.round_trip.hist),
@@ -385,8 +383,8 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
     // disagree, CPU time taken from the pinned CPUs) is repeated; if every attempt was disturbed,
     // the least disturbed one is printed, marked (regression: one noisy minute printed a
     // transport cost of 11.5 µs against 1.1-1.25 µs before and after, as the figure).
-    let lay = &ls.config.loop_.lockstep;
-    let (pc, cc) = (Layout::cpu(lay.plant_cpu), Layout::cpu(lay.controller_cpu));
+    let lay = ls.config.loop_.lockstep.resolve();
+    let (pc, cc) = (lay.plant_cpu, lay.controller_cpu);
     let mut attempts = 0;
     let mut best: Option<(Rounds, Option<Disturbance>)> = None;
     while attempts < PHASE_ATTEMPTS {
