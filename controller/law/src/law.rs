@@ -157,7 +157,13 @@ impl Controller {
                     Law::TdeIs if p.phi > 0.0 => s.map(|si| p.ks * sat(si / p.phi)),
                     Law::TdeIs => s.map(|si| p.ks * sgn(si)),
                     Law::TdcIsSta => {
-                        Vec3::from_fn(|i, _| p.k1 * s[i].abs().sqrt() * sgn(s[i]) + self.v[i])
+                        // u_k from v_k; the state moves on to v_{k+1} (used from tick k + 1).
+                        let (k1, k2, v) = (p.k1, p.k2, &mut self.v);
+                        Vec3::from_fn(|i, _| {
+                            let (ui, vi) = crate::sta::explicit(s[i], v[i], k1, k2, ts);
+                            v[i] = vi;
+                            ui
+                        })
                     }
                     _ => Vec3::zeros(),
                 };
@@ -165,9 +171,6 @@ impl Controller {
                 tau_lag - a_lag * p.m_bar + (r.qdd + ed * p.kd + e * p.kp + u) * p.m_bar
             }
         };
-        if self.law == Law::TdcIsSta {
-            self.v += s.map(|si| ts * p.k2 * sgn(si));
-        }
         Output { tau, s, n_hat, u }
     }
 

@@ -7,6 +7,7 @@
 
 pub mod law;
 pub mod params;
+pub mod sta;
 pub mod tde;
 
 pub use law::{Controller, Measurement, Output, Reference};
