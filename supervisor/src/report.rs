@@ -36,15 +36,20 @@ fn e(x: f64) -> String {
     format!("{x:.3e}")
 }
 
+/// A law's status for the tables (from its [`RunStatus`](crate::record::RunStatus)).
 fn status(m: &LawMetrics) -> String {
-    match (m.diverged_at_tick, m.interrupted_at_tick, m.fault_at_tick) {
-        (Some(k), _, _) => format!("diverged at tick {k}"),
-        (_, Some(k), _) => format!("interrupted at tick {k}"),
-        (_, _, Some(k)) => format!("FAULT at tick {k}"),
-        _ if m.lost_data.is_some() => {
+    use crate::record::RunStatus;
+    let k = m.status_tick.unwrap_or(0);
+    match m.status {
+        RunStatus::Ok => "ok".into(),
+        RunStatus::Diverged => format!("diverged at tick {k}"),
+        RunStatus::Interrupted => format!("interrupted at tick {k}"),
+        RunStatus::Fault => format!("FAULT at tick {k}"),
+        RunStatus::Stopped => format!("STOPPED at tick {k}"),
+        RunStatus::LostData => {
             format!("LOST DATA ({} ticks)", m.lost_ticks + m.telemetry_missing)
         }
-        _ => "ok".into(),
+        RunStatus::Error => "error".into(),
     }
 }
 
