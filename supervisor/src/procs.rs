@@ -1334,9 +1334,10 @@ fn fault_cause(ending: &Ending, pair: &Pair, streams: &Observation<'_>) -> Optio
 
 /// What kind of fault ended the run, from how the children exited (None: still running when
 /// the supervisor stopped it), whether the plant quit early with status 0, and whether it sent
-/// FAULT. A child killed or panicking is the root cause whatever the other did next; then a
-/// stop on request nobody here made; then the plant's FAULT (the controller went silent); then
-/// the exit codes.
+/// FAULT. A child killed or panicking is the root cause whatever the other did next; then the
+/// controller's own failure (the plant's FAULT for its silence follows from it); then a stop of
+/// the plant on request nobody here made; then the plant's FAULT (the controller went silent
+/// while alive); then the plant's exit code.
 fn fault_kind(
     plant: Option<ExitStatus>,
     ctrl: Option<ExitStatus>,
@@ -1360,10 +1361,9 @@ fn fault_kind(
     let stopped = |k: &FaultKind| *k == FaultKind::Stopped;
     ctrl.filter(severe)
         .or(plant.filter(severe))
-        .or(ctrl.filter(stopped))
+        .or(ctrl)
         .or(plant.filter(stopped))
         .or(plant_fault.then_some(FaultKind::ControllerSilent))
-        .or(ctrl)
         .or(plant)
         .unwrap_or(if plant_quit {
             FaultKind::PlantQuit
@@ -1465,6 +1465,7 @@ mod tests {
         assert_eq!(k(fault, ok, false, true), FaultKind::ControllerSilent);
         assert_eq!(k(fault, None, false, true), FaultKind::ControllerSilent);
         assert_eq!(k(fault, stopped, false, true), FaultKind::Stopped);
+        assert_eq!(k(fault, setup, false, true), FaultKind::Setup);
         assert_eq!(k(stopped, ok, false, false), FaultKind::Stopped);
         assert_eq!(k(ok, setup, false, false), FaultKind::Setup);
         assert_eq!(k(ok, fault, false, false), FaultKind::ControllerFailed);

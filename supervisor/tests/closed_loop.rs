@@ -5,7 +5,7 @@ use deltaloop_config::{Law, RunConfig};
 use deltaloop_supervisor::inproc;
 use deltaloop_supervisor::lawrun::{Keep, LawRun};
 use deltaloop_supervisor::metrics::LawMetrics;
-use deltaloop_supervisor::record::Outcome;
+use deltaloop_supervisor::record::{Outcome, RunStatus};
 use deltaloop_supervisor::report::limit_cycle;
 use deltaloop_supervisor::study::Study;
 
@@ -112,7 +112,11 @@ fn diverging_configuration_is_reported_with_its_tick() {
         "{reason}"
     );
     let m = &run.metrics;
-    assert!(!m.completed && m.diverged_at_tick == Some(*tick));
+    assert_eq!(
+        (m.status, m.status_tick),
+        (RunStatus::Diverged, Some(*tick))
+    );
+    assert_eq!(m.diverged_at_tick, Some(*tick));
 }
 
 #[test]
