@@ -14,28 +14,18 @@ use std::collections::VecDeque;
 /// Error bound of the divergence rule, rad (docs/controllers.md: |e_i| > 0.5 rad).
 pub const DIVERGENCE_ERR_RAD: f64 = 0.5;
 
-/// What became of the controller's reply to tick k (`trace.csv` column `reply`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ReplyFate {
-    /// It arrived in time and went to the drives (which may still clamp or reject it).
-    Applied,
-    /// The controller answered after the torque budget: dropped, the drives held.
-    Late,
-    /// The controller never answered this state: it answered a newer one instead.
-    Skipped,
-    /// No answer at all: the drives held.
-    Missed,
-}
-
-impl ReplyFate {
-    /// The `trace.csv` word.
-    pub fn name(self) -> &'static str {
-        match self {
-            ReplyFate::Applied => "applied",
-            ReplyFate::Late => "late",
-            ReplyFate::Skipped => "skipped",
-            ReplyFate::Missed => "missed",
-        }
+deltaloop_law::text_enum! {
+    "snake_case", "reply";
+    /// What became of the controller's reply to tick k (`trace.csv` column `reply`).
+    pub enum ReplyFate {
+        /// It arrived in time and went to the drives (which may still clamp or reject it).
+        Applied,
+        /// The controller answered after the torque budget: dropped, the drives held.
+        Late,
+        /// The controller never answered this state: it answered a newer one instead.
+        Skipped,
+        /// No answer at all: the drives held.
+        Missed,
     }
 }
 
@@ -87,110 +77,72 @@ pub struct Fault {
     pub cause: String,
 }
 
-/// How a run ended, as `summary.json` (`status`), `sweep.csv` (`status`) and the exit code of
-/// `deltaloop run` say it. One value per law, derived from its [`RunEnd`] by
-/// [`RunEnd::status`]; the words are the serde names.
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    PartialEq,
-    Eq,
-    Hash,
-    serde::Serialize,
-    serde::Deserialize,
-    strum::IntoStaticStr,
-    strum::Display,
-    strum::EnumString,
-    strum::VariantArray,
-)]
-#[serde(rename_all = "snake_case")]
-#[strum(serialize_all = "snake_case")]
-pub enum RunStatus {
-    /// Every tick 0..=N ran and was recorded.
-    Ok,
-    /// The divergence rule ended the run (error above the bound, a non-finite value, the robot
-    /// left its workspace): a result of the physics, not a failure of the run.
-    Diverged,
-    /// A loop process was stopped on request by someone other than this supervisor (it exited
-    /// with its stopped code, e.g. after a SIGTERM from outside): [`FaultKind::Stopped`].
-    Stopped,
-    /// The loop ran to its end, but the supervisor lost ticks of the stream or of the plant's
-    /// telemetry: every tick it saw is recorded. (`lost-data` in sweeps before the status was
-    /// the run's own: still read.)
-    #[serde(alias = "lost-data")]
-    LostData,
-    /// Ctrl-C / SIGTERM to the supervisor stopped the run; the ticks before it are kept.
-    Interrupted,
-    /// A loop fault ended the run (a process died, stalled, or the plant stopped the loop):
-    /// [`Fault::kind`] says which.
-    Fault,
-    /// The run could not start or finish (set-up, files): no metrics. Only sweep rows carry it;
-    /// a run folder's summary has no entry for such a law.
-    Error,
+deltaloop_law::text_enum! {
+    "snake_case", "status";
+    /// How a run ended, as `summary.json` (`status`), `sweep.csv` (`status`) and the exit code of
+    /// `deltaloop run` say it. One value per law, derived from its [`RunEnd`] by
+    /// [`RunEnd::status`]; the words are the serde names.
+    pub enum RunStatus {
+        /// Every tick 0..=N ran and was recorded.
+        Ok,
+        /// The divergence rule ended the run (error above the bound, a non-finite value, the robot
+        /// left its workspace): a result of the physics, not a failure of the run.
+        Diverged,
+        /// A loop process was stopped on request by someone other than this supervisor (it exited
+        /// with its stopped code, e.g. after a SIGTERM from outside): [`FaultKind::Stopped`].
+        Stopped,
+        /// The loop ran to its end, but the supervisor lost ticks of the stream or of the plant's
+        /// telemetry: every tick it saw is recorded. (`lost-data` in sweeps before the status was
+        /// the run's own: still read.)
+        #[serde(alias = "lost-data")]
+        LostData,
+        /// Ctrl-C / SIGTERM to the supervisor stopped the run; the ticks before it are kept.
+        Interrupted,
+        /// A loop fault ended the run (a process died, stalled, or the plant stopped the loop):
+        /// [`Fault::kind`] says which.
+        Fault,
+        /// The run could not start or finish (set-up, files): no metrics. Only sweep rows carry it;
+        /// a run folder's summary has no entry for such a law.
+        Error,
+    }
 }
 
-/// What kind of loop fault ended a run (`summary.json` `fault_kind`). The cause text says the
-/// rest (exit status, the process's last log line, timings).
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    PartialEq,
-    Eq,
-    Hash,
-    serde::Serialize,
-    serde::Deserialize,
-    strum::IntoStaticStr,
-    strum::Display,
-    strum::EnumString,
-    strum::VariantArray,
-)]
-#[serde(rename_all = "snake_case")]
-#[strum(serialize_all = "snake_case")]
-pub enum FaultKind {
-    /// The plant stopped the loop (FAULT) because the controller did not answer
-    /// `faults.controller_silence_ticks` ticks in a row (stalled, too slow, or gone), and braked.
-    ControllerSilent,
-    /// The controller exited with its fault code (e.g. a reference row missing when due).
-    ControllerFailed,
-    /// The controller panicked.
-    ControllerPanicked,
-    /// The controller was killed by a signal.
-    ControllerKilled,
-    /// The controller exited with any other status.
-    ControllerExited,
-    /// The plant exited with its fault code without having sent a FAULT.
-    PlantFailed,
-    /// The plant panicked.
-    PlantPanicked,
-    /// The plant was killed by a signal.
-    PlantKilled,
-    /// The plant exited with any other status.
-    PlantExited,
-    /// The plant exited normally (status 0) before the end of the run.
-    PlantQuit,
-    /// A loop process exited with its set-up failure code.
-    Setup,
-    /// A loop process stopped on request (its stopped code) that this supervisor never made.
-    Stopped,
-    /// A loop process did not exit when the run ended: the supervisor stopped it.
-    Hung,
-}
-
-impl RunStatus {
-    /// The word (`summary.json`, `sweep.csv`).
-    pub fn name(self) -> &'static str {
-        self.into()
+deltaloop_law::text_enum! {
+    "snake_case", "fault kind";
+    /// What kind of loop fault ended a run (`summary.json` `fault_kind`). The cause text says the
+    /// rest (exit status, the process's last log line, timings).
+    pub enum FaultKind {
+        /// The plant stopped the loop (FAULT) because the controller did not answer
+        /// `faults.controller_silence_ticks` ticks in a row (stalled, too slow, or gone), and braked.
+        ControllerSilent,
+        /// The controller exited with its fault code (e.g. a reference row missing when due).
+        ControllerFailed,
+        /// The controller panicked.
+        ControllerPanicked,
+        /// The controller was killed by a signal.
+        ControllerKilled,
+        /// The controller exited with any other status.
+        ControllerExited,
+        /// The plant exited with its fault code without having sent a FAULT.
+        PlantFailed,
+        /// The plant panicked.
+        PlantPanicked,
+        /// The plant was killed by a signal.
+        PlantKilled,
+        /// The plant exited with any other status.
+        PlantExited,
+        /// The plant exited normally (status 0) before the end of the run.
+        PlantQuit,
+        /// A loop process exited with its set-up failure code.
+        Setup,
+        /// A loop process stopped on request (its stopped code) that this supervisor never made.
+        Stopped,
+        /// A loop process did not exit when the run ended: the supervisor stopped it.
+        Hung,
     }
 }
 
 impl FaultKind {
-    /// The word (`summary.json` `fault_kind`).
-    pub fn name(self) -> &'static str {
-        self.into()
-    }
-
     /// The run status a fault of this kind gives.
     pub fn status(self) -> RunStatus {
         match self {
@@ -702,6 +654,45 @@ mod tests {
         );
     }
 
+    /// The serde word of `v` (a unit variant).
+    fn serde_word<T: serde::Serialize>(v: T) -> String {
+        serde_json::to_value(v)
+            .unwrap()
+            .as_str()
+            .unwrap()
+            .to_string()
+    }
+
+    /// Every text enum has one word per variant, the same for serde (config, JSON, CSV) and for
+    /// `name`/`parse`/"allowed" (strum).
+    #[test]
+    fn every_text_enum_has_one_word_per_variant() {
+        use deltaloop_config::config::PathKind;
+        use deltaloop_config::{LoopMode, Preset};
+        use strum::VariantArray;
+        fn check<T>()
+        where
+            T: VariantArray + Copy + Into<&'static str> + serde::Serialize + std::fmt::Debug,
+        {
+            for &v in T::VARIANTS {
+                assert_eq!(serde_word(v), v.into(), "{v:?}");
+            }
+        }
+        check::<Law>();
+        check::<Preset>();
+        check::<PathKind>();
+        check::<LoopMode>();
+        check::<RunStatus>();
+        check::<FaultKind>();
+        for &f in ReplyFate::VARIANTS {
+            assert_eq!(ReplyFate::parse(f.name()), Ok(f));
+        }
+        assert_eq!(
+            deltaloop_law::names::one_of::<ReplyFate>(),
+            "applied, late, skipped or missed"
+        );
+    }
+
     /// The words of `summary.json` and `sweep.csv`, and the older sweep word still read.
     #[test]
     fn status_words() {
@@ -721,7 +712,7 @@ mod tests {
         );
         for &s in RunStatus::VARIANTS {
             assert_eq!(serde_json::to_value(s).unwrap(), s.name());
-            assert_eq!(s.name().parse::<RunStatus>(), Ok(s));
+            assert_eq!(RunStatus::parse(s.name()), Ok(s));
         }
         for &k in FaultKind::VARIANTS {
             assert_eq!(serde_json::to_value(k).unwrap(), k.name());

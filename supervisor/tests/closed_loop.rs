@@ -40,7 +40,7 @@ fn metrics(s: &Study, law: Law) -> LawMetrics {
 #[test]
 fn every_law_tracks_s1_with_bounded_error_matched_preset() {
     let s = study("");
-    for (run, law) in run_laws(&s, &Law::ALL).iter().zip(Law::ALL) {
+    for (run, law) in run_laws(&s, Law::ALL).iter().zip(Law::ALL.iter().copied()) {
         assert_eq!(run.end.outcome, Outcome::Completed, "{law}");
         assert_eq!(run.records.len(), 2668);
         let m = &run.metrics;

@@ -40,31 +40,22 @@ pub enum ConfigError {
     },
 }
 
-/// Which reference path to follow (docs/delta-robot.md §6).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum PathKind {
-    /// P0 → P2 semi-ellipse, T = 0.8 s.
-    S1,
-    /// The same path in T = 0.2 s.
-    S2,
-    /// P0 → P1 → P2, two semi-ellipses in different vertical planes, T = 1.2 s.
-    S3,
-    /// The `segments` list of the scenario table.
-    Custom,
+deltaloop_law::text_enum! {
+    "kebab-case", "path";
+    /// Which reference path to follow (docs/delta-robot.md §6).
+    pub enum PathKind {
+        /// P0 → P2 semi-ellipse, T = 0.8 s.
+        S1,
+        /// The same path in T = 0.2 s.
+        S2,
+        /// P0 → P1 → P2, two semi-ellipses in different vertical planes, T = 1.2 s.
+        S3,
+        /// The `segments` list of the scenario table.
+        Custom,
+    }
 }
 
 impl PathKind {
-    /// The config name (`s1`, `s2`, `s3`, `custom`).
-    pub fn name(self) -> &'static str {
-        match self {
-            PathKind::S1 => "s1",
-            PathKind::S2 => "s2",
-            PathKind::S3 => "s3",
-            PathKind::Custom => "custom",
-        }
-    }
-
     /// Motion duration T of the paper scenarios, s (None for `custom`: the segments say).
     pub fn paper_duration_s(self) -> Option<f64> {
         match self {
@@ -429,46 +420,39 @@ pub enum Poll {
     Yield,
 }
 
-/// How plant and controller are connected: one enum for the CLI, the sweep and the processes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum LoopMode {
-    /// Plant and controller stepped together in one process. Fastest; for sweeps and tests.
-    #[default]
-    Inproc,
-    /// Real processes over iceoryx2; the plant waits for every torque (bit-identical to inproc).
-    Lockstep,
-    /// Real processes over iceoryx2 on an absolute clock; late torques are missed.
-    Realtime,
+deltaloop_law::text_enum! {
+    "kebab-case", "mode";
+    /// How plant and controller are connected: one enum for the CLI, the sweep and the processes.
+    #[derive(Default)]
+    pub enum LoopMode {
+        /// Plant and controller stepped together in one process. Fastest; for sweeps and tests.
+        #[default]
+        Inproc,
+        /// Real processes over iceoryx2; the plant waits for every torque (bit-identical to inproc).
+        Lockstep,
+        /// Real processes over iceoryx2 on an absolute clock; late torques are missed.
+        Realtime,
+    }
 }
 
 impl LoopMode {
     /// Every mode, in documentation order.
-    pub const ALL: [LoopMode; 3] = [LoopMode::Inproc, LoopMode::Lockstep, LoopMode::Realtime];
-
-    /// The config/command-line name (`inproc`, `lockstep`, `realtime`).
-    pub fn name(self) -> &'static str {
-        match self {
-            LoopMode::Inproc => "inproc",
-            LoopMode::Lockstep => "lockstep",
-            LoopMode::Realtime => "realtime",
-        }
-    }
-
-    /// Parses a config/command-line name.
-    pub fn parse(s: &str) -> Result<LoopMode, String> {
-        LoopMode::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| format!("unknown mode `{s}` (allowed: inproc, lockstep, realtime)"))
-    }
+    pub const ALL: &'static [LoopMode] = <LoopMode as strum::VariantArray>::VARIANTS;
 
     /// Parses the mode of a loop process: `lockstep` or `realtime` (a process is never inproc).
     pub fn parse_process(s: &str) -> Result<LoopMode, String> {
         match LoopMode::parse(s)? {
-            LoopMode::Inproc => Err(format!(
-                "mode `{s}` has no processes (allowed: lockstep, realtime)"
-            )),
+            LoopMode::Inproc => {
+                let allowed: Vec<&str> = LoopMode::ALL
+                    .iter()
+                    .filter(|m| m.is_process())
+                    .map(|m| m.name())
+                    .collect();
+                Err(format!(
+                    "mode `{s}` has no processes (allowed: {})",
+                    allowed.join(", ")
+                ))
+            }
             m => Ok(m),
         }
     }
@@ -485,12 +469,6 @@ impl LoopMode {
             LoopMode::Lockstep => Some(&cfg.loop_.lockstep),
             LoopMode::Realtime => Some(&cfg.loop_.realtime),
         }
-    }
-}
-
-impl fmt::Display for LoopMode {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.pad(self.name())
     }
 }
 
