@@ -236,8 +236,8 @@ pub fn run(
     let mm = mismatch(&study.robot, &study.reference, &study.params);
     let summary = Summary {
         scenario: &cfg.name,
-        mode: mode.name(),
-        preset: cfg.controller.preset.name(),
+        mode,
+        preset: cfg.controller.preset,
         command,
         started_utc: started,
         ts_s: cfg.loop_.ts_s,
@@ -249,22 +249,19 @@ pub fn run(
         controller: study.params,
         mismatch: &mm,
         interrupted: crate::signals::interrupted(),
-        laws: metrics.iter().map(|m| (m.law.name(), m)).collect(),
-        run_ids: run_ids
-            .iter()
-            .map(|(l, id)| (l.name(), id.as_str()))
-            .collect(),
+        laws: metrics.iter().map(|m| (m.law, m)).collect(),
+        run_ids: run_ids.iter().map(|(l, id)| (*l, id.as_str())).collect(),
         timing: metrics
             .iter()
             .zip(&timing_summaries)
-            .filter_map(|(m, t)| t.as_ref().map(|t| (m.law.name(), t)))
+            .filter_map(|(m, t)| t.as_ref().map(|t| (m.law, t)))
             .collect(),
     };
-    let mut md = report::markdown(cfg, mode.name(), command, &metrics, &mm);
+    let mut md = report::markdown(cfg, mode, command, &metrics, &mm);
     if mode.is_process() {
         md.push_str(&report::timing_markdown(
             cfg,
-            mode.name(),
+            mode,
             &metrics,
             &timing_summaries,
         ));

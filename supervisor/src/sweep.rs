@@ -59,8 +59,8 @@ pub struct SweepFile {
 pub struct Row {
     /// The point's id in the plan (see [`plan::Plan`]).
     pub point: String,
-    pub scenario: String,
-    pub preset: String,
+    pub scenario: PathKind,
+    pub preset: Preset,
     pub law: Law,
     pub mode: LoopMode,
     pub tde_delay_samples: u32,
@@ -176,8 +176,8 @@ fn row(
     let nan = f64::NAN;
     Row {
         point: String::new(),
-        scenario: job.scenario.name().into(),
-        preset: job.preset.name().into(),
+        scenario: job.scenario,
+        preset: job.preset,
         law: job.law,
         mode,
         tde_delay_samples: job.ell,
@@ -588,13 +588,13 @@ fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String
                         .iter()
                         .map(|law| Series {
                             name: law.name().to_string(),
-                            color: plot::law_color(law.name()),
+                            color: plot::law_color(*law),
                             points: rows
                                 .iter()
                                 .filter(|r| {
                                     on_axis(r)
-                                        && r.scenario == scn
-                                        && r.preset == pr.name()
+                                        && r.scenario == sc
+                                        && r.preset == pr
                                         && r.law == *law
                                         && r.status == RunStatus::Ok
                                 })
@@ -653,8 +653,8 @@ fn effective_delay_figures(
             for &pr in &sw.presets {
                 let here = |r: &&Row| {
                     r.mode != LoopMode::Realtime
-                        && r.scenario == sc.name()
-                        && r.preset == pr.name()
+                        && r.scenario == sc
+                        && r.preset == pr
                         && r.status == RunStatus::Ok
                         && r.effective_delay_ticks <= max_x
                 };
@@ -679,12 +679,12 @@ fn effective_delay_figures(
                     };
                     series.push(Series {
                         name: format!("{law}: ℓ"),
-                        color: plot::law_color(law.name()),
+                        color: plot::law_color(law),
                         points: points(true),
                     });
                     series.push(Series {
                         name: format!("{law}: D (µs)"),
-                        color: plot::lighter(plot::law_color(law.name())),
+                        color: plot::lighter(plot::law_color(law)),
                         points: points(false),
                     });
                 }
@@ -712,8 +712,8 @@ fn effective_delay_figures(
 fn latency_budget(
     sw: &SweepFile,
     rows: &[Row],
-    scenario: &str,
-    preset: &str,
+    scenario: PathKind,
+    preset: Preset,
     law: Law,
 ) -> Option<(f64, f64, f64)> {
     let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
@@ -836,7 +836,7 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
                     pr.name()
                 );
                 let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
-                let base = |r: &&Row| on_grid(r) && r.scenario == scn && r.preset == pr.name();
+                let base = |r: &&Row| on_grid(r) && r.scenario == sc && r.preset == pr;
                 let by_ell = |law: Law, l: u32| {
                     rows.iter().filter(base).find(|r| {
                         r.law == law && r.tde_delay_samples == l && r.transport_delay_samples == d0
@@ -904,9 +904,7 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
         for &sc in &sw.scenarios {
             for &pr in &sw.presets {
                 for &law in &sw.laws {
-                    if let Some((zero, us, rms)) =
-                        latency_budget(sw, rows, sc.name(), pr.name(), law)
-                    {
+                    if let Some((zero, us, rms)) = latency_budget(sw, rows, sc, pr, law) {
                         let _ = writeln!(
                             s,
                             "| {} | {} | `{law}` | {zero:.3e} | {us} | {rms:.3e} |",
