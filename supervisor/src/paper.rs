@@ -8,6 +8,7 @@ use crate::analysis::{Mismatch, mismatch};
 use crate::lawrun::LawRun;
 use crate::metrics::LawMetrics;
 use crate::plot::{self, Panel, Series, Series3};
+use crate::record::RunStatus;
 use crate::report::{paper_rms, paper_table};
 use crate::run;
 use crate::study::Study;
@@ -306,11 +307,10 @@ pub fn fmt_rms(x: f64) -> String {
 fn verdict(c: &Case) -> String {
     let r = c.sta_over_is_rms;
     let (is, sta) = (&c.laws[&Law::TdeIs], &c.laws[&Law::TdcIsSta]);
-    if !is.completed || !sta.completed {
+    if is.status != RunStatus::Ok || sta.status != RunStatus::Ok {
         return format!(
             "a run diverged (tde-is: {}, tdc-is-sta: {}), so the comparison does not apply",
-            if is.completed { "ok" } else { "diverged" },
-            if sta.completed { "ok" } else { "diverged" }
+            is.status, sta.status
         );
     }
     let better = r.iter().filter(|&&x| x < 1.0).count();
@@ -345,7 +345,8 @@ fn short_verdict(c: &Case) -> String {
         r.iter().cloned().fold(f64::INFINITY, f64::min),
         r.iter().cloned().fold(0.0, f64::max),
     );
-    let word = if !c.laws[&Law::TdeIs].completed || !c.laws[&Law::TdcIsSta].completed {
+    let ok = |law| c.laws[&law].status == RunStatus::Ok;
+    let word = if !ok(Law::TdeIs) || !ok(Law::TdcIsSta) {
         "diverged"
     } else if hi < 1.0 {
         "yes"
@@ -420,10 +421,9 @@ fn rms_table(o: &mut String, s: &PaperSummary, scn: &str, cs: &[&Case]) {
     for c in cs {
         for law in LAWS {
             let m = &c.laws[&law];
-            let st = if m.completed {
-                String::new()
-            } else {
-                format!(" (diverged at tick {})", m.diverged_at_tick.unwrap_or(0))
+            let st = match m.status {
+                RunStatus::Ok => String::new(),
+                st => format!(" ({st} at tick {})", m.status_tick.unwrap_or(0)),
             };
             let _ = writeln!(
                 o,
