@@ -74,7 +74,7 @@ fn controller(c: &mut Criterion) {
         qd: Vec3::new(1.01, -0.5, 0.2),
         qdd: Vec3::new(3.0, -2.0, 1.0),
     };
-    for law in Law::ALL {
+    for &law in Law::ALL {
         let mut ctrl = Controller::new(law, ControllerParams::preset(Preset::Matched), 3e-4, 1);
         g.bench_function(law.name(), |b| {
             b.iter(|| ctrl.step(black_box(&m), black_box(&r)))

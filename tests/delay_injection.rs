@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{deltaloop, json};
+use common::{FaultKind, RunStatus, deltaloop, json, outcome};
 use std::path::Path;
 
 #[test]
@@ -58,7 +58,8 @@ fn sweep_records_divergence_and_writes_table_and_plots() {
             r["law"] == "tdc" && r["tde_delay_samples"] == 1 && r["transport_delay_samples"] == 8
         })
         .unwrap();
-    assert_eq!(div["status"], "diverged", "{div}");
+    let status: RunStatus = serde_json::from_value(div["status"].clone()).unwrap();
+    assert_eq!(status, RunStatus::Diverged, "{div}");
     let tick = div["diverged_at_tick"].as_u64().unwrap();
     assert!(tick > 0 && tick < 667);
     // Rows without delay are fine, and the TDE error grows with ℓ at d = 0.
@@ -186,12 +187,13 @@ fn realtime_compute_delay_longer_than_the_period_misses_and_is_reported() {
     // brakes to a safe stop, and the run ends with that fault (exit 1), data kept.
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
-    assert!(
-        err.contains("no torque within the budget for 100 consecutive ticks")
-            && err.contains("late replies dropped"),
-        "{err}"
-    );
     let s = json(&out.join("summary.json"));
+    assert_eq!(
+        outcome(&s, "tdc"),
+        (RunStatus::Fault, Some(FaultKind::ControllerSilent))
+    );
+    // The plant says the replies came late (dropped), not that none came.
+    assert!(err.contains("late replies dropped"), "{err}");
     let t = &s["timing"]["tdc"];
     let (misses, ticks) = (
         t["deadline_misses"].as_u64().unwrap(),
@@ -201,7 +203,7 @@ fn realtime_compute_delay_longer_than_the_period_misses_and_is_reported() {
     assert!(misses * 10 >= ticks * 9, "{misses} of {ticks}");
     assert!(t["controller_compute"]["p50_us"].as_f64().unwrap() >= 1000.0);
     // The fault is recorded on the law, with the tick the hold window ended.
-    assert_eq!(s["laws"]["tdc"]["completed"], false);
+    assert_eq!(s["laws"]["tdc"]["status_tick"].as_u64(), Some(99));
     assert_eq!(s["laws"]["tdc"]["fault_at_tick"].as_u64(), Some(99));
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(

@@ -9,7 +9,7 @@
 mod common;
 
 use common::python::{python, root, text};
-use common::{deltaloop, summary};
+use common::{FaultKind, RunStatus, deltaloop, outcome, summary};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Output;
@@ -117,11 +117,8 @@ fn regression_a_controller_cannot_forge_start_stop_or_diverged() {
     }
     let s = summary(&out);
     let m = &s["laws"]["tdc"];
-    assert_eq!(m["completed"], true, "{m}");
-    assert!(
-        m["diverged_at_tick"].is_null() && m["fault"].is_null() && s["interrupted"] == false,
-        "{m}"
-    );
+    assert_eq!(outcome(&s, "tdc"), (RunStatus::Ok, None), "{m}");
+    assert_eq!(s["interrupted"], false, "{s}");
     for f in ["summary.json", "report.md"] {
         let t = read(&out.join(f));
         assert!(!t.contains('\u{1b}') && !t.contains("FORGED"), "{f}: {t}");
@@ -240,9 +237,11 @@ fn regression_a_non_finite_torque_ends_the_run_as_diverged_at_once() {
     assert!(o.status.success(), "{}", text(&o.stderr));
     let s = summary(&out);
     let m = &s["laws"]["tdc"];
+    assert_eq!(outcome(&s, "tdc"), (RunStatus::Diverged, None), "{m}");
+    assert_eq!(m["status_tick"], 500, "{m}");
     assert_eq!(m["diverged_at_tick"], 500, "{m}");
     assert_eq!(m["diverged_reason"], "non-finite torque command", "{m}");
-    assert!(m["fault"].is_null() && s["interrupted"] == false, "{m}");
+    assert_eq!(s["interrupted"], false, "{s}");
     let ran = s["timing"]["tdc"]["ticks"].as_u64().unwrap();
     assert!(ran < 1500, "the loop ran on to tick {ran}");
     assert!(read(&out.join("tdc.plant.log")).contains("stopped by the supervisor (STOP)"));
@@ -266,6 +265,8 @@ fn regression_a_plant_that_stops_sending_telemetry_is_lost_data_not_ok() {
     let s = summary(&out);
     let m = &s["laws"]["tdc"];
     let n = s["ticks"].as_u64().unwrap();
+    assert_eq!(outcome(&s, "tdc"), (RunStatus::LostData, None), "{m}");
+    assert_eq!(m["status_tick"], 101, "{m}");
     assert_eq!(m["telemetry_missing"].as_u64(), Some(n - 100), "{m}");
     let rows = fates(&out);
     assert!(rows[..=100].iter().all(|r| r.0 == "applied"));
@@ -300,10 +301,12 @@ fn regression_a_plant_that_exits_early_with_status_0_is_named() {
         s["ticks"]
     );
     assert!(err.contains(&said), "{err}");
-    assert!(
-        m["fault"].as_str().is_some_and(|f| f.contains(&said)) && m["diverged_at_tick"].is_null(),
+    assert_eq!(
+        outcome(&s, "tdc"),
+        (RunStatus::Fault, Some(FaultKind::PlantQuit)),
         "{m}"
     );
+    assert!(m["diverged_at_tick"].is_null(), "{m}");
 }
 
 /// Regression: the built-in controller answered a duplicated state twice (it had no check that
@@ -316,7 +319,7 @@ fn regression_the_controller_answers_a_duplicated_state_once() {
     assert!(o.status.success(), "{}", text(&o.stderr));
     let s = summary(&out);
     let m = &s["laws"]["tdc"];
-    assert_eq!(m["completed"], true, "{m}");
+    assert_eq!(outcome(&s, "tdc"), (RunStatus::Ok, None), "{m}");
     assert_eq!(m["duplicate_replies"], 0, "{m}");
     let log = read(&out.join("tdc.controller.log"));
     assert!(
@@ -409,5 +412,6 @@ fn regression_the_controller_exits_5_on_stop() {
         "{plant}"
     );
     let s: Value = summary(&out);
+    assert_eq!(outcome(&s, "tdc"), (RunStatus::Interrupted, None), "{s}");
     assert!(s["laws"]["tdc"]["interrupted_at_tick"].as_u64().is_some());
 }

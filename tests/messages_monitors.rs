@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{children_mentioning, deltaloop, summary};
+use common::{FaultKind, RunStatus, children_mentioning, deltaloop, outcome, summary};
 use std::io::BufRead;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -138,6 +138,12 @@ fn regression_a_chatty_child_with_escape_codes_and_bad_utf8_is_quoted_bounded_an
     );
     assert!(o.stderr.len() < 8_000, "{} bytes on stderr", o.stderr.len());
     let s = summary(&out);
+    // Exit status 3: the controller's set-up failed.
+    assert_eq!(
+        outcome(&s, "tdc"),
+        (RunStatus::Fault, Some(FaultKind::Setup))
+    );
+    // What is tested here is the wording: the peer's text, escaped, in the summary too.
     let fault = s["laws"]["tdc"]["fault"].as_str().unwrap();
     assert!(fault.contains(said), "{fault}");
     for f in ["summary.json", "report.md"] {
@@ -408,9 +414,9 @@ fn regression_a_diverged_soak_says_so_and_prints_real_rss() {
         String::from_utf8_lossy(&o.stderr),
     );
     assert!(o.status.success(), "{err}");
-    let tick = summary(&out)["laws"]["tdc"]["diverged_at_tick"]
-        .as_u64()
-        .unwrap();
+    let s = summary(&out);
+    assert_eq!(outcome(&s, "tdc"), (RunStatus::Diverged, None), "{s}");
+    let tick = s["laws"]["tdc"]["status_tick"].as_u64().unwrap();
     assert!(
         err.contains(&format!("soak: diverged at tick {tick}, after ")),
         "{err}"

@@ -1,6 +1,7 @@
 //! The `deltaloop` command line.
 
 use crate::bench;
+use crate::record::RunStatus;
 use crate::run;
 use clap::{Parser, Subcommand};
 use deltaloop_config::LoopMode;
@@ -213,7 +214,7 @@ pub fn main() -> ExitCode {
     crate::signals::install();
     if let Err(e) = crate::signals::die_with_parent_from_env() {
         eprintln!("deltaloop: error: {e}");
-        return ExitCode::FAILURE;
+        return ExitCode::from(exit_code(RunStatus::Error));
     }
     let command_line = std::env::args().collect::<Vec<_>>().join(" ");
     let result = match cli.command {
@@ -317,18 +318,49 @@ pub fn main() -> ExitCode {
         use std::io::Write;
         let _ = writeln!(std::io::stderr(), "{line}");
     };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) if e.downcast_ref::<run::Interrupted>().is_some() => {
+    let status = match &result {
+        Ok(()) => RunStatus::Ok,
+        Err(e) => run::error_status(e),
+    };
+    match (result, status) {
+        (Ok(()), _) => {}
+        (Err(e), RunStatus::Interrupted) => {
             let by = crate::signals::signal().map_or(String::new(), |s| {
                 format!(" (by {})", crate::signals::name(s))
             });
             say(format!("deltaloop: {e}{by}"));
-            ExitCode::from(130)
         }
-        Err(e) => {
-            say(format!("deltaloop: error: {e:#}"));
-            ExitCode::FAILURE
+        (Err(e), _) => say(format!("deltaloop: error: {e:#}")),
+    }
+    ExitCode::from(exit_code(status))
+}
+
+/// The exit code of `deltaloop` for how its command ended: 0 for `ok` and `diverged` (a
+/// divergence is a result), 130 for `interrupted` (as a shell reports Ctrl-C), 1 for the rest
+/// (a fault, a stop on request, lost data, an error).
+pub fn exit_code(status: RunStatus) -> u8 {
+    match status {
+        RunStatus::Ok | RunStatus::Diverged => 0,
+        RunStatus::Interrupted => 130,
+        RunStatus::Stopped | RunStatus::LostData | RunStatus::Fault | RunStatus::Error => 1,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use strum::VariantArray;
+
+    /// A divergence is a result (0), an interrupt is 130 as in a shell, everything else fails.
+    #[test]
+    fn every_status_has_its_exit_code() {
+        for &s in RunStatus::VARIANTS {
+            let want = match s {
+                RunStatus::Ok | RunStatus::Diverged => 0,
+                RunStatus::Interrupted => 130,
+                _ => 1,
+            };
+            assert_eq!(exit_code(s), want, "{s}");
         }
     }
 }

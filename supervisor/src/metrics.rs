@@ -1,7 +1,7 @@
 //! The study's metrics (docs/controllers.md, "What the study measures"): accumulated tick by tick
 //! from a run's records, its reference and the controller constants, in bounded memory.
 
-use crate::record::{Outcome, RunEnd, TickRecord};
+use crate::record::{FaultKind, Outcome, RunEnd, RunStatus, TickRecord};
 use crate::reference::RefRow;
 use deltaloop_law::{ControllerParams, Law};
 use deltaloop_model::{DeltaRobot, Vec3};
@@ -15,6 +15,14 @@ pub const HF_CUTOFF_HZ: u64 = 100;
 #[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct LawMetrics {
     pub law: Law,
+    /// How the run ended (see [`RunStatus`]): `ok`, `diverged`, `stopped`, `lost_data`,
+    /// `interrupted` or `fault`. The fields below say the same in the older, per-case form.
+    pub status: RunStatus,
+    /// Why, in one line, for every status but `ok` (the `reason` of the sweep's rows).
+    pub reason: Option<String>,
+    /// The tick the status names: where the run was interrupted, faulted or diverged, or the
+    /// first tick whose data was lost; null for `ok`.
+    pub status_tick: Option<u64>,
     /// Ticks after tick 0 the metrics cover (k = 0..=N); fewer if the run diverged.
     pub ticks: u64,
     /// Whether every tick 0..=N ran and was recorded.
@@ -38,6 +46,8 @@ pub struct LawMetrics {
     /// Tick and cause of a loop fault (a process died or stalled), if any.
     pub fault_at_tick: Option<u64>,
     pub fault: Option<String>,
+    /// What kind of fault (see [`FaultKind`]), if any.
+    pub fault_kind: Option<FaultKind>,
     /// RMS joint tracking error over k = 0..=N, rad.
     pub rms_rad: [f64; 3],
     /// Max |e_i| over k = 0..=N, rad.
@@ -461,7 +471,7 @@ impl<'a> MetricsAcc<'a> {
         let delta_n_max = uses_tde.then_some(self.dn_max);
         let delta_n_p999 = uses_tde.then(|| self.dn_tail.map(TailPercentile::value));
         let k2_req = delta_n_max.map(|d| k2_required(d.into_iter().fold(0.0, f64::max), params.k1));
-        let lost_data = (end.outcome == Outcome::LostData).then(|| lost_data_text(end));
+        let lost_data = (end.outcome == Outcome::LostData).then(|| end.lost_data_text());
         let (completed, diverged_at_tick, diverged_reason) = match &end.outcome {
             Outcome::Diverged { tick, reason } => (false, Some(*tick), Some(reason.clone())),
             Outcome::Completed => (true, None, None),
@@ -474,6 +484,10 @@ impl<'a> MetricsAcc<'a> {
         let (fault_at_tick, fault) = end.fault.clone().map(|f| (f.tick, f.cause)).unzip();
         LawMetrics {
             law: end.law,
+            status: end.status(),
+            reason: end.reason(),
+            status_tick: end.status_tick(),
+            fault_kind: end.fault.as_ref().map(|f| f.kind),
             ticks: self.records.saturating_sub(1),
             lost_ticks: end.lost_ticks,
             lost_data,
@@ -506,25 +520,6 @@ impl<'a> MetricsAcc<'a> {
             eq43_holds: k2_req.map(|r| params.k2 > r),
         }
     }
-}
-
-/// What a run that lost data lost: ticks of the stream, the plant's telemetry, or both.
-fn lost_data_text(end: &RunEnd) -> String {
-    let mut parts = Vec::new();
-    if let Some(first) = end.first_lost {
-        parts.push(format!(
-            "the supervisor lost {} ticks of the stream, the first at tick {first}: it fell behind the loop and its queues overflowed",
-            end.lost_ticks
-        ));
-    }
-    if let Some(first) = end.first_no_telemetry {
-        parts.push(format!(
-            "{} ticks came without the plant's telemetry, the first at tick {first} (the plant did not send it, or the supervisor's queue lost it): their `reply` and `drives` are `unknown` and they are missing from the timing",
-            end.no_telemetry
-        ));
-    }
-    parts.push("every tick the supervisor saw is recorded".into());
-    parts.join("; ")
 }
 
 #[cfg(test)]

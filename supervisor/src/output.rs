@@ -7,6 +7,7 @@ use crate::record::TickRecord;
 use crate::reference::RefRow;
 use crate::timing::TimingSummary;
 use anyhow::{Context, Result};
+use deltaloop_config::{LoopMode, Preset};
 use deltaloop_law::{ControllerParams, Law};
 use deltaloop_model::Vec3;
 use serde::Serialize;
@@ -16,9 +17,10 @@ use std::path::{Path, PathBuf};
 /// `summary.json`.
 #[derive(Debug, Serialize)]
 pub struct Summary<'a> {
+    /// The scenario's name (`name` in its file).
     pub scenario: &'a str,
-    pub mode: &'a str,
-    pub preset: &'a str,
+    pub mode: LoopMode,
+    pub preset: Preset,
     pub command: &'a str,
     pub started_utc: String,
     /// Control period, s.
@@ -34,14 +36,14 @@ pub struct Summary<'a> {
     pub mismatch: &'a Mismatch,
     /// Ctrl-C / SIGTERM stopped the run: the data is partial.
     pub interrupted: bool,
-    /// Metrics per law, keyed by law name.
-    pub laws: BTreeMap<&'a str, &'a LawMetrics>,
+    /// Metrics per law, keyed by law name (in report order).
+    pub laws: BTreeMap<Law, &'a LawMetrics>,
     /// The iceoryx2 run id of each law's process pair (process modes only).
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
-    pub run_ids: BTreeMap<&'a str, &'a str>,
+    pub run_ids: BTreeMap<Law, &'a str>,
     /// Loop timing per law (process modes only), keyed by law name.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
-    pub timing: BTreeMap<&'a str, &'a TimingSummary>,
+    pub timing: BTreeMap<Law, &'a TimingSummary>,
 }
 
 /// A progress bar over `len` steps on stderr, or a hidden one (`show` false: tests, pipes).

@@ -8,6 +8,7 @@ use crate::analysis::{Mismatch, mismatch};
 use crate::lawrun::LawRun;
 use crate::metrics::LawMetrics;
 use crate::plot::{self, Panel, Series, Series3};
+use crate::record::RunStatus;
 use crate::report::{paper_rms, paper_table};
 use crate::run;
 use crate::study::Study;
@@ -61,8 +62,8 @@ const CONFIGS: [(Preset, &str, &str); 6] = [
 /// One scenario under one preset.
 #[derive(Debug, Serialize)]
 pub struct Case {
-    pub preset: String,
-    pub scenario: String,
+    pub preset: Preset,
+    pub scenario: PathKind,
     pub paper_table: &'static str,
     /// Metrics per law.
     pub laws: BTreeMap<Law, LawMetrics>,
@@ -84,17 +85,12 @@ pub struct Case {
 /// `summary.json` of the paper folder.
 #[derive(Debug, Serialize)]
 pub struct PaperSummary {
-    pub mode: String,
+    pub mode: LoopMode,
     pub command: String,
     pub elapsed_s: f64,
     /// The paper's published RMS (rad) per scenario and law (TDC+IS = `tde-is`, TDC+IS+STA = `tdc-is-sta`).
     pub paper_rms_rad: BTreeMap<String, BTreeMap<String, [f64; 3]>>,
     pub cases: Vec<Case>,
-}
-
-/// The scenario's short name (`s1`, `s2`, `s3`, `custom`): folder, figure and table key.
-fn scenario_name(path: PathKind) -> String {
-    format!("{path:?}").to_lowercase()
 }
 
 /// Errors, torques, the torque zoom and the 3-D path for one case.
@@ -118,7 +114,7 @@ fn figures(
         runs.iter()
             .map(|r| Series {
                 name: format!("{} ({})", r.law.paper_name(), r.law.name()),
-                color: plot::law_color(r.law.name()),
+                color: plot::law_color(r.law),
                 points: ks
                     .clone()
                     .filter(|&k| k < r.records.len())
@@ -187,7 +183,7 @@ fn figures(
     for r in &pair {
         paths.push(Series3 {
             name: format!("{} FK(q)", r.law.paper_name()),
-            color: plot::law_color(r.law.name()),
+            color: plot::law_color(r.law),
             points: r
                 .records
                 .iter()
@@ -232,7 +228,7 @@ pub fn run(
     }
     bar.finish_and_clear();
     let summary = PaperSummary {
-        mode: mode.name().into(),
+        mode,
         command: command.into(),
         elapsed_s: t0.elapsed().as_secs_f64(),
         paper_rms_rad: published_rms(),
@@ -258,10 +254,11 @@ fn run_case(
 ) -> Result<Case> {
     let mut cfg = RunConfig::from_toml_str(text, Some(Path::new(&format!("{name}.toml"))))?;
     cfg.controller.laws = LAWS.to_vec();
-    let scn = scenario_name(cfg.scenario.path);
+    let path = cfg.scenario.path;
+    let scn = path.name();
     let table = paper_table(cfg.scenario.path).unwrap_or("-");
     let tau_max_nm = cfg.plant.tau_max_nm;
-    let rel = PathBuf::from(preset.name()).join(&scn);
+    let rel = PathBuf::from(preset.name()).join(scn);
     let o = run::run(cfg, mode, Some(out.join(&rel)), false, true, command)?;
     let title = format!("{} ({} preset)", scn.to_uppercase(), preset.name());
     let figs = figures(
@@ -274,8 +271,8 @@ fn run_case(
     let laws: BTreeMap<Law, LawMetrics> = o.metrics.into_iter().map(|m| (m.law, m)).collect();
     let (is, sta) = (&laws[&Law::TdeIs].rms_rad, &laws[&Law::TdcIsSta].rms_rad);
     Ok(Case {
-        preset: preset.name().into(),
-        scenario: scn,
+        preset,
+        scenario: path,
         paper_table: table,
         sta_over_is_rms: [sta[0] / is[0], sta[1] / is[1], sta[2] / is[2]],
         mismatch: mismatch(&o.study.robot, &o.study.reference, &o.study.params),
@@ -297,7 +294,7 @@ fn published_rms() -> BTreeMap<String, BTreeMap<String, [f64; 3]>> {
                 m.insert(law.name().to_string(), v);
             }
         }
-        paper_rms_rad.insert(scenario_name(path), m);
+        paper_rms_rad.insert(path.name().to_string(), m);
     }
     paper_rms_rad
 }
@@ -310,11 +307,10 @@ pub fn fmt_rms(x: f64) -> String {
 fn verdict(c: &Case) -> String {
     let r = c.sta_over_is_rms;
     let (is, sta) = (&c.laws[&Law::TdeIs], &c.laws[&Law::TdcIsSta]);
-    if !is.completed || !sta.completed {
+    if is.status != RunStatus::Ok || sta.status != RunStatus::Ok {
         return format!(
             "a run diverged (tde-is: {}, tdc-is-sta: {}), so the comparison does not apply",
-            if is.completed { "ok" } else { "diverged" },
-            if sta.completed { "ok" } else { "diverged" }
+            is.status, sta.status
         );
     }
     let better = r.iter().filter(|&&x| x < 1.0).count();
@@ -349,7 +345,8 @@ fn short_verdict(c: &Case) -> String {
         r.iter().cloned().fold(f64::INFINITY, f64::min),
         r.iter().cloned().fold(0.0, f64::max),
     );
-    let word = if !c.laws[&Law::TdeIs].completed || !c.laws[&Law::TdcIsSta].completed {
+    let ok = |law| c.laws[&law].status == RunStatus::Ok;
+    let word = if !ok(Law::TdeIs) || !ok(Law::TdcIsSta) {
         "diverged"
     } else if hi < 1.0 {
         "yes"
@@ -364,16 +361,16 @@ fn short_verdict(c: &Case) -> String {
 fn report(s: &PaperSummary) -> String {
     let mut o = String::new();
     intro(&mut o, s);
-    for scn in ["s1", "s2", "s3"] {
+    for scn in [PathKind::S1, PathKind::S2, PathKind::S3] {
         let cs: Vec<&Case> = s.cases.iter().filter(|c| c.scenario == scn).collect();
         let Some(first) = cs.first() else { continue };
         let _ = writeln!(
             o,
             "## {} — Table {} analogue: RMS tracking error per joint (rad)\n",
-            scn.to_uppercase(),
+            scn.name().to_uppercase(),
             first.paper_table
         );
-        rms_table(&mut o, s, scn, &cs);
+        rms_table(&mut o, s, scn.name(), &cs);
         verdicts(&mut o, &cs);
         unreported_table(&mut o, &cs);
         figure_list(&mut o, &cs);
@@ -424,10 +421,9 @@ fn rms_table(o: &mut String, s: &PaperSummary, scn: &str, cs: &[&Case]) {
     for c in cs {
         for law in LAWS {
             let m = &c.laws[&law];
-            let st = if m.completed {
-                String::new()
-            } else {
-                format!(" (diverged at tick {})", m.diverged_at_tick.unwrap_or(0))
+            let st = match m.status {
+                RunStatus::Ok => String::new(),
+                st => format!(" ({st} at tick {})", m.status_tick.unwrap_or(0)),
             };
             let _ = writeln!(
                 o,
@@ -503,7 +499,7 @@ fn mismatch_explanation(o: &mut String, s: &PaperSummary) {
     let Some(c) = s
         .cases
         .iter()
-        .find(|c| c.preset == "paper" && c.scenario == "s1")
+        .find(|c| c.preset == Preset::Paper && c.scenario == PathKind::S1)
     else {
         return;
     };
@@ -539,7 +535,7 @@ fn mismatch_explanation(o: &mut String, s: &PaperSummary) {
         fmt_rms(sta.rms_rad[0]),
         s.cases
             .iter()
-            .find(|c| c.preset == "matched" && c.scenario == "s1")
+            .find(|c| c.preset == Preset::Matched && c.scenario == PathKind::S1)
             .map_or("?".into(), |m| fmt_rms(m.laws[&Law::TdcIsSta].rms_rad[0])),
         c.params.phi,
     );
@@ -558,9 +554,13 @@ pub fn terminal(s: &PaperSummary, out: &Path) -> String {
         "{:<4} {:<9} {:<11} {:>10} {:>10} {:>10}   STA beats IS?",
         "scn", "source", "law", "joint 1", "joint 2", "joint 3"
     );
-    for scn in ["s1", "s2", "s3"] {
+    for scn in [PathKind::S1, PathKind::S2, PathKind::S3] {
         for law in [Law::TdeIs, Law::TdcIsSta] {
-            if let Some(v) = s.paper_rms_rad.get(scn).and_then(|m| m.get(law.name())) {
+            if let Some(v) = s
+                .paper_rms_rad
+                .get(scn.name())
+                .and_then(|m| m.get(law.name()))
+            {
                 let _ = writeln!(
                     o,
                     "{:<4} {:<9} {:<11} {:>10} {:>10} {:>10}",
@@ -619,7 +619,7 @@ mod tests {
         let case = run_case(preset, name, &text, LoopMode::Inproc, &out, "test");
         let _ = std::fs::remove_dir_all(&out);
         let summary = PaperSummary {
-            mode: "inproc".into(),
+            mode: LoopMode::Inproc,
             command: "test".into(),
             elapsed_s: 0.0,
             paper_rms_rad: published_rms(),

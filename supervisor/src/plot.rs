@@ -23,13 +23,12 @@ fn register_font() {
 }
 
 /// One colour per law, the same in every figure.
-pub fn law_color(law: &str) -> RGBColor {
-    match Law::parse(law) {
-        Ok(Law::Tdc) => RGBColor(31, 119, 180),
-        Ok(Law::TdeIs) => RGBColor(255, 127, 14),
-        Ok(Law::TdcIsSta) => RGBColor(44, 160, 44),
-        Ok(Law::Pid) => RGBColor(214, 39, 40),
-        Err(_) => RGBColor(90, 90, 90),
+pub fn law_color(law: Law) -> RGBColor {
+    match law {
+        Law::Tdc => RGBColor(31, 119, 180),
+        Law::TdeIs => RGBColor(255, 127, 14),
+        Law::TdcIsSta => RGBColor(44, 160, 44),
+        Law::Pid => RGBColor(214, 39, 40),
     }
 }
 

@@ -11,7 +11,7 @@
 use crate::feed::ReferenceFeed;
 use crate::lawrun::{self, Keep, LawRecorder, LawRun};
 use crate::peer_text::{self, Tail};
-use crate::record::Fault;
+use crate::record::{Fault, FaultKind};
 use crate::study::Study;
 use crate::timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
 use anyhow::{Context, Result, anyhow, bail};
@@ -674,9 +674,9 @@ struct Observation<'a> {
     /// The newest telemetry of the loop seen.
     last_tel: Option<TelemetryMsg>,
     /// The plant's FAULT: it stopped the loop at this tick (and braked).
-    plant_fault: Option<Fault>,
+    plant_fault: Option<PlantSaid>,
     /// The plant's DIVERGED: its model failed at this tick.
-    diverged: Option<Fault>,
+    diverged: Option<PlantSaid>,
     /// The first tick since the last complete one that was not complete: a loss if the loop
     /// shows up again later, else where the run ended.
     gap: Option<u64>,
@@ -691,6 +691,12 @@ struct Observation<'a> {
     final_tick: Option<u64>,
     /// The state after the last tick, N + 1.
     after: Option<StateMsg>,
+}
+
+/// A tick and a line from the plant's control channel (FAULT, DIVERGED).
+struct PlantSaid {
+    tick: u64,
+    cause: String,
 }
 
 fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
@@ -767,7 +773,7 @@ impl<'a> Observation<'a> {
         }
         while let Some(m) = obs.from_plant.receive()? {
             let m = &m;
-            let fault = || Fault {
+            let fault = || PlantSaid {
                 tick: m.tick,
                 cause: m.text(),
             };
@@ -1318,8 +1324,69 @@ fn fault_cause(ending: &Ending, pair: &Pair, streams: &Observation<'_>) -> Optio
     let cause = parts.join("; ");
     Some(Fault {
         tick,
+        kind: fault_kind(plant, ctrl, plant_quit, streams.plant_fault.is_some()),
         cause: peer_text::sanitize(cause.as_bytes(), 4 * peer_text::MAX_CHARS),
     })
+}
+
+/// What kind of fault ended the run, from how the children exited (None: still running when
+/// the supervisor stopped it), whether the plant quit early with status 0, and whether it sent
+/// FAULT. A child killed or panicking is the root cause whatever the other did next; then the
+/// controller's own failure (the plant's FAULT for its silence follows from it); then a stop of
+/// the plant on request nobody here made; then the plant's FAULT (the controller went silent
+/// while alive); then the plant's exit code.
+fn fault_kind(
+    plant: Option<ExitStatus>,
+    ctrl: Option<ExitStatus>,
+    plant_quit: bool,
+    plant_fault: bool,
+) -> FaultKind {
+    let failed = |s: Option<ExitStatus>, who| s.filter(|s| !s.success()).map(|s| exit_kind(who, s));
+    let (ctrl, plant) = (
+        failed(ctrl, Sender::Controller),
+        failed(plant, Sender::Plant),
+    );
+    let severe = |k: &FaultKind| {
+        matches!(
+            k,
+            FaultKind::ControllerKilled
+                | FaultKind::ControllerPanicked
+                | FaultKind::PlantKilled
+                | FaultKind::PlantPanicked
+        )
+    };
+    let stopped = |k: &FaultKind| *k == FaultKind::Stopped;
+    ctrl.filter(severe)
+        .or(plant.filter(severe))
+        .or(ctrl)
+        .or(plant.filter(stopped))
+        .or(plant_fault.then_some(FaultKind::ControllerSilent))
+        .or(plant)
+        .unwrap_or(if plant_quit {
+            FaultKind::PlantQuit
+        } else {
+            FaultKind::Hung
+        })
+}
+
+/// The kind of fault a loop process's abnormal exit status says.
+fn exit_kind(who: Sender, s: ExitStatus) -> FaultKind {
+    use deltaloop_transport::exit::{EXIT_FAULT, EXIT_SETUP, EXIT_STOPPED};
+    use std::os::unix::process::ExitStatusExt;
+    let plant = who == Sender::Plant;
+    let code = s.code().and_then(|c| u8::try_from(c).ok());
+    match (s.signal(), code) {
+        (Some(_), _) if plant => FaultKind::PlantKilled,
+        (Some(_), _) => FaultKind::ControllerKilled,
+        (_, Some(101)) if plant => FaultKind::PlantPanicked,
+        (_, Some(101)) => FaultKind::ControllerPanicked,
+        (_, Some(EXIT_SETUP)) => FaultKind::Setup,
+        (_, Some(EXIT_STOPPED)) => FaultKind::Stopped,
+        (_, Some(EXIT_FAULT)) if plant => FaultKind::PlantFailed,
+        (_, Some(EXIT_FAULT)) => FaultKind::ControllerFailed,
+        _ if plant => FaultKind::PlantExited,
+        _ => FaultKind::ControllerExited,
+    }
 }
 
 #[cfg(test)]
@@ -1370,6 +1437,42 @@ mod tests {
         assert!(fifo_share_warnings(&other, 3e-4, Some(0.95)).is_empty());
         // The controller blocking on its event (−1) polls nothing early.
         assert!(fifo_share_warnings(&split_with(-1), 3e-4, Some(0.95)).is_empty());
+    }
+
+    /// The kind of a fault from how the children ended: the root cause, not its echo (a
+    /// killed controller makes the plant stop the loop and exit with its fault code).
+    #[test]
+    fn a_fault_is_classified_by_its_root_cause() {
+        use std::os::unix::process::ExitStatusExt;
+        let code = |c: i32| Some(ExitStatus::from_raw(c << 8));
+        let sig = |s: i32| Some(ExitStatus::from_raw(s));
+        let (ok, fault, stopped, setup) = (code(0), code(4), code(5), code(3));
+        let k = |p, c, quit, said| fault_kind(p, c, quit, said);
+        assert_eq!(
+            k(fault, sig(libc::SIGKILL), false, true),
+            FaultKind::ControllerKilled
+        );
+        assert_eq!(
+            k(fault, code(101), false, true),
+            FaultKind::ControllerPanicked
+        );
+        assert_eq!(
+            k(sig(libc::SIGBUS), ok, false, false),
+            FaultKind::PlantKilled
+        );
+        assert_eq!(k(code(101), ok, false, false), FaultKind::PlantPanicked);
+        assert_eq!(k(fault, ok, false, true), FaultKind::ControllerSilent);
+        assert_eq!(k(fault, None, false, true), FaultKind::ControllerSilent);
+        assert_eq!(k(fault, stopped, false, true), FaultKind::Stopped);
+        assert_eq!(k(fault, setup, false, true), FaultKind::Setup);
+        assert_eq!(k(stopped, ok, false, false), FaultKind::Stopped);
+        assert_eq!(k(ok, setup, false, false), FaultKind::Setup);
+        assert_eq!(k(ok, fault, false, false), FaultKind::ControllerFailed);
+        assert_eq!(k(fault, ok, false, false), FaultKind::PlantFailed);
+        assert_eq!(k(code(9), ok, false, false), FaultKind::PlantExited);
+        assert_eq!(k(ok, code(9), false, false), FaultKind::ControllerExited);
+        assert_eq!(k(ok, ok, true, false), FaultKind::PlantQuit);
+        assert_eq!(k(ok, None, false, false), FaultKind::Hung);
     }
 
     /// Regression: a full /dev/shm mid-run killed the plant with a bare "signal 7".

@@ -14,28 +14,18 @@ use std::collections::VecDeque;
 /// Error bound of the divergence rule, rad (docs/controllers.md: |e_i| > 0.5 rad).
 pub const DIVERGENCE_ERR_RAD: f64 = 0.5;
 
-/// What became of the controller's reply to tick k (`trace.csv` column `reply`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ReplyFate {
-    /// It arrived in time and went to the drives (which may still clamp or reject it).
-    Applied,
-    /// The controller answered after the torque budget: dropped, the drives held.
-    Late,
-    /// The controller never answered this state: it answered a newer one instead.
-    Skipped,
-    /// No answer at all: the drives held.
-    Missed,
-}
-
-impl ReplyFate {
-    /// The `trace.csv` word.
-    pub fn name(self) -> &'static str {
-        match self {
-            ReplyFate::Applied => "applied",
-            ReplyFate::Late => "late",
-            ReplyFate::Skipped => "skipped",
-            ReplyFate::Missed => "missed",
-        }
+deltaloop_law::text_enum! {
+    "snake_case", "reply";
+    /// What became of the controller's reply to tick k (`trace.csv` column `reply`).
+    pub enum ReplyFate {
+        /// It arrived in time and went to the drives (which may still clamp or reject it).
+        Applied,
+        /// The controller answered after the torque budget: dropped, the drives held.
+        Late,
+        /// The controller never answered this state: it answered a newer one instead.
+        Skipped,
+        /// No answer at all: the drives held.
+        Missed,
     }
 }
 
@@ -79,11 +69,87 @@ fn measured(s: &StateMsg) -> PlantSample {
     }
 }
 
-/// A loop fault: the tick it happened at and a one-line cause.
+/// A loop fault: the tick it happened at, what kind of fault, and a one-line cause.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Fault {
     pub tick: u64,
+    pub kind: FaultKind,
     pub cause: String,
+}
+
+deltaloop_law::text_enum! {
+    "snake_case", "status";
+    /// How a run ended, as `summary.json` (`status`), `sweep.csv` (`status`) and the exit code of
+    /// `deltaloop run` say it. One value per law, derived from its [`RunEnd`] by
+    /// [`RunEnd::status`]; the words are the serde names.
+    pub enum RunStatus {
+        /// Every tick 0..=N ran and was recorded.
+        Ok,
+        /// The divergence rule ended the run (error above the bound, a non-finite value, the robot
+        /// left its workspace): a result of the physics, not a failure of the run.
+        Diverged,
+        /// A loop process was stopped on request by someone other than this supervisor (it exited
+        /// with its stopped code, e.g. after a SIGTERM from outside): [`FaultKind::Stopped`].
+        Stopped,
+        /// The loop ran to its end, but the supervisor lost ticks of the stream or of the plant's
+        /// telemetry: every tick it saw is recorded. (`lost-data` in sweeps before the status was
+        /// the run's own: still read.)
+        #[serde(alias = "lost-data")]
+        LostData,
+        /// Ctrl-C / SIGTERM to the supervisor stopped the run; the ticks before it are kept.
+        Interrupted,
+        /// A loop fault ended the run (a process died, stalled, or the plant stopped the loop):
+        /// [`Fault::kind`] says which.
+        Fault,
+        /// The run could not start or finish (set-up, files): no metrics. Only sweep rows carry it;
+        /// a run folder's summary has no entry for such a law.
+        Error,
+    }
+}
+
+deltaloop_law::text_enum! {
+    "snake_case", "fault kind";
+    /// What kind of loop fault ended a run (`summary.json` `fault_kind`). The cause text says the
+    /// rest (exit status, the process's last log line, timings).
+    pub enum FaultKind {
+        /// The plant stopped the loop (FAULT) because the controller did not answer
+        /// `faults.controller_silence_ticks` ticks in a row (stalled, too slow, or gone), and braked.
+        ControllerSilent,
+        /// The controller exited with its fault code (e.g. a reference row missing when due).
+        ControllerFailed,
+        /// The controller panicked.
+        ControllerPanicked,
+        /// The controller was killed by a signal.
+        ControllerKilled,
+        /// The controller exited with any other status.
+        ControllerExited,
+        /// The plant exited with its fault code without having sent a FAULT.
+        PlantFailed,
+        /// The plant panicked.
+        PlantPanicked,
+        /// The plant was killed by a signal.
+        PlantKilled,
+        /// The plant exited with any other status.
+        PlantExited,
+        /// The plant exited normally (status 0) before the end of the run.
+        PlantQuit,
+        /// A loop process exited with its set-up failure code.
+        Setup,
+        /// A loop process stopped on request (its stopped code) that this supervisor never made.
+        Stopped,
+        /// A loop process did not exit when the run ended: the supervisor stopped it.
+        Hung,
+    }
+}
+
+impl FaultKind {
+    /// The run status a fault of this kind gives.
+    pub fn status(self) -> RunStatus {
+        match self {
+            FaultKind::Stopped => RunStatus::Stopped,
+            _ => RunStatus::Fault,
+        }
+    }
 }
 
 /// How a run ended.
@@ -128,6 +194,90 @@ pub struct RunEnd {
     /// A loop fault. Kept even when the divergence rule ended the trace first (e.g. the robot
     /// drifting while the plant held the torque of a dead controller).
     pub fault: Option<Fault>,
+}
+
+impl RunEnd {
+    /// How the run ended, in one word. An interrupt comes first (the run did not finish,
+    /// whatever else happened), then a loop fault (a stop on a fault is not a divergence, even
+    /// when the robot drifted past the bound while the plant held the torque of a silent
+    /// controller), then the divergence rule, then lost data.
+    pub fn status(&self) -> RunStatus {
+        match (&self.outcome, &self.fault) {
+            (Outcome::Interrupted { .. }, _) => RunStatus::Interrupted,
+            (_, Some(f)) => f.kind.status(),
+            (Outcome::Diverged { .. }, None) => RunStatus::Diverged,
+            (Outcome::LostData, None) => RunStatus::LostData,
+            (Outcome::Completed, None) => RunStatus::Ok,
+            // A fault outcome always has its fault on record.
+            (Outcome::Faulted, None) => RunStatus::Fault,
+        }
+    }
+
+    /// The tick the status names: where the run was interrupted, faulted or diverged, or the
+    /// first tick whose data was lost; None for `ok`.
+    pub fn status_tick(&self) -> Option<u64> {
+        match (&self.outcome, &self.fault) {
+            (Outcome::Interrupted { tick }, _) => Some(*tick),
+            (_, Some(f)) => Some(f.tick),
+            (Outcome::Diverged { tick, .. }, None) => Some(*tick),
+            (Outcome::LostData, None) => match (self.first_lost, self.first_no_telemetry) {
+                (Some(a), Some(b)) => Some(a.min(b)),
+                (a, b) => a.or(b),
+            },
+            (Outcome::Completed | Outcome::Faulted, None) => None,
+        }
+    }
+
+    /// Why, in one line, for every status but `ok` (`summary.json` `reason`, `sweep.csv`
+    /// `reason`).
+    pub fn reason(&self) -> Option<String> {
+        let nonempty = |s: &str| Some(s.to_string()).filter(|s| !s.trim().is_empty());
+        match (&self.outcome, &self.fault) {
+            (Outcome::Interrupted { tick }, _) => Some(format!("interrupted at tick {tick}")),
+            (outcome, Some(f)) => {
+                let text = nonempty(&f.cause).unwrap_or_else(|| "loop fault".into());
+                // The fault text usually names its tick already; otherwise say it.
+                let at = if text.contains(&format!("tick {}", f.tick)) {
+                    String::new()
+                } else {
+                    format!("fault at tick {}: ", f.tick)
+                };
+                let drift = match outcome {
+                    Outcome::Diverged { tick, reason } => format!(
+                        " (the tracking error had passed the divergence bound at tick {tick}: {})",
+                        nonempty(reason).unwrap_or_else(|| "diverged".into())
+                    ),
+                    _ => String::new(),
+                };
+                Some(format!("{at}{text}{drift}"))
+            }
+            (Outcome::Diverged { tick, reason }, None) => Some(
+                nonempty(reason)
+                    .unwrap_or_else(|| format!("diverged at tick {tick} (no reason recorded)")),
+            ),
+            (Outcome::LostData, None) => Some(self.lost_data_text()),
+            (Outcome::Completed | Outcome::Faulted, None) => None,
+        }
+    }
+
+    /// What a run that lost data lost: ticks of the stream, the plant's telemetry, or both.
+    pub fn lost_data_text(&self) -> String {
+        let mut parts = Vec::new();
+        if let Some(first) = self.first_lost {
+            parts.push(format!(
+                "the supervisor lost {} ticks of the stream, the first at tick {first}: it fell behind the loop and its queues overflowed",
+                self.lost_ticks
+            ));
+        }
+        if let Some(first) = self.first_no_telemetry {
+            parts.push(format!(
+                "{} ticks came without the plant's telemetry, the first at tick {first} (the plant did not send it, or the supervisor's queue lost it): their `reply` and `drives` are `unknown` and they are missing from the timing",
+                self.no_telemetry
+            ));
+        }
+        parts.push("every tick the supervisor saw is recorded".into());
+        parts.join("; ")
+    }
 }
 
 /// Where finished ticks go, in tick order (the trace file, the streaming metrics, …).
@@ -424,6 +574,7 @@ mod tests {
         let mut rec = Recorder::new(Law::Tdc, &r, 1.0, Ticks::new());
         let fault = Fault {
             tick: 3,
+            kind: FaultKind::ControllerKilled,
             cause: "controller died".into(),
         };
         rec.fault(fault.clone());
@@ -432,6 +583,142 @@ mod tests {
         assert_eq!(end.outcome, Outcome::Faulted);
         assert_eq!(end.fault, Some(fault));
         assert_eq!((end.records, ticks.len()), (2, 2));
+    }
+
+    fn end(outcome: Outcome, fault: Option<Fault>) -> RunEnd {
+        let r = reference();
+        let mut rec = Recorder::new(Law::Tdc, &r, 1.0, Ticks::new());
+        rec.end.outcome = outcome;
+        rec.end.fault = fault;
+        rec.finish(None).0
+    }
+
+    /// Each way a run ends has its status, tick and reason; a fault outranks the divergence it
+    /// caused, an interrupt outranks both.
+    #[test]
+    fn status_tick_and_reason_of_each_ending() {
+        let slow = Fault {
+            tick: 99,
+            kind: FaultKind::ControllerSilent,
+            cause: "no torque within the budget for 100 consecutive ticks".into(),
+        };
+        let drift = Outcome::Diverged {
+            tick: 120,
+            reason: "tracking error 0.6 rad exceeds 0.5 rad".into(),
+        };
+        let ok = end(Outcome::Completed, None);
+        assert_eq!(
+            (ok.status(), ok.status_tick(), ok.reason()),
+            (RunStatus::Ok, None, None)
+        );
+        let d = end(drift.clone(), None);
+        assert_eq!(
+            (d.status(), d.status_tick()),
+            (RunStatus::Diverged, Some(120))
+        );
+        let f = end(Outcome::Faulted, Some(slow.clone()));
+        assert_eq!((f.status(), f.status_tick()), (RunStatus::Fault, Some(99)));
+        assert_eq!(
+            f.reason().unwrap(),
+            "fault at tick 99: no torque within the budget for 100 consecutive ticks"
+        );
+        let fd = end(drift, Some(slow.clone()));
+        assert_eq!(
+            (fd.status(), fd.status_tick()),
+            (RunStatus::Fault, Some(99))
+        );
+        assert!(
+            fd.reason()
+                .unwrap()
+                .contains("divergence bound at tick 120")
+        );
+        let i = end(Outcome::Interrupted { tick: 42 }, Some(slow.clone()));
+        assert_eq!(
+            (i.status(), i.status_tick()),
+            (RunStatus::Interrupted, Some(42))
+        );
+        let stop = Fault {
+            kind: FaultKind::Stopped,
+            ..slow
+        };
+        assert_eq!(
+            end(Outcome::Faulted, Some(stop)).status(),
+            RunStatus::Stopped
+        );
+        let mut lost = end(Outcome::Completed, None);
+        lost.outcome = Outcome::LostData;
+        (lost.first_lost, lost.first_no_telemetry) = (Some(7), Some(3));
+        assert_eq!(
+            (lost.status(), lost.status_tick()),
+            (RunStatus::LostData, Some(3))
+        );
+    }
+
+    /// The serde word of `v` (a unit variant).
+    fn serde_word<T: serde::Serialize>(v: T) -> String {
+        serde_json::to_value(v)
+            .unwrap()
+            .as_str()
+            .unwrap()
+            .to_string()
+    }
+
+    /// Every text enum has one word per variant, the same for serde (config, JSON, CSV) and for
+    /// `name`/`parse`/"allowed" (strum).
+    #[test]
+    fn every_text_enum_has_one_word_per_variant() {
+        use deltaloop_config::config::PathKind;
+        use deltaloop_config::{LoopMode, Preset};
+        use strum::VariantArray;
+        fn check<T>()
+        where
+            T: VariantArray + Copy + Into<&'static str> + serde::Serialize + std::fmt::Debug,
+        {
+            for &v in T::VARIANTS {
+                assert_eq!(serde_word(v), v.into(), "{v:?}");
+            }
+        }
+        check::<Law>();
+        check::<Preset>();
+        check::<PathKind>();
+        check::<LoopMode>();
+        check::<RunStatus>();
+        check::<FaultKind>();
+        for &f in ReplyFate::VARIANTS {
+            assert_eq!(ReplyFate::parse(f.name()), Ok(f));
+        }
+        assert_eq!(
+            deltaloop_law::names::one_of::<ReplyFate>(),
+            "applied, late, skipped or missed"
+        );
+    }
+
+    /// The words of `summary.json` and `sweep.csv`, and the older sweep word still read.
+    #[test]
+    fn status_words() {
+        use strum::VariantArray;
+        let words: Vec<&str> = RunStatus::VARIANTS.iter().map(|s| s.name()).collect();
+        assert_eq!(
+            words,
+            [
+                "ok",
+                "diverged",
+                "stopped",
+                "lost_data",
+                "interrupted",
+                "fault",
+                "error"
+            ]
+        );
+        for &s in RunStatus::VARIANTS {
+            assert_eq!(serde_json::to_value(s).unwrap(), s.name());
+            assert_eq!(RunStatus::parse(s.name()), Ok(s));
+        }
+        for &k in FaultKind::VARIANTS {
+            assert_eq!(serde_json::to_value(k).unwrap(), k.name());
+        }
+        let old: RunStatus = serde_json::from_str("\"lost-data\"").unwrap();
+        assert_eq!(old, RunStatus::LostData);
     }
 
     /// The robot can drift out of bounds while the plant holds a dead controller's torque: the
@@ -443,6 +730,7 @@ mod tests {
             let mut rec = Recorder::new(Law::Tdc, &r, 1.0, Ticks::new());
             let fault = Fault {
                 tick: 5,
+                kind: FaultKind::ControllerKilled,
                 cause: "controller died".into(),
             };
             if fault_first {

@@ -10,6 +10,7 @@
 
 use crate::lawrun::{self, Keep, LawRun};
 use crate::output;
+use crate::record::ReplyFate;
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
 use deltaloop_config::files;
@@ -22,18 +23,9 @@ use std::path::{Path, PathBuf};
 struct Recorded {
     law: Law,
     k: u64,
-    fate: Fate,
+    fate: ReplyFate,
     /// A_k − t_k, ns, for an applied command.
     arrival_ns: Option<u64>,
-}
-
-/// The `reply` column.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Fate {
-    Applied,
-    Late,
-    Skipped,
-    Missed,
 }
 
 /// The recorded ticks of a trace, read one row at a time.
@@ -119,14 +111,11 @@ impl TraceRows {
                 deltaloop_config::config::show_str(k)
             )
         })?;
-        let fate = match reply {
-            "applied" => Fate::Applied,
-            "late" => Fate::Late,
-            "skipped" => Fate::Skipped,
-            "missed" => Fate::Missed,
+        let fate = match ReplyFate::parse(reply).ok() {
+            Some(fate) => fate,
             // The supervisor recorded the tick without the plant's telemetry: what the plant did
             // is not known, so the run cannot be re-run from it. Name the whole stretch.
-            "unknown" => {
+            None if reply == "unknown" => {
                 let (first, mut last) = (k, k);
                 while let Some(Ok(row)) = self.rows.next() {
                     let [_, k, reply, _] = self.cols.map(|c| row.get(c).unwrap_or(""));
@@ -140,14 +129,15 @@ impl TraceRows {
                     at()
                 )
             }
-            other => bail!(
-                "{}: column reply = {}: expected applied, late, skipped or missed",
+            None => bail!(
+                "{}: column reply = {}: expected {}",
                 at(),
-                deltaloop_config::config::show_str(other)
+                deltaloop_config::config::show_str(reply),
+                deltaloop_law::names::one_of::<ReplyFate>()
             ),
         };
         let arrival_ns = match (fate, arrival) {
-            (Fate::Applied, a) => {
+            (ReplyFate::Applied, a) => {
                 let ns: u64 = a.parse().map_err(|_| {
                     anyhow::anyhow!(
                         "{}: column arrival_ns = {}: an applied reply needs its arrival in ns",
@@ -218,22 +208,22 @@ fn replay_law(study: &Study, law: Law, rows: &mut TraceRows, keep: &Keep) -> Res
         let state = plant.state();
         let reference = study.reference.row(k as usize).joint;
         let (reply, arrival) = match r.fate {
-            Fate::Applied | Fate::Late => {
+            ReplyFate::Applied | ReplyFate::Late => {
                 let mut reply = ctrl.answer(&state, &reference);
                 reply.skipped = std::mem::take(&mut skipped_before);
                 let arrival = match (r.fate, r.arrival_ns) {
-                    (Fate::Applied, Some(a)) => {
+                    (ReplyFate::Applied, Some(a)) => {
                         Arrival::ReplyAfter(reply, a.saturating_sub(delay_ns))
                     }
                     _ => Arrival::Missed,
                 };
                 (Some(reply), arrival)
             }
-            Fate::Skipped => {
+            ReplyFate::Skipped => {
                 skipped_before += 1;
                 (None, Arrival::Missed)
             }
-            Fate::Missed => {
+            ReplyFate::Missed => {
                 skipped_before = 0;
                 (None, Arrival::Missed)
             }

@@ -5,7 +5,7 @@ use crate::analysis::Mismatch;
 use crate::metrics::LawMetrics;
 use crate::timing::TimingSummary;
 use deltaloop_config::config::{PathKind, VelocitySource};
-use deltaloop_config::{ControllerParams, Law, Preset, RunConfig};
+use deltaloop_config::{ControllerParams, Law, LoopMode, Preset, RunConfig};
 use std::fmt::Write;
 
 /// The paper's published RMS errors (rad) for TDC+IS and TDC+IS+STA (Tables II–IV).
@@ -36,15 +36,20 @@ fn e(x: f64) -> String {
     format!("{x:.3e}")
 }
 
+/// A law's status for the tables (from its [`RunStatus`](crate::record::RunStatus)).
 fn status(m: &LawMetrics) -> String {
-    match (m.diverged_at_tick, m.interrupted_at_tick, m.fault_at_tick) {
-        (Some(k), _, _) => format!("diverged at tick {k}"),
-        (_, Some(k), _) => format!("interrupted at tick {k}"),
-        (_, _, Some(k)) => format!("FAULT at tick {k}"),
-        _ if m.lost_data.is_some() => {
+    use crate::record::RunStatus;
+    let k = m.status_tick.unwrap_or(0);
+    match m.status {
+        RunStatus::Ok => "ok".into(),
+        RunStatus::Diverged => format!("diverged at tick {k}"),
+        RunStatus::Interrupted => format!("interrupted at tick {k}"),
+        RunStatus::Fault => format!("FAULT at tick {k}"),
+        RunStatus::Stopped => format!("STOPPED at tick {k}"),
+        RunStatus::LostData => {
             format!("LOST DATA ({} ticks)", m.lost_ticks + m.telemetry_missing)
         }
-        _ => "ok".into(),
+        RunStatus::Error => "error".into(),
     }
 }
 
@@ -111,7 +116,7 @@ fn max3(v: [f64; 3]) -> f64 {
 /// `report.md` for one scenario run.
 pub fn markdown(
     cfg: &RunConfig,
-    mode: &str,
+    mode: LoopMode,
     command: &str,
     metrics: &[LawMetrics],
     mismatch: &Mismatch,
@@ -131,7 +136,7 @@ pub fn markdown(
 }
 
 /// Title, the constants of the run, what was injected, and the command that produced it.
-fn header(s: &mut String, cfg: &RunConfig, p: &ControllerParams, mode: &str, command: &str) {
+fn header(s: &mut String, cfg: &RunConfig, p: &ControllerParams, mode: LoopMode, command: &str) {
     let _ = writeln!(
         s,
         "# {} — {}\n",
@@ -514,7 +519,7 @@ pub fn timing_table(metrics: &[LawMetrics], timing: &[Option<TimingSummary>]) ->
 /// The `report.md` section on loop timing (process modes).
 pub fn timing_markdown(
     cfg: &RunConfig,
-    mode: &str,
+    mode: LoopMode,
     metrics: &[LawMetrics],
     timing: &[Option<TimingSummary>],
 ) -> String {
@@ -589,12 +594,12 @@ pub fn timing_markdown(
          ends where its count stops resolving the percentile, rising there to its max{}. Over run time: each band spans the min to the max of the \
          ticks in one bin (about one pixel column), the line is their mean{}. Files `<law>.latency.{{png,svg}}`, \
          `<law>.timeline.{{png,svg}}`; per-second HdrHistogram interval logs `<law>.<name>.hlog`.",
-        if mode == "realtime" {
+        if mode == LoopMode::Realtime {
             "; the dashed red line is the torque budget"
         } else {
             ""
         },
-        if mode == "realtime" {
+        if mode == LoopMode::Realtime {
             "; red triangles mark bins with deadline misses"
         } else {
             "; run time is simulated time k·Ts (lockstep does not keep the clock)"
@@ -621,7 +626,7 @@ mod tests {
     #[test]
     fn timing_section_measures_a_miss_from_the_state_publication() {
         let cfg = RunConfig::from_toml_str("[scenario]\npath = \"s1\"\n", None).unwrap();
-        let md = timing_markdown(&cfg, "realtime", &[], &[]);
+        let md = timing_markdown(&cfg, LoopMode::Realtime, &[], &[]);
         assert!(
             md.contains(&format!(
                 "within {} µs (the torque budget) of the plant publishing its state",

@@ -6,6 +6,7 @@ use crate::lawrun::{Keep, LawRun};
 use crate::metrics::LawMetrics;
 use crate::output::{self, Summary};
 use crate::procs;
+use crate::record::{Fault, RunStatus};
 use crate::report;
 use crate::study::Study;
 use crate::timing::{PeakRss, Timing, TimingSummary};
@@ -141,7 +142,7 @@ pub fn run(
     // Each law whose plant once woke ten ticks late or more (realtime): see Timing::freeze_note.
     let mut freezes: Vec<(Law, String)> = Vec::new();
     // A fault or an interrupt ends the run after this law; the folder is still written.
-    let mut stopped: Option<(Law, Option<String>)> = None;
+    let mut stopped: Option<(Law, Option<Fault>)> = None;
     let mut failed: Option<anyhow::Error> = None;
     let keep = |law| Keep {
         trace: cfg.record.trace.then(|| output::trace_part(&dir, law)),
@@ -210,7 +211,7 @@ pub fn run(
                 }
                 run_ids.push((law, r.run_id));
                 if r.interrupted || r.fault.is_some() {
-                    stopped = Some((law, r.fault.as_ref().map(|f| f.cause.clone())));
+                    stopped = Some((law, r.fault.clone()));
                 }
                 runs.push(r.run);
                 timings.push(Some(r.timing));
@@ -235,8 +236,8 @@ pub fn run(
     let mm = mismatch(&study.robot, &study.reference, &study.params);
     let summary = Summary {
         scenario: &cfg.name,
-        mode: mode.name(),
-        preset: cfg.controller.preset.name(),
+        mode,
+        preset: cfg.controller.preset,
         command,
         started_utc: started,
         ts_s: cfg.loop_.ts_s,
@@ -248,22 +249,19 @@ pub fn run(
         controller: study.params,
         mismatch: &mm,
         interrupted: crate::signals::interrupted(),
-        laws: metrics.iter().map(|m| (m.law.name(), m)).collect(),
-        run_ids: run_ids
-            .iter()
-            .map(|(l, id)| (l.name(), id.as_str()))
-            .collect(),
+        laws: metrics.iter().map(|m| (m.law, m)).collect(),
+        run_ids: run_ids.iter().map(|(l, id)| (*l, id.as_str())).collect(),
         timing: metrics
             .iter()
             .zip(&timing_summaries)
-            .filter_map(|(m, t)| t.as_ref().map(|t| (m.law.name(), t)))
+            .filter_map(|(m, t)| t.as_ref().map(|t| (m.law, t)))
             .collect(),
     };
-    let mut md = report::markdown(cfg, mode.name(), command, &metrics, &mm);
+    let mut md = report::markdown(cfg, mode, command, &metrics, &mm);
     if mode.is_process() {
         md.push_str(&report::timing_markdown(
             cfg,
-            mode.name(),
+            mode,
             &metrics,
             &timing_summaries,
         ));
@@ -283,32 +281,39 @@ pub fn run(
         let finished: Vec<Law> = runs.iter().map(|r| r.metrics.law).collect();
         return Err(e.context(kept_note(&finished, &dir, &child_logs(&dir))));
     }
-    if let Some((law, cause)) = &stopped {
+    if let Some((law, fault)) = &stopped {
         // A fault right after the loop froze is the machine's: say so on the same line.
         let frozen = freezes
             .iter()
             .find(|(l, _)| l == law)
             .map_or(String::new(), |(l, f)| format!("; before it, `{l}`: {f}"));
-        return Err(match cause {
-            Some(c) => anyhow::anyhow!(
-                "{} run of `{law}` stopped by a fault: {c}{frozen} (data so far in {})",
-                mode.name(),
-                dir.display()
-            ),
+        return Err(match fault {
+            Some(f) => anyhow::Error::new(Ended {
+                status: f.kind.status(),
+                message: format!(
+                    "{} run of `{law}` stopped by a fault: {}{frozen} (data so far in {})",
+                    mode.name(),
+                    f.cause,
+                    dir.display()
+                ),
+            }),
             None => anyhow::Error::new(Interrupted(dir.clone())),
         });
     }
     if crate::signals::interrupted() {
         return Err(anyhow::Error::new(Interrupted(dir.clone())));
     }
-    if let Some(m) = metrics.iter().find(|m| m.lost_data.is_some()) {
-        anyhow::bail!(
-            "{} run of `{}` lost data: {} (in {})",
-            mode.name(),
-            m.law,
-            m.lost_data.as_deref().unwrap_or_default(),
-            dir.display()
-        );
+    if let Some(m) = metrics.iter().find(|m| m.status == RunStatus::LostData) {
+        return Err(anyhow::Error::new(Ended {
+            status: m.status,
+            message: format!(
+                "{} run of `{}` lost data: {} (in {})",
+                mode.name(),
+                m.law,
+                m.lost_data.as_deref().unwrap_or_default(),
+                dir.display()
+            ),
+        }));
     }
     notes.extend(freezes.into_iter().map(|(l, f)| format!("`{l}`: {f}")));
     Ok(RunOutput {
@@ -401,6 +406,34 @@ impl std::fmt::Display for Interrupted {
 }
 
 impl std::error::Error for Interrupted {}
+
+/// A run whose law ended with a status that fails the command (a fault, a stop on request, lost
+/// data); its folder is written. The exit code comes from `status` ([`crate::cli::exit_code`]).
+#[derive(Debug)]
+pub struct Ended {
+    pub status: RunStatus,
+    /// One line for the user.
+    pub message: String,
+}
+
+impl std::fmt::Display for Ended {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for Ended {}
+
+/// The status an error of [`run`] stands for: `interrupted`, the status of [`Ended`], or
+/// `error` for any other failure.
+pub fn error_status(e: &anyhow::Error) -> RunStatus {
+    if e.downcast_ref::<Interrupted>().is_some() {
+        RunStatus::Interrupted
+    } else {
+        e.downcast_ref::<Ended>()
+            .map_or(RunStatus::Error, |e| e.status)
+    }
+}
 
 #[cfg(test)]
 mod tests {

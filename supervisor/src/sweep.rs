@@ -12,6 +12,7 @@ use crate::lawrun::Keep;
 use crate::metrics::LawMetrics;
 use crate::plot::{self, Panel, Series};
 use crate::procs;
+use crate::record::RunStatus;
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
 use deltaloop_config::config::{self as cfgfile, PathKind};
@@ -58,8 +59,8 @@ pub struct SweepFile {
 pub struct Row {
     /// The point's id in the plan (see [`plan::Plan`]).
     pub point: String,
-    pub scenario: String,
-    pub preset: String,
+    pub scenario: PathKind,
+    pub preset: Preset,
     pub law: Law,
     pub mode: LoopMode,
     pub tde_delay_samples: u32,
@@ -69,8 +70,8 @@ pub struct Row {
     /// The effective estimation delay L_eff/Ts = ℓ + D/Ts, ticks.
     pub effective_delay_ticks: f64,
     pub compute_delay_us: u32,
-    /// How the point ended (see [`Status`]).
-    pub status: Status,
+    /// How the point ended: the run's [`RunStatus`] (`error`: the point could not run).
+    pub status: RunStatus,
     /// Set only for `diverged`.
     pub diverged_at_tick: Option<u64>,
     /// Why, for every status but `ok`.
@@ -93,49 +94,11 @@ pub struct Row {
     pub round_trip_p999_us: Option<f64>,
 }
 
-/// How a sweep point ended (`sweep.csv` column `status`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Status {
-    /// Every tick ran and was recorded.
-    Ok,
-    /// The divergence rule ended the run (the physics).
-    Diverged,
-    /// A loop fault ended it, e.g. a controller too slow for its deadlines.
-    Stopped,
-    /// The loop finished, but the supervisor lost part of the stream.
-    LostData,
-    /// Ctrl-C / SIGTERM cut the point short: not a result, no metrics.
-    Interrupted,
-    /// The point could not run.
-    Error,
-}
-
-impl Status {
-    /// The `sweep.csv` word.
-    pub fn name(self) -> &'static str {
-        match self {
-            Status::Ok => "ok",
-            Status::Diverged => "diverged",
-            Status::Stopped => "stopped",
-            Status::LostData => "lost-data",
-            Status::Interrupted => "interrupted",
-            Status::Error => "error",
-        }
-    }
-}
-
-impl std::fmt::Display for Status {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.pad(self.name())
-    }
-}
-
 impl Row {
     /// Whether the row is a result (every status but `interrupted`: a point cut short by
     /// Ctrl-C / SIGTERM measured nothing complete).
     pub fn is_result(&self) -> bool {
-        self.status != Status::Interrupted
+        self.status != RunStatus::Interrupted
     }
 }
 
@@ -182,55 +145,17 @@ fn maxj(v: [f64; 3]) -> f64 {
     v.into_iter().fold(0.0, f64::max)
 }
 
-/// Status and reason of a point (see [`Row::status`]). An interrupt comes first (the point did
-/// not finish, whatever else happened), then a loop fault (a stop on a fault is not a
-/// divergence, even when the robot drifted past the bound while the plant held the torque of
-/// a silent controller), then the divergence rule.
-fn status(m: Option<&LawMetrics>, err: Option<&str>) -> (Status, String) {
-    let Some(m) = m else {
-        let e = err.filter(|e| !e.is_empty()).unwrap_or("no result");
-        return (Status::Error, e.to_string());
-    };
-    if let Some(e) = err {
-        return (Status::Error, e.to_string());
+/// Status and reason of a point (see [`Row::status`]): the run's own (see
+/// [`RunEnd::status`](crate::record::RunEnd::status)), or `error` with the error.
+fn status(m: Option<&LawMetrics>, err: Option<&str>) -> (RunStatus, String) {
+    match (m, err) {
+        (Some(m), None) => (m.status, m.reason.clone().unwrap_or_default()),
+        (Some(_), Some(e)) => (RunStatus::Error, e.to_string()),
+        (None, e) => {
+            let e = e.filter(|e| !e.is_empty()).unwrap_or("no result");
+            (RunStatus::Error, e.to_string())
+        }
     }
-    let nonempty = |s: &Option<String>| s.clone().filter(|s| !s.trim().is_empty());
-    if let Some(k) = m.interrupted_at_tick {
-        return (Status::Interrupted, format!("interrupted at tick {k}"));
-    }
-    if let Some(f) = nonempty(&m.fault).or_else(|| m.fault_at_tick.map(|_| "loop fault".into())) {
-        // The fault text usually names its tick already; otherwise say it.
-        let at = match m.fault_at_tick {
-            Some(k) if !f.contains(&format!("tick {k}")) => format!("fault at tick {k}: "),
-            _ => String::new(),
-        };
-        let drift = m.diverged_at_tick.map_or(String::new(), |k| {
-            format!(
-                " (the tracking error had passed the divergence bound at tick {k}: {})",
-                nonempty(&m.diverged_reason).unwrap_or_else(|| "diverged".into())
-            )
-        });
-        return (Status::Stopped, format!("{at}{f}{drift}"));
-    }
-    if let Some(k) = m.diverged_at_tick {
-        let why = nonempty(&m.diverged_reason)
-            .unwrap_or_else(|| format!("diverged at tick {k} (no reason recorded)"));
-        return (Status::Diverged, why);
-    }
-    if let Some(lost) = nonempty(&m.lost_data) {
-        // The loop finished, but the supervisor did not see all of it: not a clean result.
-        return (Status::LostData, lost);
-    }
-    if !m.completed {
-        return (
-            Status::Stopped,
-            format!(
-                "the run ended after tick {} without a recorded cause",
-                m.ticks
-            ),
-        );
-    }
-    (Status::Ok, String::new())
 }
 
 fn row(
@@ -243,7 +168,7 @@ fn row(
 ) -> Row {
     let (status, reason) = status(m, err.as_deref());
     // A point that did not finish carries no metrics: nothing in it is a result.
-    let (m, timing) = if status == Status::Interrupted {
+    let (m, timing) = if status == RunStatus::Interrupted {
         (None, None)
     } else {
         (m, timing)
@@ -251,8 +176,8 @@ fn row(
     let nan = f64::NAN;
     Row {
         point: String::new(),
-        scenario: job.scenario.name().into(),
-        preset: job.preset.name().into(),
+        scenario: job.scenario,
+        preset: job.preset,
         law: job.law,
         mode,
         tde_delay_samples: job.ell,
@@ -263,7 +188,7 @@ fn row(
         status,
         diverged_at_tick: m
             .and_then(|m| m.diverged_at_tick)
-            .filter(|_| status == Status::Diverged),
+            .filter(|_| status == RunStatus::Diverged),
         reason,
         rms_rad: m.map_or(nan, |m| maxj(m.rms_rad)),
         max_abs_err_rad: m.map_or(nan, |m| maxj(m.max_abs_err_rad)),
@@ -663,15 +588,15 @@ fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String
                         .iter()
                         .map(|law| Series {
                             name: law.name().to_string(),
-                            color: plot::law_color(law.name()),
+                            color: plot::law_color(*law),
                             points: rows
                                 .iter()
                                 .filter(|r| {
                                     on_axis(r)
-                                        && r.scenario == scn
-                                        && r.preset == pr.name()
+                                        && r.scenario == sc
+                                        && r.preset == pr
                                         && r.law == *law
-                                        && r.status == Status::Ok
+                                        && r.status == RunStatus::Ok
                                 })
                                 .map(|r| (x_of(r), get(r)))
                                 .collect(),
@@ -728,9 +653,9 @@ fn effective_delay_figures(
             for &pr in &sw.presets {
                 let here = |r: &&Row| {
                     r.mode != LoopMode::Realtime
-                        && r.scenario == sc.name()
-                        && r.preset == pr.name()
-                        && r.status == Status::Ok
+                        && r.scenario == sc
+                        && r.preset == pr
+                        && r.status == RunStatus::Ok
                         && r.effective_delay_ticks <= max_x
                 };
                 let mut series = Vec::new();
@@ -754,12 +679,12 @@ fn effective_delay_figures(
                     };
                     series.push(Series {
                         name: format!("{law}: ℓ"),
-                        color: plot::law_color(law.name()),
+                        color: plot::law_color(law),
                         points: points(true),
                     });
                     series.push(Series {
                         name: format!("{law}: D (µs)"),
-                        color: plot::lighter(plot::law_color(law.name())),
+                        color: plot::lighter(plot::law_color(law)),
                         points: points(false),
                     });
                 }
@@ -787,8 +712,8 @@ fn effective_delay_figures(
 fn latency_budget(
     sw: &SweepFile,
     rows: &[Row],
-    scenario: &str,
-    preset: &str,
+    scenario: PathKind,
+    preset: Preset,
     law: Law,
 ) -> Option<(f64, f64, f64)> {
     let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
@@ -803,14 +728,16 @@ fn latency_budget(
                 && r.transport_delay_us == us
         })
     };
-    let zero = at(0.0).filter(|r| r.status == Status::Ok)?.rms_rad;
+    let zero = at(0.0).filter(|r| r.status == RunStatus::Ok)?.rms_rad;
     let mut grid: Vec<f64> = sw.transport_delay_us.clone();
     grid.retain(|&us| us > 0.0);
     grid.sort_by(f64::total_cmp);
     let mut best = (0.0, zero);
     for us in grid {
         match at(us) {
-            Some(r) if r.status == Status::Ok && r.rms_rad <= 2.0 * zero => best = (us, r.rms_rad),
+            Some(r) if r.status == RunStatus::Ok && r.rms_rad <= 2.0 * zero => {
+                best = (us, r.rms_rad)
+            }
             _ => break,
         }
     }
@@ -821,9 +748,9 @@ fn cell(r: Option<&Row>, get: Metric) -> String {
     match r {
         None => "–".into(),
         Some(r) => match r.status {
-            Status::Ok => format!("{:.2e}", get(r)),
-            Status::Diverged => format!("div@{}", r.diverged_at_tick.unwrap_or(0)),
-            Status::Interrupted => "–".into(),
+            RunStatus::Ok => format!("{:.2e}", get(r)),
+            RunStatus::Diverged => format!("div@{}", r.diverged_at_tick.unwrap_or(0)),
+            RunStatus::Interrupted => "–".into(),
             other => other.name().into(),
         },
     }
@@ -866,12 +793,12 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
         rows.iter().filter(|r| r.is_result()).count(),
         sw.mode
     );
-    let count = |st: Status| rows.iter().filter(|r| r.status == st).count();
+    let count = |st: RunStatus| rows.iter().filter(|r| r.status == st).count();
     let (div, stopped, lost, err) = (
-        count(Status::Diverged),
-        count(Status::Stopped),
-        count(Status::LostData),
-        count(Status::Error),
+        count(RunStatus::Diverged),
+        count(RunStatus::Fault) + count(RunStatus::Stopped),
+        count(RunStatus::LostData),
+        count(RunStatus::Error),
     );
     // These counts only when there are some: a normal sweep's report stays as it was.
     let stopped_count = [
@@ -909,7 +836,7 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
                     pr.name()
                 );
                 let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
-                let base = |r: &&Row| on_grid(r) && r.scenario == scn && r.preset == pr.name();
+                let base = |r: &&Row| on_grid(r) && r.scenario == sc && r.preset == pr;
                 let by_ell = |law: Law, l: u32| {
                     rows.iter().filter(base).find(|r| {
                         r.law == law && r.tde_delay_samples == l && r.transport_delay_samples == d0
@@ -977,9 +904,7 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
         for &sc in &sw.scenarios {
             for &pr in &sw.presets {
                 for &law in &sw.laws {
-                    if let Some((zero, us, rms)) =
-                        latency_budget(sw, rows, sc.name(), pr.name(), law)
-                    {
+                    if let Some((zero, us, rms)) = latency_budget(sw, rows, sc, pr, law) {
                         let _ = writeln!(
                             s,
                             "| {} | {} | `{law}` | {zero:.3e} | {us} | {rms:.3e} |",
@@ -1002,6 +927,7 @@ fn report(sw: &SweepFile, rows: &[Row], figures: &[(String, String)], path: &Pat
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::record::{Fault, FaultKind, Outcome, RunEnd};
 
     /// A scratch folder with a valid base, removed on drop.
     struct Scratch(PathBuf);
@@ -1242,6 +1168,35 @@ mod tests {
             .metrics
     }
 
+    /// `m` as if its run had ended with `outcome` and `fault`: the status fields as
+    /// [`MetricsAcc::finish`](crate::metrics::MetricsAcc::finish) sets them.
+    fn ended(m: &LawMetrics, outcome: Outcome, fault: Option<Fault>) -> LawMetrics {
+        let end = RunEnd {
+            law: m.law,
+            records: m.ticks + 1,
+            lost_ticks: 0,
+            first_lost: None,
+            no_telemetry: u64::from(outcome == Outcome::LostData),
+            first_no_telemetry: (outcome == Outcome::LostData).then_some(5),
+            duplicate_replies: 0,
+            stamps_replaced: 0,
+            outcome,
+            fault,
+        };
+        LawMetrics {
+            status: end.status(),
+            reason: end.reason(),
+            status_tick: end.status_tick(),
+            fault_kind: end.fault.as_ref().map(|f| f.kind),
+            completed: end.outcome == Outcome::Completed,
+            diverged_at_tick: match end.outcome {
+                Outcome::Diverged { tick, .. } => Some(tick),
+                _ => None,
+            },
+            ..m.clone()
+        }
+    }
+
     #[test]
     fn regression_sweep_row_status_and_reason() {
         let job = Job {
@@ -1261,7 +1216,7 @@ mod tests {
         assert_eq!(empty_timing.round_trip.count, 0);
 
         let r = row(&job, 3e-4, rt, Some(&ok), None, Some(&empty_timing));
-        assert_eq!((r.status, r.reason.as_str()), (Status::Ok, ""));
+        assert_eq!((r.status, r.reason.as_str()), (RunStatus::Ok, ""));
         // No round-trip sample: no percentile, not 0.
         assert_eq!(r.round_trip_p999_us, None);
         let mut w = csv::Writer::from_writer(Vec::new());
@@ -1271,83 +1226,90 @@ mod tests {
 
         // A controller too slow for its deadlines: the plant stops on a fault. Not a divergence,
         // even if the error passed the bound while the torque was held.
-        let mut m = ok.clone();
-        m.completed = false;
-        m.fault_at_tick = Some(99);
-        m.fault = Some("no torque within the budget for 100 consecutive ticks".into());
+        let slow = Fault {
+            tick: 99,
+            kind: FaultKind::ControllerSilent,
+            cause: "no torque within the budget for 100 consecutive ticks".into(),
+        };
+        let m = ended(&ok, Outcome::Faulted, Some(slow.clone()));
         let r = row(&job, 3e-4, rt, Some(&m), None, Some(&empty_timing));
-        assert_eq!(r.status, Status::Stopped);
-        assert_eq!(
-            r.reason,
-            "fault at tick 99: no torque within the budget for 100 consecutive ticks"
-        );
-        m.diverged_at_tick = Some(120);
-        m.diverged_reason = Some("|e| > 0.5 rad".into());
+        assert_eq!(r.status, RunStatus::Fault);
+        assert_eq!(m.fault_kind, Some(FaultKind::ControllerSilent));
+        assert_eq!(r.reason, m.reason.clone().unwrap());
+        let drifted = Outcome::Diverged {
+            tick: 120,
+            reason: "|e| > 0.5 rad".into(),
+        };
+        let m = ended(&ok, drifted, Some(slow.clone()));
         let r = row(&job, 3e-4, rt, Some(&m), None, None);
-        assert_eq!((r.status, r.diverged_at_tick), (Status::Stopped, None));
-        assert!(r.reason.starts_with("fault at tick 99: ") && r.reason.contains("tick 120"));
+        assert_eq!((r.status, r.diverged_at_tick), (RunStatus::Fault, None));
+        // A stop on request nobody here made is its own status.
+        let stop = Fault {
+            kind: FaultKind::Stopped,
+            ..slow
+        };
+        let r = row(
+            &job,
+            3e-4,
+            rt,
+            Some(&ended(&ok, Outcome::Faulted, Some(stop))),
+            None,
+            None,
+        );
+        assert_eq!(r.status, RunStatus::Stopped);
 
         // Interrupted: marked, no metrics, not a result.
-        let mut m = ok.clone();
-        m.completed = false;
-        m.interrupted_at_tick = Some(42);
+        let m = ended(&ok, Outcome::Interrupted { tick: 42 }, None);
         let r = row(&job, 3e-4, rt, Some(&m), None, Some(&empty_timing));
-        assert_eq!(
-            (r.status, r.reason.as_str()),
-            (Status::Interrupted, "interrupted at tick 42")
-        );
+        assert_eq!(r.status, RunStatus::Interrupted);
         assert!(!r.is_result() && r.rms_rad.is_nan() && r.deadline_misses.is_none());
 
-        // Diverged without a recorded reason still says why.
-        let mut m = ok.clone();
-        m.completed = false;
-        m.diverged_at_tick = Some(7);
-        let r = row(&job, 3e-4, rt, Some(&m), None, None);
-        assert_eq!(r.status, Status::Diverged);
-        assert_eq!(r.diverged_at_tick, Some(7));
-        assert!(!r.reason.is_empty());
-        // Ended early with no cause at all: not ok, not diverged.
-        let mut m = ok.clone();
-        m.completed = false;
-        let r = row(&job, 3e-4, rt, Some(&m), None, None);
-        assert!(r.status == Status::Stopped && !r.reason.is_empty(), "{r:?}");
-        let r = row(&job, 3e-4, rt, None, Some("boom".into()), None);
-        assert_eq!((r.status, r.reason.as_str()), (Status::Error, "boom"));
-        // The loop finished but the supervisor lost ticks: its own status, with the reason; the
-        // csv says `lost-data`.
-        let mut m = ok.clone();
-        m.completed = false;
-        m.lost_ticks = 1600;
-        m.lost_data = Some("the supervisor lost 1600 ticks of the stream".into());
-        let r = row(&job, 3e-4, rt, Some(&m), None, None);
+        // Diverged: the tick, and a reason even without a recorded one.
+        let at7 = Outcome::Diverged {
+            tick: 7,
+            reason: String::new(),
+        };
+        let r = row(&job, 3e-4, rt, Some(&ended(&ok, at7, None)), None, None);
         assert_eq!(
-            (r.status, r.reason.as_str()),
-            (
-                Status::LostData,
-                "the supervisor lost 1600 ticks of the stream"
-            )
+            (r.status, r.diverged_at_tick),
+            (RunStatus::Diverged, Some(7))
         );
+        assert!(!r.reason.is_empty());
+        let r = row(&job, 3e-4, rt, None, Some("boom".into()), None);
+        assert_eq!((r.status, r.reason.as_str()), (RunStatus::Error, "boom"));
+        let r = row(&job, 3e-4, rt, Some(&ok), Some("boom".into()), None);
+        assert_eq!(r.status, RunStatus::Error);
+        // The loop finished but the supervisor lost ticks: its own status, with the reason; the
+        // csv says `lost_data`, and a row of an older sweep (`lost-data`) still reads.
+        let m = ended(&ok, Outcome::LostData, None);
+        let r = row(&job, 3e-4, rt, Some(&m), None, None);
+        assert_eq!(r.status, RunStatus::LostData);
+        assert!(!r.reason.is_empty());
         let mut w = csv::Writer::from_writer(Vec::new());
         w.serialize(&r).unwrap();
-        assert!(
-            String::from_utf8(w.into_inner().unwrap())
-                .unwrap()
-                .contains(",lost-data,")
-        );
+        let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        assert!(text.contains(",lost_data,"), "{text}");
+        let old = text.replace(",lost_data,", ",lost-data,");
+        let back: Row = csv::Reader::from_reader(old.as_bytes())
+            .deserialize()
+            .next()
+            .unwrap()
+            .unwrap();
+        assert_eq!(back.status, RunStatus::LostData);
 
         // The report counts them apart and leaves the interrupted point out.
         let sw: SweepFile = toml::from_str(
             "name = \"r\"\nbase = \"b.toml\"\nscenarios = [\"s2\"]\npresets = [\"matched\"]\nlaws = [\"tdc\"]\ntde_delay_samples = [1]\ntransport_delay_samples = [0]\ncompute_delay_us = [200, 300]\n"
         )
         .unwrap();
-        let mut m = ok.clone();
-        m.completed = false;
-        m.fault_at_tick = Some(99);
-        m.fault = Some("too slow".into());
+        let too_slow = Fault {
+            tick: 99,
+            kind: FaultKind::ControllerSilent,
+            cause: "too slow".into(),
+        };
+        let m = ended(&ok, Outcome::Faulted, Some(too_slow));
         let stopped = row(&job, 3e-4, rt, Some(&m), None, Some(&empty_timing));
-        m.fault = None;
-        m.fault_at_tick = None;
-        m.interrupted_at_tick = Some(3);
+        let m = ended(&ok, Outcome::Interrupted { tick: 3 }, None);
         let cut = row(
             &Job {
                 compute_us: 300,
@@ -1366,7 +1328,7 @@ mod tests {
             "{md}"
         );
         assert!(
-            md.contains("| stopped |") && md.contains("fault at tick 99: too slow"),
+            md.contains("| fault |") && md.contains("fault at tick 99: too slow"),
             "{md}"
         );
         assert!(!md.contains("interrupted"), "{md}");
@@ -1393,7 +1355,7 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         let rows = rows.unwrap();
         assert_eq!(rows.len(), 1);
-        assert_eq!((rows[0].law, rows[0].status), (Law::Pid, Status::Ok));
+        assert_eq!((rows[0].law, rows[0].status), (Law::Pid, RunStatus::Ok));
     }
 
     /// The sub-tick delay axis: its points sit on L_eff/Ts = ℓ + D/Ts, D = 300 µs is the grid's

@@ -5,7 +5,7 @@ use deltaloop_config::{Law, RunConfig};
 use deltaloop_supervisor::inproc;
 use deltaloop_supervisor::lawrun::{Keep, LawRun};
 use deltaloop_supervisor::metrics::LawMetrics;
-use deltaloop_supervisor::record::Outcome;
+use deltaloop_supervisor::record::{Outcome, RunStatus};
 use deltaloop_supervisor::report::limit_cycle;
 use deltaloop_supervisor::study::Study;
 
@@ -40,7 +40,7 @@ fn metrics(s: &Study, law: Law) -> LawMetrics {
 #[test]
 fn every_law_tracks_s1_with_bounded_error_matched_preset() {
     let s = study("");
-    for (run, law) in run_laws(&s, &Law::ALL).iter().zip(Law::ALL) {
+    for (run, law) in run_laws(&s, Law::ALL).iter().zip(Law::ALL.iter().copied()) {
         assert_eq!(run.end.outcome, Outcome::Completed, "{law}");
         assert_eq!(run.records.len(), 2668);
         let m = &run.metrics;
@@ -112,7 +112,11 @@ fn diverging_configuration_is_reported_with_its_tick() {
         "{reason}"
     );
     let m = &run.metrics;
-    assert!(!m.completed && m.diverged_at_tick == Some(*tick));
+    assert_eq!(
+        (m.status, m.status_tick),
+        (RunStatus::Diverged, Some(*tick))
+    );
+    assert_eq!(m.diverged_at_tick, Some(*tick));
 }
 
 #[test]

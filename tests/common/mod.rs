@@ -5,6 +5,8 @@ use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 pub mod python;
 
+#[allow(unused_imports)]
+pub use deltaloop_supervisor::record::{FaultKind, RunStatus};
 use serde_json::Value;
 use std::path::Path;
 use std::process::{Command, Output};
@@ -157,6 +159,16 @@ pub fn summary(dir: &Path) -> Value {
     json(&dir.join("summary.json"))
 }
 
+/// How `law` ended, as its summary says: the typed `status` and, for a fault, its `fault_kind`.
+pub fn outcome(summary: &Value, law: &str) -> (RunStatus, Option<FaultKind>) {
+    let m = &summary["laws"][law];
+    let status = serde_json::from_value(m["status"].clone())
+        .unwrap_or_else(|e| panic!("status of {law}: {e}: {m}"));
+    let kind = serde_json::from_value(m["fault_kind"].clone())
+        .unwrap_or_else(|e| panic!("fault_kind of {law}: {e}: {m}"));
+    (status, kind)
+}
+
 /// A long run of `law` in `out` completed with every tick on disk and nothing lost on any stream;
 /// returns its peak RSS (MiB) of supervisor, plant and controller.
 pub fn assert_complete_and_kept(summary: &Value, out: &Path, law: &str) -> [f64; 3] {
@@ -177,7 +189,7 @@ pub fn assert_complete_and_kept(summary: &Value, out: &Path, law: &str) -> [f64;
 /// Each process's peak memory (MiB: supervisor, plant, controller).
 pub fn assert_complete(summary: &Value, out: &Path, law: &str) -> [f64; 3] {
     let m = &summary["laws"][law];
-    assert_eq!(m["completed"], true, "{m}");
+    assert_eq!(outcome(summary, law), (RunStatus::Ok, None), "{m}");
     assert_eq!(m["lost_ticks"], 0, "{m}");
     assert_eq!(m["ticks"], summary["ticks"], "{m}");
     let t = &summary["timing"][law];

@@ -254,7 +254,7 @@ mod tests {
             qdd: Vec3::zeros(),
         };
         for preset in [Preset::Matched, Preset::Paper] {
-            for law in Law::ALL {
+            for &law in Law::ALL {
                 let mut c = Controller::new(law, ControllerParams::preset(preset), 3e-4, 3);
                 let out = c.step(&m, &r);
                 assert_eq!(out.s, Vec3::zeros(), "{law}");

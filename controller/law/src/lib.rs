@@ -6,6 +6,7 @@
 //! knows nothing of the robot model. This crate does not depend on the plant crate.
 
 pub mod law;
+pub mod names;
 pub mod params;
 pub mod sta;
 pub mod tde;

@@ -3,35 +3,26 @@
 //! serde derives, so the config schema can hold them without this crate knowing of any file.
 
 use serde::{Deserialize, Serialize};
-use std::fmt;
 
-/// A control law (docs/controllers.md, "The laws").
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
-#[serde(rename_all = "kebab-case")]
-pub enum Law {
-    /// Time-delay control, u = 0.
-    Tdc,
-    /// TDE + integral sliding mode with a boundary layer (paper eq. 44).
-    TdeIs,
-    /// TDC + integral sliding mode + super-twisting (paper eq. 12–14), the paper's proposal.
-    TdcIsSta,
-    /// PID baseline with a bumpless start; no TDE, no model.
-    Pid,
+crate::text_enum! {
+    "kebab-case", "law";
+    /// A control law (docs/controllers.md, "The laws").
+    #[derive(PartialOrd, Ord)]
+    pub enum Law {
+        /// Time-delay control, u = 0.
+        Tdc,
+        /// TDE + integral sliding mode with a boundary layer (paper eq. 44).
+        TdeIs,
+        /// TDC + integral sliding mode + super-twisting (paper eq. 12–14), the paper's proposal.
+        TdcIsSta,
+        /// PID baseline with a bumpless start; no TDE, no model.
+        Pid,
+    }
 }
 
 impl Law {
     /// Every law, in report order.
-    pub const ALL: [Law; 4] = [Law::Tdc, Law::TdeIs, Law::TdcIsSta, Law::Pid];
-
-    /// The config/CLI name (`tdc`, `tde-is`, `tdc-is-sta`, `pid`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Law::Tdc => "tdc",
-            Law::TdeIs => "tde-is",
-            Law::TdcIsSta => "tdc-is-sta",
-            Law::Pid => "pid",
-        }
-    }
+    pub const ALL: &'static [Law] = <Law as strum::VariantArray>::VARIANTS;
 
     /// The name the paper uses.
     pub fn paper_name(self) -> &'static str {
@@ -47,40 +38,18 @@ impl Law {
     pub fn uses_tde(self) -> bool {
         self != Law::Pid
     }
-
-    /// Parses a config/CLI name.
-    pub fn parse(s: &str) -> Result<Law, String> {
-        Law::ALL
-            .into_iter()
-            .find(|l| l.name() == s)
-            .ok_or_else(|| format!("unknown law `{s}`: allowed are tdc, tde-is, tdc-is-sta, pid"))
-    }
 }
 
-impl fmt::Display for Law {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.pad(self.name())
-    }
-}
-
-/// A named set of controller constants.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum Preset {
-    /// M̄ = 0.03 I kg m² (≈ 0.9 λmin(M) over the workspace), φ = 0.5 rad/s: the method as intended.
-    #[default]
-    Matched,
-    /// M̄ = 3·10⁻⁴ I kg m² (the paper's Table I literally), φ = 100 rad/s: shows the limit cycle.
-    Paper,
-}
-
-impl Preset {
-    /// The config name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Preset::Matched => "matched",
-            Preset::Paper => "paper",
-        }
+crate::text_enum! {
+    "kebab-case", "preset";
+    /// A named set of controller constants.
+    #[derive(Default)]
+    pub enum Preset {
+        /// M̄ = 0.03 I kg m² (≈ 0.9 λmin(M) over the workspace), φ = 0.5 rad/s: the method as intended.
+        #[default]
+        Matched,
+        /// M̄ = 3·10⁻⁴ I kg m² (the paper's Table I literally), φ = 100 rad/s: shows the limit cycle.
+        Paper,
     }
 }
 

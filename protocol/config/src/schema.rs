@@ -10,34 +10,22 @@ use deltaloop_law::{ControllerParams, Law, Preset, VelocitySource};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-/// Which reference path to follow (docs/delta-robot.md §6).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum PathKind {
-    /// P0 → P2 semi-ellipse, T = 0.8 s.
-    S1,
-
-    /// The same path in T = 0.2 s.
-    S2,
-
-    /// P0 → P1 → P2, two semi-ellipses in different vertical planes, T = 1.2 s.
-    S3,
-
-    /// The `segments` list of the scenario table.
-    Custom,
+deltaloop_law::text_enum! {
+    "kebab-case", "path";
+    /// Which reference path to follow (docs/delta-robot.md §6).
+    pub enum PathKind {
+        /// P0 → P2 semi-ellipse, T = 0.8 s.
+        S1,
+        /// The same path in T = 0.2 s.
+        S2,
+        /// P0 → P1 → P2, two semi-ellipses in different vertical planes, T = 1.2 s.
+        S3,
+        /// The `segments` list of the scenario table.
+        Custom,
+    }
 }
 
 impl PathKind {
-    /// The config name (`s1`, `s2`, `s3`, `custom`).
-    pub fn name(self) -> &'static str {
-        match self {
-            PathKind::S1 => "s1",
-            PathKind::S2 => "s2",
-            PathKind::S3 => "s3",
-            PathKind::Custom => "custom",
-        }
-    }
-
     /// Motion duration T of the paper scenarios, s (None for `custom`: the segments say).
     pub fn paper_duration_s(self) -> Option<f64> {
         match self {

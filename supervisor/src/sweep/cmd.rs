@@ -2,7 +2,8 @@
 //! for sweeps split over machines.
 
 use super::plan::{Plan, Selection};
-use super::{Row, Status, merge, shard};
+use super::{Row, merge, shard};
+use crate::record::RunStatus;
 use anyhow::Result;
 use clap::{Args, Subcommand};
 use std::path::{Path, PathBuf};
@@ -78,17 +79,17 @@ enum Action {
 
 /// `N runs in T s: … ok, … diverged, …`.
 fn counts(rows: &[Row], secs: f64) -> String {
-    let n = |st: Status| rows.iter().filter(|r| r.status == st).count();
+    let n = |st: RunStatus| rows.iter().filter(|r| r.status == st).count();
     // An interrupted point is not a run that finished: counted apart, when there is one.
-    let interrupted = n(Status::Interrupted);
+    let interrupted = n(RunStatus::Interrupted);
     format!(
         "{} runs in {secs:.1} s: {} ok, {} diverged, {} stopped, {} errors{}{}",
         rows.len() - interrupted,
-        n(Status::Ok),
-        n(Status::Diverged),
-        n(Status::Stopped),
-        n(Status::Error),
-        match n(Status::LostData) {
+        n(RunStatus::Ok),
+        n(RunStatus::Diverged),
+        n(RunStatus::Fault) + n(RunStatus::Stopped),
+        n(RunStatus::Error),
+        match n(RunStatus::LostData) {
             0 => String::new(),
             l => format!(", {l} lost data"),
         },

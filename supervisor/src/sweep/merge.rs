@@ -148,8 +148,8 @@ pub fn gather(dirs: &[PathBuf], opts: Options) -> Result<Merged> {
                 r.tde_delay_samples,
                 r.transport_delay_samples,
             ) != (p.job.law, p.mode, p.job.ell, p.job.d)
-                || r.scenario != p.job.scenario.name()
-                || r.preset != p.job.preset.name()
+                || r.scenario != p.job.scenario
+                || r.preset != p.job.preset
                 || r.compute_delay_us != p.job.compute_us
                 || r.transport_delay_us != p.job.us
             {
