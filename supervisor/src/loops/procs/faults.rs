@@ -1,0 +1,159 @@
+//! How a process run ended, in words: a child's exit status or signal, the line of its log that
+//! says why, and the run's [`Fault`].
+
+use crate::loops::peer_text::{self, Tail};
+use crate::record::Fault;
+use deltaloop_transport::wire::Sender;
+use std::path::Path;
+use std::process::ExitStatus;
+
+use super::observe::*;
+use super::spawn::*;
+use super::*;
+
+/// How a child ended, in words: a signal by its name, and SIGBUS with its likely cause.
+pub(super) fn status_text(s: ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    match (s.code(), s.signal()) {
+        (_, Some(sig)) => killed_by(sig),
+        (Some(101), _) => "panicked (exit status 101)".into(),
+        (Some(c), _) => format!("exited with status {c}"),
+        _ => "exited".into(),
+    }
+}
+
+/// "was killed by SIGBUS (…)" for signal `sig`. A loop process touches nothing but its shared
+/// memory mappings that could fault with SIGBUS: a page of a `/dev/shm` file that cannot be
+/// backed because the file system is full.
+pub(super) fn killed_by(sig: i32) -> String {
+    let name = match sig {
+        libc::SIGKILL => "SIGKILL",
+        libc::SIGBUS => {
+            return "was killed by SIGBUS (signal 7: a bus error, most likely shared memory (/dev/shm) ran out; see `df -h /dev/shm`)".into();
+        }
+        libc::SIGSEGV => "SIGSEGV",
+        libc::SIGABRT => "SIGABRT",
+        libc::SIGTERM => "SIGTERM",
+        libc::SIGINT => "SIGINT",
+        libc::SIGHUP => "SIGHUP",
+        libc::SIGPIPE => "SIGPIPE",
+        libc::SIGFPE => "SIGFPE",
+        libc::SIGILL => "SIGILL",
+        libc::SIGQUIT => "SIGQUIT",
+        libc::SIGXCPU => "SIGXCPU",
+        _ => return format!("was killed by signal {sig}"),
+    };
+    format!("was killed ({name})")
+}
+
+/// The line of a child's log that says why it stopped (see [`peer_text::reason`]).
+pub(super) fn last_line(path: &Path) -> String {
+    Tail::read(path).reason()
+}
+
+/// One line saying what went wrong, or None when both children finished normally.
+/// The tick is the one the plant's FAULT message names, else the tick after its last telemetry.
+pub(super) fn fault_cause(
+    ending: &Ending,
+    pair: &Pair,
+    streams: &Observation<'_>,
+) -> Option<Fault> {
+    let (plant, ctrl) = (ending.plant, ending.controller);
+    let (plant_log, ctrl_log) = (&pair.logs.plant, &pair.logs.controller);
+    let ok = |s: Option<ExitStatus>| s.is_some_and(|s| s.success());
+    let (last_torque, last_tel) = (streams.last_torque, streams.last_tel);
+    // A plant that exits 0 has finished the run: the final state N + 1 says so. Without it (and
+    // without DIVERGED) it quit early (regression: reported as a divergence, or as a fault of the
+    // controller that never said the plant had exited).
+    let n = streams.window.last - 1;
+    let plant_quit = ok(plant) && streams.diverged.is_none() && streams.final_tick != Some(n + 1);
+    if ok(plant) && ok(ctrl) && !plant_quit {
+        return None;
+    }
+    let tick = streams
+        .plant_fault
+        .as_ref()
+        .map_or(last_tel.map_or(0, |m| m.tick + 1), |f| f.tick);
+    let mut parts = Vec::new();
+    if plant_quit {
+        parts.push(match last_tel {
+            Some(m) => format!(
+                "the plant exited (status 0) after tick {} of {n}, before the end of the run",
+                m.tick
+            ),
+            None => format!("the plant exited (status 0) before tick 0 of {n}"),
+        });
+    }
+    // A child still running when the supervisor stopped it is not a cause (status None).
+    if ctrl.is_some() && !ok(ctrl) {
+        let what = ctrl.map_or("did not exit".into(), status_text);
+        let line = last_line(ctrl_log);
+        parts.push(if line.is_empty() {
+            format!("the controller {what}")
+        } else {
+            format!("the controller {what} ({line})")
+        });
+    }
+    let line = last_line(plant_log);
+    if plant.is_some() && !ok(plant) {
+        let what = plant.map_or("did not exit".into(), status_text);
+        parts.push(if line.is_empty() {
+            format!("the plant {what}")
+        } else {
+            format!(
+                "the plant {what}: {}",
+                line.trim_start_matches("deltaloop-plant: ")
+            )
+        });
+    }
+    // The plant said why it stopped the loop (FAULT): keep that, even if it could not finish
+    // (still braking when it was stopped, or its log says something else last).
+    if let Some(f) = &streams.plant_fault
+        && !line.contains(&f.cause)
+    {
+        parts.push(format!(
+            "the plant stopped the loop at tick {}: {}",
+            f.tick, f.cause
+        ));
+    }
+    // How long after the dead peer's last message the supervisor saw it exit.
+    if let Some((noticed, who)) = ending.first_exit {
+        let last = if who == Sender::Controller {
+            last_torque.map(|t| t.t_publish_ns)
+        } else {
+            last_tel.map(|m| m.t_wake_ns)
+        };
+        if let Some(t) = last {
+            parts.push(format!(
+                "the supervisor saw the {} exit {:.1} ms after its last message",
+                role(who),
+                noticed.saturating_sub(t) as f64 * 1e-6
+            ));
+        }
+    }
+    // The plant's FAULT text is a peer's too: one printable line, bounded.
+    let cause = parts.join("; ");
+    Some(Fault {
+        tick,
+        cause: peer_text::sanitize(cause.as_bytes(), 4 * peer_text::MAX_CHARS),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Regression: a full /dev/shm mid-run killed the plant with a bare "signal 7".
+    #[test]
+    fn regression_a_child_killed_by_sigbus_is_named_with_its_likely_cause() {
+        let bus = killed_by(libc::SIGBUS);
+        assert!(
+            bus.starts_with("was killed by SIGBUS")
+                && bus.contains("shared memory (/dev/shm) ran out"),
+            "{bus}"
+        );
+        assert_eq!(killed_by(libc::SIGKILL), "was killed (SIGKILL)");
+        assert_eq!(killed_by(libc::SIGSEGV), "was killed (SIGSEGV)");
+        assert_eq!(killed_by(64), "was killed by signal 64");
+    }
+}
