@@ -7,4 +7,3 @@ pub mod lawrun;
 pub mod peer_text;
 pub mod procs;
 pub mod signals;
-pub mod tick_hook;

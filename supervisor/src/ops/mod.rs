@@ -1,5 +1,5 @@
 //! What the commands do: a run and its folder, the paper, a sweep, a soak, a replay, the
-//! benchmarks and the live view. Each is called by its command in [`crate::cmd`].
+//! benchmarks and the live view. Each is called by its command in `cmd/`.
 
 pub mod bench;
 pub mod bench_loop;

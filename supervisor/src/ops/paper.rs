@@ -262,7 +262,11 @@ fn run_case(
     let table = paper_table(cfg.scenario.path).unwrap_or("-");
     let tau_max_nm = cfg.plant.tau_max_nm;
     let rel = PathBuf::from(preset.name()).join(&scn);
-    let o = run::run(cfg, mode, Some(out.join(&rel)), false, true, command)?;
+    let o = run::run(run::RunRequest {
+        out: Some(out.join(&rel)),
+        keep_records: true,
+        ..run::RunRequest::new(cfg, mode, command)
+    })?;
     let title = format!("{} ({} preset)", scn.to_uppercase(), preset.name());
     let figs = figures(
         &o.study,

@@ -2,7 +2,7 @@
 
 use crate::loops::inproc;
 use crate::loops::lawrun::{Keep, LawRun};
-use crate::loops::procs;
+use crate::loops::procs::{self, OnTick};
 use crate::output::report;
 use crate::output::{self, Summary};
 use crate::record::metrics::LawMetrics;
@@ -26,6 +26,20 @@ pub struct RunOutput {
     pub runs: Vec<LawRun>,
     /// The peak memory of the last process run's processes (None: inproc).
     pub peak_rss: Option<PeakRss>,
+}
+
+impl RunOutput {
+    /// The notes on stderr, the table and the run folder on stdout. Never panics on a closed
+    /// terminal or pipe: the run folder is already written.
+    pub fn print(&self) {
+        use std::io::Write;
+        for n in &self.notes {
+            let _ = writeln!(std::io::stderr(), "{n}");
+        }
+        let mut out = std::io::stdout().lock();
+        let _ = write!(out, "{}", self.table);
+        let _ = writeln!(out, "run folder: {}", self.dir.display());
+    }
 }
 
 /// Command-line overrides of a scenario file (None: keep the file's value).
@@ -102,22 +116,68 @@ pub fn load_config(path: &Path, o: &Overrides) -> Result<RunConfig> {
     o.apply(RunConfig::from_file(path)?)
 }
 
-/// Runs every law of `cfg` in `mode` and writes the run folder `out` (default `runs/<time>-<name>`).
-///
-/// `out` must be empty or new unless `force` (see [`output::RunFolder::claim`]). With
-/// `keep_records` every tick's record stays in memory too (for figures of short runs); otherwise
-/// the ticks are only streamed to `trace.csv` (unless `record.trace = false`) and the metrics,
-/// and memory does not grow with the run.
-pub fn run(
-    cfg: RunConfig,
-    mode: LoopMode,
-    out: Option<PathBuf>,
-    force: bool,
-    keep_records: bool,
-    command: &str,
-) -> Result<RunOutput> {
+/// What to run: every law of a config in one mode, into one run folder. `deltaloop run`, the
+/// paper and a soak all ask through it.
+pub struct RunRequest<'a> {
+    pub config: RunConfig,
+    pub mode: LoopMode,
+    /// The run folder (default `runs/<time>-<name>`): empty or new unless `force` (see
+    /// [`output::RunFolder::claim`]).
+    pub out: Option<PathBuf>,
+    pub force: bool,
+    /// Keep every tick's record in memory too (for figures of short runs); otherwise the ticks
+    /// are only streamed to `trace.csv` (unless `record.trace = false`) and the metrics, and
+    /// memory does not grow with the run.
+    pub keep_records: bool,
+    /// The command line, for `summary.json` and `report.md`.
+    pub command: &'a str,
+    /// Sees every tick the process modes finish, in tick order (see [`procs::OnTick`]).
+    pub on_tick: Option<OnTick<'a>>,
+}
+
+impl<'a> RunRequest<'a> {
+    /// A request for `config` in `mode` into the default folder, nothing else asked for.
+    pub fn new(config: RunConfig, mode: LoopMode, command: &'a str) -> Self {
+        Self {
+            config,
+            mode,
+            out: None,
+            force: false,
+            keep_records: false,
+            command,
+            on_tick: None,
+        }
+    }
+}
+
+/// The laws' runs, in order, and how the sequence ended.
+#[derive(Default)]
+struct Laws {
+    runs: Vec<LawRun>,
+    /// Per run: its loop timing (None: inproc).
+    timings: Vec<Option<Timing>>,
+    run_ids: Vec<(Law, String)>,
+    /// Each law whose plant once woke ten ticks late or more (realtime): see Timing::freeze_note.
+    freezes: Vec<(Law, String)>,
+    /// A fault or an interrupt ends the run after this law; the folder is still written.
+    stopped: Option<(Law, Option<String>)>,
+    failed: Option<anyhow::Error>,
+}
+
+/// Runs every law of the request and writes its run folder.
+pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
+    let RunRequest {
+        config,
+        mode,
+        out,
+        force,
+        keep_records,
+        command,
+        mut on_tick,
+    } = req;
     let started = output::now_utc();
-    let study = Study::new(cfg).context("the scenario's reference leaves the robot's workspace")?;
+    let study =
+        Study::new(config).context("the scenario's reference leaves the robot's workspace")?;
     let cfg = &study.config;
     let folder = output::RunFolder::claim(
         &out.unwrap_or_else(|| output::default_run_dir(&cfg.name)),
@@ -127,7 +187,6 @@ pub fn run(
     // The resolved config goes first, and only here: the child processes read it, and it
     // documents a failed run. write_run_folder adds the results next to it.
     output::write_text(&dir.join("config.toml"), &cfg.to_toml_string())?;
-    let laws = cfg.controller.laws.clone();
     let mut notes = Vec::new();
     if cfg.controller.compute_delay_us > 0 && mode != LoopMode::Realtime {
         notes.push(format!(
@@ -137,98 +196,131 @@ pub fn run(
             if mode == LoopMode::Lockstep { " except for wall time" } else { "" }
         ));
     }
-    let mut run_ids = Vec::new();
-    // Each law whose plant once woke ten ticks late or more (realtime): see Timing::freeze_note.
-    let mut freezes: Vec<(Law, String)> = Vec::new();
-    // A fault or an interrupt ends the run after this law; the folder is still written.
-    let mut stopped: Option<(Law, Option<String>)> = None;
-    let mut failed: Option<anyhow::Error> = None;
     let keep = |law| Keep {
         trace: cfg.record.trace.then(|| output::trace_part(&dir, law)),
         records: keep_records,
     };
-    let (runs, timings): (Vec<LawRun>, Vec<Option<Timing>>) = match mode {
-        LoopMode::Inproc => {
-            let mut runs = Vec::new();
-            for r in inproc::run_laws(&study, &laws, keep) {
-                match r {
-                    Ok(r) => runs.push(r),
-                    Err(e) => {
-                        failed.get_or_insert(e);
-                    }
-                }
-            }
-            let n = runs.len();
-            (runs, vec![None; n])
-        }
-        pm => {
-            let removed = ipc::remove_dead_nodes();
-            if !removed.is_empty() {
-                notes.push(format!(
-                    "removed stale iceoryx2 resources of {} dead node(s): {}",
-                    removed.len(),
-                    removed.join(", ")
-                ));
-            }
-            let mut runs = Vec::new();
-            let mut timings = Vec::new();
-            for &law in &laws {
-                if stopped.is_some() || crate::loops::signals::interrupted() {
-                    break;
-                }
-                // A law that fails to run (or to write its files: a full disk) ends the run, but
-                // the laws before it still get their trace, summary and report.
-                let r = match procs::run_law(&study, law, pm, &dir, &keep(law)) {
-                    Ok(r) => r,
-                    Err(e) => {
-                        failed = Some(e.context(format!("{} run of `{law}`", mode.name())));
-                        break;
-                    }
-                };
-                for m in r.child_messages {
-                    if !notes.contains(&m) {
-                        notes.push(m);
-                    }
-                }
-                let files = r
-                    .timing
-                    .write_hgrm(&dir, &format!("{law}."))
-                    .and_then(|()| {
-                        crate::output::plot::timing_figures(
-                            &dir,
-                            &format!("{law}."),
-                            &format!("{law}, {}", mode.name()),
-                            &r.timing,
-                            f64::from(cfg.loop_.torque_budget_us),
-                        )
-                    });
-                if let Err(e) = files {
-                    failed = Some(e.context(format!("{} run of `{law}`", mode.name())));
-                }
-                if let Some(n) = r.timing.freeze_note() {
-                    freezes.push((law, n));
-                }
-                run_ids.push((law, r.run_id));
-                if r.interrupted || r.fault.is_some() {
-                    stopped = Some((law, r.fault.as_ref().map(|f| f.cause.clone())));
-                }
-                runs.push(r.run);
-                timings.push(Some(r.timing));
-                if failed.is_some() {
-                    break;
-                }
-            }
-            (runs, timings)
-        }
+    let mut laws = match mode {
+        LoopMode::Inproc => run_inproc(&study, keep),
+        pm => run_processes(&study, pm, &dir, keep, &mut on_tick, &mut notes),
     };
-    let peak_rss = timings
+    let peak_rss = laws
+        .timings
         .iter()
         .rev()
         .flatten()
         .next()
         .map(|t| t.peak_rss.clone());
-    let metrics: Vec<LawMetrics> = runs.iter().map(|r| r.metrics.clone()).collect();
-    let timing_summaries: Vec<Option<TimingSummary>> = timings
+    let metrics: Vec<LawMetrics> = laws.runs.iter().map(|r| r.metrics.clone()).collect();
+    let table = write_results(&study, mode, command, started, &dir, &laws, &metrics)?;
+    verdict(mode, &dir, &mut laws, &metrics)?;
+    notes.extend(laws.freezes.into_iter().map(|(l, f)| format!("`{l}`: {f}")));
+    Ok(RunOutput {
+        dir,
+        metrics,
+        table,
+        notes,
+        study,
+        runs: laws.runs,
+        peak_rss,
+    })
+}
+
+/// Every law in-process, each on its own thread.
+fn run_inproc(study: &Study, keep: impl Fn(Law) -> Keep) -> Laws {
+    let mut laws = Laws::default();
+    for r in inproc::run_laws(study, &study.config.controller.laws, keep) {
+        match r {
+            Ok(r) => laws.runs.push(r),
+            Err(e) => {
+                laws.failed.get_or_insert(e);
+            }
+        }
+    }
+    laws.timings = vec![None; laws.runs.len()];
+    laws
+}
+
+/// Every law with a process pair, one after the other, until one stops or fails.
+fn run_processes(
+    study: &Study,
+    mode: LoopMode,
+    dir: &Path,
+    keep: impl Fn(Law) -> Keep,
+    on_tick: &mut Option<OnTick<'_>>,
+    notes: &mut Vec<String>,
+) -> Laws {
+    let cfg = &study.config;
+    let removed = ipc::remove_dead_nodes();
+    if !removed.is_empty() {
+        notes.push(format!(
+            "removed stale iceoryx2 resources of {} dead node(s): {}",
+            removed.len(),
+            removed.join(", ")
+        ));
+    }
+    let mut laws = Laws::default();
+    for &law in &cfg.controller.laws {
+        if laws.stopped.is_some() || crate::loops::signals::interrupted() {
+            break;
+        }
+        // A law that fails to run (or to write its files: a full disk) ends the run, but
+        // the laws before it still get their trace, summary and report.
+        let tick = on_tick.as_mut().map(|f| -> OnTick<'_> { &mut **f });
+        let r = match procs::run_law(study, law, mode, dir, &keep(law), tick) {
+            Ok(r) => r,
+            Err(e) => {
+                laws.failed = Some(e.context(format!("{} run of `{law}`", mode.name())));
+                break;
+            }
+        };
+        for m in r.child_messages {
+            if !notes.contains(&m) {
+                notes.push(m);
+            }
+        }
+        let files = r.timing.write_hgrm(dir, &format!("{law}.")).and_then(|()| {
+            crate::output::plot::timing_figures(
+                dir,
+                &format!("{law}."),
+                &format!("{law}, {}", mode.name()),
+                &r.timing,
+                f64::from(cfg.loop_.torque_budget_us),
+            )
+        });
+        if let Err(e) = files {
+            laws.failed = Some(e.context(format!("{} run of `{law}`", mode.name())));
+        }
+        if let Some(n) = r.timing.freeze_note() {
+            laws.freezes.push((law, n));
+        }
+        laws.run_ids.push((law, r.run_id));
+        if r.interrupted || r.fault.is_some() {
+            laws.stopped = Some((law, r.fault.as_ref().map(|f| f.cause.clone())));
+        }
+        laws.runs.push(r.run);
+        laws.timings.push(Some(r.timing));
+        if laws.failed.is_some() {
+            break;
+        }
+    }
+    laws
+}
+
+/// Writes `summary.json`, `report.md` and the trace of the run folder; returns the terminal
+/// table.
+fn write_results(
+    study: &Study,
+    mode: LoopMode,
+    command: &str,
+    started: String,
+    dir: &Path,
+    laws: &Laws,
+    metrics: &[LawMetrics],
+) -> Result<String> {
+    let cfg = &study.config;
+    let timing_summaries: Vec<Option<TimingSummary>> = laws
+        .timings
         .iter()
         .map(|t| t.as_ref().map(Timing::summary))
         .collect();
@@ -249,7 +341,8 @@ pub fn run(
         mismatch: &mm,
         interrupted: crate::loops::signals::interrupted(),
         laws: metrics.iter().map(|m| (m.law.name(), m)).collect(),
-        run_ids: run_ids
+        run_ids: laws
+            .run_ids
             .iter()
             .map(|(l, id)| (l.name(), id.as_str()))
             .collect(),
@@ -259,33 +352,40 @@ pub fn run(
             .filter_map(|(m, t)| t.as_ref().map(|t| (m.law.name(), t)))
             .collect(),
     };
-    let mut md = report::markdown(cfg, mode.name(), command, &metrics, &mm);
+    let mut md = report::markdown(cfg, mode.name(), command, metrics, &mm);
     if mode.is_process() {
         md.push_str(&report::timing_markdown(
             cfg,
             mode.name(),
-            &metrics,
+            metrics,
             &timing_summaries,
         ));
     }
-    for (law, f) in &freezes {
+    for (law, f) in &laws.freezes {
         md.push_str(&format!("\n**Frozen loop**: `{law}`: {f}.\n"));
     }
     if mode == LoopMode::Realtime && !metrics.is_empty() {
-        md.push_str(&latency_cost_markdown(&study, &metrics)?);
+        md.push_str(&latency_cost_markdown(study, metrics)?);
     }
-    output::write_run_folder(&dir, &summary, cfg.record.trace.then_some(&laws[..]), &md)?;
-    let mut table = report::terminal_table(cfg, &metrics);
+    let traced = &cfg.controller.laws[..];
+    output::write_run_folder(dir, &summary, cfg.record.trace.then_some(traced), &md)?;
+    let mut table = report::terminal_table(cfg, metrics);
     if mode.is_process() {
-        table.push_str(&report::timing_table(&metrics, &timing_summaries));
+        table.push_str(&report::timing_table(metrics, &timing_summaries));
     }
-    if let Some(e) = failed {
-        let finished: Vec<Law> = runs.iter().map(|r| r.metrics.law).collect();
-        return Err(e.context(kept_note(&finished, &dir, &child_logs(&dir))));
+    Ok(table)
+}
+
+/// The run's error, if it has one: a law that failed, a fault or an interrupt, lost data.
+fn verdict(mode: LoopMode, dir: &Path, laws: &mut Laws, metrics: &[LawMetrics]) -> Result<()> {
+    if let Some(e) = laws.failed.take() {
+        let finished: Vec<Law> = laws.runs.iter().map(|r| r.metrics.law).collect();
+        return Err(e.context(kept_note(&finished, dir, &child_logs(dir))));
     }
-    if let Some((law, cause)) = &stopped {
+    if let Some((law, cause)) = &laws.stopped {
         // A fault right after the loop froze is the machine's: say so on the same line.
-        let frozen = freezes
+        let frozen = laws
+            .freezes
             .iter()
             .find(|(l, _)| l == law)
             .map_or(String::new(), |(l, f)| format!("; before it, `{l}`: {f}"));
@@ -295,11 +395,11 @@ pub fn run(
                 mode.name(),
                 dir.display()
             ),
-            None => anyhow::Error::new(Interrupted(dir.clone())),
+            None => anyhow::Error::new(Interrupted(dir.to_path_buf())),
         });
     }
     if crate::loops::signals::interrupted() {
-        return Err(anyhow::Error::new(Interrupted(dir.clone())));
+        return Err(anyhow::Error::new(Interrupted(dir.to_path_buf())));
     }
     if let Some(m) = metrics.iter().find(|m| m.lost_data.is_some()) {
         anyhow::bail!(
@@ -310,16 +410,7 @@ pub fn run(
             dir.display()
         );
     }
-    notes.extend(freezes.into_iter().map(|(l, f)| format!("`{l}`: {f}")));
-    Ok(RunOutput {
-        dir,
-        metrics,
-        table,
-        notes,
-        study,
-        runs,
-        peak_rss,
-    })
+    Ok(())
 }
 
 /// The children's stderr logs in a run folder (`<law>.plant.log`, …), sorted.
@@ -437,14 +528,10 @@ mod tests {
         let expected = cfg.to_toml_string();
         let dir = std::env::temp_dir().join(format!("deltaloop-run-cfg-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        let o = run(
-            cfg,
-            LoopMode::Inproc,
-            Some(dir.clone()),
-            false,
-            false,
-            "test",
-        );
+        let o = run(RunRequest {
+            out: Some(dir.clone()),
+            ..RunRequest::new(cfg, LoopMode::Inproc, "test")
+        });
         let written = std::fs::read_to_string(dir.join("config.toml"));
         let others: Vec<bool> = ["trace.csv", "summary.json", "report.md"]
             .iter()

@@ -4,7 +4,7 @@
 //! `deltaloop run`, streamed to disk as ticks finish (memory does not grow), and Ctrl-C leaves
 //! every tick so far on disk. On top of that soak shows a progress line and prints a summary per
 //! minute of loop time (ticks, misses, round-trip percentiles of that minute, the RSS of the three
-//! processes), fed by [`crate::loops::tick_hook`] from the run's own observer: the run's spare observer
+//! processes), fed through [`run::RunRequest::on_tick`] by the run's own observer: the run's spare observer
 //! slot stays free for `deltaloop top`.
 
 use crate::ops::run::{self, Overrides};
@@ -404,13 +404,13 @@ pub fn soak(r: Request<'_>) -> Result<()> {
         check_disk(total, &cfg.record, free, &out, &shown).map_err(|e| anyhow::anyhow!(e))?;
     }
     let acc = Arc::new(Mutex::new(MinuteAcc::new(ts)));
-    let hook = {
+    let mut on_tick = {
         let acc = acc.clone();
-        crate::loops::tick_hook::install(move |seen| {
+        move |seen: &Seen| {
             if let Ok(mut a) = acc.lock() {
                 a.push(seen);
             }
-        })
+        }
     };
     eprintln!(
         "soak: {shown} of {} in {} mode ({} ticks; the motion, then a hold of {:.1} s); run folder {}",
@@ -426,8 +426,12 @@ pub fn soak(r: Request<'_>) -> Result<()> {
         let (acc, done, end, tty) = (acc.clone(), done.clone(), end.clone(), r.tty);
         std::thread::spawn(move || report(&acc, &done, &end, total, ts, tty))
     };
-    let result = run::run(cfg, r.mode, Some(out), r.force, false, r.command);
-    drop(hook);
+    let result = run::run(run::RunRequest {
+        out: Some(out),
+        force: r.force,
+        on_tick: Some(&mut on_tick),
+        ..run::RunRequest::new(cfg, r.mode, r.command)
+    });
     if let Ok(mut a) = acc.lock() {
         a.close();
     }
@@ -436,14 +440,7 @@ pub fn soak(r: Request<'_>) -> Result<()> {
     }
     done.store(true, std::sync::atomic::Ordering::Release);
     let _ = reporter.join();
-    let o = result?;
-    use std::io::Write;
-    for n in &o.notes {
-        let _ = writeln!(std::io::stderr(), "{n}");
-    }
-    let mut stdout = std::io::stdout().lock();
-    let _ = write!(stdout, "{}", o.table);
-    let _ = writeln!(stdout, "run folder: {}", o.dir.display());
+    result?.print();
     Ok(())
 }
 

@@ -22,7 +22,7 @@ use crate::loops::feed::ReferenceFeed;
 use crate::loops::lawrun::{self, Keep, LawRun};
 use crate::record::Fault;
 use crate::study::Study;
-use crate::timing::{PeakRss, Timing, TimingAcc, TimingCsv};
+use crate::timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
 use anyhow::{Context, Result, anyhow, bail};
 use deltaloop_config::config::Layout;
 use deltaloop_config::{Law, LoopMode};
@@ -72,15 +72,22 @@ pub fn new_run_id() -> String {
     )
 }
 
+/// A callback on the supervisor's finished ticks: `deltaloop soak` watches its own run through it
+/// (progress and per-minute summaries) without a second observer on the loop, so the run's spare
+/// observer slot stays free for `deltaloop top`. It is called for every tick the observer
+/// finishes, in tick order, right after the tick went to the run's timing histograms.
+pub type OnTick<'a> = &'a mut dyn FnMut(&Seen);
+
 /// Runs `law` over the study with a real process pair. `run_dir` holds the resolved config the
 /// children read and receives their stderr logs and `<law>.timing.csv`; `keep` says where the
-/// trace goes.
+/// trace goes; `on_tick` sees every finished tick.
 pub fn run_law(
     study: &Study,
     law: Law,
     mode: LoopMode,
     run_dir: &Path,
     keep: &Keep,
+    on_tick: Option<OnTick<'_>>,
 ) -> Result<ProcessRun> {
     let cfg = &study.config;
     let Some(layout) = mode.layout(cfg) else {
@@ -146,6 +153,8 @@ pub fn run_law(
             .timing_csv
             .then(|| TimingCsv::create(&run_dir.join(format!("{law}.timing.csv"))))
             .transpose()?,
+        // Shortened to the recorder's lifetime (a coercion Option does not do by itself).
+        on_tick.map(|f| -> OnTick<'_> { f }),
     );
     let mut start = ControlMsg::new(ControlKind::Start, Sender::Supervisor);
     start.ticks = n;

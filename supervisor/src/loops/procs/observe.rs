@@ -14,6 +14,7 @@ use deltaloop_transport::wire::{self, ControlKind, Sender, StateMsg, TelemetryMs
 use std::process::ExitStatus;
 use std::time::Duration;
 
+use super::OnTick;
 use super::handshake::*;
 use super::spawn::*;
 
@@ -110,6 +111,8 @@ pub(super) struct Observation<'a> {
     pub(super) final_tick: Option<u64>,
     /// The state after the last tick, N + 1.
     pub(super) after: Option<StateMsg>,
+    /// Called with every finished tick, in tick order (see [`super::OnTick`]).
+    pub(super) on_tick: Option<OnTick<'a>>,
 }
 
 pub(super) fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
@@ -117,7 +120,12 @@ pub(super) fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
 }
 
 impl<'a> Observation<'a> {
-    pub(super) fn new(rec: LawRecorder<'a>, timing: TimingAcc, csv: Option<TimingCsv>) -> Self {
+    pub(super) fn new(
+        rec: LawRecorder<'a>,
+        timing: TimingAcc,
+        csv: Option<TimingCsv>,
+        on_tick: Option<OnTick<'a>>,
+    ) -> Self {
         Self {
             window: Window::new(timing.last_tick() + 1),
             rec,
@@ -134,6 +142,7 @@ impl<'a> Observation<'a> {
             duplicate_replies: 0,
             final_tick: None,
             after: None,
+            on_tick,
         }
     }
 
@@ -233,7 +242,9 @@ impl<'a> Observation<'a> {
             csv.write(&seen)?;
         }
         self.timing.push(seen)?;
-        crate::loops::tick_hook::call(&seen);
+        if let Some(f) = self.on_tick.as_mut() {
+            f(&seen);
+        }
         if seen.k == self.window.last {
             self.after = seen.state;
             return Ok(());

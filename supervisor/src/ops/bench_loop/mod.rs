@@ -374,6 +374,7 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
         LoopMode::Lockstep,
         &ls_dir,
         &Keep::default(),
+        None,
     )?;
     let iox_hz = pr.timing.cycle_hz();
     let summary = pr.timing.summary();
@@ -563,6 +564,7 @@ fn realtime(out: &Path, name: &str, seconds: f64, layout: Layout) -> Result<crat
         LoopMode::Realtime,
         &dir,
         &Keep::default(),
+        None,
     )?;
     pr.timing.write_hgrm(&dir, "tdc-is-sta.")?;
     let budget = f64::from(rs.config.loop_.torque_budget_us);

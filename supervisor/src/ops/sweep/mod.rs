@@ -11,7 +11,6 @@ use anyhow::Result;
 use deltaloop_config::RunConfig;
 use std::path::Path;
 
-pub mod cmd;
 pub mod merge;
 pub mod plan;
 mod plots;

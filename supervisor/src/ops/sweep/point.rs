@@ -250,7 +250,7 @@ pub(super) fn run_job(base: &RunConfig, job: &Job, mode: LoopMode, dir: &Path) -
             let pdir = dir.join("points").join(&study.config.name);
             std::fs::create_dir_all(&pdir)?;
             std::fs::write(pdir.join("config.toml"), study.config.to_toml_string())?;
-            let r = procs::run_law(&study, job.law, mode, &pdir, &Keep::default())?;
+            let r = procs::run_law(&study, job.law, mode, &pdir, &Keep::default(), None)?;
             (r.run, Some(r.timing.summary()))
         } else {
             (inproc::run_law(&study, job.law, &Keep::default())?, None)

@@ -1,26 +1,23 @@
 //! `deltaloop sweep`: `sweep FILE` (everything on this machine), and `sweep plan | run | merge`
 //! for sweeps split over machines.
 
-use super::plan::{Plan, Selection};
-use super::{Row, Status, merge, shard};
+use super::{Context, OutArgs};
+use crate::ops::sweep::plan::{self, Plan, Selection};
+use crate::ops::sweep::{self as ops, Row, Status, merge, shard};
 use anyhow::Result;
-use clap::{Args, Subcommand};
+use clap::Subcommand;
 use std::path::{Path, PathBuf};
 
-#[derive(Args, Debug)]
+#[derive(clap::Args, Debug)]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
-pub struct SweepArgs {
+pub struct Args {
     #[command(subcommand)]
     action: Option<Action>,
     /// Sweep file (TOML): runs every point on this machine (plan, run, merge in one).
     #[arg(required = true)]
     sweep: Option<PathBuf>,
-    /// Output folder (default: runs/<UTC time>-sweep-<name>). Must be new or empty.
-    #[arg(long)]
-    out: Option<PathBuf>,
-    /// Empty and reuse a non-empty --out folder (only one that holds a deltaloop run).
-    #[arg(long)]
-    force: bool,
+    #[command(flatten)]
+    out: OutArgs,
 }
 
 #[derive(Subcommand, Debug)]
@@ -51,25 +48,18 @@ enum Action {
         /// Threads for inproc points (default: one per CPU); process points run one at a time.
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1024))]
         jobs: Option<u32>,
-        /// Shard folder (default: runs/<UTC time>-sweep-<name>-shard). Must be new or empty.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Empty and reuse a non-empty --out folder (only one that holds a deltaloop run).
-        #[arg(long)]
-        force: bool,
+        #[command(flatten)]
+        out: OutArgs,
     },
     /// Merge shard folders into one sweep folder: sweep.csv, sweep.json, report.md and plots, as
     /// `deltaloop sweep FILE` writes them. Every point must be there exactly once.
+    #[command(mut_arg("out", |a| a.required(true)))]
     Merge {
         /// Shard folders (from `sweep run`, `sweep`, or an earlier merge).
         #[arg(required = true)]
         dirs: Vec<PathBuf>,
-        /// Output folder. Must be new or empty.
-        #[arg(long)]
-        out: PathBuf,
-        /// Empty and reuse a non-empty --out folder (only one that holds a deltaloop run).
-        #[arg(long)]
-        force: bool,
+        #[command(flatten)]
+        out: OutArgs,
         /// Write the outputs even when points are missing (the report lists them); exits 1.
         #[arg(long)]
         allow_missing: bool,
@@ -100,26 +90,23 @@ fn counts(rows: &[Row], secs: f64) -> String {
     )
 }
 
-fn stderr_is_terminal() -> bool {
-    std::io::IsTerminal::is_terminal(&std::io::stderr())
-}
-
 /// `deltaloop sweep …`.
-pub fn main(a: SweepArgs) -> Result<()> {
+pub fn exec(a: Args, cx: &Context) -> Result<()> {
     let t0 = std::time::Instant::now();
     match a.action {
         None => {
             let sweep = a.sweep.expect("clap requires the sweep file");
-            let (sw, base) = super::load(&sweep)?;
+            let (sw, base) = ops::load(&sweep)?;
             let out = a
+                .out
                 .out
                 .unwrap_or_else(|| crate::output::default_run_dir(&format!("sweep-{}", sw.name)));
             let _folder = crate::output::RunFolder::claim_apart(
                 &out,
-                a.force,
+                a.out.force,
                 &[(&sweep, "the sweep file")],
             )?;
-            let rows = super::run_loaded(&sw, &base, &sweep, &out, stderr_is_terminal())?;
+            let rows = ops::run_loaded(&sw, &base, &sweep, &out, cx.tty)?;
             println!(
                 "{}\nsweep folder: {}",
                 counts(&rows, t0.elapsed().as_secs_f64()),
@@ -128,7 +115,7 @@ pub fn main(a: SweepArgs) -> Result<()> {
             Ok(())
         }
         Some(Action::Plan { sweep, json }) => {
-            let (sw, base) = super::load(&sweep)?;
+            let (sw, base) = ops::load(&sweep)?;
             let plan = Plan::new(sw, base)?;
             // Every point is checked here, once, before a cluster runs any.
             plan.check_points(&(0..plan.points.len()).collect::<Vec<_>>())?;
@@ -149,10 +136,9 @@ pub fn main(a: SweepArgs) -> Result<()> {
             shard,
             base,
             jobs,
-            out,
-            force,
+            out: OutArgs { out, force },
         }) => {
-            let (sw, base) = super::load_with_base(&sweep, base.as_deref())?;
+            let (sw, base) = ops::load_with_base(&sweep, base.as_deref())?;
             let plan = Plan::new(sw, base)?;
             let sel = points.or(shard).unwrap_or(Selection::All);
             let idx = sel.indices(plan.points.len())?;
@@ -172,7 +158,7 @@ pub fn main(a: SweepArgs) -> Result<()> {
                 &sweep.display().to_string(),
                 &out,
                 jobs,
-                stderr_is_terminal(),
+                cx.tty,
             )?;
             if crate::loops::signals::interrupted() {
                 return Err(anyhow::Error::new(crate::ops::run::Interrupted(out)));
@@ -189,10 +175,12 @@ pub fn main(a: SweepArgs) -> Result<()> {
         }
         Some(Action::Merge {
             dirs,
-            out,
-            force,
+            out: OutArgs { out, force },
             allow_missing,
-        }) => merge_cmd(&dirs, &out, force, allow_missing, t0),
+        }) => {
+            let out = out.expect("clap requires --out");
+            merge_cmd(&dirs, &out, force, allow_missing, t0)
+        }
     }
 }
 
@@ -232,7 +220,7 @@ fn merge_cmd(
             m.plan.points.len(),
             out.join("report.md").display(),
             m.sweep_file,
-            super::plan::ranges_text(&m.missing)
+            plan::ranges_text(&m.missing)
         );
     }
     Ok(())
