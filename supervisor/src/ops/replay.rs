@@ -8,13 +8,13 @@
 //! the replay steps the same two ticks with the same inputs, and must write the same bytes. It
 //! reads the trace as it goes: memory does not grow with the run.
 
+use crate::loops::inproc::{self, Schedule, Step};
 use crate::loops::lawrun::{self, Keep, LawRun};
 use crate::output;
 use crate::study::Study;
 use anyhow::{Context, Result, bail};
 use deltaloop_config::files;
 use deltaloop_config::{Law, RunConfig};
-use deltaloop_plant::Arrival;
 use std::path::{Path, PathBuf};
 
 /// What one tick of the recorded trace says about the transport.
@@ -187,18 +187,19 @@ impl TraceRows {
     }
 }
 
-/// Replays `law` from the recorded rows, writing its trace rows to `keep`.
-fn replay_law(study: &Study, law: Law, rows: &mut TraceRows, keep: &Keep) -> Result<LawRun> {
-    let mut rec = lawrun::recorder(study, law, keep)?;
-    let mut plant = study
-        .plant_side()
-        .context("the recorded initial configuration")?;
-    let mut ctrl = study.controller_side(law);
-    let delay_ns = study.config.transport_delay_ns();
-    let mut skipped_before = 0u64;
-    let mut last = None;
-    while let Some(r) = rows.next_of(law)? {
-        let k = plant.tick();
+/// The recorded rows of one law as an arrival schedule for the in-process loop.
+struct Replayed<'r> {
+    rows: &'r mut TraceRows,
+    law: Law,
+    /// The transport delay D, ns: `arrival_ns` counts from t_k, the plant from t_k + D.
+    delay_ns: u64,
+}
+
+impl Schedule for Replayed<'_> {
+    fn step(&mut self, k: u64) -> Result<Option<Step>> {
+        let Some(r) = self.rows.next_of(self.law)? else {
+            return Ok(None);
+        };
         if r.k != k {
             let why = if r.k > k {
                 format!(
@@ -210,49 +211,37 @@ fn replay_law(study: &Study, law: Law, rows: &mut TraceRows, keep: &Keep) -> Res
             };
             bail!(
                 "{} line {}: tick {} where tick {k} was due: {why}; only a run with every tick can be replayed",
-                rows.path.display(),
-                rows.line,
+                self.rows.path.display(),
+                self.rows.line,
                 r.k
             );
         }
-        let state = plant.state();
-        let reference = study.reference.row(k as usize).joint;
-        let (reply, arrival) = match r.fate {
-            Fate::Applied | Fate::Late => {
-                let mut reply = ctrl.answer(&state, &reference);
-                reply.skipped = std::mem::take(&mut skipped_before);
-                let arrival = match (r.fate, r.arrival_ns) {
-                    (Fate::Applied, Some(a)) => {
-                        Arrival::ReplyAfter(reply, a.saturating_sub(delay_ns))
-                    }
-                    _ => Arrival::Missed,
-                };
-                (Some(reply), arrival)
-            }
-            Fate::Skipped => {
-                skipped_before += 1;
-                (None, Arrival::Missed)
-            }
-            Fate::Missed => {
-                skipped_before = 0;
-                (None, Arrival::Missed)
-            }
-        };
-        last = Some(k);
-        if !rec.tick(&state, reply.as_ref()) {
-            return lawrun::finish(rec, None);
-        }
-        match plant.advance(arrival) {
-            Ok(tel) => rec.applied(Some(&tel)),
-            Err(stop) => {
-                rec.plant_failed(stop.cause().to_string());
-                return lawrun::finish(rec, None);
-            }
-        }
+        Ok(Some(match (r.fate, r.arrival_ns) {
+            (Fate::Applied, Some(a)) => Step::After(a.saturating_sub(self.delay_ns)),
+            (Fate::Applied | Fate::Late, _) => Step::Late,
+            (Fate::Skipped, _) => Step::Skipped,
+            (Fate::Missed, _) => Step::Missed,
+        }))
     }
-    // A run that reached its last tick N closes with the state N + 1, as it did when recorded.
-    let after = (last == Some(study.reference.n as u64)).then(|| plant.state());
-    lawrun::finish(rec, after.as_ref())
+
+    /// A replay runs to its end: Ctrl-C does not cut it into a trace that differs.
+    fn interruptible(&self) -> bool {
+        false
+    }
+}
+
+/// Replays `law` from the recorded rows, writing its trace rows to `keep`.
+fn replay_law(study: &Study, law: Law, rows: &mut TraceRows, keep: &Keep) -> Result<LawRun> {
+    let rec = lawrun::recorder(study, law, keep)?;
+    let plant = study
+        .plant_side()
+        .context("the recorded initial configuration")?;
+    let mut schedule = Replayed {
+        rows,
+        law,
+        delay_ns: study.config.transport_delay_ns(),
+    };
+    inproc::run_schedule(study, law, rec, plant, &mut schedule)
 }
 
 /// How a replay compared.
