@@ -114,6 +114,29 @@ impl PeakRss {
     }
 }
 
+/// One tick's latencies, ns (None: not measured at this tick).
+#[derive(Clone, Copy, Debug, Default)]
+struct TickLatencies {
+    wake_lateness: Option<u64>,
+    period_jitter: Option<u64>,
+    state_to_controller: Option<u64>,
+    compute: Option<u64>,
+    round_trip: Option<u64>,
+}
+
+impl TickLatencies {
+    /// In the order of `Timing::dists` and of the interval logs.
+    fn in_order(self) -> [Option<u64>; 5] {
+        [
+            self.wake_lateness,
+            self.period_jitter,
+            self.state_to_controller,
+            self.compute,
+            self.round_trip,
+        ]
+    }
+}
+
 /// `summary.json` timing block.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct TimingSummary {
@@ -336,10 +359,8 @@ impl TimingAcc {
 
     /// Counts tick k as part of the loop: its histograms, timeline bin and interval logs.
     fn commit(&mut self, seen: &Seen) -> Result<()> {
-        // In the order of `Timing::dists`: wake lateness, jitter, state → controller, compute,
-        // round trip (ns; None: not measured at this tick).
-        let mut v = [None; 5];
-        self.tally(seen, &mut v);
+        let lat = self.tally(seen);
+        let v = lat.in_order();
         let t = &mut self.t;
         for (d, v) in [
             &mut t.wake_lateness,
@@ -355,17 +376,17 @@ impl TimingAcc {
                 d.record(v);
             }
         }
-        if let Some(w) = v[0]
+        if let Some(w) = lat.wake_lateness
             && t.worst_wake.is_none_or(|(worst, _)| w > worst)
         {
             t.worst_wake = Some((w, seen.k));
         }
         let missed = seen.tel.is_some_and(|m| m.flags & wire::TEL_MISSED != 0);
         if let Some(b) = t.timeline.bin_mut(seen.k) {
-            if let Some(w) = v[0] {
+            if let Some(w) = lat.wake_lateness {
                 b.wake_lateness.add(w);
             }
-            if let Some(r) = v[4] {
+            if let Some(r) = lat.round_trip {
                 b.round_trip.add(r);
             }
             b.misses += u64::from(missed);
@@ -388,8 +409,9 @@ impl TimingAcc {
         Ok(())
     }
 
-    /// Counters of tick k, and its latencies into `v` (see [`TimingAcc::commit`]).
-    fn tally(&mut self, seen: &Seen, v: &mut [Option<u64>; 5]) {
+    /// Counts tick k in the counters and returns its latencies (see [`TimingAcc::commit`]).
+    fn tally(&mut self, seen: &Seen) -> TickLatencies {
+        let mut v = TickLatencies::default();
         let t = &mut self.t;
         let (s, q, m) = (seen.state, seen.torque, seen.tel);
         t.ticks += 1;
@@ -405,28 +427,29 @@ impl TimingAcc {
             }
             t.span_ns.1 = m.t_wake_ns;
             if self.realtime {
-                v[0] = Some(wake_lateness_ns(&m));
+                v.wake_lateness = Some(wake_lateness_ns(&m));
                 if let Some(p) = self.prev_wake {
-                    v[1] = Some(m.t_wake_ns.saturating_sub(p).abs_diff(self.ts_ns));
+                    v.period_jitter = Some(m.t_wake_ns.saturating_sub(p).abs_diff(self.ts_ns));
                 }
             }
             self.prev_wake = Some(m.t_wake_ns);
             if missed {
                 t.misses += 1;
             } else if let Some(rt) = round_trip_ns(&m) {
-                v[4] = Some(rt);
+                v.round_trip = Some(rt);
             }
             t.late_dropped = t.late_dropped.max(m.late_dropped);
         } else {
             self.prev_wake = None;
         }
         if let (Some(s), Some(q)) = (s, q) {
-            v[2] = Some(q.t_state_rx_ns.saturating_sub(s.t_publish_ns));
+            v.state_to_controller = Some(q.t_state_rx_ns.saturating_sub(s.t_publish_ns));
         }
         if let Some(q) = q {
-            v[3] = Some(q.t_publish_ns.saturating_sub(q.t_state_rx_ns));
+            v.compute = Some(q.t_publish_ns.saturating_sub(q.t_state_rx_ns));
             t.skipped += q.skipped;
         }
+        v
     }
 
     /// The timing of ticks 0..n, n = the first tick the loop did not reach (at most N + 1); a

@@ -20,7 +20,7 @@ use crate::loops::lawrun::Keep;
 use crate::loops::procs;
 use crate::ops::bench::s1_hold_study;
 use crate::study::Study;
-use crate::timing::StealMs;
+use crate::timing::{StealMs, TimingSummary};
 use anyhow::{Context, Result};
 use deltaloop_config::Law;
 use deltaloop_config::LoopMode;
@@ -136,35 +136,66 @@ fn disturbance(series: &[(&str, &[f64])], taken: &[(usize, f64)]) -> Option<Dist
     })
 }
 
+/// One transport-alone measurement over the rounds.
+struct Series {
+    /// Cycle rate of each round, cycles/s.
+    hz: Vec<f64>,
+    /// The same less the one-thread tick pair, µs per cycle.
+    cost_us: Vec<f64>,
+    /// The hand-off of every cycle, all rounds.
+    hand: Histogram<u64>,
+}
+
+impl Series {
+    fn new() -> Self {
+        Self {
+            hz: vec![],
+            cost_us: vec![],
+            hand: crate::timing::latency_histogram(),
+        }
+    }
+
+    /// One round's measurement, against the one-thread tick pair's `raw` cycles/s.
+    fn push(&mut self, m: &baseline::Measured, raw: f64) -> Result<()> {
+        self.cost_us.push(1e6 / m.hz - 1e6 / raw);
+        self.hand
+            .add(&m.handoff)
+            .context("merge hand-off histograms")?;
+        self.hz.push(m.hz);
+        Ok(())
+    }
+
+    /// The p50 hand-off, µs.
+    fn hand_p50_us(&self) -> f64 {
+        self.hand.value_at_quantile(0.5) as f64 / 1e3
+    }
+}
+
 /// The per-round figures of the transport-alone phase.
 struct Rounds {
-    /// Cycle rates, cycles/s: (1) one thread, (0) shared memory, (2) iceoryx2 polling, (4)
-    /// iceoryx2 on one CPU, (3) the socket, (5) iceoryx2 in one thread.
+    /// (1) the tick pair in one thread, cycles/s.
     raw: Vec<f64>,
-    shm: Vec<f64>,
-    iox: Vec<f64>,
-    one: Vec<f64>,
-    uds: Vec<f64>,
-    api: Vec<f64>,
-    /// The same less the one-thread tick pair, µs per cycle.
-    shm_cost: Vec<f64>,
-    iox_cost: Vec<f64>,
-    one_cost: Vec<f64>,
-    uds_cost: Vec<f64>,
-    api_cost: Vec<f64>,
-    /// Hand-offs of every cycle: shared memory, iceoryx2 polling, one CPU, socket, one thread.
-    hands: [Histogram<u64>; 5],
+    /// (0) two threads through shared memory.
+    shm: Series,
+    /// (2) iceoryx2, both sides polling.
+    iox: Series,
+    /// (4) iceoryx2 on one CPU, both sides blocking.
+    one: Series,
+    /// (3) the Unix socket (its better layout of the round).
+    uds: Series,
+    /// (5) iceoryx2 in one thread.
+    api: Series,
 }
 
 impl Rounds {
     fn series(&self) -> [(&'static str, &[f64]); 6] {
         [
-            ("(0)", &self.shm),
+            ("(0)", &self.shm.hz),
             ("(1)", &self.raw),
-            ("(2)", &self.iox),
-            ("(3)", &self.uds),
-            ("(4)", &self.one),
-            ("(5)", &self.api),
+            ("(2)", &self.iox.hz),
+            ("(3)", &self.uds.hz),
+            ("(4)", &self.one.hz),
+            ("(5)", &self.api.hz),
         ]
     }
 }
@@ -181,17 +212,11 @@ fn transport_rounds(
 ) -> Result<Rounds> {
     let mut r = Rounds {
         raw: vec![],
-        shm: vec![],
-        iox: vec![],
-        one: vec![],
-        uds: vec![],
-        api: vec![],
-        shm_cost: vec![],
-        iox_cost: vec![],
-        one_cost: vec![],
-        uds_cost: vec![],
-        api_cost: vec![],
-        hands: std::array::from_fn(|_| crate::timing::latency_histogram()),
+        shm: Series::new(),
+        iox: Series::new(),
+        one: Series::new(),
+        uds: Series::new(),
+        api: Series::new(),
     };
     for _ in 0..repeats.max(1) {
         let raw = baseline::raw_inproc(ls, pc)?;
@@ -204,20 +229,12 @@ fn transport_rounds(
             baseline::uds_lockstep(ls, cfg_path, ls_dir, cc, cc)?,
         );
         let u = if us.hz >= uo.hz { us } else { uo };
-        r.shm_cost.push(1e6 / s.hz - 1e6 / raw);
-        r.iox_cost.push(1e6 / i.hz - 1e6 / raw);
-        r.one_cost.push(1e6 / o.hz - 1e6 / raw);
-        r.uds_cost.push(1e6 / u.hz - 1e6 / raw);
-        r.api_cost.push(1e6 / a.hz - 1e6 / raw);
-        for (h, m) in r.hands.iter_mut().zip([&s, &i, &o, &u, &a]) {
-            h.add(&m.handoff).context("merge hand-off histograms")?;
-        }
+        r.shm.push(&s, raw)?;
+        r.iox.push(&i, raw)?;
+        r.one.push(&o, raw)?;
+        r.uds.push(&u, raw)?;
+        r.api.push(&a, raw)?;
         r.raw.push(raw);
-        r.shm.push(s.hz);
-        r.iox.push(i.hz);
-        r.one.push(o.hz);
-        r.uds.push(u.hz);
-        r.api.push(a.hz);
     }
     Ok(r)
 }
@@ -320,41 +337,103 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     )?;
     println!("figure: {}", out.join("latency.png").display());
     println!(
-        "lockstep_transport_shm_us={:.3} lockstep_transport_iox_us={:.3} lockstep_transport_uds_us={:.3} transport_one_cpu_blocking_us={:.3} handoff_shm_p50_us={:.2} handoff_iox_p50_us={:.2} handoff_uds_p50_us={:.2} iox_one_thread_us={:.3} handoff_iox_one_thread_p50_us={:.2} lockstep_iox_hz={:.0} inproc_hz={:.0} lockstep_loop_us={:.3} lockstep_handoff_us={:.2} rt_rtt_p50_us={:.1} rt_rtt_p999_us={:.1} rt_wake_p999_us={:.1} rt_miss_ratio={:.2e} rt_split_rtt_p50_us={:.1} rt_split_rtt_p999_us={:.1} rt_split_wake_p999_us={:.1} rt_split_miss_ratio={:.2e} rt_split_steal_share={} rt_yield_rtt_p50_us={:.1} rt_yield_rtt_p999_us={:.1} rt_yield_wake_p999_us={:.1} rt_yield_miss_ratio={:.2e} machine_wake_p999_us={:.1} cyclictest_p999_us={} lockstep_transport_disturbed={} lockstep_transport_attempts={}",
-        lsf.shm_us,
-        lsf.iox_us,
-        lsf.uds_us,
-        lsf.one_cpu_us,
-        lsf.shm_handoff_us,
-        lsf.iox_handoff_us,
-        lsf.uds_handoff_us,
-        lsf.api_us,
-        lsf.api_handoff_us,
-        lsf.iox_hz,
-        lsf.inproc_hz,
-        1e6 / lsf.iox_hz - 1e6 / lsf.inproc_hz,
-        lsf.handoff_us,
-        d.round_trip.p50_us,
-        d.round_trip.p999_us,
-        d.wake_lateness.p999_us,
-        d.miss_ratio,
-        sp.round_trip.p50_us,
-        sp.round_trip.p999_us,
-        sp.wake_lateness.p999_us,
-        sp.miss_ratio,
-        split_steal.map_or("na".to_string(), |(_, f)| format!("{f:.2e}")),
-        y.round_trip.p50_us,
-        y.round_trip.p999_us,
-        y.wake_lateness.p999_us,
-        y.miss_ratio,
-        m(&machine, 0.999),
-        cyclic
-            .as_ref()
-            .map_or("na".to_string(), |h| format!("{:.1}", m(h, 0.999))),
-        u8::from(lsf.disturbed),
-        lsf.attempts
+        "{}",
+        summary_line(&SummaryInput {
+            lockstep: &lsf,
+            realtime: [("rt", &d), ("rt_split", &sp), ("rt_yield", &y)],
+            split_steal_share: split_steal.map(|(_, f)| f),
+            machine_wake_p999_us: m(&machine, 0.999),
+            cyclictest_p999_us: cyclic.as_ref().ok().map(|h| m(h, 0.999)),
+        })
     );
     Ok(())
+}
+
+/// What the machine-readable summary line is made of.
+struct SummaryInput<'a> {
+    lockstep: &'a Lockstep,
+    /// Each realtime layout by its key prefix.
+    realtime: [(&'static str, &'a TimingSummary); 3],
+    /// The share of the split layout's controller CPU the host took (None: not known).
+    split_steal_share: Option<f64>,
+    machine_wake_p999_us: f64,
+    /// None: cyclictest was not run.
+    cyclictest_p999_us: Option<f64>,
+}
+
+/// The last line of `bench loop`: `key=value` pairs, `na` for what was not measured.
+fn summary_line(s: &SummaryInput<'_>) -> String {
+    let l = s.lockstep;
+    let mut kv: Vec<(String, String)> = [
+        ("lockstep_transport_shm_us", format!("{:.3}", l.shm_us)),
+        ("lockstep_transport_iox_us", format!("{:.3}", l.iox_us)),
+        ("lockstep_transport_uds_us", format!("{:.3}", l.uds_us)),
+        (
+            "transport_one_cpu_blocking_us",
+            format!("{:.3}", l.one_cpu_us),
+        ),
+        ("handoff_shm_p50_us", format!("{:.2}", l.shm_handoff_us)),
+        ("handoff_iox_p50_us", format!("{:.2}", l.iox_handoff_us)),
+        ("handoff_uds_p50_us", format!("{:.2}", l.uds_handoff_us)),
+        ("iox_one_thread_us", format!("{:.3}", l.api_us)),
+        (
+            "handoff_iox_one_thread_p50_us",
+            format!("{:.2}", l.api_handoff_us),
+        ),
+        ("lockstep_iox_hz", format!("{:.0}", l.iox_hz)),
+        ("inproc_hz", format!("{:.0}", l.inproc_hz)),
+        (
+            "lockstep_loop_us",
+            format!("{:.3}", 1e6 / l.iox_hz - 1e6 / l.inproc_hz),
+        ),
+        ("lockstep_handoff_us", format!("{:.2}", l.handoff_us)),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v))
+    .collect();
+    for (prefix, t) in s.realtime {
+        kv.push((
+            format!("{prefix}_rtt_p50_us"),
+            format!("{:.1}", t.round_trip.p50_us),
+        ));
+        kv.push((
+            format!("{prefix}_rtt_p999_us"),
+            format!("{:.1}", t.round_trip.p999_us),
+        ));
+        kv.push((
+            format!("{prefix}_wake_p999_us"),
+            format!("{:.1}", t.wake_lateness.p999_us),
+        ));
+        kv.push((
+            format!("{prefix}_miss_ratio"),
+            format!("{:.2e}", t.miss_ratio),
+        ));
+        if prefix == "rt_split" {
+            let share = s
+                .split_steal_share
+                .map_or("na".into(), |f| format!("{f:.2e}"));
+            kv.push(("rt_split_steal_share".into(), share));
+        }
+    }
+    let cyclic = s
+        .cyclictest_p999_us
+        .map_or("na".into(), |v| format!("{v:.1}"));
+    kv.extend([
+        (
+            "machine_wake_p999_us".into(),
+            format!("{:.1}", s.machine_wake_p999_us),
+        ),
+        ("cyclictest_p999_us".into(), cyclic),
+        (
+            "lockstep_transport_disturbed".into(),
+            u8::from(l.disturbed).to_string(),
+        ),
+        ("lockstep_transport_attempts".into(), l.attempts.to_string()),
+    ]);
+    kv.iter()
+        .map(|(k, v)| format!("{k}={v}"))
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// The product's lockstep loops, then `repeats` interleaved rounds of the transport alone.
@@ -382,19 +461,71 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
     // The hand-off itself, both ways: state published → reply received, less the law's compute.
     let handoff_us = rtt.p50_us - summary.controller_compute.p50_us;
 
-    // The transport alone, pinned as lockstep is. A phase the host disturbed (rounds that
-    // disagree, CPU time taken from the pinned CPUs) is repeated; if every attempt was disturbed,
-    // the least disturbed one is printed, marked (regression: one noisy minute printed a
-    // transport cost of 11.5 µs against 1.1-1.25 µs before and after, as the figure).
     let lay = &ls.config.loop_.lockstep;
     let (pc, cc) = (Layout::cpu(lay.plant_cpu), Layout::cpu(lay.controller_cpu));
+    let phase = transport_phase(ls, &cfg_path, &ls_dir, (pc, cc), repeats)?;
+    let costs = print_transport(&phase, (pc, cc));
+    println!("lockstep, the product's loops (the supervisor records every tick):");
+    println!(
+        "(c) inproc:                        {inproc_hz:>9.0} cycles/s  ({:.3} us/cycle)",
+        1e6 / inproc_hz
+    );
+    println!(
+        "(a) lockstep, the process pair:    {iox_hz:>9.0} cycles/s  ({:.3} us/cycle, {:.3} us over inproc; round trip p50 {:.2} us, p99 {:.2} us, p99.9 {:.2} us)",
+        1e6 / iox_hz,
+        1e6 / iox_hz - 1e6 / inproc_hz,
+        rtt.p50_us,
+        rtt.p99_us,
+        rtt.p999_us
+    );
+    println!(
+        "    the hand-off itself (round trip p50 less the law's compute p50): {handoff_us:.2} us per cycle, both ways, no system call; beyond the transport, the pair shares the 2 CPUs with the supervisor reading and writing every tick"
+    );
+    let r = &phase.rounds;
+    Ok(Lockstep {
+        disturbed: phase.disturbed.is_some(),
+        attempts: phase.attempts,
+        shm_handoff_us: r.shm.hand_p50_us(),
+        api_handoff_us: r.api.hand_p50_us(),
+        api_us: costs.api_us,
+        iox_handoff_us: r.iox.hand_p50_us(),
+        uds_handoff_us: r.uds.hand_p50_us(),
+        shm_us: costs.shm_us,
+        iox_us: costs.iox_us,
+        one_cpu_us: costs.one_us,
+        uds_us: costs.uds_us,
+        iox_hz,
+        inproc_hz,
+        handoff_us,
+    })
+}
+
+/// The transport-alone phase as printed: its rounds, and whether the host disturbed it.
+struct Phase {
+    rounds: Rounds,
+    disturbed: Option<Disturbance>,
+    attempts: u32,
+}
+
+/// The transport alone, pinned as lockstep is (`cpus`: plant, controller). A phase the host
+/// disturbed (rounds that disagree, CPU time taken from the pinned CPUs) is repeated; if every
+/// attempt was disturbed, the least disturbed one is kept, marked (regression: one noisy minute
+/// printed a transport cost of 11.5 µs against 1.1-1.25 µs before and after, as the figure).
+fn transport_phase(
+    ls: &Study,
+    cfg_path: &Path,
+    ls_dir: &Path,
+    cpus: (Option<usize>, Option<usize>),
+    repeats: u32,
+) -> Result<Phase> {
+    let (pc, cc) = cpus;
     let mut attempts = 0;
     let mut best: Option<(Rounds, Option<Disturbance>)> = None;
     while attempts < PHASE_ATTEMPTS {
         attempts += 1;
         let steal_before = crate::timing::steal_jiffies();
         let t0 = Instant::now();
-        let r = transport_rounds(ls, &cfg_path, &ls_dir, pc, cc, repeats)?;
+        let r = transport_rounds(ls, cfg_path, ls_dir, pc, cc, repeats)?;
         let wall_s = t0.elapsed().as_secs_f64();
         let stolen =
             crate::timing::steal_ms_between(&steal_before, &crate::timing::steal_jiffies());
@@ -427,20 +558,29 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
         }
     }
     let (rounds, disturbed) = best.expect("at least one attempt");
-    let Rounds {
-        raw,
-        shm,
-        iox,
-        one,
-        uds,
-        api,
-        shm_cost,
-        iox_cost,
-        one_cost,
-        uds_cost,
-        api_cost,
-        hands,
-    } = rounds;
+    Ok(Phase {
+        rounds,
+        disturbed,
+        attempts,
+    })
+}
+
+/// Transport costs per cycle over the one-thread tick pair, median of the rounds, µs.
+struct Costs {
+    shm_us: f64,
+    iox_us: f64,
+    uds_us: f64,
+    one_us: f64,
+    api_us: f64,
+}
+
+/// Prints the transport-alone phase (`cpus`: plant, controller); returns its median costs.
+fn print_transport(phase: &Phase, cpus: (Option<usize>, Option<usize>)) -> Costs {
+    let Phase {
+        rounds: r,
+        disturbed,
+        attempts,
+    } = phase;
     let line = |name: &str, v: &[f64]| {
         let (m, lo, hi) = median_range(v);
         println!(
@@ -450,21 +590,21 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
     };
     println!(
         "lockstep, the transport alone (the tick pair, nothing recorded; plant CPU {}, controller CPU {}; median of {} rounds):",
-        fmt_cpu(pc),
-        fmt_cpu(cc),
-        raw.len()
+        fmt_cpu(cpus.0),
+        fmt_cpu(cpus.1),
+        r.raw.len()
     );
-    line("(0) two threads, shared memory:", &shm);
-    line("(1) one thread:", &raw);
-    line("(2) iceoryx2, both sides polling:", &iox);
-    line("(3) Unix socket, blocking:", &uds);
-    line("(4) iceoryx2, one CPU, blocking:", &one);
-    line("(5) iceoryx2, one thread:", &api);
-    let (shm_us, slo, shi) = median_range(&shm_cost);
-    let (iox_us, ilo, ihi) = median_range(&iox_cost);
-    let (uds_us, ulo, uhi) = median_range(&uds_cost);
-    let (one_us, olo, ohi) = median_range(&one_cost);
-    let (api_us, alo, ahi) = median_range(&api_cost);
+    line("(0) two threads, shared memory:", &r.shm.hz);
+    line("(1) one thread:", &r.raw);
+    line("(2) iceoryx2, both sides polling:", &r.iox.hz);
+    line("(3) Unix socket, blocking:", &r.uds.hz);
+    line("(4) iceoryx2, one CPU, blocking:", &r.one.hz);
+    line("(5) iceoryx2, one thread:", &r.api.hz);
+    let (shm_us, slo, shi) = median_range(&r.shm.cost_us);
+    let (iox_us, ilo, ihi) = median_range(&r.iox.cost_us);
+    let (uds_us, ulo, uhi) = median_range(&r.uds.cost_us);
+    let (one_us, olo, ohi) = median_range(&r.one.cost_us);
+    let (api_us, alo, ahi) = median_range(&r.api.cost_us);
     println!(
         "transport cost per cycle ((2) or (3) less (1)): iceoryx2 {iox_us:.3} us (rounds {ilo:.3}..{ihi:.3}), Unix socket {uds_us:.3} us (rounds {ulo:.3}..{uhi:.3}): iceoryx2 {:.1}x cheaper{}",
         uds_us / iox_us,
@@ -482,58 +622,33 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
     let q = |h: &Histogram<u64>, p: f64| h.value_at_quantile(p) as f64 / 1e3;
     println!(
         "the hand-off measured on every cycle (state sent -> reply received, less the helper's own time; all rounds): shared memory p50 {:.2} us, p99 {:.2} us; iceoryx2 polling p50 {:.2} us, p99 {:.2} us; iceoryx2 one CPU blocking p50 {:.2} us, p99 {:.2} us; Unix socket p50 {:.2} us, p99 {:.2} us",
-        q(&hands[0], 0.5),
-        q(&hands[0], 0.99),
-        q(&hands[1], 0.5),
-        q(&hands[1], 0.99),
-        q(&hands[2], 0.5),
-        q(&hands[2], 0.99),
-        q(&hands[3], 0.5),
-        q(&hands[3], 0.99)
+        q(&r.shm.hand, 0.5),
+        q(&r.shm.hand, 0.99),
+        q(&r.iox.hand, 0.5),
+        q(&r.iox.hand, 0.99),
+        q(&r.one.hand, 0.5),
+        q(&r.one.hand, 0.99),
+        q(&r.uds.hand, 0.5),
+        q(&r.uds.hand, 0.99)
     );
     println!(
         "    iceoryx2 over the machine's floor: {:.2} us per cycle (p50 hand-off), {:.3} us (cycle rate)",
-        q(&hands[1], 0.5) - q(&hands[0], 0.5),
+        r.iox.hand_p50_us() - r.shm.hand_p50_us(),
         iox_us - shm_us
     );
-    let (own, polled) = (q(&hands[4], 0.5), q(&hands[1], 0.5));
+    let (own, polled) = (r.api.hand_p50_us(), r.iox.hand_p50_us());
     println!(
         "what bounds (2), per cycle at p50: iceoryx2's own code {own:.2} us (both messages sent and taken back in one thread, (5): no second CPU), and {:.2} us for what it moves between the two CPUs (its polling p50 {polled:.2} us less that), where one shared slot each way moves them in {:.2} us (0); by cycle rate, (5) less (1): {api_us:.3} us (rounds {alo:.3}..{ahi:.3})",
         polled - own,
-        q(&hands[0], 0.5)
+        r.shm.hand_p50_us()
     );
-    println!("lockstep, the product's loops (the supervisor records every tick):");
-    println!(
-        "(c) inproc:                        {inproc_hz:>9.0} cycles/s  ({:.3} us/cycle)",
-        1e6 / inproc_hz
-    );
-    println!(
-        "(a) lockstep, the process pair:    {iox_hz:>9.0} cycles/s  ({:.3} us/cycle, {:.3} us over inproc; round trip p50 {:.2} us, p99 {:.2} us, p99.9 {:.2} us)",
-        1e6 / iox_hz,
-        1e6 / iox_hz - 1e6 / inproc_hz,
-        rtt.p50_us,
-        rtt.p99_us,
-        rtt.p999_us
-    );
-    println!(
-        "    the hand-off itself (round trip p50 less the law's compute p50): {handoff_us:.2} us per cycle, both ways, no system call; beyond the transport, the pair shares the 2 CPUs with the supervisor reading and writing every tick"
-    );
-    Ok(Lockstep {
-        disturbed: disturbed.is_some(),
-        attempts,
-        shm_handoff_us: q(&hands[0], 0.5),
-        api_handoff_us: q(&hands[4], 0.5),
-        api_us,
-        iox_handoff_us: q(&hands[1], 0.5),
-        uds_handoff_us: q(&hands[3], 0.5),
+    Costs {
         shm_us,
         iox_us,
-        one_cpu_us: one_us,
         uds_us,
-        iox_hz,
-        inproc_hz,
-        handoff_us,
-    })
+        one_us,
+        api_us,
+    }
 }
 
 /// CPU time the host took from `cpu` during the run (ms) and its share of the loop's wall time.
