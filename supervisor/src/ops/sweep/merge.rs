@@ -106,123 +106,34 @@ pub fn gather(dirs: &[PathBuf], opts: Options) -> Result<Merged> {
             );
         }
     }
-    // Every row, into its point's slot; a second finished row for a point is an error.
     let n = plan.points.len();
-    let mut slot: Vec<Option<(Row, usize)>> = vec![None; n];
-    let mut listed: Vec<Option<usize>> = vec![None; n];
-    let mut dups: Vec<(usize, usize, usize)> = Vec::new();
+    let mut slots = Slots {
+        slot: vec![None; n],
+        listed: vec![None; n],
+        dups: Vec::new(),
+    };
     for (k, (d, m)) in dirs.iter().zip(&manifests).enumerate() {
-        let shown = d.display();
-        for id in &m.points {
-            let i = plan.find(id).ok_or_else(|| {
-                anyhow::anyhow!(
-                    "shard {shown}: {MANIFEST} lists point {id:?}, which is not in the plan"
-                )
-            })?;
-            listed[i].get_or_insert(k);
-        }
-        let csv_path = d.join("sweep.csv");
-        let file = files::open_regular(&csv_path, MAX_CSV_BYTES, "a shard's sweep.csv")
-            .map_err(|e| anyhow::anyhow!("shard {shown}: cannot read sweep.csv: {e}"))?;
-        let mut rdr = csv::Reader::from_reader(std::io::BufReader::new(file));
-        for (line, r) in rdr.deserialize::<Row>().enumerate() {
-            let r =
-                r.map_err(|e| anyhow::anyhow!("shard {shown}: sweep.csv row {}: {e}", line + 1))?;
-            let Some(i) = plan.find(&r.point) else {
-                bail!(
-                    "shard {shown}: sweep.csv has point {:?}, which is not in plan {}",
-                    r.point,
-                    plan.short_hash()
-                );
-            };
-            if !m.points.contains(&r.point) {
-                bail!(
-                    "shard {shown}: sweep.csv has point {}, which its {MANIFEST} does not list",
-                    r.point
-                );
-            }
-            let p = &plan.points[i];
-            if (
-                r.law,
-                r.mode,
-                r.tde_delay_samples,
-                r.transport_delay_samples,
-            ) != (p.job.law, p.mode, p.job.ell, p.job.d)
-                || r.scenario != p.job.scenario.name()
-                || r.preset != p.job.preset.name()
-                || r.compute_delay_us != p.job.compute_us
-                || r.transport_delay_us != p.job.us
-            {
-                bail!(
-                    "shard {shown}: sweep.csv row {} says point {} but holds another point's parameters (expected {})",
-                    line + 1,
-                    r.point,
-                    p.label()
-                );
-            }
-            match &slot[i] {
-                // An interrupted row is no result: a finished one replaces it.
-                Some((old, k0)) if old.is_result() && r.is_result() => dups.push((i, *k0, k)),
-                Some((old, _)) if old.is_result() => {}
-                _ => slot[i] = Some((r, k)),
-            }
-        }
+        slots.read_shard(&plan, k, d, m)?;
     }
+    let Slots {
+        slot,
+        listed,
+        mut dups,
+    } = slots;
     if !dups.is_empty() {
         dups.sort_unstable();
-        let mut named: Vec<String> = dups
-            .iter()
-            .take(10)
-            .map(|&(i, k0, k)| {
-                let p = &plan.points[i];
-                let whr = if k0 == k {
-                    format!("twice in {}", dirs[k].display())
-                } else {
-                    format!("in {} and {}", dirs[k0].display(), dirs[k].display())
-                };
-                format!("{} ({}) {whr}", p.id, p.label())
-            })
-            .collect();
-        if dups.len() > 10 {
-            named.push(format!("and {} more", dups.len() - 10));
-        }
-        bail!(
-            "sweep merge: {} point(s) merged more than once: {}; merge each point once (drop one of the folders, or re-run one without the point)",
-            dups.len(),
-            named.join(", ")
-        );
+        bail!(duplicates_error(&plan, dirs, &dups));
     }
     let missing: Vec<usize> = (0..n)
         .filter(|&i| !slot[i].as_ref().is_some_and(|(r, _)| r.is_result()))
         .collect();
     if !missing.is_empty() && !opts.allow_missing {
-        let unlisted: Vec<usize> = missing
-            .iter()
-            .copied()
-            .filter(|&i| listed[i].is_none())
-            .collect();
-        let unfinished: Vec<usize> = missing
-            .iter()
-            .copied()
-            .filter(|&i| listed[i].is_some())
-            .collect();
-        let mut why = Vec::new();
-        if !unlisted.is_empty() {
-            why.push(format!("in no shard: {}", name_points(&plan, &unlisted)));
-        }
-        if !unfinished.is_empty() {
-            why.push(format!(
-                "not finished in the shard that lists them (interrupted or failed): {}",
-                name_points(&plan, &unfinished)
-            ));
-        }
-        bail!(
-            "sweep merge: {} of {n} points missing, {}; run them with `deltaloop sweep run {} --points {}`",
-            missing.len(),
-            why.join("; "),
-            manifests[0].sweep_file,
-            ranges_text(&missing)
-        );
+        bail!(missing_error(
+            &plan,
+            &missing,
+            &listed,
+            &manifests[0].sweep_file
+        ));
     }
     // Only folders and regular files are copied from the shards' points/: checked before
     // anything is written.
@@ -237,6 +148,140 @@ pub fn gather(dirs: &[PathBuf], opts: Options) -> Result<Merged> {
         missing,
         sweep_file,
     })
+}
+
+/// Every row of the shards, in its point's slot.
+struct Slots {
+    /// Per point: its row and the shard it came from.
+    slot: Vec<Option<(Row, usize)>>,
+    /// Per point: the first shard whose manifest lists it.
+    listed: Vec<Option<usize>>,
+    /// (point, shard, shard) of each second finished row for a point.
+    dups: Vec<(usize, usize, usize)>,
+}
+
+impl Slots {
+    /// Files the rows of shard `k` (folder `d`, manifest `m`); a second finished row for a point
+    /// is noted as a duplicate.
+    fn read_shard(&mut self, plan: &Plan, k: usize, d: &Path, m: &Manifest) -> Result<()> {
+        let shown = d.display();
+        for id in &m.points {
+            let i = plan.find(id).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "shard {shown}: {MANIFEST} lists point {id:?}, which is not in the plan"
+                )
+            })?;
+            self.listed[i].get_or_insert(k);
+        }
+        let csv_path = d.join("sweep.csv");
+        let file = files::open_regular(&csv_path, MAX_CSV_BYTES, "a shard's sweep.csv")
+            .map_err(|e| anyhow::anyhow!("shard {shown}: cannot read sweep.csv: {e}"))?;
+        let mut rdr = csv::Reader::from_reader(std::io::BufReader::new(file));
+        for (line, r) in rdr.deserialize::<Row>().enumerate() {
+            let r =
+                r.map_err(|e| anyhow::anyhow!("shard {shown}: sweep.csv row {}: {e}", line + 1))?;
+            let i = check_row(plan, d, m, line, &r)?;
+            match &self.slot[i] {
+                // An interrupted row is no result: a finished one replaces it.
+                Some((old, k0)) if old.is_result() && r.is_result() => self.dups.push((i, *k0, k)),
+                Some((old, _)) if old.is_result() => {}
+                _ => self.slot[i] = Some((r, k)),
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The plan index of row `line` of shard `d`'s `sweep.csv`, checked: a point of the plan, listed
+/// in the shard's manifest, with that point's parameters.
+fn check_row(plan: &Plan, d: &Path, m: &Manifest, line: usize, r: &Row) -> Result<usize> {
+    let shown = d.display();
+    let Some(i) = plan.find(&r.point) else {
+        bail!(
+            "shard {shown}: sweep.csv has point {:?}, which is not in plan {}",
+            r.point,
+            plan.short_hash()
+        );
+    };
+    if !m.points.contains(&r.point) {
+        bail!(
+            "shard {shown}: sweep.csv has point {}, which its {MANIFEST} does not list",
+            r.point
+        );
+    }
+    let p = &plan.points[i];
+    if (
+        r.law,
+        r.mode,
+        r.tde_delay_samples,
+        r.transport_delay_samples,
+    ) != (p.job.law, p.mode, p.job.ell, p.job.d)
+        || r.scenario != p.job.scenario.name()
+        || r.preset != p.job.preset.name()
+        || r.compute_delay_us != p.job.compute_us
+        || r.transport_delay_us != p.job.us
+    {
+        bail!(
+            "shard {shown}: sweep.csv row {} says point {} but holds another point's parameters (expected {})",
+            line + 1,
+            r.point,
+            p.label()
+        );
+    }
+    Ok(i)
+}
+
+/// The error for points merged more than once (`dups` sorted), naming up to 10.
+fn duplicates_error(plan: &Plan, dirs: &[PathBuf], dups: &[(usize, usize, usize)]) -> String {
+    let mut named: Vec<String> = dups
+        .iter()
+        .take(10)
+        .map(|&(i, k0, k)| {
+            let p = &plan.points[i];
+            let whr = if k0 == k {
+                format!("twice in {}", dirs[k].display())
+            } else {
+                format!("in {} and {}", dirs[k0].display(), dirs[k].display())
+            };
+            format!("{} ({}) {whr}", p.id, p.label())
+        })
+        .collect();
+    if dups.len() > 10 {
+        named.push(format!("and {} more", dups.len() - 10));
+    }
+    format!(
+        "sweep merge: {} point(s) merged more than once: {}; merge each point once (drop one of the folders, or re-run one without the point)",
+        dups.len(),
+        named.join(", ")
+    )
+}
+
+/// The error for missing points: those in no shard and those a shard lists but did not finish.
+fn missing_error(
+    plan: &Plan,
+    missing: &[usize],
+    listed: &[Option<usize>],
+    sweep_file: &str,
+) -> String {
+    let (unlisted, unfinished): (Vec<usize>, Vec<usize>) =
+        missing.iter().partition(|&&i| listed[i].is_none());
+    let mut why = Vec::new();
+    if !unlisted.is_empty() {
+        why.push(format!("in no shard: {}", name_points(plan, &unlisted)));
+    }
+    if !unfinished.is_empty() {
+        why.push(format!(
+            "not finished in the shard that lists them (interrupted or failed): {}",
+            name_points(plan, &unfinished)
+        ));
+    }
+    format!(
+        "sweep merge: {} of {} points missing, {}; run them with `deltaloop sweep run {sweep_file} --points {}`",
+        missing.len(),
+        plan.points.len(),
+        why.join("; "),
+        ranges_text(missing)
+    )
 }
 
 /// Writes the merged outputs (the shards' `points/` are copied apart, by [`copy_points`]).
