@@ -2,9 +2,8 @@
 //! its row of `sweep.csv` with the status the run ended in.
 
 use super::schema::Job;
-use crate::loops::inproc;
 use crate::loops::lawrun::Keep;
-use crate::loops::procs;
+use crate::loops::{self, Ran};
 use crate::record::metrics::LawMetrics;
 use crate::study::Study;
 use anyhow::{Context, Result};
@@ -246,16 +245,17 @@ pub(super) fn run_job(base: &RunConfig, job: &Job, mode: LoopMode, dir: &Path) -
         } else {
             mode
         };
-        let (run, timing) = if mode.is_process() {
-            let pdir = dir.join("points").join(&study.config.name);
+        let pdir = dir.join("points").join(&study.config.name);
+        if mode.is_process() {
             std::fs::create_dir_all(&pdir)?;
             std::fs::write(pdir.join("config.toml"), study.config.to_toml_string())?;
-            let r = procs::run_law(&study, job.law, mode, &pdir, &Keep::default(), None)?;
-            (r.run, Some(r.timing.summary()))
-        } else {
-            (inproc::run_law(&study, job.law, &Keep::default())?, None)
-        };
-        Ok((run.metrics, timing))
+        }
+        Ok(
+            match loops::run_law(&study, job.law, mode, &pdir, &Keep::default(), None)? {
+                Ran::Process(r) => (r.run.metrics, Some(r.timing.summary())),
+                Ran::Inproc(run) => (run.metrics, None),
+            },
+        )
     };
     let mode = if job.realtime {
         LoopMode::Realtime
