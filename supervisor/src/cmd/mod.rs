@@ -118,34 +118,3 @@ pub fn main() -> ExitCode {
         }
     }
 }
-
-#[cfg(test)]
-mod tests {
-    /// The layer rule: `cmd` may use everything, nothing outside it uses `cmd`.
-    #[test]
-    fn nothing_outside_cmd_uses_cmd() {
-        let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-        let mut offenders = Vec::new();
-        let mut dirs = vec![src.clone()];
-        while let Some(d) = dirs.pop() {
-            for e in std::fs::read_dir(&d).unwrap().flatten() {
-                let p = e.path();
-                if p.is_dir() {
-                    if p != src.join("cmd") {
-                        dirs.push(p);
-                    }
-                } else if p.extension().is_some_and(|x| x == "rs") {
-                    let text = std::fs::read_to_string(&p).unwrap();
-                    let code = text.lines().filter(|l| !l.trim_start().starts_with("//"));
-                    if code
-                        .into_iter()
-                        .any(|l| l.contains("crate::cmd") || l.contains("super::cmd"))
-                    {
-                        offenders.push(p.display().to_string());
-                    }
-                }
-            }
-        }
-        assert!(offenders.is_empty(), "these use crate::cmd: {offenders:?}");
-    }
-}

@@ -19,7 +19,7 @@ use std::path::Path;
 
 /// One law's run: its record, and for a process mode what the pair left besides.
 pub enum Ran {
-    Inproc(LawRun),
+    Inproc(Box<LawRun>),
     Process(Box<ProcessRun>),
 }
 
@@ -27,7 +27,7 @@ impl Ran {
     /// The record.
     pub fn into_run(self) -> LawRun {
         match self {
-            Ran::Inproc(r) => r,
+            Ran::Inproc(r) => *r,
             Ran::Process(p) => p.run,
         }
     }
@@ -49,6 +49,6 @@ pub fn run_law(
             study, law, mode, dir, keep, on_tick,
         )?))
     } else {
-        Ran::Inproc(inproc::run_law(study, law, keep)?)
+        Ran::Inproc(Box::new(inproc::run_law(study, law, keep)?))
     })
 }
