@@ -93,53 +93,17 @@ pub fn run_law(
     let Some(layout) = mode.layout(cfg) else {
         bail!("mode {mode} runs no processes");
     };
-    // A full /dev/shm would kill a child with SIGBUS mid-set-up: say so up front instead.
-    if let Some(free) = ipc::shm_free_bytes() {
-        ipc::check_shm(ipc::shm_needed_bytes(), free).map_err(|e| anyhow!(e))?;
-    }
-    let rid = new_run_id();
-    let obs = Observer::open(&rid)?;
-    let lead = match mode {
-        LoopMode::Lockstep => crate::loops::feed::LOCKSTEP_LEAD_CHUNKS,
-        _ => ipc::REF_RING as u64,
-    };
-    let mut feed = ReferenceFeed::create(&obs.node, &rid, study.reference.row_count(), lead)?;
-    let mut pair = Pair::spawn(&rid, law, mode, run_dir, cfg)?;
-    obs.trust(&pair);
-    let ready = match handshake(&obs, &mut feed, &mut pair, study) {
-        Ok(r) => r,
-        Err(e) => {
-            // A child that died during set-up leaves a half-created node: remove it now.
-            drop(pair);
-            drop(feed);
-            drop(obs);
-            let removed = ipc::remove_dead_nodes();
-            return Err(if removed.is_empty() {
-                e
-            } else {
-                anyhow!(
-                    "{e:#}; removed the iceoryx2 resources of the {} dead node(s) it left",
-                    removed.len()
-                )
-            });
-        }
-    };
+    let Started {
+        rid,
+        obs,
+        mut feed,
+        mut pair,
+        ready,
+    } = start_pair(study, law, mode, run_dir)?;
     if !ready {
         return stopped_before_start(&obs, pair, law, study, rid, keep);
     }
-
-    let mut sched_warnings = rt::apply(&rt::Sched {
-        core: Layout::cpu(layout.supervisor_cpu),
-        fifo_priority: 0,
-        lock_memory: false,
-    });
-    if mode == LoopMode::Realtime {
-        sched_warnings.extend(fifo_share_warnings(
-            layout,
-            cfg.loop_.ts_s,
-            rt::rt_share_limit(),
-        ));
-    }
+    let sched_warnings = schedule_supervisor(layout, mode, cfg.loop_.ts_s);
     let n = study.reference.n as u64;
     let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
     // Allocate (and touch) everything the observer fills before START, not after: the loop does
@@ -204,6 +168,71 @@ pub fn run_law(
         timing,
         child_messages,
     })
+}
+
+/// A pair through the handshake.
+struct Started {
+    rid: String,
+    obs: Observer,
+    feed: ReferenceFeed,
+    pair: Pair,
+    /// Both children are ARMED (false: a signal came first; nothing was started).
+    ready: bool,
+}
+
+/// Opens the supervisor's ports and the reference feed, spawns the pair and runs the handshake.
+fn start_pair(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Result<Started> {
+    // A full /dev/shm would kill a child with SIGBUS mid-set-up: say so up front instead.
+    if let Some(free) = ipc::shm_free_bytes() {
+        ipc::check_shm(ipc::shm_needed_bytes(), free).map_err(|e| anyhow!(e))?;
+    }
+    let rid = new_run_id();
+    let obs = Observer::open(&rid)?;
+    let lead = match mode {
+        LoopMode::Lockstep => crate::loops::feed::LOCKSTEP_LEAD_CHUNKS,
+        _ => ipc::REF_RING as u64,
+    };
+    let mut feed = ReferenceFeed::create(&obs.node, &rid, study.reference.row_count(), lead)?;
+    let mut pair = Pair::spawn(&rid, law, mode, run_dir, &study.config)?;
+    obs.trust(&pair);
+    match handshake(&obs, &mut feed, &mut pair, study) {
+        Ok(ready) => Ok(Started {
+            rid,
+            obs,
+            feed,
+            pair,
+            ready,
+        }),
+        Err(e) => {
+            // A child that died during set-up leaves a half-created node: remove it now.
+            drop(pair);
+            drop(feed);
+            drop(obs);
+            let removed = ipc::remove_dead_nodes();
+            Err(if removed.is_empty() {
+                e
+            } else {
+                anyhow!(
+                    "{e:#}; removed the iceoryx2 resources of the {} dead node(s) it left",
+                    removed.len()
+                )
+            })
+        }
+    }
+}
+
+/// Pins the supervisor as the layout says; returns the warnings (and, for realtime, those about
+/// loop processes polling past the kernel's real-time limit).
+fn schedule_supervisor(layout: &Layout, mode: LoopMode, ts_s: f64) -> Vec<String> {
+    let mut warnings = rt::apply(&rt::Sched {
+        core: Layout::cpu(layout.supervisor_cpu),
+        fifo_priority: 0,
+        lock_memory: false,
+    });
+    if mode == LoopMode::Realtime {
+        warnings.extend(fifo_share_warnings(layout, ts_s, rt::rt_share_limit()));
+    }
+    warnings
 }
 
 /// Warnings for realtime loop processes that poll at SCHED_FIFO for more of each period than the

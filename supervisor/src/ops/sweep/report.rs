@@ -123,6 +123,45 @@ pub(super) fn report(
             "A stopped run ended on a loop fault, not by diverging: e.g. a controller that missed its torque budget `faults.controller_silence_ticks` times in a row, after which the plant braked to a safe stop. The fault is the row's `reason` in `sweep.csv`.\n"
         );
     }
+    grid_tables(&mut s, sw, rows);
+    if !sw.compute_delay_us.is_empty() {
+        let _ = writeln!(
+            s,
+            "## Controller compute delay (realtime)\n\n| scenario | preset | law | compute delay (µs) | status | RMS (rad) | misses | round trip p99.9 (µs) | reason |\n|---|---|---|---|---|---|---|---|---|"
+        );
+        for r in rows
+            .iter()
+            .filter(|r| r.mode == LoopMode::Realtime && r.is_result())
+        {
+            let _ = writeln!(
+                s,
+                "| {} | {} | `{}` | {} | {} | {:.2e} | {} | {} | {} |",
+                r.scenario,
+                r.preset,
+                r.law,
+                r.compute_delay_us,
+                r.status,
+                r.rms_rad,
+                r.deadline_misses.map_or("–".into(), |m| m.to_string()),
+                r.round_trip_p999_us
+                    .map_or("–".into(), |p| format!("{p:.1}")),
+                r.reason.replace('|', "\\|").replace('\n', " ")
+            );
+        }
+        let _ = writeln!(s);
+    }
+    if !sw.transport_delay_us.is_empty() {
+        budget_table(&mut s, sw, rows);
+    }
+    let _ = writeln!(s, "## Figures\n");
+    for (stem, title) in figures {
+        let _ = writeln!(s, "### {title}\n\n![{title}]({stem}.png)\n");
+    }
+    s
+}
+
+/// The grid's tables: per scenario and preset, each metric against ℓ and against d.
+fn grid_tables(s: &mut String, sw: &SweepFile, rows: &[Row]) {
     let tables: [(&str, Metric); 2] = [
         ("RMS joint error, max over joints (rad)", |r| r.rms_rad),
         ("TDE error RMS, max over joints (rad/s²)", |r| {
@@ -152,7 +191,7 @@ pub(super) fn report(
                     })
                 };
                 axis_table(
-                    &mut s,
+                    s,
                     &format!("Against the TDE delay ℓ (transport delay d = {d0})"),
                     "ℓ",
                     &sw.tde_delay_samples,
@@ -161,7 +200,7 @@ pub(super) fn report(
                     get,
                 );
                 axis_table(
-                    &mut s,
+                    s,
                     &format!("Against the transport delay d (ℓ = {l0})"),
                     "d",
                     &sw.transport_delay_samples,
@@ -173,59 +212,28 @@ pub(super) fn report(
             }
         }
     }
-    if !sw.compute_delay_us.is_empty() {
-        let _ = writeln!(
-            s,
-            "## Controller compute delay (realtime)\n\n| scenario | preset | law | compute delay (µs) | status | RMS (rad) | misses | round trip p99.9 (µs) | reason |\n|---|---|---|---|---|---|---|---|---|"
-        );
-        for r in rows
-            .iter()
-            .filter(|r| r.mode == LoopMode::Realtime && r.is_result())
-        {
-            let _ = writeln!(
-                s,
-                "| {} | {} | `{}` | {} | {} | {:.2e} | {} | {} | {} |",
-                r.scenario,
-                r.preset,
-                r.law,
-                r.compute_delay_us,
-                r.status,
-                r.rms_rad,
-                r.deadline_misses.map_or("–".into(), |m| m.to_string()),
-                r.round_trip_p999_us
-                    .map_or("–".into(), |p| format!("{p:.1}")),
-                r.reason.replace('|', "\\|").replace('\n', " ")
-            );
-        }
-        let _ = writeln!(s);
-    }
-    if !sw.transport_delay_us.is_empty() {
-        let _ = writeln!(
-            s,
-            "## Latency budget\n\nThe largest transport delay D on the grid (at ℓ = {}, d = {}) up to which each law's tracking RMS stays within 2× its value at D = 0. Delays are sub-tick: a command takes effect at t_k + D, cutting the interval (docs/delta-robot.md §5.2).\n\n| scenario | preset | law | RMS at D = 0 (rad) | latency budget (µs) | RMS there (rad) |\n|---|---|---|---|---|---|",
-            sw.tde_delay_samples[0], sw.transport_delay_samples[0]
-        );
-        for &sc in &sw.scenarios {
-            for &pr in &sw.presets {
-                for &law in &sw.laws {
-                    if let Some((zero, us, rms)) =
-                        latency_budget(sw, rows, sc.name(), pr.name(), law)
-                    {
-                        let _ = writeln!(
-                            s,
-                            "| {} | {} | `{law}` | {zero:.3e} | {us} | {rms:.3e} |",
-                            sc.name(),
-                            pr.name()
-                        );
-                    }
+}
+
+/// The latency budget of each law on the sub-tick transport-delay axis.
+fn budget_table(s: &mut String, sw: &SweepFile, rows: &[Row]) {
+    let _ = writeln!(
+        s,
+        "## Latency budget\n\nThe largest transport delay D on the grid (at ℓ = {}, d = {}) up to which each law's tracking RMS stays within 2× its value at D = 0. Delays are sub-tick: a command takes effect at t_k + D, cutting the interval (docs/delta-robot.md §5.2).\n\n| scenario | preset | law | RMS at D = 0 (rad) | latency budget (µs) | RMS there (rad) |\n|---|---|---|---|---|---|",
+        sw.tde_delay_samples[0], sw.transport_delay_samples[0]
+    );
+    for &sc in &sw.scenarios {
+        for &pr in &sw.presets {
+            for &law in &sw.laws {
+                if let Some((zero, us, rms)) = latency_budget(sw, rows, sc.name(), pr.name(), law) {
+                    let _ = writeln!(
+                        s,
+                        "| {} | {} | `{law}` | {zero:.3e} | {us} | {rms:.3e} |",
+                        sc.name(),
+                        pr.name()
+                    );
                 }
             }
         }
-        let _ = writeln!(s);
     }
-    let _ = writeln!(s, "## Figures\n");
-    for (stem, title) in figures {
-        let _ = writeln!(s, "### {title}\n\n![{title}]({stem}.png)\n");
-    }
-    s
+    let _ = writeln!(s);
 }
