@@ -278,33 +278,8 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
         Layout::realtime_one_cpu_yield(),
     )?;
     let lay = Layout::realtime_default();
-    let (cpu, prio) = (
-        Layout::cpu(lay.plant_cpu).unwrap_or(0),
-        lay.plant_priority.unwrap_or(0),
-    );
-    let ts_ns = ls.config.ts_ns();
-    let machine = machine::sleep_only_loop(cpu, prio, ts_ns, rt_seconds)?;
-    let cyclic = machine::cyclictest(cpu, prio, ts_ns / 1000, rt_seconds);
+    let (machine, cyclic) = machine_limit(&lay, ls.config.ts_ns(), rt_seconds)?;
     let m = |h: &Histogram<u64>, q: f64| h.value_at_quantile(q) as f64 / 1e3;
-    println!(
-        "(e) machine: a sleep-only loop on CPU {cpu} at SCHED_FIFO {prio}, every {} us: wake lateness p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
-        ts_ns / 1000,
-        m(&machine, 0.5),
-        m(&machine, 0.99),
-        m(&machine, 0.999),
-        machine.max() as f64 / 1e3
-    );
-    match &cyclic {
-        Ok(h) => println!(
-            "    cyclictest -m -p {prio} -i {} -a {cpu} -t 1: p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
-            ts_ns / 1000,
-            m(h, 0.5),
-            m(h, 0.99),
-            m(h, 0.999),
-            h.max() as f64 / 1e3
-        ),
-        Err(why) => println!("    cyclictest: not run ({why})"),
-    }
     let d = rt_default.summary();
     let y = rt_yield.summary();
     println!(
@@ -347,6 +322,41 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
         })
     );
     Ok(())
+}
+
+/// cyclictest's wake lateness, or why it was not run.
+type Cyclictest = std::result::Result<Histogram<u64>, String>;
+
+/// (e) The machine's own wake-up limit on the plant's CPU and priority of `lay`: a sleep-only
+/// loop every `ts_ns`, and cyclictest when it can run. Prints both.
+fn machine_limit(lay: &Layout, ts_ns: u64, seconds: f64) -> Result<(Histogram<u64>, Cyclictest)> {
+    let (cpu, prio) = (
+        Layout::cpu(lay.plant_cpu).unwrap_or(0),
+        lay.plant_priority.unwrap_or(0),
+    );
+    let machine = machine::sleep_only_loop(cpu, prio, ts_ns, seconds)?;
+    let cyclic = machine::cyclictest(cpu, prio, ts_ns / 1000, seconds);
+    let m = |h: &Histogram<u64>, q: f64| h.value_at_quantile(q) as f64 / 1e3;
+    println!(
+        "(e) machine: a sleep-only loop on CPU {cpu} at SCHED_FIFO {prio}, every {} us: wake lateness p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
+        ts_ns / 1000,
+        m(&machine, 0.5),
+        m(&machine, 0.99),
+        m(&machine, 0.999),
+        machine.max() as f64 / 1e3
+    );
+    match &cyclic {
+        Ok(h) => println!(
+            "    cyclictest -m -p {prio} -i {} -a {cpu} -t 1: p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
+            ts_ns / 1000,
+            m(h, 0.5),
+            m(h, 0.99),
+            m(h, 0.999),
+            h.max() as f64 / 1e3
+        ),
+        Err(why) => println!("    cyclictest: not run ({why})"),
+    }
+    Ok((machine, cyclic))
 }
 
 /// What the machine-readable summary line is made of.
