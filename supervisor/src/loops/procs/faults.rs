@@ -1,15 +1,14 @@
 //! How a process run ended, in words: a child's exit status or signal, the line of its log that
 //! says why, and the run's [`Fault`].
 
+use super::observe::{Ending, Observation};
+use super::role;
+use super::spawn::Pair;
 use crate::loops::peer_text::{self, Tail};
 use crate::record::Fault;
 use deltaloop_transport::wire::Sender;
 use std::path::Path;
 use std::process::ExitStatus;
-
-use super::observe::*;
-use super::spawn::*;
-use super::*;
 
 /// How a child ended, in words: a signal by its name, and SIGBUS with its likely cause.
 pub(super) fn status_text(s: ExitStatus) -> String {

@@ -2,6 +2,8 @@
 //! and the handshake: READY from both, the first reference chunks, ARMED, START; or STOP when a
 //! signal comes first.
 
+use super::spawn::{Pair, in_process_tree};
+use super::{ProcessRun, role};
 use crate::loops::feed::ReferenceFeed;
 use crate::loops::lawrun::{self, Keep};
 use crate::study::Study;
@@ -20,9 +22,6 @@ use iceoryx2::service::header::payload_header::PayloadHeader;
 use std::cell::Cell;
 use std::process::Child;
 use std::time::Duration;
-
-use super::spawn::*;
-use super::*;
 
 /// What one child says, on its own control service, believed only from that child: the first
 /// publisher seen there must belong to the child's process (or a descendant of it), and after it

@@ -13,11 +13,6 @@ mod handshake;
 mod observe;
 mod spawn;
 
-use faults::*;
-use handshake::*;
-use observe::*;
-use spawn::*;
-
 use crate::loops::feed::ReferenceFeed;
 use crate::loops::lawrun::{self, Keep, LawRun};
 use crate::record::Fault;
@@ -29,6 +24,10 @@ use deltaloop_config::{Law, LoopMode};
 use deltaloop_transport::ipc::{self, IpcContext};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{ControlKind, ControlMsg, Sender};
+use faults::fault_cause;
+use handshake::{Observer, handshake, stopped_before_start};
+use observe::{Observation, observe};
+use spawn::{Pair, own_peak_rss_kib};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 

@@ -2,6 +2,8 @@
 //! in order to `<law>.timing.csv`, the timing histograms and the recorder, until both children
 //! exit.
 
+use super::handshake::Observer;
+use super::spawn::Pair;
 use crate::loops::feed::ReferenceFeed;
 use crate::loops::lawrun::{self, LawRecorder, LawRun};
 use crate::record::Fault;
@@ -15,8 +17,6 @@ use std::process::ExitStatus;
 use std::time::Duration;
 
 use super::OnTick;
-use super::handshake::*;
-use super::spawn::*;
 
 /// Ticks the observer holds open at most (a ring indexed by tick).
 pub(super) const WINDOW: u64 = 32_768;

@@ -1,6 +1,8 @@
 //! Spawning the pair: the children's commands and logs, each child reaped with its resource
 //! usage and killed on drop, and the process-tree check the control services rely on.
 
+use super::faults::status_text;
+use super::{exe_dir, role};
 use crate::loops::peer_text::{self, Tail};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
@@ -8,8 +10,6 @@ use deltaloop_transport::wire::Sender;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::Duration;
-
-use super::*;
 
 /// A child process, reaped with its resource usage (wait4), and killed and reaped on drop, so
 /// no process outlives the run, whatever happens.

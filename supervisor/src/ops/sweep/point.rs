@@ -14,7 +14,7 @@ use std::path::Path;
 /// One grid point's result: a row of `sweep.csv`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Row {
-    /// The point's id in the plan (see [`plan::Plan`]).
+    /// The point's id in the plan (see [`super::plan::Plan`]).
     pub point: String,
     pub scenario: String,
     pub preset: String,
