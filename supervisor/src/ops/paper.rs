@@ -97,6 +97,33 @@ fn scenario_name(path: PathKind) -> String {
     format!("{path:?}").to_lowercase()
 }
 
+/// The reference's task-space path and each run's FK(q), for the 3-D figure.
+fn path_series(study: &Study, pair: &[&LawRun]) -> Vec<Series3> {
+    let mut paths = vec![Series3 {
+        name: "reference x_d".into(),
+        color: plot::RGBColor(0, 0, 0),
+        points: (0..study.reference.n + 1)
+            .map(|k| study.reference.row(k).task.x)
+            .map(|x| (x[0], x[1], x[2]))
+            .collect(),
+        width: 2,
+    }];
+    for r in pair {
+        paths.push(Series3 {
+            name: format!("{} FK(q)", r.law.paper_name()),
+            color: plot::law_color(r.law.name()),
+            points: r
+                .records
+                .iter()
+                .filter_map(|rec| study.robot.fk(&rec.q_true).ok())
+                .map(|x| (x[0], x[1], x[2]))
+                .collect(),
+            width: 1,
+        });
+    }
+    paths
+}
+
 /// Errors, torques, the torque zoom and the 3-D path for one case.
 fn figures(
     study: &Study,
@@ -175,28 +202,7 @@ fn figures(
         panels(&tau, &all, zoom, "τ (N m)"),
     )?;
     // Task-space path vs reference (3-D).
-    let mut paths = vec![Series3 {
-        name: "reference x_d".into(),
-        color: plot::RGBColor(0, 0, 0),
-        points: (0..n)
-            .map(|k| study.reference.row(k).task.x)
-            .map(|x| (x[0], x[1], x[2]))
-            .collect(),
-        width: 2,
-    }];
-    for r in &pair {
-        paths.push(Series3 {
-            name: format!("{} FK(q)", r.law.paper_name()),
-            color: plot::law_color(r.law.name()),
-            points: r
-                .records
-                .iter()
-                .filter_map(|rec| study.robot.fk(&rec.q_true).ok())
-                .map(|x| (x[0], x[1], x[2]))
-                .collect(),
-            width: 1,
-        });
-    }
+    let paths = path_series(study, &pair);
     let s = format!("{stem}-path");
     plot::figure3(
         &dir.join(&s),
