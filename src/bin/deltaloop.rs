@@ -1,4 +1,4 @@
 //! `deltaloop`: the supervisor CLI.
 fn main() -> std::process::ExitCode {
-    deltaloop_supervisor::cli::main()
+    deltaloop_supervisor::cmd::main()
 }

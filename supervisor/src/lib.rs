@@ -1,32 +1,84 @@
 //! The deltaloop supervisor: scenarios and references, the loop runners, metrics, reports, and the
-//! `deltaloop` CLI. Math modules ([`scenario`], [`reference`], [`metrics`], [`analysis`]) do no I/O.
+//! `deltaloop` CLI. Math modules ([`study::scenario`], [`study::reference`], [`record::metrics`],
+//! [`study::analysis`]) do no I/O.
 
-pub mod analysis;
-pub mod bench;
-pub mod bench_loop;
-pub mod cli;
-pub mod feed;
-pub mod hlog;
-pub mod inproc;
-pub mod lawrun;
-pub mod live;
-pub mod metrics;
+pub mod cmd;
+pub mod loops;
+pub mod ops;
 pub mod output;
-pub mod paper;
-pub mod peer_text;
-pub mod plot;
-pub mod procs;
 pub mod record;
-pub mod reference;
-pub mod replay;
-pub mod report;
-pub mod run;
-pub mod scenario;
-pub mod signals;
-pub mod soak;
 pub mod study;
-pub mod sweep;
-pub mod tick_hook;
-pub mod timeline;
 pub mod timing;
-pub mod top;
+
+/// The layers, bottom up, and which of the others each one's code may name (`crate::<layer>`).
+/// `cmd` may use everything and nothing uses `cmd`; doc comments are not checked.
+#[cfg(test)]
+const LAYERS: [(&str, &[&str]); 7] = [
+    ("study", &[]),
+    ("record", &["study"]),
+    ("timing", &["study", "record"]),
+    ("output", &["study", "record", "timing"]),
+    ("loops", &["study", "record", "timing", "output"]),
+    ("ops", &["study", "record", "timing", "output", "loops"]),
+    (
+        "cmd",
+        &["study", "record", "timing", "output", "loops", "ops"],
+    ),
+];
+
+#[cfg(test)]
+mod tests {
+    use super::LAYERS;
+    use std::path::Path;
+
+    fn rust_files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
+        for e in std::fs::read_dir(dir).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                rust_files(&p, out);
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                out.push(p);
+            }
+        }
+    }
+
+    /// Every module file is in a layer folder, and no layer names one it may not use (above all:
+    /// nothing outside `cmd/` uses `cmd`).
+    #[test]
+    fn each_layer_uses_only_the_layers_below_it() {
+        let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+        let mut offenders = Vec::new();
+        for e in std::fs::read_dir(&src).unwrap().flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if name != "lib.rs" && !LAYERS.iter().any(|(l, _)| *l == name) {
+                offenders.push(format!("src/{name} is outside the layer folders"));
+            }
+        }
+        for (layer, allowed) in LAYERS {
+            let mut files = Vec::new();
+            rust_files(&src.join(layer), &mut files);
+            for f in files {
+                let text = std::fs::read_to_string(&f).unwrap();
+                for (n, line) in text.lines().enumerate() {
+                    if line.trim_start().starts_with("//") {
+                        continue;
+                    }
+                    for (other, _) in LAYERS {
+                        let named = line.contains(&format!("crate::{other}::"))
+                            || line.contains(&format!("crate::{other};"))
+                            || line.contains(&format!("crate::{other}::{{"))
+                            || line.contains(&format!("crate::{{{other}"));
+                        if other != layer && named && !allowed.contains(&other) {
+                            offenders.push(format!(
+                                "{}:{}: {layer} uses {other}",
+                                f.strip_prefix(&src).unwrap().display(),
+                                n + 1
+                            ));
+                        }
+                    }
+                }
+            }
+        }
+        assert!(offenders.is_empty(), "{offenders:#?}");
+    }
+}

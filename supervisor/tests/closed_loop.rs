@@ -2,11 +2,11 @@
 //! the limit cycle; a diverging configuration is reported, not crashed; runs are deterministic.
 
 use deltaloop_config::{Law, RunConfig};
-use deltaloop_supervisor::inproc;
-use deltaloop_supervisor::lawrun::{Keep, LawRun};
-use deltaloop_supervisor::metrics::LawMetrics;
+use deltaloop_supervisor::loops::inproc;
+use deltaloop_supervisor::loops::lawrun::{Keep, LawRun};
+use deltaloop_supervisor::output::report::limit_cycle;
+use deltaloop_supervisor::record::metrics::LawMetrics;
 use deltaloop_supervisor::record::{Outcome, RunStatus};
-use deltaloop_supervisor::report::limit_cycle;
 use deltaloop_supervisor::study::Study;
 
 fn study(extra: &str) -> Study {

@@ -1,8 +1,8 @@
 //! The delay study's building blocks: TDE delay, transport delay, sensor noise, payload step.
 
 use deltaloop_config::{Law, RunConfig};
-use deltaloop_supervisor::inproc;
-use deltaloop_supervisor::lawrun::{Keep, LawRun};
+use deltaloop_supervisor::loops::inproc;
+use deltaloop_supervisor::loops::lawrun::{Keep, LawRun};
 use deltaloop_supervisor::record::{Outcome, RunStatus};
 use deltaloop_supervisor::study::Study;
 

@@ -201,7 +201,7 @@ pub fn assert_complete(summary: &Value, out: &Path, law: &str) -> [f64; 3] {
     assert_eq!(t["ticks"], ticks, "{t}");
     assert_eq!(t["round_trip"]["count"], ticks, "{t}");
     let log = out.join(format!("{law}.round_trip.hlog"));
-    let logged: u64 = deltaloop_supervisor::hlog::read(&log)
+    let logged: u64 = deltaloop_supervisor::timing::hlog::read(&log)
         .unwrap()
         .intervals
         .iter()

@@ -1,0 +1,31 @@
+//! `deltaloop run CONFIG`: one scenario, its laws, one run folder.
+
+use super::{Context, OutArgs};
+use crate::ops::run::{self, Overrides, RunRequest};
+use anyhow::Result;
+use deltaloop_config::LoopMode;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Scenario file (TOML), e.g. configs/s2-fast.toml.
+    config: PathBuf,
+    /// Loop transport.
+    #[arg(long, value_parser = LoopMode::parse, default_value = "realtime")]
+    mode: LoopMode,
+    #[command(flatten)]
+    overrides: Overrides,
+    #[command(flatten)]
+    out: OutArgs,
+}
+
+pub fn exec(a: Args, cx: &Context) -> Result<()> {
+    let cfg = run::load_config(&a.config, &a.overrides)?;
+    let o = run::run(RunRequest {
+        out: a.out.out,
+        force: a.out.force,
+        ..RunRequest::new(cfg, a.mode, &cx.command_line)
+    })?;
+    o.print();
+    Ok(())
+}

@@ -1,0 +1,255 @@
+//! How a process run ended, in words: a child's exit status or signal, the line of its log that
+//! says why, and the run's [`Fault`].
+
+use super::observe::{Ending, Observation};
+use super::role;
+use super::spawn::Pair;
+use crate::loops::peer_text::{self, Tail};
+use crate::record::{Fault, FaultKind};
+use deltaloop_transport::wire::Sender;
+use std::path::Path;
+use std::process::ExitStatus;
+
+/// How a child ended, in words: a signal by its name, and SIGBUS with its likely cause.
+pub(super) fn status_text(s: ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    match (s.code(), s.signal()) {
+        (_, Some(sig)) => killed_by(sig),
+        (Some(101), _) => "panicked (exit status 101)".into(),
+        (Some(c), _) => format!("exited with status {c}"),
+        _ => "exited".into(),
+    }
+}
+
+/// "was killed by SIGBUS (…)" for signal `sig`. A loop process touches nothing but its shared
+/// memory mappings that could fault with SIGBUS: a page of a `/dev/shm` file that cannot be
+/// backed because the file system is full.
+pub(super) fn killed_by(sig: i32) -> String {
+    let name = match sig {
+        libc::SIGKILL => "SIGKILL",
+        libc::SIGBUS => {
+            return "was killed by SIGBUS (signal 7: a bus error, most likely shared memory (/dev/shm) ran out; see `df -h /dev/shm`)".into();
+        }
+        libc::SIGSEGV => "SIGSEGV",
+        libc::SIGABRT => "SIGABRT",
+        libc::SIGTERM => "SIGTERM",
+        libc::SIGINT => "SIGINT",
+        libc::SIGHUP => "SIGHUP",
+        libc::SIGPIPE => "SIGPIPE",
+        libc::SIGFPE => "SIGFPE",
+        libc::SIGILL => "SIGILL",
+        libc::SIGQUIT => "SIGQUIT",
+        libc::SIGXCPU => "SIGXCPU",
+        _ => return format!("was killed by signal {sig}"),
+    };
+    format!("was killed ({name})")
+}
+
+/// The line of a child's log that says why it stopped (see [`peer_text::reason`]).
+pub(super) fn last_line(path: &Path) -> String {
+    Tail::read(path).reason()
+}
+
+/// One line saying what went wrong, or None when both children finished normally.
+/// The tick is the one the plant's FAULT message names, else the tick after its last telemetry.
+pub(super) fn fault_cause(
+    ending: &Ending,
+    pair: &Pair,
+    streams: &Observation<'_>,
+) -> Option<Fault> {
+    let (plant, ctrl) = (ending.plant, ending.controller);
+    let (plant_log, ctrl_log) = (&pair.logs.plant, &pair.logs.controller);
+    let ok = |s: Option<ExitStatus>| s.is_some_and(|s| s.success());
+    let (last_torque, last_tel) = (streams.last_torque, streams.last_tel);
+    // A plant that exits 0 has finished the run: the final state N + 1 says so. Without it (and
+    // without DIVERGED) it quit early (regression: reported as a divergence, or as a fault of the
+    // controller that never said the plant had exited).
+    let n = streams.window.last - 1;
+    let plant_quit = ok(plant) && streams.diverged.is_none() && streams.final_tick != Some(n + 1);
+    if ok(plant) && ok(ctrl) && !plant_quit {
+        return None;
+    }
+    let tick = streams
+        .plant_fault
+        .as_ref()
+        .map_or(last_tel.map_or(0, |m| m.tick + 1), |f| f.tick);
+    let mut parts = Vec::new();
+    if plant_quit {
+        parts.push(match last_tel {
+            Some(m) => format!(
+                "the plant exited (status 0) after tick {} of {n}, before the end of the run",
+                m.tick
+            ),
+            None => format!("the plant exited (status 0) before tick 0 of {n}"),
+        });
+    }
+    // A child still running when the supervisor stopped it is not a cause (status None).
+    if ctrl.is_some() && !ok(ctrl) {
+        let what = ctrl.map_or("did not exit".into(), status_text);
+        let line = last_line(ctrl_log);
+        parts.push(if line.is_empty() {
+            format!("the controller {what}")
+        } else {
+            format!("the controller {what} ({line})")
+        });
+    }
+    let line = last_line(plant_log);
+    if plant.is_some() && !ok(plant) {
+        let what = plant.map_or("did not exit".into(), status_text);
+        parts.push(if line.is_empty() {
+            format!("the plant {what}")
+        } else {
+            format!(
+                "the plant {what}: {}",
+                line.trim_start_matches("deltaloop-plant: ")
+            )
+        });
+    }
+    // The plant said why it stopped the loop (FAULT): keep that, even if it could not finish
+    // (still braking when it was stopped, or its log says something else last).
+    if let Some(f) = &streams.plant_fault
+        && !line.contains(&f.cause)
+    {
+        parts.push(format!(
+            "the plant stopped the loop at tick {}: {}",
+            f.tick, f.cause
+        ));
+    }
+    // How long after the dead peer's last message the supervisor saw it exit.
+    if let Some((noticed, who)) = ending.first_exit {
+        let last = if who == Sender::Controller {
+            last_torque.map(|t| t.t_publish_ns)
+        } else {
+            last_tel.map(|m| m.t_wake_ns)
+        };
+        if let Some(t) = last {
+            parts.push(format!(
+                "the supervisor saw the {} exit {:.1} ms after its last message",
+                role(who),
+                noticed.saturating_sub(t) as f64 * 1e-6
+            ));
+        }
+    }
+    // The plant's FAULT text is a peer's too: one printable line, bounded.
+    let cause = parts.join("; ");
+    Some(Fault {
+        tick,
+        kind: fault_kind(plant, ctrl, plant_quit, streams.plant_fault.is_some()),
+        cause: peer_text::sanitize(cause.as_bytes(), 4 * peer_text::MAX_CHARS),
+    })
+}
+
+/// What kind of fault ended the run, from how the children exited (None: still running when
+/// the supervisor stopped it), whether the plant quit early with status 0, and whether it sent
+/// FAULT. A child killed or panicking is the root cause whatever the other did next; then the
+/// controller's own failure (the plant's FAULT for its silence follows from it); then a stop of
+/// the plant on request nobody here made; then the plant's FAULT (the controller went silent
+/// while alive); then the plant's exit code.
+fn fault_kind(
+    plant: Option<ExitStatus>,
+    ctrl: Option<ExitStatus>,
+    plant_quit: bool,
+    plant_fault: bool,
+) -> FaultKind {
+    let failed = |s: Option<ExitStatus>, who| s.filter(|s| !s.success()).map(|s| exit_kind(who, s));
+    let (ctrl, plant) = (
+        failed(ctrl, Sender::Controller),
+        failed(plant, Sender::Plant),
+    );
+    let severe = |k: &FaultKind| {
+        matches!(
+            k,
+            FaultKind::ControllerKilled
+                | FaultKind::ControllerPanicked
+                | FaultKind::PlantKilled
+                | FaultKind::PlantPanicked
+        )
+    };
+    let stopped = |k: &FaultKind| *k == FaultKind::Stopped;
+    ctrl.filter(severe)
+        .or(plant.filter(severe))
+        .or(ctrl)
+        .or(plant.filter(stopped))
+        .or(plant_fault.then_some(FaultKind::ControllerSilent))
+        .or(plant)
+        .unwrap_or(if plant_quit {
+            FaultKind::PlantQuit
+        } else {
+            FaultKind::Hung
+        })
+}
+
+/// The kind of fault a loop process's abnormal exit status says.
+fn exit_kind(who: Sender, s: ExitStatus) -> FaultKind {
+    use deltaloop_transport::exit::{EXIT_FAULT, EXIT_SETUP, EXIT_STOPPED};
+    use std::os::unix::process::ExitStatusExt;
+    let plant = who == Sender::Plant;
+    let code = s.code().and_then(|c| u8::try_from(c).ok());
+    match (s.signal(), code) {
+        (Some(_), _) if plant => FaultKind::PlantKilled,
+        (Some(_), _) => FaultKind::ControllerKilled,
+        (_, Some(101)) if plant => FaultKind::PlantPanicked,
+        (_, Some(101)) => FaultKind::ControllerPanicked,
+        (_, Some(EXIT_SETUP)) => FaultKind::Setup,
+        (_, Some(EXIT_STOPPED)) => FaultKind::Stopped,
+        (_, Some(EXIT_FAULT)) if plant => FaultKind::PlantFailed,
+        (_, Some(EXIT_FAULT)) => FaultKind::ControllerFailed,
+        _ if plant => FaultKind::PlantExited,
+        _ => FaultKind::ControllerExited,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The kind of a fault from how the children ended: the root cause, not its echo (a
+    /// killed controller makes the plant stop the loop and exit with its fault code).
+    #[test]
+    fn a_fault_is_classified_by_its_root_cause() {
+        use std::os::unix::process::ExitStatusExt;
+        let code = |c: i32| Some(ExitStatus::from_raw(c << 8));
+        let sig = |s: i32| Some(ExitStatus::from_raw(s));
+        let (ok, fault, stopped, setup) = (code(0), code(4), code(5), code(3));
+        let k = |p, c, quit, said| fault_kind(p, c, quit, said);
+        assert_eq!(
+            k(fault, sig(libc::SIGKILL), false, true),
+            FaultKind::ControllerKilled
+        );
+        assert_eq!(
+            k(fault, code(101), false, true),
+            FaultKind::ControllerPanicked
+        );
+        assert_eq!(
+            k(sig(libc::SIGBUS), ok, false, false),
+            FaultKind::PlantKilled
+        );
+        assert_eq!(k(code(101), ok, false, false), FaultKind::PlantPanicked);
+        assert_eq!(k(fault, ok, false, true), FaultKind::ControllerSilent);
+        assert_eq!(k(fault, None, false, true), FaultKind::ControllerSilent);
+        assert_eq!(k(fault, stopped, false, true), FaultKind::Stopped);
+        assert_eq!(k(fault, setup, false, true), FaultKind::Setup);
+        assert_eq!(k(stopped, ok, false, false), FaultKind::Stopped);
+        assert_eq!(k(ok, setup, false, false), FaultKind::Setup);
+        assert_eq!(k(ok, fault, false, false), FaultKind::ControllerFailed);
+        assert_eq!(k(fault, ok, false, false), FaultKind::PlantFailed);
+        assert_eq!(k(code(9), ok, false, false), FaultKind::PlantExited);
+        assert_eq!(k(ok, code(9), false, false), FaultKind::ControllerExited);
+        assert_eq!(k(ok, ok, true, false), FaultKind::PlantQuit);
+        assert_eq!(k(ok, None, false, false), FaultKind::Hung);
+    }
+
+    /// Regression: a full /dev/shm mid-run killed the plant with a bare "signal 7".
+    #[test]
+    fn regression_a_child_killed_by_sigbus_is_named_with_its_likely_cause() {
+        let bus = killed_by(libc::SIGBUS);
+        assert!(
+            bus.starts_with("was killed by SIGBUS")
+                && bus.contains("shared memory (/dev/shm) ran out"),
+            "{bus}"
+        );
+        assert_eq!(killed_by(libc::SIGKILL), "was killed (SIGKILL)");
+        assert_eq!(killed_by(libc::SIGSEGV), "was killed (SIGSEGV)");
+        assert_eq!(killed_by(64), "was killed by signal 64");
+    }
+}

@@ -1,0 +1,310 @@
+//! Spawning the pair: the children's commands and logs, each child reaped with its resource
+//! usage and killed on drop, and the process-tree check the control services rely on.
+
+use super::faults::status_text;
+use super::{exe_dir, role};
+use crate::loops::peer_text::{self, Tail};
+use anyhow::{Context, Result, bail};
+use deltaloop_config::{Law, LoopMode, RunConfig};
+use deltaloop_transport::wire::Sender;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::Duration;
+
+/// A child process, reaped with its resource usage (wait4), and killed and reaped on drop, so
+/// no process outlives the run, whatever happens.
+pub(super) struct Reaped {
+    pub(super) child: Option<Child>,
+    pub(super) who: Sender,
+    pub(super) status: Option<ExitStatus>,
+    /// Its peak resident set size, KiB, once it has exited.
+    pub(super) peak_rss_kib: Option<u64>,
+}
+
+impl Reaped {
+    pub(super) fn new(child: Child, who: Sender) -> Self {
+        Self {
+            child: Some(child),
+            who,
+            status: None,
+            peak_rss_kib: None,
+        }
+    }
+
+    /// Its exit status, if it has exited (reaps it then).
+    pub(super) fn exited(&mut self) -> Option<ExitStatus> {
+        use std::os::unix::process::ExitStatusExt;
+        if self.status.is_none()
+            && let Some(c) = &self.child
+        {
+            let (mut st, mut ru) = (0i32, std::mem::MaybeUninit::<libc::rusage>::zeroed());
+            // SAFETY: waiting for our own child, without blocking; both pointers are valid.
+            let r = unsafe { libc::wait4(c.id() as i32, &mut st, libc::WNOHANG, ru.as_mut_ptr()) };
+            if r == c.id() as i32 {
+                self.status = Some(ExitStatus::from_raw(st));
+                // SAFETY: wait4 filled it (it returned the pid).
+                self.peak_rss_kib = Some(unsafe { ru.assume_init() }.ru_maxrss as u64);
+            }
+        }
+        self.status
+    }
+}
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        if self.exited().is_some() {
+            return;
+        }
+        let Some(pid) = self.child.as_ref().map(|c| c.id() as i32) else {
+            return;
+        };
+        // Ask politely first; then make sure.
+        // SAFETY: sending SIGTERM to our own child, which has not been reaped.
+        unsafe { libc::kill(pid, libc::SIGTERM) };
+        for _ in 0..200 {
+            if self.exited().is_some() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+/// The supervisor's own peak resident set size so far, KiB.
+pub(super) fn own_peak_rss_kib() -> u64 {
+    let mut ru = std::mem::MaybeUninit::<libc::rusage>::zeroed();
+    // SAFETY: getrusage fills the struct we own.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, ru.as_mut_ptr()) } != 0 {
+        return 0;
+    }
+    // SAFETY: filled by the successful call.
+    unsafe { ru.assume_init() }.ru_maxrss as u64
+}
+
+/// What to execute for one child: a program and the arguments that come before the standard
+/// ones.
+pub(super) struct Launch {
+    pub(super) program: PathBuf,
+    pub(super) args: Vec<String>,
+    /// The user's own command (not the built-in executable).
+    pub(super) custom: bool,
+}
+
+impl Launch {
+    /// The config's `command` if it has one, else the built-in `name` in `dir`.
+    pub(super) fn of(command: &[String], dir: &Path, name: &str) -> Self {
+        match command.split_first() {
+            Some((program, args)) => Self {
+                program: PathBuf::from(program),
+                args: args.to_vec(),
+                custom: true,
+            },
+            None => Self {
+                program: dir.join(name),
+                args: Vec::new(),
+                custom: false,
+            },
+        }
+    }
+
+    /// The command line as the user would type it.
+    pub(super) fn shown(&self) -> String {
+        std::iter::once(self.program.display().to_string())
+            .chain(self.args.iter().cloned())
+            .collect::<Vec<_>>()
+            .join(" ")
+    }
+}
+
+pub(super) fn spawn(launch: &Launch, args: &[String], log: &Path, who: Sender) -> Result<Reaped> {
+    let err =
+        std::fs::File::create(log).with_context(|| format!("cannot create {}", log.display()))?;
+    let mut cmd = Command::new(&launch.program);
+    cmd.args(&launch.args)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(err);
+    // The terminal's Ctrl-C and hang-up reach the whole process group, and may come before the
+    // child has set up its own signal handling: it starts with both ignored (kept across exec),
+    // and the supervisor stops it in order.
+    // A supervisor killed outright (SIGKILL, the OOM killer) cannot stop its children: the kernel
+    // sends them SIGTERM then, and they stop as they would on STOP (regression: a SIGKILLed
+    // supervisor left its plant running to the scenario's end, a soak's up to 24 h).
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: signal(), prctl() and getppid() are async-signal-safe; nothing else runs between
+    // fork and exec.
+    unsafe {
+        use std::os::unix::process::CommandExt;
+        cmd.pre_exec(move || {
+            libc::signal(libc::SIGINT, libc::SIG_IGN);
+            libc::signal(libc::SIGHUP, libc::SIG_IGN);
+            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+            // The supervisor died before the line above: do not start an orphan.
+            if libc::getppid() != parent {
+                return Err(std::io::Error::other("the supervisor is gone"));
+            }
+            Ok(())
+        });
+    }
+    let child = cmd.spawn().with_context(|| {
+        if launch.custom {
+            format!(
+                "cannot start the {} command `{}` ({}.command)",
+                role(who),
+                launch.shown(),
+                role(who)
+            )
+        } else {
+            format!(
+                "cannot start {} (expected next to deltaloop: build all binaries with `cargo build --release`)",
+                launch.program.display()
+            )
+        }
+    })?;
+    Ok(Reaped::new(child, who))
+}
+
+/// Whether process `pid` is `root` or one of its descendants (a child started through a wrapper
+/// script publishes from a grandchild of the supervisor), from `/proc/<pid>/stat`.
+pub(super) fn in_process_tree(pid: u32, root: u32) -> bool {
+    let mut p = pid;
+    // A process tree deeper than this is no wrapper of ours.
+    for _ in 0..32 {
+        if p == root {
+            return true;
+        }
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) else {
+            return false;
+        };
+        // `pid (comm) state ppid …`: comm may hold spaces and parentheses; ppid follows the last ')'.
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|v| v.parse::<u32>().ok());
+        match ppid {
+            Some(pp) if pp > 1 => p = pp,
+            _ => return false,
+        }
+    }
+    false
+}
+
+/// The two children of one run and their stderr logs.
+pub(super) struct Pair {
+    pub(super) plant: Reaped,
+    pub(super) controller: Reaped,
+    pub(super) logs: Logs,
+    /// The plant's and the controller's command lines, for messages.
+    pub(super) shown: (String, String),
+}
+
+/// The children's stderr logs.
+#[derive(Clone)]
+pub(super) struct Logs {
+    pub(super) plant: PathBuf,
+    pub(super) controller: PathBuf,
+}
+
+impl Logs {
+    /// The last lines both children printed (at most [`peer_text::MAX_LINES`] each, read from
+    /// the end of their logs, sanitized; a first line says where earlier ones are).
+    pub(super) fn messages(&self) -> Vec<String> {
+        let mut m = Tail::read(&self.plant).last_lines(peer_text::MAX_LINES, &self.plant);
+        m.extend(Tail::read(&self.controller).last_lines(peer_text::MAX_LINES, &self.controller));
+        m
+    }
+
+    /// What each child said last, for a one-line error: `the plant: …; the controller: …`
+    /// (children that said nothing are left out).
+    pub(super) fn said(&self) -> String {
+        [("plant", &self.plant), ("controller", &self.controller)]
+            .iter()
+            .filter_map(|(who, p)| {
+                let r = Tail::read(p).reason();
+                (!r.is_empty()).then(|| format!("the {who}: {r} (log: {})", p.display()))
+            })
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+}
+
+impl Pair {
+    /// Starts both children with the run id, the resolved config and the mode: the built-in
+    /// executables next to `deltaloop`, or the config's `command`s in their place.
+    pub(super) fn spawn(
+        run_id: &str,
+        law: Law,
+        mode: LoopMode,
+        run_dir: &Path,
+        cfg: &RunConfig,
+    ) -> Result<Self> {
+        let exe = exe_dir()?;
+        let common = vec![
+            "--run-id".to_string(),
+            run_id.to_string(),
+            "--config".into(),
+            run_dir.join("config.toml").display().to_string(),
+            "--mode".into(),
+            mode.name().into(),
+        ];
+        let plant_log = run_dir.join(format!("{law}.plant.log"));
+        let ctrl_log = run_dir.join(format!("{law}.controller.log"));
+        let (pl, cl) = (
+            Launch::of(&cfg.plant.command, &exe, "deltaloop-plant"),
+            Launch::of(&cfg.controller.command, &exe, "deltaloop-controller"),
+        );
+        let plant = spawn(&pl, &common, &plant_log, Sender::Plant)?;
+        let mut ctrl_args = common;
+        ctrl_args.extend(["--law".to_string(), law.name().to_string()]);
+        let controller = spawn(&cl, &ctrl_args, &ctrl_log, Sender::Controller)?;
+        Ok(Self {
+            plant,
+            controller,
+            logs: Logs {
+                plant: plant_log,
+                controller: ctrl_log,
+            },
+            shown: (pl.shown(), cl.shown()),
+        })
+    }
+
+    /// Fails, with the children's stderr, if either child has exited.
+    pub(super) fn check_alive(&mut self) -> Result<()> {
+        for child in [&mut self.plant, &mut self.controller] {
+            if let Some(status) = child.exited() {
+                let who = role(child.who);
+                let said = self.logs.said();
+                bail!(
+                    "{who} {} before the run started{}{said}",
+                    status_text(status),
+                    if said.is_empty() { "" } else { ": " }
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A child's control service is believed from the child or a process it started (a wrapper
+    /// script's child), never from another branch of the tree.
+    #[test]
+    fn a_process_belongs_to_its_own_tree_and_its_ancestors_not_to_others() {
+        let me = std::process::id();
+        // SAFETY: getppid has no preconditions.
+        let parent = unsafe { libc::getppid() } as u32;
+        assert!(in_process_tree(me, me));
+        assert!(in_process_tree(me, parent));
+        assert!(!in_process_tree(parent, me));
+        assert!(!in_process_tree(1, me));
+        assert!(!in_process_tree(u32::MAX, me), "no such process");
+    }
+}

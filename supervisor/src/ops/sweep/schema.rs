@@ -1,0 +1,279 @@
+//! The sweep file: its schema, the checks run before any point (counts, caps, duplicate axis
+//! values, a safe name), loading it with its base config, and the grid of points it spans.
+
+use anyhow::{Result, bail};
+use deltaloop_config::config::{self as cfgfile, PathKind};
+use deltaloop_config::{ConfigError, Law, LoopMode, Preset, RunConfig};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The sweep file.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SweepFile {
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+    /// Scenario config every point starts from (plant, loop, sensor), relative to the sweep file.
+    /// Its path and preset are replaced by the axes below.
+    pub base: PathBuf,
+    /// Mode of the deterministic axes: `inproc` or `lockstep`.
+    #[serde(default)]
+    pub mode: LoopMode,
+    pub scenarios: Vec<PathKind>,
+    pub presets: Vec<Preset>,
+    pub laws: Vec<Law>,
+    pub tde_delay_samples: Vec<u32>,
+    pub transport_delay_samples: Vec<u32>,
+    /// Sub-tick transport delay axis, µs: each value runs every law × scenario × preset at the
+    /// first ℓ and d above, with `plant.transport_delay_us` set. Empty: none.
+    #[serde(default)]
+    pub transport_delay_us: Vec<f64>,
+    /// Realtime axis: each value runs every law × scenario × preset in realtime mode at the first
+    /// ℓ and d above. Empty: no realtime runs.
+    #[serde(default)]
+    pub compute_delay_us: Vec<u32>,
+}
+
+/// One point's parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Job {
+    pub(super) scenario: PathKind,
+    pub(super) preset: Preset,
+    pub(super) law: Law,
+    pub(super) ell: u32,
+    pub(super) d: u32,
+    /// Sub-tick transport delay, µs.
+    pub(super) us: f64,
+    pub(super) compute_us: u32,
+    pub(super) realtime: bool,
+}
+
+impl std::fmt::Display for Job {
+    /// `s1/matched/tdc ℓ=1 d=0`, and `c=200us (realtime)` for the compute-delay axis.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}/{}/{} ℓ={} d={}",
+            self.scenario.name(),
+            self.preset.name(),
+            self.law,
+            self.ell,
+            self.d
+        )?;
+        if self.us > 0.0 {
+            write!(f, " D+={}us", self.us)?;
+        }
+        if self.realtime {
+            write!(f, " c={}us (realtime)", self.compute_us)?;
+        }
+        Ok(())
+    }
+}
+
+/// The first value listed twice on a sweep axis, if any (linear: an axis may list thousands).
+pub(super) fn repeated(values: &[String]) -> Option<&String> {
+    let mut seen = std::collections::HashSet::with_capacity(values.len());
+    values.iter().find(|v| !seen.insert(v.as_str()))
+}
+
+/// Most points a sweep may have. The plan, a merge's rows and `sweep plan --json` (what a
+/// cluster driver reads) hold every point in memory, a few hundred bytes each: 10⁵ points are
+/// tens of MB, and ≈ 40 CPU-minutes of the cheapest (in-process, ≈ 24 ms each) or days of
+/// realtime ones. That covers the largest study docs/guide/cluster.md plans (a 10⁵-point Monte Carlo on a
+/// cluster); a grid beyond it is a typo in an axis, or several sweeps. Checked before anything
+/// is expanded (regression: a 118 KB file of about 10⁸ points aborted `sweep plan` and
+/// `sweep merge` on allocation).
+pub const MAX_POINTS: u64 = 100_000;
+
+/// How many points a sweep expands to: scenarios × presets × laws × (ℓ × d + the sub-tick
+/// delays above 0 + the compute delays), in checked arithmetic; the error names the axes, their
+/// product and [`MAX_POINTS`].
+pub(super) fn point_count(sw: &SweepFile) -> Result<u64> {
+    let n = |v: usize| v as u64;
+    let us = sw.transport_delay_us.iter().filter(|&&us| us > 0.0).count();
+    let count = n(sw.tde_delay_samples.len())
+        .checked_mul(n(sw.transport_delay_samples.len()))
+        .and_then(|g| g.checked_add(n(us)))
+        .and_then(|g| g.checked_add(n(sw.compute_delay_us.len())))
+        .and_then(|g| g.checked_mul(n(sw.laws.len())))
+        .and_then(|g| g.checked_mul(n(sw.presets.len())))
+        .and_then(|g| g.checked_mul(n(sw.scenarios.len())));
+    match count {
+        Some(c) if c <= MAX_POINTS => Ok(c),
+        _ => bail!(
+            "the sweep has {} points: scenarios {} × presets {} × laws {} × (tde_delay_samples {} × transport_delay_samples {} + transport_delay_us {us} + compute_delay_us {}), more than the {MAX_POINTS} a sweep may have: split it into several sweep files",
+            count.map_or_else(|| "more than 2^64".to_string(), |c| c.to_string()),
+            sw.scenarios.len(),
+            sw.presets.len(),
+            sw.laws.len(),
+            sw.tde_delay_samples.len(),
+            sw.transport_delay_samples.len(),
+            sw.compute_delay_us.len()
+        ),
+    }
+}
+
+/// Checks the sweep file's own keys: name, mode, and every axis non-empty and without repeats
+/// (a repeated value would run the same point twice, and `run` rejects a repeated law too).
+pub(super) fn check(sw: &SweepFile) -> Result<()> {
+    if !cfgfile::name_is_valid(&sw.name) {
+        bail!(
+            "sweep key `name` = {} is out of range: {}",
+            cfgfile::show_str(&sw.name),
+            cfgfile::NAME_RULE
+        );
+    }
+    if sw.mode == LoopMode::Realtime {
+        bail!(
+            "sweep key `mode` = \"{}\" is out of range: inproc or lockstep (the compute_delay_us axis runs in realtime by itself)",
+            sw.mode
+        );
+    }
+    if let Some(&us) = sw
+        .transport_delay_us
+        .iter()
+        .find(|us| !(us.is_finite() && (0.0..=cfgfile::MAX_TRANSPORT_DELAY_US).contains(*us)))
+    {
+        bail!(
+            "sweep key `transport_delay_us` lists {}: each value 0 <= us <= {} µs",
+            cfgfile::show_num(us),
+            cfgfile::MAX_TRANSPORT_DELAY_US
+        );
+    }
+    point_count(sw)?;
+    let axes: [(&str, Vec<String>, bool); 7] = [
+        (
+            "scenarios",
+            sw.scenarios.iter().map(|s| s.name().to_string()).collect(),
+            true,
+        ),
+        (
+            "presets",
+            sw.presets.iter().map(|p| p.name().to_string()).collect(),
+            true,
+        ),
+        (
+            "laws",
+            sw.laws.iter().map(|l| l.name().to_string()).collect(),
+            true,
+        ),
+        (
+            "tde_delay_samples",
+            sw.tde_delay_samples.iter().map(u32::to_string).collect(),
+            true,
+        ),
+        (
+            "transport_delay_samples",
+            sw.transport_delay_samples
+                .iter()
+                .map(u32::to_string)
+                .collect(),
+            true,
+        ),
+        (
+            "transport_delay_us",
+            sw.transport_delay_us.iter().map(f64::to_string).collect(),
+            false,
+        ),
+        (
+            "compute_delay_us",
+            sw.compute_delay_us.iter().map(u32::to_string).collect(),
+            false,
+        ),
+    ];
+    for (k, values, required) in axes {
+        if required && values.is_empty() {
+            bail!("sweep key `{k}` = [] is out of range: at least one value");
+        }
+        if let Some(v) = repeated(&values) {
+            bail!("sweep key `{k}` lists {v} twice: each value at most once");
+        }
+    }
+    Ok(())
+}
+
+/// Reads the sweep's base scenario. Its text is never echoed: `base` may name any file (say
+/// `/etc/passwd`), so a parse error says only where it is.
+pub(super) fn load_base(path: &Path) -> Result<RunConfig> {
+    RunConfig::from_file(path).map_err(|e| match e {
+        ConfigError::Parse { position, .. } => anyhow::anyhow!(
+            "sweep key `base`: {} is not a valid scenario config (parse error{}; `deltaloop run` on it shows the message)",
+            cfgfile::show_path(path),
+            position
+                .map(|(l, c)| format!(" at line {l}, column {c}"))
+                .unwrap_or_default()
+        ),
+        e => anyhow::anyhow!("sweep key `base`: {e}"),
+    })
+}
+
+/// Loads and checks a sweep file; returns it with the base config resolved. Like a scenario
+/// file, the sweep file and its base are read only if they are regular files of at most
+/// [`cfgfile::MAX_FILE_BYTES`].
+pub fn load(path: &Path) -> Result<(SweepFile, RunConfig)> {
+    load_with_base(path, None)
+}
+
+/// [`load`], with the base read from `base` instead of the file's `base` key when given (a copy
+/// shipped next to the sweep file; the key stays as written).
+pub fn load_with_base(path: &Path, base: Option<&Path>) -> Result<(SweepFile, RunConfig)> {
+    let shown = cfgfile::show_path(path);
+    let text = cfgfile::read_text_file(path)
+        .map_err(|reason| anyhow::anyhow!("cannot read sweep file {shown}: {reason}"))?;
+    let sw: SweepFile = toml::from_str(&text).map_err(|e| {
+        anyhow::anyhow!(
+            "invalid sweep file {shown}: {}",
+            cfgfile::toml_error_line(&text, &e)
+        )
+    })?;
+    check(&sw)?;
+    let base_path = base.map_or_else(
+        || path.parent().unwrap_or(Path::new(".")).join(&sw.base),
+        Path::to_path_buf,
+    );
+    let base = load_base(&base_path)?;
+    Ok((sw, base))
+}
+
+pub(super) fn jobs(sw: &SweepFile) -> Vec<Job> {
+    let mut v = Vec::new();
+    for &scenario in &sw.scenarios {
+        for &preset in &sw.presets {
+            for &law in &sw.laws {
+                for &ell in &sw.tde_delay_samples {
+                    for &d in &sw.transport_delay_samples {
+                        v.push(Job {
+                            scenario,
+                            preset,
+                            law,
+                            ell,
+                            d,
+                            us: 0.0,
+                            compute_us: 0,
+                            realtime: false,
+                        });
+                    }
+                }
+                // The side axes run at the first ℓ and d; D = 0 is the grid point itself.
+                let side = |us, compute_us, realtime| Job {
+                    scenario,
+                    preset,
+                    law,
+                    ell: sw.tde_delay_samples[0],
+                    d: sw.transport_delay_samples[0],
+                    us,
+                    compute_us,
+                    realtime,
+                };
+                for &us in sw.transport_delay_us.iter().filter(|&&us| us > 0.0) {
+                    v.push(side(us, 0, false));
+                }
+                for &c in &sw.compute_delay_us {
+                    v.push(side(0.0, c, true));
+                }
+            }
+        }
+    }
+    v
+}

@@ -1,0 +1,335 @@
+//! `deltaloop top [RUN_ID]`: watch a live run from outside, through the spare observer slots the
+//! loop's services keep (`ipc::SPARE`: one subscriber on `state`, `telemetry` and `control`, and
+//! one spare node). It only reads: it has no publisher, its subscribers use the services' safe
+//! overflow (a slow `top` loses its own oldest samples and says how many; the loop's publishers
+//! never wait for it), and it leaves the run's processes and files alone.
+//!
+//! One cost falls on the loop: iceoryx2 connects a publisher to a new subscriber on the
+//! publisher's next send (it maps the subscriber's queue), so the plant's first send after `top`
+//! attaches or leaves does that set-up once.
+
+pub mod find;
+pub mod view;
+
+use crate::study::Study;
+use crate::timing::live::LiveStats;
+use anyhow::{Context, Result, anyhow, bail};
+use deltaloop_config::{LoopMode, RunConfig};
+use deltaloop_transport::ipc::{self, IpcContext, OBSERVER_BUFFER, Svc};
+use deltaloop_transport::wire::{self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg};
+use find::RunInfo;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use std::time::{Duration, Instant};
+use view::Status;
+
+/// How often the ports are drained (the screen refreshes at its own interval).
+const DRAIN: Duration = Duration::from_millis(20);
+/// How often `top` checks that the run's plant node is still alive.
+const LIVENESS: Duration = Duration::from_secs(1);
+
+/// The observer's ports on one run.
+struct Watch {
+    state: Subscriber<Svc, StateMsg, ()>,
+    telemetry: Subscriber<Svc, TelemetryMsg, ()>,
+    control: Subscriber<Svc, ControlMsg, ()>,
+    _node: Node<Svc>,
+}
+
+/// Why attaching failed, in words the user can act on.
+fn attach_error(run_id: &str, what: &str, e: impl std::fmt::Debug) -> anyhow::Error {
+    let detail = format!("{e:?}");
+    if detail.contains("ExceedsMax") {
+        anyhow!(
+            "cannot watch run {run_id}: its spare observer slot on `{what}` is taken (another `deltaloop top` or observer is attached; the run keeps one spare slot)"
+        )
+    } else if detail.contains("DoesNotExist") {
+        anyhow!("run {run_id} has no `{what}` service (it ended, or it is not a deltaloop run)")
+    } else {
+        anyhow!("cannot watch run {run_id}: iceoryx2: open `{what}`: {detail}")
+    }
+}
+
+impl Watch {
+    /// Opens (never creates) the run's services and subscribes. Insists on safe overflow: an
+    /// observer on a service without it could make the loop's publishers wait.
+    fn attach(run_id: &str) -> Result<Self> {
+        // A `top` killed outright (SIGKILL) keeps its subscriber slots until its node is
+        // removed: reclaim them, so the slot is refused only while a live observer holds it.
+        find::remove_dead_observers(run_id);
+        let node = ipc::node("top", run_id).map_err(|e| {
+            anyhow!("cannot watch run {run_id}: {e} (the run's spare node is taken?)")
+        })?;
+        macro_rules! sub {
+            ($t:ty, $what:expr, $buf:expr) => {{
+                let svc = node
+                    .service_builder(&ipc::service_name(run_id, $what)?)
+                    .publish_subscribe::<$t>()
+                    .enable_safe_overflow(true)
+                    .open()
+                    .map_err(|e| attach_error(run_id, $what, e))?;
+                svc.subscriber_builder()
+                    .buffer_size($buf)
+                    .create()
+                    .map_err(|e| attach_error(run_id, $what, e))?
+            }};
+        }
+        Ok(Self {
+            telemetry: sub!(TelemetryMsg, "telemetry", OBSERVER_BUFFER),
+            state: sub!(StateMsg, "state", OBSERVER_BUFFER),
+            control: sub!(ControlMsg, ipc::control_service(Sender::Plant), 64),
+            _node: node,
+        })
+    }
+}
+
+/// What `top` knows of the run it watches.
+struct Watched {
+    info: RunInfo,
+    /// The reference (for the tracking error) and N, from the run's config.
+    study: Option<Study>,
+    stats: LiveStats,
+    status: Status,
+    /// Why the plant stopped the loop, from the control channel.
+    stop_reason: Option<String>,
+    last_liveness: Instant,
+}
+
+impl Watched {
+    fn new(info: RunInfo) -> Self {
+        let study = info
+            .config
+            .as_ref()
+            .and_then(|c| RunConfig::from_file(c).ok())
+            .and_then(|c| Study::new(c).ok());
+        let realtime = info.mode == Some(LoopMode::Realtime);
+        Self {
+            info,
+            study,
+            stats: LiveStats::new(realtime),
+            status: Status::Waiting,
+            stop_reason: None,
+            last_liveness: Instant::now(),
+        }
+    }
+
+    /// N + 1: the ticks the loop will run, if the config is known.
+    fn total(&self) -> Option<u64> {
+        self.study.as_ref().map(|s| s.reference.n as u64 + 1)
+    }
+
+    /// Takes everything waiting and updates the status.
+    fn drain(&mut self, w: &Watch) -> Result<()> {
+        while let Some(m) = w.telemetry.receive().ipc("receive telemetry")? {
+            self.stats.telemetry(m.payload());
+            if self.status == Status::Waiting {
+                self.status = Status::Running;
+            }
+        }
+        while let Some(s) = w.state.receive().ipc("receive state")? {
+            let s = *s.payload();
+            if s.flags & wire::STATE_FINAL != 0 {
+                self.status = match self.stop_reason.take() {
+                    Some(why) => Status::Stopped { why },
+                    None => Status::Completed { tick: s.tick },
+                };
+                continue;
+            }
+            if let Some(st) = &self.study
+                && s.tick <= st.reference.n as u64 + 1
+            {
+                self.stats
+                    .state(&s, st.reference.row(s.tick as usize).joint.q);
+            }
+        }
+        while let Some(m) = w.control.receive().ipc("receive control")? {
+            let m = m.payload();
+            // The text is the peer's: shown on the terminal only as one escaped line.
+            let text = || {
+                crate::loops::peer_text::sanitize(
+                    m.text().as_bytes(),
+                    crate::loops::peer_text::MAX_CHARS,
+                )
+            };
+            let why = match m.kind() {
+                Some(ControlKind::Fault) => format!("fault at tick {}: {}", m.tick, text()),
+                Some(ControlKind::Diverged) => format!("diverged at tick {}: {}", m.tick, text()),
+                Some(ControlKind::Stopped) => format!("stopped at tick {}: {}", m.tick, text()),
+                _ => continue,
+            };
+            match &mut self.status {
+                Status::Completed { .. } => self.status = Status::Stopped { why },
+                Status::Stopped { .. } => {}
+                _ => {
+                    self.stop_reason.get_or_insert(why);
+                }
+            }
+        }
+        if !self.status.ended() && self.last_liveness.elapsed() >= LIVENESS {
+            self.last_liveness = Instant::now();
+            if !find::is_live(&self.info.run_id) {
+                self.status = Status::Stopped {
+                    why: self
+                        .stop_reason
+                        .clone()
+                        .unwrap_or_else(|| "the run's plant is gone".into()),
+                };
+            }
+        }
+        Ok(())
+    }
+
+    fn lines(&self) -> Vec<String> {
+        view::lines(
+            &self.info,
+            self.total(),
+            &self.stats.snapshot(),
+            &self.status,
+        )
+    }
+
+    fn plain(&self) -> String {
+        view::plain(&self.info, &self.stats.snapshot(), &self.status)
+    }
+}
+
+/// Picks the run: the one given (it must be live), or the only live one.
+fn pick(run_id: Option<String>) -> Result<String> {
+    let live = find::live_run_ids();
+    match run_id {
+        Some(r) if live.contains(&r) => Ok(r),
+        Some(r) => bail!(
+            "no live run with id `{r}`{}",
+            if live.is_empty() {
+                " (no deltaloop run is live on this machine)".to_string()
+            } else {
+                format!("; live runs: {}", live.join(", "))
+            }
+        ),
+        None => match live.as_slice() {
+            [] => bail!(
+                "no deltaloop run is live on this machine (top watches lockstep and realtime runs: `deltaloop run CONFIG --mode realtime`, `deltaloop soak CONFIG --duration 10m`)"
+            ),
+            [one] => Ok(one.clone()),
+            many => {
+                let list: Vec<String> = many
+                    .iter()
+                    .map(|r| format!("  {}", find::run_info(r).describe()))
+                    .collect();
+                bail!(
+                    "{} runs are live; choose one: deltaloop top RUN_ID\n{}",
+                    many.len(),
+                    list.join("\n")
+                )
+            }
+        },
+    }
+}
+
+/// Options of `deltaloop top`.
+#[derive(Clone, Debug)]
+pub struct Options {
+    pub run_id: Option<String>,
+    /// One `key=value` line per refresh on stdout instead of the screen; ends with the run.
+    pub plain: bool,
+    /// Time between refreshes.
+    pub interval: Duration,
+}
+
+/// Runs `deltaloop top`.
+pub fn run(opts: Options) -> Result<()> {
+    let rid = pick(opts.run_id)?;
+    let info = find::run_info(&rid);
+    let watch = Watch::attach(&rid)?;
+    let mut watched = Watched::new(info);
+    let interactive = !opts.plain && std::io::IsTerminal::is_terminal(&std::io::stdout());
+    if interactive {
+        screen(&watch, &mut watched, opts.interval)
+    } else {
+        plain(&watch, &mut watched, opts.interval)
+    }
+}
+
+/// `--plain`: a line per refresh until the run ends (or a signal).
+fn plain(watch: &Watch, w: &mut Watched, interval: Duration) -> Result<()> {
+    use std::io::Write;
+    let mut next = Instant::now();
+    loop {
+        w.drain(watch)?;
+        let ended = w.status.ended();
+        if Instant::now() >= next || ended {
+            next = Instant::now() + interval;
+            let mut out = std::io::stdout().lock();
+            // A closed pipe ends top, not the run.
+            if writeln!(out, "{}", w.plain())
+                .and_then(|_| out.flush())
+                .is_err()
+            {
+                return Ok(());
+            }
+        }
+        if ended || crate::loops::signals::interrupted() {
+            return Ok(());
+        }
+        std::thread::sleep(DRAIN);
+    }
+}
+
+/// Puts the terminal back however `screen` ends.
+struct Restore;
+
+impl Drop for Restore {
+    fn drop(&mut self) {
+        ratatui::restore();
+    }
+}
+
+/// The full-screen view: refreshes every `interval`; `q`, Esc or Ctrl-C quits; once the run has
+/// ended it says so and waits for a key.
+fn screen(watch: &Watch, w: &mut Watched, interval: Duration) -> Result<()> {
+    use crossterm::event::{self, Event, KeyCode, KeyEventKind, KeyModifiers};
+    use ratatui::style::{Modifier, Style};
+    use ratatui::text::Line;
+    use ratatui::widgets::{Block, Paragraph};
+    let mut term = ratatui::try_init().context("cannot set up the terminal")?;
+    let _restore = Restore;
+    let mut next = Instant::now();
+    loop {
+        w.drain(watch)?;
+        let ended = w.status.ended();
+        if Instant::now() >= next || ended {
+            next = Instant::now() + interval;
+            let mut lines: Vec<Line> = w.lines().into_iter().map(Line::from).collect();
+            lines.push(Line::from(""));
+            lines.push(
+                Line::from(if ended {
+                    "the run has ended: press any key to leave"
+                } else {
+                    "q: quit (the run goes on)"
+                })
+                .style(Style::default().add_modifier(Modifier::REVERSED)),
+            );
+            term.draw(|f| {
+                let block = Block::bordered().title(" deltaloop top ");
+                f.render_widget(Paragraph::new(lines).block(block), f.area());
+            })
+            .context("cannot draw")?;
+        }
+        if crate::loops::signals::interrupted() {
+            return Ok(());
+        }
+        if event::poll(DRAIN).context("cannot read the terminal")?
+            && let Event::Key(k) = event::read().context("cannot read the terminal")?
+            && k.kind == KeyEventKind::Press
+        {
+            let quit = matches!(
+                k.code,
+                KeyCode::Char('q') | KeyCode::Char('Q') | KeyCode::Esc
+            ) || (k.code == KeyCode::Char('c')
+                && k.modifiers.contains(KeyModifiers::CONTROL));
+            if quit || ended {
+                return Ok(());
+            }
+        }
+    }
+}

@@ -1,0 +1,487 @@
+//! The run folder: `trace.csv`, `summary.json`, `report.md` (the resolved `config.toml` is
+//! written by [`crate::ops::run::run`] before the runs).
+
+pub mod plot;
+pub mod report;
+
+use crate::record::TickRecord;
+use crate::record::metrics::LawMetrics;
+use crate::study::analysis::Mismatch;
+use crate::study::reference::RefRow;
+use crate::timing::TimingSummary;
+use anyhow::{Context, Result};
+use deltaloop_config::{LoopMode, Preset};
+use deltaloop_law::{ControllerParams, Law};
+use deltaloop_model::Vec3;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// `summary.json`.
+#[derive(Debug, Serialize)]
+pub struct Summary<'a> {
+    /// The scenario's name (`name` in its file).
+    pub scenario: &'a str,
+    pub mode: LoopMode,
+    pub preset: Preset,
+    pub command: &'a str,
+    pub started_utc: String,
+    /// Control period, s.
+    pub ts_s: f64,
+    /// N: ticks after tick 0 covered by the metrics.
+    pub ticks: usize,
+    /// Motion duration T, s.
+    pub motion_duration_s: f64,
+    pub friction: bool,
+    pub tau_max_nm: f64,
+    pub tde_delay_samples: u32,
+    pub controller: ControllerParams,
+    pub mismatch: &'a Mismatch,
+    /// Ctrl-C / SIGTERM stopped the run: the data is partial.
+    pub interrupted: bool,
+    /// Metrics per law, keyed by law name (in report order).
+    pub laws: BTreeMap<Law, &'a LawMetrics>,
+    /// The iceoryx2 run id of each law's process pair (process modes only).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub run_ids: BTreeMap<Law, &'a str>,
+    /// Loop timing per law (process modes only), keyed by law name.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub timing: BTreeMap<Law, &'a TimingSummary>,
+}
+
+/// A progress bar over `len` steps on stderr, or a hidden one (`show` false: tests, pipes).
+pub fn progress_bar(len: usize, show: bool) -> indicatif::ProgressBar {
+    let bar = if show {
+        indicatif::ProgressBar::new(len as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar
+}
+
+/// The default run folder: `runs/<UTC time>-<scenario name>`.
+pub fn default_run_dir(name: &str) -> PathBuf {
+    let stamp = chrono::Utc::now().format("%Y%m%d-%H%M%S");
+    PathBuf::from("runs").join(format!("{stamp}-{name}"))
+}
+
+/// A run folder this process holds: created (or emptied with `force`), and locked for as long as
+/// this value lives, so no two runs ever write into one folder.
+#[derive(Debug)]
+pub struct RunFolder {
+    dir: PathBuf,
+    _lock: std::fs::File,
+}
+
+/// The lock file in every run folder; its presence also marks a folder as deltaloop's.
+const LOCK_FILE: &str = ".deltaloop-lock";
+
+impl RunFolder {
+    /// Claims `dir`: refuses a non-empty folder unless `force` (then empties it, but only if it
+    /// is a deltaloop folder: one with a lock file, `config.toml`, `summary.json` or a sweep's
+    /// `sweep.toml`), and refuses a
+    /// folder another run holds, `force` or not.
+    /// A symbolic link is refused, `force` or not: emptying it would empty whatever it points to.
+    pub fn claim(dir: &Path, force: bool) -> Result<Self> {
+        Self::claim_apart(dir, force, &[])
+    }
+
+    /// [`RunFolder::claim`], refusing also, `force` or not, a folder that is, contains or lies
+    /// inside one of `sources` (what the command reads, with a few words naming it): emptying it
+    /// would destroy the command's own input. Paths are compared resolved (links, `..`), so no
+    /// spelling of the same folder slips through.
+    pub fn claim_apart(dir: &Path, force: bool, sources: &[(&Path, &str)]) -> Result<Self> {
+        let shown = dir.display();
+        if std::fs::symlink_metadata(dir).is_ok_and(|m| m.file_type().is_symlink()) {
+            let to = std::fs::read_link(dir)
+                .map(|t| format!(" (to {})", t.display()))
+                .unwrap_or_default();
+            anyhow::bail!(
+                "run folder {shown} is a symbolic link{to}: deltaloop never writes through a link; give a real folder as --out"
+            );
+        }
+        let here = resolved(dir);
+        for (src, what) in sources {
+            let there = resolved(src);
+            let how = if here == there {
+                "is"
+            } else if there.starts_with(&here) {
+                "contains"
+            } else if here.starts_with(&there) {
+                "is inside"
+            } else {
+                continue;
+            };
+            anyhow::bail!(
+                "--out {shown} {how} {what} {}: writing there would destroy what is read; choose another --out (--force does not change this)",
+                src.display()
+            );
+        }
+        let entries: Vec<PathBuf> = match std::fs::read_dir(dir) {
+            Ok(rd) => rd.filter_map(|e| e.ok().map(|e| e.path())).collect(),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
+            Err(e) => anyhow::bail!("cannot read run folder {shown}: {e}"),
+        };
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create run folder {shown}"))?;
+        let lock = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(dir.join(LOCK_FILE))
+            .with_context(|| format!("cannot create {}", dir.join(LOCK_FILE).display()))?;
+        // SAFETY: flock on a descriptor we own; non-blocking, released when the file closes.
+        if unsafe {
+            libc::flock(
+                std::os::fd::AsRawFd::as_raw_fd(&lock),
+                libc::LOCK_EX | libc::LOCK_NB,
+            )
+        } != 0
+        {
+            anyhow::bail!(
+                "run folder {shown} is in use by another deltaloop run: choose another --out"
+            );
+        }
+        let theirs: Vec<&PathBuf> = entries.iter().filter(|p| !p.ends_with(LOCK_FILE)).collect();
+        if !theirs.is_empty() {
+            if !force {
+                anyhow::bail!(
+                    "run folder {shown} is not empty ({} entries): choose another --out, or pass --force to empty and reuse it",
+                    theirs.len()
+                );
+            }
+            let ours = entries.iter().any(|p| {
+                ["config.toml", "summary.json", "sweep.toml", LOCK_FILE]
+                    .iter()
+                    .any(|f| p.ends_with(f))
+            });
+            if !ours {
+                anyhow::bail!(
+                    "run folder {shown} is not empty and does not look like a deltaloop run folder (no config.toml, summary.json or sweep.toml): refusing to empty it, even with --force"
+                );
+            }
+            for p in theirs {
+                let r = if p.is_dir() && !p.is_symlink() {
+                    std::fs::remove_dir_all(p)
+                } else {
+                    std::fs::remove_file(p)
+                };
+                r.with_context(|| format!("--force: cannot remove {}", p.display()))?;
+            }
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            _lock: lock,
+        })
+    }
+
+    /// Whether two paths name the same folder (resolved: links, `..`), existing or not.
+    pub fn same(a: &Path, b: &Path) -> bool {
+        resolved(a) == resolved(b)
+    }
+
+    /// The folder.
+    pub fn path(&self) -> &Path {
+        &self.dir
+    }
+}
+
+/// `p` absolute, with links and `..` resolved as far as it exists; the part that does not exist
+/// yet is appended as written, `..` folded (nothing in it can be a link).
+fn resolved(p: &Path) -> PathBuf {
+    use std::path::Component;
+    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut base = abs.as_path();
+    let mut rest = Vec::new();
+    let mut out = loop {
+        if let Ok(c) = base.canonicalize() {
+            break c;
+        }
+        match (base.parent(), base.components().next_back()) {
+            (Some(up), Some(last)) => {
+                rest.push(last);
+                base = up;
+            }
+            _ => break PathBuf::from("/"),
+        }
+    };
+    for c in rest.into_iter().rev() {
+        match c {
+            Component::ParentDir => {
+                out.pop();
+            }
+            Component::Normal(n) => out.push(n),
+            _ => {}
+        }
+    }
+    out
+}
+
+/// UTC now, RFC 3339.
+pub fn now_utc() -> String {
+    chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Secs, true)
+}
+
+fn header() -> Vec<String> {
+    let mut h = vec!["law".to_string(), "k".into(), "t_s".into()];
+    for name in [
+        "q_des",
+        "q",
+        "qdot",
+        "e",
+        "tau",
+        "tau_applied",
+        "s",
+        "n_hat",
+        "n_true",
+    ] {
+        for j in 1..=3 {
+            h.push(format!("{name}_{j}"));
+        }
+    }
+    h.extend(["reply".into(), "drives".into(), "arrival_ns".into()]);
+    h
+}
+
+/// What the drives did over [t_k, t_{k+1}) (`trace.csv` column `drives`).
+fn drives(r: &TickRecord) -> &'static str {
+    match (r.rejected, r.held, r.clamped) {
+        (true, _, _) => "rejected",
+        (_, true, _) => "held",
+        (_, _, true) => "clamped",
+        _ => "commanded",
+    }
+}
+
+/// `trace.csv` rows of one law, written as the ticks are recorded (the file's part for that law;
+/// [`join_trace`] puts the parts behind the header). Every float in shortest round-trip exponent
+/// form (e.g. `-7.776579935558914e-10`). Columns: law, k, t_s, then per joint q_des (rad), q (rad,
+/// true), qdot (rad/s, true), e (rad), tau (commanded τ_k, N m), tau_applied (τᵃ_k, N m), s
+/// (rad/s), n_hat (rad/s²), n_true (rad/s²); then `reply` (what became of the controller's reply
+/// to tick k: applied, late, skipped, missed) and `drives` (what the drives did over
+/// [t_k, t_{k+1}): commanded, clamped, held, rejected; both `unknown` on a tick whose telemetry
+/// never reached the supervisor), and `arrival_ns` (A_k − t_k, when the
+/// command reached the drives: the transport delay plus, in realtime, its measured latency).
+/// tau, s and n_hat are empty on a tick the controller never answered; n_true is empty where the
+/// next state is unknown; arrival_ns where no command was applied.
+///
+/// A write error is kept (the first one, naming the file) and returned by [`TraceWriter::finish`].
+pub struct TraceWriter {
+    path: PathBuf,
+    law: Law,
+    w: csv::Writer<std::fs::File>,
+    fields: Vec<String>,
+    error: Option<anyhow::Error>,
+}
+
+impl TraceWriter {
+    /// Creates the part file `path` for `law`'s rows, starting with the header (a part is a valid
+    /// CSV on its own: what a killed run leaves is readable).
+    pub fn create(path: &Path, law: Law) -> Result<Self> {
+        let mut w = csv::WriterBuilder::new()
+            .has_headers(false)
+            .from_path(path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        w.write_record(header())
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            law,
+            w,
+            fields: vec![String::new(); header().len()],
+            error: None,
+        })
+    }
+
+    /// Writes tick k's row.
+    pub fn write(&mut self, r: &TickRecord, rf: &RefRow, n_true: Option<Vec3>) {
+        use std::fmt::Write as _;
+        if self.error.is_some() {
+            return;
+        }
+        let mut f = self.fields.iter_mut();
+        let mut put = |v: std::fmt::Arguments<'_>| {
+            if let Some(s) = f.next() {
+                s.clear();
+                let _ = s.write_fmt(v);
+            }
+        };
+        put(format_args!("{}", self.law.name()));
+        put(format_args!("{}", r.sample.k));
+        put(format_args!("{:e}", rf.t));
+        let e = rf.joint.q - r.q_true;
+        for v in [&rf.joint.q, &r.q_true, &r.qd_true, &e] {
+            v.iter().for_each(|x| put(format_args!("{x:e}")));
+        }
+        let out = r.out.as_ref();
+        for v in [
+            out.map(|o| o.tau),
+            Some(r.sample.tau_applied),
+            out.map(|o| o.s),
+            out.map(|o| o.n_hat),
+            n_true,
+        ] {
+            match v {
+                Some(v) => v.iter().for_each(|x| put(format_args!("{x:e}"))),
+                None => (0..3).for_each(|_| put(format_args!(""))),
+            }
+        }
+        // Without the plant's telemetry nothing says what it did with the reply: say so.
+        let (fate, drives) = if r.telemetry {
+            (r.fate.name(), drives(r))
+        } else {
+            ("unknown", "unknown")
+        };
+        put(format_args!("{fate}"));
+        put(format_args!("{drives}"));
+        match r.arrival_ns {
+            Some(a) => put(format_args!("{a}")),
+            None => put(format_args!("")),
+        }
+        if let Err(e) = self.w.write_record(&self.fields) {
+            self.error = Some(
+                anyhow::Error::new(e).context(format!("cannot write {}", self.path.display())),
+            );
+        }
+    }
+
+    /// Flushes the part file; the first write error, if any.
+    pub fn finish(mut self) -> Result<()> {
+        if let Some(e) = self.error.take() {
+            return Err(e);
+        }
+        self.w
+            .flush()
+            .with_context(|| format!("cannot write {}", self.path.display()))
+    }
+}
+
+/// The part file of `law`'s rows in run folder `dir`.
+pub fn trace_part(dir: &Path, law: Law) -> PathBuf {
+    dir.join(format!("trace.{law}.part"))
+}
+
+/// Writes `trace.csv` in `dir` from the part files of `laws`, in order: the first part becomes the
+/// file (renamed, not copied: an hour-long trace is gigabytes), the others are appended without
+/// their header lines, and each part is removed once it is in. A missing part (the law never ran)
+/// adds no rows; with no part at all the file is the header alone.
+pub fn join_trace(dir: &Path, laws: &[Law]) -> Result<()> {
+    use std::io::{BufRead, Write as _};
+    let path = dir.join("trace.csv");
+    let named = || format!("cannot write {}", path.display());
+    let parts: Vec<PathBuf> = laws
+        .iter()
+        .map(|&l| trace_part(dir, l))
+        .filter(|p| p.is_file())
+        .collect();
+    let Some((first, rest)) = parts.split_first() else {
+        let mut w = csv::Writer::from_path(&path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        w.write_record(header()).with_context(named)?;
+        return w.flush().with_context(named);
+    };
+    std::fs::rename(first, &path).with_context(named)?;
+    let mut out = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&path)
+        .with_context(named)?;
+    for part in rest {
+        let mut r = std::io::BufReader::new(
+            std::fs::File::open(part).with_context(|| format!("cannot read {}", part.display()))?,
+        );
+        let mut head = String::new();
+        r.read_line(&mut head)
+            .with_context(|| format!("cannot read {}", part.display()))?;
+        std::io::copy(&mut r, &mut out).with_context(named)?;
+        let _ = std::fs::remove_file(part);
+    }
+    out.flush().with_context(named)
+}
+
+/// Writes a text file, naming it on failure.
+pub fn write_text(path: &Path, text: &str) -> Result<()> {
+    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Writes `summary.json` and `report.md` into `dir` and joins the trace parts of `laws` into
+/// `trace.csv` (None: the run wrote no trace, `record.trace = false`). The folder's
+/// `config.toml` is not written here: [`crate::ops::run::run`] writes it once, before the runs (the
+/// child processes read it, and it documents a run that fails).
+pub fn write_run_folder(
+    dir: &Path,
+    summary: &Summary<'_>,
+    laws: Option<&[Law]>,
+    report_md: &str,
+) -> Result<()> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create run folder {}", dir.display()))?;
+    write_text(
+        &dir.join("summary.json"),
+        &serde_json::to_string_pretty(summary)?,
+    )?;
+    write_text(&dir.join("report.md"), report_md)?;
+    laws.map_or(Ok(()), |laws| join_trace(dir, laws))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tmp(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("deltaloop-out-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(d.join("run")).unwrap();
+        d
+    }
+
+    /// A path is compared resolved: links and `..` in the part that exists, `..` folded in the
+    /// part that does not.
+    #[test]
+    fn paths_are_compared_resolved() {
+        let d = tmp("resolve");
+        std::os::unix::fs::symlink(d.join("run"), d.join("link")).unwrap();
+        let run = d.join("run").canonicalize().unwrap();
+        assert_eq!(resolved(&d.join("link")), run);
+        assert_eq!(resolved(&d.join("run/new/../.")), run);
+        assert_eq!(resolved(&d.join("run/a/b/../c")), run.join("a/c"));
+        assert!(RunFolder::same(&d.join("link/x"), &d.join("run/./x")));
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    /// Regression: replay claimed its --out with force on, and the run it read could be that
+    /// folder. A folder that is, holds or lies inside a source is refused before anything is
+    /// created; a link is refused, its target untouched.
+    #[test]
+    fn regression_claim_refuses_sources_and_links() {
+        let d = tmp("claim");
+        let run = d.join("run");
+        std::fs::write(run.join("config.toml"), "x").unwrap();
+        let src = [(run.as_path(), "the run folder")];
+        for (out, how) in [
+            (run.clone(), "is the run folder"),
+            (d.clone(), "contains the run folder"),
+            (run.join("sub"), "is inside the run folder"),
+        ] {
+            let e = RunFolder::claim_apart(&out, true, &src)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(how), "{e}");
+        }
+        assert!(!run.join("sub").exists() && run.join("config.toml").exists());
+        std::os::unix::fs::symlink(&run, d.join("link")).unwrap();
+        let e = RunFolder::claim(&d.join("link"), true)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("is a symbolic link"), "{e}");
+        assert!(run.join("config.toml").exists());
+        let other = RunFolder::claim_apart(&d.join("other"), false, &src).unwrap();
+        assert!(other.path().join(LOCK_FILE).exists());
+        let _ = std::fs::remove_dir_all(&d);
+    }
+}

@@ -1,0 +1,54 @@
+//! A study: one validated config turned into everything a run needs (robot model, reference,
+//! controller constants). Built once, read by every law and every loop mode.
+
+pub mod analysis;
+pub mod reference;
+pub mod scenario;
+
+use crate::study::reference::JointReference;
+use crate::study::scenario::TaskPath;
+use deltaloop_config::{Law, RunConfig};
+use deltaloop_controller::ControllerSide;
+use deltaloop_law::ControllerParams;
+use deltaloop_model::{DeltaRobot, KinematicsError};
+use deltaloop_plant::PlantSide;
+
+/// The resolved inputs of a run.
+#[derive(Clone, Debug)]
+pub struct Study {
+    pub config: RunConfig,
+    pub robot: DeltaRobot,
+    pub path: TaskPath,
+    pub reference: JointReference,
+    pub params: ControllerParams,
+}
+
+impl Study {
+    /// Builds the reference for a validated config. Fails (naming the point) if the path leaves
+    /// the reachable, well-conditioned workspace.
+    pub fn new(config: RunConfig) -> Result<Self, KinematicsError> {
+        let robot = DeltaRobot::default();
+        let path = TaskPath::from_section(&config.scenario);
+        let reference =
+            JointReference::build(&robot, &path, config.loop_.ts_s, config.scenario.hold_s)?;
+        let params = config.controller_params();
+        Ok(Self {
+            config,
+            robot,
+            path,
+            reference,
+            params,
+        })
+    }
+
+    /// The plant side of a fresh run: the plant at rest at q_d(0), as the config describes it,
+    /// for ticks 0..=N.
+    pub fn plant_side(&self) -> Result<PlantSide, KinematicsError> {
+        PlantSide::from_config(&self.config, self.reference.q0(), self.reference.n as u64)
+    }
+
+    /// The controller side of a fresh run of `law`.
+    pub fn controller_side(&self, law: Law) -> ControllerSide {
+        ControllerSide::from_config(&self.config, law)
+    }
+}

@@ -1,0 +1,842 @@
+//! Loop timing from the timestamps in the messages (CLOCK_MONOTONIC ns), kept in HdrHistograms.
+//! The supervisor computes these after the fact, off the critical path.
+
+pub mod hlog;
+pub mod live;
+pub mod timeline;
+
+use crate::timing::timeline::Timeline;
+use anyhow::{Context, Result};
+use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
+use hdrhistogram::Histogram;
+use hlog::HlogWriter;
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// One named latency distribution, ns.
+#[derive(Debug, Clone)]
+pub struct Dist {
+    pub name: &'static str,
+    pub what: &'static str,
+    pub hist: Histogram<u64>,
+}
+
+impl Dist {
+    fn new(name: &'static str, what: &'static str) -> Self {
+        // 1 ns .. 100 s, 3 significant digits.
+        Self {
+            name,
+            what,
+            hist: Histogram::new_with_bounds(1, 100_000_000_000, 3).expect("valid bounds"),
+        }
+    }
+
+    fn record(&mut self, ns: u64) {
+        self.hist.saturating_record(ns.max(1));
+    }
+}
+
+/// Percentiles of one distribution, µs.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Percentiles {
+    pub count: u64,
+    pub p50_us: f64,
+    pub p99_us: f64,
+    pub p999_us: f64,
+    pub p9999_us: f64,
+    pub max_us: f64,
+}
+
+/// Counters and distributions of one run of one law.
+#[derive(Debug, Clone)]
+pub struct Timing {
+    /// Plant wake − deadline (realtime only).
+    pub wake_lateness: Dist,
+    /// |wake_k − wake_{k−1} − Ts| (realtime only).
+    pub period_jitter: Dist,
+    /// State published (plant) → taken (controller).
+    pub state_to_controller: Dist,
+    /// Controller: state taken → torque published.
+    pub compute: Dist,
+    /// Plant: state published → torque received.
+    pub round_trip: Dist,
+    /// Ticks that got a command (0..=N).
+    pub ticks: u64,
+    /// The plant's latest wake-up (realtime): lateness (ns) and its tick.
+    pub worst_wake: Option<(u64, u64)>,
+    /// Ticks whose torque was not applied (realtime): the controller sent none for the tick within
+    /// the torque budget, counted from the state's publication (not from the tick's deadline).
+    pub misses: u64,
+    /// Late replies the plant dropped (realtime; the telemetry's running count). The plant judges
+    /// a reply by the controller's send time, not by when the reply arrives or by its tick number
+    /// alone: a reply for the current tick sent after the torque budget (state publication +
+    /// budget), or any reply for an earlier tick, is late. Replies for later ticks are ignored.
+    pub late_dropped: u64,
+    /// States the controller skipped to answer the newest.
+    pub skipped: u64,
+    /// Samples the supervisor did not receive (its queue overflowed): state, torque, telemetry.
+    pub lost: [u64; 3],
+    /// Plant wake times of the first and last tick with telemetry, ns (the loop's span).
+    pub span_ns: (u64, u64),
+    /// Hypervisor steal per CPU during the run.
+    pub steal: Vec<StealMs>,
+    /// Peak memory of the three processes.
+    pub peak_rss: PeakRss,
+    /// Round trip, wake lateness and misses over run time, binned (for the timeline figure).
+    pub timeline: Timeline,
+    /// Ts, ns.
+    pub ts_ns: u64,
+    /// The run was realtime (wake lateness, jitter and misses are measured).
+    pub realtime: bool,
+}
+
+/// Peak resident set size (VmHWM) of each process of a run, MiB: the supervisor's over its whole
+/// life so far, each child's over its life (None: it did not exit by itself). Shared memory the
+/// process touched counts.
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
+pub struct PeakRss {
+    pub supervisor: f64,
+    pub plant: Option<f64>,
+    pub controller: Option<f64>,
+}
+
+impl PeakRss {
+    /// From KiB, as getrusage and wait4 give it.
+    pub fn from_kib(supervisor: u64, plant: Option<u64>, controller: Option<u64>) -> Self {
+        let mib = |k: u64| (k as f64 / 1024.0 * 10.0).round() / 10.0;
+        Self {
+            supervisor: mib(supervisor),
+            plant: plant.map(mib),
+            controller: controller.map(mib),
+        }
+    }
+}
+
+/// One tick's latencies, ns (None: not measured at this tick).
+#[derive(Clone, Copy, Debug, Default)]
+struct TickLatencies {
+    wake_lateness: Option<u64>,
+    period_jitter: Option<u64>,
+    state_to_controller: Option<u64>,
+    compute: Option<u64>,
+    round_trip: Option<u64>,
+}
+
+impl TickLatencies {
+    /// In the order of `Timing::dists` and of the interval logs.
+    fn in_order(self) -> [Option<u64>; 5] {
+        [
+            self.wake_lateness,
+            self.period_jitter,
+            self.state_to_controller,
+            self.compute,
+            self.round_trip,
+        ]
+    }
+}
+
+/// `summary.json` timing block.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct TimingSummary {
+    pub ticks: u64,
+    /// Ticks without an applied torque (see [`Timing::misses`]: the budget runs from the state's
+    /// publication).
+    pub deadline_misses: u64,
+    pub miss_ratio: f64,
+    /// Replies dropped as late: for this tick but sent after the budget, or for an earlier tick
+    /// (see [`Timing::late_dropped`]).
+    pub late_replies_dropped: u64,
+    pub controller_skipped_states: u64,
+    pub supervisor_lost_samples: LostSamples,
+    /// Wall time of the loop (first to last tick), s.
+    pub loop_wall_s: f64,
+    /// Time the hypervisor stole from each CPU during the run, ms (VMs; 0 on bare metal).
+    pub cpu_steal_ms: Vec<StealMs>,
+    /// Peak memory of each process, MiB.
+    pub peak_rss_mib: PeakRss,
+    pub wake_lateness: Percentiles,
+    /// The tick of the plant's latest wake-up (`wake_lateness.max_us`), realtime.
+    pub wake_lateness_max_tick: Option<u64>,
+    pub period_jitter: Percentiles,
+    pub state_to_controller: Percentiles,
+    pub controller_compute: Percentiles,
+    pub round_trip: Percentiles,
+}
+
+/// Samples the supervisor lost per stream.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct LostSamples {
+    pub state: u64,
+    pub torque: u64,
+    pub telemetry: u64,
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Self {
+            wake_lateness: Dist::new(
+                "wake_lateness",
+                "plant wake time minus its absolute deadline",
+            ),
+            period_jitter: Dist::new("period_jitter", "|wake(k) - wake(k-1) - Ts|"),
+            state_to_controller: Dist::new(
+                "state_to_controller",
+                "state published by the plant -> taken by the controller",
+            ),
+            compute: Dist::new(
+                "controller_compute",
+                "controller: state taken -> torque published",
+            ),
+            round_trip: Dist::new("round_trip", "plant: state published -> torque received"),
+            ticks: 0,
+            worst_wake: None,
+            misses: 0,
+            late_dropped: 0,
+            skipped: 0,
+            lost: [0; 3],
+            span_ns: (0, 0),
+            steal: Vec::new(),
+            peak_rss: PeakRss::default(),
+            timeline: Timeline::default(),
+            ts_ns: 0,
+            realtime: false,
+        }
+    }
+}
+
+/// Wake lateness of one tick from its telemetry, ns: plant wake − absolute deadline (0 in
+/// lockstep, where the deadline is the wake). Live observers (`deltaloop top`, `soak`) use it too.
+pub fn wake_lateness_ns(m: &TelemetryMsg) -> u64 {
+    m.t_wake_ns.saturating_sub(m.t_deadline_ns)
+}
+
+/// Round trip of one tick from its telemetry, ns: state published → reply received by the plant;
+/// None when the tick was missed or no reply was received.
+pub fn round_trip_ns(m: &TelemetryMsg) -> Option<u64> {
+    (m.flags & wire::TEL_MISSED == 0 && m.t_torque_rx_ns > 0)
+        .then(|| m.t_torque_rx_ns.saturating_sub(m.t_state_pub_ns))
+}
+
+/// An empty histogram of ns with the bounds and precision of every loop timing histogram.
+pub fn latency_histogram() -> Histogram<u64> {
+    Dist::new("", "").hist
+}
+
+/// Ticks held back by [`TimingAcc`] at most while it cannot yet tell whether they belong to the
+/// loop (after the last telemetry so far) or to its end.
+const PENDING_MAX: usize = 4096;
+
+/// One tick as the supervisor saw it: each message, if it saw it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Seen {
+    pub k: u64,
+    pub state: Option<StateMsg>,
+    pub torque: Option<TorqueMsg>,
+    pub tel: Option<TelemetryMsg>,
+}
+
+/// The interval logs of a run's distributions, `<prefix><name>.hlog`: one interval per second of
+/// run time (tick k is at k·Ts), created at the first tick (their base time is tick 0's).
+struct Hlogs {
+    dir: PathBuf,
+    prefix: String,
+    /// In the order of [`Timing::dists`].
+    writers: Option<[HlogWriter; 5]>,
+}
+
+impl Hlogs {
+    /// The writers, created at the first call: tick `k`, whose deadline (CLOCK_MONOTONIC, ns) is
+    /// `deadline_ns` if known, dates the base time.
+    fn writers(
+        &mut self,
+        t: &Timing,
+        k: u64,
+        deadline_ns: Option<u64>,
+    ) -> Result<&mut [HlogWriter; 5]> {
+        if self.writers.is_none() {
+            let base = deadline_ns.map_or_else(std::time::SystemTime::now, hlog::system_time_of)
+                - Duration::from_nanos(k.saturating_mul(t.ts_ns));
+            let mk = |d: &Dist| {
+                HlogWriter::create(
+                    &self.dir.join(format!("{}{}.hlog", self.prefix, d.name)),
+                    &format!(
+                        "deltaloop {}{}: {}; values in ns; interval = 1 s of run time (tick k at k*Ts)",
+                        self.prefix, d.name, d.what
+                    ),
+                    base,
+                    Duration::from_secs(1),
+                    &d.hist,
+                )
+            };
+            let [a, b, c, d, e] = t.dists();
+            self.writers = Some([mk(a)?, mk(b)?, mk(c)?, mk(d)?, mk(e)?]);
+        }
+        Ok(self.writers.as_mut().expect("just created"))
+    }
+}
+
+/// [`Timing`] built one tick at a time, in tick order, in fixed memory. A run stopped early (fault,
+/// interrupt) only covers the ticks it reached: the ticks after the last telemetry of the loop are
+/// held back until another telemetry shows the loop went on, and left out at the end.
+pub struct TimingAcc {
+    t: Timing,
+    /// N: the run's last tick.
+    n: u64,
+    ts_ns: u64,
+    realtime: bool,
+    prev_wake: Option<u64>,
+    /// Ticks after the last loop telemetry so far.
+    pending: Vec<Seen>,
+    /// One past the last tick with loop telemetry.
+    reached: u64,
+    /// The last tick counted.
+    last: Option<u64>,
+    hlogs: Option<Hlogs>,
+}
+
+impl TimingAcc {
+    /// For ticks 0..=`ticks` at period `ts_ns` (ns); wake lateness and jitter only in realtime.
+    pub fn new(ticks: u64, ts_ns: u64, realtime: bool) -> Self {
+        Self {
+            t: Timing {
+                timeline: Timeline::new(ticks, ts_ns),
+                ts_ns,
+                realtime,
+                ..Timing::default()
+            },
+            n: ticks,
+            ts_ns,
+            realtime,
+            prev_wake: None,
+            pending: Vec::with_capacity(PENDING_MAX),
+            reached: 0,
+            last: None,
+            hlogs: None,
+        }
+    }
+
+    /// N: the run's last tick.
+    pub fn last_tick(&self) -> u64 {
+        self.n
+    }
+
+    /// Also writes each distribution's interval log, `<dir>/<prefix><name>.hlog`, as the ticks
+    /// come (the files appear with the first tick).
+    pub fn with_hlogs(mut self, dir: &Path, prefix: &str) -> Self {
+        self.hlogs = Some(Hlogs {
+            dir: dir.to_path_buf(),
+            prefix: prefix.to_string(),
+            writers: None,
+        });
+        self
+    }
+
+    /// Adds the next tick. Ticks of the safe stop after the loop are not part of it. Fails only
+    /// if an interval log cannot be written.
+    pub fn push(&mut self, s: Seen) -> Result<()> {
+        let tel_flags = s.tel.map(|m| m.flags);
+        if tel_flags.is_some_and(|f| f & wire::TEL_SAFE_STOP != 0) {
+            return Ok(());
+        }
+        if tel_flags.is_none() {
+            if self.pending.len() == PENDING_MAX {
+                let oldest = self.pending.remove(0);
+                self.commit(&oldest)?;
+            }
+            self.pending.push(s);
+            return Ok(());
+        }
+        for p in std::mem::take(&mut self.pending) {
+            self.commit(&p)?;
+        }
+        self.pending.reserve(PENDING_MAX);
+        self.commit(&s)?;
+        self.reached = s.k + 1;
+        Ok(())
+    }
+
+    /// Counts tick k as part of the loop: its histograms, timeline bin and interval logs.
+    fn commit(&mut self, seen: &Seen) -> Result<()> {
+        let lat = self.tally(seen);
+        let v = lat.in_order();
+        let t = &mut self.t;
+        for (d, v) in [
+            &mut t.wake_lateness,
+            &mut t.period_jitter,
+            &mut t.state_to_controller,
+            &mut t.compute,
+            &mut t.round_trip,
+        ]
+        .into_iter()
+        .zip(v)
+        {
+            if let Some(v) = v {
+                d.record(v);
+            }
+        }
+        if let Some(w) = lat.wake_lateness
+            && t.worst_wake.is_none_or(|(worst, _)| w > worst)
+        {
+            t.worst_wake = Some((w, seen.k));
+        }
+        let missed = seen.tel.is_some_and(|m| m.flags & wire::TEL_MISSED != 0);
+        if let Some(b) = t.timeline.bin_mut(seen.k) {
+            if let Some(w) = lat.wake_lateness {
+                b.wake_lateness.add(w);
+            }
+            if let Some(r) = lat.round_trip {
+                b.round_trip.add(r);
+            }
+            b.misses += u64::from(missed);
+        }
+        self.last = Some(seen.k);
+        if let Some(h) = &mut self.hlogs {
+            let deadline = seen
+                .state
+                .map(|s| s.t_deadline_ns)
+                .or(seen.tel.map(|m| m.t_deadline_ns))
+                .filter(|&d| d > 0);
+            let at = seen.k.saturating_mul(self.ts_ns);
+            for (w, v) in h.writers(&self.t, seen.k, deadline)?.iter_mut().zip(v) {
+                match v {
+                    Some(v) => w.record(at, v.max(1))?,
+                    None => w.advance(at)?,
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Counts tick k in the counters and returns its latencies (see [`TimingAcc::commit`]).
+    fn tally(&mut self, seen: &Seen) -> TickLatencies {
+        let mut v = TickLatencies::default();
+        let t = &mut self.t;
+        let (s, q, m) = (seen.state, seen.torque, seen.tel);
+        t.ticks += 1;
+        // A missing torque on a tick the plant marked missed was never sent (the controller
+        // answered a newer state): that is a miss, not a loss.
+        let missed = m.is_some_and(|m| m.flags & wire::TEL_MISSED != 0);
+        t.lost[0] += u64::from(s.is_none());
+        t.lost[1] += u64::from(q.is_none() && !missed);
+        t.lost[2] += u64::from(m.is_none());
+        if let Some(m) = m {
+            if t.span_ns.0 == 0 {
+                t.span_ns.0 = m.t_wake_ns;
+            }
+            t.span_ns.1 = m.t_wake_ns;
+            if self.realtime {
+                v.wake_lateness = Some(wake_lateness_ns(&m));
+                if let Some(p) = self.prev_wake {
+                    v.period_jitter = Some(m.t_wake_ns.saturating_sub(p).abs_diff(self.ts_ns));
+                }
+            }
+            self.prev_wake = Some(m.t_wake_ns);
+            if missed {
+                t.misses += 1;
+            } else if let Some(rt) = round_trip_ns(&m) {
+                v.round_trip = Some(rt);
+            }
+            t.late_dropped = t.late_dropped.max(m.late_dropped);
+        } else {
+            self.prev_wake = None;
+        }
+        if let (Some(s), Some(q)) = (s, q) {
+            v.state_to_controller = Some(q.t_state_rx_ns.saturating_sub(s.t_publish_ns));
+        }
+        if let Some(q) = q {
+            v.compute = Some(q.t_publish_ns.saturating_sub(q.t_state_rx_ns));
+            t.skipped += q.skipped;
+        }
+        v
+    }
+
+    /// The timing of ticks 0..n, n = the first tick the loop did not reach (at most N + 1); a
+    /// state missing at tick n itself counts as lost too. The interval logs end with the last
+    /// tick counted (a log is created, empty, if no tick was).
+    pub fn finish(mut self) -> Result<Timing> {
+        let n = self.reached.min(self.n + 1);
+        if self.pending.iter().any(|p| p.k == n && p.state.is_none()) {
+            self.t.lost[0] += 1;
+        }
+        if let Some(h) = &mut self.hlogs {
+            let end = self.last.map_or(0, |k| k + 1).saturating_mul(self.ts_ns);
+            let k = self.last.unwrap_or(0);
+            h.writers(&self.t, k, None)?;
+            for w in h.writers.take().into_iter().flatten() {
+                w.finish(end)?;
+            }
+        }
+        Ok(self.t)
+    }
+}
+
+impl Timing {
+    /// Loop cycles per second over the observed span (0 if fewer than two ticks).
+    pub fn cycle_hz(&self) -> f64 {
+        let (a, b) = self.span_ns;
+        let cycles = self.ticks.saturating_sub(1) as f64;
+        if b > a {
+            cycles / ((b - a) as f64 * 1e-9)
+        } else {
+            0.0
+        }
+    }
+
+    /// The distributions, in the order of the `.hgrm` and `.hlog` files.
+    pub fn dists(&self) -> [&Dist; 5] {
+        [
+            &self.wake_lateness,
+            &self.period_jitter,
+            &self.state_to_controller,
+            &self.compute,
+            &self.round_trip,
+        ]
+    }
+
+    /// Percentiles and counters for `summary.json`.
+    pub fn summary(&self) -> TimingSummary {
+        let p = |d: &Dist| percentiles(&d.hist);
+        TimingSummary {
+            ticks: self.ticks,
+            deadline_misses: self.misses,
+            miss_ratio: self.misses as f64 / self.ticks.max(1) as f64,
+            late_replies_dropped: self.late_dropped,
+            controller_skipped_states: self.skipped,
+            supervisor_lost_samples: LostSamples {
+                state: self.lost[0],
+                torque: self.lost[1],
+                telemetry: self.lost[2],
+            },
+            loop_wall_s: self.span_ns.1.saturating_sub(self.span_ns.0) as f64 * 1e-9,
+            cpu_steal_ms: self.steal.clone(),
+            peak_rss_mib: self.peak_rss.clone(),
+            wake_lateness: p(&self.wake_lateness),
+            wake_lateness_max_tick: self.worst_wake.map(|(_, k)| k),
+            period_jitter: p(&self.period_jitter),
+            state_to_controller: p(&self.state_to_controller),
+            controller_compute: p(&self.compute),
+            round_trip: p(&self.round_trip),
+        }
+    }
+
+    /// If the plant once woke ten ticks or more late (realtime), what that means for the run: the
+    /// loop ran without control that long, whatever froze it (on a VM, usually the host: see
+    /// `cpu_steal_ms`). A run that diverged or faulted just after such a freeze fell to the
+    /// machine, not to the law.
+    pub fn freeze_note(&self) -> Option<String> {
+        let (ns, k) = self.worst_wake?;
+        if self.ts_ns == 0 || ns < 10 * self.ts_ns {
+            return None;
+        }
+        let stolen: Vec<String> = self
+            .steal
+            .iter()
+            .map(|c| format!("{:.0} ms of CPU {}", c.ms, c.cpu))
+            .collect();
+        Some(format!(
+            "the plant once woke {:.1} ms late (tick {k}, t = {:.3} s): the loop ran without control for about {} ticks{}",
+            ns as f64 * 1e-6,
+            k as f64 * self.ts_ns as f64 * 1e-9,
+            ns / self.ts_ns,
+            if stolen.is_empty() {
+                String::new()
+            } else {
+                format!("; the host took {} during the run", stolen.join(" and "))
+            }
+        ))
+    }
+
+    /// Writes one `<prefix><name>.hgrm` percentile file per distribution into `dir`.
+    pub fn write_hgrm(&self, dir: &Path, prefix: &str) -> Result<()> {
+        for d in self.dists() {
+            let path = dir.join(format!("{prefix}{}.hgrm", d.name));
+            std::fs::write(&path, hgrm(&d.hist, d.what))
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        Ok(())
+    }
+}
+
+/// `<law>.timing.csv`, written a tick at a time: the raw CLOCK_MONOTONIC stamps of every tick (ns)
+/// and the plant's flags, so any latency can be recomputed. Empty cells: the supervisor did not
+/// see that message.
+pub struct TimingCsv {
+    path: std::path::PathBuf,
+    w: csv::Writer<std::fs::File>,
+    fields: [String; 12],
+}
+
+impl TimingCsv {
+    pub fn create(path: &Path) -> Result<Self> {
+        let mut w = csv::Writer::from_path(path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        w.write_record([
+            "k",
+            "deadline_ns",
+            "wake_ns",
+            "state_pub_ns",
+            "ctrl_rx_ns",
+            "ctrl_pub_ns",
+            "torque_rx_ns",
+            "missed",
+            "held",
+            "clamped",
+            "ctrl_skipped",
+            "arrival_ns",
+        ])
+        .with_context(|| format!("cannot write {}", path.display()))?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            w,
+            fields: Default::default(),
+        })
+    }
+
+    /// Writes tick k's row, unless the supervisor saw nothing of it.
+    pub fn write(&mut self, seen: &Seen) -> Result<()> {
+        let (s, t, m) = (seen.state, seen.torque, seen.tel);
+        if s.is_none() && t.is_none() && m.is_none() {
+            return Ok(());
+        }
+        let flag = |bit: u32| m.map(|m| u64::from(m.flags & bit != 0));
+        let cells = [
+            Some(seen.k),
+            s.map(|s| s.t_deadline_ns),
+            s.map(|s| s.t_wake_ns),
+            s.map(|s| s.t_publish_ns),
+            t.map(|t| t.t_state_rx_ns),
+            t.map(|t| t.t_publish_ns),
+            m.and_then(|m| (m.t_torque_rx_ns > 0).then_some(m.t_torque_rx_ns)),
+            flag(wire::TEL_MISSED),
+            flag(wire::TEL_HELD),
+            flag(wire::TEL_CLAMPED),
+            t.map(|t| t.skipped),
+            m.filter(|m| m.flags & (wire::TEL_MISSED | wire::TEL_SAFE_STOP) == 0)
+                .map(|m| m.arrival_ns),
+        ];
+        for (f, v) in self.fields.iter_mut().zip(cells) {
+            use std::fmt::Write as _;
+            f.clear();
+            if let Some(v) = v {
+                let _ = write!(f, "{v}");
+            }
+        }
+        self.w
+            .write_record(&self.fields)
+            .with_context(|| format!("cannot write {}", self.path.display()))
+    }
+
+    pub fn finish(mut self) -> Result<()> {
+        self.w
+            .flush()
+            .with_context(|| format!("cannot write {}", self.path.display()))
+    }
+}
+
+/// p50/p99/p99.9/p99.99/max of a histogram of ns, in µs (zeros for an empty histogram).
+pub fn percentiles(h: &Histogram<u64>) -> Percentiles {
+    let q = |p: f64| {
+        if h.is_empty() {
+            0.0
+        } else {
+            h.value_at_quantile(p) as f64 / 1e3
+        }
+    };
+    Percentiles {
+        count: h.len(),
+        p50_us: q(0.5),
+        p99_us: q(0.99),
+        p999_us: q(0.999),
+        p9999_us: q(0.9999),
+        max_us: if h.is_empty() {
+            0.0
+        } else {
+            h.max() as f64 / 1e3
+        },
+    }
+}
+
+/// The standard HdrHistogram percentile-distribution text (values in µs), as written by
+/// `outputPercentileDistribution` and read by the HdrHistogram plotter.
+pub fn hgrm(h: &Histogram<u64>, what: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# {what}; values in microseconds");
+    let _ = writeln!(
+        s,
+        "{:>12} {:>14} {:>10} {:>14}\n",
+        "Value", "Percentile", "TotalCount", "1/(1-Percentile)"
+    );
+    if !h.is_empty() {
+        for v in h.iter_quantiles(5) {
+            let pct = v.quantile_iterated_to();
+            let inv = if pct < 1.0 {
+                format!("{:>14.2}", 1.0 / (1.0 - pct))
+            } else {
+                format!("{:>14}", "inf")
+            };
+            let _ = writeln!(
+                s,
+                "{:>12.3} {:>14.12} {:>10} {inv}",
+                v.value_iterated_to() as f64 / 1e3,
+                pct,
+                v.count_since_last_iteration()
+            );
+        }
+    }
+    let mean = if h.is_empty() { 0.0 } else { h.mean() / 1e3 };
+    let sd = if h.is_empty() { 0.0 } else { h.stdev() / 1e3 };
+    let _ = writeln!(s, "#[Mean    = {mean:>12.3}, StdDeviation   = {sd:>12.3}]");
+    let _ = writeln!(
+        s,
+        "#[Max     = {:>12.3}, Total count    = {:>12}]",
+        if h.is_empty() {
+            0.0
+        } else {
+            h.max() as f64 / 1e3
+        },
+        h.len()
+    );
+    let _ = writeln!(
+        s,
+        "#[Buckets = {:>12}, SubBuckets     = {:>12}]",
+        h.buckets(),
+        h.distinct_values()
+    );
+    s
+}
+
+/// Per-CPU "steal" time from /proc/stat: time the hypervisor ran something else while this
+/// (virtual) CPU had work. On a VM it explains stalls no scheduling policy inside the guest can
+/// prevent. Jiffies, per CPU index; empty where /proc/stat is unavailable.
+pub fn steal_jiffies() -> Vec<(usize, u64)> {
+    let Ok(text) = std::fs::read_to_string("/proc/stat") else {
+        return Vec::new();
+    };
+    text.lines()
+        .filter_map(|l| {
+            let mut f = l.split_whitespace();
+            let cpu = f.next()?.strip_prefix("cpu")?.parse::<usize>().ok()?;
+            // user nice system idle iowait irq softirq steal
+            let steal = f.nth(7)?.parse::<u64>().ok()?;
+            Some((cpu, steal))
+        })
+        .collect()
+}
+
+/// Steal time per CPU between two readings, ms.
+pub fn steal_ms_between(before: &[(usize, u64)], after: &[(usize, u64)]) -> Vec<StealMs> {
+    // SAFETY: sysconf has no preconditions.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
+    after
+        .iter()
+        .filter_map(|&(cpu, a)| {
+            let b = before.iter().find(|(c, _)| *c == cpu)?.1;
+            Some(StealMs {
+                cpu,
+                ms: a.saturating_sub(b) as f64 * 1e3 / hz,
+            })
+        })
+        .collect()
+}
+
+/// Steal time of one CPU over a run.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct StealMs {
+    pub cpu: usize,
+    pub ms: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Tick k of a realtime loop at Ts = 0.3 ms with made-up stamps (a few µs to a few hundred
+    /// µs, varying from tick to tick); every 997th tick is missed.
+    fn tick(k: u64, ts: u64) -> Seen {
+        let r = |salt: u64| (k.wrapping_mul(6364136223846793005).wrapping_add(salt) >> 33) % 50_000;
+        let deadline = 1_000_000_000 + k * ts;
+        let wake = deadline + 1_000 + r(1);
+        let publish = wake + 500;
+        let rx = publish + 2_000 + r(2);
+        let sent = rx + 300 + r(3) / 10;
+        let missed = k % 997 == 500;
+        Seen {
+            k,
+            state: Some(StateMsg {
+                tick: k,
+                t_deadline_ns: deadline,
+                t_wake_ns: wake,
+                t_publish_ns: publish,
+                ..StateMsg::default()
+            }),
+            torque: (!missed).then_some(TorqueMsg {
+                tick: k,
+                t_state_rx_ns: rx,
+                t_publish_ns: sent,
+                ..TorqueMsg::default()
+            }),
+            tel: Some(TelemetryMsg {
+                tick: k,
+                flags: if missed { wire::TEL_MISSED } else { 0 },
+                t_deadline_ns: deadline,
+                t_wake_ns: wake,
+                t_state_pub_ns: publish,
+                t_torque_rx_ns: if missed { 0 } else { sent + 700 + r(4) },
+                ..TelemetryMsg::default()
+            }),
+        }
+    }
+
+    /// The interval logs hold every value of the run exactly once: per quantity, the intervals
+    /// add up to the whole-run histogram, one interval per second of run time (k·Ts), the last
+    /// one cut at the run's end; the timeline holds the same counts and misses.
+    #[test]
+    fn interval_logs_add_up_to_the_whole_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let ts = 300_000;
+        let n = 11_666; // 3.5 s
+        let mut acc = TimingAcc::new(n, ts, true).with_hlogs(dir.path(), "tdc.");
+        for k in 0..=n {
+            acc.push(tick(k, ts)).unwrap();
+        }
+        let t = acc.finish().unwrap();
+        assert_eq!(t.ticks, n + 1);
+        assert_eq!(t.misses, 12);
+        for d in t.dists() {
+            let log = crate::timing::hlog::read(&dir.path().join(format!("tdc.{}.hlog", d.name)))
+                .unwrap();
+            let spans: Vec<(f64, f64)> = log
+                .intervals
+                .iter()
+                .map(|i| (i.start_s, i.length_s))
+                .collect();
+            assert_eq!(
+                spans,
+                [(0.0, 1.0), (1.0, 1.0), (2.0, 1.0), (3.0, 0.5)],
+                "{}",
+                d.name
+            );
+            let mut sum = Histogram::new_from(&d.hist);
+            for i in &log.intervals {
+                assert!(!i.hist.is_empty(), "{}: every second has values", d.name);
+                sum.add(&i.hist).unwrap();
+            }
+            assert!(d.hist.len() > n - 20, "{}: {}", d.name, d.hist.len());
+            assert_eq!(sum.len(), d.hist.len(), "{}", d.name);
+            let counts = |h: &Histogram<u64>| {
+                h.iter_recorded()
+                    .map(|v| (v.value_iterated_to(), v.count_at_value()))
+                    .collect::<Vec<_>>()
+            };
+            assert_eq!(counts(&sum), counts(&d.hist), "{}", d.name);
+        }
+        let bins: Vec<_> = t.timeline.bins().collect();
+        let total =
+            |f: fn(&crate::timing::timeline::Bin) -> u64| bins.iter().map(|b| f(b.2)).sum::<u64>();
+        assert_eq!(total(|b| b.round_trip.n), t.round_trip.hist.len());
+        assert_eq!(total(|b| b.wake_lateness.n), t.wake_lateness.hist.len());
+        assert_eq!(total(|b| b.misses), t.misses);
+    }
+}
