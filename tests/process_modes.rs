@@ -12,10 +12,15 @@ use std::process::Command;
 fn lockstep_is_bit_identical_to_inproc_and_leaves_nothing_behind() {
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = (tmp.path().join("inproc"), tmp.path().join("lockstep"));
+    // Every law, the implicit super-twisting one (not in the configs' default list) included.
+    let mut args = vec!["--force"];
+    for law in ["tdc", "tde-is", "tdc-is-sta", "tdc-is-ista", "pid"] {
+        args.extend(["--law", law]);
+    }
     for cfg in ["configs/s2-fast.toml", "configs/paper/s2-fast.toml"] {
         // The second config reuses both folders: --force empties them first.
-        let si = run(cfg, "inproc", &a, &["--force"]);
-        let sl = run(cfg, "lockstep", &b, &["--force"]);
+        let si = run(cfg, "inproc", &a, &args);
+        let sl = run(cfg, "lockstep", &b, &args);
         let ti = std::fs::read(a.join("trace.csv")).unwrap();
         let tl = std::fs::read(b.join("trace.csv")).unwrap();
         assert!(ti.len() > 100_000);

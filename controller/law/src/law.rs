@@ -165,6 +165,14 @@ impl Controller {
                             ui
                         })
                     }
+                    Law::TdcIsIsta => {
+                        let (k1, k2, v) = (p.k1, p.k2, &mut self.v);
+                        Vec3::from_fn(|i, _| {
+                            let (ui, vi) = crate::sta::implicit(s[i], v[i], k1, k2, ts);
+                            v[i] = vi;
+                            ui
+                        })
+                    }
                     _ => Vec3::zeros(),
                 };
                 // The expanded form of the spec: τ = τᵃ_{k−ℓ+1} − M̄ a_{k−ℓ} + M̄ (q̈_d + K_d ė + K_p e + u).
@@ -174,7 +182,7 @@ impl Controller {
         Output { tau, s, n_hat, u }
     }
 
-    /// The super-twisting state v_k, rad/s² (zero for other laws).
+    /// The super-twisting state v_k, rad/s² (zero for laws without a super-twisting term).
     pub fn sta_state(&self) -> Vec3 {
         self.v
     }

@@ -111,12 +111,15 @@ mod tests {
     /// in the supervisor, which has a JSON crate).
     #[test]
     fn lists_and_errors_come_from_the_variants() {
-        assert_eq!(allowed::<Law>(), "tdc, tde-is, tdc-is-sta, pid");
+        assert_eq!(
+            allowed::<Law>(),
+            "tdc, tde-is, tdc-is-sta, tdc-is-ista, pid"
+        );
         assert_eq!(one_of::<Preset>(), "matched or paper");
         assert_eq!(parse::<Law>("law", "tde-is"), Ok(Law::TdeIs));
         assert_eq!(
             parse::<Law>("law", "lqr"),
-            Err("unknown law `lqr` (allowed: tdc, tde-is, tdc-is-sta, pid)".into())
+            Err("unknown law `lqr` (allowed: tdc, tde-is, tdc-is-sta, tdc-is-ista, pid)".into())
         );
     }
 }

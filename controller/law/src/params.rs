@@ -15,6 +15,9 @@ crate::text_enum! {
         TdeIs,
         /// TDC + integral sliding mode + super-twisting (paper eq. 12–14), the paper's proposal.
         TdcIsSta,
+        /// The same with the super-twisting term discretised implicitly (docs/controllers.md,
+        /// "Super-twisting: explicit and implicit"); not a law of the paper.
+        TdcIsIsta,
         /// PID baseline with a bumpless start; no TDE, no model.
         Pid,
     }
@@ -24,12 +27,16 @@ impl Law {
     /// Every law, in report order.
     pub const ALL: &'static [Law] = <Law as strum::VariantArray>::VARIANTS;
 
+    /// The study's four laws: what a scenario file runs when it names none.
+    pub const STUDY: [Law; 4] = [Law::Tdc, Law::TdeIs, Law::TdcIsSta, Law::Pid];
+
     /// The name the paper uses.
     pub fn paper_name(self) -> &'static str {
         match self {
             Law::Tdc => "TDC",
             Law::TdeIs => "TDC+IS",
             Law::TdcIsSta => "TDC+IS+STA",
+            Law::TdcIsIsta => "TDC+IS+ISTA",
             Law::Pid => "PID",
         }
     }

@@ -359,7 +359,7 @@ pub struct ControllerSection {
 }
 
 fn default_laws() -> Vec<Law> {
-    Law::ALL.to_vec()
+    Law::STUDY.to_vec()
 }
 fn default_ell() -> u32 {
     1
@@ -603,7 +603,7 @@ mod tests {
     fn minimal_file_gets_matched_preset_and_all_laws() {
         let c = RunConfig::from_toml_str(MIN, Some(Path::new("configs/x.toml"))).unwrap();
         assert_eq!(c.name, "x");
-        assert_eq!(c.controller.laws, Law::ALL.to_vec());
+        assert_eq!(c.controller.laws, Law::STUDY.to_vec());
         assert_eq!(
             c.controller_params(),
             ControllerParams::preset(Preset::Matched)

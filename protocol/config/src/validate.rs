@@ -288,7 +288,10 @@ impl ControllerSection {
             return Err(range(
                 "controller.laws",
                 "[]",
-                "at least one of tdc, tde-is, tdc-is-sta, pid",
+                &format!(
+                    "at least one of {}",
+                    deltaloop_law::names::allowed::<deltaloop_law::Law>()
+                ),
             ));
         }
         for (i, l) in self.laws.iter().enumerate() {

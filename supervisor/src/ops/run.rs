@@ -46,7 +46,7 @@ impl RunOutput {
 /// Command-line overrides of a scenario file (None: keep the file's value).
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct Overrides {
-    /// Run only this law (repeatable): tdc, tde-is, tdc-is-sta, pid.
+    /// Run only this law (repeatable): tdc, tde-is, tdc-is-sta, tdc-is-ista, pid.
     #[arg(long = "law", value_parser = Law::parse)]
     pub laws: Vec<Law>,
     /// TDE delay ℓ in ticks (controller.tde_delay_samples).

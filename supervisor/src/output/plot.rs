@@ -28,6 +28,7 @@ pub fn law_color(law: Law) -> RGBColor {
         Law::Tdc => RGBColor(31, 119, 180),
         Law::TdeIs => RGBColor(255, 127, 14),
         Law::TdcIsSta => RGBColor(44, 160, 44),
+        Law::TdcIsIsta => RGBColor(148, 103, 189),
         Law::Pid => RGBColor(214, 39, 40),
     }
 }
