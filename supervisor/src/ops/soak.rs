@@ -8,6 +8,7 @@
 //! slot stays free for `deltaloop top`.
 
 use crate::ops::run::{self, Overrides};
+use crate::record::RunStatus;
 use crate::timing::{self, PeakRss, Percentiles, Seen};
 use anyhow::{Result, bail};
 use deltaloop_config::{LoopMode, RecordSection};
@@ -313,8 +314,11 @@ pub fn minute_line(m: &Minute, rss: &Rss) -> String {
 /// How the soak ended, for its last progress line.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct End {
-    /// "diverged at tick k", "interrupted", "stopped by an error": None when it completed.
-    pub outcome: Option<String>,
+    /// The run's status (`ok` when it completed): the first law that did not end `ok`, or what
+    /// the run's error stands for ([`run::error_status`]).
+    pub status: RunStatus,
+    /// The tick its status names (a divergence's tick), if any.
+    pub tick: Option<u64>,
     /// The last run's peak memory (from `wait4`), for children never sampled.
     pub peak: Option<PeakRss>,
 }
@@ -323,20 +327,17 @@ impl End {
     /// From what the run returned.
     fn of(result: &Result<run::RunOutput>) -> Self {
         match result {
-            Ok(o) => Self {
-                outcome: o
-                    .metrics
-                    .iter()
-                    .find_map(|m| m.diverged_at_tick)
-                    .map(|k| format!("diverged at tick {k}")),
-                peak: o.peak_rss.clone(),
-            },
-            Err(e) if e.downcast_ref::<run::Interrupted>().is_some() => Self {
-                outcome: Some("interrupted".into()),
-                peak: None,
-            },
-            Err(_) => Self {
-                outcome: Some("stopped by an error (below)".into()),
+            Ok(o) => {
+                let first = o.metrics.iter().find(|m| m.status != RunStatus::Ok);
+                Self {
+                    status: first.map_or(RunStatus::Ok, |m| m.status),
+                    tick: first.and_then(|m| m.status_tick),
+                    peak: o.peak_rss.clone(),
+                }
+            }
+            Err(e) => Self {
+                status: run::error_status(e),
+                tick: None,
                 peak: None,
             },
         }
@@ -346,10 +347,15 @@ impl End {
 /// The soak's last progress line (regression: a soak whose robot diverged ended with a line that
 /// looked like a normal end).
 pub fn end_line(end: &End, elapsed_s: f64, progress: &str) -> String {
-    match &end.outcome {
-        Some(o) => format!("soak: {o}, after {}: {progress}", clock(elapsed_s)),
-        None => format!("soak: ended after {}: {progress}", clock(elapsed_s)),
-    }
+    let how = match (end.status, end.tick) {
+        (RunStatus::Ok, _) => "ended".to_string(),
+        (RunStatus::Diverged, Some(k)) => format!("diverged at tick {k},"),
+        (RunStatus::Diverged, None) => "diverged,".to_string(),
+        (RunStatus::Interrupted, _) => "interrupted,".to_string(),
+        (RunStatus::Error, _) => "stopped by an error (below),".to_string(),
+        (status, _) => format!("ended with status {status} (below),"),
+    };
+    format!("soak: {how} after {}: {progress}", clock(elapsed_s))
 }
 
 /// What `deltaloop soak` was asked for.
@@ -707,7 +713,8 @@ mod tests {
     #[test]
     fn regression_the_last_progress_line_says_diverged() {
         let end = End {
-            outcome: Some("diverged at tick 4711".into()),
+            status: RunStatus::Diverged,
+            tick: Some(4711),
             peak: None,
         };
         assert_eq!(

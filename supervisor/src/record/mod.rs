@@ -84,8 +84,10 @@ deltaloop_law::text_enum! {
     /// How a run ended, as `summary.json` (`status`), `sweep.csv` (`status`) and the exit code of
     /// `deltaloop run` say it. One value per law, derived from its [`RunEnd`] by
     /// [`RunEnd::status`]; the words are the serde names.
+    #[derive(Default)]
     pub enum RunStatus {
         /// Every tick 0..=N ran and was recorded.
+        #[default]
         Ok,
         /// The divergence rule ended the run (error above the bound, a non-finite value, the robot
         /// left its workspace): a result of the physics, not a failure of the run.

@@ -317,6 +317,9 @@ struct Track<'a> {
     misses: bool,
 }
 
+/// One bin of a timeline: its start and end (s of run time) and what it holds.
+type TimeBin<'a> = (f64, f64, &'a crate::timing::timeline::Bin);
+
 fn draw_timeline<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     title: &str,
@@ -329,103 +332,124 @@ where
     root.fill(&WHITE).map_err(e)?;
     let root = root.titled(title, ("sans-serif", 20)).map_err(e)?;
     let areas = root.split_evenly((tracks.len().max(1), 1));
-    let bins: Vec<_> = tl.bins().collect();
-    let x1 = bins.last().map_or(1.0, |b| b.1);
-    let bin_ms = bins.first().map_or(0.0, |b| (b.1 - b.0) * 1e3);
-    let us = |v: u64| v as f64 / 1e3;
+    let bins: Vec<TimeBin> = tl.bins().collect();
+    let misses: u64 = bins.iter().map(|b| b.2.misses).sum();
     for (area, t) in areas.iter().zip(tracks) {
-        let misses: u64 = bins.iter().map(|b| b.2.misses).sum();
-        let light = super::lighter(t.color);
-        let mut legend = vec![
-            (
-                Mark::Band(light),
-                format!("{}: min–max per {} ms", t.label, compact(bin_ms)),
-            ),
-            (Mark::Line(t.color), format!("{}: mean", t.label)),
-        ];
-        if let Some(b) = t.budget_us {
-            legend.push((
-                Mark::Dashed(RED),
-                format!("torque budget {} µs", us_text(b)),
-            ));
-        }
-        if t.misses {
-            legend.push((
-                Mark::Triangle(RED),
-                format!("deadline miss ({misses} in all)"),
-            ));
-        }
+        let legend = track_legend(t, &bins, misses);
         let (strip, area) = area.split_vertically(ROW as u32 + 4);
         draw_legend(&strip, &legend, legend.len(), 86)?;
-        let (y0, mut y1) = log_range(
-            bins.iter()
-                .filter(|b| (t.stat)(b.2).n > 0)
-                .flat_map(|b| [us((t.stat)(b.2).min.max(1)), us((t.stat)(b.2).max)])
-                .chain(t.budget_us),
-        );
-        if t.misses && misses > 0 {
-            // Room above the data for the miss markers.
-            y1 *= 2.5;
-        }
-        let mut chart = ChartBuilder::on(&area)
-            .margin(12)
-            .margin_right(30)
-            .x_label_area_size(45)
-            .y_label_area_size(70)
-            .build_cartesian_2d(0.0..x1, (y0..y1).log_scale())
-            .map_err(e)?;
-        chart
-            .configure_mesh()
-            .light_line_style(TRANSPARENT)
-            .bold_line_style(RGBColor(225, 225, 225))
-            .x_labels(10)
-            .y_labels(20)
-            .x_label_formatter(&|v| compact(*v))
-            .y_label_formatter(&|v| log_label(*v))
-            .x_desc("run time k·Ts (s)")
-            .y_desc(format!("{} (µs, log scale)", t.label))
-            .label_style(("sans-serif", 14))
-            .axis_desc_style(("sans-serif", 15))
-            .draw()
-            .map_err(e)?;
-        chart
-            .draw_series(bins.iter().filter(|b| (t.stat)(b.2).n > 0).map(|b| {
-                let s = (t.stat)(b.2);
-                Rectangle::new(
-                    [(b.0, us(s.min.max(1))), (b.1, us(s.max.max(1)))],
-                    light.filled(),
-                )
-            }))
-            .map_err(e)?;
-        chart
-            .draw_series(LineSeries::new(
-                bins.iter()
-                    .filter_map(|b| Some(((b.0 + b.1) / 2.0, (t.stat)(b.2).mean()? / 1e3))),
-                t.color.stroke_width(1),
-            ))
-            .map_err(e)?;
-        if let Some(b) = t.budget_us {
-            chart
-                .draw_series(DashedLineSeries::new(
-                    [(0.0, b), (x1, b)],
-                    8,
-                    5,
-                    RED.stroke_width(2),
-                ))
-                .map_err(e)?;
-        }
-        if t.misses && misses > 0 {
-            let at = y1 / 1.6;
-            chart
-                .draw_series(
-                    bins.iter()
-                        .filter(|b| b.2.misses > 0)
-                        .map(|b| TriangleMarker::new(((b.0 + b.1) / 2.0, at), 6, RED.filled())),
-                )
-                .map_err(e)?;
-        }
+        draw_track(&area, t, &bins, misses)?;
     }
     root.present().map_err(e)?;
+    Ok(())
+}
+
+/// The legend of one panel: the band and the mean of its statistic, the budget, the misses.
+fn track_legend(t: &Track, bins: &[TimeBin], misses: u64) -> Vec<(Mark, String)> {
+    let bin_ms = bins.first().map_or(0.0, |b| (b.1 - b.0) * 1e3);
+    let mut legend = vec![
+        (
+            Mark::Band(super::lighter(t.color)),
+            format!("{}: min–max per {} ms", t.label, compact(bin_ms)),
+        ),
+        (Mark::Line(t.color), format!("{}: mean", t.label)),
+    ];
+    if let Some(b) = t.budget_us {
+        legend.push((
+            Mark::Dashed(RED),
+            format!("torque budget {} µs", us_text(b)),
+        ));
+    }
+    if t.misses {
+        legend.push((
+            Mark::Triangle(RED),
+            format!("deadline miss ({misses} in all)"),
+        ));
+    }
+    legend
+}
+
+/// One panel: per bin the min–max band and the mean of the track's statistic (µs, log scale),
+/// the budget as a dashed line, the bins with misses as red triangles above the data.
+fn draw_track<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    t: &Track,
+    bins: &[TimeBin],
+    misses: u64,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let us = |v: u64| v as f64 / 1e3;
+    let x1 = bins.last().map_or(1.0, |b| b.1);
+    let light = super::lighter(t.color);
+    let (y0, mut y1) = log_range(
+        bins.iter()
+            .filter(|b| (t.stat)(b.2).n > 0)
+            .flat_map(|b| [us((t.stat)(b.2).min.max(1)), us((t.stat)(b.2).max)])
+            .chain(t.budget_us),
+    );
+    if t.misses && misses > 0 {
+        // Room above the data for the miss markers.
+        y1 *= 2.5;
+    }
+    let mut chart = ChartBuilder::on(area)
+        .margin(12)
+        .margin_right(30)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.0..x1, (y0..y1).log_scale())
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .light_line_style(TRANSPARENT)
+        .bold_line_style(RGBColor(225, 225, 225))
+        .x_labels(10)
+        .y_labels(20)
+        .x_label_formatter(&|v| compact(*v))
+        .y_label_formatter(&|v| log_label(*v))
+        .x_desc("run time k·Ts (s)")
+        .y_desc(format!("{} (µs, log scale)", t.label))
+        .label_style(("sans-serif", 14))
+        .axis_desc_style(("sans-serif", 15))
+        .draw()
+        .map_err(e)?;
+    chart
+        .draw_series(bins.iter().filter(|b| (t.stat)(b.2).n > 0).map(|b| {
+            let s = (t.stat)(b.2);
+            Rectangle::new(
+                [(b.0, us(s.min.max(1))), (b.1, us(s.max.max(1)))],
+                light.filled(),
+            )
+        }))
+        .map_err(e)?;
+    chart
+        .draw_series(LineSeries::new(
+            bins.iter()
+                .filter_map(|b| Some(((b.0 + b.1) / 2.0, (t.stat)(b.2).mean()? / 1e3))),
+            t.color.stroke_width(1),
+        ))
+        .map_err(e)?;
+    if let Some(b) = t.budget_us {
+        chart
+            .draw_series(DashedLineSeries::new(
+                [(0.0, b), (x1, b)],
+                8,
+                5,
+                RED.stroke_width(2),
+            ))
+            .map_err(e)?;
+    }
+    if t.misses && misses > 0 {
+        let at = y1 / 1.6;
+        chart
+            .draw_series(
+                bins.iter()
+                    .filter(|b| b.2.misses > 0)
+                    .map(|b| TriangleMarker::new(((b.0 + b.1) / 2.0, at), 6, RED.filled())),
+            )
+            .map_err(e)?;
+    }
     Ok(())
 }
 
