@@ -42,9 +42,40 @@ fn paper_folder_is_complete_and_report_matches_summary() {
                 "{preset} {law}: no row ending {want}"
             );
         }
-        // Figures: errors, torques, chatter zoom, 3-D path; PNG and SVG, real content.
+        // The explicit-vs-implicit table: one row per law, its numbers those of summary.json.
+        let scn = c["scenario"].as_str().unwrap();
+        for law in ["tde-is", "tdc-is-sta", "tdc-is-ista"] {
+            let m = &c["laws"][law];
+            let mx = |k: &str| {
+                m[k].as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|v| v.as_f64().unwrap())
+                    .fold(0.0, f64::max)
+            };
+            let row = format!(
+                "| {} | `{preset}` | `{law}` | {:.3e} | {:.3e} | {:.4} | {:.1} | {} |",
+                scn.to_uppercase(),
+                mx("rms_rad"),
+                mx("max_abs_err_rad"),
+                mx("hf_torque_share"),
+                mx("torque_tv_nm"),
+                m["clamp_count"].as_u64().unwrap()
+            );
+            let section = report
+                .split("## Explicit vs implicit super-twisting")
+                .nth(1)
+                .expect("no explicit-vs-implicit section");
+            assert!(
+                section.lines().any(|l| l == row),
+                "{preset} {law}: no row {row}"
+            );
+        }
+        // Figures: errors, torques, chatter zoom, 3-D path, explicit-vs-implicit torque; PNG and
+        // SVG, real content.
         let figs = c["figures"].as_array().unwrap();
-        assert_eq!(figs.len(), 4);
+        assert_eq!(figs.len(), 5);
+        assert_eq!(figs[4], format!("fig-{scn}-{preset}-sta-torque"));
         for f in figs {
             let f = f.as_str().unwrap();
             assert!(
@@ -100,5 +131,14 @@ fn paper_folder_is_complete_and_report_matches_summary() {
     assert!(
         clamps > 0 && report.contains(&format!("clamp in {clamps} of")),
         "limit cycle not explained with its numbers"
+    );
+    // The comparison's sentences quote the numbers of this run.
+    let ista_clamps = s1_paper["laws"]["tdc-is-ista"]["clamp_count"]
+        .as_u64()
+        .unwrap();
+    assert!(report.contains("With M̄ matched to this robot (preset `matched`), the implicit law's"));
+    assert!(
+        report.contains(&format!("clamp in S1 {ista_clamps},")),
+        "the paper-preset sentence does not quote tdc-is-ista's clamped intervals"
     );
 }

@@ -7,7 +7,7 @@
 use crate::loops::lawrun::LawRun;
 use crate::ops::run;
 use crate::output::plot::{self, Panel, Series, Series3};
-use crate::output::report::{paper_rms, paper_table};
+use crate::output::report::{limit_cycle, paper_rms, paper_table};
 use crate::record::RunStatus;
 use crate::record::metrics::LawMetrics;
 use crate::study::Study;
@@ -22,8 +22,21 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// The laws of the study: the paper's pair first, then our baselines.
+/// The laws of the study: the paper's pair first, then our baselines. The paper's tables,
+/// verdicts and figures are about these four.
 pub const LAWS: [Law; 4] = [Law::TdeIs, Law::TdcIsSta, Law::Tdc, Law::Pid];
+
+/// The laws of the "Explicit vs implicit super-twisting" section: `tde-is`, the paper's explicit
+/// super-twisting law and our implicit one (docs/controllers.md).
+pub const STA_LAWS: [Law; 3] = [Law::TdeIs, Law::TdcIsSta, Law::TdcIsIsta];
+
+/// Every law a case runs: [`LAWS`], then the implicit super-twisting law.
+pub fn case_laws() -> Vec<Law> {
+    LAWS.into_iter().chain([Law::TdcIsIsta]).collect()
+}
+
+/// Length of the explicit-vs-implicit torque window, s.
+pub const STA_WINDOW_S: f64 = 0.05;
 
 /// The shipped scenario files (embedded, so the command works from any directory).
 const CONFIGS: [(Preset, &str, &str); 6] = [
@@ -191,7 +204,7 @@ fn figures(
     // Chattering zoom: 15 ms around mid-motion (the speed peak), every law.
     let mid = (study.reference.duration / 2.0 / ts) as usize;
     let zoom = mid.saturating_sub(25)..(mid + 25).min(n.saturating_sub(1));
-    let all: Vec<&LawRun> = runs.iter().collect();
+    let all: Vec<&LawRun> = runs.iter().filter(|r| LAWS.contains(&r.law)).collect();
     fig(
         "chatter",
         "torque around mid-motion (15 ms zoom: chattering)",
@@ -206,7 +219,50 @@ fn figures(
         &paths,
     )?;
     out.push(s);
+    // Explicit vs implicit super-twisting: joint 1 over the 50 ms window where their torques
+    // differ most.
+    let sta: Vec<&LawRun> = runs
+        .iter()
+        .filter(|r| matches!(r.law, Law::TdcIsSta | Law::TdcIsIsta))
+        .collect();
+    if let [a, b] = sta[..] {
+        let w = sta_window(a, b, (STA_WINDOW_S / ts).round() as usize);
+        let (t0, t1) = (w.start as f64 * ts * 1e3, w.end as f64 * ts * 1e3);
+        let one = |p: Vec<Panel>| p.into_iter().next().into_iter();
+        let mut p: Vec<Panel> = one(panels(&tau, &sta, w.clone(), "τ₁ (N m)")).collect();
+        p.extend(one(panels(&err, &sta, w, "e₁ (rad)")));
+        p[0].title = "joint 1 torque".into();
+        p[1].title = "joint 1 tracking error".into();
+        let s = format!("{stem}-sta-torque");
+        plot::figure(
+            &dir.join(&s),
+            &format!("{title}: explicit vs implicit super-twisting, t = {t0:.1}–{t1:.1} ms"),
+            &p,
+            2,
+        )?;
+        out.push(s);
+    }
     Ok(out)
+}
+
+/// The window of `len` torque intervals in which joint 1's torque total variation differs most
+/// between runs `a` and `b` (where a reader sees the difference), over the intervals both ran.
+pub fn sta_window(a: &LawRun, b: &LawRun, len: usize) -> std::ops::Range<usize> {
+    let n = a.records.len().min(b.records.len()).saturating_sub(1);
+    let len = len.min(n);
+    let dv = |r: &LawRun, k: usize| (r.records[k + 1].tau[0] - r.records[k].tau[0]).abs();
+    let d: Vec<f64> = (0..n.saturating_sub(1))
+        .map(|k| (dv(a, k) - dv(b, k)).abs())
+        .collect();
+    let mut sum: f64 = d.iter().take(len).sum();
+    let (mut best, mut at) = (sum, 0);
+    for k in len..d.len() {
+        sum += d[k] - d[k - len];
+        if sum > best {
+            (best, at) = (sum, k + 1 - len);
+        }
+    }
+    at..at + len
 }
 
 /// Runs the study into `out`.
@@ -259,7 +315,7 @@ fn run_case(
     command: &str,
 ) -> Result<Case> {
     let mut cfg = RunConfig::from_toml_str(text, Some(Path::new(&format!("{name}.toml"))))?;
-    cfg.controller.laws = LAWS.to_vec();
+    cfg.controller.laws = case_laws();
     let path = cfg.scenario.path;
     let scn = path.name();
     let table = paper_table(cfg.scenario.path).unwrap_or("-");
@@ -386,6 +442,7 @@ fn report(s: &PaperSummary) -> String {
         figure_list(&mut o, &cs);
     }
     mismatch_explanation(&mut o, s);
+    sta_comparison(&mut o, s);
     o
 }
 
@@ -395,7 +452,7 @@ fn intro(o: &mut String, s: &PaperSummary) {
     let _ = writeln!(
         o,
         "Produced by `{}` in {:.1} s ({} mode). Each scenario ran `tde-is` (the paper's TDC+IS, eq. 44), `tdc-is-sta` (its proposal, eq. 12–14) \
-         and our baselines `tdc` and `pid`, on our Delta robot model with friction on, under both presets: `matched` \
+         and our baselines `tdc` and `pid` (and, for the last section only, our implicit super-twisting law `tdc-is-ista`), on our Delta robot model with friction on, under both presets: `matched` \
          (M̄ = {} I kg m², the method as intended on this robot) and `paper` (M̄ = {} I kg m², the paper's Table I literally). \
          Per-run folders (trace, summary, report) are under `<preset>/<scenario>/`.\n",
         s.command,
@@ -497,7 +554,204 @@ fn unreported_table(o: &mut String, cs: &[&Case]) {
 fn figure_list(o: &mut String, cs: &[&Case]) {
     for c in cs {
         let _ = writeln!(o, "### Figures, {} preset\n", c.preset);
-        for f in &c.figures {
+        for f in c.figures.iter().filter(|f| !f.ends_with(STA_FIGURE)) {
+            let _ = writeln!(o, "![{f}]({f}.png)\n");
+        }
+    }
+}
+
+/// The stem suffix of the explicit-vs-implicit torque figure.
+pub const STA_FIGURE: &str = "-sta-torque";
+
+/// The largest of three per-joint values.
+fn max3(v: [f64; 3]) -> f64 {
+    v.into_iter().fold(0.0, f64::max)
+}
+
+/// One row of the explicit-vs-implicit table, as printed (the test rebuilds it from summary.json).
+pub fn sta_row(scenario: &str, preset: &str, law: &str, m: &LawMetrics) -> String {
+    format!(
+        "| {} | `{preset}` | `{law}` | {} | {} | {:.4} | {:.1} | {} |",
+        scenario.to_uppercase(),
+        fmt_rms(max3(m.rms_rad)),
+        fmt_rms(max3(m.max_abs_err_rad)),
+        max3(m.hf_torque_share),
+        max3(m.torque_tv_nm),
+        m.clamp_count
+    )
+}
+
+/// min–max of `f(num) / f(den)` over the cases of `preset` (None if it has none).
+fn ratio_range(
+    s: &PaperSummary,
+    preset: Preset,
+    f: impl Fn(&LawMetrics) -> f64,
+    num: Law,
+    den: Law,
+) -> Option<(f64, f64)> {
+    let rs: Vec<f64> = s
+        .cases
+        .iter()
+        .filter(|c| c.preset == preset)
+        .filter_map(|c| Some(f(c.laws.get(&num)?) / f(c.laws.get(&den)?)))
+        .collect();
+    (!rs.is_empty()).then(|| {
+        (
+            rs.iter().cloned().fold(f64::INFINITY, f64::min),
+            rs.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+        )
+    })
+}
+
+/// A ratio range against `what` in words: "3.1–4.0× lower than what", "1.2–1.5× higher than
+/// what", or "0.90–1.10× what (lower on some scenarios, higher on others)".
+fn times(r: (f64, f64), what: &str) -> String {
+    let x = |v: f64| {
+        if v >= 10.0 {
+            format!("{v:.0}")
+        } else {
+            format!("{v:.2}")
+        }
+    };
+    let (lo, hi) = r;
+    if !(lo.is_finite() && hi.is_finite()) {
+        return format!("not comparable with {what} (a zero or non-finite value)");
+    }
+    if hi < 1.0 {
+        format!("{}–{}× lower than {what}", x(1.0 / hi), x(1.0 / lo))
+    } else if lo > 1.0 {
+        format!("{}–{}× higher than {what}", x(lo), x(hi))
+    } else {
+        format!(
+            "{}–{}× {what} (lower on some scenarios, higher on others)",
+            x(lo),
+            x(hi)
+        )
+    }
+}
+
+/// Whether the implicit law shows the limit cycle of a mismatched M̄ under `preset`, in words.
+fn cycles(s: &PaperSummary, preset: Preset) -> String {
+    let cs: Vec<&Case> = s.cases.iter().filter(|c| c.preset == preset).collect();
+    let on = |law| {
+        cs.iter()
+            .filter(|c| c.laws.get(&law).is_some_and(limit_cycle))
+            .count()
+    };
+    let (n, ista, sta) = (cs.len(), on(Law::TdcIsIsta), on(Law::TdcIsSta));
+    let peak = cs
+        .iter()
+        .filter_map(|c| c.laws.get(&Law::TdcIsIsta))
+        .map(|m| max3(m.torque_peak_hz))
+        .fold(0.0, f64::max);
+    if ista == n {
+        format!(
+            "the implicit law settles into the limit cycle on all {n} scenarios (torque line up to \
+             {peak:.1} Hz; the explicit law cycles on {sta} of {n}), so that cycle is not a \
+             discretisation artefact and the implicit discretisation does not remove it"
+        )
+    } else {
+        format!(
+            "the implicit law shows a limit cycle on {ista} of {n} scenarios, the explicit law on {sta}"
+        )
+    }
+}
+
+/// Clamped intervals per scenario of `preset`, "S1 n, S2 n, S3 n".
+fn clamps(s: &PaperSummary, preset: Preset, law: Law) -> String {
+    s.cases
+        .iter()
+        .filter(|c| c.preset == preset)
+        .filter_map(|c| {
+            let m = c.laws.get(&law)?;
+            Some(format!(
+                "{} {}",
+                c.scenario.name().to_uppercase(),
+                m.clamp_count
+            ))
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// `tde-is`, the explicit `tdc-is-sta` and the implicit `tdc-is-ista` side by side, per scenario
+/// and preset, with the torque figures and what the numbers say.
+fn sta_comparison(o: &mut String, s: &PaperSummary) {
+    let _ = writeln!(
+        o,
+        "## Explicit vs implicit super-twisting
+"
+    );
+    let _ = writeln!(
+        o,
+        "`tdc-is-ista` is `tdc-is-sta` with its super-twisting term discretised implicitly (backward Euler on the nominal \
+         sliding dynamics, Brogliato, Polyakov & Efimov 2020; docs/controllers.md): same TDC core, surface, k1 and k2. It is \
+         not in the paper; the tables and verdicts above are about the paper's four laws only. Per-joint values are the \
+         largest over the three joints; torque TV is Σ|τ_{{k+1}} − τ_k| over the run.\n"
+    );
+    let _ = writeln!(
+        o,
+        "| scenario | preset | law | RMS (rad) | max \\|e\\| (rad) | HF share >100 Hz | torque TV (N m) | clamped intervals |\n|---|---|---|---|---|---|---|---|"
+    );
+    for scn in [PathKind::S1, PathKind::S2, PathKind::S3] {
+        for c in s.cases.iter().filter(|c| c.scenario == scn) {
+            for law in STA_LAWS {
+                if let Some(m) = c.laws.get(&law) {
+                    let _ = writeln!(o, "{}", sta_row(scn.name(), c.preset.name(), law.name(), m));
+                }
+            }
+        }
+    }
+    let _ = writeln!(o);
+    let rms = |m: &LawMetrics| max3(m.rms_rad);
+    let hf = |m: &LawMetrics| max3(m.hf_torque_share);
+    let tv = |m: &LawMetrics| max3(m.torque_tv_nm);
+    let (sta, ista, is) = (Law::TdcIsSta, Law::TdcIsIsta, Law::TdeIs);
+    let m = Preset::Matched;
+    if let (Some(h), Some(t), Some(r), Some(ri)) = (
+        ratio_range(s, m, hf, ista, sta),
+        ratio_range(s, m, tv, ista, sta),
+        ratio_range(s, m, rms, ista, sta),
+        ratio_range(s, m, rms, ista, is),
+    ) {
+        let _ = writeln!(
+            o,
+            "With M̄ matched to this robot (preset `matched`), the implicit law's high-frequency torque share is {} \
+             and its torque total variation {}, on S1–S3. What it gives up is the explicit law's accuracy edge: its RMS \
+             error is {}, and {}.",
+            times(h, "the explicit law's"),
+            times(t, "the explicit law's"),
+            times(r, "`tdc-is-sta`'s"),
+            times(ri, "`tde-is`'s")
+        );
+    }
+    let p = Preset::Paper;
+    if let (Some(r), Some(ri), Some(t)) = (
+        ratio_range(s, p, rms, ista, sta),
+        ratio_range(s, p, rms, ista, is),
+        ratio_range(s, p, tv, ista, sta),
+    ) {
+        let _ = writeln!(
+            o,
+            "With the paper's literal M̄ (preset `paper`), {}. Its RMS error is {} and {}, its torque total \
+             variation {}, and it hits the ±τ_max clamp in {} intervals (explicit: {}; `tde-is`: {}).",
+            cycles(s, p),
+            times(r, "the explicit law's"),
+            times(ri, "`tde-is`'s"),
+            times(t, "the explicit law's"),
+            clamps(s, p, ista),
+            clamps(s, p, sta),
+            clamps(s, p, is)
+        );
+    }
+    let _ = writeln!(
+        o,
+        "\nJoint 1 of both super-twisting laws over the {:.0} ms window in which their torques differ most (torque \
+         left, tracking error right):\n",
+        STA_WINDOW_S * 1e3
+    );
+    for c in &s.cases {
+        for f in c.figures.iter().filter(|f| f.ends_with(STA_FIGURE)) {
             let _ = writeln!(o, "![{f}]({f}.png)\n");
         }
     }
@@ -643,6 +897,18 @@ mod tests {
         ] {
             assert!(md.contains(quoted), "missing `{quoted}` in\n{md}");
         }
+    }
+
+    /// Ratio ranges read as the direction the numbers say, whichever it is.
+    #[test]
+    fn ratio_ranges_read_as_their_direction() {
+        assert_eq!(times((0.25, 0.5), "x"), "2.00–4.00× lower than x");
+        assert_eq!(times((12.0, 150.0), "x"), "12–150× higher than x");
+        assert_eq!(
+            times((0.8, 1.2), "x"),
+            "0.80–1.20× x (lower on some scenarios, higher on others)"
+        );
+        assert!(times((f64::NAN, 1.0), "x").starts_with("not comparable"));
     }
 
     #[test]
