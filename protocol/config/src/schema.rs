@@ -13,6 +13,7 @@ use std::path::Path;
 deltaloop_law::text_enum! {
     "kebab-case", "path";
     /// Which reference path to follow (docs/delta-robot.md §6).
+    #[derive(PartialOrd, Ord)]
     pub enum PathKind {
         /// P0 → P2 semi-ellipse, T = 0.8 s.
         S1,

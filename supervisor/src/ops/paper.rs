@@ -102,7 +102,7 @@ pub struct PaperSummary {
     pub command: String,
     pub elapsed_s: f64,
     /// The paper's published RMS (rad) per scenario and law (TDC+IS = `tde-is`, TDC+IS+STA = `tdc-is-sta`).
-    pub paper_rms_rad: BTreeMap<String, BTreeMap<String, [f64; 3]>>,
+    pub paper_rms_rad: BTreeMap<PathKind, BTreeMap<Law, [f64; 3]>>,
     pub cases: Vec<Case>,
 }
 
@@ -351,16 +351,16 @@ fn run_case(
 }
 
 /// The paper's published RMS per scenario (`s1`..`s3`) and law name.
-fn published_rms() -> BTreeMap<String, BTreeMap<String, [f64; 3]>> {
+fn published_rms() -> BTreeMap<PathKind, BTreeMap<Law, [f64; 3]>> {
     let mut paper_rms_rad = BTreeMap::new();
     for path in [PathKind::S1, PathKind::S2, PathKind::S3] {
         let mut m = BTreeMap::new();
         for law in [Law::TdeIs, Law::TdcIsSta] {
             if let Some(v) = paper_rms(path, law) {
-                m.insert(law.name().to_string(), v);
+                m.insert(law, v);
             }
         }
-        paper_rms_rad.insert(path.name().to_string(), m);
+        paper_rms_rad.insert(path, m);
     }
     paper_rms_rad
 }
@@ -436,7 +436,7 @@ fn report(s: &PaperSummary) -> String {
             scn.name().to_uppercase(),
             first.paper_table
         );
-        rms_table(&mut o, s, scn.name(), &cs);
+        rms_table(&mut o, s, scn, &cs);
         verdicts(&mut o, &cs);
         unreported_table(&mut o, &cs);
         figure_list(&mut o, &cs);
@@ -468,13 +468,13 @@ fn intro(o: &mut String, s: &PaperSummary) {
 }
 
 /// The paper's published RMS for scenario `scn`, then ours for every preset and law.
-fn rms_table(o: &mut String, s: &PaperSummary, scn: &str, cs: &[&Case]) {
+fn rms_table(o: &mut String, s: &PaperSummary, scn: PathKind, cs: &[&Case]) {
     let _ = writeln!(
         o,
         "| source | controller | Joint 1 | Joint 2 | Joint 3 |\n|---|---|---|---|---|"
     );
     for law in [Law::TdeIs, Law::TdcIsSta] {
-        if let Some(v) = s.paper_rms_rad.get(scn).and_then(|m| m.get(law.name())) {
+        if let Some(v) = s.paper_rms_rad.get(&scn).and_then(|m| m.get(&law)) {
             let _ = writeln!(
                 o,
                 "| paper (published) | {} | {} | {} | {} |",
@@ -820,11 +820,7 @@ pub fn terminal(s: &PaperSummary, out: &Path) -> String {
     );
     for scn in [PathKind::S1, PathKind::S2, PathKind::S3] {
         for law in [Law::TdeIs, Law::TdcIsSta] {
-            if let Some(v) = s
-                .paper_rms_rad
-                .get(scn.name())
-                .and_then(|m| m.get(law.name()))
-            {
+            if let Some(v) = s.paper_rms_rad.get(&scn).and_then(|m| m.get(&law)) {
                 let _ = writeln!(
                     o,
                     "{:<4} {:<9} {:<11} {:>10} {:>10} {:>10}",
@@ -914,8 +910,12 @@ mod tests {
     #[test]
     fn published_rms_is_keyed_by_scenario_name() {
         let p = published_rms();
-        assert_eq!(p.keys().collect::<Vec<_>>(), ["s1", "s2", "s3"]);
-        assert_eq!(p["s2"]["tdc-is-sta"], [0.0044, 0.0047, 0.0047]);
+        let keys: Vec<&str> = p.keys().map(|k| k.name()).collect();
+        assert_eq!(keys, ["s1", "s2", "s3"]);
+        assert_eq!(p[&PathKind::S2][&Law::TdcIsSta], [0.0044, 0.0047, 0.0047]);
+        // In summary.json the keys are the config words.
+        let json = serde_json::to_value(&p).unwrap();
+        assert_eq!(json["s2"]["tdc-is-sta"][0], 0.0044);
     }
 }
 
