@@ -146,44 +146,8 @@ fn figures(
         .iter()
         .filter(|r| matches!(r.law, Law::TdeIs | Law::TdcIsSta))
         .collect();
-    let series = |runs: &[&LawRun],
-                  f: &dyn Fn(&LawRun, usize, usize) -> f64,
-                  joint: usize,
-                  ks: std::ops::Range<usize>|
-     -> Vec<Series> {
-        runs.iter()
-            .map(|r| Series {
-                name: format!("{} ({})", r.law.paper_name(), r.law.name()),
-                color: plot::law_color(r.law),
-                points: ks
-                    .clone()
-                    .filter(|&k| k < r.records.len())
-                    .map(|k| (k as f64 * ts, f(r, k, joint)))
-                    .collect(),
-            })
-            .collect()
-    };
     let n = study.reference.n + 1;
-    let err = |r: &LawRun, k: usize, j: usize| {
-        study.reference.row(r.records[k].sample.k as usize).joint.q[j] - r.records[k].q_true[j]
-    };
-    let tau = |r: &LawRun, k: usize, j: usize| r.records[k].tau[j];
-    let panels = |f: &dyn Fn(&LawRun, usize, usize) -> f64,
-                  runs: &[&LawRun],
-                  ks: std::ops::Range<usize>,
-                  y: &str|
-     -> Vec<Panel> {
-        (0..3)
-            .map(|j| Panel {
-                title: format!("joint {}", j + 1),
-                x_label: "t (s)".into(),
-                y_label: y.into(),
-                log_x: false,
-                log_y: false,
-                series: series(runs, f, j, ks.clone()),
-            })
-            .collect()
-    };
+    let err = |r: &LawRun, k: usize, j: usize| tracking_error(study, r, k, j);
     let mut out = Vec::new();
     let mut fig = |name: &str, t: &str, p: Vec<Panel>| -> Result<()> {
         let s = format!("{stem}-{name}");
@@ -194,12 +158,12 @@ fn figures(
     fig(
         "errors",
         "joint tracking error e = q_d − q",
-        panels(&err, &pair, 0..n, "e (rad)"),
+        joint_panels(ts, &err, &pair, 0..n, "e (rad)"),
     )?;
     fig(
         "torques",
         "commanded joint torque",
-        panels(&tau, &pair, 0..n.saturating_sub(1), "τ (N m)"),
+        joint_panels(ts, &torque, &pair, 0..n.saturating_sub(1), "τ (N m)"),
     )?;
     // Chattering zoom: 15 ms around mid-motion (the speed peak), every law.
     let mid = (study.reference.duration / 2.0 / ts) as usize;
@@ -208,7 +172,7 @@ fn figures(
     fig(
         "chatter",
         "torque around mid-motion (15 ms zoom: chattering)",
-        panels(&tau, &all, zoom, "τ (N m)"),
+        joint_panels(ts, &torque, &all, zoom, "τ (N m)"),
     )?;
     // Task-space path vs reference (3-D).
     let paths = path_series(study, &pair);
@@ -219,30 +183,87 @@ fn figures(
         &paths,
     )?;
     out.push(s);
-    // Explicit vs implicit super-twisting: joint 1 over the 50 ms window where their torques
-    // differ most.
+    out.extend(sta_figure(study, runs, dir, stem, title)?);
+    Ok(out)
+}
+
+/// A run's per-tick value of one joint: (run, record index, joint) → value.
+type PerTick<'a> = &'a dyn Fn(&LawRun, usize, usize) -> f64;
+
+/// Joint `j`'s tracking error e = q_d − q at record `k` of `r`, rad.
+fn tracking_error(study: &Study, r: &LawRun, k: usize, j: usize) -> f64 {
+    study.reference.row(r.records[k].sample.k as usize).joint.q[j] - r.records[k].q_true[j]
+}
+
+/// Joint `j`'s commanded torque at record `k` of `r`, N m.
+fn torque(r: &LawRun, k: usize, j: usize) -> f64 {
+    r.records[k].tau[j]
+}
+
+/// One panel per joint: `f` of each run over records `ks`, against run time k·Ts (s).
+fn joint_panels(
+    ts: f64,
+    f: PerTick,
+    runs: &[&LawRun],
+    ks: std::ops::Range<usize>,
+    y: &str,
+) -> Vec<Panel> {
+    (0..3)
+        .map(|j| Panel {
+            title: format!("joint {}", j + 1),
+            x_label: "t (s)".into(),
+            y_label: y.into(),
+            log_x: false,
+            log_y: false,
+            series: runs
+                .iter()
+                .map(|r| Series {
+                    name: format!("{} ({})", r.law.paper_name(), r.law.name()),
+                    color: plot::law_color(r.law),
+                    points: ks
+                        .clone()
+                        .filter(|&k| k < r.records.len())
+                        .map(|k| (k as f64 * ts, f(r, k, j)))
+                        .collect(),
+                })
+                .collect(),
+        })
+        .collect()
+}
+
+/// Explicit vs implicit super-twisting: joint 1's torque and error over the 50 ms window where
+/// their torques differ most (`<stem>-sta-torque`), when both laws ran.
+fn sta_figure(
+    study: &Study,
+    runs: &[LawRun],
+    dir: &Path,
+    stem: &str,
+    title: &str,
+) -> Result<Option<String>> {
+    let ts = study.reference.ts;
     let sta: Vec<&LawRun> = runs
         .iter()
         .filter(|r| matches!(r.law, Law::TdcIsSta | Law::TdcIsIsta))
         .collect();
-    if let [a, b] = sta[..] {
-        let w = sta_window(a, b, (STA_WINDOW_S / ts).round() as usize);
-        let (t0, t1) = (w.start as f64 * ts * 1e3, w.end as f64 * ts * 1e3);
-        let one = |p: Vec<Panel>| p.into_iter().next().into_iter();
-        let mut p: Vec<Panel> = one(panels(&tau, &sta, w.clone(), "τ₁ (N m)")).collect();
-        p.extend(one(panels(&err, &sta, w, "e₁ (rad)")));
-        p[0].title = "joint 1 torque".into();
-        p[1].title = "joint 1 tracking error".into();
-        let s = format!("{stem}-sta-torque");
-        plot::figure(
-            &dir.join(&s),
-            &format!("{title}: explicit vs implicit super-twisting, t = {t0:.1}–{t1:.1} ms"),
-            &p,
-            2,
-        )?;
-        out.push(s);
-    }
-    Ok(out)
+    let [a, b] = sta[..] else {
+        return Ok(None);
+    };
+    let w = sta_window(a, b, (STA_WINDOW_S / ts).round() as usize);
+    let (t0, t1) = (w.start as f64 * ts * 1e3, w.end as f64 * ts * 1e3);
+    let err = |r: &LawRun, k: usize, j: usize| tracking_error(study, r, k, j);
+    let one = |p: Vec<Panel>| p.into_iter().next().into_iter();
+    let mut p: Vec<Panel> = one(joint_panels(ts, &torque, &sta, w.clone(), "τ₁ (N m)")).collect();
+    p.extend(one(joint_panels(ts, &err, &sta, w, "e₁ (rad)")));
+    p[0].title = "joint 1 torque".into();
+    p[1].title = "joint 1 tracking error".into();
+    let s = format!("{stem}-sta-torque");
+    plot::figure(
+        &dir.join(&s),
+        &format!("{title}: explicit vs implicit super-twisting, t = {t0:.1}–{t1:.1} ms"),
+        &p,
+        2,
+    )?;
+    Ok(Some(s))
 }
 
 /// The window of `len` torque intervals in which joint 1's torque total variation differs most
