@@ -361,6 +361,13 @@ fn regression_replay_compares_every_byte_and_refuses_empty_or_absurd_traces() {
         std::fs::write(&trace, text).unwrap();
         let err = one_line_error(&deltaloop(&["replay", s(&dir)]));
         assert!(err.contains(needle), "{needle}\n{err}");
+        // A trace refused before anything ran leaves no empty replay folder behind.
+        if needle.contains("nothing to replay") {
+            assert!(
+                !dir.join("replay").exists(),
+                "{needle}: replay/ left behind"
+            );
+        }
     }
     std::fs::write(&trace, &good).unwrap();
     let out = ok(&deltaloop(&["replay", s(&dir)]));

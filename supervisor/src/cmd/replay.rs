@@ -35,7 +35,14 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
         )?,
         _ => RunFolder::claim(&own, true)?,
     };
-    let (verdict, runs) = replay::replay(run_dir, folder.path())?;
+    let (verdict, runs) = match replay::replay(run_dir, folder.path()) {
+        Ok(r) => r,
+        Err(e) => {
+            // Refused before anything was replayed: no empty folder left behind.
+            folder.release_unused();
+            return Err(e);
+        }
+    };
     let line = replay::describe(&verdict, run_dir);
     if a.ideal {
         let cfg = deltaloop_config::RunConfig::from_file(&run_dir.join("config.toml"))?;

@@ -190,6 +190,19 @@ impl RunFolder {
     pub fn path(&self) -> &Path {
         &self.dir
     }
+
+    /// Gives the folder up; removes it if nothing but its lock file was written (a command
+    /// refused before it wrote anything leaves no empty folder behind).
+    pub fn release_unused(self) {
+        let only_lock = std::fs::read_dir(&self.dir).is_ok_and(|entries| {
+            entries
+                .flatten()
+                .all(|e| e.file_name() == std::ffi::OsStr::new(LOCK_FILE))
+        });
+        if only_lock {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
 }
 
 /// `p` absolute, with links and `..` resolved as far as it exists; the part that does not exist
