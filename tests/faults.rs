@@ -531,10 +531,10 @@ fn interrupted_sweep_keeps_its_finished_rows() {
     );
     // The points running at the stop are marked, not counted as results.
     let finished = statuses.iter().filter(|s| *s != "interrupted").count();
-    assert!((4..732).contains(&finished), "{finished} finished rows");
+    assert!((4..976).contains(&finished), "{finished} finished rows");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(
-        report.contains("Interrupted") && report.contains(&format!("after {finished} of 732 runs")),
+        report.contains("Interrupted") && report.contains(&format!("after {finished} of 976 runs")),
         "{}",
         &report[..200.min(report.len())]
     );
