@@ -422,6 +422,10 @@ fn wait_state(
         poll_until_ns = poll_after_wake(poll_until_ns, rt::now_ns(), spin_ns);
     }
     let until = rt::now_ns() + silence_ns;
+    // Whether this wait has blocked once already: STOP is looked for only after a block that
+    // brought no state, so the tick's normal path (one block, woken by the state) reads no
+    // control message.
+    let mut blocked = false;
     loop {
         // Before the states: SIGTERM ends the loop even while states keep coming.
         if term.load(Ordering::Relaxed) {
@@ -444,9 +448,10 @@ fn wait_state(
             rt::poll_pause(poll);
             continue;
         }
-        if drain_control(&ports.control.1)?.stop {
+        if blocked && drain_control(&ports.control.1)?.stop {
             return Ok(Waited::Stopped("stopped by the supervisor (STOP)"));
         }
+        blocked = true;
         // The only timeout here is the silence limit (seconds), so iceoryx2's own timed wait (a
         // blocking receive, woken directly by the notification) is precise enough and cheapest.
         // A signal (SIGTERM, or SIGCONT after a SIGSTOP) only interrupts the wait: look again.
