@@ -87,12 +87,12 @@ impl Read for Capped {
     }
 }
 
-/// Opens `path` for reading if it is a regular file of at most `cap` bytes (`what` names the
-/// kind of file in the error, e.g. "a config file"). Symbolic links are followed (a link to a
+/// Opens `path` for reading if it is a regular file, of any size (for a reader that bounds
+/// what it reads itself, e.g. a log read from its end). Symbolic links are followed (a link to a
 /// scenario is fine); what counts is what was opened: the check is on the open descriptor, so a
 /// path swapped after a check cannot slip through. The open is non-blocking (a FIFO cannot hold
 /// it), and blocking again once the file is known to be regular.
-pub fn open_regular(path: &Path, cap: u64, what: &str) -> Result<Capped, String> {
+pub fn open_regular_file(path: &Path) -> Result<File, String> {
     let fd = rustix::fs::open(
         path,
         OFlags::RDONLY | OFlags::NONBLOCK | OFlags::CLOEXEC | OFlags::NOCTTY,
@@ -115,12 +115,20 @@ pub fn open_regular(path: &Path, cap: u64, what: &str) -> Result<Capped, String>
             kind_of(meta.file_type())
         ));
     }
-    if meta.len() > cap {
-        return Err(too_big(meta.len(), cap, what));
-    }
     let flags = rustix::fs::fcntl_getfl(&file).map_err(|e| std::io::Error::from(e).to_string())?;
     rustix::fs::fcntl_setfl(&file, flags - OFlags::NONBLOCK)
         .map_err(|e| std::io::Error::from(e).to_string())?;
+    Ok(file)
+}
+
+/// Opens `path` for reading if it is a regular file of at most `cap` bytes (`what` names the
+/// kind of file in the error, e.g. "a config file"); see [`open_regular_file`].
+pub fn open_regular(path: &Path, cap: u64, what: &str) -> Result<Capped, String> {
+    let file = open_regular_file(path)?;
+    let len = file.metadata().map_err(|e| e.to_string())?.len();
+    if len > cap {
+        return Err(too_big(len, cap, what));
+    }
     Ok(Capped {
         file,
         read: 0,

@@ -94,19 +94,14 @@ impl Tail {
     }
 
     fn read_bytes(path: &Path, max: u64) -> std::io::Result<Self> {
-        use std::os::unix::fs::OpenOptionsExt;
-        // Non-blocking: a log replaced by a FIFO must not hang the supervisor (only a regular
-        // file is read).
-        let mut f = std::fs::OpenOptions::new()
-            .read(true)
-            .custom_flags(libc::O_NONBLOCK)
-            .open(path)?;
-        if !f.metadata()?.is_file() {
+        // Only a regular file, opened without blocking: a log replaced by a FIFO must not hang
+        // the supervisor (anything else reads as an empty log).
+        let Ok(mut f) = deltaloop_config::files::open_regular_file(path) else {
             return Ok(Tail {
                 lines: Vec::new(),
                 earlier: false,
             });
-        }
+        };
         let len = f.metadata()?.len();
         let from = len.saturating_sub(max);
         f.seek(SeekFrom::Start(from))?;
