@@ -13,6 +13,10 @@ pub struct Args {
     /// Loop transport.
     #[arg(long, value_parser = LoopMode::parse, default_value = "realtime")]
     mode: LoopMode,
+    /// Also run each law's round-off twin (the plant started one ulp away) and print every
+    /// figure with the digits that survive it (inproc and lockstep; doubles the cost).
+    #[arg(long)]
+    sensitivity: bool,
     #[command(flatten)]
     overrides: Overrides,
     #[command(flatten)]
@@ -24,6 +28,7 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
     let o = run::run(RunRequest {
         out: a.out.out,
         force: a.out.force,
+        sensitivity: a.sensitivity,
         ..RunRequest::new(cfg, a.mode, &cx.command_line)
     })?;
     o.print();

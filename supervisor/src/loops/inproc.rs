@@ -12,6 +12,7 @@ use crate::loops::lawrun::{self, Keep, LawRecorder, LawRun};
 use crate::study::Study;
 use anyhow::Result;
 use deltaloop_config::Law;
+use deltaloop_model::Vec3;
 use deltaloop_plant::{Arrival, PlantSide};
 
 /// Runs one law over the study's reference, ticks 0..=N, then takes the final state N + 1.
@@ -23,9 +24,42 @@ pub fn run_law(study: &Study, law: Law, keep: &Keep) -> Result<LawRun> {
 /// [`run_law`] over ticks 0..=`last` only (all of them when `last` ≥ N): the in-process twin of
 /// a measured run that covered fewer ticks than its scenario planned.
 pub fn run_law_through(study: &Study, law: Law, keep: &Keep, last: u64) -> Result<LawRun> {
+    run_from(study, law, keep, last, study.reference.q0())
+}
+
+/// The round-off twin of a law's in-process run: the same run with the plant starting one ulp
+/// away, every joint angle q_i(0) moved to the next larger `f64` ([`Study::twin_q0`]); only the
+/// metrics are kept. How far its metrics drift from the run's says how many of their digits
+/// survive round-off (see [`crate::record::sensitivity`]).
+pub fn run_twin(study: &Study, law: Law) -> Result<LawRun> {
+    run_from(
+        study,
+        law,
+        &Keep::default(),
+        study.reference.n as u64,
+        study.twin_q0(),
+    )
+}
+
+/// Runs every law's round-off twin, each on its own thread.
+pub fn run_twins(study: &Study, laws: &[Law]) -> Vec<Result<LawRun>> {
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = laws
+            .iter()
+            .map(|&law| scope.spawn(move || run_twin(study, law)))
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().expect("twin thread panicked"))
+            .collect()
+    })
+}
+
+/// Ticks 0..=`last` with the plant at rest at `q0` (rad, joint space) at tick 0.
+fn run_from(study: &Study, law: Law, keep: &Keep, last: u64, q0: Vec3) -> Result<LawRun> {
     let last = last.min(study.reference.n as u64);
     let mut rec = lawrun::recorder(study, law, keep)?;
-    let plant = match study.plant_side() {
+    let plant = match study.plant_side_at(q0) {
         Ok(p) => p,
         Err(e) => {
             rec.plant_failed(e.to_string());

@@ -6,11 +6,12 @@ use crate::loops::procs::{self, OnTick};
 use crate::output::report;
 use crate::output::{self, Summary};
 use crate::record::metrics::LawMetrics;
+use crate::record::sensitivity::Sensitivity;
 use crate::record::{Fault, RunStatus};
 use crate::study::Study;
 use crate::study::analysis::mismatch;
 use crate::timing::{PeakRss, Timing, TimingSummary};
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::ipc;
 use std::path::{Path, PathBuf};
@@ -130,6 +131,9 @@ pub struct RunRequest<'a> {
     /// are only streamed to `trace.csv` (unless `record.trace = false`) and the metrics, and
     /// memory does not grow with the run.
     pub keep_records: bool,
+    /// Run each law's round-off twin too (inproc and lockstep only; see
+    /// [`crate::record::sensitivity`]): every law's metrics get its spreads.
+    pub sensitivity: bool,
     /// The command line, for `summary.json` and `report.md`.
     pub command: &'a str,
     /// Sees every tick the process modes finish, in tick order (see [`procs::OnTick`]).
@@ -145,6 +149,7 @@ impl<'a> RunRequest<'a> {
             out: None,
             force: false,
             keep_records: false,
+            sensitivity: false,
             command,
             on_tick: None,
         }
@@ -173,9 +178,15 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
         out,
         force,
         keep_records,
+        sensitivity,
         command,
         mut on_tick,
     } = req;
+    if sensitivity && mode == LoopMode::Realtime {
+        bail!(
+            "--sensitivity needs mode inproc or lockstep: a realtime run's timing is not repeatable, so its twin would differ by more than round-off"
+        );
+    }
     let started = output::now_utc();
     let study =
         Study::new(config).context("the scenario's reference leaves the robot's workspace")?;
@@ -205,6 +216,9 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
         LoopMode::Inproc => run_inproc(&study, keep),
         pm => run_processes(&study, pm, &dir, keep, &mut on_tick, &mut notes),
     };
+    if sensitivity && laws.failed.is_none() {
+        add_sensitivity(&study, &mut laws.runs)?;
+    }
     let peak_rss = laws
         .timings
         .iter()
@@ -225,6 +239,18 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
         runs: laws.runs,
         peak_rss,
     })
+}
+
+/// Runs each law's round-off twin (in-process, each on its own thread) and files the spreads
+/// with the law's metrics. In lockstep too the twin runs in-process: the two modes give the
+/// same bits.
+fn add_sensitivity(study: &Study, runs: &mut [LawRun]) -> Result<()> {
+    let laws: Vec<Law> = runs.iter().map(|r| r.law).collect();
+    for (run, twin) in runs.iter_mut().zip(inproc::run_twins(study, &laws)) {
+        let twin = twin.context("the round-off twin")?;
+        run.metrics.sensitivity = Some(Sensitivity::between(&run.metrics, &twin.metrics));
+    }
+    Ok(())
 }
 
 /// Every law in-process, each on its own thread.

@@ -2,6 +2,7 @@
 //! Tables II–IV, plus the columns the paper does not have.
 
 use crate::record::metrics::LawMetrics;
+use crate::record::sensitivity;
 use crate::study::analysis::Mismatch;
 use crate::timing::TimingSummary;
 use deltaloop_config::config::{PathKind, VelocitySource};
@@ -36,6 +37,18 @@ fn e(x: f64) -> String {
     format!("{x:.3e}")
 }
 
+/// A figure with the digits its law's round-off twin leaves it (`rel`: the relative spread; all
+/// four without a twin).
+fn fig(x: f64, rel: Option<f64>) -> String {
+    rel.map_or_else(|| e(x), |r| sensitivity::sci(x, r))
+}
+
+/// The round-off column of a law: its largest spread, or `-` without a twin.
+fn spread_cell(m: &LawMetrics) -> String {
+    m.sensitivity
+        .map_or("-".into(), |s| sensitivity::show_spread(s.worst()))
+}
+
 /// A law's status for the tables (from its [`RunStatus`](crate::record::RunStatus)).
 fn status(m: &LawMetrics) -> String {
     use crate::record::RunStatus;
@@ -65,26 +78,49 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
         metrics.first().map_or(0, |m| m.ticks),
         cfg.loop_.ts_s * 1e3
     );
+    let twins = metrics.iter().any(|m| m.sensitivity.is_some());
     let _ = writeln!(
         s,
-        "{:<11} {:>10} {:>10} {:>10} {:>9} {:>9} {:>8} {:>7} {:>10}  status",
-        "law", "rms q1", "rms q2", "rms q3", "task mm", "max|tau|", "HF shr", "clamps", "TDE rms"
+        "{:<11} {:>10} {:>10} {:>10} {:>9} {:>9} {:>8} {:>7} {:>10}{}  status",
+        "law",
+        "rms q1",
+        "rms q2",
+        "rms q3",
+        "task mm",
+        "max|tau|",
+        "HF shr",
+        "clamps",
+        "TDE rms",
+        if twins { "  round-off" } else { "" }
     );
     for m in metrics {
-        let tde = m.tde_err_rms.map_or("-".into(), |t| e(max3(t)));
+        let rel = m.sensitivity.map(|s| s.rms_rel);
+        let tde_rel = m.sensitivity.and_then(|s| s.tde_rel);
+        let tde = m.tde_err_rms.map_or("-".into(), |t| fig(max3(t), tde_rel));
         let _ = writeln!(
             s,
-            "{:<11} {:>10} {:>10} {:>10} {:>9.4} {:>9.3} {:>8.4} {:>7} {:>10}  {}",
+            "{:<11} {:>10} {:>10} {:>10} {:>9.4} {:>9.3} {:>8.4} {:>7} {:>10}{}  {}",
             m.law,
-            e(m.rms_rad[0]),
-            e(m.rms_rad[1]),
-            e(m.rms_rad[2]),
+            fig(m.rms_rad[0], rel),
+            fig(m.rms_rad[1], rel),
+            fig(m.rms_rad[2], rel),
             m.task_rms_mm,
             max3(m.max_abs_tau_nm),
             max3(m.hf_torque_share),
             m.clamp_count,
             tde,
+            if twins {
+                format!("  {:>9}", spread_cell(m))
+            } else {
+                String::new()
+            },
             status(m)
+        );
+    }
+    if twins {
+        let _ = writeln!(
+            s,
+            "round-off: largest relative change of a law's RMS, max or TDE error when q(0) moves one ulp; figures keep the digits that survive it"
         );
     }
     s
@@ -208,6 +244,30 @@ fn injected(cfg: &RunConfig) -> Vec<String> {
     extras
 }
 
+/// What the round-off column means, and which laws' figures it cuts.
+fn sensitivity_note(s: &mut String, metrics: &[LawMetrics]) {
+    let _ = writeln!(
+        s,
+        "\nRound-off: each law ran a twin with {} (`--sensitivity`); the column is the largest relative change of its RMS, max or TDE error, and each figure keeps only the digits that survive it.",
+        sensitivity::PERTURBATION
+    );
+    let touchy: Vec<String> = metrics
+        .iter()
+        .filter(|m| {
+            m.sensitivity
+                .is_some_and(|x| sensitivity::is_sensitive(x.worst()))
+        })
+        .map(|m| format!("`{}` ({})", m.law, spread_cell(m)))
+        .collect();
+    if !touchy.is_empty() {
+        let _ = writeln!(
+            s,
+            "Round-off sensitive: {}. Their results move by that much under a change at the level of the arithmetic's rounding (the super-twisting term |s|^½ sign(s) is not Lipschitz at s = 0), so a difference smaller than it between two implementations, or two laws, is not a result.",
+            touchy.join(", ")
+        );
+    }
+}
+
 /// Our RMS error per joint and law, then the paper's published table for this scenario.
 fn rms_section(s: &mut String, path: PathKind, metrics: &[LawMetrics]) {
     let table = paper_table(path);
@@ -218,22 +278,34 @@ fn rms_section(s: &mut String, path: PathKind, metrics: &[LawMetrics]) {
             ", shaped like the paper's Table {t}"
         ))
     );
+    let twins = metrics.iter().any(|m| m.sensitivity.is_some());
     let _ = writeln!(
         s,
-        "| Controller | Joint 1 | Joint 2 | Joint 3 | status |\n|---|---|---|---|---|"
+        "| Controller | Joint 1 | Joint 2 | Joint 3 |{} status |\n|---|---|---|---|{}---|",
+        if twins { " round-off |" } else { "" },
+        if twins { "---|" } else { "" }
     );
     for m in metrics {
         let law = m.law;
+        let rel = m.sensitivity.map(|s| s.rms_rel);
         let _ = writeln!(
             s,
-            "| {} (`{}`) | {} | {} | {} | {} |",
+            "| {} (`{}`) | {} | {} | {} |{} {} |",
             law.paper_name(),
             m.law,
-            e(m.rms_rad[0]),
-            e(m.rms_rad[1]),
-            e(m.rms_rad[2]),
+            fig(m.rms_rad[0], rel),
+            fig(m.rms_rad[1], rel),
+            fig(m.rms_rad[2], rel),
+            if twins {
+                format!(" {} |", spread_cell(m))
+            } else {
+                String::new()
+            },
             status(m)
         );
+    }
+    if twins {
+        sensitivity_note(s, metrics);
     }
     let Some(t) = table else { return };
     let _ = writeln!(

@@ -1,6 +1,7 @@
 //! The study's metrics (docs/controllers.md, "What the study measures"): accumulated tick by tick
 //! from a run's records, its reference and the controller constants, in bounded memory.
 
+use crate::record::sensitivity::Sensitivity;
 use crate::record::{FaultKind, Outcome, RunEnd, RunStatus, TickRecord};
 use crate::study::reference::RefRow;
 use deltaloop_law::{ControllerParams, Law};
@@ -84,6 +85,10 @@ pub struct LawMetrics {
     pub k2_in_use: f64,
     /// Whether k2_in_use exceeds k2_required (a sufficient condition only: reported, not enforced).
     pub eq43_holds: Option<bool>,
+    /// The metrics against the run's round-off twin (see [`crate::record::sensitivity`]), when
+    /// one was run (`--sensitivity`; `deltaloop paper` and sweeps by default).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sensitivity: Option<Sensitivity>,
 }
 
 /// RMS of a series (0 for an empty one).
@@ -518,6 +523,7 @@ impl<'a> MetricsAcc<'a> {
             k2_required: k2_req,
             k2_in_use: params.k2,
             eq43_holds: k2_req.map(|r| params.k2 > r),
+            sensitivity: None,
         }
     }
 }

@@ -5,6 +5,7 @@
 //! whatever the transport, and memory does not grow with the run.
 
 pub mod metrics;
+pub mod sensitivity;
 
 use crate::study::reference::{JointReference, RefRow};
 use deltaloop_config::Law;

@@ -10,7 +10,7 @@ use crate::study::scenario::TaskPath;
 use deltaloop_config::{Law, RunConfig};
 use deltaloop_controller::ControllerSide;
 use deltaloop_law::ControllerParams;
-use deltaloop_model::{DeltaRobot, KinematicsError};
+use deltaloop_model::{DeltaRobot, KinematicsError, Vec3};
 use deltaloop_plant::PlantSide;
 
 /// The resolved inputs of a run.
@@ -44,7 +44,20 @@ impl Study {
     /// The plant side of a fresh run: the plant at rest at q_d(0), as the config describes it,
     /// for ticks 0..=N.
     pub fn plant_side(&self) -> Result<PlantSide, KinematicsError> {
-        PlantSide::from_config(&self.config, self.reference.q0(), self.reference.n as u64)
+        self.plant_side_at(self.reference.q0())
+    }
+
+    /// [`Self::plant_side`] with the plant at rest at `q0` (rad, joint space) instead.
+    pub fn plant_side_at(&self, q0: Vec3) -> Result<PlantSide, KinematicsError> {
+        PlantSide::from_config(&self.config, q0, self.reference.n as u64)
+    }
+
+    /// The round-off twin's initial joint angles, rad: q_d(0) with every joint moved to the
+    /// next larger `f64` (one ulp, ≈ 1e-16 rad at these angles). A perturbation at the level
+    /// of the arithmetic's own rounding: a result that changes by more than round-off under it
+    /// is sensitive to how the arithmetic is ordered, not only to the physics.
+    pub fn twin_q0(&self) -> Vec3 {
+        self.reference.q0().map(f64::next_up)
     }
 
     /// The controller side of a fresh run of `law`.

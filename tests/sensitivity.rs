@@ -1,0 +1,96 @@
+//! End-to-end: round-off twins (`--sensitivity`) and the digits they leave each figure.
+
+mod common;
+
+use common::{deltaloop, summary};
+
+/// At a 150 µs sub-tick delay the super-twisting law's RMS moves by about a percent when q(0)
+/// moves one ulp (|s|^½ sign(s) is not Lipschitz at 0), `tdc` by round-off only; the table
+/// prints the spread and cuts the sensitive law's figures to the digits that survive.
+#[test]
+fn sensitivity_twin_separates_round_off_sensitive_laws() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("run");
+    let out = deltaloop(&[
+        "run",
+        "configs/s1-nominal.toml",
+        "--mode",
+        "inproc",
+        "--transport-delay-us",
+        "150",
+        "--law",
+        "tdc",
+        "--law",
+        "tdc-is-sta",
+        "--sensitivity",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s = summary(&dir);
+    let spread = |law: &str, k: &str| s["laws"][law]["sensitivity"][k].as_f64().unwrap();
+    assert!(spread("tdc", "rms_rel") <= 1e-9, "{}", s["laws"]["tdc"]);
+    let sta = spread("tdc-is-sta", "rms_rel");
+    assert!((1e-3..0.2).contains(&sta), "tdc-is-sta rms_rel {sta}");
+    // The twin's own RMS is in the summary and differs from the run's by that spread.
+    let run_rms = s["laws"]["tdc-is-sta"]["rms_rad"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .fold(0.0, f64::max);
+    let twin_rms = spread("tdc-is-sta", "twin_rms_rad");
+    assert!(((run_rms - twin_rms).abs() / run_rms) <= sta * (1.0 + 1e-12));
+    // The table: a round-off column; tdc with 4 digits and `< 1e-9`, tdc-is-sta with fewer and
+    // its spread in percent.
+    let line = |law: &str| {
+        stdout
+            .lines()
+            .find(|l| l.split_whitespace().next() == Some(law))
+            .unwrap_or_else(|| panic!("no {law} line in\n{stdout}"))
+            .to_string()
+    };
+    assert!(stdout.contains("round-off"), "{stdout}");
+    let tdc = line("tdc");
+    assert!(tdc.contains("< 1e-9"), "{tdc}");
+    let rms1 = tdc.split_whitespace().nth(1).unwrap();
+    assert_eq!(rms1.split('e').next().unwrap().len(), 5, "4 digits: {tdc}");
+    let sta_line = line("tdc-is-sta");
+    assert!(sta_line.contains(" %"), "{sta_line}");
+    let rms1 = sta_line.split_whitespace().nth(1).unwrap();
+    assert!(
+        rms1.split('e').next().unwrap().len() < 5,
+        "fewer digits: {sta_line}"
+    );
+    let report = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(
+        report.contains("Round-off sensitive: `tdc-is-sta`"),
+        "{report}"
+    );
+}
+
+/// A realtime run's timing is not repeatable: a twin says nothing about round-off there. Refused
+/// in one line before anything runs, and no folder is left.
+#[test]
+fn sensitivity_is_refused_in_realtime() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("run");
+    let out = deltaloop(&[
+        "run",
+        "configs/s1-nominal.toml",
+        "--sensitivity",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    let err = common::one_line_error(&out);
+    assert!(
+        err.contains("--sensitivity needs mode inproc or lockstep"),
+        "{err}"
+    );
+    assert!(!dir.exists());
+}
