@@ -38,12 +38,7 @@ fn sensitivity_twin_separates_round_off_sensitive_laws() {
     let sta = spread("tdc-is-sta", "rms_rel");
     assert!((1e-3..0.2).contains(&sta), "tdc-is-sta rms_rel {sta}");
     // The twin's own RMS is in the summary and differs from the run's by that spread.
-    let run_rms = s["laws"]["tdc-is-sta"]["rms_rad"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|v| v.as_f64().unwrap())
-        .fold(0.0, f64::max);
+    let run_rms = common::max_joint_rms(&s, "tdc-is-sta");
     let twin_rms = spread("tdc-is-sta", "twin_rms_rad");
     assert!(((run_rms - twin_rms).abs() / run_rms) <= sta * (1.0 + 1e-12));
     // The table: a round-off column; tdc with 4 digits and `< 1e-9`, tdc-is-sta with fewer and

@@ -159,6 +159,16 @@ pub fn summary(dir: &Path) -> Value {
     json(&dir.join("summary.json"))
 }
 
+/// The max-joint RMS tracking error (rad) of `law` in a summary.
+pub fn max_joint_rms(summary: &Value, law: &str) -> f64 {
+    summary["laws"][law]["rms_rad"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no rms_rad of {law}"))
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .fold(0.0, f64::max)
+}
+
 /// How `law` ended, as its summary says: the typed `status` and, for a fault, its `fault_kind`.
 pub fn outcome(summary: &Value, law: &str) -> (RunStatus, Option<FaultKind>) {
     let m = &summary["laws"][law];

@@ -44,6 +44,9 @@ pub struct Series {
     pub name: String,
     pub color: RGBColor,
     pub points: Vec<(f64, f64)>,
+    /// Error bars (x, low, high): a confidence interval at each point, drawn as a vertical bar
+    /// with caps. Empty: none.
+    pub bars: Vec<(f64, f64, f64)>,
 }
 
 /// One panel of a figure.
@@ -133,6 +136,25 @@ macro_rules! draw_panel {
                 .legend(move |(x, y)| {
                     PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
                 });
+            let bars: Vec<(f64, f64, f64)> = s
+                .bars
+                .iter()
+                .copied()
+                .filter(|(x, lo, hi)| {
+                    x.is_finite()
+                        && lo.is_finite()
+                        && hi.is_finite()
+                        && (!$p.log_y || *lo > 0.0)
+                        && (!$p.log_x || *x > 0.0)
+                })
+                .collect();
+            if !bars.is_empty() {
+                chart
+                    .draw_series(bars.iter().map(|&(x, lo, hi)| {
+                        ErrorBar::new_vertical(x, lo, (lo + hi) / 2.0, hi, color.stroke_width(1), 8)
+                    }))
+                    .map_err(e)?;
+            }
             // Markers only where they help: sparse series (sweeps), not dense time series.
             if pts.len() <= 60 {
                 chart
@@ -170,7 +192,10 @@ where
             p.log_x,
         );
         let (y0, y1) = range(
-            p.series.iter().flat_map(|s| s.points.iter().map(|q| q.1)),
+            p.series.iter().flat_map(|s| {
+                let bars = s.bars.iter().flat_map(|b| [b.1, b.2]);
+                s.points.iter().map(|q| q.1).chain(bars)
+            }),
             p.log_y,
         );
         match (p.log_x, p.log_y) {

@@ -6,6 +6,7 @@
 
 pub mod metrics;
 pub mod sensitivity;
+pub mod stats;
 
 use crate::study::reference::{JointReference, RefRow};
 use deltaloop_config::Law;

@@ -305,6 +305,50 @@ mod tests {
         assert_eq!(rt.to_string(), "s2/paper/tde-is ℓ=2 d=1 c=200us (realtime)");
     }
 
+    /// Repeats fold into one row: means over the `ok` repeats, the hand-computed standard
+    /// deviation and t interval (rms 1, 2, 3 → mean 2, s = 1, t₀.₉₇₅,₂ = 4.302652729911275,
+    /// half-width 4.302652729911275/√3 = 2.484137...), the first non-ok repeat's status named by
+    /// its seed, the largest counts.
+    #[test]
+    fn repeats_summarise_to_mean_std_and_t_interval() {
+        let job = Job {
+            scenario: PathKind::S2,
+            preset: Preset::Matched,
+            law: Law::Tdc,
+            ell: 1,
+            d: 0,
+            us: 0.0,
+            compute_us: 0,
+            realtime: false,
+        };
+        let m = some_metrics();
+        let mk = |rms: f64, seed: u64, clamps: u64| {
+            let mut r = row(&job, 3e-4, LoopMode::Inproc, Some(&m), None, None);
+            (r.rms_rad, r.seed, r.clamp_count) = (rms, seed, clamps);
+            r
+        };
+        let mut bad = mk(f64::NAN, 13, 0);
+        bad.status = RunStatus::Diverged;
+        bad.reason = "|e| > 0.5 rad".into();
+        let r = summarise(vec![mk(1.0, 10, 0), mk(2.0, 11, 5), mk(3.0, 12, 2), bad]);
+        assert_eq!((r.repeats, r.repeats_ok, r.seed), (4, 3, 10));
+        assert_eq!(r.status, RunStatus::Diverged);
+        assert_eq!(r.reason, "seed 13: |e| > 0.5 rad");
+        assert_eq!((r.rms_rad, r.rms_rad_std), (2.0, 1.0));
+        let half = 4.302652729911275 / 3f64.sqrt();
+        assert!(
+            (r.rms_rad_ci95_lo - (2.0 - half)).abs() < 1e-7,
+            "{}",
+            r.rms_rad_ci95_lo
+        );
+        assert!((r.rms_rad_ci95_hi - (2.0 + half)).abs() < 1e-7);
+        assert_eq!(r.clamp_count, 5);
+        // One repeat: the row as it was, no interval.
+        let one = summarise(vec![mk(1.0, 10, 0)]);
+        assert_eq!((one.repeats, one.rms_rad), (1, 1.0));
+        assert!(one.rms_rad_std.is_nan() && one.rms_rad_ci95_lo.is_nan());
+    }
+
     /// Metrics of a real (short) run, to vary.
     fn some_metrics() -> LawMetrics {
         let cfg = RunConfig::from_toml_str(
@@ -372,7 +416,14 @@ mod tests {
         let mut w = csv::Writer::from_writer(Vec::new());
         w.serialize(&r).unwrap();
         let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
-        assert!(text.trim_end().ends_with(",0,"), "{text}");
+        let mut rd = csv::Reader::from_reader(text.as_bytes());
+        let col = rd
+            .headers()
+            .unwrap()
+            .iter()
+            .position(|h| h == "round_trip_p999_us");
+        let rec = rd.records().next().unwrap().unwrap();
+        assert_eq!(&rec[col.unwrap()], "", "{text}");
 
         // A controller too slow for its deadlines: the plant stops on a fault. Not a divergence,
         // even if the error passed the bound while the torque was held.

@@ -9,6 +9,34 @@ use anyhow::Result;
 use deltaloop_config::LoopMode;
 use std::path::Path;
 
+/// A metric's 95 % confidence interval read off a row (NaN: a single repeat).
+type Band = fn(&Row) -> (f64, f64);
+
+/// (file stem, y label, metric, its interval) of the RMS and TDE error figures.
+const RMS: (&str, &str, Metric, Band) = (
+    "rms",
+    "RMS joint error, max over joints (rad)",
+    |r| r.rms_rad,
+    |r| (r.rms_rad_ci95_lo, r.rms_rad_ci95_hi),
+);
+const TDE_ERR: (&str, &str, Metric, Band) = (
+    "tde_err",
+    "TDE error RMS, max over joints (rad/s²)",
+    |r| r.tde_err_rms,
+    |r| (r.tde_err_rms_ci95_lo, r.tde_err_rms_ci95_hi),
+);
+
+/// The error bars of a series: each row's interval where it has one (repeats > 1).
+fn bars(rows: &[&Row], x: impl Fn(&Row) -> f64, band: Band) -> Vec<(f64, f64, f64)> {
+    rows.iter()
+        .map(|r| {
+            let (lo, hi) = band(r);
+            (x(r), lo, hi)
+        })
+        .filter(|b| b.1.is_finite() && b.2.is_finite())
+        .collect()
+}
+
 /// A point of the ℓ × d grid (not of the realtime or the sub-tick delay axis).
 pub(super) fn on_grid(r: &Row) -> bool {
     r.mode != LoopMode::Realtime && r.transport_delay_us == 0.0
@@ -17,16 +45,15 @@ pub(super) fn on_grid(r: &Row) -> bool {
 /// (file stem, x axis, metric) of every figure written.
 pub(super) fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String)>> {
     let mut written = Vec::new();
-    let metrics: [(&str, &str, Metric); 3] = [
-        ("rms", "RMS joint error, max over joints (rad)", |r| {
-            r.rms_rad
-        }),
-        ("tde_err", "TDE error RMS, max over joints (rad/s²)", |r| {
-            r.tde_err_rms
-        }),
-        ("delta_n", "δ_N max, max over joints (rad/s³)", |r| {
-            r.delta_n_max
-        }),
+    let metrics: [(&str, &str, Metric, Band); 3] = [
+        RMS,
+        TDE_ERR,
+        (
+            "delta_n",
+            "δ_N max, max over joints (rad/s³)",
+            |r| r.delta_n_max,
+            |_| (f64::NAN, f64::NAN),
+        ),
     ];
     let axes: [(&str, &str, bool); 3] = [
         ("tde_delay", "TDE delay ℓ (ticks)", true),
@@ -60,7 +87,7 @@ pub(super) fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(Str
         if distinct < 2 {
             continue;
         }
-        for (mname, y_label, get) in metrics {
+        for (mname, y_label, get, band) in metrics {
             let mut panels = Vec::new();
             for &sc in &sw.scenarios {
                 for &pr in &sw.presets {
@@ -68,10 +95,8 @@ pub(super) fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(Str
                     let series = sw
                         .laws
                         .iter()
-                        .map(|law| Series {
-                            name: law.name().to_string(),
-                            color: plot::law_color(*law),
-                            points: rows
+                        .map(|law| {
+                            let here: Vec<&Row> = rows
                                 .iter()
                                 .filter(|r| {
                                     on_axis(r)
@@ -80,8 +105,13 @@ pub(super) fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(Str
                                         && r.law == *law
                                         && r.status == RunStatus::Ok
                                 })
-                                .map(|r| (x_of(r), get(r)))
-                                .collect(),
+                                .collect();
+                            Series {
+                                name: law.name().to_string(),
+                                color: plot::law_color(*law),
+                                points: here.iter().map(|r| (x_of(r), get(r))).collect(),
+                                bars: bars(&here, x_of, band),
+                            }
                         })
                         .collect();
                     panels.push(Panel {
@@ -120,16 +150,8 @@ pub(super) fn effective_delay_figures(
 ) -> Result<Vec<(String, String)>> {
     let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
     let max_x = f64::from(l0) + f64::from(d0) + 2.0 + 1e-9;
-    let metrics: [(&str, &str, Metric); 2] = [
-        ("rms", "RMS joint error, max over joints (rad)", |r| {
-            r.rms_rad
-        }),
-        ("tde_err", "TDE error RMS, max over joints (rad/s²)", |r| {
-            r.tde_err_rms
-        }),
-    ];
     let mut written = Vec::new();
-    for (mname, y_label, get) in metrics {
+    for (mname, y_label, get, band) in [RMS, TDE_ERR] {
         let mut panels = Vec::new();
         for &sc in &sw.scenarios {
             for &pr in &sw.presets {
@@ -142,8 +164,8 @@ pub(super) fn effective_delay_figures(
                 };
                 let mut series = Vec::new();
                 for &law in &sw.laws {
-                    let points = |by_ell: bool| -> Vec<(f64, f64)> {
-                        let mut p: Vec<(f64, f64)> = rows
+                    let points = |by_ell: bool| -> Vec<&Row> {
+                        let mut p: Vec<&Row> = rows
                             .iter()
                             .filter(here)
                             .filter(|r| r.law == law)
@@ -154,21 +176,29 @@ pub(super) fn effective_delay_figures(
                                     r.tde_delay_samples == l0
                                 }
                             })
-                            .map(|r| (r.effective_delay_ticks, get(r)))
                             .collect();
-                        p.sort_by(|a, b| a.0.total_cmp(&b.0));
+                        p.sort_by(|a, b| {
+                            a.effective_delay_ticks.total_cmp(&b.effective_delay_ticks)
+                        });
                         p
                     };
-                    series.push(Series {
-                        name: format!("{law}: ℓ"),
-                        color: plot::law_color(law),
-                        points: points(true),
-                    });
-                    series.push(Series {
-                        name: format!("{law}: D (µs)"),
-                        color: plot::lighter(plot::law_color(law)),
-                        points: points(false),
-                    });
+                    let x = |r: &Row| r.effective_delay_ticks;
+                    for (by_ell, name, color) in [
+                        (true, format!("{law}: ℓ"), plot::law_color(law)),
+                        (
+                            false,
+                            format!("{law}: D (µs)"),
+                            plot::lighter(plot::law_color(law)),
+                        ),
+                    ] {
+                        let p = points(by_ell);
+                        series.push(Series {
+                            name,
+                            color,
+                            points: p.iter().map(|r| (x(r), get(r))).collect(),
+                            bars: bars(&p, x, band),
+                        });
+                    }
                 }
                 panels.push(Panel {
                     title: format!("{} — preset {}", sc.name().to_uppercase(), pr.name()),

@@ -1,11 +1,14 @@
 //! One point of a sweep: its config, its run (through the same code as `deltaloop run`), and
 //! its row of `sweep.csv` with the status the run ended in.
 
-use super::schema::Job;
+use super::schema::{Job, SweepFile};
+use crate::loops::inproc;
 use crate::loops::lawrun::Keep;
 use crate::loops::{self, Ran};
 use crate::record::RunStatus;
 use crate::record::metrics::LawMetrics;
+use crate::record::sensitivity::Sensitivity;
+use crate::record::stats;
 use crate::study::Study;
 use anyhow::{Context, Result};
 use deltaloop_config::config::PathKind;
@@ -51,6 +54,37 @@ pub struct Row {
     pub deadline_misses: Option<u64>,
     /// Empty when the run has no round-trip sample (never 0 for "no data").
     pub round_trip_p999_us: Option<f64>,
+    /// Realtime points: max-joint RMS over that of the same config with ideal timing
+    /// (in-process, same seed); NaN for the other points.
+    pub latency_cost: f64,
+    /// Runs this row summarises: sensor-noise seeds `seed`, `seed` + 1, …; the metrics above
+    /// are their means over the runs that ended `ok` (`repeats_ok` of them).
+    pub repeats: u32,
+    pub repeats_ok: u32,
+    pub seed: u64,
+    /// Sample standard deviation and t-based 95 % confidence interval of the mean
+    /// ([`crate::record::stats::Interval`]) of `rms_rad` over the repeats; NaN below 2.
+    pub rms_rad_std: f64,
+    pub rms_rad_ci95_lo: f64,
+    pub rms_rad_ci95_hi: f64,
+    /// The same for `max_abs_err_rad`.
+    pub max_abs_err_rad_std: f64,
+    pub max_abs_err_rad_ci95_lo: f64,
+    pub max_abs_err_rad_ci95_hi: f64,
+    /// The same for `tde_err_rms`.
+    pub tde_err_rms_std: f64,
+    pub tde_err_rms_ci95_lo: f64,
+    pub tde_err_rms_ci95_hi: f64,
+    /// The same for `latency_cost`.
+    pub latency_cost_std: f64,
+    pub latency_cost_ci95_lo: f64,
+    pub latency_cost_ci95_hi: f64,
+    /// Relative change of `rms_rad`, `max_abs_err_rad` and `tde_err_rms` under the round-off
+    /// twin of the first seed's run (see [`crate::record::sensitivity`]); NaN without a twin
+    /// (realtime points, `sensitivity = false`).
+    pub rms_rad_roundoff: f64,
+    pub max_abs_err_rad_roundoff: f64,
+    pub tde_err_rms_roundoff: f64,
 }
 
 impl Row {
@@ -127,7 +161,90 @@ pub(super) fn row(
         round_trip_p999_us: timing
             .filter(|t| t.round_trip.count > 0)
             .map(|t| t.round_trip.p999_us),
+        latency_cost: nan,
+        repeats: 1,
+        repeats_ok: u32::from(status == RunStatus::Ok),
+        seed: 0,
+        rms_rad_std: nan,
+        rms_rad_ci95_lo: nan,
+        rms_rad_ci95_hi: nan,
+        max_abs_err_rad_std: nan,
+        max_abs_err_rad_ci95_lo: nan,
+        max_abs_err_rad_ci95_hi: nan,
+        tde_err_rms_std: nan,
+        tde_err_rms_ci95_lo: nan,
+        tde_err_rms_ci95_hi: nan,
+        latency_cost_std: nan,
+        latency_cost_ci95_lo: nan,
+        latency_cost_ci95_hi: nan,
+        rms_rad_roundoff: m.and_then(|m| m.sensitivity).map_or(nan, |x| x.rms_rel),
+        max_abs_err_rad_roundoff: m.and_then(|m| m.sensitivity).map_or(nan, |x| x.max_err_rel),
+        tde_err_rms_roundoff: m
+            .and_then(|m| m.sensitivity)
+            .and_then(|x| x.tde_rel)
+            .unwrap_or(nan),
     }
+}
+
+/// One row out of a point's repeats (in seed order; at least one): status and reason of the
+/// first repeat that did not end `ok` (its seed named), else `ok`; each metric the mean over
+/// the repeats that ended `ok`, with the standard deviation and 95 % CI of the headline ones;
+/// counts and round-trip tails the largest; the round-off spreads of the first repeat.
+pub(super) fn summarise(reps: Vec<Row>) -> Row {
+    let ok: Vec<&Row> = reps.iter().filter(|r| r.status == RunStatus::Ok).collect();
+    let first_bad = reps.iter().find(|r| r.status != RunStatus::Ok);
+    let n = reps.len() as u32;
+    let mut out = reps[0].clone();
+    if n == 1 {
+        return out;
+    }
+    if let Some(b) = first_bad {
+        out.status = b.status;
+        out.diverged_at_tick = b.diverged_at_tick;
+        out.reason = format!("seed {}: {}", b.seed, b.reason);
+    }
+    let mean = |f: Metric| {
+        stats::Interval::of(&ok.iter().map(|r| f(r)).collect::<Vec<_>>())
+            .map_or(f64::NAN, |i| i.mean)
+    };
+    let ci = |f: Metric| stats::Interval::of(&ok.iter().map(|r| f(r)).collect::<Vec<_>>());
+    let nan3 = (f64::NAN, f64::NAN, f64::NAN);
+    let spread = |i: Option<stats::Interval>| i.map_or(nan3, |i| (i.std, i.ci95_lo, i.ci95_hi));
+    out.rms_rad = mean(|r| r.rms_rad);
+    out.max_abs_err_rad = mean(|r| r.max_abs_err_rad);
+    out.task_rms_mm = mean(|r| r.task_rms_mm);
+    out.tde_err_rms = mean(|r| r.tde_err_rms);
+    out.delta_n_max = mean(|r| r.delta_n_max);
+    out.delta_n_p999 = mean(|r| r.delta_n_p999);
+    out.k2_required = mean(|r| r.k2_required);
+    out.hf_torque_share = mean(|r| r.hf_torque_share);
+    out.latency_cost = mean(|r| r.latency_cost);
+    out.eq43_holds = !ok.is_empty() && ok.iter().all(|r| r.eq43_holds);
+    out.clamp_count = reps.iter().map(|r| r.clamp_count).max().unwrap_or(0);
+    out.deadline_misses = reps.iter().filter_map(|r| r.deadline_misses).max();
+    out.round_trip_p999_us = reps
+        .iter()
+        .filter_map(|r| r.round_trip_p999_us)
+        .reduce(f64::max);
+    out.repeats = n;
+    out.repeats_ok = ok.len() as u32;
+    (out.rms_rad_std, out.rms_rad_ci95_lo, out.rms_rad_ci95_hi) = spread(ci(|r| r.rms_rad));
+    (
+        out.max_abs_err_rad_std,
+        out.max_abs_err_rad_ci95_lo,
+        out.max_abs_err_rad_ci95_hi,
+    ) = spread(ci(|r| r.max_abs_err_rad));
+    (
+        out.tde_err_rms_std,
+        out.tde_err_rms_ci95_lo,
+        out.tde_err_rms_ci95_hi,
+    ) = spread(ci(|r| r.tde_err_rms));
+    (
+        out.latency_cost_std,
+        out.latency_cost_ci95_lo,
+        out.latency_cost_ci95_hi,
+    ) = spread(ci(|r| r.latency_cost));
+    out
 }
 
 /// The config of one grid point: the base with the axes applied, validated.
@@ -161,35 +278,75 @@ pub(super) fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
     Ok(c)
 }
 
-pub(super) fn run_job(base: &RunConfig, job: &Job, mode: LoopMode, dir: &Path) -> Row {
+/// Runs one point: `sw.repeats` runs with sensor-noise seeds base, base + 1, … (each a row,
+/// [`summarise`]d into one), the first one's round-off twin when `sw.sensitivity` (not in
+/// realtime), and for a realtime point the same config with ideal timing for its latency cost.
+pub(super) fn run_job(sw: &SweepFile, base: &RunConfig, job: &Job, dir: &Path) -> Row {
+    let seed0 = base.sensor.seed;
+    let reps = (0..sw.repeats.max(1))
+        .map(|i| {
+            let seed = seed0.wrapping_add(u64::from(i));
+            let twin = sw.sensitivity && i == 0;
+            let sub = (sw.repeats > 1).then(|| format!("r{i}"));
+            let mut r = run_one(base, job, sw.mode, dir, seed, twin, sub.as_deref());
+            r.seed = seed;
+            r
+        })
+        .collect();
+    summarise(reps)
+}
+
+/// One run of a point with sensor seed `seed`; `twin`: with its round-off twin; `sub`: the
+/// repeat's own sub-folder of the point's folder (process modes).
+fn run_one(
+    base: &RunConfig,
+    job: &Job,
+    mode: LoopMode,
+    dir: &Path,
+    seed: u64,
+    twin: bool,
+    sub: Option<&str>,
+) -> Row {
     let ts_s = base.loop_.ts_s;
-    let attempt = || -> Result<(LawMetrics, Option<crate::timing::TimingSummary>)> {
-        let cfg = point_config(base, job)?;
-        let study = Study::new(cfg).context("reference")?;
-        let mode = if job.realtime {
-            LoopMode::Realtime
-        } else {
-            mode
-        };
-        let pdir = dir.join("points").join(&study.config.name);
-        if mode.is_process() {
-            std::fs::create_dir_all(&pdir)?;
-            std::fs::write(pdir.join("config.toml"), study.config.to_toml_string())?;
-        }
-        Ok(
-            match loops::run_law(&study, job.law, mode, &pdir, &Keep::default(), None)? {
-                Ran::Process(r) => (r.run.metrics, Some(r.timing.summary())),
-                Ran::Inproc(run) => (run.metrics, None),
-            },
-        )
-    };
     let mode = if job.realtime {
         LoopMode::Realtime
     } else {
         mode
     };
+    let attempt = || -> Result<(LawMetrics, Option<crate::timing::TimingSummary>, f64)> {
+        let mut cfg = point_config(base, job)?;
+        cfg.sensor.seed = seed;
+        let study = Study::new(cfg).context("reference")?;
+        let mut pdir = dir.join("points").join(&study.config.name);
+        if let Some(s) = sub {
+            pdir = pdir.join(s);
+        }
+        if mode.is_process() {
+            std::fs::create_dir_all(&pdir)?;
+            std::fs::write(pdir.join("config.toml"), study.config.to_toml_string())?;
+        }
+        let (mut m, timing) =
+            match loops::run_law(&study, job.law, mode, &pdir, &Keep::default(), None)? {
+                Ran::Process(r) => (r.run.metrics, Some(r.timing.summary())),
+                Ran::Inproc(run) => (run.metrics, None),
+            };
+        if twin && mode != LoopMode::Realtime {
+            let t = inproc::run_twin(&study, job.law)?;
+            m.sensitivity = Some(Sensitivity::between(&m, &t.metrics));
+        }
+        let cost = if mode == LoopMode::Realtime && m.status == RunStatus::Ok {
+            let ideal = inproc::run_law(&study, job.law, &Keep::default())?;
+            maxj(m.rms_rad) / maxj(ideal.metrics.rms_rad)
+        } else {
+            f64::NAN
+        };
+        Ok((m, timing, cost))
+    };
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(attempt)) {
-        Ok(Ok((m, t))) => row(job, ts_s, mode, Some(&m), None, t.as_ref()),
+        Ok(Ok((m, t, cost))) => Row {
+            latency_cost: cost,
+            ..row(job, ts_s, mode, Some(&m), None, t.as_ref())
+        },
         Ok(Err(e)) => row(job, ts_s, mode, None, Some(format!("{e:#}")), None),
         Err(p) => {
             let what = p

@@ -4,6 +4,7 @@ use super::plots::on_grid;
 use super::point::{Metric, Row};
 use super::schema::SweepFile;
 use crate::record::RunStatus;
+use crate::record::{sensitivity, stats};
 use deltaloop_config::config::PathKind;
 use deltaloop_config::{Law, LoopMode, Preset};
 use std::fmt::Write as _;
@@ -47,11 +48,62 @@ pub(super) fn latency_budget(
     Some((zero, best.0, best.1))
 }
 
-pub(super) fn cell(r: Option<&Row>, get: Metric) -> String {
+/// A metric as the sweep's tables show it: its value (with the CI's half-width when the row
+/// has repeats), the round-off spread of its twin (NaN: none) and the interval.
+#[derive(Clone, Copy)]
+pub(super) struct Shown {
+    pub value: Metric,
+    pub roundoff: Metric,
+    pub ci: fn(&Row) -> (f64, f64),
+}
+
+/// RMS joint error, max over joints.
+pub(super) const RMS: Shown = Shown {
+    value: |r| r.rms_rad,
+    roundoff: |r| r.rms_rad_roundoff,
+    ci: |r| (r.rms_rad_ci95_lo, r.rms_rad_ci95_hi),
+};
+
+/// TDE error RMS, max over joints.
+pub(super) const TDE: Shown = Shown {
+    value: |r| r.tde_err_rms,
+    roundoff: |r| r.tde_err_rms_roundoff,
+    ci: |r| (r.tde_err_rms_ci95_lo, r.tde_err_rms_ci95_hi),
+};
+
+/// A value with 3 significant digits, or fewer when its round-off twin moved it by more
+/// (`†` marks those), then `±x %`: the half-width of its 95 % CI over the repeats.
+pub(super) fn value_text(r: &Row, m: Shown) -> String {
+    let x = (m.value)(r);
+    let rel = (m.roundoff)(r);
+    let mut t = if rel.is_finite() && sensitivity::is_sensitive(rel) {
+        format!("{}†", sensitivity::sci(x, rel))
+    } else {
+        format!("{x:.2e}")
+    };
+    let (lo, hi) = (m.ci)(r);
+    if lo.is_finite() && hi.is_finite() && x != 0.0 {
+        let _ = write!(t, " ±{}", pct((hi - lo) / 2.0 / x.abs()));
+    }
+    t
+}
+
+/// A relative half-width in percent, with the digits it deserves.
+fn pct(x: f64) -> String {
+    if x < 0.001 {
+        "<0.1 %".into()
+    } else if x < 0.1 {
+        format!("{:.1} %", x * 100.0)
+    } else {
+        format!("{:.0} %", x * 100.0)
+    }
+}
+
+pub(super) fn cell(r: Option<&Row>, m: Shown) -> String {
     match r {
         None => "–".into(),
         Some(r) => match r.status {
-            RunStatus::Ok => format!("{:.2e}", get(r)),
+            RunStatus::Ok => value_text(r, m),
             RunStatus::Diverged => format!("div@{}", r.diverged_at_tick.unwrap_or(0)),
             RunStatus::Interrupted => "–".into(),
             other => other.name().into(),
@@ -67,7 +119,7 @@ pub(super) fn axis_table<'a>(
     values: &[u32],
     laws: &[Law],
     find: impl Fn(Law, u32) -> Option<&'a Row>,
-    get: Metric,
+    get: Shown,
 ) {
     let _ = writeln!(s, "{caption}:\n");
     let _ = write!(s, "| law |");
@@ -127,11 +179,12 @@ pub(super) fn report(
             "A stopped run ended on a loop fault, not by diverging: e.g. a controller that missed its torque budget `faults.controller_silence_ticks` times in a row, after which the plant braked to a safe stop. The fault is the row's `reason` in `sweep.csv`.\n"
         );
     }
+    reading_note(&mut s, sw, rows);
     grid_tables(&mut s, sw, rows);
     if !sw.compute_delay_us.is_empty() {
         let _ = writeln!(
             s,
-            "## Controller compute delay (realtime)\n\n| scenario | preset | law | compute delay (µs) | status | RMS (rad) | misses | round trip p99.9 (µs) | reason |\n|---|---|---|---|---|---|---|---|---|"
+            "## Controller compute delay (realtime)\n\nLatency cost: the RMS over that of the same config with ideal timing (in-process, same seed).\n\n| scenario | preset | law | compute delay (µs) | status | RMS (rad) | latency cost | misses | round trip p99.9 (µs) | reason |\n|---|---|---|---|---|---|---|---|---|---|"
         );
         for r in rows
             .iter()
@@ -139,13 +192,14 @@ pub(super) fn report(
         {
             let _ = writeln!(
                 s,
-                "| {} | {} | `{}` | {} | {} | {:.2e} | {} | {} | {} |",
+                "| {} | {} | `{}` | {} | {} | {} | {} | {} | {} | {} |",
                 r.scenario,
                 r.preset,
                 r.law,
                 r.compute_delay_us,
                 r.status,
-                r.rms_rad,
+                value_text(r, RMS),
+                value_text(r, COST),
                 r.deadline_misses.map_or("–".into(), |m| m.to_string()),
                 r.round_trip_p999_us
                     .map_or("–".into(), |p| format!("{p:.1}")),
@@ -164,13 +218,46 @@ pub(super) fn report(
     s
 }
 
+/// The latency cost of a realtime point (no round-off twin in realtime).
+const COST: Shown = Shown {
+    value: |r| r.latency_cost,
+    roundoff: |_| f64::NAN,
+    ci: |r| (r.latency_cost_ci95_lo, r.latency_cost_ci95_hi),
+};
+
+/// How to read the cells: repeats and their interval, round-off marks.
+fn reading_note(s: &mut String, sw: &SweepFile, rows: &[Row]) {
+    if sw.repeats > 1 {
+        let _ = writeln!(
+            s,
+            "Each point ran {} times, with sensor-noise seeds {} to {}; a cell is the mean over the runs that ended `ok`, ± the half-width of its {} (relative to the mean). `sweep.csv` has the standard deviation and both ends of each interval.\n",
+            sw.repeats,
+            rows.first().map_or(0, |r| r.seed),
+            rows.first()
+                .map_or(0, |r| r.seed + u64::from(sw.repeats) - 1),
+            stats::CI_METHOD
+        );
+    }
+    if sw.sensitivity {
+        let touchy = rows
+            .iter()
+            .filter(|r| {
+                r.rms_rad_roundoff.is_finite() && sensitivity::is_sensitive(r.rms_rad_roundoff)
+            })
+            .count();
+        let _ = writeln!(
+            s,
+            "Round-off: every deterministic point also ran its twin with {}; a value its twin moved by more than 5·10⁻⁵ is marked † and keeps only the digits that survive ({touchy} points on the RMS; the spreads are the `*_roundoff` columns of `sweep.csv`). A difference between two † values smaller than their spread is not a result.\n",
+            sensitivity::PERTURBATION
+        );
+    }
+}
+
 /// The grid's tables: per scenario and preset, each metric against ℓ and against d.
 fn grid_tables(s: &mut String, sw: &SweepFile, rows: &[Row]) {
-    let tables: [(&str, Metric); 2] = [
-        ("RMS joint error, max over joints (rad)", |r| r.rms_rad),
-        ("TDE error RMS, max over joints (rad/s²)", |r| {
-            r.tde_err_rms
-        }),
+    let tables: [(&str, Shown); 2] = [
+        ("RMS joint error, max over joints (rad)", RMS),
+        ("TDE error RMS, max over joints (rad/s²)", TDE),
     ];
     for &sc in &sw.scenarios {
         let scn = sc.name();

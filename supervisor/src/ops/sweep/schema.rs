@@ -33,7 +33,27 @@ pub struct SweepFile {
     /// ℓ and d above. Empty: no realtime runs.
     #[serde(default)]
     pub compute_delay_us: Vec<u32>,
+    /// Runs per point, with sensor-noise seeds `sensor.seed` of the base, + 1, …, + repeats − 1
+    /// (in realtime, that many runs); each row holds the means with standard deviations and
+    /// t-based 95 % confidence intervals. 1..=1000, default 1.
+    #[serde(default = "one")]
+    pub repeats: u32,
+    /// Run each point's round-off twin (the first seed's; not in realtime) and report how far
+    /// its metrics move. Default true.
+    #[serde(default = "yes")]
+    pub sensitivity: bool,
 }
+
+fn one() -> u32 {
+    1
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// Most repeats a sweep point may run.
+pub const MAX_REPEATS: u32 = 1000;
 
 /// One point's parameters.
 #[derive(Debug, Clone, PartialEq)]
@@ -139,6 +159,12 @@ pub(super) fn check(sw: &SweepFile) -> Result<()> {
             "sweep key `transport_delay_us` lists {}: each value 0 <= us <= {} µs",
             cfgfile::show_num(us),
             cfgfile::MAX_TRANSPORT_DELAY_US
+        );
+    }
+    if !(1..=MAX_REPEATS).contains(&sw.repeats) {
+        bail!(
+            "sweep key `repeats` = {} is out of range: 1..={MAX_REPEATS} runs per point",
+            sw.repeats
         );
     }
     point_count(sw)?;

@@ -126,7 +126,7 @@ pub fn run(
     };
     let run_one = |i: usize| -> Result<()> {
         let p = &plan.points[i];
-        let mut r = run_job(&plan.base, &p.job, plan.sweep.mode, out);
+        let mut r = run_job(&plan.sweep, &plan.base, &p.job, out);
         r.point = p.id.clone();
         record(r)
     };

@@ -8,8 +8,8 @@ use crate::loops::lawrun::LawRun;
 use crate::ops::run;
 use crate::output::plot::{self, Panel, Series, Series3};
 use crate::output::report::{limit_cycle, paper_rms, paper_table};
-use crate::record::RunStatus;
 use crate::record::metrics::LawMetrics;
+use crate::record::{RunStatus, sensitivity};
 use crate::study::Study;
 use crate::study::analysis::{Mismatch, mismatch};
 use anyhow::{Context, Result};
@@ -21,6 +21,8 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+
+pub mod robust;
 
 /// The laws of the study: the paper's pair first, then our baselines. The paper's tables,
 /// verdicts and figures are about these four.
@@ -43,32 +45,32 @@ const CONFIGS: [(Preset, &str, &str); 6] = [
     (
         Preset::Matched,
         "s1-nominal",
-        include_str!("../../../configs/s1-nominal.toml"),
+        include_str!("../../../../configs/s1-nominal.toml"),
     ),
     (
         Preset::Matched,
         "s2-fast",
-        include_str!("../../../configs/s2-fast.toml"),
+        include_str!("../../../../configs/s2-fast.toml"),
     ),
     (
         Preset::Matched,
         "s3-composite",
-        include_str!("../../../configs/s3-composite.toml"),
+        include_str!("../../../../configs/s3-composite.toml"),
     ),
     (
         Preset::Paper,
         "s1-nominal",
-        include_str!("../../../configs/paper/s1-nominal.toml"),
+        include_str!("../../../../configs/paper/s1-nominal.toml"),
     ),
     (
         Preset::Paper,
         "s2-fast",
-        include_str!("../../../configs/paper/s2-fast.toml"),
+        include_str!("../../../../configs/paper/s2-fast.toml"),
     ),
     (
         Preset::Paper,
         "s3-composite",
-        include_str!("../../../configs/paper/s3-composite.toml"),
+        include_str!("../../../../configs/paper/s3-composite.toml"),
     ),
 ];
 
@@ -104,6 +106,9 @@ pub struct PaperSummary {
     /// The paper's published RMS (rad) per scenario and law (TDC+IS = `tde-is`, TDC+IS+STA = `tdc-is-sta`).
     pub paper_rms_rad: BTreeMap<PathKind, BTreeMap<Law, [f64; 3]>>,
     pub cases: Vec<Case>,
+    /// The robustness table (sensor-noise seeds, realtime runs), unless `--seeds 0`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robustness: Option<robust::Robustness>,
 }
 
 /// The reference's task-space path and each run's FK(q), for the 3-D figure.
@@ -218,6 +223,7 @@ fn joint_panels(
             series: runs
                 .iter()
                 .map(|r| Series {
+                    bars: Vec::new(),
                     name: format!("{} ({})", r.law.paper_name(), r.law.name()),
                     color: plot::law_color(r.law),
                     points: ks
@@ -288,8 +294,30 @@ pub fn sta_window(a: &LawRun, b: &LawRun, len: usize) -> std::ops::Range<usize> 
 
 /// Runs the study into `out`.
 /// `out` must be empty or new unless `force`.
+/// What `deltaloop paper` runs besides the cases.
+#[derive(Clone, Copy, Debug)]
+pub struct Options {
+    /// Each case's round-off twins (not in realtime).
+    pub sensitivity: bool,
+    /// Sensor-noise seeds of the robustness table (0: no table).
+    pub seeds: u32,
+    /// Realtime runs per scenario of the robustness table (0: none).
+    pub realtime_runs: u32,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            sensitivity: true,
+            seeds: robust::SEEDS,
+            realtime_runs: robust::REALTIME_RUNS,
+        }
+    }
+}
+
 pub fn run(
     mode: LoopMode,
+    opts: Options,
     out: &Path,
     force: bool,
     command: &str,
@@ -306,16 +334,23 @@ pub fn run(
             preset.name(),
             mode.name()
         ));
-        cases.push(run_case(preset, name, text, mode, out, command)?);
+        let twins = opts.sensitivity && mode != LoopMode::Realtime;
+        cases.push(run_case(preset, name, text, mode, twins, out, command)?);
         bar.inc(1);
     }
     bar.finish_and_clear();
+    let robustness = if opts.seeds > 0 {
+        Some(robust::run(out, opts.seeds, opts.realtime_runs, progress)?)
+    } else {
+        None
+    };
     let summary = PaperSummary {
         mode,
         command: command.into(),
         elapsed_s: t0.elapsed().as_secs_f64(),
         paper_rms_rad: published_rms(),
         cases,
+        robustness,
     };
     std::fs::write(
         out.join("summary.json"),
@@ -332,6 +367,7 @@ fn run_case(
     name: &str,
     text: &str,
     mode: LoopMode,
+    sensitivity: bool,
     out: &Path,
     command: &str,
 ) -> Result<Case> {
@@ -345,6 +381,7 @@ fn run_case(
     let o = run::run(run::RunRequest {
         out: Some(out.join(&rel)),
         keep_records: true,
+        sensitivity,
         ..run::RunRequest::new(cfg, mode, command)
     })?;
     let title = format!("{} ({} preset)", scn.to_uppercase(), preset.name());
@@ -392,6 +429,35 @@ pub fn fmt_rms(x: f64) -> String {
 }
 
 fn verdict(c: &Case) -> String {
+    format!("{}{}", verdict_words(c), spread_clause(c))
+}
+
+/// Whether the STA/IS ratio's distance from 1 exceeds the round-off spread of the two runs (the
+/// sum of their RMS spreads), when they had twins.
+fn spread_clause(c: &Case) -> String {
+    let (Some(is), Some(sta)) = (
+        c.laws[&Law::TdeIs].sensitivity,
+        c.laws[&Law::TdcIsSta].sensitivity,
+    ) else {
+        return String::new();
+    };
+    let spread = is.rms_rel + sta.rms_rel;
+    let margin = c
+        .sta_over_is_rms
+        .iter()
+        .map(|r| (r - 1.0).abs())
+        .fold(f64::INFINITY, f64::min);
+    let shown = crate::record::sensitivity::show_spread(spread);
+    if margin > spread {
+        format!("; beyond the round-off spread of the pair ({shown})")
+    } else {
+        format!(
+            "; **within the round-off spread** of the pair ({shown}) on some joint: this run does not decide it"
+        )
+    }
+}
+
+fn verdict_words(c: &Case) -> String {
     let r = c.sta_over_is_rms;
     let (is, sta) = (&c.laws[&Law::TdeIs], &c.laws[&Law::TdcIsSta]);
     if is.status != RunStatus::Ok || sta.status != RunStatus::Ok {
@@ -462,6 +528,9 @@ fn report(s: &PaperSummary) -> String {
         unreported_table(&mut o, &cs);
         figure_list(&mut o, &cs);
     }
+    if let Some(r) = &s.robustness {
+        robust::markdown(&mut o, r);
+    }
     mismatch_explanation(&mut o, s);
     sta_comparison(&mut o, s);
     o
@@ -492,13 +561,13 @@ fn intro(o: &mut String, s: &PaperSummary) {
 fn rms_table(o: &mut String, s: &PaperSummary, scn: PathKind, cs: &[&Case]) {
     let _ = writeln!(
         o,
-        "| source | controller | Joint 1 | Joint 2 | Joint 3 |\n|---|---|---|---|---|"
+        "| source | controller | Joint 1 | Joint 2 | Joint 3 | round-off |\n|---|---|---|---|---|---|"
     );
     for law in [Law::TdeIs, Law::TdcIsSta] {
         if let Some(v) = s.paper_rms_rad.get(&scn).and_then(|m| m.get(&law)) {
             let _ = writeln!(
                 o,
-                "| paper (published) | {} | {} | {} | {} |",
+                "| paper (published) | {} | {} | {} | {} | – |",
                 law.paper_name(),
                 fmt_rms(v[0]),
                 fmt_rms(v[1]),
@@ -513,15 +582,18 @@ fn rms_table(o: &mut String, s: &PaperSummary, scn: PathKind, cs: &[&Case]) {
                 RunStatus::Ok => String::new(),
                 st => format!(" ({st} at tick {})", m.status_tick.unwrap_or(0)),
             };
+            let rel = m.sensitivity.map(|x| x.rms_rel);
+            let f = |x: f64| rel.map_or_else(|| fmt_rms(x), |r| sensitivity::sci(x, r));
             let _ = writeln!(
                 o,
-                "| ours, `{}` | {} (`{}`){st} | {} | {} | {} |",
+                "| ours, `{}` | {} (`{}`){st} | {} | {} | {} | {} |",
                 c.preset,
                 law.paper_name(),
                 law.name(),
-                fmt_rms(m.rms_rad[0]),
-                fmt_rms(m.rms_rad[1]),
-                fmt_rms(m.rms_rad[2])
+                f(m.rms_rad[0]),
+                f(m.rms_rad[1]),
+                f(m.rms_rad[2]),
+                rel.map_or("–".into(), sensitivity::show_spread)
             );
         }
     }
@@ -876,6 +948,24 @@ pub fn terminal(s: &PaperSummary, out: &Path) -> String {
             }
         }
     }
+    if let Some(r) = &s.robustness {
+        let _ = writeln!(
+            o,
+            "robustness ({} seeds in-process, {} realtime runs; ratio mean [95 % CI], sensor noise on):",
+            r.seeds, r.realtime_runs
+        );
+        for row in &r.rows {
+            let _ = writeln!(
+                o,
+                "  {:<3} {:<8} {:<9} STA/IS {:<28} {}",
+                row.scenario,
+                row.preset,
+                row.mode,
+                row.sta_over_is.map_or("–".into(), |i| i.show()),
+                robust::verdict(row.sta_over_is.as_ref())
+            );
+        }
+    }
     let _ = writeln!(o, "report: {}", out.join("report.md").display());
     o
 }
@@ -897,7 +987,7 @@ mod tests {
             );
         assert!(text.contains("tau_max_nm = 90.0") && text.contains("k1 = 650.0"));
         let out = std::env::temp_dir().join(format!("deltaloop-paper-k1-{}", std::process::id()));
-        let case = run_case(preset, name, &text, LoopMode::Inproc, &out, "test");
+        let case = run_case(preset, name, &text, LoopMode::Inproc, false, &out, "test");
         let _ = std::fs::remove_dir_all(&out);
         let summary = PaperSummary {
             mode: LoopMode::Inproc,
@@ -905,6 +995,7 @@ mod tests {
             elapsed_s: 0.0,
             paper_rms_rad: published_rms(),
             cases: vec![case.unwrap()],
+            robustness: None,
         };
         let md = report(&summary);
         for quoted in [
