@@ -315,3 +315,47 @@ print(json.dumps(rows))
         }
     }
 }
+
+/// `bench plant --mujoco PYTHON` times MuJoCo on the built-in plant's motion: the two agree on q
+/// after the first 0.3 s (measured 3.4e-9 rad, the `--check` gap; asserted 1e-7 rad, which a
+/// different start, torque or step fails by orders of magnitude), and the last line carries
+/// MuJoCo's wall seconds per simulated second and the ratio to the plant's.
+#[test]
+fn bench_plant_times_mujoco_on_the_same_motion() {
+    let py = python().to_str().unwrap().to_string();
+    let o = run_cmd(
+        Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+            .args(["bench", "plant", "--seconds", "0.3", "--repeats", "1"])
+            .args(["--mujoco", &py])
+            .current_dir(root()),
+        "bench plant --mujoco",
+    );
+    let out = text(&o.stdout);
+    assert!(o.status.success(), "{out}{}", text(&o.stderr));
+    let gap = out
+        .lines()
+        .find(|l| l.starts_with("MuJoCo against deltaloop"))
+        .unwrap_or_else(|| panic!("no q comparison in\n{out}"));
+    let dq: f64 = gap
+        .split("max |dq| = ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|x| x.parse().ok())
+        .unwrap_or_else(|| panic!("{gap}"));
+    assert!(dq < 1e-7, "{gap}");
+    let last: std::collections::HashMap<&str, f64> = out
+        .lines()
+        .last()
+        .unwrap()
+        .split_whitespace()
+        .filter_map(|kv| kv.split_once('='))
+        .map(|(k, v)| (k, v.parse().unwrap()))
+        .collect();
+    let (plant, mujoco, ratio) = (
+        last["plant_wall_per_sim_s"],
+        last["mujoco_wall_per_sim_s"],
+        last["ratio"],
+    );
+    assert!(plant > 0.0 && mujoco > 0.0, "{out}");
+    assert!((ratio - mujoco / plant).abs() <= 0.01 * ratio, "{out}");
+}

@@ -52,7 +52,7 @@ impl DeltaRobot {
     /// The hot path of the simulation (four calls per RK4 step), so written out: M = Ib I + mn JᵀJ
     /// (symmetric, six entries), C q̇ + G = mn Jᵀ(J̇q̇ + g e_z) − g μ cos q, and a 3×3 Cholesky
     /// solve (M is SPD). Allocates nothing.
-    #[inline]
+    #[inline(always)]
     pub fn forward_dynamics(
         &self,
         pose: &Pose,

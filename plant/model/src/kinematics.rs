@@ -51,7 +51,7 @@ impl Margins {
 
 /// (sin q_i, cos q_i), one call per joint. The plant uses the pure-Rust `libm` for its
 /// transcendental functions: faster here than the system's, and the same bits on every machine.
-#[inline]
+#[inline(always)]
 fn sin_cos(q: &Vec3) -> (Vec3, Vec3) {
     let (s0, c0) = libm::sincos(q[0]);
     let (s1, c1) = libm::sincos(q[1]);
@@ -66,7 +66,7 @@ fn arr(v: &Vec3) -> [f64; 3] {
 impl DeltaRobot {
     /// Sphere centres C_i = E_i(q_i) − r u_i (m) from sin q_i and cos q_i, where the elbow is
     /// E_i = A_i + La (cos q_i u_i − sin q_i e_z).
-    #[inline]
+    #[inline(always)]
     fn sphere_centres(&self, sin_q: &Vec3, cos_q: &Vec3) -> [Vec3; 3] {
         let (la, rr) = (
             self.p.upper_arm,
@@ -110,7 +110,7 @@ impl DeltaRobot {
     }
 
     /// Three-sphere intersection (lower root) of the centres C_i with radius Lb.
-    #[inline]
+    #[inline(always)]
     fn intersect(&self, q: &Vec3, c: &[Vec3; 3]) -> Result<Vec3, KinematicsError> {
         let a = c[1] - c[0];
         let b = c[2] - c[0];
@@ -136,7 +136,7 @@ impl DeltaRobot {
 
     /// The geometry at q (FK plus the forearm vectors, A⁻¹ and β); the building block of every
     /// velocity and dynamics query. One sin/cos per joint.
-    #[inline]
+    #[inline(always)]
     pub fn pose(&self, q: &Vec3) -> Result<Pose, KinematicsError> {
         let (sin_q, cos_q) = sin_cos(q);
         let c = self.sphere_centres(&sin_q, &cos_q);
@@ -145,14 +145,14 @@ impl DeltaRobot {
     }
 
     /// As [`pose`](Self::pose), with the platform position x = FK(q) already known (m).
-    #[inline]
+    #[inline(always)]
     pub fn pose_at(&self, q: &Vec3, x: &Vec3) -> Pose {
         let (sin_q, cos_q) = sin_cos(q);
         let c = self.sphere_centres(&sin_q, &cos_q);
         self.assemble(q, x, sin_q, cos_q, &c)
     }
 
-    #[inline]
+    #[inline(always)]
     fn assemble(&self, q: &Vec3, x: &Vec3, sin_q: Vec3, cos_q: Vec3, c: &[Vec3; 3]) -> Pose {
         let la = self.p.upper_arm;
         // d_i = P_i − E_i = (x + r u_i) − E_i = x − C_i.
@@ -213,7 +213,7 @@ impl DeltaRobot {
 
 impl Pose {
     /// Jacobian J = A⁻¹B (ẋ = J q̇), m/rad.
-    #[inline]
+    #[inline(always)]
     pub fn jacobian(&self) -> Mat3 {
         let mut j = self.a_inv;
         for i in 0..3 {
@@ -237,7 +237,7 @@ impl Pose {
     }
 
     /// γ_i = (d_i·n_i) q̇_i² − |ḋ_i|², m²/s² (docs/delta-robot.md §3.4), given ẋ (m/s) and q̇ (rad/s).
-    #[inline]
+    #[inline(always)]
     pub fn gamma(&self, xd: &Vec3, qd: &Vec3) -> Vec3 {
         let dd = self.d_dot(xd, qd);
         Vec3::from_fn(|i, _| self.d[i].dot(&self.n[i]) * qd[i] * qd[i] - dd[i].norm_squared())

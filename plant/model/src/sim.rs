@@ -100,7 +100,7 @@ impl PlantSim {
     }
 
     /// (q̇, q̈) at (q, q̇) under joint torque τ (N m), including friction if enabled.
-    #[inline]
+    #[inline(always)]
     fn deriv(&self, q: &Vec3, qd: &Vec3, tau: &Vec3, check: bool) -> Result<Vec3, KinematicsError> {
         let pose = self.robot.pose(q)?;
         if check {

@@ -29,7 +29,7 @@ enum What {
         #[arg(long, default_value = "runs/bench-loop")]
         out: PathBuf,
     },
-    /// Wall seconds per simulated second: the plant alone (RK4, h = Ts/10) and the in-process loop.
+    /// Wall seconds per simulated second: the plant alone (RK4, h = Ts/10), the in-process loop and MuJoCo on the same model.
     Plant {
         /// Simulated seconds per measurement.
         #[arg(long, default_value_t = 2.0, value_parser = parse_positive_seconds)]
@@ -37,12 +37,21 @@ enum What {
         /// Measurements (the median is reported).
         #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
         repeats: u32,
+        /// Python with the pinned `mujoco` that times MuJoCo on the same model, motion and step
+        /// (examples/mujoco-plant/bench.py); default: target/python-venv/bin/python if it exists,
+        /// else MuJoCo is skipped.
+        #[arg(long, value_name = "PYTHON")]
+        mujoco: Option<PathBuf>,
     },
 }
 
 pub fn exec(a: Args, _cx: &Context) -> Result<()> {
     match a.what {
-        What::Plant { seconds, repeats } => crate::ops::bench::plant(seconds, repeats),
+        What::Plant {
+            seconds,
+            repeats,
+            mujoco,
+        } => crate::ops::bench::plant(seconds, repeats, crate::ops::bench::Mujoco::find(mujoco)?),
         What::Loop {
             lockstep_seconds,
             rt_seconds,
