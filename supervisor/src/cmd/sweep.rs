@@ -67,14 +67,24 @@ enum Action {
     },
 }
 
-/// `N runs in T s: … ok, … diverged, …`.
+/// `N points in T s: … ok, … diverged, …` (and the runs, when points repeat).
 fn counts(rows: &[Row], secs: f64) -> String {
     let n = |st: RunStatus| rows.iter().filter(|r| r.status == st).count();
     // An interrupted point is not a run that finished: counted apart, when there is one.
     let interrupted = n(RunStatus::Interrupted);
+    let runs: u64 = rows
+        .iter()
+        .filter(|r| r.status != RunStatus::Interrupted)
+        .map(|r| u64::from(r.repeats))
+        .sum();
+    let points = rows.len() - interrupted;
     format!(
-        "{} runs in {secs:.1} s: {} ok, {} diverged, {} stopped, {} errors{}{}",
-        rows.len() - interrupted,
+        "{points} points{} in {secs:.1} s: {} ok, {} diverged, {} stopped, {} errors{}{}",
+        if runs as usize == points {
+            String::new()
+        } else {
+            format!(" ({runs} runs)")
+        },
         n(RunStatus::Ok),
         n(RunStatus::Diverged),
         n(RunStatus::Fault) + n(RunStatus::Stopped),

@@ -508,6 +508,9 @@ fn latency_cost_markdown(study: &Study, metrics: &[LawMetrics]) -> Result<String
     for line in crate::ops::replay::latency_cost(&measured, &ideal) {
         md.push_str(&format!("- {line}\n"));
     }
+    md.push_str(
+        "\nThis is one run: its timing is this run's. A sweep with `compute_delay_us = [0]` and `repeats = N` runs it N times and gives the cost's mean and 95 % confidence interval (docs/guide/trust.md).\n",
+    );
     Ok(md)
 }
 

@@ -94,12 +94,12 @@ pub fn sci(x: f64, rel: f64) -> String {
     format!("{x:.*e}", digits(x, rel) - 1)
 }
 
-/// A spread in words for the reports: `< 1e-9`, `2e-7`, or `±0.9 %` (one or two significant
+/// A spread in words for the reports: `< 1e-9`, `2e-7`, `4e-4`, or `±0.9 %` (one or two significant
 /// digits: the spread is itself one sample of round-off).
 pub fn show_spread(rel: f64) -> String {
     if rel < 1e-9 {
         "< 1e-9".into()
-    } else if rel < 1e-4 {
+    } else if rel < 1e-3 {
         format!("{rel:.0e}")
     } else if rel < 0.1 {
         format!("±{:.1} %", rel * 100.0)
@@ -145,6 +145,7 @@ mod tests {
         assert_eq!(rel_spread(f64::INFINITY, f64::INFINITY), 0.0);
         assert_eq!(show_spread(3e-12), "< 1e-9");
         assert_eq!(show_spread(2.2e-7), "2e-7");
+        assert_eq!(show_spread(4.4e-4), "4e-4");
         assert_eq!(show_spread(0.0094), "±0.9 %");
         assert_eq!(show_spread(0.25), "±25 %");
     }

@@ -139,12 +139,10 @@ impl RatioInterval {
 
     /// `geo_mean [lo, hi]` with 3 significant digits, for the reports.
     pub fn show(&self) -> String {
+        // Three significant digits.
         let g = |x: f64| {
-            if x.abs() >= 100.0 {
-                format!("{x:.0}")
-            } else {
-                format!("{x:.3}")
-            }
+            let d = (2 - x.abs().log10().floor() as i64).clamp(0, 6) as usize;
+            format!("{x:.d$}")
         };
         if self.n < 2 {
             return format!("{} (n = {})", g(self.geo_mean), self.n);
@@ -202,6 +200,14 @@ mod tests {
         let inv = RatioInterval::of(&[1.0, 1.0 / e, 1.0 / (e * e)]).unwrap();
         assert!((inv.ci95_lo * r.ci95_hi - 1.0).abs() < 1e-12);
         assert!(RatioInterval::of(&[0.5, 0.6, 0.55]).unwrap().below(1.0));
+        assert_eq!(
+            RatioInterval::of(&[77.5, 77.5]).unwrap().show(),
+            "77.5 [77.5, 77.5]"
+        );
+        assert_eq!(
+            RatioInterval::of(&[0.0123]).unwrap().show(),
+            "0.0123 (n = 1)"
+        );
     }
 
     #[test]

@@ -951,7 +951,7 @@ pub fn terminal(s: &PaperSummary, out: &Path) -> String {
     if let Some(r) = &s.robustness {
         let _ = writeln!(
             o,
-            "robustness ({} seeds in-process, {} realtime runs; ratio mean [95 % CI], sensor noise on):",
+            "robustness ({} seeds in-process, {} realtime runs, sensor noise on; ratio: geometric mean [95 % CI]):",
             r.seeds, r.realtime_runs
         );
         for row in &r.rows {

@@ -281,8 +281,8 @@ pub fn markdown(o: &mut String, r: &Robustness) {
         o,
         "## Robustness: does the ranking hold over sensor-noise seeds and realtime runs?\n\n\
          A single run's ratio can land on either side of 1 by chance. Here the sensor is realistic: \
-         a {}-count joint encoder (quantum {:.2} µrad), noise σ_q = {} rad before quantisation, \
-         σ_q̇ = {} rad/s on the measured velocity. Each case ran {} seeds (1..={}) in-process; \
+         a {}-count joint encoder (quantum {:.2} µrad), noise σ_q = {:e} rad before quantisation, \
+         σ_q̇ = {:e} rad/s on the measured velocity (`sensor` in `summary.json`). Each case ran {} seeds (1..={}) in-process; \
          the ratios are paired seed by seed (max-joint RMS of the law over that of `tde-is`, same \
          seed), as the {}. \"holds\": the whole interval is on one side of 1.\n",
         se.encoder_counts_per_rev,
@@ -327,7 +327,7 @@ pub fn markdown(o: &mut String, r: &Robustness) {
     }
     let _ = writeln!(
         o,
-        "\nRatios: mean [95 % CI]. Realtime rows: the matched preset, {} runs each, one after the other on this machine; each run's three laws ran with the same seed, so a ratio pairs the same noise under different measured timing. In-process part {:.1} s, realtime part {:.1} s.\n",
+        "\nRatios: geometric mean [95 % CI]. Realtime rows: the matched preset, {} runs each, one after the other on this machine; each run's three laws ran with the same seed, so a ratio pairs the same noise under different measured timing. In-process part {:.1} s, realtime part {:.1} s.\n",
         r.realtime_runs, r.inproc_s, r.realtime_s
     );
 }

@@ -71,12 +71,12 @@ pub(super) const TDE: Shown = Shown {
     ci: |r| (r.tde_err_rms_ci95_lo, r.tde_err_rms_ci95_hi),
 };
 
-/// A value with 3 significant digits, or fewer when its round-off twin moved it by more
-/// (`†` marks those), then `±x %`: the half-width of its 95 % CI over the repeats.
+/// A value with 3 significant digits, or fewer when its round-off twin moved it by more than a
+/// unit of the third (`†` marks those), then `±x %`: the half-width of its 95 % CI over the repeats.
 pub(super) fn value_text(r: &Row, m: Shown) -> String {
     let x = (m.value)(r);
     let rel = (m.roundoff)(r);
-    let mut t = if rel.is_finite() && sensitivity::is_sensitive(rel) {
+    let mut t = if rel.is_finite() && sensitivity::digits(x, rel) < 3 {
         format!("{}†", sensitivity::sci(x, rel))
     } else {
         format!("{x:.2e}")
@@ -146,7 +146,7 @@ pub(super) fn report(
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Sweep `{}`\n\n{}\n\nProduced by: `deltaloop sweep {}`. {} runs; deterministic axes in `{}` mode.\n",
+        "# Sweep `{}`\n\n{}\n\nProduced by: `deltaloop sweep {}`. {} points; deterministic axes in `{}` mode.\n",
         sw.name,
         sw.description,
         path.display(),
@@ -247,7 +247,7 @@ fn reading_note(s: &mut String, sw: &SweepFile, rows: &[Row]) {
             .count();
         let _ = writeln!(
             s,
-            "Round-off: every deterministic point also ran its twin with {}; a value its twin moved by more than 5·10⁻⁵ is marked † and keeps only the digits that survive ({touchy} points on the RMS; the spreads are the `*_roundoff` columns of `sweep.csv`). A difference between two † values smaller than their spread is not a result.\n",
+            "Round-off: every deterministic point also ran its twin with {}; a value its twin moved by a unit of its third digit or more is marked † and keeps only the digits that survive ({touchy} points moved their RMS by more than 5·10⁻⁵; the spreads are the `*_roundoff` columns of `sweep.csv`). A difference between two † values smaller than their spread is not a result.\n",
             sensitivity::PERTURBATION
         );
     }
