@@ -261,7 +261,7 @@ fn regression_interrupted_sweep_point_is_not_a_result() {
     }
     let report = std::fs::read_to_string(out_dir.join("report.md")).unwrap();
     assert!(
-        report.contains("after 0 of 2 runs") && report.contains(" 0 runs;"),
+        report.contains("after 0 of 2 runs") && report.contains(" 0 points;"),
         "{report}"
     );
 }

@@ -523,7 +523,7 @@ mod tests {
             None,
         );
         let md = report(&sw, &[stopped, cut], &[], Path::new("s.toml"));
-        assert!(md.contains(" 1 runs;"), "{md}");
+        assert!(md.contains(" 1 points;"), "{md}");
         assert!(
             md.contains("Diverged: 0; stopped on a loop fault: 1; errors: 0."),
             "{md}"
