@@ -15,7 +15,7 @@ fn paper_folder_is_complete_and_report_matches_summary() {
         "--seeds",
         "4",
         "--realtime-runs",
-        "0",
+        "1",
         "--out",
         out.to_str().unwrap(),
     ]);
@@ -173,13 +173,25 @@ fn paper_folder_is_complete_and_report_matches_summary() {
     robustness_table_is_the_seeds_runs(&out, &s, &report);
 }
 
-/// The robustness table: 6 in-process rows over the 4 seeds asked for, and its S2 `matched` ratio
-/// is the geometric mean of the per-seed ratios of `deltaloop run` with the documented sensor.
+/// The robustness table: 6 in-process rows over the 4 seeds asked for, 3 realtime rows of the one
+/// run asked for (with its round trip), and its S2 `matched` ratio is the geometric mean of the
+/// per-seed ratios of `deltaloop run` with the documented sensor.
 fn robustness_table_is_the_seeds_runs(out: &std::path::Path, s: &Value, report: &str) {
     let r = &s["robustness"];
     let rows = r["rows"].as_array().unwrap();
-    assert_eq!(rows.len(), 6, "{r}");
-    assert!(rows.iter().all(|x| x["mode"] == "inproc" && x["runs"] == 4));
+    assert_eq!(rows.len(), 9, "{r}");
+    let (inproc, rt): (Vec<&Value>, Vec<&Value>) = rows.iter().partition(|x| x["mode"] == "inproc");
+    assert!(inproc.iter().all(|x| x["runs"] == 4), "{r}");
+    assert_eq!(rt.len(), 3);
+    for x in &rt {
+        assert_eq!(x["preset"], "matched");
+        let n = x["runs"].as_u64().unwrap() + x["left_out"].as_u64().unwrap();
+        assert_eq!(n, 1, "{x}");
+        if x["runs"] == 1 {
+            assert!(x["round_trip_p50_us"].as_f64().unwrap() > 0.0, "{x}");
+        }
+    }
+    let rows = inproc;
     assert!(report.contains("## Robustness: does the ranking hold"));
     let sensor = &r["sensor"];
     let row = rows
