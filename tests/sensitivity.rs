@@ -89,3 +89,39 @@ fn sensitivity_is_refused_in_realtime() {
     );
     assert!(!dir.exists());
 }
+
+/// Regression: a lockstep run cut by a loop fault was compared with its complete twin, and the
+/// cut reported as a round-off spread. Only runs that ended by the physics (`ok`, `diverged`)
+/// get a twin.
+#[test]
+fn regression_a_faulted_run_gets_no_round_off_twin() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("panic.toml");
+    std::fs::write(
+        &cfg,
+        "name = \"panic\"\n[scenario]\npath = \"s2\"\n[controller]\nlaws = [\"tdc\"]\n[faults]\ninject = \"panic@100\"\n",
+    )
+    .unwrap();
+    let dir = tmp.path().join("run");
+    let out = deltaloop(&[
+        "run",
+        cfg.to_str().unwrap(),
+        "--mode",
+        "lockstep",
+        "--sensitivity",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let s = summary(&dir);
+    assert_eq!(
+        common::outcome(&s, "tdc").0,
+        common::RunStatus::Fault,
+        "{s}"
+    );
+    assert!(
+        s["laws"]["tdc"].get("sensitivity").is_none(),
+        "{}",
+        s["laws"]["tdc"]
+    );
+}

@@ -245,8 +245,14 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
 /// with the law's metrics. In lockstep too the twin runs in-process: the two modes give the
 /// same bits.
 fn add_sensitivity(study: &Study, runs: &mut [LawRun]) -> Result<()> {
-    let laws: Vec<Law> = runs.iter().map(|r| r.law).collect();
-    for (run, twin) in runs.iter_mut().zip(inproc::run_twins(study, &laws)) {
+    // A run the loop cut short (a fault, an interrupt, lost data) is not the run its twin
+    // repeats: comparing them would call the cut round-off.
+    let mut physical: Vec<&mut LawRun> = runs
+        .iter_mut()
+        .filter(|r| r.metrics.status.is_physical())
+        .collect();
+    let laws: Vec<Law> = physical.iter().map(|r| r.law).collect();
+    for (run, twin) in physical.iter_mut().zip(inproc::run_twins(study, &laws)) {
         let twin = twin.context("the round-off twin")?;
         run.metrics.sensitivity = Some(Sensitivity::between(&run.metrics, &twin.metrics));
     }

@@ -113,6 +113,15 @@ deltaloop_law::text_enum! {
     }
 }
 
+impl RunStatus {
+    /// Whether the run's end is the physics' own (`ok`, `diverged`) and not the loop's (a fault,
+    /// an interrupt, lost data): only such a run is repeatable in-process, e.g. by its round-off
+    /// twin.
+    pub fn is_physical(self) -> bool {
+        matches!(self, RunStatus::Ok | RunStatus::Diverged)
+    }
+}
+
 deltaloop_law::text_enum! {
     "snake_case", "fault kind";
     /// What kind of loop fault ended a run (`summary.json` `fault_kind`). The cause text says the

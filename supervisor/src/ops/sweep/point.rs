@@ -330,7 +330,7 @@ fn run_one(
                 Ran::Process(r) => (r.run.metrics, Some(r.timing.summary())),
                 Ran::Inproc(run) => (run.metrics, None),
             };
-        if twin && mode != LoopMode::Realtime {
+        if twin && mode != LoopMode::Realtime && m.status.is_physical() {
             let t = inproc::run_twin(&study, job.law)?;
             m.sensitivity = Some(Sensitivity::between(&m, &t.metrics));
         }
