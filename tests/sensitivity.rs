@@ -40,7 +40,8 @@ fn sensitivity_twin_separates_round_off_sensitive_laws() {
     // The twin's own RMS is in the summary and differs from the run's by that spread.
     let run_rms = common::max_joint_rms(&s, "tdc-is-sta");
     let twin_rms = spread("tdc-is-sta", "twin_rms_rad");
-    assert!(((run_rms - twin_rms).abs() / run_rms) <= sta * (1.0 + 1e-12));
+    let rel = (run_rms - twin_rms).abs() / run_rms.max(twin_rms);
+    assert!(rel <= sta * (1.0 + 1e-12), "{rel} vs {sta}");
     // The table: a round-off column; tdc with 4 digits and `< 1e-9`, tdc-is-sta with fewer and
     // its spread in percent.
     let line = |law: &str| {
@@ -124,4 +125,28 @@ fn regression_a_faulted_run_gets_no_round_off_twin() {
         "{}",
         s["laws"]["tdc"]
     );
+}
+
+/// Regression: with a plant of one's own the twin ran the built-in plant, and the difference
+/// between the two plants was reported as round-off. Refused in one line, nothing written.
+#[test]
+fn regression_sensitivity_is_refused_with_a_plant_or_controller_of_ones_own() {
+    let tmp = tempfile::tempdir().unwrap();
+    for flag in ["--plant-cmd", "--controller-cmd"] {
+        let dir = tmp.path().join("run");
+        let out = deltaloop(&[
+            "run",
+            "configs/s2-fast.toml",
+            "--mode",
+            "lockstep",
+            flag,
+            "/bin/false",
+            "--sensitivity",
+            "--out",
+            dir.to_str().unwrap(),
+        ]);
+        let err = common::one_line_error(&out);
+        assert!(err.contains("plant.command or controller.command"), "{err}");
+        assert!(!dir.exists());
+    }
 }

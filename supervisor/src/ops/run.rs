@@ -187,6 +187,11 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
             "--sensitivity needs mode inproc or lockstep: a realtime run's timing is not repeatable, so its twin would differ by more than round-off"
         );
     }
+    if sensitivity && !(config.plant.command.is_empty() && config.controller.command.is_empty()) {
+        bail!(
+            "--sensitivity runs each law's twin with the built-in plant and controller: it cannot repeat a run with plant.command or controller.command"
+        );
+    }
     let started = output::now_utc();
     let study =
         Study::new(config).context("the scenario's reference leaves the robot's workspace")?;
@@ -218,6 +223,9 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
     };
     if sensitivity && laws.failed.is_none() {
         add_sensitivity(&study, &mut laws.runs)?;
+        notes.extend(
+            crate::record::sensitivity::masked_note(&study.config).map(|n| format!("note: {n}")),
+        );
     }
     let peak_rss = laws
         .timings

@@ -94,7 +94,7 @@ fn e<E: std::fmt::Debug>(err: E) -> anyhow::Error {
 }
 
 macro_rules! draw_panel {
-    ($area:expr, $p:expr, $xr:expr, $yr:expr) => {{
+    ($area:expr, $p:expr, $xr:expr, $yr:expr, $y_floor:expr) => {{
         let mut chart = ChartBuilder::on($area)
             .caption(&$p.title, ("sans-serif", 20))
             .margin(12)
@@ -140,11 +140,14 @@ macro_rules! draw_panel {
                 .bars
                 .iter()
                 .copied()
+                // On a log axis a bar whose low end is at or below 0 runs to the axis floor
+                // (dropping it would make the least certain points look the most certain).
+                .map(|(x, lo, hi)| (x, if $p.log_y && lo <= 0.0 { $y_floor } else { lo }, hi))
                 .filter(|(x, lo, hi)| {
                     x.is_finite()
                         && lo.is_finite()
                         && hi.is_finite()
-                        && (!$p.log_y || *lo > 0.0)
+                        && (!$p.log_y || *hi > 0.0)
                         && (!$p.log_x || *x > 0.0)
                 })
                 .collect();
@@ -199,10 +202,10 @@ where
             p.log_y,
         );
         match (p.log_x, p.log_y) {
-            (true, true) => draw_panel!(area, p, (x0..x1).log_scale(), (y0..y1).log_scale()),
-            (true, false) => draw_panel!(area, p, (x0..x1).log_scale(), y0..y1),
-            (false, true) => draw_panel!(area, p, x0..x1, (y0..y1).log_scale()),
-            (false, false) => draw_panel!(area, p, x0..x1, y0..y1),
+            (true, true) => draw_panel!(area, p, (x0..x1).log_scale(), (y0..y1).log_scale(), y0),
+            (true, false) => draw_panel!(area, p, (x0..x1).log_scale(), y0..y1, y0),
+            (false, true) => draw_panel!(area, p, x0..x1, (y0..y1).log_scale(), y0),
+            (false, false) => draw_panel!(area, p, x0..x1, y0..y1, y0),
         }
     }
     root.present().map_err(e)?;

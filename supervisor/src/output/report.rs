@@ -43,10 +43,11 @@ fn fig(x: f64, rel: Option<f64>) -> String {
     rel.map_or_else(|| e(x), |r| sensitivity::sci(x, r))
 }
 
-/// The round-off column of a law: its largest spread, or `-` without a twin.
+/// The round-off column of a law: the spread of its RMS (the figures of its row), or `-`
+/// without a twin.
 fn spread_cell(m: &LawMetrics) -> String {
     m.sensitivity
-        .map_or("-".into(), |s| sensitivity::show_spread(s.worst()))
+        .map_or("-".into(), |s| sensitivity::show_spread(s.rms_rel))
 }
 
 /// A law's status for the tables (from its [`RunStatus`](crate::record::RunStatus)).
@@ -97,14 +98,20 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
         let rel = m.sensitivity.map(|s| s.rms_rel);
         let tde_rel = m.sensitivity.and_then(|s| s.tde_rel);
         let tde = m.tde_err_rms.map_or("-".into(), |t| fig(max3(t), tde_rel));
+        let task = match m.sensitivity {
+            Some(x) if sensitivity::is_sensitive(x.task_rms_rel) => {
+                sensitivity::sci(m.task_rms_mm, x.task_rms_rel)
+            }
+            _ => format!("{:.4}", m.task_rms_mm),
+        };
         let _ = writeln!(
             s,
-            "{:<11} {:>10} {:>10} {:>10} {:>9.4} {:>9.3} {:>8.4} {:>7} {:>10}{}  {}",
+            "{:<11} {:>10} {:>10} {:>10} {:>9} {:>9.3} {:>8.4} {:>7} {:>10}{}  {}",
             m.law,
             fig(m.rms_rad[0], rel),
             fig(m.rms_rad[1], rel),
             fig(m.rms_rad[2], rel),
-            m.task_rms_mm,
+            task,
             max3(m.max_abs_tau_nm),
             max3(m.hf_torque_share),
             m.clamp_count,
@@ -120,7 +127,7 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
     if twins {
         let _ = writeln!(
             s,
-            "round-off: largest relative change of a law's RMS, max or TDE error when q(0) moves one ulp; figures keep the digits that survive it"
+            "round-off: relative change of a law's RMS when q(0) moves one ulp; RMS, task and TDE figures keep the digits that survive their own change (summary.json: sensitivity)"
         );
     }
     s
@@ -248,7 +255,7 @@ fn injected(cfg: &RunConfig) -> Vec<String> {
 fn sensitivity_note(s: &mut String, metrics: &[LawMetrics]) {
     let _ = writeln!(
         s,
-        "\nRound-off: each law ran a twin with {} (`--sensitivity`); the column is the largest relative change of its RMS, max or TDE error, and each figure keeps only the digits that survive it.",
+        "\nRound-off: each law ran a twin with {} (`--sensitivity`); the column is the relative change of its RMS, and each figure keeps only the digits that survive it (`summary.json` has the changes of the max, task and TDE errors too).",
         sensitivity::PERTURBATION
     );
     let touchy: Vec<String> = metrics
@@ -257,12 +264,15 @@ fn sensitivity_note(s: &mut String, metrics: &[LawMetrics]) {
             m.sensitivity
                 .is_some_and(|x| sensitivity::is_sensitive(x.worst()))
         })
-        .map(|m| format!("`{}` ({})", m.law, spread_cell(m)))
+        .map(|m| {
+            let w = m.sensitivity.map_or(0.0, |x| x.worst());
+            format!("`{}` (up to {})", m.law, sensitivity::show_spread(w))
+        })
         .collect();
     if !touchy.is_empty() {
         let _ = writeln!(
             s,
-            "Round-off sensitive: {}. Their results move by that much under a change at the level of the arithmetic's rounding (the super-twisting term |s|^½ sign(s) is not Lipschitz at s = 0), so a difference smaller than it between two implementations, or two laws, is not a result.",
+            "Round-off sensitive: {}. Their results move by that much under a change at the level of the arithmetic's rounding: the closed loop amplifies it here (a super-twisting term |s|^½ sign(s), not Lipschitz at s = 0; a torque riding the clamp; a limit cycle). A difference smaller than that between two implementations, or two laws, is not a result.",
             touchy.join(", ")
         );
     }

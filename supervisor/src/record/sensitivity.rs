@@ -108,6 +108,18 @@ pub fn show_spread(rel: f64) -> String {
     }
 }
 
+/// Why a twin may see nothing: an encoder quantises q, and a one-ulp change of the physics stays
+/// inside one count unless a measurement sits on a count's edge. None without an encoder.
+pub fn masked_note(cfg: &deltaloop_config::RunConfig) -> Option<String> {
+    let counts = cfg.sensor.encoder_counts_per_rev;
+    (counts > 0).then(|| {
+        format!(
+            "the encoder quantises q to {:.2} µrad ({counts} counts/rev): a one-ulp perturbation stays inside a count, so the round-off twins measure little here; repeats over sensor-noise seeds measure the spread",
+            std::f64::consts::TAU / f64::from(counts) * 1e6
+        )
+    })
+}
+
 /// Whether a spread is large enough to say so next to the figure (a printed digit moves).
 pub fn is_sensitive(rel: f64) -> bool {
     rel >= FULL_DIGITS_BELOW || rel.is_nan()

@@ -68,7 +68,8 @@ impl Interval {
         (self.ci95_hi - self.ci95_lo) / 2.0
     }
 
-    /// Whether the whole interval lies below `x` (the mean is below it beyond the 95 % level).
+    /// Whether the whole interval lies below `x` (the mean is below it beyond the 95 % level);
+    /// false for n < 2 (no interval).
     pub fn below(&self, x: f64) -> bool {
         self.ci95_hi < x
     }
@@ -139,9 +140,12 @@ impl RatioInterval {
 
     /// `geo_mean [lo, hi]` with 3 significant digits, for the reports.
     pub fn show(&self) -> String {
-        // Three significant digits.
+        // Three significant digits (a value that underflowed to 0 or overflowed: as it is).
         let g = |x: f64| {
-            let d = (2 - x.abs().log10().floor() as i64).clamp(0, 6) as usize;
+            if !(x.is_finite() && x > 0.0) {
+                return format!("{x}");
+            }
+            let d = (2 - x.log10().floor() as i64).clamp(0, 6) as usize;
             format!("{x:.d$}")
         };
         if self.n < 2 {

@@ -308,7 +308,7 @@ mod tests {
     /// Repeats fold into one row: means over the `ok` repeats, the hand-computed standard
     /// deviation and t interval (rms 1, 2, 3 → mean 2, s = 1, t₀.₉₇₅,₂ = 4.302652729911275,
     /// half-width 4.302652729911275/√3 = 2.484137...), the first non-ok repeat's status named by
-    /// its seed, the largest counts.
+    /// its seed and left out, the largest counts.
     #[test]
     fn repeats_summarise_to_mean_std_and_t_interval() {
         let job = Job {
@@ -330,10 +330,21 @@ mod tests {
         let mut bad = mk(f64::NAN, 13, 0);
         bad.status = RunStatus::Diverged;
         bad.reason = "|e| > 0.5 rad".into();
-        let r = summarise(vec![mk(1.0, 10, 0), mk(2.0, 11, 5), mk(3.0, 12, 2), bad]);
+        let r = summarise(vec![
+            mk(1.0, 10, 0),
+            mk(2.0, 11, 5),
+            mk(3.0, 12, 2),
+            bad.clone(),
+        ]);
         assert_eq!((r.repeats, r.repeats_ok, r.seed), (4, 3, 10));
-        assert_eq!(r.status, RunStatus::Diverged);
-        assert_eq!(r.reason, "seed 13: |e| > 0.5 rad");
+        assert_eq!(r.status, RunStatus::Ok);
+        assert_eq!(
+            r.reason,
+            "1 of 4 seeds did not end ok (left out of the means); seed 13 diverged: |e| > 0.5 rad"
+        );
+        // No repeat ok: the first repeat's status.
+        let none = summarise(vec![bad.clone(), bad]);
+        assert_eq!((none.status, none.repeats_ok), (RunStatus::Diverged, 0));
         assert_eq!((r.rms_rad, r.rms_rad_std), (2.0, 1.0));
         let half = 4.302652729911275 / 3f64.sqrt();
         assert!(

@@ -55,7 +55,7 @@ pub struct Row {
     /// Empty when the run has no round-trip sample (never 0 for "no data").
     pub round_trip_p999_us: Option<f64>,
     /// Realtime points: max-joint RMS over that of the same config with ideal timing
-    /// (in-process, same seed); NaN for the other points.
+    /// (in-process, same seed); over repeats, the geometric mean; NaN for the other points.
     pub latency_cost: f64,
     /// Runs this row summarises: sensor-noise seeds `seed`, `seed` + 1, …; the metrics above
     /// are their means over the runs that ended `ok` (`repeats_ok` of them).
@@ -75,8 +75,9 @@ pub struct Row {
     pub tde_err_rms_std: f64,
     pub tde_err_rms_ci95_lo: f64,
     pub tde_err_rms_ci95_hi: f64,
-    /// The same for `latency_cost`.
-    pub latency_cost_std: f64,
+    /// For `latency_cost`, a ratio: the standard deviation of its logarithm and the 95 % CI of
+    /// its geometric mean ([`crate::record::stats::RatioInterval`]).
+    pub latency_cost_log_std: f64,
     pub latency_cost_ci95_lo: f64,
     pub latency_cost_ci95_hi: f64,
     /// Relative change of `rms_rad`, `max_abs_err_rad` and `tde_err_rms` under the round-off
@@ -174,7 +175,7 @@ pub(super) fn row(
         tde_err_rms_std: nan,
         tde_err_rms_ci95_lo: nan,
         tde_err_rms_ci95_hi: nan,
-        latency_cost_std: nan,
+        latency_cost_log_std: nan,
         latency_cost_ci95_lo: nan,
         latency_cost_ci95_hi: nan,
         rms_rad_roundoff: m.and_then(|m| m.sensitivity).map_or(nan, |x| x.rms_rel),
@@ -186,23 +187,30 @@ pub(super) fn row(
     }
 }
 
-/// One row out of a point's repeats (in seed order; at least one): status and reason of the
-/// first repeat that did not end `ok` (its seed named), else `ok`; each metric the mean over
-/// the repeats that ended `ok`, with the standard deviation and 95 % CI of the headline ones;
-/// counts and round-trip tails the largest; the round-off spreads of the first repeat.
+/// One row out of a point's repeats (in seed order; at least one). Status `ok` when some repeat
+/// ended `ok` (the others are counted, `repeats_ok` < `repeats`, and named in the reason), else
+/// the first repeat's status; each metric the mean over the repeats that ended `ok`, with the
+/// standard deviation and 95 % CI of the headline ones (the latency cost, a ratio: geometric mean
+/// and log-space interval); counts and round-trip tails the largest; the round-off spreads of the
+/// first repeat that ended `ok`.
 pub(super) fn summarise(reps: Vec<Row>) -> Row {
     let ok: Vec<&Row> = reps.iter().filter(|r| r.status == RunStatus::Ok).collect();
     let first_bad = reps.iter().find(|r| r.status != RunStatus::Ok);
     let n = reps.len() as u32;
-    let mut out = reps[0].clone();
+    let mut out = ok.first().copied().unwrap_or(&reps[0]).clone();
     if n == 1 {
         return out;
     }
-    if let Some(b) = first_bad {
-        out.status = b.status;
-        out.diverged_at_tick = b.diverged_at_tick;
-        out.reason = format!("seed {}: {}", b.seed, b.reason);
+    if ok.is_empty() {
+        out.reason = format!("every seed; seed {}: {}", out.seed, out.reason);
+    } else if let Some(b) = first_bad {
+        let bad = reps.len() - ok.len();
+        out.reason = format!(
+            "{bad} of {n} seeds did not end ok (left out of the means); seed {} {}: {}",
+            b.seed, b.status, b.reason
+        );
     }
+    out.seed = reps[0].seed;
     let mean = |f: Metric| {
         stats::Interval::of(&ok.iter().map(|r| f(r)).collect::<Vec<_>>())
             .map_or(f64::NAN, |i| i.mean)
@@ -218,7 +226,8 @@ pub(super) fn summarise(reps: Vec<Row>) -> Row {
     out.delta_n_p999 = mean(|r| r.delta_n_p999);
     out.k2_required = mean(|r| r.k2_required);
     out.hf_torque_share = mean(|r| r.hf_torque_share);
-    out.latency_cost = mean(|r| r.latency_cost);
+    let cost = stats::RatioInterval::of(&ok.iter().map(|r| r.latency_cost).collect::<Vec<_>>());
+    out.latency_cost = cost.map_or(f64::NAN, |c| c.geo_mean);
     out.eq43_holds = !ok.is_empty() && ok.iter().all(|r| r.eq43_holds);
     out.clamp_count = reps.iter().map(|r| r.clamp_count).max().unwrap_or(0);
     out.deadline_misses = reps.iter().filter_map(|r| r.deadline_misses).max();
@@ -240,10 +249,10 @@ pub(super) fn summarise(reps: Vec<Row>) -> Row {
         out.tde_err_rms_ci95_hi,
     ) = spread(ci(|r| r.tde_err_rms));
     (
-        out.latency_cost_std,
+        out.latency_cost_log_std,
         out.latency_cost_ci95_lo,
         out.latency_cost_ci95_hi,
-    ) = spread(ci(|r| r.latency_cost));
+    ) = cost.map_or(nan3, |c| (c.log_std, c.ci95_lo, c.ci95_hi));
     out
 }
 
@@ -279,16 +288,20 @@ pub(super) fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
 }
 
 /// Runs one point: `sw.repeats` runs with sensor-noise seeds base, base + 1, … (each a row,
-/// [`summarise`]d into one), the first one's round-off twin when `sw.sensitivity` (not in
-/// realtime), and for a realtime point the same config with ideal timing for its latency cost.
+/// [`summarise`]d into one), the round-off twin of the first that ends ok when
+/// `sw.sensitivity` (not in realtime, not with a plant or controller command), and for a
+/// realtime point the same config with ideal timing for its latency cost.
 pub(super) fn run_job(sw: &SweepFile, base: &RunConfig, job: &Job, dir: &Path) -> Row {
     let seed0 = base.sensor.seed;
+    // The twin repeats a run of the built-in processes only, and one that ended ok is enough.
+    let mut twin =
+        sw.sensitivity && base.plant.command.is_empty() && base.controller.command.is_empty();
     let reps = (0..sw.repeats.max(1))
         .map(|i| {
             let seed = seed0.wrapping_add(u64::from(i));
-            let twin = sw.sensitivity && i == 0;
             let sub = (sw.repeats > 1).then(|| format!("r{i}"));
             let mut r = run_one(base, job, sw.mode, dir, seed, twin, sub.as_deref());
+            twin &= r.status != RunStatus::Ok;
             r.seed = seed;
             r
         })

@@ -55,6 +55,8 @@ pub(super) struct Shown {
     pub value: Metric,
     pub roundoff: Metric,
     pub ci: fn(&Row) -> (f64, f64),
+    /// A ratio: its interval is asymmetric (log space) and printed as `[lo, hi]`.
+    pub ratio: bool,
 }
 
 /// RMS joint error, max over joints.
@@ -62,6 +64,7 @@ pub(super) const RMS: Shown = Shown {
     value: |r| r.rms_rad,
     roundoff: |r| r.rms_rad_roundoff,
     ci: |r| (r.rms_rad_ci95_lo, r.rms_rad_ci95_hi),
+    ratio: false,
 };
 
 /// TDE error RMS, max over joints.
@@ -69,6 +72,7 @@ pub(super) const TDE: Shown = Shown {
     value: |r| r.tde_err_rms,
     roundoff: |r| r.tde_err_rms_roundoff,
     ci: |r| (r.tde_err_rms_ci95_lo, r.tde_err_rms_ci95_hi),
+    ratio: false,
 };
 
 /// A value with 3 significant digits, or fewer when its round-off twin moved it by more than a
@@ -83,7 +87,14 @@ pub(super) fn value_text(r: &Row, m: Shown) -> String {
     };
     let (lo, hi) = (m.ci)(r);
     if lo.is_finite() && hi.is_finite() && x != 0.0 {
-        let _ = write!(t, " ±{}", pct((hi - lo) / 2.0 / x.abs()));
+        if m.ratio {
+            let _ = write!(t, " [{lo:.3}, {hi:.3}]");
+        } else {
+            let _ = write!(t, " ±{}", pct((hi - lo) / 2.0 / x.abs()));
+        }
+    }
+    if r.repeats_ok < r.repeats {
+        let _ = write!(t, " ({}/{} not ok)", r.repeats - r.repeats_ok, r.repeats);
     }
     t
 }
@@ -223,31 +234,47 @@ const COST: Shown = Shown {
     value: |r| r.latency_cost,
     roundoff: |_| f64::NAN,
     ci: |r| (r.latency_cost_ci95_lo, r.latency_cost_ci95_hi),
+    ratio: true,
 };
 
 /// How to read the cells: repeats and their interval, round-off marks.
 fn reading_note(s: &mut String, sw: &SweepFile, rows: &[Row]) {
     if sw.repeats > 1 {
+        let first = rows.first().map_or(0, |r| r.seed);
         let _ = writeln!(
             s,
-            "Each point ran {} times, with sensor-noise seeds {} to {}; a cell is the mean over the runs that ended `ok`, ± the half-width of its {} (relative to the mean). `sweep.csv` has the standard deviation and both ends of each interval.\n",
+            "Each point ran {} times, with sensor-noise seeds {} to {}; a cell is the mean over the runs that ended `ok` (`(k/N not ok)`: the others, left out), ± the half-width of its {} (relative to the mean); a latency cost, a ratio, is a geometric mean with its interval in brackets ({}). `sweep.csv` has the standard deviations and both ends of each interval.\n",
             sw.repeats,
-            rows.first().map_or(0, |r| r.seed),
-            rows.first()
-                .map_or(0, |r| r.seed + u64::from(sw.repeats) - 1),
-            stats::CI_METHOD
+            first,
+            first.wrapping_add(u64::from(sw.repeats) - 1),
+            stats::CI_METHOD,
+            stats::RATIO_CI_METHOD
         );
+        let spread = rows
+            .iter()
+            .filter(|r| r.mode != LoopMode::Realtime && r.repeats_ok > 1)
+            .any(|r| r.rms_rad_std > 0.0);
+        let deterministic = rows
+            .iter()
+            .any(|r| r.mode != LoopMode::Realtime && r.repeats_ok > 1);
+        if deterministic && !spread {
+            let _ = writeln!(
+                s,
+                "**The seeds changed nothing**: every in-process point gave the same result for every seed. The base config has no sensor noise (`[sensor]`), so these repeats are one run, N times.\n"
+            );
+        }
     }
     if sw.sensitivity {
-        let touchy = rows
+        let marked = rows
             .iter()
             .filter(|r| {
-                r.rms_rad_roundoff.is_finite() && sensitivity::is_sensitive(r.rms_rad_roundoff)
+                r.rms_rad_roundoff.is_finite()
+                    && sensitivity::digits(r.rms_rad, r.rms_rad_roundoff) < 3
             })
             .count();
         let _ = writeln!(
             s,
-            "Round-off: every deterministic point also ran its twin with {}; a value its twin moved by a unit of its third digit or more is marked † and keeps only the digits that survive ({touchy} points moved their RMS by more than 5·10⁻⁵; the spreads are the `*_roundoff` columns of `sweep.csv`). A difference between two † values smaller than their spread is not a result.\n",
+            "Round-off: every deterministic point also ran its twin with {}; a value its twin moved by a unit of its third digit or more is marked † and keeps only the digits that survive ({marked} points on the RMS; the spreads are the `*_roundoff` columns of `sweep.csv`). A difference between two † values smaller than their spread is not a result.\n",
             sensitivity::PERTURBATION
         );
     }
