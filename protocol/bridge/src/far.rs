@@ -46,6 +46,10 @@ pub struct Args {
     /// How long to keep trying to reach the near side for each run, s (0: forever).
     #[arg(long, default_value_t = 120)]
     pub wait_s: u64,
+    /// Poll this long for the controller's reply after publishing a state before blocking, µs
+    /// (0: block at once; at most loop.torque_budget_us in realtime).
+    #[arg(long, default_value_t = 0)]
+    pub spin_us: u32,
 }
 
 /// Serves `a.runs` runs; the exit code is the last controller's (or why the bridge failed).
@@ -215,6 +219,10 @@ fn serve(
     let mut far_emu = hello.emulation;
     far_emu.seed = far_emu.seed.wrapping_add(1);
     let mut udp = Udp::new(udp, key, far_emu)?;
+    let spin_ns = match crate::spin_ns(&config, mode, a.spin_us) {
+        Ok(s) => s,
+        Err(e) => return fail(&mut tcp, format!("{e:#}")),
+    };
     let child = match spawn(cmd, &hello, mode, &config) {
         Ok(c) => c,
         Err(e) => return fail(&mut tcp, format!("{e:#}")),
@@ -235,6 +243,8 @@ fn serve(
         controller_poll_until: 0,
         stop_sent: false,
         near_gone_ns: None,
+        spin_ns,
+        poll_until: 0,
     };
     let code = f.forward(term)?;
     f.report(code)?;
@@ -307,6 +317,10 @@ struct Far {
     stop_sent: bool,
     /// When the near side closed the control connection.
     near_gone_ns: Option<u64>,
+    /// How long to poll for the reply after publishing a state, ns.
+    spin_ns: u64,
+    /// Poll (do not block) until then: a reply is due.
+    poll_until: u64,
 }
 
 impl Drop for Far {
@@ -332,7 +346,11 @@ impl Far {
         let mut next_check = 0u64;
         loop {
             let now = rt::now_ns();
-            let timeout = link::timeout_ns(&self.udp, now);
+            let timeout = if now < self.poll_until {
+                0
+            } else {
+                link::timeout_ns(&self.udp, now)
+            };
             let err_fd = self
                 .child
                 .stderr
@@ -353,7 +371,7 @@ impl Far {
             }
             link::wait(&mut fds, timeout)?;
             let [udp_in, tcp_in, torque_in, err_in] = fds.map(|f| f.revents != 0);
-            if torque_in {
+            if torque_in || now < self.poll_until {
                 self.torques()?;
             }
             if udp_in {
@@ -407,6 +425,7 @@ impl Far {
         while let Some(s) = self.ports.torque.receive().ipc("receive torque")? {
             let t: &TorqueMsg = s.payload();
             self.controller_poll_until = t.t_poll_until_ns;
+            self.poll_until = 0;
             let now = rt::now_ns();
             let residence = if self.arrived.0 == t.tick {
                 now.saturating_sub(self.arrived.1)
@@ -438,9 +457,12 @@ impl Far {
     }
 
     fn publish_state(&mut self, mut s: StateMsg) -> Result<()> {
-        // This side blocks on the torque event: the controller must always notify it.
-        s.t_poll_until_ns = 0;
-        self.arrived = (s.tick, rt::now_ns());
+        // This side polls for the reply until poll_until, then blocks on the torque event
+        // (docs/protocol.md §6.1, on this host's clock).
+        let now = rt::now_ns();
+        self.poll_until = now + self.spin_ns;
+        s.t_poll_until_ns = self.poll_until;
+        self.arrived = (s.tick, now);
         self.ports.state.send_copy(s).ipc("publish state")?;
         if ipc::published_needs_notify(self.controller_poll_until) {
             self.ports.state_ready.notify().ipc("notify state")?;

@@ -63,6 +63,10 @@ pub struct EmuArgs {
     /// Seed of the emulated jitter and loss.
     #[arg(long, default_value_t = 1)]
     pub link_seed: u64,
+    /// The near bridge polls this long for the reply after sending a state before it blocks, µs
+    /// (0: it blocks at once; at most loop.torque_budget_us in realtime).
+    #[arg(long, default_value_t = 0)]
+    pub link_spin_us: u32,
 }
 
 impl EmuArgs {
@@ -108,6 +112,26 @@ pub fn parse_endpoint(s: &str) -> Result<SocketAddr, String> {
         .map_err(|e| bad(&format!("cannot resolve the host: {e}")))?
         .next()
         .ok_or_else(|| bad("the host has no address"))
+}
+
+/// How long a bridge polls for the reply after passing a state on, ns (`--spin-us`, at most the
+/// torque budget in realtime: a reply later than that is late anyway). Polling saves the wake-up
+/// of a blocked bridge (tens of µs on a VM) but takes a CPU: on one machine hosting both sides,
+/// two polling bridges take turns on the one CPU the loop leaves them.
+pub fn spin_ns(
+    config: &std::path::Path,
+    mode: deltaloop_config::LoopMode,
+    spin_us: u32,
+) -> Result<u64> {
+    let cfg = deltaloop_config::RunConfig::from_file(config)?;
+    if mode.layout(&cfg).is_none() {
+        bail!("mode {mode} has no processes");
+    }
+    let budget_us = cfg.loop_.torque_budget_us;
+    if mode == deltaloop_config::LoopMode::Realtime && spin_us > budget_us {
+        bail!("--spin-us {spin_us}: allowed 0..={budget_us} (loop.torque_budget_us)");
+    }
+    Ok(u64::from(spin_us) * 1000)
 }
 
 /// The folder of this executable (where `deltaloop-controller` is looked for).

@@ -22,6 +22,10 @@ pub struct Args {
     /// How long to keep trying to reach the plant's host for each run, s (0: forever).
     #[arg(long, default_value_t = 120)]
     wait_s: u64,
+    /// Poll this long for the controller's reply after passing a state on before blocking, µs
+    /// (0: block at once). Worth it where the bridge has a CPU of its own.
+    #[arg(long, default_value_t = 0)]
+    spin_us: u32,
 }
 
 pub fn exec(a: Args, _cx: &Context) -> Result<()> {
@@ -30,5 +34,6 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
         controller_cmd: a.controller_cmd.as_deref(),
         runs: a.runs,
         wait_s: a.wait_s,
+        spin_us: a.spin_us,
     })
 }

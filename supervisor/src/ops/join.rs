@@ -49,6 +49,7 @@ impl RemoteArgs {
             format!("--link-jitter-us={}", e.link_jitter_us),
             format!("--link-loss={}", e.link_loss),
             format!("--link-seed={}", e.link_seed),
+            format!("--link-spin-us={}", e.link_spin_us),
         ];
         Ok(())
     }
@@ -70,6 +71,7 @@ pub struct Join<'a> {
     pub controller_cmd: Option<&'a str>,
     pub runs: u32,
     pub wait_s: u64,
+    pub spin_us: u32,
 }
 
 /// Replaces this process with `deltaloop-bridge far` (its exit code is the far controller's);
