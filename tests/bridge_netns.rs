@@ -227,18 +227,15 @@ fn inproc_trace(tmp: &Path) -> Vec<u8> {
     std::fs::read(out.join("trace.csv")).unwrap()
 }
 
-#[test]
-fn lockstep_across_the_link_is_byte_identical_to_inproc() {
-    let Some((h, _one)) = Hosts::new("lockstep_across_the_link_is_byte_identical_to_inproc") else {
-        return;
-    };
+/// A lockstep run across the link (`run_extra` on the plant's side, `join_extra` on the
+/// controller's) writes the trace.csv of the inproc run, and leaves nothing in either root.
+fn assert_lockstep_identical(h: &Hosts, run_extra: &[&str], join_extra: &[&str]) {
     let out = h.tmp.path().join("remote");
-    let join = h.join(&[]);
-    let (r, j) = both(
-        h.run("configs/s1-nominal.toml", &out, &["--mode", "lockstep"]),
-        join,
-        Duration::from_secs(120),
-    );
+    let join = h.join(join_extra);
+    let mut args = vec!["--mode", "lockstep"];
+    args.extend_from_slice(run_extra);
+    let run = h.run("configs/s1-nominal.toml", &out, &args);
+    let (r, j) = both(run, join, Duration::from_secs(180));
     assert!(
         r.status.success(),
         "run: {}{}",
@@ -249,9 +246,31 @@ fn lockstep_across_the_link_is_byte_identical_to_inproc() {
     let remote = std::fs::read(out.join("trace.csv")).unwrap();
     assert!(
         remote == inproc_trace(h.tmp.path()),
-        "trace.csv across the link differs from inproc"
+        "trace.csv across the link ({run_extra:?}, {join_extra:?}) differs from inproc"
     );
     h.assert_roots_empty();
+}
+
+#[test]
+fn lockstep_across_the_link_is_byte_identical_to_inproc() {
+    let Some((h, _one)) = Hosts::new("lockstep_across_the_link_is_byte_identical_to_inproc") else {
+        return;
+    };
+    // A lossy, slow, jittery link too: lockstep sends a state again until its reply comes.
+    assert_lockstep_identical(
+        &h,
+        &[
+            "--link-delay-us",
+            "50",
+            "--link-jitter-us",
+            "50",
+            "--link-loss",
+            "0.01",
+            "--link-seed",
+            "7",
+        ],
+        &[],
+    );
 }
 
 #[test]
@@ -356,24 +375,5 @@ fn a_python_controller_joins_from_the_other_host() {
     };
     let py = common::python::python().display().to_string();
     let cmd = format!("{py} examples/python-controller/controller.py");
-    let out = h.tmp.path().join("remote");
-    let join = h.join(&["--controller-cmd", &cmd]);
-    let (r, j) = both(
-        h.run("configs/s1-nominal.toml", &out, &["--mode", "lockstep"]),
-        join,
-        Duration::from_secs(180),
-    );
-    assert!(
-        r.status.success(),
-        "run: {}{}",
-        text(&r.stderr),
-        text(&r.stdout)
-    );
-    assert!(j.status.success(), "join: {}", text(&j.stderr));
-    let remote = std::fs::read(out.join("trace.csv")).unwrap();
-    assert!(
-        remote == inproc_trace(h.tmp.path()),
-        "trace.csv of the remote Python controller differs from inproc"
-    );
-    h.assert_roots_empty();
+    assert_lockstep_identical(&h, &[], &["--controller-cmd", &cmd]);
 }

@@ -245,6 +245,7 @@ fn serve(
         near_gone_ns: None,
         spin_ns,
         poll_until: 0,
+        last_reply: None,
     };
     let code = f.forward(term)?;
     f.report(code)?;
@@ -321,6 +322,9 @@ struct Far {
     spin_ns: u64,
     /// Poll (do not block) until then: a reply is due.
     poll_until: u64,
+    /// The last reply sent (with its residence), for a state the near side sends again
+    /// (lockstep, after a lost datagram).
+    last_reply: Option<(TorqueMsg, u64)>,
 }
 
 impl Drop for Far {
@@ -434,6 +438,7 @@ impl Far {
             };
             self.udp
                 .send(Kind::Torque, &[bytes_of(t), &residence.to_ne_bytes()], now)?;
+            self.last_reply = Some((*t, residence));
         }
         Ok(())
     }
@@ -447,7 +452,16 @@ impl Far {
             let Some(s) = frame::read::<StateMsg>(p) else {
                 continue;
             };
-            if self.started {
+            if let Some((t, residence)) = self.last_reply
+                && t.tick == s.tick
+            {
+                // Sent again: its reply was lost on the way back.
+                let now = rt::now_ns();
+                self.udp
+                    .send(Kind::Torque, &[bytes_of(&t), &residence.to_ne_bytes()], now)?;
+            } else if self.started && self.arrived.0 == s.tick {
+                // Sent again while the controller is still on it: it answers once.
+            } else if self.started {
                 self.publish_state(s)?;
             } else {
                 self.stash = Some(s);

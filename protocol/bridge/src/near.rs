@@ -169,11 +169,24 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         stop_sent_ns: None,
         spin_ns,
         poll_until: 0,
+        resend: (a.run.mode == deltaloop_config::LoopMode::Lockstep).then_some(Resend {
+            state: StateMsg::default(),
+            due_ns: None,
+        }),
+        resent: 0,
     };
     let r = n.forward(term);
     n.tcp.flush().ok();
     std::thread::sleep(ipc::LINGER);
     let end = r?;
+    if !emu.is_off() || n.resent > 0 {
+        eprintln!(
+            "deltaloop-bridge: {}: {} datagram(s) dropped here, {} state(s) sent again",
+            describe(&emu),
+            n.udp.emulated_lost,
+            n.resent
+        );
+    }
     if n.udp.refused > 0 {
         eprintln!(
             "deltaloop-bridge: warning: refused {} datagram(s) on the link (first: {})",
@@ -209,7 +222,22 @@ struct Near {
     spin_ns: u64,
     /// Poll (do not block) until then: a reply is due.
     poll_until: u64,
+    /// Lockstep only: the state awaiting its reply, sent again every [`RESEND_NS`] until the
+    /// reply comes, so a lost datagram costs time, never the run (the far side answers a repeated
+    /// state with its cached reply). In realtime a lost state or reply is a miss, as it should be.
+    resend: Option<Resend>,
+    /// States sent again (lockstep).
+    resent: u64,
 }
+
+struct Resend {
+    state: StateMsg,
+    /// When to send it again; None once its reply came.
+    due_ns: Option<u64>,
+}
+
+/// Lockstep: how long to wait for a reply before sending its state again, ns.
+pub const RESEND_NS: u64 = 5_000_000;
 
 /// How long the far side has to report its end after the final state or a STOP, ns: the
 /// supervisor gives a controller 1 s after the plant exits.
@@ -219,10 +247,12 @@ impl Near {
     fn forward(&mut self, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         loop {
             let now = rt::now_ns();
+            let resend_due = self.resend.as_ref().and_then(|r| r.due_ns);
             let timeout = if now < self.poll_until {
                 0
             } else {
                 link::timeout_ns(&self.udp, now)
+                    .min(resend_due.map_or(u64::MAX, |d| d.saturating_sub(now)))
             };
             let mut fds = [
                 link::readable(&self.udp.sock),
@@ -241,6 +271,15 @@ impl Near {
                 self.torques()?;
             }
             self.udp.flush(rt::now_ns())?;
+            if let Some(r) = &mut self.resend
+                && let Some(due) = r.due_ns
+                && rt::now_ns() >= due
+            {
+                let now = rt::now_ns();
+                r.due_ns = Some(now + RESEND_NS);
+                self.udp.send(Kind::State, &[bytes_of(&r.state)], now)?;
+                self.resent += 1;
+            }
             self.control_plane(tcp_in)?;
             if let Some(end) = self.far_end.take() {
                 let line = (!end.line.is_empty()).then_some(end.line);
@@ -305,6 +344,10 @@ impl Near {
                 let now = rt::now_ns();
                 self.udp.send(Kind::State, &[bytes_of(st)], now)?;
                 self.poll_until = now + self.spin_ns;
+                if let Some(r) = &mut self.resend {
+                    r.state = *st;
+                    r.due_ns = Some(now + RESEND_NS);
+                }
             }
         }
         Ok(())
@@ -329,6 +372,11 @@ impl Near {
             t.t_poll_until_ns = 0;
             self.ports.torque.send_copy(t).ipc("publish torque")?;
             self.poll_until = 0;
+            if let Some(r) = &mut self.resend
+                && r.state.tick == t.tick
+            {
+                r.due_ns = None;
+            }
             let poll_until = if self.last_state.0 == t.tick {
                 self.last_state.1
             } else {
