@@ -24,7 +24,7 @@ pub enum Kind {
     State = 1,
     /// UDP, far → near: one `TorqueMsg` and the far side's residence time (u64, ns).
     Torque = 2,
-    /// UDP: bench ping (u64 sequence, u64 send time) and its echo.
+    /// UDP: bench ping (u64 sequence, then padding to a state's size) and its echo.
     Ping = 3,
     Pong = 4,
     /// UDP, far → near: opens the far host's firewall for the near side's datagrams; no payload.
@@ -139,7 +139,7 @@ fn fixed_size(kind: Kind) -> Option<usize> {
     match kind {
         Kind::State | Kind::Final => Some(size_of::<StateMsg>()),
         Kind::Torque => Some(size_of::<TorqueMsg>() + 8),
-        Kind::Ping | Kind::Pong => Some(16),
+        Kind::Ping | Kind::Pong => Some(size_of::<StateMsg>()),
         Kind::Punch => Some(0),
         Kind::Ack => Some(8),
         Kind::Control => Some(size_of::<ControlMsg>()),
@@ -314,7 +314,7 @@ mod tests {
         ));
         m[0] = b'X';
         assert_eq!(parse(&m, Some(1)).unwrap_err(), Refused::Magic);
-        let mut m = msg(Kind::Ping, 1, &[0; 16]);
+        let mut m = msg(Kind::Ping, 1, &[0; 168]);
         m[4] = 200;
         assert_eq!(parse(&m, Some(1)).unwrap_err(), Refused::Kind(200));
         // A reference chunk must be whole rows, at most one chunk.

@@ -18,6 +18,8 @@ pub mod frame;
 pub mod link;
 pub mod near;
 pub mod ping;
+#[cfg(feature = "zenoh")]
+pub mod zping;
 
 use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};
@@ -46,6 +48,12 @@ enum Side {
     Ping(ping::PingArgs),
     /// Plain UDP ping-pong, echo side.
     Pong(ping::PongArgs),
+    /// The same ping-pong over Zenoh, client side (feature `zenoh`).
+    #[cfg(feature = "zenoh")]
+    Zping(zping::ZPingArgs),
+    /// The same ping-pong over Zenoh, echo side (feature `zenoh`).
+    #[cfg(feature = "zenoh")]
+    Zpong(zping::ZPongArgs),
 }
 
 /// The emulated network (both directions, on each side's sends; this kernel has no `netem`).
@@ -157,6 +165,10 @@ pub fn main() -> ExitCode {
         Side::Far(a) => far::run(a, &term),
         Side::Ping(a) => ping::ping(a).map(|()| (0, None)),
         Side::Pong(a) => ping::pong(a, &term).map(|()| (0, None)),
+        #[cfg(feature = "zenoh")]
+        Side::Zping(a) => zping::zping(a).map(|()| (0, None)),
+        #[cfg(feature = "zenoh")]
+        Side::Zpong(a) => zping::zpong(a, &term).map(|()| (0, None)),
     };
     match r {
         Ok((0, _)) => ExitCode::SUCCESS,

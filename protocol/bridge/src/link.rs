@@ -393,7 +393,7 @@ mod tests {
         let lost = |seed| {
             let (mut a, _b) = pair(Emulation { seed, ..emu });
             for i in 0..10_000u64 {
-                a.send(Kind::Ping, &[&i.to_ne_bytes(), &0u64.to_ne_bytes()], 0)
+                a.send(Kind::Ping, &[&i.to_ne_bytes(), &[0u8; 160]], 0)
                     .unwrap();
             }
             a.emulated_lost
@@ -412,7 +412,7 @@ mod tests {
             ..Default::default()
         });
         for i in 0..5u64 {
-            a.send(Kind::Ping, &[&i.to_ne_bytes(), &0u64.to_ne_bytes()], 10)
+            a.send(Kind::Ping, &[&i.to_ne_bytes(), &[0u8; 160]], 10)
                 .unwrap();
         }
         std::thread::sleep(std::time::Duration::from_millis(20));

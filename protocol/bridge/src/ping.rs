@@ -44,13 +44,11 @@ pub fn ping(a: &PingArgs) -> Result<()> {
     s.connect(a.connect).context("connect to the echo side")?;
     let mut u = Udp::new(s, KEY, Emulation::default())?;
     let mut rtt = Vec::with_capacity(a.count as usize);
-    let pad = [0u8; 152];
     let mut lost = 0u64;
     for i in 0..(a.count as u64 + 1000) {
         let next = rt::now_ns() + a.period_us * 1000;
         let t = rt::now_ns();
-        u.send(Kind::Ping, &[&i.to_ne_bytes(), &t.to_ne_bytes()], t)?;
-        let _ = pad;
+        u.send(Kind::Ping, &[&i.to_ne_bytes(), &[0u8; 160]], t)?;
         let deadline = t + 100_000_000;
         let got = loop {
             let mut fds = [link::readable(&u.sock)];
@@ -72,21 +70,25 @@ pub fn ping(a: &PingArgs) -> Result<()> {
         }
         rt::sleep_until_ns(next);
     }
+    print(&format!("udp ping-pong {}", a.connect), &mut rtt, lost);
+    Ok(())
+}
+
+/// Prints the percentiles of `rtt` (ns) in µs, one line.
+pub fn print(what: &str, rtt: &mut [u64], lost: u64) {
     rtt.sort_unstable();
     let p = |q: f64| {
         rtt.get(((rtt.len() as f64 * q) as usize).min(rtt.len().saturating_sub(1)))
             .map_or(0.0, |v| *v as f64 / 1e3)
     };
     println!(
-        "udp ping-pong {}: {} round trips, p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs, lost {lost}",
-        a.connect,
+        "{what}: {} round trips, p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs, lost {lost}",
         rtt.len(),
         p(0.5),
         p(0.99),
         p(0.999),
         p(1.0)
     );
-    Ok(())
 }
 
 /// Echoes every ping until SIGTERM / SIGINT.

@@ -107,3 +107,54 @@ pub fn join(j: &Join<'_>) -> Result<()> {
         )
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg() -> RunConfig {
+        RunConfig::from_toml_str("name = \"t\"\n", None).unwrap()
+    }
+
+    #[test]
+    fn remote_flags_are_checked_with_one_line() {
+        let remote = |ep: &str| RemoteArgs {
+            controller_remote: Some(ep.into()),
+            ..Default::default()
+        };
+        let mut c = cfg();
+        remote("127.0.0.1:7447").apply(&mut c).unwrap();
+        assert!(c.controller.command[0].ends_with("deltaloop-bridge"));
+        assert!(c.controller.command.contains(&"127.0.0.1:7447".to_string()));
+        let e = remote("127.0.0.1")
+            .apply(&mut cfg())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("--controller-remote: endpoint `127.0.0.1`: no port"),
+            "{e}"
+        );
+        let mut c = cfg();
+        c.controller.command = vec!["my-controller".into()];
+        let e = remote("127.0.0.1:7447")
+            .apply(&mut c)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("exclude each other"), "{e}");
+        let lossy = RemoteArgs {
+            emu: EmuArgs {
+                link_loss: 0.1,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let e = lossy.apply(&mut cfg()).unwrap_err().to_string();
+        assert!(e.contains("need --controller-remote"), "{e}");
+        let e = remote("127.0.0.1:7447")
+            .check_mode(LoopMode::Inproc)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("lockstep or realtime"), "{e}");
+        assert!(!e.contains('\n'), "{e}");
+    }
+}
