@@ -280,20 +280,30 @@ fn realtime_across_the_link_completes_measures_the_round_trip_and_replays() {
     else {
         return;
     };
-    let out = h.tmp.path().join("remote");
-    let join = h.join(&[]);
-    let (r, j) = both(
-        h.run(&h.roomy_config(), &out, &["--mode", "realtime"]),
-        join,
-        Duration::from_secs(120),
-    );
-    assert!(
-        r.status.success(),
-        "run: {}{}",
-        text(&r.stderr),
-        text(&r.stdout)
-    );
-    assert!(j.status.success(), "join: {}", text(&j.stderr));
+    // Both "hosts" share two vCPUs with whatever else runs: a run the host froze long enough
+    // to fault or diverge is run again (at most three attempts, each failure said on stderr).
+    let mut out = PathBuf::new();
+    for attempt in 1..=3 {
+        out = h.tmp.path().join(format!("remote-{attempt}"));
+        let join = h.join(&[]);
+        let (r, j) = both(
+            h.run(&h.roomy_config(), &out, &["--mode", "realtime"]),
+            join,
+            Duration::from_secs(120),
+        );
+        if r.status.success() {
+            assert!(j.status.success(), "join: {}", text(&j.stderr));
+            break;
+        }
+        let why = text(&r.stderr);
+        assert!(attempt < 3, "three realtime runs failed; the last: {why}");
+        assert!(
+            why.contains("fault") || why.contains("diverged"),
+            "not a timing failure: {why}"
+        );
+        eprintln!("attempt {attempt} spoiled by the machine, run again: {why}");
+        h.assert_roots_empty();
+    }
     let s = summary(&out);
     assert_eq!(outcome(&s, "tdc"), (RunStatus::Ok, None), "{s}");
     let t = &s["timing"]["tdc"];
@@ -330,19 +340,37 @@ fn pulling_the_link_mid_run_ends_in_a_safe_stop_with_every_tick_kept() {
     else {
         return;
     };
-    let out = h.tmp.path().join("remote");
-    let join = h.join(&[]);
-    let run = h.run(
-        &h.roomy_config(),
-        &out,
-        &["--mode", "realtime", "--hold-s", "5"],
-    );
-    // Pull the link once the loop runs (trace rows are on disk as ticks finish).
-    let t0 = std::time::Instant::now();
-    while !out.join("tdc.timing.csv").is_file() && t0.elapsed() < Duration::from_secs(60) {
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    std::thread::sleep(Duration::from_millis(1500));
+    // The cut must come while the loop runs: an attempt the machine spoiled before it (a fault
+    // or divergence of its own) is run again, at most three times, and said on stderr.
+    let mut attempt = 0;
+    let (out, run, join) = loop {
+        attempt += 1;
+        let out = h.tmp.path().join(format!("remote-{attempt}"));
+        let join = h.join(&[]);
+        let mut run = h.run(
+            &h.roomy_config(),
+            &out,
+            &["--mode", "realtime", "--hold-s", "5"],
+        );
+        let t0 = std::time::Instant::now();
+        while !out.join("tdc.timing.csv").is_file() && t0.elapsed() < Duration::from_secs(60) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        std::thread::sleep(Duration::from_millis(1500));
+        if run.try_wait().unwrap().is_none() {
+            break (out, run, join);
+        }
+        let (r, _) = both(run, join, Duration::from_secs(10));
+        assert!(
+            attempt < 3,
+            "three runs ended before the cut: {}",
+            text(&r.stderr)
+        );
+        eprintln!(
+            "attempt {attempt} ended before the cut, run again: {}",
+            text(&r.stderr)
+        );
+    };
     ip(&["-n", &h.a, "link", "set", &h.veth_a, "down"]).unwrap();
     let (r, j) = both(run, join, Duration::from_secs(60));
     let err = text(&r.stderr);
