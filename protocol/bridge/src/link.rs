@@ -353,11 +353,19 @@ pub fn event(
     }
 }
 
-/// The wait's timeout: 1 ms (the control plane's pace), or less when an emulated datagram is due.
+/// The wait's timeout: 1 ms (the control plane's pace), or less when an emulated datagram is
+/// due; 0 (poll) when it is due within [`EMULATION_SPIN_NS`], since a timed wake-up on a VM comes
+/// tens of µs late and would add that to every emulated delay.
 pub fn timeout_ns(udp: &Udp, now_ns: u64) -> u64 {
-    udp.next_due()
-        .map_or(1_000_000, |d| d.saturating_sub(now_ns).min(1_000_000))
+    match udp.next_due().map(|d| d.saturating_sub(now_ns)) {
+        Some(left) if left <= EMULATION_SPIN_NS => 0,
+        Some(left) => (left - EMULATION_SPIN_NS).min(1_000_000),
+        None => 1_000_000,
+    }
 }
+
+/// How close to an emulated datagram's due time the bridge stops sleeping and polls, ns.
+pub const EMULATION_SPIN_NS: u64 = 100_000;
 
 /// A pollfd for reading `fd`.
 pub fn readable(fd: &impl AsRawFd) -> libc::pollfd {

@@ -113,7 +113,11 @@ mod tests {
     use super::*;
 
     fn cfg() -> RunConfig {
-        RunConfig::from_toml_str("name = \"t\"\n", None).unwrap()
+        RunConfig::from_file(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../configs/s1-nominal.toml"
+        )))
+        .unwrap()
     }
 
     #[test]
