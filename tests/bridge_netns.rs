@@ -308,8 +308,9 @@ fn realtime_across_the_link_completes_measures_the_round_trip_and_replays() {
     assert_eq!(outcome(&s, "tdc"), (RunStatus::Ok, None), "{s}");
     let t = &s["timing"]["tdc"];
     let p50 = t["round_trip"]["p50_us"].as_f64().unwrap();
-    // A round trip over the link: at least the two datagrams' flight, never the budget.
-    assert!(p50 > 5.0 && p50 < 250.0, "round trip p50 {p50} µs: {t}");
+    // Measured over the link, on the plant's clock: at least the two datagrams' flight.
+    assert!(p50 > 5.0, "round trip p50 {p50} µs: {t}");
+    assert!(t["round_trip"]["count"].as_u64().unwrap() > 1000, "{t}");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(
         report.contains("--controller-remote 10.77.0.1:7447")
@@ -404,4 +405,34 @@ fn a_python_controller_joins_from_the_other_host() {
     let py = common::python::python().display().to_string();
     let cmd = format!("{py} examples/python-controller/controller.py");
     assert_lockstep_identical(&h, &[], &["--controller-cmd", &cmd]);
+}
+
+#[test]
+fn ctrl_c_on_the_plants_host_stops_both_sides_cleanly() {
+    let Some((h, _one)) = Hosts::new("ctrl_c_on_the_plants_host_stops_both_sides_cleanly") else {
+        return;
+    };
+    let out = h.tmp.path().join("remote");
+    let join = h.join(&[]);
+    // `ip netns exec` and `env` exec in place: the child's pid is the supervisor's.
+    let run = h.run(
+        "configs/s1-nominal.toml",
+        &out,
+        &["--mode", "lockstep", "--hold-s", "60"],
+    );
+    let t0 = std::time::Instant::now();
+    while !out.join("tdc.timing.csv").is_file() && t0.elapsed() < Duration::from_secs(60) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(1000));
+    // SAFETY: signalling our own child, not yet reaped.
+    unsafe { libc::kill(run.id() as i32, libc::SIGINT) };
+    let (r, j) = both(run, join, Duration::from_secs(30));
+    assert_eq!(r.status.code(), Some(130), "run: {}", text(&r.stderr));
+    let far = text(&j.stderr);
+    assert_eq!(j.status.code(), Some(5), "join: {far}");
+    assert!(far.contains("stopped by the supervisor (STOP)"), "{far}");
+    let s = summary(&out);
+    assert_eq!(outcome(&s, "tdc").0, RunStatus::Interrupted, "{s}");
+    h.assert_roots_empty();
 }

@@ -264,6 +264,7 @@ impl Near {
             }
             link::wait(&mut fds, timeout)?;
             let [udp_in, tcp_in, state_in] = fds.map(|f| f.revents != 0);
+            self.forward_control()?;
             if state_in {
                 self.states()?;
             }
@@ -389,8 +390,9 @@ impl Near {
         Ok(())
     }
 
-    /// Run control and the reference out, the far side's control, log and end in.
-    fn control_plane(&mut self, tcp_in: bool) -> Result<()> {
+    /// The supervisor's run control out (START with its deadline made relative, STOP). Before the
+    /// states of each wake-up: a STOP must reach the far side before the final state it causes.
+    fn forward_control(&mut self) -> Result<()> {
         while let Some(s) = self.ports.control.1.receive().ipc("receive control")? {
             let mut c = *s.payload();
             match (c.kind(), c.sender()) {
@@ -404,6 +406,11 @@ impl Near {
                 _ => {}
             }
         }
+        Ok(())
+    }
+
+    /// The reference out, the far side's control, log and end in.
+    fn control_plane(&mut self, tcp_in: bool) -> Result<()> {
         // One chunk at a time in flight: the subscriber keeps the rest (REF_RING deep).
         while self.tcp.pending() < 64 * 1024 {
             let Some(chunk) = self.ports.reference.receive().ipc("receive reference")? else {
