@@ -210,6 +210,15 @@ impl Drop for Hosts {
     }
 }
 
+/// Waits until the run in `out` has started its loop (its timing file exists), then `ms` more.
+fn wait_for_the_loop(out: &Path, ms: u64) {
+    let t0 = std::time::Instant::now();
+    while !out.join("tdc.timing.csv").is_file() && t0.elapsed() < Duration::from_secs(60) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(ms));
+}
+
 fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).into_owned()
 }
@@ -353,11 +362,7 @@ fn pulling_the_link_mid_run_ends_in_a_safe_stop_with_every_tick_kept() {
             &out,
             &["--mode", "realtime", "--hold-s", "5"],
         );
-        let t0 = std::time::Instant::now();
-        while !out.join("tdc.timing.csv").is_file() && t0.elapsed() < Duration::from_secs(60) {
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        std::thread::sleep(Duration::from_millis(1500));
+        wait_for_the_loop(&out, 1500);
         if run.try_wait().unwrap().is_none() {
             break (out, run, join);
         }
@@ -420,11 +425,7 @@ fn ctrl_c_on_the_plants_host_stops_both_sides_cleanly() {
         &out,
         &["--mode", "lockstep", "--hold-s", "60"],
     );
-    let t0 = std::time::Instant::now();
-    while !out.join("tdc.timing.csv").is_file() && t0.elapsed() < Duration::from_secs(60) {
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    std::thread::sleep(Duration::from_millis(1000));
+    wait_for_the_loop(&out, 1000);
     // SAFETY: signalling our own child, not yet reaped.
     unsafe { libc::kill(run.id() as i32, libc::SIGINT) };
     let (r, j) = both(run, join, Duration::from_secs(30));
