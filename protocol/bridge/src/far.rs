@@ -89,7 +89,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
 }
 
 fn connect(a: &Args, term: &AtomicBool) -> Result<Option<TcpStream>> {
-    let end = rt::now_ns() + a.wait_s * 1_000_000_000;
+    let end = rt::now_ns().saturating_add(a.wait_s.saturating_mul(1_000_000_000));
     loop {
         match TcpStream::connect_timeout(&a.connect, Duration::from_secs(1)) {
             Ok(s) => return Ok(Some(s)),

@@ -469,7 +469,7 @@ impl Near {
 /// Exposed for the far side's START: tick 0's deadline on this host's clock, from the relative
 /// time on the wire.
 pub fn absolute_t0(relative_ns: u64) -> u64 {
-    rt::now_ns() + relative_ns
+    rt::now_ns().saturating_add(relative_ns)
 }
 
 /// The emulation in force (for the report line).
