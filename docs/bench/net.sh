@@ -11,7 +11,17 @@
 set -eu
 B=${1:-target/release}; HOLD=${2:-9}
 T=$(mktemp -d); A=dlbench$$a; Z=dlbench$$b
-cleanup() { ip netns del $A 2>/dev/null || true; ip netns del $Z 2>/dev/null || true; rm -rf "$T"; }
+# iceoryx2 keeps one management segment per root in /dev/shm, under the root's prefix
+# (iox2_<FNV-1a 32 of "<root>/">_, docs/protocol.md §14): remove those too.
+prefix() { python3 -c "
+h = 0x811C9DC5
+for b in '$1/'.encode(): h = ((h ^ b) * 0x01000193) & 0xFFFFFFFF
+print(f'iox2_{h:08x}_')"; }
+cleanup() {
+  ip netns del $A 2>/dev/null || true; ip netns del $Z 2>/dev/null || true
+  for r in $T/iox-a $T/iox-b; do rm -f /dev/shm/$(prefix $r)*; done
+  rm -rf "$T"
+}
 trap cleanup EXIT
 ip netns add $A; ip netns add $Z
 ip link add vb$$a netns $A type veth peer name vb$$b netns $Z
