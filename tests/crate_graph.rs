@@ -136,3 +136,19 @@ fn graph_reader_sees_transitive_dependencies() {
         assert!(g.iter().any(|n| n == dep), "{dep} missing from {g:?}");
     }
 }
+
+/// The bridge carries messages and knows neither the robot nor a law; its default build (the one
+/// `cargo build --release` and `cargo test` make) has no Zenoh, which costs ~700 crates.
+#[test]
+fn bridge_is_lean_and_zenoh_is_opt_in() {
+    assert_none_of(
+        "deltaloop-bridge",
+        &[
+            "deltaloop-model",
+            "deltaloop-plant",
+            "deltaloop-controller",
+            "zenoh",
+        ],
+    );
+    assert_none_of("deltaloop", &["zenoh"]);
+}

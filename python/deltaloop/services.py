@@ -5,6 +5,7 @@ Rust `Debug` form of `ServiceDetails`); this module reads the payload type and t
 out of it. Anything it cannot read is reported as unknown, never guessed.
 """
 
+import os
 import ctypes
 import re
 
@@ -82,7 +83,25 @@ def guest_config():
     cfg.global_cfg.node.cleanup_dead_nodes_on_creation = False
     cfg.global_cfg.node.cleanup_dead_nodes_on_destruction = False
     cfg.global_cfg.service.cleanup_dead_nodes_on_open = False
+    own = own_root()
+    if own is not None:
+        cfg.global_cfg.root_path = iox2.Path.new(own[0])
+        cfg.global_cfg.prefix = iox2.FileName.new(own[1])
     return cfg
+
+
+def own_root():
+    """The iceoryx2 root directory and shared-memory prefix that `DELTALOOP_IOX2_ROOT` asks for
+    (None: iceoryx2's defaults), exactly as `ipc::own_root` in Rust derives them: the directory
+    with a trailing `/`, and `iox2_<FNV-1a 32 of it, hex>_`."""
+    v = os.environ.get("DELTALOOP_IOX2_ROOT")
+    if not v or not v.startswith("/") or len(v) > 200 or "\0" in v:
+        return None
+    root = v if v.endswith("/") else v + "/"
+    h = 0x811C9DC5
+    for b in root.encode():
+        h = ((h ^ b) * 0x01000193) & 0xFFFFFFFF
+    return root, f"iox2_{h:08x}_"
 
 
 class RunPorts:

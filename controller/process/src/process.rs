@@ -19,7 +19,7 @@ use deltaloop_config::config::{FaultInjection, Poll};
 use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
-use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, LOOP_BUFFER, Svc};
+use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, Svc};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{
     self, ControlKind, ControlMsg, RefSample, Sender, StateMsg, TorqueMsg,
@@ -69,24 +69,12 @@ struct Ports {
 impl Ports {
     fn open(run_id: &str) -> Result<Self> {
         let node = ipc::node("controller", run_id)?;
+        let (state, torque, state_ready, torque_ready) = ipc::controller_loop(&node, run_id)?;
         Ok(Self {
-            state: ipc::state(&node, run_id)?
-                .subscriber_builder()
-                .buffer_size(LOOP_BUFFER)
-                .create()
-                .ipc("state subscriber")?,
-            torque: ipc::torque(&node, run_id)?
-                .publisher_builder()
-                .create()
-                .ipc("torque publisher")?,
-            state_ready: ipc::wakeup(&node, run_id, "state-ready")?
-                .listener_builder()
-                .create()
-                .ipc("state listener")?,
-            torque_ready: ipc::wakeup(&node, run_id, "torque-ready")?
-                .notifier_builder()
-                .create()
-                .ipc("torque notifier")?,
+            state,
+            torque,
+            state_ready,
+            torque_ready,
             reference: ipc::reference_subscriber(&node, run_id)?,
             control: ipc::control_ports(&node, run_id, Sender::Controller)?,
             _node: node,

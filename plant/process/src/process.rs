@@ -21,7 +21,7 @@ use deltaloop_config::{LoopMode, RunConfig};
 use deltaloop_model::Vec3;
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
-use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, LOOP_BUFFER, Svc};
+use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, Svc};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{
     self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
@@ -67,28 +67,16 @@ struct Ports {
 impl Ports {
     fn open(run_id: &str) -> Result<Self> {
         let node = ipc::node("plant", run_id)?;
+        let (state, torque, state_ready, torque_ready) = ipc::plant_loop(&node, run_id)?;
         Ok(Self {
-            state: ipc::state(&node, run_id)?
-                .publisher_builder()
-                .create()
-                .ipc("state publisher")?,
+            state,
             telemetry: ipc::telemetry(&node, run_id)?
                 .publisher_builder()
                 .create()
                 .ipc("telemetry publisher")?,
-            torque: ipc::torque(&node, run_id)?
-                .subscriber_builder()
-                .buffer_size(LOOP_BUFFER)
-                .create()
-                .ipc("torque subscriber")?,
-            state_ready: ipc::wakeup(&node, run_id, "state-ready")?
-                .notifier_builder()
-                .create()
-                .ipc("state notifier")?,
-            torque_ready: ipc::wakeup(&node, run_id, "torque-ready")?
-                .listener_builder()
-                .create()
-                .ipc("torque listener")?,
+            torque,
+            state_ready,
+            torque_ready,
             control: ipc::control_ports(&node, run_id, Sender::Plant)?,
             _node: node,
         })

@@ -54,7 +54,46 @@ pub fn config() -> Config {
     c.global.node.cleanup_dead_nodes_on_creation = false;
     c.global.node.cleanup_dead_nodes_on_destruction = false;
     c.global.service.cleanup_dead_nodes_on_open = false;
+    if let Some((root, prefix)) = own_root() {
+        // Checked in own_root: an absolute path of at most 255 bytes, a short file name.
+        if let (Ok(r), Ok(p)) = (Path::new(root.as_bytes()), FileName::new(prefix.as_bytes())) {
+            c.global.set_root_path(&r);
+            c.global.prefix = p;
+        }
+    }
     c
+}
+
+/// The environment variable that gives this process its own iceoryx2 root: a directory (absolute
+/// path) for iceoryx2's node and service files, and a shared-memory prefix derived from it, so
+/// that processes with different roots never see each other's services on one machine (two
+/// "hosts" in network namespaces of one machine, joined only by `deltaloop-bridge`). Unset: the
+/// iceoryx2 defaults (`/tmp/iceoryx2/`, prefix `iox2_`).
+pub const ROOT_ENV: &str = "DELTALOOP_IOX2_ROOT";
+
+/// The iceoryx2 root directory (ending in `/`) and shared-memory prefix [`ROOT_ENV`] asks for, if
+/// it is set to a usable absolute path; the prefix is `iox2_<FNV-1a 32 of the path, hex>_` (the
+/// Python helper derives the same).
+pub fn own_root() -> Option<(String, String)> {
+    let v = std::env::var(ROOT_ENV).ok()?;
+    root_of(&v)
+}
+
+/// [`own_root`] for the value `v`.
+pub fn root_of(v: &str) -> Option<(String, String)> {
+    if !v.starts_with('/') || v.len() > 200 || v.contains('\0') {
+        return None;
+    }
+    let root = if v.ends_with('/') {
+        v.to_string()
+    } else {
+        format!("{v}/")
+    };
+    let mut h: u32 = 0x811c_9dc5;
+    for b in root.as_bytes() {
+        h = (h ^ u32::from(*b)).wrapping_mul(0x0100_0193);
+    }
+    Some((root, format!("iox2_{h:08x}_")))
 }
 
 /// A node for `role` in run `run_id`. Signal handling stays with the process.
@@ -283,6 +322,72 @@ pub fn wakeup(
         .max_nodes(4)
         .open_or_create()
         .ipc(format!("open event {what}"))
+}
+
+/// The controller's end of the loop: `state` subscriber (buffer [`LOOP_BUFFER`]), `torque`
+/// publisher, `state-ready` listener, `torque-ready` notifier (the built-in controller and the
+/// bridge's near side, which stands in for it).
+pub type ControllerLoop = (
+    iceoryx2::port::subscriber::Subscriber<Svc, StateMsg, ()>,
+    iceoryx2::port::publisher::Publisher<Svc, TorqueMsg, ()>,
+    iceoryx2::port::listener::Listener<Svc>,
+    iceoryx2::port::notifier::Notifier<Svc>,
+);
+
+/// Opens [`ControllerLoop`].
+pub fn controller_loop(node: &Node<Svc>, run_id: &str) -> Result<ControllerLoop, IpcError> {
+    Ok((
+        state(node, run_id)?
+            .subscriber_builder()
+            .buffer_size(LOOP_BUFFER)
+            .create()
+            .ipc("state subscriber")?,
+        torque(node, run_id)?
+            .publisher_builder()
+            .create()
+            .ipc("torque publisher")?,
+        wakeup(node, run_id, "state-ready")?
+            .listener_builder()
+            .create()
+            .ipc("state listener")?,
+        wakeup(node, run_id, "torque-ready")?
+            .notifier_builder()
+            .create()
+            .ipc("torque notifier")?,
+    ))
+}
+
+/// The plant's end of the loop: `state` publisher, `torque` subscriber (buffer [`LOOP_BUFFER`]),
+/// `state-ready` notifier, `torque-ready` listener (the built-in plant and the bridge's far side,
+/// which stands in for it).
+pub type PlantLoop = (
+    iceoryx2::port::publisher::Publisher<Svc, StateMsg, ()>,
+    iceoryx2::port::subscriber::Subscriber<Svc, TorqueMsg, ()>,
+    iceoryx2::port::notifier::Notifier<Svc>,
+    iceoryx2::port::listener::Listener<Svc>,
+);
+
+/// Opens [`PlantLoop`].
+pub fn plant_loop(node: &Node<Svc>, run_id: &str) -> Result<PlantLoop, IpcError> {
+    Ok((
+        state(node, run_id)?
+            .publisher_builder()
+            .create()
+            .ipc("state publisher")?,
+        torque(node, run_id)?
+            .subscriber_builder()
+            .buffer_size(LOOP_BUFFER)
+            .create()
+            .ipc("torque subscriber")?,
+        wakeup(node, run_id, "state-ready")?
+            .notifier_builder()
+            .create()
+            .ipc("state notifier")?,
+        wakeup(node, run_id, "torque-ready")?
+            .listener_builder()
+            .create()
+            .ipc("torque listener")?,
+    ))
 }
 
 /// Free space of the shared-memory file system iceoryx2 uses (`/dev/shm`), bytes; None if it

@@ -4,6 +4,7 @@
 
 mod bench;
 mod helpers;
+mod join;
 mod paper;
 mod replay;
 mod run;
@@ -47,6 +48,9 @@ enum Command {
     Soak(soak::Args),
     /// Benchmarks.
     Bench(bench::Args),
+    /// Run the controller of a run on this host, the plant and supervisor being on another
+    /// (`deltaloop run … --controller-remote HOST:PORT` there).
+    Join(join::Args),
     /// Internal: the controller side of `bench loop`'s iceoryx2 baseline.
     #[command(hide = true)]
     IoxController(helpers::IoxArgs),
@@ -95,6 +99,7 @@ pub fn main() -> ExitCode {
         Command::Top(a) => top::exec(a, &cx),
         Command::Soak(a) => soak::exec(a, &cx),
         Command::Bench(a) => bench::exec(a, &cx),
+        Command::Join(a) => join::exec(a, &cx),
         Command::IoxController(a) => helpers::exec_iox(a, &cx),
         Command::UdsController(a) => helpers::exec_uds(a, &cx),
     };

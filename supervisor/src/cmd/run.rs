@@ -24,6 +24,7 @@ pub struct Args {
 }
 
 pub fn exec(a: Args, cx: &Context) -> Result<()> {
+    a.overrides.remote.check_mode(a.mode)?;
     let cfg = run::load_config(&a.config, &a.overrides)?;
     let o = run::run(RunRequest {
         out: a.out.out,

@@ -75,6 +75,8 @@ pub struct Overrides {
     /// Run this command in place of the built-in controller process (controller.command).
     #[arg(long, value_name = "CMD")]
     pub controller_cmd: Option<String>,
+    #[command(flatten)]
+    pub remote: crate::ops::join::RemoteArgs,
 }
 
 impl Overrides {
@@ -108,6 +110,7 @@ impl Overrides {
         if let Some(c) = &self.controller_cmd {
             cfg.controller.command = words(c);
         }
+        self.remote.apply(&mut cfg)?;
         cfg.validate()?;
         Ok(cfg)
     }

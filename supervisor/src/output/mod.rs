@@ -1,6 +1,7 @@
 //! The run folder: `trace.csv`, `summary.json`, `report.md` (the resolved `config.toml` is
 //! written by [`crate::ops::run::run`] before the runs).
 
+pub mod link;
 pub mod plot;
 pub mod report;
 

@@ -217,7 +217,7 @@ fn header(s: &mut String, cfg: &RunConfig, p: &ControllerParams, mode: LoopMode,
 
 /// What the config adds to the nominal loop: delays, a payload step, sensor realism.
 fn injected(cfg: &RunConfig) -> Vec<String> {
-    let mut extras = Vec::new();
+    let mut extras: Vec<String> = super::link::note(cfg).into_iter().collect();
     if cfg.plant.transport_delay_samples > 0 {
         extras.push(format!(
             "transport delay d = {} ticks",

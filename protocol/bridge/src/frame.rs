@@ -1,0 +1,363 @@
+//! The link's wire format: what crosses between the two hosts. Every datagram (UDP, the loop) and
+//! every frame (TCP, the control plane) starts with the same 16-byte [`Header`]: magic `DLB1`,
+//! a kind, and the run key (FNV-1a 64 of the run id), so a datagram of another run, another
+//! program or another byte order is dropped. The payloads are the `#[repr(C)]` wire types of
+//! `deltaloop_transport::wire`, byte for byte (one copy: shared memory → socket, socket → shared
+//! memory). Both hosts must have the same byte order (checked by the magic).
+
+use deltaloop_transport::wire::{ControlMsg, RefSample, StateMsg, TorqueMsg};
+
+/// `DLB1`, read as a native u32: a host of the other byte order reads `1BLD` and drops it.
+pub const MAGIC: u32 = u32::from_ne_bytes(*b"DLB1");
+/// Header bytes before every payload.
+pub const HEADER: usize = 16;
+/// The largest TCP frame (after its u32 length): the HELLO's config text or a reference chunk.
+pub const MAX_FRAME: usize = 1 << 20;
+/// The largest datagram the loop sends, bytes (a state: header + 168).
+pub const MAX_DATAGRAM: usize = 256;
+
+/// What a datagram or frame carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u16)]
+pub enum Kind {
+    /// UDP, near → far: one `StateMsg`.
+    State = 1,
+    /// UDP, far → near: one `TorqueMsg` and the far side's residence time (u64, ns).
+    Torque = 2,
+    /// UDP: bench ping (u64 sequence, then padding to a state's size) and its echo.
+    Ping = 3,
+    Pong = 4,
+    /// UDP, far → near: opens the far host's firewall for the near side's datagrams; no payload.
+    Punch = 5,
+    /// TCP, near → far: the run (see [`Hello`]).
+    Hello = 16,
+    /// TCP, far → near: the far UDP port (u64).
+    Ack = 17,
+    /// TCP, both ways: one `ControlMsg` (START's `t0_ns` is relative on the wire: ns from the
+    /// send to tick 0's deadline).
+    Control = 18,
+    /// TCP, near → far: one reference chunk, `[RefSample]`.
+    Reference = 19,
+    /// TCP, near → far: the final state (`STATE_FINAL`), reliably.
+    Final = 20,
+    /// TCP, far → near: the far process's exit code (u32) and its last stderr line.
+    Exit = 21,
+    /// TCP, far → near: one line of the far process's stderr.
+    Log = 22,
+}
+
+impl Kind {
+    fn from_wire(v: u16) -> Option<Self> {
+        use Kind::*;
+        [
+            State, Torque, Ping, Pong, Punch, Hello, Ack, Control, Reference, Final, Exit, Log,
+        ]
+        .into_iter()
+        .find(|k| *k as u16 == v)
+    }
+}
+
+/// Plain old data: every bit pattern is a valid value and there is no implicit padding, so its
+/// bytes may be read and written as they are.
+///
+/// # Safety
+/// Only for `#[repr(C)]` types of integer and float fields (and arrays of them) whose explicit
+/// `_pad` fields leave no implicit padding.
+pub unsafe trait Pod: Copy + 'static {}
+// SAFETY: repr(C), u64/u32/f64 fields and arrays, explicit padding (docs/protocol.md §4).
+unsafe impl Pod for StateMsg {}
+// SAFETY: as above.
+unsafe impl Pod for TorqueMsg {}
+// SAFETY: as above.
+unsafe impl Pod for ControlMsg {}
+// SAFETY: as above.
+unsafe impl Pod for RefSample {}
+// SAFETY: a primitive.
+unsafe impl Pod for u64 {}
+
+/// The bytes of `v`.
+pub fn bytes_of<T: Pod>(v: &T) -> &[u8] {
+    // SAFETY: T is Pod: all of its size_of bytes are initialised.
+    unsafe { std::slice::from_raw_parts((v as *const T).cast::<u8>(), size_of::<T>()) }
+}
+
+/// The bytes of a slice of `T`.
+pub fn bytes_of_slice<T: Pod>(v: &[T]) -> &[u8] {
+    // SAFETY: as in bytes_of, for every element; the length is the slice's in bytes.
+    unsafe { std::slice::from_raw_parts(v.as_ptr().cast::<u8>(), std::mem::size_of_val(v)) }
+}
+
+/// A `T` read from exactly its bytes (None if `b` has another length).
+pub fn read<T: Pod>(b: &[u8]) -> Option<T> {
+    (b.len() == size_of::<T>()).then(|| {
+        // SAFETY: T is Pod (any bit pattern is valid) and b holds size_of::<T>() bytes.
+        unsafe { std::ptr::read_unaligned(b.as_ptr().cast::<T>()) }
+    })
+}
+
+/// The run key of a run id: FNV-1a 64 of its bytes.
+pub fn run_key(run_id: &str) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in run_id.as_bytes() {
+        h = (h ^ u64::from(*b)).wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+/// Writes the header of a `kind` message of run `key` into `out[..HEADER]`.
+pub fn put_header(out: &mut [u8], kind: Kind, key: u64) {
+    out[0..4].copy_from_slice(&MAGIC.to_ne_bytes());
+    out[4..6].copy_from_slice(&(kind as u16).to_ne_bytes());
+    out[6..8].copy_from_slice(&0u16.to_ne_bytes());
+    out[8..16].copy_from_slice(&key.to_ne_bytes());
+}
+
+/// Why a datagram or frame was refused: one line.
+#[derive(Debug, PartialEq, Eq)]
+pub enum Refused {
+    Short(usize),
+    Magic,
+    Kind(u16),
+    Run,
+    Size { kind: Kind, got: usize },
+}
+
+impl std::fmt::Display for Refused {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Refused::Short(n) => write!(f, "{n} bytes, shorter than the {HEADER}-byte header"),
+            Refused::Magic => write!(f, "not a deltaloop link message (magic is not DLB1)"),
+            Refused::Kind(k) => write!(f, "unknown kind {k}"),
+            Refused::Run => write!(f, "for another run (run key differs)"),
+            Refused::Size { kind, got } => write!(f, "{kind:?} with a {got}-byte payload"),
+        }
+    }
+}
+
+/// The payload size a kind must have, if fixed.
+fn fixed_size(kind: Kind) -> Option<usize> {
+    match kind {
+        Kind::State | Kind::Final => Some(size_of::<StateMsg>()),
+        Kind::Torque => Some(size_of::<TorqueMsg>() + 8),
+        Kind::Ping | Kind::Pong => Some(size_of::<StateMsg>()),
+        Kind::Punch => Some(0),
+        Kind::Ack => Some(8),
+        Kind::Control => Some(size_of::<ControlMsg>()),
+        Kind::Hello | Kind::Reference | Kind::Exit | Kind::Log => None,
+    }
+}
+
+/// Checks a message of run `key` (`None`: any run, for the HELLO) and returns its kind and
+/// payload. Never panics, whatever the bytes.
+pub fn parse(b: &[u8], key: Option<u64>) -> Result<(Kind, &[u8]), Refused> {
+    if b.len() < HEADER {
+        return Err(Refused::Short(b.len()));
+    }
+    let word = |r: std::ops::Range<usize>| {
+        let mut a = [0u8; 8];
+        a[..r.len()].copy_from_slice(&b[r]);
+        u64::from_ne_bytes(a)
+    };
+    if word(0..4) as u32 != MAGIC {
+        return Err(Refused::Magic);
+    }
+    let raw = word(4..6) as u16;
+    let kind = Kind::from_wire(raw).ok_or(Refused::Kind(raw))?;
+    if key.is_some_and(|k| k != word(8..16)) {
+        return Err(Refused::Run);
+    }
+    let payload = &b[HEADER..];
+    let ok = match kind {
+        Kind::Reference => {
+            !payload.is_empty()
+                && payload.len().is_multiple_of(size_of::<RefSample>())
+                && payload.len() <= deltaloop_transport::ipc::REF_CHUNK * size_of::<RefSample>()
+        }
+        Kind::Exit => payload.len() >= 4,
+        _ => fixed_size(kind).is_none_or(|n| n == payload.len()),
+    };
+    if !ok {
+        return Err(Refused::Size {
+            kind,
+            got: payload.len(),
+        });
+    }
+    Ok((kind, payload))
+}
+
+/// The key of a message (after [`parse`] accepted it).
+pub fn key_of(b: &[u8]) -> u64 {
+    let mut a = [0u8; 8];
+    a.copy_from_slice(&b[8..16]);
+    u64::from_ne_bytes(a)
+}
+
+/// The run as the near side announces it: run id, mode, law, the emulated link, and the resolved
+/// config's text. Encoded as `key=value` lines, then an empty line, then the config.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Hello {
+    pub run_id: String,
+    pub mode: String,
+    pub law: String,
+    pub emulation: crate::link::Emulation,
+    pub config: String,
+}
+
+impl Hello {
+    pub fn encode(&self) -> Vec<u8> {
+        let e = &self.emulation;
+        format!(
+            "run_id={}\nmode={}\nlaw={}\ndelay_ns={}\njitter_ns={}\nloss_ppm={}\nseed={}\n\n{}",
+            self.run_id,
+            self.mode,
+            self.law,
+            e.delay_ns,
+            e.jitter_ns,
+            e.loss_ppm,
+            e.seed,
+            self.config
+        )
+        .into_bytes()
+    }
+
+    /// Decodes a HELLO; one line naming what is wrong otherwise.
+    pub fn decode(b: &[u8]) -> Result<Self, String> {
+        let text = std::str::from_utf8(b).map_err(|_| "HELLO is not UTF-8".to_string())?;
+        let (head, config) = text.split_once("\n\n").ok_or("HELLO has no config part")?;
+        let mut h = Hello {
+            run_id: String::new(),
+            mode: String::new(),
+            law: String::new(),
+            emulation: Default::default(),
+            config: config.to_string(),
+        };
+        for line in head.lines() {
+            let (k, v) = line
+                .split_once('=')
+                .ok_or_else(|| format!("HELLO line without `=`: {}", escape(line)))?;
+            let num = || {
+                v.parse::<u64>()
+                    .map_err(|_| format!("HELLO {k} = {}: not a whole number", escape(v)))
+            };
+            match k {
+                "run_id" => h.run_id = v.to_string(),
+                "mode" => h.mode = v.to_string(),
+                "law" => h.law = v.to_string(),
+                "delay_ns" => h.emulation.delay_ns = num()?,
+                "jitter_ns" => h.emulation.jitter_ns = num()?,
+                "loss_ppm" => h.emulation.loss_ppm = num()?.min(1_000_000) as u32,
+                "seed" => h.emulation.seed = num()?,
+                _ => {}
+            }
+        }
+        let safe = |s: &str| {
+            !s.is_empty()
+                && s.len() <= 128
+                && s.bytes()
+                    .all(|c| c.is_ascii_alphanumeric() || c == b'-' || c == b'_')
+        };
+        for (what, v) in [("run_id", &h.run_id), ("mode", &h.mode), ("law", &h.law)] {
+            if !safe(v) {
+                return Err(format!(
+                    "HELLO {what} = `{}`: expected 1-128 of A-Z a-z 0-9 - _",
+                    escape(v)
+                ));
+            }
+        }
+        Ok(h)
+    }
+}
+
+fn escape(s: &str) -> String {
+    let s: String = s.chars().take(80).collect();
+    deltaloop_transport::wire::escape_peer_text(&s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn msg(kind: Kind, key: u64, payload: &[u8]) -> Vec<u8> {
+        let mut v = vec![0u8; HEADER];
+        put_header(&mut v, kind, key);
+        v.extend_from_slice(payload);
+        v
+    }
+
+    #[test]
+    fn a_state_round_trips_byte_for_byte() {
+        let s = StateMsg {
+            tick: 7,
+            q: [0.1, -0.2, 0.3],
+            t_publish_ns: 99,
+            ..Default::default()
+        };
+        let m = msg(Kind::State, 5, bytes_of(&s));
+        let (k, p) = parse(&m, Some(5)).unwrap();
+        assert_eq!(k, Kind::State);
+        assert_eq!(read::<StateMsg>(p), Some(s));
+    }
+
+    #[test]
+    fn hostile_datagrams_are_refused_with_a_reason() {
+        let s = StateMsg::default();
+        assert_eq!(parse(&[1, 2, 3], Some(1)), Err(Refused::Short(3)));
+        let mut m = msg(Kind::State, 1, bytes_of(&s));
+        assert_eq!(parse(&m, Some(2)).unwrap_err(), Refused::Run);
+        m.pop();
+        assert!(matches!(
+            parse(&m, Some(1)),
+            Err(Refused::Size {
+                kind: Kind::State,
+                got: 167
+            })
+        ));
+        m[0] = b'X';
+        assert_eq!(parse(&m, Some(1)).unwrap_err(), Refused::Magic);
+        let mut m = msg(Kind::Ping, 1, &[0; 168]);
+        m[4] = 200;
+        assert_eq!(parse(&m, Some(1)).unwrap_err(), Refused::Kind(200));
+        // A reference chunk must be whole rows, at most one chunk.
+        assert!(parse(&msg(Kind::Reference, 1, &[0; 81]), Some(1)).is_err());
+        assert!(parse(&msg(Kind::Reference, 1, &[0; 160]), Some(1)).is_ok());
+        // Anything at all: never a panic.
+        let mut x: u64 = 1;
+        for n in 0..2000usize {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let mut b: Vec<u8> = (0..n % 300).map(|i| (x >> (i % 56)) as u8).collect();
+            if b.len() >= HEADER && n % 2 == 0 {
+                put_header(
+                    &mut b,
+                    Kind::from_wire((n % 23) as u16).unwrap_or(Kind::State),
+                    9,
+                );
+            }
+            let _ = parse(&b, Some(9));
+        }
+    }
+
+    #[test]
+    fn hello_round_trips_and_refuses_odd_names() {
+        let h = Hello {
+            run_id: "41cc-0-2cdf".into(),
+            mode: "lockstep".into(),
+            law: "tdc".into(),
+            emulation: crate::link::Emulation {
+                delay_ns: 5,
+                jitter_ns: 6,
+                loss_ppm: 7,
+                seed: 8,
+            },
+            config: "name = \"x\"\n\n[loop]\n".into(),
+        };
+        assert_eq!(Hello::decode(&h.encode()), Ok(h.clone()));
+        let bad = Hello {
+            run_id: "../../etc".into(),
+            ..h
+        };
+        let e = Hello::decode(&bad.encode()).unwrap_err();
+        assert!(e.contains("run_id") && e.contains("../../etc"), "{e}");
+    }
+}

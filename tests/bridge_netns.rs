@@ -1,0 +1,439 @@
+//! A run split over two "hosts": two network namespaces of this machine joined by a veth pair,
+//! each side with its own iceoryx2 root (`DELTALOOP_IOX2_ROOT`), so `deltaloop-bridge` is the only
+//! path between the plant's side and the controller's. Needs root and `ip` (iproute2); where
+//! namespaces cannot be made the test says what it needs on stderr and returns early (it does
+//! not pretend to have checked anything).
+
+mod common;
+
+use common::{FaultKind, RunStatus, outcome, summary};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::Duration;
+
+const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+const PORT: u16 = 7447;
+
+/// One split run at a time: two realtime loops (four processes, two bridges) on a 2-CPU machine
+/// would measure each other.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Two namespaces, `a` (plant and supervisor) and `b` (controller), a veth pair between them
+/// (10.77.0.1/30 in `a`, 10.77.0.2/30 in `b`), and a folder with each side's iceoryx2 root.
+/// Dropping it deletes both namespaces (and with them the veth pair) and the roots.
+struct Hosts {
+    a: String,
+    b: String,
+    veth_a: String,
+    tmp: tempfile::TempDir,
+}
+
+fn ip(args: &[&str]) -> Result<(), String> {
+    let o = Command::new("ip")
+        .args(args)
+        .output()
+        .map_err(|e| format!("ip: {e}"))?;
+    if o.status.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "ip {}: {}",
+            args.join(" "),
+            String::from_utf8_lossy(&o.stderr).trim()
+        ))
+    }
+}
+
+impl Hosts {
+    /// None (after saying why on stderr) where namespaces cannot be made here.
+    fn new(test: &str) -> Option<(Self, std::sync::MutexGuard<'static, ()>)> {
+        // SAFETY: geteuid has no preconditions.
+        if unsafe { libc::geteuid() } != 0 {
+            eprintln!(
+                "SKIPPED {test}: needs root (ip netns add, a veth pair) to make two hosts on one machine"
+            );
+            return None;
+        }
+        static N: AtomicU32 = AtomicU32::new(0);
+        let id = format!(
+            "{}{}",
+            std::process::id() % 100_000,
+            N.fetch_add(1, Ordering::Relaxed)
+        );
+        let h = Hosts {
+            a: format!("dlb{id}a"),
+            b: format!("dlb{id}b"),
+            veth_a: format!("vdl{id}a"),
+            tmp: tempfile::tempdir().unwrap(),
+        };
+        let veth_b = format!("vdl{id}b");
+        let set_up = || -> Result<(), String> {
+            ip(&["netns", "add", &h.a])?;
+            ip(&["netns", "add", &h.b])?;
+            ip(&[
+                "link", "add", &h.veth_a, "netns", &h.a, "type", "veth", "peer", "name", &veth_b,
+                "netns", &h.b,
+            ])?;
+            for (ns, dev, addr) in [
+                (&h.a, &h.veth_a, "10.77.0.1/30"),
+                (&h.b, &veth_b, "10.77.0.2/30"),
+            ] {
+                ip(&["-n", ns, "addr", "add", addr, "dev", dev])?;
+                ip(&["-n", ns, "link", "set", dev, "up"])?;
+                ip(&["-n", ns, "link", "set", "lo", "up"])?;
+            }
+            Ok(())
+        };
+        if let Err(e) = set_up() {
+            eprintln!(
+                "SKIPPED {test}: cannot make two network namespaces joined by a veth pair (needs root and iproute2 with netns and veth): {e}"
+            );
+            return None;
+        }
+        Some((h, ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())))
+    }
+
+    fn root(&self, side: &str) -> PathBuf {
+        self.tmp.path().join(format!("iox2-{side}"))
+    }
+
+    /// `prog args…` in namespace `side` ("a" or "b") with that side's iceoryx2 root, from the
+    /// repository root.
+    fn cmd(&self, side: &str, prog: &str, args: &[&str]) -> Command {
+        let ns = if side == "a" { &self.a } else { &self.b };
+        let mut c = Command::new("ip");
+        c.args(["netns", "exec", ns, "env"])
+            .arg(format!("DELTALOOP_IOX2_ROOT={}", self.root(side).display()))
+            .arg(prog)
+            .args(args)
+            .current_dir(ROOT);
+        c
+    }
+
+    /// `deltaloop join 10.77.0.1:7447` in `b`, in the background.
+    fn join(&self, extra: &[&str]) -> Child {
+        let mut args = vec!["join", "10.77.0.1:7447", "--wait-s", "60"];
+        args.extend_from_slice(extra);
+        self.cmd("b", env!("CARGO_BIN_EXE_deltaloop"), &args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    }
+
+    /// S1 with room for two "hosts" that share this machine's two CPUs (and whatever else runs
+    /// on them): a torque budget of 250 µs and 1000 misses in a row (0.3 s) before the safe stop.
+    fn roomy_config(&self) -> String {
+        let text = std::fs::read_to_string(Path::new(ROOT).join("configs/s1-nominal.toml"))
+            .unwrap()
+            .replace("[loop]\n", "[loop]\ntorque_budget_us = 250\n")
+            + "\n[faults]\ncontroller_silence_ticks = 1000\n";
+        let p = self.tmp.path().join("s1-roomy.toml");
+        std::fs::write(&p, text).unwrap();
+        p.display().to_string()
+    }
+
+    /// `deltaloop run CONFIG --controller-remote 10.77.0.1:7447 --out OUT …` in `a`.
+    fn run(&self, config: &str, out: &Path, extra: &[&str]) -> Child {
+        let ep = format!("10.77.0.1:{PORT}");
+        let mut args = vec![
+            "run",
+            config,
+            "--law",
+            "tdc",
+            "--controller-remote",
+            &ep,
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        self.cmd("a", env!("CARGO_BIN_EXE_deltaloop"), &args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    }
+
+    /// Nothing of a run is left in either side's iceoryx2 root: no node or service file, and no
+    /// shared memory under its prefix but iceoryx2's management segment of the root itself.
+    fn assert_roots_empty(&self) {
+        for side in ["a", "b"] {
+            let root = self.root(side);
+            let mut files = Vec::new();
+            walk(&root, &mut files);
+            assert!(
+                files.is_empty(),
+                "left in the iceoryx2 root of {side}: {files:?}"
+            );
+            let (_, prefix) = deltaloop_transport::ipc::root_of(root.to_str().unwrap()).unwrap();
+            let shm: Vec<String> = std::fs::read_dir("/dev/shm")
+                .unwrap()
+                .filter_map(|e| e.ok()?.file_name().into_string().ok())
+                .filter(|n| n.starts_with(&prefix) && !n.ends_with("global_mgmt"))
+                .collect();
+            assert!(shm.is_empty(), "left in /dev/shm by side {side}: {shm:?}");
+        }
+    }
+}
+
+fn walk(dir: &Path, files: &mut Vec<PathBuf>) {
+    let Ok(rd) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in rd.flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            walk(&p, files);
+        } else {
+            files.push(p);
+        }
+    }
+}
+
+impl Drop for Hosts {
+    fn drop(&mut self) {
+        let _ = ip(&["netns", "del", &self.a]);
+        let _ = ip(&["netns", "del", &self.b]);
+        for side in ["a", "b"] {
+            if let Some((_, prefix)) =
+                deltaloop_transport::ipc::root_of(self.root(side).to_str().unwrap())
+                && let Ok(rd) = std::fs::read_dir("/dev/shm")
+            {
+                for e in rd.flatten() {
+                    if e.file_name().to_string_lossy().starts_with(&prefix) {
+                        let _ = std::fs::remove_file(e.path());
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Waits until the run in `out` has started its loop (its timing file exists), then `ms` more.
+fn wait_for_the_loop(out: &Path, ms: u64) {
+    let t0 = std::time::Instant::now();
+    while !out.join("tdc.timing.csv").is_file() && t0.elapsed() < Duration::from_secs(60) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(ms));
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// Waits for both halves; panics if either takes longer than `limit`.
+fn both(run: Child, join: Child, limit: Duration) -> (Output, Output) {
+    let r = common::finish_within(run, limit, "deltaloop run (side a)");
+    let j = common::finish_within(join, Duration::from_secs(10), "deltaloop join (side b)");
+    (r, j)
+}
+
+fn inproc_trace(tmp: &Path) -> Vec<u8> {
+    let out = tmp.join("inproc");
+    common::run("configs/s1-nominal.toml", "inproc", &out, &["--law", "tdc"]);
+    std::fs::read(out.join("trace.csv")).unwrap()
+}
+
+/// A lockstep run across the link (`run_extra` on the plant's side, `join_extra` on the
+/// controller's) writes the trace.csv of the inproc run, and leaves nothing in either root.
+fn assert_lockstep_identical(h: &Hosts, run_extra: &[&str], join_extra: &[&str]) {
+    let out = h.tmp.path().join("remote");
+    let join = h.join(join_extra);
+    let mut args = vec!["--mode", "lockstep"];
+    args.extend_from_slice(run_extra);
+    let run = h.run("configs/s1-nominal.toml", &out, &args);
+    let (r, j) = both(run, join, Duration::from_secs(180));
+    assert!(
+        r.status.success(),
+        "run: {}{}",
+        text(&r.stderr),
+        text(&r.stdout)
+    );
+    assert!(j.status.success(), "join: {}", text(&j.stderr));
+    let remote = std::fs::read(out.join("trace.csv")).unwrap();
+    assert!(
+        remote == inproc_trace(h.tmp.path()),
+        "trace.csv across the link ({run_extra:?}, {join_extra:?}) differs from inproc"
+    );
+    h.assert_roots_empty();
+}
+
+#[test]
+fn lockstep_across_the_link_is_byte_identical_to_inproc() {
+    let Some((h, _one)) = Hosts::new("lockstep_across_the_link_is_byte_identical_to_inproc") else {
+        return;
+    };
+    // A lossy, slow, jittery link too: lockstep sends a state again until its reply comes.
+    assert_lockstep_identical(
+        &h,
+        &[
+            "--link-delay-us",
+            "50",
+            "--link-jitter-us",
+            "50",
+            "--link-loss",
+            "0.01",
+            "--link-seed",
+            "7",
+        ],
+        &[],
+    );
+}
+
+#[test]
+fn realtime_across_the_link_completes_measures_the_round_trip_and_replays() {
+    let Some((h, _one)) =
+        Hosts::new("realtime_across_the_link_completes_measures_the_round_trip_and_replays")
+    else {
+        return;
+    };
+    // Both "hosts" share two vCPUs with whatever else runs: a run the host froze long enough
+    // to fault or diverge is run again (at most three attempts, each failure said on stderr).
+    let mut out = PathBuf::new();
+    for attempt in 1..=3 {
+        out = h.tmp.path().join(format!("remote-{attempt}"));
+        let join = h.join(&[]);
+        let (r, j) = both(
+            h.run(&h.roomy_config(), &out, &["--mode", "realtime"]),
+            join,
+            Duration::from_secs(120),
+        );
+        if r.status.success() {
+            assert!(j.status.success(), "join: {}", text(&j.stderr));
+            break;
+        }
+        let why = text(&r.stderr);
+        assert!(attempt < 3, "three realtime runs failed; the last: {why}");
+        assert!(
+            why.contains("fault") || why.contains("diverged"),
+            "not a timing failure: {why}"
+        );
+        eprintln!("attempt {attempt} spoiled by the machine, run again: {why}");
+        h.assert_roots_empty();
+    }
+    let s = summary(&out);
+    assert_eq!(outcome(&s, "tdc"), (RunStatus::Ok, None), "{s}");
+    let t = &s["timing"]["tdc"];
+    let p50 = t["round_trip"]["p50_us"].as_f64().unwrap();
+    // Measured over the link, on the plant's clock: at least the two datagrams' flight.
+    assert!(p50 > 5.0, "round trip p50 {p50} µs: {t}");
+    assert!(t["round_trip"]["count"].as_u64().unwrap() > 1000, "{t}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        report.contains("--controller-remote 10.77.0.1:7447")
+            && report.contains("across the link at 10.77.0.1:7447"),
+        "{report}"
+    );
+    let rep = h
+        .cmd(
+            "a",
+            env!("CARGO_BIN_EXE_deltaloop"),
+            &["replay", out.to_str().unwrap()],
+        )
+        .output()
+        .unwrap();
+    assert!(rep.status.success(), "replay: {}", text(&rep.stderr));
+    assert!(
+        text(&rep.stdout).contains("byte for byte"),
+        "{}",
+        text(&rep.stdout)
+    );
+    h.assert_roots_empty();
+}
+
+#[test]
+fn pulling_the_link_mid_run_ends_in_a_safe_stop_with_every_tick_kept() {
+    let Some((h, _one)) =
+        Hosts::new("pulling_the_link_mid_run_ends_in_a_safe_stop_with_every_tick_kept")
+    else {
+        return;
+    };
+    // The cut must come while the loop runs: an attempt the machine spoiled before it (a fault
+    // or divergence of its own) is run again, at most three times, and said on stderr.
+    let mut attempt = 0;
+    let (out, run, join) = loop {
+        attempt += 1;
+        let out = h.tmp.path().join(format!("remote-{attempt}"));
+        let join = h.join(&[]);
+        let mut run = h.run(
+            &h.roomy_config(),
+            &out,
+            &["--mode", "realtime", "--hold-s", "5"],
+        );
+        wait_for_the_loop(&out, 1500);
+        if run.try_wait().unwrap().is_none() {
+            break (out, run, join);
+        }
+        let (r, _) = both(run, join, Duration::from_secs(10));
+        assert!(
+            attempt < 3,
+            "three runs ended before the cut: {}",
+            text(&r.stderr)
+        );
+        eprintln!(
+            "attempt {attempt} ended before the cut, run again: {}",
+            text(&r.stderr)
+        );
+    };
+    ip(&["-n", &h.a, "link", "set", &h.veth_a, "down"]).unwrap();
+    let (r, j) = both(run, join, Duration::from_secs(60));
+    let err = text(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "run: {err}");
+    assert!(err.contains("safe stop"), "{err}");
+    assert_ne!(j.status.code(), Some(0), "join: {}", text(&j.stderr));
+    let s = summary(&out);
+    assert_eq!(
+        outcome(&s, "tdc"),
+        (RunStatus::Fault, Some(FaultKind::ControllerSilent)),
+        "{s}"
+    );
+    let m = &s["laws"]["tdc"];
+    assert_eq!(m["lost_ticks"], 0, "{m}");
+    let tick = m["fault_at_tick"].as_u64().unwrap();
+    // Cut after 1.5 s of ticks (5000) and before the 5.8 s run's end.
+    assert!((3000..19_000).contains(&tick), "fault at tick {tick}");
+    let rows = std::fs::read_to_string(out.join("trace.csv"))
+        .unwrap()
+        .lines()
+        .count() as u64;
+    assert_eq!(rows, tick + 1, "header + ticks 0..fault tick");
+    h.assert_roots_empty();
+}
+
+#[test]
+fn a_python_controller_joins_from_the_other_host() {
+    let Some((h, _one)) = Hosts::new("a_python_controller_joins_from_the_other_host") else {
+        return;
+    };
+    let py = common::python::python().display().to_string();
+    let cmd = format!("{py} examples/python-controller/controller.py");
+    assert_lockstep_identical(&h, &[], &["--controller-cmd", &cmd]);
+}
+
+#[test]
+fn ctrl_c_on_the_plants_host_stops_both_sides_cleanly() {
+    let Some((h, _one)) = Hosts::new("ctrl_c_on_the_plants_host_stops_both_sides_cleanly") else {
+        return;
+    };
+    let out = h.tmp.path().join("remote");
+    let join = h.join(&[]);
+    // `ip netns exec` and `env` exec in place: the child's pid is the supervisor's.
+    let run = h.run(
+        "configs/s1-nominal.toml",
+        &out,
+        &["--mode", "lockstep", "--hold-s", "60"],
+    );
+    wait_for_the_loop(&out, 1000);
+    // SAFETY: signalling our own child, not yet reaped.
+    unsafe { libc::kill(run.id() as i32, libc::SIGINT) };
+    let (r, j) = both(run, join, Duration::from_secs(30));
+    assert_eq!(r.status.code(), Some(130), "run: {}", text(&r.stderr));
+    let far = text(&j.stderr);
+    assert_eq!(j.status.code(), Some(5), "join: {far}");
+    assert!(far.contains("stopped by the supervisor (STOP)"), "{far}");
+    let s = summary(&out);
+    assert_eq!(outcome(&s, "tdc").0, RunStatus::Interrupted, "{s}");
+    h.assert_roots_empty();
+}
