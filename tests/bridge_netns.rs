@@ -7,9 +7,9 @@
 mod common;
 
 use common::{FaultKind, RunStatus, outcome, summary};
+use deltaloop_supervisor::ops::bench_net::{TwoHosts, ip};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
 
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
@@ -20,94 +20,56 @@ const PORT: u16 = 7447;
 static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// Two namespaces, `a` (plant and supervisor) and `b` (controller), a veth pair between them
-/// (10.77.0.1/30 in `a`, 10.77.0.2/30 in `b`), and a folder with each side's iceoryx2 root.
-/// Dropping it deletes both namespaces (and with them the veth pair) and the roots.
+/// (10.77.0.1/30 in `a`, 10.77.0.2/30 in `b`), and a folder with each side's iceoryx2 root
+/// (`deltaloop bench net`'s [`TwoHosts`]). Dropping it deletes both namespaces (and with them the
+/// veth pair), the roots' shared memory, then the folder.
 struct Hosts {
-    a: String,
-    b: String,
-    veth_a: String,
+    net: TwoHosts,
     tmp: tempfile::TempDir,
 }
 
-fn ip(args: &[&str]) -> Result<(), String> {
-    let o = Command::new("ip")
-        .args(args)
-        .output()
-        .map_err(|e| format!("ip: {e}"))?;
-    if o.status.success() {
-        Ok(())
-    } else {
-        Err(format!(
-            "ip {}: {}",
-            args.join(" "),
-            String::from_utf8_lossy(&o.stderr).trim()
-        ))
+/// Says on stderr why `test` is skipped if namespaces cannot be made here: not root.
+fn not_root(test: &str) -> bool {
+    // SAFETY: geteuid has no preconditions.
+    let not = unsafe { libc::geteuid() } != 0;
+    if not {
+        eprintln!(
+            "SKIPPED {test}: needs root (ip netns add, a veth pair) to make two hosts on one machine"
+        );
     }
+    not
 }
 
 impl Hosts {
     /// None (after saying why on stderr) where namespaces cannot be made here.
     fn new(test: &str) -> Option<(Self, std::sync::MutexGuard<'static, ()>)> {
-        // SAFETY: geteuid has no preconditions.
-        if unsafe { libc::geteuid() } != 0 {
-            eprintln!(
-                "SKIPPED {test}: needs root (ip netns add, a veth pair) to make two hosts on one machine"
-            );
+        if not_root(test) {
             return None;
         }
-        static N: AtomicU32 = AtomicU32::new(0);
-        let id = format!(
-            "{}{}",
-            std::process::id() % 100_000,
-            N.fetch_add(1, Ordering::Relaxed)
-        );
-        let h = Hosts {
-            a: format!("dlb{id}a"),
-            b: format!("dlb{id}b"),
-            veth_a: format!("vdl{id}a"),
-            tmp: tempfile::tempdir().unwrap(),
-        };
-        let veth_b = format!("vdl{id}b");
-        let set_up = || -> Result<(), String> {
-            ip(&["netns", "add", &h.a])?;
-            ip(&["netns", "add", &h.b])?;
-            ip(&[
-                "link", "add", &h.veth_a, "netns", &h.a, "type", "veth", "peer", "name", &veth_b,
-                "netns", &h.b,
-            ])?;
-            for (ns, dev, addr) in [
-                (&h.a, &h.veth_a, "10.77.0.1/30"),
-                (&h.b, &veth_b, "10.77.0.2/30"),
-            ] {
-                ip(&["-n", ns, "addr", "add", addr, "dev", dev])?;
-                ip(&["-n", ns, "link", "set", dev, "up"])?;
-                ip(&["-n", ns, "link", "set", "lo", "up"])?;
+        let tmp = tempfile::tempdir().unwrap();
+        match TwoHosts::new(tmp.path(), false) {
+            Ok(net) => Some((
+                Hosts { net, tmp },
+                ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner()),
+            )),
+            Err(e) => {
+                eprintln!(
+                    "SKIPPED {test}: cannot make two network namespaces joined by a veth pair (needs root and iproute2 with netns and veth): {e:#}"
+                );
+                None
             }
-            Ok(())
-        };
-        if let Err(e) = set_up() {
-            eprintln!(
-                "SKIPPED {test}: cannot make two network namespaces joined by a veth pair (needs root and iproute2 with netns and veth): {e}"
-            );
-            return None;
         }
-        Some((h, ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())))
     }
 
     fn root(&self, side: &str) -> PathBuf {
-        self.tmp.path().join(format!("iox2-{side}"))
+        self.net.root(side)
     }
 
     /// `prog args…` in namespace `side` ("a" or "b") with that side's iceoryx2 root, from the
     /// repository root.
     fn cmd(&self, side: &str, prog: &str, args: &[&str]) -> Command {
-        let ns = if side == "a" { &self.a } else { &self.b };
-        let mut c = Command::new("ip");
-        c.args(["netns", "exec", ns, "env"])
-            .arg(format!("DELTALOOP_IOX2_ROOT={}", self.root(side).display()))
-            .arg(prog)
-            .args(args)
-            .current_dir(ROOT);
+        let mut c = self.net.cmd(side, Path::new(prog), args);
+        c.current_dir(ROOT);
         c
     }
 
@@ -187,25 +149,6 @@ fn walk(dir: &Path, files: &mut Vec<PathBuf>) {
             walk(&p, files);
         } else {
             files.push(p);
-        }
-    }
-}
-
-impl Drop for Hosts {
-    fn drop(&mut self) {
-        let _ = ip(&["netns", "del", &self.a]);
-        let _ = ip(&["netns", "del", &self.b]);
-        for side in ["a", "b"] {
-            if let Some((_, prefix)) =
-                deltaloop_transport::ipc::root_of(self.root(side).to_str().unwrap())
-                && let Ok(rd) = std::fs::read_dir("/dev/shm")
-            {
-                for e in rd.flatten() {
-                    if e.file_name().to_string_lossy().starts_with(&prefix) {
-                        let _ = std::fs::remove_file(e.path());
-                    }
-                }
-            }
         }
     }
 }
@@ -377,7 +320,7 @@ fn pulling_the_link_mid_run_ends_in_a_safe_stop_with_every_tick_kept() {
             text(&r.stderr)
         );
     };
-    ip(&["-n", &h.a, "link", "set", &h.veth_a, "down"]).unwrap();
+    ip(&["-n", &h.net.a, "link", "set", &h.net.veth_a, "down"]).unwrap();
     let (r, j) = both(run, join, Duration::from_secs(60));
     let err = text(&r.stderr);
     assert_eq!(r.status.code(), Some(1), "run: {err}");
@@ -436,4 +379,80 @@ fn ctrl_c_on_the_plants_host_stops_both_sides_cleanly() {
     let s = summary(&out);
     assert_eq!(outcome(&s, "tdc").0, RunStatus::Interrupted, "{s}");
     h.assert_roots_empty();
+}
+
+#[test]
+fn bench_net_prints_its_three_rows_and_a_last_line() {
+    let test = "bench_net_prints_its_three_rows_and_a_last_line";
+    if not_root(test) {
+        return;
+    }
+    if let Some(why) = Command::new("ip")
+        .arg("-V")
+        .output()
+        .err()
+        .map(|e| format!("needs `ip` (iproute2): {e}"))
+    {
+        eprintln!("SKIPPED {test}: {why}");
+        return;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let child = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["bench", "net", "--hold-s", "1"])
+        .current_dir(ROOT)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = child.id() % 100_000;
+    let o = common::finish_within(child, Duration::from_secs(60), "deltaloop bench net");
+    let out = text(&o.stdout);
+    assert!(o.status.success(), "{}{out}", text(&o.stderr));
+    // Each row's p50 is finite and positive.
+    for path in ["UDP ping-pong", "bridge", "one host"] {
+        let row = out
+            .lines()
+            .find(|l| l.starts_with(&format!("| {path}")))
+            .unwrap_or_else(|| panic!("no row {path}: {out}"));
+        let p50: f64 = row
+            .split(" | ")
+            .nth(1)
+            .unwrap()
+            .split(" / ")
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!(p50.is_finite() && p50 > 0.0, "{row}");
+    }
+    let last = out.lines().last().unwrap();
+    let kv: std::collections::HashMap<&str, f64> = last
+        .split(' ')
+        .map(|f| {
+            let (k, v) = f.split_once('=').unwrap();
+            (k, v.parse().unwrap())
+        })
+        .collect();
+    for k in [
+        "udp_p50_us",
+        "bridge_p50_us",
+        "one_host_p50_us",
+        "bridge_over_udp",
+    ] {
+        assert!(kv[k].is_finite() && kv[k] > 0.0, "{k}: {last}");
+    }
+    // Nothing left: neither namespace of the command (named by its pid).
+    let ns = text(
+        &Command::new("ip")
+            .args(["netns", "list"])
+            .output()
+            .unwrap()
+            .stdout,
+    );
+    let mine = [format!("dlb{pid}0a"), format!("dlb{pid}0b")];
+    assert!(
+        !ns.lines()
+            .any(|l| mine.iter().any(|m| l.split(' ').next() == Some(m))),
+        "{ns}"
+    );
 }

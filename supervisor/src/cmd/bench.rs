@@ -1,4 +1,4 @@
-//! `deltaloop bench loop | plant`: the transport's cost and the plant's speed.
+//! `deltaloop bench loop | plant | net`: the transport's cost, the plant's speed and the link's.
 
 use super::Context;
 use crate::ops::bench::parse_positive_seconds;
@@ -43,6 +43,21 @@ enum What {
         #[arg(long, value_name = "PYTHON")]
         mujoco: Option<PathBuf>,
     },
+    /// The link between two hosts, on this machine: two network namespaces joined by a veth pair;
+    /// a plain UDP ping-pong, realtime S1 + hold across deltaloop-bridge, and the same run on one
+    /// host. Needs root and `ip` (iproute2).
+    Net {
+        /// Seconds the end point is held after S1's 0.8 s motion, in each run.
+        #[arg(long, default_value_t = 9.0, value_parser = parse_positive_seconds)]
+        hold_s: f64,
+        /// Where the runs' folders and logs go (default: a temporary folder, removed at the end).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// A deltaloop-bridge built with `--features zenoh`: adds its Zenoh ping-pong (TCP and UDP
+        /// endpoints).
+        #[arg(long, value_name = "PATH")]
+        zenoh_bridge: Option<PathBuf>,
+    },
 }
 
 pub fn exec(a: Args, _cx: &Context) -> Result<()> {
@@ -58,5 +73,17 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
             repeats,
             out,
         } => crate::ops::bench_loop::run(lockstep_seconds, rt_seconds, repeats, &out),
+        What::Net {
+            hold_s,
+            out,
+            zenoh_bridge,
+        } => {
+            // Not this machine's fault but a missing prerequisite: said in one line, exit 2.
+            if let Some(why) = crate::ops::bench_net::missing() {
+                eprintln!("deltaloop: error: {why}");
+                std::process::exit(2);
+            }
+            crate::ops::bench_net::run(hold_s, out.as_deref(), zenoh_bridge.as_deref())
+        }
     }
 }

@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod bench_loop;
+pub mod bench_net;
 pub mod join;
 pub mod paper;
 pub mod replay;

@@ -1,0 +1,453 @@
+//! `deltaloop bench net`: the link of a run split over two hosts, measured on one machine. Two
+//! network namespaces joined by a veth pair ([`TwoHosts`]), each side with its own iceoryx2 root
+//! (`DELTALOOP_IOX2_ROOT`), and in the same invocation
+//!   1. a plain UDP ping-pong of state-sized datagrams, one per 300 µs (`deltaloop-bridge ping` /
+//!      `pong`), as many round trips as the runs have ticks,
+//!   2. realtime S1 + hold (`tdc`) across `deltaloop-bridge` (`deltaloop run … --controller-remote`
+//!      in one namespace, `deltaloop join` in the other), both bridges blocking,
+//!   3. the same run on one host (no bridge), for reference,
+//!   4. with `--zenoh-bridge`: the same ping-pong over Zenoh, TCP and UDP endpoints.
+//!
+//! The namespaces, the veth pair, each root's shared memory and a temporary output folder are
+//! removed when [`TwoHosts`] is dropped: at the end, on an error and after Ctrl-C.
+
+use crate::loops::procs::exe_dir;
+use crate::loops::signals;
+use crate::ops::run::Interrupted;
+use anyhow::{Context, Result, bail};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+/// The config of the runs: S1 with the `tdc` law (`--law tdc`), its hold given on the command line.
+const S1: &str = include_str!("../../../configs/s1-nominal.toml");
+/// Address of the plant's side (`a`) and of the controller's (`b`) on the veth pair.
+pub const ADDR_A: &str = "10.77.0.1";
+pub const ADDR_B: &str = "10.77.0.2";
+/// S1's motion, s, and the loop's period, µs.
+const MOTION_S: f64 = 0.8;
+const PERIOD_US: f64 = 300.0;
+
+/// Why this machine cannot run the benchmark, if it cannot: root, `ip` (iproute2) and the
+/// `deltaloop-bridge` next to this executable.
+pub fn missing() -> Option<String> {
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        return Some("bench net needs root (ip netns add, a veth pair)".into());
+    }
+    if Command::new("ip")
+        .arg("-V")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_err()
+    {
+        return Some("bench net needs `ip` (iproute2) on PATH".into());
+    }
+    match exe_dir() {
+        Ok(d) if d.join("deltaloop-bridge").is_file() => None,
+        Ok(d) => Some(format!(
+            "bench net needs deltaloop-bridge next to deltaloop, in {}",
+            d.display()
+        )),
+        Err(e) => Some(format!("bench net: {e}")),
+    }
+}
+
+/// `ip ARGS…`; its stderr in the error.
+pub fn ip(args: &[&str]) -> Result<()> {
+    let o = Command::new("ip")
+        .args(args)
+        .output()
+        .context("cannot run ip")?;
+    if !o.status.success() {
+        bail!(
+            "ip {}: {}",
+            args.join(" "),
+            String::from_utf8_lossy(&o.stderr).trim()
+        );
+    }
+    Ok(())
+}
+
+/// Two namespaces of this machine, `a` (plant and supervisor, [`ADDR_A`]/30) and `b`
+/// (controller, [`ADDR_B`]/30), joined by a veth pair, and a folder `dir` holding each side's
+/// iceoryx2 root. Dropping it deletes both namespaces (and with them the veth pair), every
+/// shared-memory segment under each root's prefix, and `dir` if it was made here.
+pub struct TwoHosts {
+    pub a: String,
+    pub b: String,
+    /// The veth end in `a`.
+    pub veth_a: String,
+    dir: PathBuf,
+    remove_dir: bool,
+}
+
+impl TwoHosts {
+    /// Makes the namespaces (names unique on this machine: pid and a counter) and the pair; the
+    /// roots go in `dir` (made if missing). `remove_dir`: remove `dir` when dropped.
+    pub fn new(dir: &Path, remove_dir: bool) -> Result<Self> {
+        static N: AtomicU32 = AtomicU32::new(0);
+        let id = format!(
+            "{}{}",
+            std::process::id() % 100_000,
+            N.fetch_add(1, Ordering::Relaxed)
+        );
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot make {}", dir.display()))?;
+        let h = TwoHosts {
+            a: format!("dlb{id}a"),
+            b: format!("dlb{id}b"),
+            veth_a: format!("vdl{id}a"),
+            dir: dir.canonicalize()?,
+            remove_dir,
+        };
+        let veth_b = format!("vdl{id}b");
+        ip(&["netns", "add", &h.a])?;
+        ip(&["netns", "add", &h.b])?;
+        ip(&[
+            "link", "add", &h.veth_a, "netns", &h.a, "type", "veth", "peer", "name", &veth_b,
+            "netns", &h.b,
+        ])?;
+        for (ns, dev, addr) in [(&h.a, &h.veth_a, ADDR_A), (&h.b, &veth_b, ADDR_B)] {
+            ip(&["-n", ns, "addr", "add", &format!("{addr}/30"), "dev", dev])?;
+            ip(&["-n", ns, "link", "set", dev, "up"])?;
+            ip(&["-n", ns, "link", "set", "lo", "up"])?;
+        }
+        Ok(h)
+    }
+
+    /// Side `side`'s ("a" or "b") iceoryx2 root.
+    pub fn root(&self, side: &str) -> PathBuf {
+        self.dir.join(format!("iox2-{side}"))
+    }
+
+    /// `prog args…` in namespace `side` ("a" or "b") with that side's iceoryx2 root. `ip netns
+    /// exec` and `env` exec in place: the child's pid is `prog`'s.
+    pub fn cmd(&self, side: &str, prog: &Path, args: &[&str]) -> Command {
+        let ns = if side == "a" { &self.a } else { &self.b };
+        let mut c = Command::new("ip");
+        c.args(["netns", "exec", ns, "env"])
+            .arg(format!("DELTALOOP_IOX2_ROOT={}", self.root(side).display()))
+            .arg(prog)
+            .args(args);
+        c
+    }
+
+    /// The shared-memory prefix of side `side`'s root (docs/protocol.md §14).
+    pub fn shm_prefix(&self, side: &str) -> Option<String> {
+        deltaloop_transport::ipc::root_of(self.root(side).to_str()?).map(|(_, p)| p)
+    }
+}
+
+impl Drop for TwoHosts {
+    fn drop(&mut self) {
+        let _ = ip(&["netns", "del", &self.a]);
+        let _ = ip(&["netns", "del", &self.b]);
+        for side in ["a", "b"] {
+            if let Some(prefix) = self.shm_prefix(side)
+                && let Ok(rd) = std::fs::read_dir("/dev/shm")
+            {
+                for e in rd.flatten() {
+                    if e.file_name().to_string_lossy().starts_with(&prefix) {
+                        let _ = std::fs::remove_file(e.path());
+                    }
+                }
+            }
+        }
+        if self.remove_dir {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
+}
+
+/// A child that is stopped (SIGTERM, then SIGKILL) and reaped if dropped still running.
+struct Kid(Child, &'static str);
+
+impl Kid {
+    fn spawn(mut c: Command, what: &'static str, log: &Path) -> Result<Self> {
+        let f = std::fs::File::create(log)?;
+        c.stdout(f.try_clone()?).stderr(f).stdin(Stdio::null());
+        Ok(Kid(
+            c.spawn().with_context(|| format!("cannot start {what}"))?,
+            what,
+        ))
+    }
+
+    fn signal(&self, sig: i32) {
+        // SAFETY: our own child, not yet reaped (it is reaped only through self.0).
+        unsafe { libc::kill(self.0.id() as i32, sig) };
+    }
+
+    /// Waits up to `limit`; an error on Ctrl-C / SIGTERM (the child stopped first) or timeout.
+    fn wait(&mut self, limit: Duration, out: &Path) -> Result<std::process::ExitStatus> {
+        let t0 = Instant::now();
+        loop {
+            if let Some(s) = self.0.try_wait()? {
+                return Ok(s);
+            }
+            if signals::interrupted() {
+                self.signal(libc::SIGINT);
+                return Err(Interrupted(out.to_path_buf()).into());
+            }
+            if t0.elapsed() > limit {
+                bail!("{} did not end within {} s", self.1, limit.as_secs());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Drop for Kid {
+    fn drop(&mut self) {
+        if matches!(self.0.try_wait(), Ok(None)) {
+            self.signal(libc::SIGTERM);
+            let t0 = Instant::now();
+            while matches!(self.0.try_wait(), Ok(None)) && t0.elapsed() < Duration::from_secs(3) {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+/// One row of the table: round trip p50 / p99 / p99.9, µs, and the misses (as text).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Row {
+    pub path: String,
+    pub p50: f64,
+    pub p99: f64,
+    pub p999: f64,
+    pub misses: String,
+}
+
+/// The percentiles of a `deltaloop-bridge ping` / `zping` line (`…: N round trips, p50 X µs,
+/// p99 Y µs, p99.9 Z µs, max M µs, lost L`); the misses are the lost round trips.
+pub fn parse_ping(path: &str, text: &str) -> Option<Row> {
+    let line = text.lines().rev().find(|l| l.contains("round trips"))?;
+    let field = |key: &str| -> Option<&str> {
+        line.split(", ")
+            .find_map(|f| f.strip_prefix(key))
+            .map(|v| v.trim_end_matches(" µs"))
+    };
+    let num = |key: &str| field(key)?.parse::<f64>().ok().filter(|x| x.is_finite());
+    let n = line.split(": ").nth(1)?.split(' ').next()?;
+    Some(Row {
+        path: path.into(),
+        p50: num("p50 ")?,
+        p99: num("p99 ")?,
+        p999: num("p99.9 ")?,
+        misses: format!("{} lost of {n}", field("lost ")?),
+    })
+}
+
+/// The row of a run folder's `summary.json` (law `tdc`).
+fn run_row(path: &str, out: &Path) -> Result<Row> {
+    let f = out.join("summary.json");
+    let s: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&f).with_context(|| format!("cannot read {}", f.display()))?,
+    )?;
+    let t = &s["timing"]["tdc"];
+    let rt = &t["round_trip"];
+    let num = |v: &serde_json::Value| v.as_f64().filter(|x| x.is_finite());
+    let (Some(p50), Some(p99), Some(p999)) =
+        (num(&rt["p50_us"]), num(&rt["p99_us"]), num(&rt["p999_us"]))
+    else {
+        bail!("{}: no round trip of tdc", f.display());
+    };
+    let status = s["laws"]["tdc"]["status"].as_str().unwrap_or("?");
+    Ok(Row {
+        path: path.into(),
+        p50,
+        p99,
+        p999,
+        misses: format!(
+            "{} of {} ticks ({status})",
+            t["deadline_misses"], t["ticks"]
+        ),
+    })
+}
+
+/// The last lines of a log, for an error.
+fn tail(log: &Path) -> String {
+    let text = std::fs::read_to_string(log).unwrap_or_default();
+    let lines: Vec<&str> = text.lines().collect();
+    lines[lines.len().saturating_sub(5)..].join("\n")
+}
+
+/// Runs the benchmark (see the module) and prints the table; the last line is
+/// `udp_p50_us=<u> bridge_p50_us=<b> one_host_p50_us=<h> bridge_over_udp=<b/u>`.
+/// `out`: where the runs' folders go (None: a temporary folder, removed at the end).
+pub fn run(hold_s: f64, out: Option<&Path>, zenoh_bridge: Option<&Path>) -> Result<()> {
+    if let Some(why) = missing() {
+        bail!("{why}");
+    }
+    let (dir, remove) = match out {
+        Some(d) => (d.to_path_buf(), false),
+        None => (
+            std::env::temp_dir().join(format!("deltaloop-bench-net-{}", std::process::id())),
+            true,
+        ),
+    };
+    let h = TwoHosts::new(&dir, remove)?;
+    let dir = h.dir.clone();
+    let bin = exe_dir()?;
+    let (deltaloop, bridge) = (bin.join("deltaloop"), bin.join("deltaloop-bridge"));
+    let config = dir.join("s1-nominal.toml");
+    std::fs::write(&config, S1)?;
+    let config = config.display().to_string();
+    let hold = format!("{hold_s}");
+    let count = ((MOTION_S + hold_s) * 1e6 / PERIOD_US).round().max(1000.0) as u32;
+    println!(
+        "deltaloop bench net: two network namespaces joined by veth ({ADDR_A} | {ADDR_B}), S1 + {hold_s} s hold (tdc, realtime), {count} UDP round trips; folders in {}",
+        if remove {
+            "a temporary folder".to_string()
+        } else {
+            dir.display().to_string()
+        }
+    );
+    let mut rows = Vec::new();
+    let wait = Duration::from_secs_f64(120.0 + 3.0 * hold_s);
+
+    // 1, 4: the ping-pongs.
+    let ping = |prog: &Path, serve: &str, call: &str, ep: &str, label: &str| -> Result<Row> {
+        let name: String = label.chars().filter(char::is_ascii_alphanumeric).collect();
+        let log = dir.join(format!("{serve}-{name}.log"));
+        let mut pong = Kid::spawn(h.cmd("b", prog, &[serve, "--listen", ep]), "pong", &log)?;
+        std::thread::sleep(Duration::from_millis(if serve == "pong" {
+            300
+        } else {
+            1000
+        }));
+        let plog = dir.join(format!("{call}-{name}.log"));
+        let mut p = Kid::spawn(
+            h.cmd(
+                "a",
+                prog,
+                &[call, "--connect", ep, "--count", &count.to_string()],
+            ),
+            "ping",
+            &plog,
+        )?;
+        let st = p.wait(wait, &dir)?;
+        pong.signal(libc::SIGTERM);
+        let _ = pong.wait(Duration::from_secs(5), &dir);
+        let text = std::fs::read_to_string(&plog).unwrap_or_default();
+        match parse_ping(label, &text) {
+            Some(r) if st.success() => Ok(r),
+            _ => bail!("{call} failed ({st}): {}", tail(&plog)),
+        }
+    };
+    rows.push(ping(
+        &bridge,
+        "pong",
+        "ping",
+        &format!("{ADDR_B}:7500"),
+        "UDP ping-pong, veth",
+    )?);
+    if let Some(z) = zenoh_bridge {
+        for (ep, label) in [
+            (format!("tcp/{ADDR_B}:7600"), "Zenoh ping-pong, TCP"),
+            (format!("udp/{ADDR_B}:7601"), "Zenoh ping-pong, UDP"),
+        ] {
+            let r = ping(z, "zpong", "zping", &ep, label)?;
+            rows.push(r);
+        }
+    }
+
+    // 2: across the bridge.
+    let remote = dir.join("bridge");
+    let endpoint = format!("{ADDR_A}:7447");
+    let mut join = Kid::spawn(
+        h.cmd("b", &deltaloop, &["join", &endpoint, "--wait-s", "60"]),
+        "deltaloop join",
+        &dir.join("join.log"),
+    )?;
+    let run_args = |out: &Path| -> Vec<String> {
+        [
+            "run",
+            &config,
+            "--law",
+            "tdc",
+            "--mode",
+            "realtime",
+            "--hold-s",
+            &hold,
+            "--out",
+            out.to_str().unwrap_or_default(),
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    let mut args = run_args(&remote);
+    args.extend(["--controller-remote".into(), endpoint.clone()]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let log = dir.join("run-bridge.log");
+    Kid::spawn(h.cmd("a", &deltaloop, &args), "deltaloop run", &log)?.wait(wait, &remote)?;
+    let _ = join.wait(Duration::from_secs(10), &remote);
+    rows.push(
+        run_row("bridge (both sides blocking)", &remote)
+            .with_context(|| format!("the run across the bridge: {}", tail(&log)))?,
+    );
+
+    // 3: one host.
+    let local = dir.join("one-host");
+    let args = run_args(&local);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let log = dir.join("run-one-host.log");
+    let mut c = Command::new(&deltaloop);
+    c.args(&args);
+    Kid::spawn(c, "deltaloop run", &log)?.wait(wait, &local)?;
+    rows.push(
+        run_row("one host, no bridge", &local)
+            .with_context(|| format!("the run on one host: {}", tail(&log)))?,
+    );
+
+    println!("{}", table(&rows));
+    let (udp, bridge_p50, one) = (
+        rows[0].p50,
+        rows[rows.len() - 2].p50,
+        rows[rows.len() - 1].p50,
+    );
+    println!(
+        "udp_p50_us={udp:.1} bridge_p50_us={bridge_p50:.1} one_host_p50_us={one:.1} bridge_over_udp={:.2}",
+        bridge_p50 / udp
+    );
+    Ok(())
+}
+
+/// The table, Markdown.
+pub fn table(rows: &[Row]) -> String {
+    let mut t =
+        String::from("| path | round trip p50 / p99 / p99.9 (µs) | misses |\n|---|---|---|");
+    for r in rows {
+        t += &format!(
+            "\n| {} | {:.1} / {:.1} / {:.1} | {} |",
+            r.path, r.p50, r.p99, r.p999, r.misses
+        );
+    }
+    t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_ping_line_gives_its_row() {
+        let r = parse_ping(
+            "udp",
+            "noise\nudp ping-pong 10.77.0.2:7500: 33000 round trips, p50 15.9 µs, p99 47.5 µs, p99.9 230.0 µs, max 2520.1 µs, lost 2\n",
+        )
+        .unwrap();
+        assert_eq!((r.p50, r.p99, r.p999), (15.9, 47.5, 230.0));
+        assert_eq!(r.misses, "2 lost of 33000");
+        assert!(parse_ping("udp", "no line").is_none());
+        let t = table(&[r]);
+        assert!(
+            t.ends_with("| udp | 15.9 / 47.5 / 230.0 | 2 lost of 33000 |"),
+            "{t}"
+        );
+    }
+}
