@@ -19,16 +19,11 @@ use deltaloop_config::config::{FaultInjection, Poll};
 use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
-use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, Svc};
+use deltaloop_transport::ipc::{self, IpcContext, Svc};
 use deltaloop_transport::rt;
-use deltaloop_transport::wire::{
-    self, ControlKind, ControlMsg, RefSample, Sender, StateMsg, TorqueMsg,
-};
-use iceoryx2::port::listener::{Listener, ListenerWaitError};
-use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
+use deltaloop_transport::wire::{self, ControlKind, ControlMsg, RefSample, StateMsg};
+use iceoryx2::port::listener::ListenerWaitError;
 use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::prelude::*;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -56,39 +51,7 @@ pub fn main() -> ExitCode {
 }
 
 /// The controller's iceoryx2 ports.
-struct Ports {
-    state: Subscriber<Svc, StateMsg, ()>,
-    torque: Publisher<Svc, TorqueMsg, ()>,
-    state_ready: Listener<Svc>,
-    torque_ready: Notifier<Svc>,
-    reference: Subscriber<Svc, [RefSample], ()>,
-    control: ControlPorts,
-    _node: Node<Svc>,
-}
-
-impl Ports {
-    fn open(run_id: &str) -> Result<Self> {
-        let node = ipc::node("controller", run_id)?;
-        let (state, torque, state_ready, torque_ready) = ipc::controller_loop(&node, run_id)?;
-        Ok(Self {
-            state,
-            torque,
-            state_ready,
-            torque_ready,
-            reference: ipc::reference_subscriber(&node, run_id)?,
-            control: ipc::control_ports(&node, run_id, Sender::Controller)?,
-            _node: node,
-        })
-    }
-
-    fn send_control(&self, kind: ControlKind) -> Result<()> {
-        self.control
-            .0
-            .send_copy(ControlMsg::new(kind, Sender::Controller))
-            .ipc(format!("send {kind:?}"))?;
-        Ok(())
-    }
-}
+type Ports = ipc::ControllerPorts;
 
 fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
     let cfg = RunConfig::from_file(&args.run.config)?;

@@ -18,16 +18,9 @@ use anyhow::{Context, Result, bail};
 use deltaloop_config::Law;
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{EXIT_FAULT, EXIT_STOPPED};
-use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, Svc};
+use deltaloop_transport::ipc::{self, ControlPorts, IpcContext};
 use deltaloop_transport::rt;
-use deltaloop_transport::wire::{
-    self, ControlKind, ControlMsg, RefSample, Sender, StateMsg, TorqueMsg,
-};
-use iceoryx2::port::listener::Listener;
-use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::prelude::*;
+use deltaloop_transport::wire::{self, ControlKind, ControlMsg, Sender, StateMsg, TorqueMsg};
 use std::net::{SocketAddr, TcpListener, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -54,31 +47,8 @@ struct FarEnd {
     line: String,
 }
 
-struct Ports {
-    state: Subscriber<Svc, StateMsg, ()>,
-    torque: Publisher<Svc, TorqueMsg, ()>,
-    state_ready: Listener<Svc>,
-    torque_ready: Notifier<Svc>,
-    reference: Subscriber<Svc, [RefSample], ()>,
-    control: ControlPorts,
-    _node: Node<Svc>,
-}
-
-impl Ports {
-    fn open(run_id: &str) -> Result<Self> {
-        let node = ipc::node("controller", run_id)?;
-        let (state, torque, state_ready, torque_ready) = ipc::controller_loop(&node, run_id)?;
-        Ok(Self {
-            state,
-            torque,
-            state_ready,
-            torque_ready,
-            reference: ipc::reference_subscriber(&node, run_id)?,
-            control: ipc::control_ports(&node, run_id, Sender::Controller)?,
-            _node: node,
-        })
-    }
-}
+/// The controller's side of the run on this host, which this bridge holds in its place.
+type Ports = ipc::ControllerPorts;
 
 /// Runs the near side; returns the exit code and its one line (None: completed).
 pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {

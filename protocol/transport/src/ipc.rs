@@ -357,6 +357,45 @@ pub fn controller_loop(node: &Node<Svc>, run_id: &str) -> Result<ControllerLoop,
     ))
 }
 
+/// Every port of the controller's side of a run: the loop ([`controller_loop`]), the reference
+/// chunks and run control. Held by the built-in controller and by the bridge's near side, which
+/// stands in for it.
+pub struct ControllerPorts {
+    pub state: iceoryx2::port::subscriber::Subscriber<Svc, StateMsg, ()>,
+    pub torque: iceoryx2::port::publisher::Publisher<Svc, TorqueMsg, ()>,
+    pub state_ready: iceoryx2::port::listener::Listener<Svc>,
+    pub torque_ready: iceoryx2::port::notifier::Notifier<Svc>,
+    pub reference: iceoryx2::port::subscriber::Subscriber<Svc, [RefSample], ()>,
+    pub control: ControlPorts,
+    _node: Node<Svc>,
+}
+
+impl ControllerPorts {
+    /// Opens them under the node `controller` of run `run_id`.
+    pub fn open(run_id: &str) -> Result<Self, IpcError> {
+        let node = node("controller", run_id)?;
+        let (state, torque, state_ready, torque_ready) = controller_loop(&node, run_id)?;
+        Ok(Self {
+            state,
+            torque,
+            state_ready,
+            torque_ready,
+            reference: reference_subscriber(&node, run_id)?,
+            control: control_ports(&node, run_id, Sender::Controller)?,
+            _node: node,
+        })
+    }
+
+    /// Sends `kind` (READY, ARMED, …) on the controller's control service.
+    pub fn send_control(&self, kind: crate::wire::ControlKind) -> Result<(), IpcError> {
+        self.control
+            .0
+            .send_copy(ControlMsg::new(kind, Sender::Controller))
+            .ipc(format!("send {kind:?}"))?;
+        Ok(())
+    }
+}
+
 /// The plant's end of the loop: `state` publisher, `torque` subscriber (buffer [`LOOP_BUFFER`]),
 /// `state-ready` notifier, `torque-ready` listener (the built-in plant and the bridge's far side,
 /// which stands in for it).
