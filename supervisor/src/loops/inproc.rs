@@ -43,14 +43,24 @@ pub fn run_twin(study: &Study, law: Law) -> Result<LawRun> {
 
 /// Runs every law's round-off twin, each on its own thread.
 pub fn run_twins(study: &Study, laws: &[Law]) -> Vec<Result<LawRun>> {
+    on_threads(laws.to_vec(), |law| run_twin(study, law))
+}
+
+/// `run(job)` for every job (one a law), each on its own thread (they share nothing but the
+/// read-only study), in the jobs' order.
+fn on_threads<J: Send>(
+    jobs: Vec<J>,
+    run: impl Fn(J) -> Result<LawRun> + Sync,
+) -> Vec<Result<LawRun>> {
     std::thread::scope(|scope| {
-        let handles: Vec<_> = laws
-            .iter()
-            .map(|&law| scope.spawn(move || run_twin(study, law)))
+        let run = &run;
+        let handles: Vec<_> = jobs
+            .into_iter()
+            .map(|job| scope.spawn(move || run(job)))
             .collect();
         handles
             .into_iter()
-            .map(|h| h.join().expect("twin thread panicked"))
+            .map(|h| h.join().expect("law thread panicked"))
             .collect()
     })
 }
@@ -168,20 +178,8 @@ pub fn run_schedule<'a>(
     lawrun::finish(rec, after.as_ref())
 }
 
-/// Runs several laws, each on its own thread (they share nothing but the read-only study), each
-/// with what `keep(law)` asks for.
+/// Runs several laws, each on its own thread, each with what `keep(law)` asks for.
 pub fn run_laws(study: &Study, laws: &[Law], keep: impl Fn(Law) -> Keep) -> Vec<Result<LawRun>> {
-    std::thread::scope(|scope| {
-        let handles: Vec<_> = laws
-            .iter()
-            .map(|&law| {
-                let keep = keep(law);
-                scope.spawn(move || run_law(study, law, &keep))
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().expect("law thread panicked"))
-            .collect()
-    })
+    let jobs = laws.iter().map(|&law| (law, keep(law))).collect();
+    on_threads(jobs, |(law, keep)| run_law(study, law, &keep))
 }

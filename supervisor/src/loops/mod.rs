@@ -7,6 +7,7 @@ pub mod feed;
 pub mod inproc;
 pub mod lawrun;
 pub mod peer_text;
+pub mod pool;
 pub mod procs;
 pub mod signals;
 

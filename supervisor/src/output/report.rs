@@ -43,6 +43,11 @@ fn fig(x: f64, rel: Option<f64>) -> String {
     rel.map_or_else(|| e(x), |r| sensitivity::sci(x, r))
 }
 
+/// One of `m`'s RMS figures (rad) with the digits its round-off twin leaves it.
+pub fn rms_fig(m: &LawMetrics, x: f64) -> String {
+    fig(x, m.sensitivity.map(|t| t.rms_rel))
+}
+
 /// The round-off column of a law: the spread of its RMS (the figures of its row), or `-`
 /// without a twin.
 fn spread_cell(m: &LawMetrics) -> String {

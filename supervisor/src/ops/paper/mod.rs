@@ -7,7 +7,7 @@
 use crate::loops::lawrun::LawRun;
 use crate::ops::run;
 use crate::output::plot::{self, Panel, Series, Series3};
-use crate::output::report::{limit_cycle, paper_rms, paper_table};
+use crate::output::report::{limit_cycle, paper_rms, paper_table, rms_fig};
 use crate::record::metrics::LawMetrics;
 use crate::record::{RunStatus, sensitivity};
 use crate::study::Study;
@@ -424,13 +424,6 @@ fn published_rms() -> BTreeMap<PathKind, BTreeMap<Law, [f64; 3]>> {
 }
 
 /// RMS as printed everywhere in this report (the test compares it with summary.json).
-/// One of our RMS figures of law metrics `m`: with the digits its round-off twin leaves (all
-/// four without a twin).
-fn fmt_ours(m: &LawMetrics, x: f64) -> String {
-    m.sensitivity
-        .map_or_else(|| fmt_rms(x), |t| sensitivity::sci(x, t.rms_rel))
-}
-
 pub fn fmt_rms(x: f64) -> String {
     format!("{x:.3e}")
 }
@@ -598,7 +591,7 @@ fn rms_table(o: &mut String, s: &PaperSummary, scn: PathKind, cs: &[&Case]) {
                 st => format!(" ({st} at tick {})", m.status_tick.unwrap_or(0)),
             };
             let rel = m.sensitivity.map(|x| x.rms_rel);
-            let f = |x: f64| fmt_ours(m, x);
+            let f = |x: f64| rms_fig(m, x);
             let _ = writeln!(
                 o,
                 "| ours, `{}` | {} (`{}`){st} | {} | {} | {} | {} |",
@@ -904,13 +897,13 @@ fn mismatch_explanation(o: &mut String, s: &PaperSummary) {
         c.tau_max_nm,
         sta.clamp_count,
         sta.ticks,
-        fmt_ours(sta, sta.rms_rad[0]),
+        rms_fig(sta, sta.rms_rad[0]),
         s.cases
             .iter()
             .find(|c| c.preset == Preset::Matched && c.scenario == PathKind::S1)
             .map_or("?".into(), |c| {
                 let m = &c.laws[&Law::TdcIsSta];
-                fmt_ours(m, m.rms_rad[0])
+                rms_fig(m, m.rms_rad[0])
             }),
         c.params.phi,
     );
@@ -958,9 +951,9 @@ pub fn terminal(s: &PaperSummary, out: &Path) -> String {
                     scn,
                     c.preset,
                     law.name(),
-                    fmt_ours(m, m.rms_rad[0]),
-                    fmt_ours(m, m.rms_rad[1]),
-                    fmt_ours(m, m.rms_rad[2]),
+                    rms_fig(m, m.rms_rad[0]),
+                    rms_fig(m, m.rms_rad[1]),
+                    rms_fig(m, m.rms_rad[2]),
                     v
                 );
             }

@@ -17,8 +17,6 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// The laws compared: `tde-is` (the denominator), the paper's explicit super-twisting law and
 /// the implicit one.
@@ -198,37 +196,21 @@ pub fn run(out: &Path, seeds: u32, realtime_runs: u32, progress: bool) -> Result
         .collect();
     let bar = crate::output::progress_bar(jobs.len(), progress);
     bar.set_message("robustness: sensor-noise seeds in-process");
-    let results: Mutex<Vec<Option<Result<Sample>>>> =
-        Mutex::new((0..jobs.len()).map(|_| None).collect());
-    let next = AtomicUsize::new(0);
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    std::thread::scope(|scope| {
-        for _ in 0..threads {
-            scope.spawn(|| {
-                loop {
-                    let i = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(&(c, seed)) = jobs.get(i) else { break };
-                    let (_, name, text) = CONFIGS[c];
-                    let r = inproc_sample(text, name, seed);
-                    results.lock().expect("results")[i] = Some(r);
-                    bar.inc(1);
-                }
-            });
-        }
+    let results = crate::loops::pool::map(&jobs, threads, |&(c, seed)| {
+        let (_, name, text) = CONFIGS[c];
+        let r = inproc_sample(text, name, seed);
+        bar.inc(1);
+        r
     });
     bar.finish_and_clear();
-    let results = results.into_inner().expect("results");
     let mut rows = Vec::new();
-    for (c, (preset, name, text)) in CONFIGS.iter().enumerate() {
-        let samples = jobs
-            .iter()
-            .zip(&results)
-            .filter(|((jc, _), _)| *jc == c)
-            .map(|(_, r)| match r {
-                Some(Ok(s)) => Ok(s.clone()),
-                Some(Err(e)) => Err(anyhow::anyhow!("{e:#}")),
-                None => Err(anyhow::anyhow!("not run")),
-            })
+    // The jobs run case by case, `seeds` each: so do their results.
+    let mut results = results.into_iter();
+    for (preset, name, text) in CONFIGS.iter() {
+        let samples = results
+            .by_ref()
+            .take(seeds as usize)
             .collect::<Result<Vec<Sample>>>()?;
         let scenario = config(text, name, 1)?.scenario.path;
         rows.push(row(scenario, *preset, LoopMode::Inproc, &samples));

@@ -305,6 +305,20 @@ mod tests {
         assert_eq!(rt.to_string(), "s2/paper/tde-is ℓ=2 d=1 c=200us (realtime)");
     }
 
+    /// S2, matched, `tdc`, ℓ = 1, d = 0, a realtime point at a 200 µs compute delay.
+    fn s2_tdc_realtime_job() -> Job {
+        Job {
+            scenario: PathKind::S2,
+            preset: Preset::Matched,
+            law: Law::Tdc,
+            ell: 1,
+            d: 0,
+            us: 0.0,
+            compute_us: 200,
+            realtime: true,
+        }
+    }
+
     /// Repeats fold into one row: means over the `ok` repeats, the hand-computed standard
     /// deviation and t interval (rms 1, 2, 3 → mean 2, s = 1, t₀.₉₇₅,₂ = 4.302652729911275,
     /// half-width 4.302652729911275/√3 = 2.484137...), the first non-ok repeat's status named by
@@ -312,14 +326,9 @@ mod tests {
     #[test]
     fn repeats_summarise_to_mean_std_and_t_interval() {
         let job = Job {
-            scenario: PathKind::S2,
-            preset: Preset::Matched,
-            law: Law::Tdc,
-            ell: 1,
-            d: 0,
-            us: 0.0,
             compute_us: 0,
             realtime: false,
+            ..s2_tdc_realtime_job()
         };
         let m = some_metrics();
         let mk = |rms: f64, seed: u64, clamps: u64| {
@@ -404,16 +413,7 @@ mod tests {
 
     #[test]
     fn regression_sweep_row_status_and_reason() {
-        let job = Job {
-            scenario: PathKind::S2,
-            preset: Preset::Matched,
-            law: Law::Tdc,
-            ell: 1,
-            d: 0,
-            us: 0.0,
-            compute_us: 200,
-            realtime: true,
-        };
+        let job = s2_tdc_realtime_job();
         let ok = some_metrics();
         assert!(ok.completed);
         let rt = LoopMode::Realtime;

@@ -10,7 +10,7 @@ use deltaloop_config::files;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::Ordering;
 
 /// `shard.json`'s format tag.
 pub const FORMAT: &str = "deltaloop-sweep-shard/1";
@@ -133,30 +133,16 @@ pub fn run(
     let (parallel, serial): (Vec<usize>, Vec<usize>) = indices
         .iter()
         .partition(|&&i| plan.points[i].mode == LoopMode::Inproc);
-    let next = AtomicUsize::new(0);
-    std::thread::scope(|s| -> Result<()> {
-        let handles: Vec<_> = (0..jobs.max(1))
-            .map(|_| {
-                s.spawn(|| -> Result<()> {
-                    loop {
-                        if crate::loops::signals::interrupted() {
-                            return Ok(());
-                        }
-                        let n = next.fetch_add(1, Ordering::Relaxed);
-                        let Some(&i) = parallel.get(n) else {
-                            return Ok(());
-                        };
-                        run_one(i)?;
-                    }
-                })
-            })
-            .collect();
-        for h in handles {
-            h.join()
-                .map_err(|_| anyhow::anyhow!("sweep worker panicked"))??;
+    // A worker that hit an error (a row it could not write) ends the sweep's parallel part:
+    // the others take no new point.
+    let failed = std::sync::atomic::AtomicBool::new(false);
+    let done = crate::loops::pool::map(&parallel, jobs, |&i| -> Result<()> {
+        if crate::loops::signals::interrupted() || failed.load(Ordering::Relaxed) {
+            return Ok(());
         }
-        Ok(())
-    })?;
+        run_one(i).inspect_err(|_| failed.store(true, Ordering::Relaxed))
+    });
+    done.into_iter().collect::<Result<Vec<()>>>()?;
     for i in serial {
         if crate::loops::signals::interrupted() {
             break;
