@@ -58,7 +58,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
     let Some(layout) = args.run.mode.layout(&cfg) else {
         bail!("mode {} has no processes", args.run.mode);
     };
-    let ports = Ports::open(&args.run.run_id)?;
+    let ports = Ports::open(&args.run.run_id, ipc::LOOP_BUFFER)?;
     // Allocated and touched before READY: the loop files rows without allocating or faulting.
     let mut ring = RefRing::new();
     rt::schedule_and_report_ready(

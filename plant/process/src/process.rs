@@ -67,7 +67,8 @@ struct Ports {
 impl Ports {
     fn open(run_id: &str) -> Result<Self> {
         let node = ipc::node("plant", run_id)?;
-        let (state, torque, state_ready, torque_ready) = ipc::plant_loop(&node, run_id)?;
+        let (state, torque, state_ready, torque_ready) =
+            ipc::plant_loop(&node, run_id, ipc::LOOP_BUFFER)?;
         Ok(Self {
             state,
             telemetry: ipc::telemetry(&node, run_id)?

@@ -7,6 +7,7 @@
 
 use crate::frame::{self, Hello, Kind, bytes_of};
 use crate::link::{self, Tcp, Udp};
+use crate::replies::Outbox;
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::exit::{EXIT_FAULT, EXIT_SETUP, EXIT_STOPPED};
@@ -124,7 +125,8 @@ struct Ports {
 impl Ports {
     fn open(run_id: &str) -> Result<Self> {
         let node = ipc::node("supervisor", run_id)?;
-        let (state, torque, state_ready, torque_ready) = ipc::plant_loop(&node, run_id)?;
+        let (state, torque, state_ready, torque_ready) =
+            ipc::plant_loop(&node, run_id, ipc::RELAY_BUFFER)?;
         Ok(Self {
             state,
             torque,
@@ -245,7 +247,8 @@ fn serve(
         near_gone_ns: None,
         spin_ns,
         poll_until: 0,
-        last_reply: None,
+        arrivals: [(u64::MAX, 0); ARRIVALS],
+        replies: Outbox::default(),
     };
     let code = f.forward(term)?;
     f.report(code)?;
@@ -313,6 +316,9 @@ struct Far {
     stash: Option<StateMsg>,
     /// The last state published here: its tick and when it arrived (this host's clock, ns).
     arrived: (u64, u64),
+    /// When each of the last [`ARRIVALS`] states arrived: (tick, ns), at slot tick % ARRIVALS, so
+    /// a reply to an older state still gets its residence here.
+    arrivals: [(u64, u64); ARRIVALS],
     /// The controller's last `t_poll_until_ns` (this host's clock).
     controller_poll_until: u64,
     stop_sent: bool,
@@ -322,10 +328,13 @@ struct Far {
     spin_ns: u64,
     /// Poll (do not block) until then: a reply is due.
     poll_until: u64,
-    /// The last reply sent (with its residence), for a state the near side sends again
-    /// (lockstep, after a lost datagram).
-    last_reply: Option<(TorqueMsg, u64)>,
+    /// The last replies sent (with their residences), each datagram carrying the two before
+    /// it too; sent again for a state the near side sends again (lockstep, after a loss).
+    replies: Outbox,
 }
+
+/// States whose arrival time the far side keeps.
+const ARRIVALS: usize = 64;
 
 impl Drop for Far {
     fn drop(&mut self) {
@@ -431,14 +440,14 @@ impl Far {
             self.controller_poll_until = t.t_poll_until_ns;
             self.poll_until = 0;
             let now = rt::now_ns();
-            let residence = if self.arrived.0 == t.tick {
-                now.saturating_sub(self.arrived.1)
+            let (tick, at) = self.arrivals[(t.tick % ARRIVALS as u64) as usize];
+            let residence = if tick == t.tick {
+                now.saturating_sub(at)
             } else {
                 t.t_publish_ns.saturating_sub(t.t_state_rx_ns)
             };
-            self.udp
-                .send(Kind::Torque, &[bytes_of(t), &residence.to_ne_bytes()], now)?;
-            self.last_reply = Some((*t, residence));
+            let payload = self.replies.push(t, residence);
+            self.udp.send(Kind::Torque, &[payload], now)?;
         }
         Ok(())
     }
@@ -452,13 +461,11 @@ impl Far {
             let Some(s) = frame::read::<StateMsg>(p) else {
                 continue;
             };
-            if let Some((t, residence)) = self.last_reply
-                && t.tick == s.tick
-            {
+            if self.replies.newest_tick() == Some(s.tick) {
                 // Sent again: its reply was lost on the way back.
                 let now = rt::now_ns();
                 self.udp
-                    .send(Kind::Torque, &[bytes_of(&t), &residence.to_ne_bytes()], now)?;
+                    .send(Kind::Torque, &[self.replies.payload()], now)?;
             } else if self.started && self.arrived.0 == s.tick {
                 // Sent again while the controller is still on it: it answers once.
             } else if self.started {
@@ -477,6 +484,7 @@ impl Far {
         self.poll_until = now + self.spin_ns;
         s.t_poll_until_ns = self.poll_until;
         self.arrived = (s.tick, now);
+        self.arrivals[(s.tick % ARRIVALS as u64) as usize] = (s.tick, now);
         self.ports.state.send_copy(s).ipc("publish state")?;
         if ipc::published_needs_notify(self.controller_poll_until) {
             self.ports.state_ready.notify().ipc("notify state")?;

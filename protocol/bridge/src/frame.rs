@@ -13,8 +13,9 @@ pub const MAGIC: u32 = u32::from_ne_bytes(*b"DLB1");
 pub const HEADER: usize = 16;
 /// The largest TCP frame (after its u32 length): the HELLO's config text or a reference chunk.
 pub const MAX_FRAME: usize = 1 << 20;
-/// The largest datagram the loop sends, bytes (a state: header + 168).
-pub const MAX_DATAGRAM: usize = 256;
+/// The largest datagram the loop sends, bytes (three replies: header + 3 × 144; a state is
+/// header + 168).
+pub const MAX_DATAGRAM: usize = HEADER + crate::replies::COPIES * crate::replies::ENTRY;
 
 /// What a datagram or frame carries.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -22,7 +23,8 @@ pub const MAX_DATAGRAM: usize = 256;
 pub enum Kind {
     /// UDP, near → far: one `StateMsg`.
     State = 1,
-    /// UDP, far → near: one `TorqueMsg` and the far side's residence time (u64, ns).
+    /// UDP, far → near: the newest reply and up to two before it, each a `TorqueMsg` and the far
+    /// side's residence time (u64, ns), newest first ([`crate::replies`]).
     Torque = 2,
     /// UDP: bench ping (u64 sequence, then padding to a state's size) and its echo.
     Ping = 3,
@@ -138,12 +140,11 @@ impl std::fmt::Display for Refused {
 fn fixed_size(kind: Kind) -> Option<usize> {
     match kind {
         Kind::State | Kind::Final => Some(size_of::<StateMsg>()),
-        Kind::Torque => Some(size_of::<TorqueMsg>() + 8),
         Kind::Ping | Kind::Pong => Some(size_of::<StateMsg>()),
         Kind::Punch => Some(0),
         Kind::Ack => Some(8),
         Kind::Control => Some(size_of::<ControlMsg>()),
-        Kind::Hello | Kind::Reference | Kind::Exit | Kind::Log => None,
+        Kind::Hello | Kind::Reference | Kind::Exit | Kind::Log | Kind::Torque => None,
     }
 }
 
@@ -174,6 +175,7 @@ pub fn parse(b: &[u8], key: Option<u64>) -> Result<(Kind, &[u8]), Refused> {
                 && payload.len() <= deltaloop_transport::ipc::REF_CHUNK * size_of::<RefSample>()
         }
         Kind::Exit => payload.len() >= 4,
+        Kind::Torque => crate::replies::valid_len(payload.len()),
         _ => fixed_size(kind).is_none_or(|n| n == payload.len()),
     };
     if !ok {

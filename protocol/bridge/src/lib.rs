@@ -18,6 +18,7 @@ pub mod frame;
 pub mod link;
 pub mod near;
 pub mod ping;
+pub mod replies;
 #[cfg(feature = "zenoh")]
 pub mod zping;
 

@@ -14,6 +14,7 @@
 
 use crate::frame::{self, Hello, Kind, bytes_of, bytes_of_slice};
 use crate::link::{self, Emulation, Tcp, Udp};
+use crate::replies::Inbox;
 use anyhow::{Context, Result, bail};
 use deltaloop_config::Law;
 use deltaloop_transport::args::LoopArgs;
@@ -58,7 +59,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
     let key = frame::run_key(run_id);
     let emu = a.emu.emulation()?;
     let spin_ns = crate::spin_ns(&a.run.config, a.run.mode, a.emu.link_spin_us)?;
-    let ports = Ports::open(run_id)?;
+    let ports = Ports::open(run_id, ipc::RELAY_BUFFER)?;
     let listener = TcpListener::bind(a.listen)
         .with_context(|| format!("cannot listen on --listen {} (TCP)", a.listen))?;
     let udp = UdpSocket::bind(a.listen)
@@ -144,17 +145,19 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
             due_ns: None,
         }),
         resent: 0,
+        inbox: Inbox::default(),
     };
     let r = n.forward(term);
     n.tcp.flush().ok();
     std::thread::sleep(ipc::LINGER);
     let end = r?;
-    if !emu.is_off() || n.resent > 0 {
+    if !emu.is_off() || n.resent > 0 || n.inbox.recovered > 0 {
         eprintln!(
-            "deltaloop-bridge: {}: {} datagram(s) dropped here, {} state(s) sent again",
+            "deltaloop-bridge: {}: {} datagram(s) dropped here, {} state(s) sent again, {} repl(ies) recovered from a later datagram",
             describe(&emu),
             n.udp.emulated_lost,
-            n.resent
+            n.resent,
+            n.inbox.recovered
         );
     }
     if n.udp.refused > 0 {
@@ -198,6 +201,8 @@ struct Near {
     resend: Option<Resend>,
     /// States sent again (lockstep).
     resent: u64,
+    /// The replies republished, each once.
+    inbox: Inbox,
 }
 
 struct Resend {
@@ -330,32 +335,14 @@ impl Near {
             if kind != Kind::Torque {
                 continue;
             }
-            let (msg, residence) = p.split_at(size_of::<TorqueMsg>());
-            let (Some(mut t), Some(residence)) =
-                (frame::read::<TorqueMsg>(msg), frame::read::<u64>(residence))
-            else {
-                continue;
-            };
-            let now = rt::now_ns();
-            t.t_publish_ns = now;
-            t.t_state_rx_ns = now.saturating_sub(residence);
-            // This side blocks on the state event: the plant must always notify it.
-            t.t_poll_until_ns = 0;
-            self.ports.torque.send_copy(t).ipc("publish torque")?;
+            let mut res = Ok(());
+            self.inbox.take(p, |t, residence| {
+                if res.is_ok() {
+                    res = republish(&self.ports, t, residence, self.last_state, &mut self.resend);
+                }
+            });
+            res?;
             self.poll_until = 0;
-            if let Some(r) = &mut self.resend
-                && r.state.tick == t.tick
-            {
-                r.due_ns = None;
-            }
-            let poll_until = if self.last_state.0 == t.tick {
-                self.last_state.1
-            } else {
-                0
-            };
-            if ipc::published_needs_notify(poll_until) {
-                self.ports.torque_ready.notify().ipc("notify torque")?;
-            }
         }
         Ok(())
     }
@@ -434,6 +421,38 @@ impl Near {
         }
         Ok(())
     }
+}
+
+/// Publishes the far controller's reply `t` on the plant's clock (`residence` ns: its time on
+/// the far host) and wakes the plant unless it is polling for it; a lockstep resend of its state
+/// is called off.
+fn republish(
+    ports: &Ports,
+    mut t: TorqueMsg,
+    residence: u64,
+    last_state: (u64, u64),
+    resend: &mut Option<Resend>,
+) -> Result<()> {
+    let now = rt::now_ns();
+    t.t_publish_ns = now;
+    t.t_state_rx_ns = now.saturating_sub(residence);
+    // This side blocks on the state event: the plant must always notify it.
+    t.t_poll_until_ns = 0;
+    ports.torque.send_copy(t).ipc("publish torque")?;
+    if let Some(r) = resend
+        && r.state.tick == t.tick
+    {
+        r.due_ns = None;
+    }
+    let poll_until = if last_state.0 == t.tick {
+        last_state.1
+    } else {
+        0
+    };
+    if ipc::published_needs_notify(poll_until) {
+        ports.torque_ready.notify().ipc("notify torque")?;
+    }
+    Ok(())
 }
 
 /// Exposed for the far side's START: tick 0's deadline on this host's clock, from the relative

@@ -15,6 +15,12 @@ pub type Svc = ipc::Service;
 pub const OBSERVER_BUFFER: usize = 8192;
 /// How long each handshake step (READY, ARMED, START) may take before the run is given up, ns.
 pub const HANDSHAKE_TIMEOUT_NS: u64 = 30_000_000_000;
+/// Per-subscriber queue of a bridge (`deltaloop-bridge`), which relays every message across the
+/// link: as deep as an observer's, so a bridge the host holds up loses nothing (regression: the
+/// far side's torque queue held [`LOOP_BUFFER`] replies, a bridge held up for two ticks lost the
+/// oldest, and the plant's host recorded as unanswered states the controller had answered, so the
+/// run did not replay).
+pub const RELAY_BUFFER: usize = OBSERVER_BUFFER;
 /// Per-subscriber queue in the loop itself: the loop always takes the newest sample.
 pub const LOOP_BUFFER: usize = 4;
 
@@ -324,7 +330,8 @@ pub fn wakeup(
         .ipc(format!("open event {what}"))
 }
 
-/// The controller's end of the loop: `state` subscriber (buffer [`LOOP_BUFFER`]), `torque`
+/// The controller's end of the loop: `state` subscriber (`buffer` deep: [`LOOP_BUFFER`], or
+/// [`RELAY_BUFFER`] in a bridge), `torque`
 /// publisher, `state-ready` listener, `torque-ready` notifier (the built-in controller and the
 /// bridge's near side, which stands in for it).
 pub type ControllerLoop = (
@@ -335,11 +342,15 @@ pub type ControllerLoop = (
 );
 
 /// Opens [`ControllerLoop`].
-pub fn controller_loop(node: &Node<Svc>, run_id: &str) -> Result<ControllerLoop, IpcError> {
+pub fn controller_loop(
+    node: &Node<Svc>,
+    run_id: &str,
+    buffer: usize,
+) -> Result<ControllerLoop, IpcError> {
     Ok((
         state(node, run_id)?
             .subscriber_builder()
-            .buffer_size(LOOP_BUFFER)
+            .buffer_size(buffer)
             .create()
             .ipc("state subscriber")?,
         torque(node, run_id)?
@@ -371,10 +382,10 @@ pub struct ControllerPorts {
 }
 
 impl ControllerPorts {
-    /// Opens them under the node `controller` of run `run_id`.
-    pub fn open(run_id: &str) -> Result<Self, IpcError> {
+    /// Opens them under the node `controller` of run `run_id`, the state queue `buffer` deep.
+    pub fn open(run_id: &str, buffer: usize) -> Result<Self, IpcError> {
         let node = node("controller", run_id)?;
-        let (state, torque, state_ready, torque_ready) = controller_loop(&node, run_id)?;
+        let (state, torque, state_ready, torque_ready) = controller_loop(&node, run_id, buffer)?;
         Ok(Self {
             state,
             torque,
@@ -396,7 +407,8 @@ impl ControllerPorts {
     }
 }
 
-/// The plant's end of the loop: `state` publisher, `torque` subscriber (buffer [`LOOP_BUFFER`]),
+/// The plant's end of the loop: `state` publisher, `torque` subscriber (`buffer` deep, as in
+/// [`controller_loop`]),
 /// `state-ready` notifier, `torque-ready` listener (the built-in plant and the bridge's far side,
 /// which stands in for it).
 pub type PlantLoop = (
@@ -407,7 +419,7 @@ pub type PlantLoop = (
 );
 
 /// Opens [`PlantLoop`].
-pub fn plant_loop(node: &Node<Svc>, run_id: &str) -> Result<PlantLoop, IpcError> {
+pub fn plant_loop(node: &Node<Svc>, run_id: &str, buffer: usize) -> Result<PlantLoop, IpcError> {
     Ok((
         state(node, run_id)?
             .publisher_builder()
@@ -415,7 +427,7 @@ pub fn plant_loop(node: &Node<Svc>, run_id: &str) -> Result<PlantLoop, IpcError>
             .ipc("state publisher")?,
         torque(node, run_id)?
             .subscriber_builder()
-            .buffer_size(LOOP_BUFFER)
+            .buffer_size(buffer)
             .create()
             .ipc("torque subscriber")?,
         wakeup(node, run_id, "state-ready")?
