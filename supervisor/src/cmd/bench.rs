@@ -57,6 +57,10 @@ enum What {
         /// endpoints).
         #[arg(long, value_name = "PATH")]
         zenoh_bridge: Option<PathBuf>,
+        /// Also run with the far, then the near bridge polling for the reply (`join --spin-us
+        /// 150`, `--link-spin-us 150`): two more rows.
+        #[arg(long)]
+        polling: bool,
     },
 }
 
@@ -77,13 +81,14 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
             hold_s,
             out,
             zenoh_bridge,
+            polling,
         } => {
             // Not this machine's fault but a missing prerequisite: said in one line, exit 2.
             if let Some(why) = crate::ops::bench_net::missing() {
                 eprintln!("deltaloop: error: {why}");
                 std::process::exit(2);
             }
-            crate::ops::bench_net::run(hold_s, out.as_deref(), zenoh_bridge.as_deref())
+            crate::ops::bench_net::run(hold_s, out.as_deref(), zenoh_bridge.as_deref(), polling)
         }
     }
 }

@@ -279,7 +279,17 @@ fn tail(log: &Path) -> String {
 /// Runs the benchmark (see the module) and prints the table; the last line is
 /// `udp_p50_us=<u> bridge_p50_us=<b> one_host_p50_us=<h> bridge_over_udp=<b/u>`.
 /// `out`: where the runs' folders go (None: a temporary folder, removed at the end).
-pub fn run(hold_s: f64, out: Option<&Path>, zenoh_bridge: Option<&Path>) -> Result<()> {
+/// How long a polling bridge polls for the reply, µs (the 150 µs budget: a reply later than that
+/// is late anyway).
+const POLL_US: u32 = 150;
+
+/// `deltaloop bench net`; `polling` adds the runs with the far, then the near bridge polling.
+pub fn run(
+    hold_s: f64,
+    out: Option<&Path>,
+    zenoh_bridge: Option<&Path>,
+    polling: bool,
+) -> Result<()> {
     if let Some(why) = missing() {
         bail!("{why}");
     }
@@ -356,14 +366,8 @@ pub fn run(hold_s: f64, out: Option<&Path>, zenoh_bridge: Option<&Path>) -> Resu
         }
     }
 
-    // 2: across the bridge.
-    let remote = dir.join("bridge");
+    // 2: across the bridge, both sides blocking; with `polling`, also each side polling.
     let endpoint = format!("{ADDR_A}:7447");
-    let mut join = Kid::spawn(
-        h.cmd("b", &deltaloop, &["join", &endpoint, "--wait-s", "60"]),
-        "deltaloop join",
-        &dir.join("join.log"),
-    )?;
     let run_args = |out: &Path| -> Vec<String> {
         [
             "run",
@@ -380,16 +384,41 @@ pub fn run(hold_s: f64, out: Option<&Path>, zenoh_bridge: Option<&Path>) -> Resu
         .map(String::from)
         .to_vec()
     };
-    let mut args = run_args(&remote);
-    args.extend(["--controller-remote".into(), endpoint.clone()]);
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let log = dir.join("run-bridge.log");
-    Kid::spawn(h.cmd("a", &deltaloop, &args), "deltaloop run", &log)?.wait(wait, &remote)?;
-    let _ = join.wait(Duration::from_secs(10), &remote);
-    rows.push(
-        run_row("bridge (both sides blocking)", &remote)
-            .with_context(|| format!("the run across the bridge: {}", tail(&log)))?,
-    );
+    let across = |name: &str, label: &str, join_extra: &[&str], run_extra: &[&str]| {
+        let remote = dir.join(name);
+        let mut jargs = vec!["join", endpoint.as_str(), "--wait-s", "60"];
+        jargs.extend_from_slice(join_extra);
+        let mut join = Kid::spawn(
+            h.cmd("b", &deltaloop, &jargs),
+            "deltaloop join",
+            &dir.join(format!("join-{name}.log")),
+        )?;
+        let mut args = run_args(&remote);
+        args.extend(["--controller-remote".into(), endpoint.clone()]);
+        args.extend(run_extra.iter().map(|a| a.to_string()));
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let log = dir.join(format!("run-{name}.log"));
+        Kid::spawn(h.cmd("a", &deltaloop, &args), "deltaloop run", &log)?.wait(wait, &remote)?;
+        let _ = join.wait(Duration::from_secs(10), &remote);
+        run_row(label, &remote).with_context(|| format!("the run {label}: {}", tail(&log)))
+    };
+    let blocking = rows.len();
+    rows.push(across("bridge", "bridge (both sides blocking)", &[], &[])?);
+    if polling {
+        let spin = format!("{POLL_US}");
+        rows.push(across(
+            "bridge-far-polling",
+            &format!("bridge, far side polling (join --spin-us {POLL_US})"),
+            &["--spin-us", &spin],
+            &[],
+        )?);
+        rows.push(across(
+            "bridge-near-polling",
+            &format!("bridge, near side polling (--link-spin-us {POLL_US})"),
+            &[],
+            &[&format!("--link-spin-us={POLL_US}")],
+        )?);
+    }
 
     // 3: one host.
     let local = dir.join("one-host");
@@ -405,11 +434,7 @@ pub fn run(hold_s: f64, out: Option<&Path>, zenoh_bridge: Option<&Path>) -> Resu
     );
 
     println!("{}", table(&rows));
-    let (udp, bridge_p50, one) = (
-        rows[0].p50,
-        rows[rows.len() - 2].p50,
-        rows[rows.len() - 1].p50,
-    );
+    let (udp, bridge_p50, one) = (rows[0].p50, rows[blocking].p50, rows[rows.len() - 1].p50);
     println!(
         "udp_p50_us={udp:.1} bridge_p50_us={bridge_p50:.1} one_host_p50_us={one:.1} bridge_over_udp={:.2}",
         bridge_p50 / udp
