@@ -18,6 +18,7 @@ pub mod frame;
 pub mod link;
 pub mod near;
 pub mod ping;
+pub mod sides;
 #[cfg(feature = "zenoh")]
 pub mod zping;
 

@@ -336,10 +336,21 @@ pub type ControllerLoop = (
 
 /// Opens [`ControllerLoop`].
 pub fn controller_loop(node: &Node<Svc>, run_id: &str) -> Result<ControllerLoop, IpcError> {
+    controller_loop_buffered(node, run_id, LOOP_BUFFER)
+}
+
+/// Opens [`ControllerLoop`] with a `state` queue of `buffer` samples: the bridge that stands in
+/// for the controller of a remote plant keeps every state ([`OBSERVER_BUFFER`]), since the
+/// supervisor records them on the other host.
+pub fn controller_loop_buffered(
+    node: &Node<Svc>,
+    run_id: &str,
+    buffer: usize,
+) -> Result<ControllerLoop, IpcError> {
     Ok((
         state(node, run_id)?
             .subscriber_builder()
-            .buffer_size(LOOP_BUFFER)
+            .buffer_size(buffer)
             .create()
             .ipc("state subscriber")?,
         torque(node, run_id)?
