@@ -377,5 +377,9 @@ mod tests {
         };
         let e = Hello::decode(&bad.encode()).unwrap_err();
         assert!(e.contains("run_id") && e.contains("../../etc"), "{e}");
+        // A HELLO without a role (the remote controller's first version) puts the controller
+        // on the far host.
+        let old = "run_id=r\nmode=lockstep\nlaw=tdc\n\nname = \"x\"\n";
+        assert_eq!(Hello::decode(old.as_bytes()).unwrap().role, "controller");
     }
 }
