@@ -29,7 +29,7 @@ pub struct Args {
     /// How long to keep trying to reach the supervisor's host for each run, s (0: forever).
     #[arg(long, default_value_t = 120)]
     wait_s: u64,
-    /// Poll this long for the controller's reply after passing a state on before blocking, µs
+    /// Poll this long for the reply after passing a state on before blocking, µs
     /// (0: block at once). Worth it where the bridge has a CPU of its own.
     #[arg(long, default_value_t = 0)]
     spin_us: u32,
