@@ -15,11 +15,23 @@ use std::time::Duration;
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 const PORT: u16 = 7447;
 
+/// A lossy, slow, jittery emulated link: 50 µs delay, 50 µs jitter, 1 % loss, seed 7.
+const LOSSY: &[&str] = &[
+    "--link-delay-us",
+    "50",
+    "--link-jitter-us",
+    "50",
+    "--link-loss",
+    "0.01",
+    "--link-seed",
+    "7",
+];
+
 /// One split run at a time: two realtime loops (four processes, two bridges) on a 2-CPU machine
 /// would measure each other.
 static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
-/// Two namespaces, `a` (plant and supervisor) and `b` (controller), a veth pair between them
+/// Two namespaces, `a` (supervisor, and the plant or the controller) and `b` (the other one), a veth pair between them
 /// (10.77.0.1/30 in `a`, 10.77.0.2/30 in `b`), and a folder with each side's iceoryx2 root
 /// (`deltaloop bench net`'s [`TwoHosts`]). Dropping it deletes both namespaces (and with them the
 /// veth pair), the roots' shared memory, then the folder.
@@ -98,13 +110,18 @@ impl Hosts {
 
     /// `deltaloop run CONFIG --controller-remote 10.77.0.1:7447 --out OUT …` in `a`.
     fn run(&self, config: &str, out: &Path, extra: &[&str]) -> Child {
+        self.run_with(Remote::Controller, config, out, extra)
+    }
+
+    /// `deltaloop run CONFIG --<remote>-remote 10.77.0.1:7447 --out OUT …` in `a`.
+    fn run_with(&self, remote: Remote, config: &str, out: &Path, extra: &[&str]) -> Child {
         let ep = format!("10.77.0.1:{PORT}");
         let mut args = vec![
             "run",
             config,
             "--law",
             "tdc",
-            "--controller-remote",
+            remote.flag(),
             &ep,
             "--out",
             out.to_str().unwrap(),
@@ -135,6 +152,31 @@ impl Hosts {
                 .filter(|n| n.starts_with(&prefix) && !n.ends_with("global_mgmt"))
                 .collect();
             assert!(shm.is_empty(), "left in /dev/shm by side {side}: {shm:?}");
+        }
+    }
+}
+
+/// Which process runs in `b`, across the link from the supervisor in `a`.
+#[derive(Clone, Copy, Debug)]
+enum Remote {
+    Controller,
+    Plant,
+}
+
+impl Remote {
+    /// The flag of `deltaloop run`.
+    fn flag(self) -> &'static str {
+        match self {
+            Remote::Controller => "--controller-remote",
+            Remote::Plant => "--plant-remote",
+        }
+    }
+
+    /// The arguments of `deltaloop join`.
+    fn join_args(self) -> &'static [&'static str] {
+        match self {
+            Remote::Controller => &[],
+            Remote::Plant => &["--role", "plant"],
         }
     }
 }
@@ -204,11 +246,23 @@ fn inproc_trace(tmp: &Path) -> Vec<u8> {
 /// A lockstep run across the link (`run_extra` on the plant's side, `join_extra` on the
 /// controller's) writes the trace.csv of the inproc run, and leaves nothing in either root.
 fn assert_lockstep_identical(h: &Hosts, run_extra: &[&str], join_extra: &[&str]) {
+    assert_lockstep_identical_with(h, Remote::Controller, run_extra, join_extra);
+}
+
+/// [`assert_lockstep_identical`] with `remote` in `b`.
+fn assert_lockstep_identical_with(
+    h: &Hosts,
+    remote: Remote,
+    run_extra: &[&str],
+    join_extra: &[&str],
+) {
     let out = h.tmp.path().join("remote");
-    let join = h.join(join_extra);
+    let mut join_args = remote.join_args().to_vec();
+    join_args.extend_from_slice(join_extra);
+    let join = h.join(&join_args);
     let mut args = vec!["--mode", "lockstep"];
     args.extend_from_slice(run_extra);
-    let run = h.run("configs/s1-nominal.toml", &out, &args);
+    let run = h.run_with(remote, "configs/s1-nominal.toml", &out, &args);
     let (r, j) = both(run, join, Duration::from_secs(180));
     assert!(
         r.status.success(),
@@ -220,7 +274,7 @@ fn assert_lockstep_identical(h: &Hosts, run_extra: &[&str], join_extra: &[&str])
     let remote = std::fs::read(out.join("trace.csv")).unwrap();
     assert!(
         remote == inproc_trace(h.tmp.path()),
-        "trace.csv across the link ({run_extra:?}, {join_extra:?}) differs from inproc"
+        "trace.csv across the link ({remote:?} remote, {run_extra:?}, {join_extra:?}) differs from inproc"
     );
     h.assert_roots_empty();
 }
@@ -231,20 +285,7 @@ fn lockstep_across_the_link_is_byte_identical_to_inproc() {
         return;
     };
     // A lossy, slow, jittery link too: lockstep sends a state again until its reply comes.
-    assert_lockstep_identical(
-        &h,
-        &[
-            "--link-delay-us",
-            "50",
-            "--link-jitter-us",
-            "50",
-            "--link-loss",
-            "0.01",
-            "--link-seed",
-            "7",
-        ],
-        &[],
-    );
+    assert_lockstep_identical(&h, LOSSY, &[]);
 }
 
 /// The done-when: a realtime run across the link completes, its report shows the link's
@@ -287,6 +328,11 @@ fn realtime_across_a_lossy_link_replays_byte_for_byte() {
 /// A realtime run across the link (`extra` on the plant's side; `hold_far`: the far bridge is
 /// stopped now and then), which must complete, measure the round trip and replay byte for byte.
 fn realtime_across_the_link(name: &str, extra: &[&str], hold_far: bool) {
+    realtime_across_the_link_with(name, Remote::Controller, extra, hold_far);
+}
+
+/// [`realtime_across_the_link`] with `remote` in `b`.
+fn realtime_across_the_link_with(name: &str, remote: Remote, extra: &[&str], hold_far: bool) {
     let Some((h, _one)) = Hosts::new(name) else {
         return;
     };
@@ -295,10 +341,10 @@ fn realtime_across_the_link(name: &str, extra: &[&str], hold_far: bool) {
     let mut out = PathBuf::new();
     for attempt in 1..=3 {
         out = h.tmp.path().join(format!("remote-{attempt}"));
-        let join = h.join(&[]);
+        let join = h.join(remote.join_args());
         let mut args = vec!["--mode", "realtime"];
         args.extend_from_slice(extra);
-        let run = h.run(&h.roomy_config(), &out, &args);
+        let run = h.run_with(remote, &h.roomy_config(), &out, &args);
         // `ip netns exec` and `deltaloop join` exec, so the join's pid is the far bridge's.
         let holder = hold_far.then(|| hold_now_and_then(join.id()));
         let (r, j) = both(run, join, Duration::from_secs(120));
@@ -327,9 +373,13 @@ fn realtime_across_the_link(name: &str, extra: &[&str], hold_far: bool) {
     assert!(p50 > 5.0, "round trip p50 {p50} µs: {t}");
     assert!(t["round_trip"]["count"].as_u64().unwrap() > 1000, "{t}");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let who = match remote {
+        Remote::Controller => "controller on another host",
+        Remote::Plant => "plant on another host",
+    };
     assert!(
-        report.contains("--controller-remote 10.77.0.1:7447")
-            && report.contains("across the link at 10.77.0.1:7447"),
+        report.contains(&format!("{} 10.77.0.1:7447", remote.flag()))
+            && report.contains(&format!("{who}, across the link at 10.77.0.1:7447")),
         "{report}"
     );
     if hold_far || !extra.is_empty() {
@@ -354,21 +404,38 @@ fn realtime_across_the_link(name: &str, extra: &[&str], hold_far: bool) {
     h.assert_roots_empty();
 }
 
-#[test]
-fn pulling_the_link_mid_run_ends_in_a_safe_stop_with_every_tick_kept() {
-    let Some((h, _one)) =
-        Hosts::new("pulling_the_link_mid_run_ends_in_a_safe_stop_with_every_tick_kept")
-    else {
-        return;
-    };
+/// The run in `out` ended in a fault of `kind` after the cut (1.5 s into the loop), with no tick
+/// lost: the trace holds the header and ticks 0.. the fault tick, and at most `extra` more.
+fn assert_fault_after_the_cut(out: &Path, kind: FaultKind, extra: u64) {
+    let s = summary(out);
+    assert_eq!(outcome(&s, "tdc"), (RunStatus::Fault, Some(kind)), "{s}");
+    let m = &s["laws"]["tdc"];
+    assert_eq!(m["lost_ticks"], 0, "{m}");
+    let tick = m["fault_at_tick"].as_u64().unwrap();
+    // Cut after 1.5 s of ticks (5000) and before the 5.8 s run's end.
+    assert!((3000..19_000).contains(&tick), "fault at tick {tick}");
+    let rows = std::fs::read_to_string(out.join("trace.csv"))
+        .unwrap()
+        .lines()
+        .count() as u64;
+    assert!(
+        (tick + 1..=tick + 1 + extra).contains(&rows),
+        "{rows} rows: header + ticks 0..fault tick {tick} (+ at most {extra})"
+    );
+}
+
+/// A 5.8 s realtime run with `remote` in `b`, its link taken down 1.5 s into the loop; the run
+/// folder and how both halves ended.
+fn cut_the_link_mid_run(h: &Hosts, remote: Remote) -> (PathBuf, Output, Output) {
     // The cut must come while the loop runs: an attempt the machine spoiled before it (a fault
     // or divergence of its own) is run again, at most three times, and said on stderr.
     let mut attempt = 0;
     let (out, run, join) = loop {
         attempt += 1;
         let out = h.tmp.path().join(format!("remote-{attempt}"));
-        let join = h.join(&[]);
-        let mut run = h.run(
+        let join = h.join(remote.join_args());
+        let mut run = h.run_with(
+            remote,
             &h.roomy_config(),
             &out,
             &["--mode", "realtime", "--hold-s", "5"],
@@ -390,26 +457,73 @@ fn pulling_the_link_mid_run_ends_in_a_safe_stop_with_every_tick_kept() {
     };
     ip(&["-n", &h.net.a, "link", "set", &h.net.veth_a, "down"]).unwrap();
     let (r, j) = both(run, join, Duration::from_secs(60));
+    (out, r, j)
+}
+
+#[test]
+fn pulling_the_link_mid_run_ends_in_a_safe_stop_with_every_tick_kept() {
+    let Some((h, _one)) =
+        Hosts::new("pulling_the_link_mid_run_ends_in_a_safe_stop_with_every_tick_kept")
+    else {
+        return;
+    };
+    let (out, r, j) = cut_the_link_mid_run(&h, Remote::Controller);
     let err = text(&r.stderr);
     assert_eq!(r.status.code(), Some(1), "run: {err}");
     assert!(err.contains("safe stop"), "{err}");
     assert_ne!(j.status.code(), Some(0), "join: {}", text(&j.stderr));
-    let s = summary(&out);
-    assert_eq!(
-        outcome(&s, "tdc"),
-        (RunStatus::Fault, Some(FaultKind::ControllerSilent)),
-        "{s}"
+    // Every tick up to the fault is on disk, nothing after it.
+    assert_fault_after_the_cut(&out, FaultKind::ControllerSilent, 0);
+    h.assert_roots_empty();
+}
+
+#[test]
+fn lockstep_with_the_plant_remote_is_byte_identical_to_inproc() {
+    let Some((h, _one)) = Hosts::new("lockstep_with_the_plant_remote_is_byte_identical_to_inproc")
+    else {
+        return;
+    };
+    // A lossy, slow, jittery link too: the plant's side sends a state again until its reply
+    // comes; the telemetry and the plant's control cross over TCP.
+    assert_lockstep_identical_with(&h, Remote::Plant, LOSSY, &[]);
+}
+
+#[test]
+fn realtime_with_the_plant_remote_completes_measures_the_round_trip_and_replays() {
+    realtime_across_the_link_with(
+        "realtime_with_the_plant_remote_completes_measures_the_round_trip_and_replays",
+        Remote::Plant,
+        &[],
+        false,
     );
-    let m = &s["laws"]["tdc"];
-    assert_eq!(m["lost_ticks"], 0, "{m}");
-    let tick = m["fault_at_tick"].as_u64().unwrap();
-    // Cut after 1.5 s of ticks (5000) and before the 5.8 s run's end.
-    assert!((3000..19_000).contains(&tick), "fault at tick {tick}");
-    let rows = std::fs::read_to_string(out.join("trace.csv"))
-        .unwrap()
-        .lines()
-        .count() as u64;
-    assert_eq!(rows, tick + 1, "header + ticks 0..fault tick");
+}
+
+#[test]
+fn pulling_the_link_with_the_plant_remote_ends_in_its_safe_stop_there() {
+    let Some((h, _one)) =
+        Hosts::new("pulling_the_link_with_the_plant_remote_ends_in_its_safe_stop_there")
+    else {
+        return;
+    };
+    let (out, r, j) = cut_the_link_mid_run(&h, Remote::Plant);
+    let err = text(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "run: {err}");
+    assert!(
+        err.contains("the link to the plant's host went silent") && err.contains("safe stop"),
+        "{err}"
+    );
+    // The plant, far away, ran out of replies, braked to its safe stop and said so there.
+    let far = text(&j.stderr);
+    assert_eq!(j.status.code(), Some(4), "join: {far}");
+    assert!(
+        far.contains("no torque within the budget") && far.contains("safe stop"),
+        "{far}"
+    );
+    // Every tick whose telemetry crossed before the cut is on disk (the fault is at the tick
+    // after the last one), and after it only the few ticks whose state and the controller's
+    // reply were seen here but whose telemetry did not cross (a tick's telemetry leaves the
+    // plant's host with the next state, over TCP): at most 32 (10 ms).
+    assert_fault_after_the_cut(&out, FaultKind::PlantFailed, 32);
     h.assert_roots_empty();
 }
 

@@ -1,20 +1,26 @@
 //! The far side (`deltaloop-bridge far`, started by `deltaloop join`): connects to the near side,
-//! learns the run from its HELLO (run id, mode, law, the resolved config), stands in for the
-//! supervisor and the plant on this host's iceoryx2 (it creates the run's services, publishes
-//! states and run control, sends the reference chunks) and starts the controller here, the
-//! built-in one or any command, with the usual arguments. The controller cannot tell it is not on
-//! the plant's host.
+//! learns the run from its HELLO (run id, role, mode, law, the resolved config), and starts the
+//! process the run puts on this host, the built-in one or any command, with the usual arguments:
+//!
+//! - `--role controller`: it stands in for the supervisor and the plant on this host's iceoryx2
+//!   (it creates the run's services, publishes states and run control, sends the reference
+//!   chunks) and starts the controller;
+//! - `--role plant`: it stands in for the supervisor (START, STOP) and the controller (the
+//!   replies, READY and ARMED) and starts the plant; the plant's telemetry, control messages and
+//!   final state go to the near side over TCP.
+//!
+//! The process cannot tell it is not on the supervisor's host.
 
 use crate::frame::{self, Hello, Kind, bytes_of};
 use crate::link::{self, Tcp, Udp};
-use crate::replies::Outbox;
+use crate::sides::{ControllerHost, PlantHost};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::exit::{EXIT_FAULT, EXIT_SETUP, EXIT_STOPPED};
 use deltaloop_transport::ipc::{self, IpcContext, Svc};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{
-    self, ControlKind, ControlMsg, RefSample, Sender, StateMsg, TorqueMsg,
+    self, ControlKind, ControlMsg, RefSample, Sender, StateMsg, TelemetryMsg, TorqueMsg,
 };
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
@@ -31,42 +37,69 @@ use std::time::Duration;
 /// `deltaloop-bridge far`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The near side: HOST:PORT given to `deltaloop run --controller-remote`.
+    /// The near side: HOST:PORT given to `deltaloop run --controller-remote` or `--plant-remote`.
     #[arg(long, value_parser = crate::parse_endpoint)]
     pub connect: SocketAddr,
-    /// Only `controller` (the controller runs here, the plant and the supervisor there).
-    #[arg(long, default_value = "controller", value_parser = ["controller"])]
+    /// What runs here: `controller` (the plant and the supervisor are there) or `plant` (the
+    /// controller and the supervisor are there).
+    #[arg(long, default_value = "controller", value_parser = ["controller", "plant"])]
     pub role: String,
     /// Run this controller command instead of the built-in `deltaloop-controller` (split at
     /// whitespace); the run's arguments are appended as for `--controller-cmd`.
     #[arg(long, value_name = "CMD")]
     pub controller_cmd: Option<String>,
+    /// Run this plant command instead of the built-in `deltaloop-plant` (`--role plant`; split
+    /// at whitespace); the run's arguments are appended as for `--plant-cmd`.
+    #[arg(long, value_name = "CMD")]
+    pub plant_cmd: Option<String>,
     /// Runs to serve, one after the other (0: until interrupted).
     #[arg(long, default_value_t = 1)]
     pub runs: u32,
     /// How long to keep trying to reach the near side for each run, s (0: forever).
     #[arg(long, default_value_t = 120)]
     pub wait_s: u64,
-    /// Poll this long for the controller's reply after publishing a state before blocking, µs
-    /// (0: block at once; at most loop.torque_budget_us in realtime).
+    /// Poll this long for the reply after passing a state on before blocking, µs (0: block at
+    /// once; at most loop.torque_budget_us in realtime).
     #[arg(long, default_value_t = 0)]
     pub spin_us: u32,
 }
 
-/// Serves `a.runs` runs; the exit code is the last controller's (or why the bridge failed).
-pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
-    let cmd: Vec<String> = match &a.controller_cmd {
+/// The command to start here for `role` (`cmd`: the user's, or None for the built-in one); one
+/// line naming the flag otherwise.
+pub fn command(
+    role: &str,
+    controller_cmd: Option<&str>,
+    plant_cmd: Option<&str>,
+) -> Result<Vec<String>> {
+    let (mine, name) = match (role, controller_cmd, plant_cmd) {
+        ("plant", Some(_), _) => bail!(
+            "--controller-cmd with --role plant: the controller runs on the other host (give it to `deltaloop run --controller-cmd` there); allowed here: --plant-cmd"
+        ),
+        ("controller", _, Some(_)) => bail!(
+            "--plant-cmd with --role controller: the plant runs on the other host (give it to `deltaloop run --plant-cmd` there); allowed here: --controller-cmd"
+        ),
+        ("plant", None, c) => (c, "deltaloop-plant"),
+        ("controller", c, None) => (c, "deltaloop-controller"),
+        (r, _, _) => bail!("--role {r}: allowed controller or plant"),
+    };
+    let flag = if role == "plant" {
+        "--plant-cmd"
+    } else {
+        "--controller-cmd"
+    };
+    let cmd: Vec<String> = match mine {
         Some(c) => c.split_whitespace().map(str::to_string).collect(),
-        None => vec![
-            crate::exe_dir()?
-                .join("deltaloop-controller")
-                .display()
-                .to_string(),
-        ],
+        None => vec![crate::exe_dir()?.join(name).display().to_string()],
     };
     if cmd.is_empty() {
-        bail!("--controller-cmd is empty: give a program and its arguments");
+        bail!("{flag} is empty: give a program and its arguments");
     }
+    Ok(cmd)
+}
+
+/// Serves `a.runs` runs; the exit code is the last far process's (or why the bridge failed).
+pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
+    let cmd = command(&a.role, a.controller_cmd.as_deref(), a.plant_cmd.as_deref())?;
     let mut last = (0, None);
     let mut served = 0;
     while a.runs == 0 || served < a.runs {
@@ -110,7 +143,7 @@ fn connect(a: &Args, term: &AtomicBool) -> Result<Option<TcpStream>> {
     }
 }
 
-/// The supervisor's and the plant's ports on this host.
+/// `--role controller`: the supervisor's and the plant's ports on this host.
 struct Ports {
     state: Publisher<Svc, StateMsg, ()>,
     torque: Subscriber<Svc, TorqueMsg, ()>,
@@ -122,31 +155,82 @@ struct Ports {
     _node: Node<Svc>,
 }
 
+/// The supervisor's `control` publisher and a subscriber on the service of `from`.
+fn run_control(node: &Node<Svc>, run_id: &str, from: Sender) -> Result<ipc::ControlPorts> {
+    Ok((
+        ipc::control(node, run_id, Sender::Supervisor)?
+            .publisher_builder()
+            .create()
+            .ipc("control publisher")?,
+        ipc::control(node, run_id, from)?
+            .subscriber_builder()
+            .create()
+            .ipc(format!("{} subscriber", ipc::control_service(from)))?,
+    ))
+}
+
 impl Ports {
     fn open(run_id: &str) -> Result<Self> {
         let node = ipc::node("supervisor", run_id)?;
         let (state, torque, state_ready, torque_ready) =
             ipc::plant_loop(&node, run_id, ipc::RELAY_BUFFER)?;
+        let (control, control_in) = run_control(&node, run_id, Sender::Controller)?;
         Ok(Self {
             state,
             torque,
             state_ready,
             torque_ready,
-            control: ipc::control(&node, run_id, Sender::Supervisor)?
-                .publisher_builder()
-                .create()
-                .ipc("control publisher")?,
-            control_in: ipc::control(&node, run_id, Sender::Controller)?
-                .subscriber_builder()
-                .create()
-                .ipc("control-controller subscriber")?,
+            control,
+            control_in,
             reference: ipc::reference_publisher(&node, run_id)?,
             _node: node,
         })
     }
 }
 
-/// One run: HELLO, ports, the controller, the loop, the end.
+/// `--role plant`: the supervisor's and the controller's ports on this host.
+struct PlantSidePorts {
+    state: Subscriber<Svc, StateMsg, ()>,
+    torque: Publisher<Svc, TorqueMsg, ()>,
+    state_ready: Listener<Svc>,
+    torque_ready: Notifier<Svc>,
+    control: Publisher<Svc, ControlMsg, ()>,
+    /// The plant's control messages.
+    control_in: Subscriber<Svc, ControlMsg, ()>,
+    /// READY and ARMED as the controller there says them.
+    as_controller: Publisher<Svc, ControlMsg, ()>,
+    telemetry: Subscriber<Svc, TelemetryMsg, ()>,
+    _node: Node<Svc>,
+}
+
+impl PlantSidePorts {
+    fn open(run_id: &str) -> Result<Self> {
+        let node = ipc::node("supervisor", run_id)?;
+        let (state, torque, state_ready, torque_ready) =
+            ipc::controller_loop(&node, run_id, ipc::RELAY_BUFFER)?;
+        let (control, control_in) = run_control(&node, run_id, Sender::Plant)?;
+        Ok(Self {
+            state,
+            torque,
+            state_ready,
+            torque_ready,
+            control,
+            control_in,
+            as_controller: ipc::control(&node, run_id, Sender::Controller)?
+                .publisher_builder()
+                .create()
+                .ipc("control-controller publisher")?,
+            telemetry: ipc::telemetry(&node, run_id)?
+                .subscriber_builder()
+                .buffer_size(ipc::OBSERVER_BUFFER)
+                .create()
+                .ipc("telemetry subscriber")?,
+            _node: node,
+        })
+    }
+}
+
+/// One run: HELLO, ports, the far process, the loop, the end.
 fn serve(
     a: &Args,
     stream: TcpStream,
@@ -190,11 +274,22 @@ fn serve(
         }
         Ok((EXIT_SETUP, Some(line)))
     };
+    tcp.set_key(key);
+    if hello.role != a.role {
+        return fail(
+            &mut tcp,
+            format!(
+                "the run at {} puts the {} on this host, and this side joined with --role {} (run `deltaloop join {} --role {}`)",
+                a.connect, hello.role, a.role, a.connect, hello.role
+            ),
+        );
+    }
+    let plant = a.role == "plant";
     let mode = match LoopMode::parse_process(&hello.mode) {
         Ok(m) => m,
         Err(e) => return fail(&mut tcp, format!("mode {}: {e}", hello.mode)),
     };
-    if let Err(e) = Law::parse(&hello.law) {
+    if !plant && let Err(e) = Law::parse(&hello.law) {
         return fail(&mut tcp, format!("law {}: {e}", hello.law));
     }
     let dir = std::env::temp_dir().join(format!(
@@ -209,8 +304,12 @@ fn serve(
     if let Err(e) = RunConfig::from_file(&config) {
         return fail(&mut tcp, format!("the run's config: {e:#}"));
     }
-    tcp.set_key(key);
-    let ports = match Ports::open(&hello.run_id) {
+    let ports = if plant {
+        PlantSidePorts::open(&hello.run_id).map(Either::Plant)
+    } else {
+        Ports::open(&hello.run_id).map(Either::Controller)
+    };
+    let ports = match ports {
         Ok(p) => p,
         Err(e) => return fail(&mut tcp, format!("{e:#}")),
     };
@@ -225,39 +324,51 @@ fn serve(
         Ok(s) => s,
         Err(e) => return fail(&mut tcp, format!("{e:#}")),
     };
-    let child = match spawn(cmd, &hello, mode, &config) {
+    let law = (!plant).then_some(hello.law.as_str());
+    let child = match spawn(cmd, &hello.run_id, mode, &config, law) {
         Ok(c) => c,
         Err(e) => return fail(&mut tcp, format!("{e:#}")),
     };
     tcp.send(Kind::Ack, key, &[&port.to_ne_bytes()])?;
     udp.send(Kind::Punch, &[], rt::now_ns())?;
-    let mut f = Far {
-        ports,
+    let mut link = FarLink {
         udp,
         tcp,
         key,
         child,
-        stderr_buf: Vec::with_capacity(4096),
-        last_line: String::new(),
-        started: false,
-        stash: None,
-        arrived: (u64::MAX, 0),
-        controller_poll_until: 0,
         stop_sent: false,
         near_gone_ns: None,
-        spin_ns,
-        poll_until: 0,
-        arrivals: [(u64::MAX, 0); ARRIVALS],
-        replies: Outbox::default(),
+        next_check: 0,
     };
-    let code = f.forward(term)?;
-    f.report(code)?;
+    let code = match ports {
+        Either::Controller(ports) => {
+            let mut f = Far {
+                ports,
+                host: ControllerHost::new(spin_ns, false),
+            };
+            f.forward(&mut link, term)?
+        }
+        Either::Plant(ports) => {
+            let mut f = FarPlant {
+                ports,
+                host: PlantHost::new(spin_ns, mode == LoopMode::Lockstep).with_record(),
+            };
+            f.forward(&mut link, term)?
+        }
+    };
+    link.report(code)?;
     std::thread::sleep(ipc::LINGER);
-    let line = (!f.last_line.is_empty()).then(|| f.last_line.clone());
-    drop(f);
+    let line = (!link.child.last_line.is_empty()).then(|| link.child.last_line.clone());
+    drop(link);
     let id = hello.run_id.clone();
     ipc::remove_dead_nodes_where(|n| n.ends_with(&id));
     Ok((code, line))
+}
+
+/// The ports of the role this side serves.
+enum Either {
+    Controller(Ports),
+    Plant(PlantSidePorts),
 }
 
 /// Removes the run's temporary folder (its config) when the run is over.
@@ -269,15 +380,25 @@ impl Drop for TempDir {
     }
 }
 
-fn spawn(cmd: &[String], h: &Hello, mode: LoopMode, config: &std::path::Path) -> Result<Child> {
+fn spawn(
+    cmd: &[String],
+    run_id: &str,
+    mode: LoopMode,
+    config: &std::path::Path,
+    law: Option<&str>,
+) -> Result<FarChild> {
+    let what = if law.is_some() { "controller" } else { "plant" };
     let mut c = Command::new(&cmd[0]);
     c.args(&cmd[1..])
-        .args(["--run-id", &h.run_id, "--config"])
+        .args(["--run-id", run_id, "--config"])
         .arg(config)
-        .args(["--mode", mode.name(), "--law", &h.law])
+        .args(["--mode", mode.name()])
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::piped());
+    if let Some(law) = law {
+        c.args(["--law", law]);
+    }
     // SAFETY: signal() and prctl() are async-signal-safe; nothing else runs between fork and exec.
     unsafe {
         use std::os::unix::process::CommandExt;
@@ -290,7 +411,7 @@ fn spawn(cmd: &[String], h: &Hello, mode: LoopMode, config: &std::path::Path) ->
     }
     let child = c
         .spawn()
-        .with_context(|| format!("cannot start the controller `{}`", cmd.join(" ")))?;
+        .with_context(|| format!("cannot start the {what} `{}`", cmd.join(" ")))?;
     if let Some(e) = &child.stderr {
         use std::os::fd::AsRawFd;
         // SAFETY: setting O_NONBLOCK on a pipe descriptor we own.
@@ -299,44 +420,24 @@ fn spawn(cmd: &[String], h: &Hello, mode: LoopMode, config: &std::path::Path) ->
             libc::fcntl(e.as_raw_fd(), libc::F_SETFL, fl | libc::O_NONBLOCK);
         }
     }
-    Ok(child)
+    Ok(FarChild {
+        child,
+        what,
+        stderr_buf: Vec::with_capacity(4096),
+        last_line: String::new(),
+    })
 }
 
-struct Far {
-    ports: Ports,
-    udp: Udp,
-    tcp: Tcp,
-    key: u64,
+/// The process this side started, its stderr and its end.
+struct FarChild {
     child: Child,
+    /// `controller` or `plant`.
+    what: &'static str,
     stderr_buf: Vec<u8>,
     last_line: String,
-    /// START has been published here.
-    started: bool,
-    /// A state that came before START (the datagram overtook the TCP frame).
-    stash: Option<StateMsg>,
-    /// The last state published here: its tick and when it arrived (this host's clock, ns).
-    arrived: (u64, u64),
-    /// When each of the last [`ARRIVALS`] states arrived: (tick, ns), at slot tick % ARRIVALS, so
-    /// a reply to an older state still gets its residence here.
-    arrivals: [(u64, u64); ARRIVALS],
-    /// The controller's last `t_poll_until_ns` (this host's clock).
-    controller_poll_until: u64,
-    stop_sent: bool,
-    /// When the near side closed the control connection.
-    near_gone_ns: Option<u64>,
-    /// How long to poll for the reply after publishing a state, ns.
-    spin_ns: u64,
-    /// Poll (do not block) until then: a reply is due.
-    poll_until: u64,
-    /// The last replies sent (with their residences), each datagram carrying the two before
-    /// it too; sent again for a state the near side sends again (lockstep, after a loss).
-    replies: Outbox,
 }
 
-/// States whose arrival time the far side keeps.
-const ARRIVALS: usize = 64;
-
-impl Drop for Far {
+impl Drop for FarChild {
     fn drop(&mut self) {
         if self.child.try_wait().ok().flatten().is_none() {
             // SAFETY: signalling our own child, not yet reaped.
@@ -353,178 +454,198 @@ impl Drop for Far {
     }
 }
 
+/// The link and the far process: what both roles do around their loop.
+struct FarLink {
+    udp: Udp,
+    tcp: Tcp,
+    key: u64,
+    child: FarChild,
+    stop_sent: bool,
+    /// When the near side closed the control connection.
+    near_gone_ns: Option<u64>,
+    /// When to look whether the process has exited next.
+    next_check: u64,
+}
+
+impl FarLink {
+    /// The wait of one turn: the socket, the control connection, the wake-up `event` and the
+    /// process's stderr.
+    fn wait(&self, event: &Listener<Svc>, timeout_ns: u64) -> Result<[bool; 4]> {
+        let err_fd = self
+            .child
+            .child
+            .stderr
+            .as_ref()
+            .map_or(-1, std::os::fd::AsRawFd::as_raw_fd);
+        let mut fds = [
+            link::readable(&self.udp.sock),
+            link::readable(&self.tcp.stream),
+            link::event(event),
+            libc::pollfd {
+                fd: err_fd,
+                events: libc::POLLIN,
+                revents: 0,
+            },
+        ];
+        if self.tcp.pending() > 0 {
+            fds[1].events |= libc::POLLOUT;
+        }
+        link::wait(&mut fds, timeout_ns)?;
+        Ok(fds.map(|f| f.revents != 0))
+    }
+
+    /// The end of a turn: stderr passed on, STOP published here on SIGTERM or when the near side
+    /// has gone (the process is stopped 3 s later if it does not exit), the process's exit.
+    /// Some: its exit code.
+    fn ended(
+        &mut self,
+        control: &Publisher<Svc, ControlMsg, ()>,
+        err_in: bool,
+        term: &AtomicBool,
+    ) -> Result<Option<u8>> {
+        let now = rt::now_ns();
+        if err_in {
+            self.stderr()?;
+        }
+        if term.load(Ordering::Relaxed) || self.tcp.closed {
+            if !self.stop_sent {
+                self.stop_sent = true;
+                let stop = ControlMsg::new(ControlKind::Stop, Sender::Supervisor);
+                control.send_copy(stop).ipc("publish STOP")?;
+            }
+            if self.tcp.closed {
+                let gone = *self.near_gone_ns.get_or_insert(now);
+                if now > gone + 3_000_000_000 {
+                    // SAFETY: signalling our own child, not yet reaped.
+                    unsafe { libc::kill(self.child.child.id() as i32, libc::SIGTERM) };
+                }
+            }
+        }
+        if !(err_in || now > self.next_check) {
+            return Ok(None);
+        }
+        self.next_check = now + 50_000_000;
+        let Some(st) = self.child.child.try_wait()? else {
+            return Ok(None);
+        };
+        self.stderr()?;
+        use std::os::unix::process::ExitStatusExt;
+        Ok(Some(match (st.code(), st.signal()) {
+            (Some(c), _) => u8::try_from(c).unwrap_or(EXIT_FAULT),
+            (None, Some(sig)) => {
+                self.child.last_line =
+                    format!("the {} was killed by signal {sig}", self.child.what);
+                EXIT_FAULT
+            }
+            _ => EXIT_FAULT,
+        }))
+    }
+
+    /// The process's stderr: shown here and sent to the near side line by line.
+    fn stderr(&mut self) -> Result<()> {
+        let c = &mut self.child;
+        let Some(err) = c.child.stderr.as_mut() else {
+            return Ok(());
+        };
+        let mut buf = [0u8; 4096];
+        loop {
+            match err.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) => c.stderr_buf.extend_from_slice(&buf[..n]),
+                Err(e) if e.kind() == ErrorKind::WouldBlock => break,
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                Err(_) => break,
+            }
+        }
+        while let Some(i) = c.stderr_buf.iter().position(|&b| b == b'\n') {
+            let line: Vec<u8> = c.stderr_buf.drain(..=i).collect();
+            let line = wire::escape_peer_text(&String::from_utf8_lossy(&line[..i]));
+            eprintln!("{line}");
+            self.tcp.send(Kind::Log, self.key, &[line.as_bytes()])?;
+            c.last_line = line;
+        }
+        Ok(())
+    }
+
+    /// Tells the near side how the process ended, and waits (a little) for everything queued to
+    /// go out.
+    fn report(&mut self, code: u8) -> Result<()> {
+        let line = self.child.last_line.clone();
+        self.tcp.send(
+            Kind::Exit,
+            self.key,
+            &[&u32::from(code).to_ne_bytes(), line.as_bytes()],
+        )?;
+        let t = rt::now_ns() + 500_000_000;
+        while self.tcp.pending() > 0 && !self.tcp.closed && rt::now_ns() < t {
+            self.tcp.flush()?;
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        Ok(())
+    }
+
+    /// A START or STOP from the near side, published here (START's deadline made absolute on
+    /// this host's clock). Returns whether it was START.
+    fn run_control(control: &Publisher<Svc, ControlMsg, ()>, p: &[u8]) -> Result<bool> {
+        let Some(mut c) = frame::read::<ControlMsg>(p) else {
+            return Ok(false);
+        };
+        match c.kind() {
+            Some(ControlKind::Start) => {
+                c.t0_ns = crate::near::absolute_t0(c.t0_ns);
+                control.send_copy(c).ipc("publish START")?;
+                Ok(true)
+            }
+            Some(ControlKind::Stop) => {
+                control.send_copy(c).ipc("publish STOP")?;
+                Ok(false)
+            }
+            _ => Ok(false),
+        }
+    }
+}
+
+/// `--role controller`: the supervisor and the plant on the controller's host.
+struct Far {
+    ports: Ports,
+    host: ControllerHost,
+}
+
 impl Far {
     /// Carries the run until the controller exits; its exit code.
-    fn forward(&mut self, term: &AtomicBool) -> Result<u8> {
-        let mut next_check = 0u64;
+    fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
         loop {
             let now = rt::now_ns();
-            let timeout = if now < self.poll_until {
-                0
-            } else {
-                link::timeout_ns(&self.udp, now)
-            };
-            let err_fd = self
-                .child
-                .stderr
-                .as_ref()
-                .map_or(-1, std::os::fd::AsRawFd::as_raw_fd);
-            let mut fds = [
-                link::readable(&self.udp.sock),
-                link::readable(&self.tcp.stream),
-                link::event(&self.ports.torque_ready),
-                libc::pollfd {
-                    fd: err_fd,
-                    events: libc::POLLIN,
-                    revents: 0,
-                },
-            ];
-            if self.tcp.pending() > 0 {
-                fds[1].events |= libc::POLLOUT;
-            }
-            link::wait(&mut fds, timeout)?;
-            let [udp_in, tcp_in, torque_in, err_in] = fds.map(|f| f.revents != 0);
-            if torque_in || now < self.poll_until {
-                self.torques()?;
-            }
-            if udp_in {
-                self.states()?;
-            }
-            self.udp.flush(rt::now_ns())?;
-            self.control_plane(tcp_in)?;
-            let now = rt::now_ns();
-            if err_in {
-                self.stderr()?;
-            }
-            if term.load(Ordering::Relaxed) || self.tcp.closed {
-                if !self.stop_sent {
-                    self.stop_sent = true;
-                    let stop = ControlMsg::new(ControlKind::Stop, Sender::Supervisor);
-                    self.ports.control.send_copy(stop).ipc("publish STOP")?;
-                }
-                if self.tcp.closed {
-                    let gone = *self.near_gone_ns.get_or_insert(now);
-                    if now > gone + 3_000_000_000 {
-                        // SAFETY: signalling our own child, not yet reaped.
-                        unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
-                    }
-                }
-            }
-            if err_in || now > next_check {
-                next_check = now + 50_000_000;
-                if let Some(st) = self.child.try_wait()? {
-                    self.stderr()?;
-                    use std::os::unix::process::ExitStatusExt;
-                    let code = match (st.code(), st.signal()) {
-                        (Some(c), _) => u8::try_from(c).unwrap_or(EXIT_FAULT),
-                        (None, Some(sig)) => {
-                            self.last_line = format!("the controller was killed by signal {sig}");
-                            EXIT_FAULT
-                        }
-                        _ => EXIT_FAULT,
-                    };
-                    return Ok(code);
-                }
+            let timeout = self.host.timeout_ns(&l.udp, now);
+            let [udp_in, tcp_in, torque_in, err_in] = l.wait(&self.ports.torque_ready, timeout)?;
+            let c = &self.ports;
+            let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
+            self.host.turn(&ports, (torque_in, udp_in), &mut l.udp)?;
+            self.control_plane(l, tcp_in)?;
+            if let Some(code) = l.ended(&self.ports.control, err_in, term)? {
+                return Ok(code);
             }
         }
     }
 
-    /// The controller's replies, out as datagrams with the residence here.
-    fn torques(&mut self) -> Result<()> {
-        self.ports
-            .torque_ready
-            .try_wait(|_| {})
-            .ipc("drain torque-ready")?;
-        while let Some(s) = self.ports.torque.receive().ipc("receive torque")? {
-            let t: &TorqueMsg = s.payload();
-            self.controller_poll_until = t.t_poll_until_ns;
-            self.poll_until = 0;
-            let now = rt::now_ns();
-            let (tick, at) = self.arrivals[(t.tick % ARRIVALS as u64) as usize];
-            let residence = if tick == t.tick {
-                now.saturating_sub(at)
-            } else {
-                t.t_publish_ns.saturating_sub(t.t_state_rx_ns)
-            };
-            let payload = self.replies.push(t, residence);
-            self.udp.send(Kind::Torque, &[payload], now)?;
-        }
-        Ok(())
-    }
-
-    /// The plant's states from the link, published here.
-    fn states(&mut self) -> Result<()> {
-        while let Some((kind, p)) = self.udp.recv()? {
-            if kind != Kind::State {
-                continue;
-            }
-            let Some(s) = frame::read::<StateMsg>(p) else {
-                continue;
-            };
-            if self.replies.newest_tick() == Some(s.tick) {
-                // Sent again: its reply was lost on the way back.
-                let now = rt::now_ns();
-                self.udp
-                    .send(Kind::Torque, &[self.replies.payload()], now)?;
-            } else if self.started && self.arrived.0 == s.tick {
-                // Sent again while the controller is still on it: it answers once.
-            } else if self.started {
-                self.publish_state(s)?;
-            } else {
-                self.stash = Some(s);
-            }
-        }
-        Ok(())
-    }
-
-    fn publish_state(&mut self, mut s: StateMsg) -> Result<()> {
-        // This side polls for the reply until poll_until, then blocks on the torque event
-        // (docs/protocol.md §6.1, on this host's clock).
-        let now = rt::now_ns();
-        self.poll_until = now + self.spin_ns;
-        s.t_poll_until_ns = self.poll_until;
-        self.arrived = (s.tick, now);
-        self.arrivals[(s.tick % ARRIVALS as u64) as usize] = (s.tick, now);
-        self.ports.state.send_copy(s).ipc("publish state")?;
-        if ipc::published_needs_notify(self.controller_poll_until) {
-            self.ports.state_ready.notify().ipc("notify state")?;
-        }
-        Ok(())
-    }
-
-    fn control_plane(&mut self, tcp_in: bool) -> Result<()> {
+    fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
         while let Some(s) = self.ports.control_in.receive().ipc("receive control")? {
             let c = *s.payload();
             if matches!(c.kind(), Some(ControlKind::Ready | ControlKind::Armed)) {
-                self.tcp.send(Kind::Control, self.key, &[bytes_of(&c)])?;
+                l.tcp.send(Kind::Control, l.key, &[bytes_of(&c)])?;
             }
         }
-        if self.tcp.pending() > 0 {
-            self.tcp.flush()?;
+        if l.tcp.pending() > 0 {
+            l.tcp.flush()?;
         }
         if !tcp_in {
             return Ok(());
         }
-        let (ports, started) = (&self.ports, &mut self.started);
-        let mut finals = None;
-        self.tcp.poll(|kind, p| {
+        let ports = &self.ports;
+        let (mut started, mut finals) = (false, None);
+        l.tcp.poll(|kind, p| {
             match kind {
-                Kind::Control => {
-                    let Some(mut c) = frame::read::<ControlMsg>(p) else {
-                        return Ok(());
-                    };
-                    match c.kind() {
-                        Some(ControlKind::Start) => {
-                            c.t0_ns = crate::near::absolute_t0(c.t0_ns);
-                            ports.control.send_copy(c).ipc("publish START")?;
-                            *started = true;
-                        }
-                        Some(ControlKind::Stop) => {
-                            ports.control.send_copy(c).ipc("publish STOP")?;
-                        }
-                        _ => {}
-                    }
-                }
+                Kind::Control => started |= FarLink::run_control(&ports.control, p)?,
                 Kind::Reference => {
                     let rows = p.len() / size_of::<RefSample>();
                     let chunk = ports
@@ -544,54 +665,87 @@ impl Far {
             }
             Ok(())
         })?;
-        if self.started
-            && let Some(s) = self.stash.take()
-        {
-            self.publish_state(s)?;
+        let ports = (&self.ports.state, &self.ports.state_ready);
+        if started {
+            self.host.start(ports)?;
         }
         if let Some(s) = finals {
-            self.publish_state(s)?;
+            self.host.publish_state(ports, s)?;
         }
         Ok(())
     }
+}
 
-    /// The controller's stderr: shown here and sent to the near side line by line.
-    fn stderr(&mut self) -> Result<()> {
-        let Some(err) = self.child.stderr.as_mut() else {
-            return Ok(());
-        };
-        let mut buf = [0u8; 4096];
+/// `--role plant`: the supervisor and the controller on the plant's host.
+struct FarPlant {
+    ports: PlantSidePorts,
+    host: PlantHost,
+}
+
+impl FarPlant {
+    /// Carries the run until the plant exits; its exit code.
+    fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
         loop {
-            match err.read(&mut buf) {
-                Ok(0) => break,
-                Ok(n) => self.stderr_buf.extend_from_slice(&buf[..n]),
-                Err(e) if e.kind() == ErrorKind::WouldBlock => break,
-                Err(e) if e.kind() == ErrorKind::Interrupted => {}
-                Err(_) => break,
+            let timeout = self.host.timeout_ns(&l.udp, rt::now_ns());
+            let [udp_in, tcp_in, state_in, err_in] = l.wait(&self.ports.state_ready, timeout)?;
+            // Run control first: a STOP must reach the plant before anything it answers.
+            self.control_plane(l, tcp_in)?;
+            let c = &self.ports;
+            let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
+            let ready = (state_in, udp_in);
+            self.host
+                .turn(&ports, ready, &mut l.udp, &mut l.tcp, l.key)?;
+            self.plant_out(l)?;
+            if let Some(code) = l.ended(&self.ports.control, err_in, term)? {
+                // What the plant published last (its final state, the safe stop's telemetry)
+                // goes out before its end.
+                self.plant_out(l)?;
+                let ports = (&self.ports.state, &self.ports.state_ready);
+                self.host.states(ports, &mut l.udp, &mut l.tcp, l.key)?;
+                return Ok(code);
             }
         }
-        while let Some(i) = self.stderr_buf.iter().position(|&b| b == b'\n') {
-            let line: Vec<u8> = self.stderr_buf.drain(..=i).collect();
-            let line = wire::escape_peer_text(&String::from_utf8_lossy(&line[..i]));
-            eprintln!("{line}");
-            self.tcp.send(Kind::Log, self.key, &[line.as_bytes()])?;
-            self.last_line = line;
-        }
-        Ok(())
     }
 
-    /// Tells the near side how the controller ended, and waits (a little) for it to go out.
-    fn report(&mut self, code: u8) -> Result<()> {
-        let line = self.last_line.clone();
-        self.tcp.send(
-            Kind::Exit,
-            self.key,
-            &[&u32::from(code).to_ne_bytes(), line.as_bytes()],
-        )?;
-        let t = rt::now_ns() + 500_000_000;
-        while self.tcp.pending() > 0 && !self.tcp.closed && rt::now_ns() < t {
-            self.tcp.flush()?;
-            std::thread::sleep(Duration::from_millis(1));
+    /// The near side's run control and the controller's READY/ARMED in.
+    fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
+        if !tcp_in {
+            return Ok(());
+        }
+        let ports = &self.ports;
+        l.tcp.poll(|kind, p| {
+            if kind == Kind::Control {
+                FarLink::run_control(&ports.control, p)?;
+                if let Some(c) = frame::read::<ControlMsg>(p)
+                    && let Some(k @ (ControlKind::Ready | ControlKind::Armed)) = c.kind()
+                {
+                    let said = ControlMsg::new(k, Sender::Controller);
+                    ports
+                        .as_controller
+                        .send_copy(said)
+                        .ipc("send controller control")?;
+                }
+            }
+            Ok(())
+        })
+    }
+
+    /// The plant's control messages and telemetry out over TCP (reliable, in order).
+    fn plant_out(&mut self, l: &mut FarLink) -> Result<()> {
+        while let Some(s) = self
+            .ports
+            .control_in
+            .receive()
+            .ipc("receive plant control")?
+        {
+            l.tcp.send(Kind::Control, l.key, &[bytes_of(s.payload())])?;
+        }
+        while let Some(s) = self.ports.telemetry.receive().ipc("receive telemetry")? {
+            l.tcp
+                .queue(Kind::Telemetry, l.key, &[bytes_of(s.payload())]);
+        }
+        if l.tcp.pending() > 0 {
+            l.tcp.flush()?;
         }
         Ok(())
     }

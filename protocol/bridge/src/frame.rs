@@ -5,7 +5,7 @@
 //! `deltaloop_transport::wire`, byte for byte (one copy: shared memory → socket, socket → shared
 //! memory). Both hosts must have the same byte order (checked by the magic).
 
-use deltaloop_transport::wire::{ControlMsg, RefSample, StateMsg, TorqueMsg};
+use deltaloop_transport::wire::{ControlMsg, RefSample, StateMsg, TelemetryMsg, TorqueMsg};
 
 /// `DLB1`, read as a native u32: a host of the other byte order reads `1BLD` and drops it.
 pub const MAGIC: u32 = u32::from_ne_bytes(*b"DLB1");
@@ -46,6 +46,8 @@ pub enum Kind {
     Exit = 21,
     /// TCP, far → near: one line of the far process's stderr.
     Log = 22,
+    /// TCP, far → near (remote plant): one `TelemetryMsg`.
+    Telemetry = 23,
 }
 
 impl Kind {
@@ -53,6 +55,7 @@ impl Kind {
         use Kind::*;
         [
             State, Torque, Ping, Pong, Punch, Hello, Ack, Control, Reference, Final, Exit, Log,
+            Telemetry,
         ]
         .into_iter()
         .find(|k| *k as u16 == v)
@@ -74,6 +77,8 @@ unsafe impl Pod for TorqueMsg {}
 unsafe impl Pod for ControlMsg {}
 // SAFETY: as above.
 unsafe impl Pod for RefSample {}
+// SAFETY: as above.
+unsafe impl Pod for TelemetryMsg {}
 // SAFETY: a primitive.
 unsafe impl Pod for u64 {}
 
@@ -144,6 +149,7 @@ fn fixed_size(kind: Kind) -> Option<usize> {
         Kind::Punch => Some(0),
         Kind::Ack => Some(8),
         Kind::Control => Some(size_of::<ControlMsg>()),
+        Kind::Telemetry => Some(size_of::<TelemetryMsg>()),
         Kind::Hello | Kind::Reference | Kind::Exit | Kind::Log | Kind::Torque => None,
     }
 }
@@ -199,6 +205,8 @@ pub fn key_of(b: &[u8]) -> u64 {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Hello {
     pub run_id: String,
+    /// What runs on the far host: `controller` or `plant`.
+    pub role: String,
     pub mode: String,
     pub law: String,
     pub emulation: crate::link::Emulation,
@@ -209,8 +217,9 @@ impl Hello {
     pub fn encode(&self) -> Vec<u8> {
         let e = &self.emulation;
         format!(
-            "run_id={}\nmode={}\nlaw={}\ndelay_ns={}\njitter_ns={}\nloss_ppm={}\nseed={}\n\n{}",
+            "run_id={}\nrole={}\nmode={}\nlaw={}\ndelay_ns={}\njitter_ns={}\nloss_ppm={}\nseed={}\n\n{}",
             self.run_id,
+            self.role,
             self.mode,
             self.law,
             e.delay_ns,
@@ -228,6 +237,8 @@ impl Hello {
         let (head, config) = text.split_once("\n\n").ok_or("HELLO has no config part")?;
         let mut h = Hello {
             run_id: String::new(),
+            // A HELLO without a role is of a version that knew only the remote controller.
+            role: "controller".into(),
             mode: String::new(),
             law: String::new(),
             emulation: Default::default(),
@@ -243,6 +254,7 @@ impl Hello {
             };
             match k {
                 "run_id" => h.run_id = v.to_string(),
+                "role" => h.role = v.to_string(),
                 "mode" => h.mode = v.to_string(),
                 "law" => h.law = v.to_string(),
                 "delay_ns" => h.emulation.delay_ns = num()?,
@@ -258,7 +270,12 @@ impl Hello {
                 && s.bytes()
                     .all(|c| c.is_ascii_alphanumeric() || c == b'-' || c == b'_')
         };
-        for (what, v) in [("run_id", &h.run_id), ("mode", &h.mode), ("law", &h.law)] {
+        for (what, v) in [
+            ("run_id", &h.run_id),
+            ("role", &h.role),
+            ("mode", &h.mode),
+            ("law", &h.law),
+        ] {
             if !safe(v) {
                 return Err(format!(
                     "HELLO {what} = `{}`: expected 1-128 of A-Z a-z 0-9 - _",
@@ -344,6 +361,7 @@ mod tests {
     fn hello_round_trips_and_refuses_odd_names() {
         let h = Hello {
             run_id: "41cc-0-2cdf".into(),
+            role: "plant".into(),
             mode: "lockstep".into(),
             law: "tdc".into(),
             emulation: crate::link::Emulation {
@@ -361,5 +379,9 @@ mod tests {
         };
         let e = Hello::decode(&bad.encode()).unwrap_err();
         assert!(e.contains("run_id") && e.contains("../../etc"), "{e}");
+        // A HELLO without a role (the remote controller's first version) puts the controller
+        // on the far host.
+        let old = "run_id=r\nmode=lockstep\nlaw=tdc\n\nname = \"x\"\n";
+        assert_eq!(Hello::decode(old.as_bytes()).unwrap().role, "controller");
     }
 }

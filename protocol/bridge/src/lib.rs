@@ -2,12 +2,15 @@
 //!
 //! The loop's messages (state out, torque back) travel as one UDP datagram each, the `#[repr(C)]`
 //! wire type byte for byte behind a 16-byte header ([`frame`]); run control, the reference chunks,
-//! the final state and the far controller's log and exit travel over one TCP connection (reliable
-//! and ordered, off the 3.3 kHz path). On each host the bridge is an ordinary iceoryx2 peer
-//! (zero copy there): on the plant's host it is the controller (`near`), on the controller's host
-//! it is the supervisor and the plant (`far`). Wake-up events are forwarded: the near side wakes
-//! on `state-ready` and notifies `torque-ready`, the far side the other way round, so the far
-//! controller wakes as it would on one host. `ping`/`pong` measure a plain UDP ping-pong between
+//! the final state and the far process's log and exit travel over one TCP connection (reliable
+//! and ordered, off the 3.3 kHz path; with a remote plant also its telemetry, its control
+//! messages and a copy of every state for the record). On each host the bridge is an ordinary
+//! iceoryx2 peer (zero copy there): on the supervisor's host (`near`) it is the remote process,
+//! the controller (`--controller-remote`) or the plant (`--plant-remote`); on the other host
+//! (`far`) it is the supervisor and the process that runs with the supervisor. Wake-up events are
+//! forwarded ([`sides`]): on the plant's host the bridge wakes on `state-ready` and notifies
+//! `torque-ready`, on the controller's host the other way round, so each process wakes as it
+//! would on one host. `ping`/`pong` measure a plain UDP ping-pong between
 //! the same hosts, the baseline of `docs/performance.md`.
 //!
 //! The per-tick path allocates nothing and takes no lock: `ppoll` on the socket and the event,
@@ -19,6 +22,7 @@ pub mod link;
 pub mod near;
 pub mod ping;
 pub mod replies;
+pub mod sides;
 #[cfg(feature = "zenoh")]
 pub mod zping;
 
@@ -32,7 +36,7 @@ const NAME: &str = "deltaloop-bridge";
 #[derive(Parser, Debug)]
 #[command(
     name = "deltaloop-bridge",
-    about = "Carries one deltaloop run between two hosts (started by `deltaloop run --controller-remote` and `deltaloop join`)"
+    about = "Carries one deltaloop run between two hosts (started by `deltaloop run --controller-remote` or `--plant-remote`, and `deltaloop join`)"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -41,9 +45,11 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Side {
-    /// The plant's host: stands in for the controller (started by the supervisor).
+    /// The supervisor's host: stands in for the remote controller or plant (started by the
+    /// supervisor).
     Near(near::Args),
-    /// The controller's host: stands in for the supervisor and the plant, starts the controller.
+    /// The other host: stands in for the supervisor and the process with it, starts the remote
+    /// one.
     Far(far::Args),
     /// Plain UDP ping-pong, client side: the baseline round trip.
     Ping(ping::PingArgs),
@@ -143,7 +149,8 @@ pub fn spin_ns(
     Ok(u64::from(spin_us) * 1000)
 }
 
-/// The folder of this executable (where `deltaloop-controller` is looked for).
+/// The folder of this executable (where `deltaloop-controller` and `deltaloop-plant` are looked
+/// for).
 pub fn exe_dir() -> Result<std::path::PathBuf> {
     let exe = std::env::current_exe()?;
     Ok(exe
@@ -160,7 +167,7 @@ pub fn main() -> ExitCode {
     unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0) };
     let far_side = matches!(cli.side, Side::Far(_));
     if far_side {
-        // On the controller's host Ctrl-C is the user's: a clean stop of the controller there.
+        // On the far host Ctrl-C is the user's: a clean stop of the process there.
         let _ = signal_hook_register_int(&term);
     }
     let r = match &cli.side {

@@ -235,9 +235,22 @@ impl Tcp {
 
     /// Queues a frame of `kind` (run `key`) and writes what the socket takes now.
     pub fn send(&mut self, kind: Kind, key: u64, parts: &[&[u8]]) -> Result<()> {
+        self.queue(kind, key, parts);
+        self.flush()
+    }
+
+    /// Queues a frame of `kind` (run `key`), written by the next [`Tcp::flush`] or send. What
+    /// is already written is dropped from the front first when the frame would not fit the
+    /// buffer otherwise, so a steady stream (a remote plant's telemetry) stays in the
+    /// pre-allocated buffer.
+    pub fn queue(&mut self, kind: Kind, key: u64, parts: &[&[u8]]) {
         let len: usize = HEADER + parts.iter().map(|p| p.len()).sum::<usize>();
         if self.out_pos == self.out.len() {
             self.out.clear();
+            self.out_pos = 0;
+        } else if self.out_pos > 0 && self.out.len() + 4 + len > self.out.capacity() {
+            self.out.copy_within(self.out_pos.., 0);
+            self.out.truncate(self.out.len() - self.out_pos);
             self.out_pos = 0;
         }
         self.out.extend_from_slice(&(len as u32).to_ne_bytes());
@@ -247,7 +260,6 @@ impl Tcp {
         for p in parts {
             self.out.extend_from_slice(p);
         }
-        self.flush()
     }
 
     /// Writes what the socket takes now.

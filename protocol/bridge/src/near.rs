@@ -1,27 +1,37 @@
 //! The near side (`deltaloop-bridge near`): started by the supervisor in place of the controller
-//! (`deltaloop run --controller-remote`), it opens the controller's ports on this host, waits for
-//! the far side (`deltaloop join`) to connect, and carries the run across: states out as UDP
-//! datagrams, torques back in, run control, reference chunks and the final state over TCP. To the
-//! plant and the supervisor it is the controller: READY and ARMED are sent when the far
-//! controller sends them, its replies are republished here, and it exits as the far controller
-//! exited.
+//! (`deltaloop run --controller-remote`, `--role controller`) or of the plant (`--plant-remote`,
+//! `--role plant`), it opens that process's ports on this host, waits for the far side
+//! (`deltaloop join`) to connect, and carries the run across: the loop's states and replies as UDP
+//! datagrams, run control, the final state and the far process's log and exit over TCP (with a
+//! remote controller also the reference chunks, with a remote plant also its telemetry and its
+//! control messages). To the supervisor it is the process it replaces: it says what the far one
+//! says, publishes what the far one publishes, and exits as the far one exited.
 //!
-//! Clocks: a reply is republished with `t_publish_ns` = when it reached this host (this host's
-//! clock, the plant's), so the plant judges the budget and the arrival on its own clock; its
-//! `t_state_rx_ns` is that time less the far side's residence (state in to reply out, measured on
-//! the far clock), so `controller_compute` is the far residence and `state_to_controller` the
-//! link's round trip without it (docs/protocol.md §14).
+//! Clocks: the plant's host judges every time. With the controller remote this host is the
+//! plant's: a reply is republished with `t_publish_ns` = when it reached this host and
+//! `t_state_rx_ns` = that time less the far side's residence ([`crate::sides::PlantHost`]). With
+//! the plant remote the far side does the same on the plant's host, and this side moves the
+//! states' stamps onto this host's clock (their publication = their arrival here) for the
+//! supervisor and the controller here (docs/protocol.md §14).
 
 use crate::frame::{self, Hello, Kind, bytes_of, bytes_of_slice};
 use crate::link::{self, Emulation, Tcp, Udp};
-use crate::replies::Inbox;
+use crate::sides::{ControllerHost, PlantHost};
 use anyhow::{Context, Result, bail};
-use deltaloop_config::Law;
+use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{EXIT_FAULT, EXIT_STOPPED};
-use deltaloop_transport::ipc::{self, ControlPorts, IpcContext};
+use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, Svc};
 use deltaloop_transport::rt;
-use deltaloop_transport::wire::{self, ControlKind, ControlMsg, Sender, StateMsg, TorqueMsg};
+use deltaloop_transport::wire::{
+    self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
+};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use std::collections::VecDeque;
 use std::net::{SocketAddr, TcpListener, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -33,13 +43,16 @@ pub struct Args {
     /// the loop, the same port).
     #[arg(long, value_parser = crate::parse_endpoint)]
     pub listen: SocketAddr,
+    /// Which process this bridge stands in for (the one that runs on the far host).
+    #[arg(long, default_value = "controller", value_parser = ["controller", "plant"])]
+    pub role: String,
     #[command(flatten)]
     pub emu: crate::EmuArgs,
     #[command(flatten)]
     pub run: LoopArgs,
-    /// The control law (passed on to the far controller).
+    /// The control law (passed on to the far controller; `--role controller` only).
     #[arg(long, value_parser = Law::parse)]
-    pub law: Law,
+    pub law: Option<Law>,
 }
 
 /// How the far side ended: its exit code and last line.
@@ -48,18 +61,153 @@ struct FarEnd {
     line: String,
 }
 
+impl FarEnd {
+    /// From an EXIT frame (its payload is at least 4 bytes: checked by the frame's parse).
+    fn of(p: &[u8]) -> Self {
+        let (code, line) = p.split_at(4);
+        let code = u32::from_ne_bytes([code[0], code[1], code[2], code[3]]);
+        FarEnd {
+            code: u8::try_from(code).unwrap_or(EXIT_FAULT),
+            line: wire::escape_peer_text(&String::from_utf8_lossy(line)),
+        }
+    }
+
+    /// What the near side exits with.
+    fn exit(self) -> (u8, Option<String>) {
+        let line = (!self.line.is_empty()).then_some(self.line);
+        (
+            self.code,
+            line.or(Some(format!("far side exited {}", self.code))),
+        )
+    }
+}
+
 /// The controller's side of the run on this host, which this bridge holds in its place.
 type Ports = ipc::ControllerPorts;
 
+/// The plant's side of the run on this host (`--role plant`), which this bridge holds in its
+/// place: the plant's loop ports, its telemetry and control, and the controller's control (its
+/// READY and ARMED go to the far side, which says them to the plant there).
+struct PlantPorts {
+    state: Publisher<Svc, StateMsg, ()>,
+    torque: Subscriber<Svc, TorqueMsg, ()>,
+    state_ready: Notifier<Svc>,
+    torque_ready: Listener<Svc>,
+    telemetry: Publisher<Svc, TelemetryMsg, ()>,
+    control: ControlPorts,
+    from_controller: Subscriber<Svc, ControlMsg, ()>,
+    _node: Node<Svc>,
+}
+
+impl PlantPorts {
+    fn open(run_id: &str) -> Result<Self> {
+        let node = ipc::node("plant", run_id)?;
+        let (state, torque, state_ready, torque_ready) =
+            ipc::plant_loop(&node, run_id, ipc::RELAY_BUFFER)?;
+        Ok(Self {
+            state,
+            torque,
+            state_ready,
+            torque_ready,
+            telemetry: ipc::telemetry(&node, run_id)?
+                .publisher_builder()
+                .create()
+                .ipc("telemetry publisher")?,
+            control: ipc::control_ports(&node, run_id, Sender::Plant)?,
+            from_controller: ipc::control(&node, run_id, Sender::Controller)?
+                .subscriber_builder()
+                .create()
+                .ipc("control-controller subscriber")?,
+            _node: node,
+        })
+    }
+}
+
 /// Runs the near side; returns the exit code and its one line (None: completed).
 pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
+    let plant = a.role == "plant";
+    let law = match (plant, a.law) {
+        (false, None) => bail!("--law is needed with --role controller"),
+        (false, Some(l)) => l.name().to_string(),
+        // The far side needs a name there; the plant takes no law.
+        (true, _) => "none".to_string(),
+    };
     let config = std::fs::read_to_string(&a.run.config)
         .with_context(|| format!("cannot read --config {}", a.run.config.display()))?;
     let run_id = &a.run.run_id;
-    let key = frame::run_key(run_id);
     let emu = a.emu.emulation()?;
     let spin_ns = crate::spin_ns(&a.run.config, a.run.mode, a.emu.link_spin_us)?;
-    let ports = Ports::open(run_id, ipc::RELAY_BUFFER)?;
+    let hello = Hello {
+        run_id: run_id.clone(),
+        role: a.role.clone(),
+        mode: a.run.mode.name().to_string(),
+        law,
+        emulation: emu,
+        config,
+    };
+    let lockstep = a.run.mode == LoopMode::Lockstep;
+    if plant {
+        let cfg = RunConfig::from_file(&a.run.config)?;
+        let silence_ms = u64::from(cfg.loop_.silence_timeout_ms);
+        let ports = PlantPorts::open(run_id)?;
+        let Some(peer) = connect(a, &hello, &ports.control, term)? else {
+            return Ok(stopped_early());
+        };
+        let mut n = NearPlant {
+            ports,
+            peer,
+            host: ControllerHost::new(spin_ns, true),
+            // Half the silence timeout: before the controller's own silence rule ends it.
+            silence_ns: (silence_ms * 1_000_000 / 2).max(100_000_000),
+            started_ns: None,
+            heard_ns: 0,
+            copies: VecDeque::with_capacity(COPIES),
+            hold_ns: emu.delay_ns + emu.jitter_ns + 1_000_000,
+        };
+        let r = n.forward(term);
+        finish(&mut n.peer, &emu, (0, 0), r)
+    } else {
+        let ports = Ports::open(run_id, ipc::RELAY_BUFFER)?;
+        let Some(peer) = connect(a, &hello, &ports.control, term)? else {
+            return Ok(stopped_early());
+        };
+        let mut n = Near {
+            ports,
+            peer,
+            host: PlantHost::new(spin_ns, lockstep),
+        };
+        let r = n.forward(term);
+        let counts = (n.host.resent, n.host.inbox.recovered);
+        finish(&mut n.peer, &emu, counts, r)
+    }
+}
+
+fn stopped_early() -> (u8, Option<String>) {
+    (
+        EXIT_STOPPED,
+        Some("stopped before the far side joined".into()),
+    )
+}
+
+/// The link to the far side, and how its run control and end are followed.
+struct Peer {
+    udp: Udp,
+    tcp: Tcp,
+    key: u64,
+    far_end: Option<FarEnd>,
+    /// When a STOP (SIGTERM) went to the far side.
+    stop_sent_ns: Option<u64>,
+}
+
+/// Waits for the far side, sends the HELLO, connects the UDP socket to the port it answers with.
+/// None: stopped (STOP or SIGTERM) before it joined.
+fn connect(
+    a: &Args,
+    hello: &Hello,
+    control: &ControlPorts,
+    term: &AtomicBool,
+) -> Result<Option<Peer>> {
+    let key = frame::run_key(&hello.run_id);
     let listener = TcpListener::bind(a.listen)
         .with_context(|| format!("cannot listen on --listen {} (TCP)", a.listen))?;
     let udp = UdpSocket::bind(a.listen)
@@ -73,52 +221,46 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
             Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
             Err(e) => return Err(e).context("accept the far side"),
         }
-        if stopped(&ports.control, term)? {
-            return Ok((
-                EXIT_STOPPED,
-                Some("stopped before the far side joined".into()),
-            ));
+        if stopped(control, term)? {
+            return Ok(None);
         }
         if rt::now_ns() > end {
             bail!(
-                "no far side joined at {} within {} s (run `deltaloop join {} --role controller` on the other host)",
+                "no far side joined at {} within {} s (run `deltaloop join {} --role {}` on the other host)",
                 a.listen,
                 ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000,
-                a.listen
+                a.listen,
+                a.role
             );
         }
         std::thread::sleep(Duration::from_millis(5));
     };
     drop(listener);
     let mut tcp = Tcp::new(stream)?;
-    let hello = Hello {
-        run_id: run_id.clone(),
-        mode: a.run.mode.name().to_string(),
-        law: a.law.name().to_string(),
-        emulation: emu,
-        config,
-    };
     tcp.send(Kind::Hello, key, &[&hello.encode()])?;
     tcp.set_key(key);
-    let mut far_udp = None;
+    let (mut far_udp, mut far_end) = (None, None);
     while far_udp.is_none() {
         tcp.poll(|k, p| {
-            if k == Kind::Ack {
-                far_udp = frame::read::<u64>(p);
+            match k {
+                Kind::Ack => far_udp = frame::read::<u64>(p),
+                Kind::Exit => far_end = Some(FarEnd::of(p)),
+                _ => {}
             }
             Ok(())
         })?;
+        if let Some(e) = far_end {
+            // The far side refused the run (wrong role, a bad config, …): its line says why.
+            bail!("{}", e.line);
+        }
         if tcp.closed {
             bail!("the far side {peer} closed the link during the handshake");
         }
         if rt::now_ns() > end {
             bail!("the far side {peer} did not answer the HELLO");
         }
-        if stopped(&ports.control, term)? {
-            return Ok((
-                EXIT_STOPPED,
-                Some("stopped before the far side joined".into()),
-            ));
+        if stopped(control, term)? {
+            return Ok(None);
         }
         std::thread::sleep(Duration::from_millis(1));
     }
@@ -128,43 +270,40 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
     };
     udp.connect(SocketAddr::new(peer.ip(), far_port))
         .context("connect the link's UDP socket")?;
-    let udp = Udp::new(udp, key, emu)?;
-    let mut n = Near {
-        ports,
-        udp,
+    Ok(Some(Peer {
+        udp: Udp::new(udp, key, hello.emulation)?,
         tcp,
         key,
-        last_state: (u64::MAX, 0),
         far_end: None,
-        final_sent_ns: None,
         stop_sent_ns: None,
-        spin_ns,
-        poll_until: 0,
-        resend: (a.run.mode == deltaloop_config::LoopMode::Lockstep).then_some(Resend {
-            state: StateMsg::default(),
-            due_ns: None,
-        }),
-        resent: 0,
-        inbox: Inbox::default(),
-    };
-    let r = n.forward(term);
-    n.tcp.flush().ok();
+    }))
+}
+
+/// After the loop: the control plane flushed, the ports kept a moment (the supervisor drains
+/// them), the link's statistics said (states sent again, replies recovered).
+fn finish(
+    p: &mut Peer,
+    emu: &Emulation,
+    (resent, recovered): (u64, u64),
+    r: Result<(u8, Option<String>)>,
+) -> Result<(u8, Option<String>)> {
+    p.tcp.flush().ok();
     std::thread::sleep(ipc::LINGER);
     let end = r?;
-    if !emu.is_off() || n.resent > 0 || n.inbox.recovered > 0 {
+    if !emu.is_off() || resent > 0 || recovered > 0 {
         eprintln!(
             "deltaloop-bridge: {}: {} datagram(s) dropped here, {} state(s) sent again, {} repl(ies) recovered from a later datagram",
-            describe(&emu),
-            n.udp.emulated_lost,
-            n.resent,
-            n.inbox.recovered
+            describe(emu),
+            p.udp.emulated_lost,
+            resent,
+            recovered
         );
     }
-    if n.udp.refused > 0 {
+    if p.udp.refused > 0 {
         eprintln!(
             "deltaloop-bridge: warning: refused {} datagram(s) on the link (first: {})",
-            n.udp.refused,
-            n.udp.last_refusal.as_deref().unwrap_or("")
+            p.udp.refused,
+            p.udp.last_refusal.as_deref().unwrap_or("")
         );
     }
     Ok(end)
@@ -179,107 +318,99 @@ fn stopped(control: &ControlPorts, term: &AtomicBool) -> Result<bool> {
     Ok(stop)
 }
 
-struct Near {
-    ports: Ports,
-    udp: Udp,
-    tcp: Tcp,
-    key: u64,
-    /// The last state sent: its tick and the plant's `t_poll_until_ns`.
-    last_state: (u64, u64),
-    far_end: Option<FarEnd>,
-    /// When the final state went to the far side.
-    final_sent_ns: Option<u64>,
-    /// When a STOP (SIGTERM) went to the far side.
-    stop_sent_ns: Option<u64>,
-    /// How long to poll for the reply after sending a state, ns.
-    spin_ns: u64,
-    /// Poll (do not block) until then: a reply is due.
-    poll_until: u64,
-    /// Lockstep only: the state awaiting its reply, sent again every [`RESEND_NS`] until the
-    /// reply comes, so a lost datagram costs time, never the run (the far side answers a repeated
-    /// state with its cached reply). In realtime a lost state or reply is a miss, as it should be.
-    resend: Option<Resend>,
-    /// States sent again (lockstep).
-    resent: u64,
-    /// The replies republished, each once.
-    inbox: Inbox,
-}
-
-struct Resend {
-    state: StateMsg,
-    /// When to send it again; None once its reply came.
-    due_ns: Option<u64>,
-}
-
-/// Lockstep: how long to wait for a reply before sending its state again, ns.
-pub const RESEND_NS: u64 = 5_000_000;
-
 /// How long the far side has to report its end after the final state or a STOP, ns: the
 /// supervisor gives a controller 1 s after the plant exits.
 const FAR_END_WAIT_NS: u64 = 700_000_000;
 
+impl Peer {
+    /// The wait of one turn: the socket, the control connection and the wake-up `event`.
+    fn wait(&self, event: &Listener<Svc>, timeout_ns: u64) -> Result<[bool; 3]> {
+        let mut fds = [
+            link::readable(&self.udp.sock),
+            link::readable(&self.tcp.stream),
+            link::event(event),
+        ];
+        if self.tcp.pending() > 0 {
+            fds[1].events |= libc::POLLOUT;
+        }
+        link::wait(&mut fds, timeout_ns)?;
+        Ok(fds.map(|f| f.revents != 0))
+    }
+
+    /// The supervisor's run control out (START with its deadline made relative, STOP). Before
+    /// the states of each wake-up: a STOP must reach the far side before the final state it
+    /// causes. Returns whether START went out.
+    fn forward_control(&mut self, control: &ControlPorts) -> Result<bool> {
+        let mut started = false;
+        while let Some(s) = control.1.receive().ipc("receive control")? {
+            let mut c = *s.payload();
+            match (c.kind(), c.sender()) {
+                (Some(ControlKind::Start), Some(Sender::Supervisor)) => {
+                    c.t0_ns = c.t0_ns.saturating_sub(rt::now_ns());
+                    self.tcp.send(Kind::Control, self.key, &[bytes_of(&c)])?;
+                    started = true;
+                }
+                (Some(ControlKind::Stop), Some(Sender::Supervisor)) => {
+                    self.tcp.send(Kind::Control, self.key, &[bytes_of(&c)])?;
+                }
+                _ => {}
+            }
+        }
+        Ok(started)
+    }
+
+    /// The end of a turn, for both roles: the far side's end, a closed link, a SIGTERM (STOP to
+    /// the far side). Some: the near side exits with it.
+    fn ended(&mut self, term: &AtomicBool) -> Result<Option<(u8, Option<String>)>> {
+        if let Some(end) = self.far_end.take() {
+            return Ok(Some(end.exit()));
+        }
+        if self.tcp.closed {
+            return Ok(Some((
+                EXIT_FAULT,
+                Some(
+                    "the link's control connection closed before the far side reported its end"
+                        .into(),
+                ),
+            )));
+        }
+        if term.load(Ordering::Relaxed) && self.stop_sent_ns.is_none() {
+            let stop = ControlMsg::new(ControlKind::Stop, Sender::Supervisor);
+            self.tcp.send(Kind::Control, self.key, &[bytes_of(&stop)])?;
+            self.stop_sent_ns = Some(rt::now_ns());
+        }
+        Ok(None)
+    }
+}
+
+/// `--role controller`: the controller's stand-in on the plant's host.
+struct Near {
+    ports: Ports,
+    peer: Peer,
+    host: PlantHost,
+}
+
 impl Near {
     fn forward(&mut self, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         loop {
-            let now = rt::now_ns();
-            let resend_due = self.resend.as_ref().and_then(|r| r.due_ns);
-            let timeout = if now < self.poll_until {
-                0
-            } else {
-                link::timeout_ns(&self.udp, now)
-                    .min(resend_due.map_or(u64::MAX, |d| d.saturating_sub(now)))
-            };
-            let mut fds = [
-                link::readable(&self.udp.sock),
-                link::readable(&self.tcp.stream),
-                link::event(&self.ports.state_ready),
-            ];
-            if self.tcp.pending() > 0 {
-                fds[1].events |= libc::POLLOUT;
-            }
-            link::wait(&mut fds, timeout)?;
-            let [udp_in, tcp_in, state_in] = fds.map(|f| f.revents != 0);
-            self.forward_control()?;
-            if state_in {
-                self.states()?;
-            }
-            if udp_in {
-                self.torques()?;
-            }
-            self.udp.flush(rt::now_ns())?;
-            if let Some(r) = &mut self.resend
-                && let Some(due) = r.due_ns
-                && rt::now_ns() >= due
-            {
-                let now = rt::now_ns();
-                r.due_ns = Some(now + RESEND_NS);
-                self.udp.send(Kind::State, &[bytes_of(&r.state)], now)?;
-                self.resent += 1;
-            }
+            let timeout = self.host.timeout_ns(&self.peer.udp, rt::now_ns());
+            let [udp_in, tcp_in, state_in] = self.peer.wait(&self.ports.state_ready, timeout)?;
+            self.peer.forward_control(&self.ports.control)?;
+            let (p, c) = (&mut self.peer, &self.ports);
+            let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
+            let ready = (state_in, udp_in);
+            self.host
+                .turn(&ports, ready, &mut p.udp, &mut p.tcp, p.key)?;
             self.control_plane(tcp_in)?;
-            if let Some(end) = self.far_end.take() {
-                let line = (!end.line.is_empty()).then_some(end.line);
-                return Ok((
-                    end.code,
-                    line.or(Some(format!("far side exited {}", end.code))),
-                ));
+            if let Some(end) = self.peer.ended(term)? {
+                return Ok(end);
             }
             let now = rt::now_ns();
-            if self.tcp.closed {
-                return Ok((
-                    EXIT_FAULT,
-                    Some(
-                        "the link's control connection closed before the far side reported its end"
-                            .into(),
-                    ),
-                ));
-            }
-            if term.load(Ordering::Relaxed) && self.stop_sent_ns.is_none() {
-                let stop = ControlMsg::new(ControlKind::Stop, Sender::Supervisor);
-                self.tcp.send(Kind::Control, self.key, &[bytes_of(&stop)])?;
-                self.stop_sent_ns = Some(now);
-            }
-            if self.stop_sent_ns.is_some_and(|t| now > t + FAR_END_WAIT_NS) {
+            if self
+                .peer
+                .stop_sent_ns
+                .is_some_and(|t| now > t + FAR_END_WAIT_NS)
+            {
                 return Ok((
                     EXIT_STOPPED,
                     Some(format!(
@@ -289,6 +420,7 @@ impl Near {
                 ));
             }
             if self
+                .host
                 .final_sent_ns
                 .is_some_and(|t| now > t + FAR_END_WAIT_NS)
             {
@@ -304,155 +436,228 @@ impl Near {
         }
     }
 
-    /// The plant's states: each out as a datagram; the final one over TCP.
-    fn states(&mut self) -> Result<()> {
-        self.ports
-            .state_ready
-            .try_wait(|_| {})
-            .ipc("drain state-ready")?;
-        while let Some(s) = self.ports.state.receive().ipc("receive state")? {
-            let st: &StateMsg = s.payload();
-            if st.flags & wire::STATE_FINAL != 0 {
-                self.tcp.send(Kind::Final, self.key, &[bytes_of(st)])?;
-                self.final_sent_ns.get_or_insert(rt::now_ns());
-            } else {
-                self.last_state = (st.tick, st.t_poll_until_ns);
-                let now = rt::now_ns();
-                self.udp.send(Kind::State, &[bytes_of(st)], now)?;
-                self.poll_until = now + self.spin_ns;
-                if let Some(r) = &mut self.resend {
-                    r.state = *st;
-                    r.due_ns = Some(now + RESEND_NS);
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// The far controller's replies, republished on the plant's clock.
-    fn torques(&mut self) -> Result<()> {
-        while let Some((kind, p)) = self.udp.recv()? {
-            if kind != Kind::Torque {
-                continue;
-            }
-            let mut res = Ok(());
-            self.inbox.take(p, |t, residence| {
-                if res.is_ok() {
-                    res = republish(&self.ports, t, residence, self.last_state, &mut self.resend);
-                }
-            });
-            res?;
-            self.poll_until = 0;
-        }
-        Ok(())
-    }
-
-    /// The supervisor's run control out (START with its deadline made relative, STOP). Before the
-    /// states of each wake-up: a STOP must reach the far side before the final state it causes.
-    fn forward_control(&mut self) -> Result<()> {
-        while let Some(s) = self.ports.control.1.receive().ipc("receive control")? {
-            let mut c = *s.payload();
-            match (c.kind(), c.sender()) {
-                (Some(ControlKind::Start), Some(Sender::Supervisor)) => {
-                    c.t0_ns = c.t0_ns.saturating_sub(rt::now_ns());
-                    self.tcp.send(Kind::Control, self.key, &[bytes_of(&c)])?;
-                }
-                (Some(ControlKind::Stop), Some(Sender::Supervisor)) => {
-                    self.tcp.send(Kind::Control, self.key, &[bytes_of(&c)])?;
-                }
-                _ => {}
-            }
-        }
-        Ok(())
-    }
-
     /// The reference out, the far side's control, log and end in.
     fn control_plane(&mut self, tcp_in: bool) -> Result<()> {
+        let p = &mut self.peer;
         // One chunk at a time in flight: the subscriber keeps the rest (REF_RING deep).
-        while self.tcp.pending() < 64 * 1024 {
+        while p.tcp.pending() < 64 * 1024 {
             let Some(chunk) = self.ports.reference.receive().ipc("receive reference")? else {
                 break;
             };
-            self.tcp.send(
-                Kind::Reference,
-                self.key,
-                &[bytes_of_slice(chunk.payload())],
-            )?;
+            p.tcp
+                .send(Kind::Reference, p.key, &[bytes_of_slice(chunk.payload())])?;
         }
-        if self.tcp.pending() > 0 {
-            self.tcp.flush()?;
+        if p.tcp.pending() > 0 {
+            p.tcp.flush()?;
         }
         if !tcp_in {
             return Ok(());
         }
-        let (mut said, mut end) = (Vec::new(), None);
-        self.tcp.poll(|kind, p| {
+        let (ports, far_end) = (&self.ports, &mut p.far_end);
+        p.tcp.poll(|kind, p| {
             match kind {
                 Kind::Control => {
-                    if let Some(c) = frame::read::<ControlMsg>(p) {
-                        said.push(c);
+                    // Only what a controller may say, as the controller (this process is its
+                    // stand-in).
+                    if let Some(c) = frame::read::<ControlMsg>(p)
+                        && let Some(kind @ (ControlKind::Ready | ControlKind::Armed)) = c.kind()
+                    {
+                        ports.send_control(kind)?;
                     }
                 }
                 Kind::Log => eprintln!("{}", wire::escape_peer_text(&String::from_utf8_lossy(p))),
-                Kind::Exit => {
-                    let (code, line) = p.split_at(4);
-                    let code = u32::from_ne_bytes([code[0], code[1], code[2], code[3]]);
-                    end = Some(FarEnd {
-                        code: u8::try_from(code).unwrap_or(EXIT_FAULT),
-                        line: wire::escape_peer_text(&String::from_utf8_lossy(line)),
-                    });
+                Kind::Exit => *far_end = Some(FarEnd::of(p)),
+                _ => {}
+            }
+            Ok(())
+        })
+    }
+}
+
+/// `--role plant`: the plant's stand-in on the controller's (and the supervisor's) host.
+struct NearPlant {
+    ports: PlantPorts,
+    peer: Peer,
+    host: ControllerHost,
+    /// The link is taken for lost after this long without a word from the far side while the
+    /// loop runs and the controller here owes no reply, ns.
+    silence_ns: u64,
+    /// When START went to the far side.
+    started_ns: Option<u64>,
+    /// When the far side was last heard (a datagram or a frame), or a reply last went to it.
+    heard_ns: u64,
+    /// The states' copies that came over TCP (arrival, state), oldest first, each waiting for
+    /// its datagram: a copy whose datagram has not come within `hold_ns` (lost on the link), or
+    /// that a newer state has overtaken, is published itself, so the supervisor here records
+    /// every state. Pre-allocated ([`COPIES`]).
+    copies: VecDeque<(u64, StateMsg)>,
+    /// How long a copy waits for its datagram: the emulated delay and jitter, and 1 ms.
+    hold_ns: u64,
+}
+
+/// States' copies held at most; a fuller queue publishes its oldest.
+const COPIES: usize = 1024;
+
+impl NearPlant {
+    fn forward(&mut self, term: &AtomicBool) -> Result<(u8, Option<String>)> {
+        loop {
+            let now = rt::now_ns();
+            let timeout = self.host.timeout_ns(&self.peer.udp, now);
+            let [udp_in, tcp_in, torque_in] = self.peer.wait(&self.ports.torque_ready, timeout)?;
+            let c = &self.ports;
+            let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
+            if self
+                .host
+                .turn(&ports, (torque_in, udp_in), &mut self.peer.udp)?
+            {
+                self.heard_ns = rt::now_ns();
+            }
+            self.control_plane(tcp_in)?;
+            self.settle_copies()?;
+            if let Some(end) = self.peer.ended(term)? {
+                return Ok(end);
+            }
+            let now = rt::now_ns();
+            if self.host.awaiting_reply() {
+                self.heard_ns = now;
+            }
+            if self.started_ns.is_some() && now > self.heard_ns + self.silence_ns {
+                return self.link_lost();
+            }
+        }
+    }
+
+    /// The supervisor's run control and the controller's READY/ARMED out; the far plant's
+    /// control, telemetry, final state, log and end in.
+    fn control_plane(&mut self, tcp_in: bool) -> Result<()> {
+        let p = &mut self.peer;
+        if p.forward_control(&self.ports.control)? && self.started_ns.is_none() {
+            // START is out (the controller here has it too): from now on the far side must be
+            // heard, and its states go to the controller.
+            let now = rt::now_ns();
+            self.started_ns = Some(now);
+            self.heard_ns = now;
+            self.host
+                .start((&self.ports.state, &self.ports.state_ready))?;
+        }
+        while let Some(s) = self
+            .ports
+            .from_controller
+            .receive()
+            .ipc("receive control")?
+        {
+            let c = *s.payload();
+            if matches!(c.kind(), Some(ControlKind::Ready | ControlKind::Armed)) {
+                p.tcp.send(Kind::Control, p.key, &[bytes_of(&c)])?;
+            }
+        }
+        if p.tcp.pending() > 0 {
+            p.tcp.flush()?;
+        }
+        if !tcp_in {
+            return Ok(());
+        }
+        let (ports, far_end, copies) = (&self.ports, &mut p.far_end, &mut self.copies);
+        let (mut heard, mut finals, mut overflow) = (false, None, None);
+        let now = rt::now_ns();
+        p.tcp.poll(|kind, b| {
+            heard = true;
+            match kind {
+                Kind::State => {
+                    if let Some(s) = frame::read::<StateMsg>(b) {
+                        if copies.len() == COPIES {
+                            // Published as soon as the poll is over (its datagram is long due).
+                            overflow = copies.pop_front().map(|(_, s)| s).or(overflow);
+                        }
+                        copies.push_back((now, s));
+                    }
                 }
+                Kind::Control => {
+                    // Only what a plant may say, as the plant (this process is its stand-in).
+                    if let Some(mut c) = frame::read::<ControlMsg>(b)
+                        && matches!(
+                            c.kind(),
+                            Some(
+                                ControlKind::Ready
+                                    | ControlKind::Fault
+                                    | ControlKind::Diverged
+                                    | ControlKind::Stopped
+                            )
+                        )
+                    {
+                        c.from = Sender::Plant as u32;
+                        ports.control.0.send_copy(c).ipc("send plant control")?;
+                    }
+                }
+                Kind::Telemetry => {
+                    if let Some(t) = frame::read::<TelemetryMsg>(b) {
+                        ports.telemetry.send_copy(t).ipc("publish telemetry")?;
+                    }
+                }
+                Kind::Final => finals = frame::read::<StateMsg>(b),
+                Kind::Log => eprintln!("{}", wire::escape_peer_text(&String::from_utf8_lossy(b))),
+                Kind::Exit => *far_end = Some(FarEnd::of(b)),
                 _ => {}
             }
             Ok(())
         })?;
-        for c in said {
-            // Only what a controller may say, as the controller (this process is its stand-in).
-            if let Some(kind @ (ControlKind::Ready | ControlKind::Armed)) = c.kind() {
-                self.ports
-                    .control
-                    .0
-                    .send_copy(ControlMsg::new(kind, Sender::Controller))
-                    .ipc(format!("send {kind:?}"))?;
-            }
+        if heard {
+            self.heard_ns = rt::now_ns();
         }
-        if end.is_some() {
-            self.far_end = end;
+        let ports = (&self.ports.state, &self.ports.state_ready);
+        if let Some(s) = overflow.filter(|s| !self.host.published(s.tick)) {
+            self.host.publish_state(ports, s)?;
+        }
+        if let Some(s) = finals {
+            self.settle_copies_until(u64::MAX)?;
+            self.host
+                .publish_state((&self.ports.state, &self.ports.state_ready), s)?;
         }
         Ok(())
     }
-}
 
-/// Publishes the far controller's reply `t` on the plant's clock (`residence` ns: its time on
-/// the far host) and wakes the plant unless it is polling for it; a lockstep resend of its state
-/// is called off.
-fn republish(
-    ports: &Ports,
-    mut t: TorqueMsg,
-    residence: u64,
-    last_state: (u64, u64),
-    resend: &mut Option<Resend>,
-) -> Result<()> {
-    let now = rt::now_ns();
-    t.t_publish_ns = now;
-    t.t_state_rx_ns = now.saturating_sub(residence);
-    // This side blocks on the state event: the plant must always notify it.
-    t.t_poll_until_ns = 0;
-    ports.torque.send_copy(t).ipc("publish torque")?;
-    if let Some(r) = resend
-        && r.state.tick == t.tick
-    {
-        r.due_ns = None;
+    /// Publishes the states' copies whose datagram is lost (see `copies`); drops the others.
+    fn settle_copies(&mut self) -> Result<()> {
+        self.settle_copies_until(rt::now_ns().saturating_sub(self.hold_ns))
     }
-    let poll_until = if last_state.0 == t.tick {
-        last_state.1
-    } else {
-        0
-    };
-    if ipc::published_needs_notify(poll_until) {
-        ports.torque_ready.notify().ipc("notify torque")?;
+
+    /// [`Self::settle_copies`], taking a copy that arrived before `due` (ns) for lost.
+    fn settle_copies_until(&mut self, due: u64) -> Result<()> {
+        let ports = (&self.ports.state, &self.ports.state_ready);
+        while let Some(&(at, s)) = self.copies.front() {
+            if self.host.published(s.tick) {
+                self.copies.pop_front();
+                continue;
+            }
+            let overtaken = self.host.newest().is_some_and(|n| n > s.tick);
+            if !(overtaken || at < due) || !self.host.started {
+                break;
+            }
+            self.host.publish_state(ports, s)?;
+            self.copies.pop_front();
+        }
+        Ok(())
     }
-    Ok(())
+
+    /// The far side went silent while the loop ran: the far plant's own rules stop it there
+    /// (it brakes to a safe stop). Releases the controller here with a final state (as the plant
+    /// would) and ends with a fault saying what is known.
+    fn link_lost(&mut self) -> Result<(u8, Option<String>)> {
+        let last = self.host.last_state;
+        if let Some(mut s) = last {
+            s.flags |= wire::STATE_FINAL;
+            let ports = (&self.ports.state, &self.ports.state_ready);
+            self.host.publish_state(ports, s)?;
+        }
+        let after = last.map_or("before tick 0".into(), |s| format!("after tick {}", s.tick));
+        Ok((
+            EXIT_FAULT,
+            Some(format!(
+                "the link to the plant's host went silent {after} (no word for {} ms): the far plant's own rules (controller silence) brake it to a safe stop there, not on record here",
+                self.silence_ns / 1_000_000
+            )),
+        ))
+    }
 }
 
 /// Exposed for the far side's START: tick 0's deadline on this host's clock, from the relative

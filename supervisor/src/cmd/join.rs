@@ -1,5 +1,6 @@
-//! `deltaloop join HOST:PORT --role controller`: the controller's half of a run split over two
-//! hosts (the other half is `deltaloop run … --controller-remote HOST:PORT`).
+//! `deltaloop join HOST:PORT --role controller|plant`: the controller's or the plant's half of a
+//! run split over two hosts (the other half is `deltaloop run … --controller-remote HOST:PORT` or
+//! `--plant-remote HOST:PORT`).
 
 use super::Context;
 use crate::ops::join::{self, Join};
@@ -7,22 +8,28 @@ use anyhow::Result;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The plant's host: the HOST:PORT given to `deltaloop run --controller-remote`.
+    /// The supervisor's host: the HOST:PORT given to `deltaloop run --controller-remote` or
+    /// `--plant-remote`.
     endpoint: String,
-    /// What runs on this host: the controller.
-    #[arg(long, value_parser = ["controller"], default_value = "controller")]
+    /// What runs on this host: the controller (`--controller-remote` there) or the plant
+    /// (`--plant-remote` there).
+    #[arg(long, value_parser = ["controller", "plant"], default_value = "controller")]
     role: String,
     /// Run this command instead of the built-in controller (split at whitespace); it gets the
     /// usual --run-id, --config, --mode and --law.
     #[arg(long, value_name = "CMD")]
     controller_cmd: Option<String>,
+    /// `--role plant`: run this command instead of the built-in plant (split at whitespace); it
+    /// gets the usual --run-id, --config and --mode.
+    #[arg(long, value_name = "CMD")]
+    plant_cmd: Option<String>,
     /// Runs to serve, one after the other (each law of a run is one; 0: until Ctrl-C).
     #[arg(long, default_value_t = 1)]
     runs: u32,
-    /// How long to keep trying to reach the plant's host for each run, s (0: forever).
+    /// How long to keep trying to reach the supervisor's host for each run, s (0: forever).
     #[arg(long, default_value_t = 120)]
     wait_s: u64,
-    /// Poll this long for the controller's reply after passing a state on before blocking, µs
+    /// Poll this long for the reply after passing a state on before blocking, µs
     /// (0: block at once). Worth it where the bridge has a CPU of its own.
     #[arg(long, default_value_t = 0)]
     spin_us: u32,
@@ -31,7 +38,9 @@ pub struct Args {
 pub fn exec(a: Args, _cx: &Context) -> Result<()> {
     join::join(&Join {
         endpoint: &a.endpoint,
+        role: &a.role,
         controller_cmd: a.controller_cmd.as_deref(),
+        plant_cmd: a.plant_cmd.as_deref(),
         runs: a.runs,
         wait_s: a.wait_s,
         spin_us: a.spin_us,

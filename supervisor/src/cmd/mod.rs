@@ -48,8 +48,9 @@ enum Command {
     Soak(soak::Args),
     /// Benchmarks.
     Bench(bench::Args),
-    /// Run the controller of a run on this host, the plant and supervisor being on another
-    /// (`deltaloop run … --controller-remote HOST:PORT` there).
+    /// Run the controller (`--role controller`) or the plant (`--role plant`) of a run on this
+    /// host, the supervisor being on another (`deltaloop run … --controller-remote HOST:PORT` or
+    /// `--plant-remote HOST:PORT` there).
     Join(join::Args),
     /// Internal: the controller side of `bench loop`'s iceoryx2 baseline.
     #[command(hide = true)]

@@ -1,15 +1,28 @@
-//! What the report says about a run whose controller was on another host.
+//! What the report says about a run whose controller or plant was on another host.
 
 use deltaloop_config::RunConfig;
 
-/// For a run with `--controller-remote` (its controller command is `deltaloop-bridge near`): one
-/// line naming the endpoint and the emulated link, and how to read the timing. None otherwise.
+/// For a run with `--controller-remote` or `--plant-remote` (its controller or plant command is
+/// `deltaloop-bridge near`): one line naming the endpoint and the emulated link, and how to read
+/// the timing. None otherwise.
 pub fn note(cfg: &RunConfig) -> Option<String> {
-    let c = &cfg.controller.command;
-    let bridge = c.first()?.ends_with("deltaloop-bridge") && c.get(1)? == "near";
-    if !bridge {
+    let near = |c: &[String]| {
+        c.first().is_some_and(|p| p.ends_with("deltaloop-bridge"))
+            && c.get(1).is_some_and(|s| s == "near")
+    };
+    let (c, how) = if near(&cfg.controller.command) {
+        (
+            &cfg.controller.command,
+            "controller on another host, across the link at {} (round trip = the link's round trip on the plant's clock; state → controller = the link both ways, compute = the far side's residence)",
+        )
+    } else if near(&cfg.plant.command) {
+        (
+            &cfg.plant.command,
+            "plant on another host, across the link at {} (round trip and wake-up = the plant's clock there; state → controller = from the state's arrival here, compute = the controller here)",
+        )
+    } else {
         return None;
-    }
+    };
     let listen = c
         .iter()
         .position(|a| a == "--listen")
@@ -24,7 +37,8 @@ pub fn note(cfg: &RunConfig) -> Option<String> {
         .iter()
         .any(|f| flag(f).parse::<f64>().is_ok_and(|v| v > 0.0));
     Some(format!(
-        "controller on another host, across the link at {listen} (round trip = the link's round trip on the plant's clock; state → controller = the link both ways, compute = the far side's residence){}",
+        "{}{}",
+        how.replace("{}", listen),
         if emulated {
             format!(
                 "; emulated link: delay {} µs, jitter {} µs, loss {}, seed {} (each direction)",

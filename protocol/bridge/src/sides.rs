@@ -1,0 +1,437 @@
+//! The two halves of the loop across the link, whichever side of it the supervisor is on.
+//!
+//! - [`PlantHost`]: the bridge on the plant's host holds the controller's loop ports: the plant's
+//!   states go out as datagrams (the final one over TCP), the replies come back and are
+//!   republished stamped on this host's clock (docs/protocol.md §14). The near side with
+//!   `--controller-remote`, the far side with `--plant-remote`.
+//! - [`ControllerHost`]: the bridge on the controller's host holds the plant's loop ports: the
+//!   states from the link are published here, the controller's replies go back with their
+//!   residence here. The far side with `--controller-remote`, the near side with `--plant-remote`.
+//!
+//! Neither allocates, locks or makes a syscall beyond the sockets, iceoryx2 and the clock.
+
+use crate::frame::{self, Kind, bytes_of};
+use crate::link::{self, Tcp, Udp};
+use crate::replies::{Inbox, Outbox};
+use anyhow::Result;
+use deltaloop_transport::ipc::{self, IpcContext, Svc};
+use deltaloop_transport::rt;
+use deltaloop_transport::wire::{self, StateMsg, TorqueMsg};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+
+/// Lockstep: how long to wait for a reply before sending its state again, ns.
+pub const RESEND_NS: u64 = 5_000_000;
+
+/// The plant's host: states out, replies in (see the module).
+pub struct PlantHost {
+    /// The last state sent: its tick and the plant's `t_poll_until_ns`.
+    last_state: (u64, u64),
+    /// When the final state went to the other side.
+    pub final_sent_ns: Option<u64>,
+    /// How long to poll for the reply after sending a state, ns.
+    spin_ns: u64,
+    /// Poll (do not block) until then: a reply is due.
+    poll_until: u64,
+    /// Lockstep only: the state awaiting its reply, sent again every [`RESEND_NS`] until the
+    /// reply comes, so a lost datagram costs time, never the run (the other side answers a
+    /// repeated state with its cached reply). In realtime a lost state or reply is a miss, as it
+    /// should be.
+    resend: Option<Resend>,
+    /// States sent again (lockstep).
+    pub resent: u64,
+    /// Every state also goes over TCP, for the record on the other host (`--plant-remote`: the
+    /// supervisor there records every state, including one lost on the link).
+    record: bool,
+    /// The replies republished, each once (a datagram carries the two before it too).
+    pub inbox: Inbox,
+}
+
+struct Resend {
+    state: StateMsg,
+    /// When to send it again; None once its reply came.
+    due_ns: Option<u64>,
+}
+
+impl PlantHost {
+    pub fn new(spin_ns: u64, lockstep: bool) -> Self {
+        Self {
+            last_state: (u64::MAX, 0),
+            final_sent_ns: None,
+            spin_ns,
+            poll_until: 0,
+            resend: lockstep.then_some(Resend {
+                state: StateMsg::default(),
+                due_ns: None,
+            }),
+            resent: 0,
+            record: false,
+            inbox: Inbox::default(),
+        }
+    }
+
+    /// Every state also goes over TCP (see the field).
+    pub fn with_record(self) -> Self {
+        Self {
+            record: true,
+            ..self
+        }
+    }
+
+    /// How long the wait may block: 0 while a reply is due, else until the next emulated
+    /// datagram or resend.
+    pub fn timeout_ns(&self, udp: &Udp, now: u64) -> u64 {
+        if now < self.poll_until {
+            return 0;
+        }
+        let resend_due = self.resend.as_ref().and_then(|r| r.due_ns);
+        link::timeout_ns(udp, now).min(resend_due.map_or(u64::MAX, |d| d.saturating_sub(now)))
+    }
+
+    /// The plant's states: each out as a datagram; the final one over TCP.
+    pub fn states(
+        &mut self,
+        (state, state_ready): (&Subscriber<Svc, StateMsg, ()>, &Listener<Svc>),
+        udp: &mut Udp,
+        tcp: &mut Tcp,
+        key: u64,
+    ) -> Result<()> {
+        state_ready.try_wait(|_| {}).ipc("drain state-ready")?;
+        while let Some(s) = state.receive().ipc("receive state")? {
+            let st: &StateMsg = s.payload();
+            if st.flags & wire::STATE_FINAL != 0 {
+                tcp.send(Kind::Final, key, &[bytes_of(st)])?;
+                self.final_sent_ns.get_or_insert(rt::now_ns());
+            } else {
+                self.last_state = (st.tick, st.t_poll_until_ns);
+                let now = rt::now_ns();
+                udp.send(Kind::State, &[bytes_of(st)], now)?;
+                if self.record {
+                    tcp.queue(Kind::State, key, &[bytes_of(st)]);
+                }
+                self.poll_until = now + self.spin_ns;
+                if let Some(r) = &mut self.resend {
+                    r.state = *st;
+                    r.due_ns = Some(now + RESEND_NS);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The controller's replies from the link, republished on the plant's clock: `t_publish_ns`
+    /// = now (their arrival here), `t_state_rx_ns` = now less the residence on the controller's
+    /// host. Returns whether any came.
+    pub fn torques(
+        &mut self,
+        (torque, torque_ready): (&Publisher<Svc, TorqueMsg, ()>, &Notifier<Svc>),
+        udp: &mut Udp,
+    ) -> Result<bool> {
+        let mut any = false;
+        while let Some((kind, p)) = udp.recv()? {
+            any = true;
+            if kind != Kind::Torque {
+                continue;
+            }
+            let mut res = Ok(());
+            let (last_state, resend) = (self.last_state, &mut self.resend);
+            self.inbox.take(p, |t, residence| {
+                if res.is_ok() {
+                    res = republish((torque, torque_ready), t, residence, last_state, resend);
+                }
+            });
+            res?;
+            self.poll_until = 0;
+        }
+        Ok(any)
+    }
+
+    /// One turn of the loop after the wait: the plant's states out (`state_in`: its event
+    /// came), the replies in (`udp_in`), the held datagrams and a due resend out.
+    pub fn turn(
+        &mut self,
+        ports: &ControllerEnds<'_>,
+        (state_in, udp_in): (bool, bool),
+        udp: &mut Udp,
+        tcp: &mut Tcp,
+        key: u64,
+    ) -> Result<()> {
+        if state_in {
+            self.states((ports.0, ports.2), udp, tcp, key)?;
+        }
+        if udp_in {
+            self.torques((ports.1, ports.3), udp)?;
+        }
+        udp.flush(rt::now_ns())?;
+        self.resend(udp)
+    }
+
+    /// Lockstep: sends the state awaiting its reply again if it is due.
+    pub fn resend(&mut self, udp: &mut Udp) -> Result<()> {
+        if let Some(r) = &mut self.resend
+            && let Some(due) = r.due_ns
+            && rt::now_ns() >= due
+        {
+            let now = rt::now_ns();
+            r.due_ns = Some(now + RESEND_NS);
+            udp.send(Kind::State, &[bytes_of(&r.state)], now)?;
+            self.resent += 1;
+        }
+        Ok(())
+    }
+}
+
+/// Publishes the controller's reply `t` on the plant's clock (`residence` ns: its time on the
+/// controller's host) and wakes the plant unless it polls for it (`last_state`: the tick and
+/// `t_poll_until_ns` of the last state sent); a lockstep resend of its state is called off.
+fn republish(
+    (torque, torque_ready): (&Publisher<Svc, TorqueMsg, ()>, &Notifier<Svc>),
+    mut t: TorqueMsg,
+    residence: u64,
+    last_state: (u64, u64),
+    resend: &mut Option<Resend>,
+) -> Result<()> {
+    let now = rt::now_ns();
+    t.t_publish_ns = now;
+    t.t_state_rx_ns = now.saturating_sub(residence);
+    // This side blocks on the state event: the plant must always notify it.
+    t.t_poll_until_ns = 0;
+    torque.send_copy(t).ipc("publish torque")?;
+    if let Some(r) = resend
+        && r.state.tick == t.tick
+    {
+        r.due_ns = None;
+    }
+    let poll_until = if last_state.0 == t.tick {
+        last_state.1
+    } else {
+        0
+    };
+    if ipc::published_needs_notify(poll_until) {
+        torque_ready.notify().ipc("notify torque")?;
+    }
+    Ok(())
+}
+
+/// The controller's host: states in, replies out (see the module).
+pub struct ControllerHost {
+    /// START has been published here.
+    pub started: bool,
+    /// A state that came before START (the datagram overtook the TCP frame).
+    stash: Option<StateMsg>,
+    /// The last state published here: its tick and when it arrived (this host's clock, ns).
+    arrived: (u64, u64),
+    /// The controller's last `t_poll_until_ns` (this host's clock).
+    controller_poll_until: u64,
+    /// How long to poll for the reply after publishing a state, ns.
+    spin_ns: u64,
+    /// Poll (do not block) until then: a reply is due.
+    poll_until: u64,
+    /// The last replies sent (with their residences), each datagram carrying the two before
+    /// it too; sent again for a state the other side sends again (lockstep, after a loss).
+    replies: Outbox,
+    /// When each of the last [`ARRIVALS`] states arrived: (tick, ns) at slot tick % ARRIVALS, so
+    /// a reply to an older state still gets its residence here.
+    arrivals: [(u64, u64); ARRIVALS],
+    /// Move the states' time stamps onto this host's clock (their publication = their arrival
+    /// here): where the supervisor observes them on this host (`--plant-remote`).
+    local_stamps: bool,
+    /// The last state published here (the one to release the controller with if the link dies).
+    pub last_state: Option<StateMsg>,
+    /// The ticks of the last [`RECENT`] states published here (slot: tick % RECENT).
+    recent: [u64; RECENT],
+}
+
+/// States whose arrival time a [`ControllerHost`] keeps.
+const ARRIVALS: usize = 64;
+
+/// States a [`ControllerHost`] remembers having published.
+pub const RECENT: usize = 256;
+
+impl ControllerHost {
+    pub fn new(spin_ns: u64, local_stamps: bool) -> Self {
+        Self {
+            started: false,
+            stash: None,
+            arrived: (u64::MAX, 0),
+            controller_poll_until: 0,
+            spin_ns,
+            poll_until: 0,
+            replies: Outbox::default(),
+            arrivals: [(u64::MAX, 0); ARRIVALS],
+            local_stamps,
+            last_state: None,
+            recent: [u64::MAX; RECENT],
+        }
+    }
+
+    /// Whether state `tick` has been published here (among the last [`RECENT`]).
+    pub fn published(&self, tick: u64) -> bool {
+        self.recent[(tick % RECENT as u64) as usize] == tick
+    }
+
+    /// The newest tick published here.
+    pub fn newest(&self) -> Option<u64> {
+        self.last_state.map(|s| s.tick)
+    }
+
+    /// Whether a reply is due now (poll, do not block).
+    pub fn polling(&self, now: u64) -> bool {
+        now < self.poll_until
+    }
+
+    /// How long the wait may block.
+    pub fn timeout_ns(&self, udp: &Udp, now: u64) -> u64 {
+        if self.polling(now) {
+            0
+        } else {
+            link::timeout_ns(udp, now)
+        }
+    }
+
+    /// One turn of the loop after the wait: the controller's replies out (`torque_in`: its
+    /// event came, or a reply is due), the states from the link in (`udp_in`), the held
+    /// datagrams out. Returns whether a datagram came.
+    pub fn turn(
+        &mut self,
+        ports: &PlantEnds<'_>,
+        (torque_in, udp_in): (bool, bool),
+        udp: &mut Udp,
+    ) -> Result<bool> {
+        if torque_in || self.polling(rt::now_ns()) {
+            self.torques((ports.1, ports.3), udp)?;
+        }
+        let heard = udp_in && self.states((ports.0, ports.2), udp)?;
+        udp.flush(rt::now_ns())?;
+        Ok(heard)
+    }
+
+    /// Whether a state is out to the controller and not yet answered.
+    pub fn awaiting_reply(&self) -> bool {
+        self.arrived.0 != u64::MAX && self.replies.newest_tick() != Some(self.arrived.0)
+    }
+
+    /// The controller's replies, out as datagrams with the residence here.
+    pub fn torques(
+        &mut self,
+        (torque, torque_ready): (&Subscriber<Svc, TorqueMsg, ()>, &Listener<Svc>),
+        udp: &mut Udp,
+    ) -> Result<()> {
+        torque_ready.try_wait(|_| {}).ipc("drain torque-ready")?;
+        while let Some(s) = torque.receive().ipc("receive torque")? {
+            let t: &TorqueMsg = s.payload();
+            self.controller_poll_until = t.t_poll_until_ns;
+            self.poll_until = 0;
+            let now = rt::now_ns();
+            let (tick, at) = self.arrivals[(t.tick % ARRIVALS as u64) as usize];
+            let residence = if tick == t.tick {
+                now.saturating_sub(at)
+            } else {
+                t.t_publish_ns.saturating_sub(t.t_state_rx_ns)
+            };
+            let payload = self.replies.push(t, residence);
+            udp.send(Kind::Torque, &[payload], now)?;
+        }
+        Ok(())
+    }
+
+    /// The plant's states from the link, published here. Returns whether any datagram came.
+    pub fn states(&mut self, ports: StatePorts<'_>, udp: &mut Udp) -> Result<bool> {
+        let mut any = false;
+        while let Some((kind, p)) = udp.recv()? {
+            any = true;
+            if kind != Kind::State {
+                continue;
+            }
+            let Some(s) = frame::read::<StateMsg>(p) else {
+                continue;
+            };
+            if self.replies.newest_tick() == Some(s.tick) {
+                // Sent again: its reply was lost on the way back.
+                let now = rt::now_ns();
+                udp.send(Kind::Torque, &[self.replies.payload()], now)?;
+            } else if self.started && self.arrived.0 == s.tick {
+                // Sent again while the controller is still on it: it answers once.
+            } else if self.started {
+                self.publish_state(ports, s)?;
+            } else {
+                self.stash = Some(s);
+            }
+        }
+        Ok(any)
+    }
+
+    /// START has been published here: a state that came before it goes out now.
+    pub fn start(&mut self, ports: StatePorts<'_>) -> Result<()> {
+        self.started = true;
+        if let Some(s) = self.stash.take() {
+            self.publish_state(ports, s)?;
+        }
+        Ok(())
+    }
+
+    /// Publishes a state here (the final one too) and wakes the controller unless it polls.
+    pub fn publish_state(
+        &mut self,
+        (state, state_ready): StatePorts<'_>,
+        mut s: StateMsg,
+    ) -> Result<()> {
+        // This side polls for the reply until poll_until, then blocks on the torque event
+        // (docs/protocol.md §6.1, on this host's clock).
+        let now = rt::now_ns();
+        self.poll_until = now + self.spin_ns;
+        s.t_poll_until_ns = self.poll_until;
+        if self.local_stamps {
+            let at = s.t_publish_ns;
+            let shift = |t: u64| {
+                if t == 0 {
+                    0
+                } else {
+                    t.saturating_add(now).saturating_sub(at)
+                }
+            };
+            (s.t_deadline_ns, s.t_wake_ns) = (shift(s.t_deadline_ns), shift(s.t_wake_ns));
+            s.t_publish_ns = now;
+        }
+        // A reply is owed for the newest state only (not the final one, nor an older one
+        // published late for the record).
+        if s.flags & wire::STATE_FINAL == 0
+            && (self.arrived.0 == u64::MAX || s.tick > self.arrived.0)
+        {
+            self.arrived = (s.tick, now);
+            self.arrivals[(s.tick % ARRIVALS as u64) as usize] = (s.tick, now);
+        }
+        self.recent[(s.tick % RECENT as u64) as usize] = s.tick;
+        if self.last_state.is_none_or(|l| l.tick <= s.tick) {
+            self.last_state = Some(s);
+        }
+        state.send_copy(s).ipc("publish state")?;
+        if ipc::published_needs_notify(self.controller_poll_until) {
+            state_ready.notify().ipc("notify state")?;
+        }
+        Ok(())
+    }
+}
+
+/// The ports a [`ControllerHost`] publishes states on: `state` and `state-ready`.
+pub type StatePorts<'a> = (&'a Publisher<Svc, StateMsg, ()>, &'a Notifier<Svc>);
+
+/// The controller's loop ports, which a [`PlantHost`] holds: `state`, `torque`, `state-ready`,
+/// `torque-ready` (as [`ipc::ControllerLoop`], borrowed).
+pub type ControllerEnds<'a> = (
+    &'a Subscriber<Svc, StateMsg, ()>,
+    &'a Publisher<Svc, TorqueMsg, ()>,
+    &'a Listener<Svc>,
+    &'a Notifier<Svc>,
+);
+
+/// The plant's loop ports, which a [`ControllerHost`] holds: `state`, `torque`, `state-ready`,
+/// `torque-ready` (as [`ipc::PlantLoop`], borrowed).
+pub type PlantEnds<'a> = (
+    &'a Publisher<Svc, StateMsg, ()>,
+    &'a Subscriber<Svc, TorqueMsg, ()>,
+    &'a Notifier<Svc>,
+    &'a Listener<Svc>,
+);
