@@ -353,7 +353,10 @@ fn serve(
                 ports,
                 host: PlantHost::new(spin_ns, mode == LoopMode::Lockstep).with_record(),
             };
-            f.forward(&mut link, term)?
+            let code = f.forward(&mut link, term)?;
+            let counts = (f.host.resent, f.host.inbox.recovered);
+            crate::near::link_summary(&far_emu, link.udp.emulated_lost, Some(counts));
+            code
         }
     };
     link.report(code)?;
@@ -742,7 +745,7 @@ impl FarPlant {
         }
         while let Some(s) = self.ports.telemetry.receive().ipc("receive telemetry")? {
             l.tcp
-                .queue(Kind::Telemetry, l.key, &[bytes_of(s.payload())]);
+                .queue(Kind::Telemetry, l.key, &[bytes_of(s.payload())])?;
         }
         if l.tcp.pending() > 0 {
             l.tcp.flush()?;

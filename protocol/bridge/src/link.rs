@@ -235,15 +235,20 @@ impl Tcp {
 
     /// Queues a frame of `kind` (run `key`) and writes what the socket takes now.
     pub fn send(&mut self, kind: Kind, key: u64, parts: &[&[u8]]) -> Result<()> {
-        self.queue(kind, key, parts);
+        self.queue(kind, key, parts)?;
         self.flush()
     }
 
     /// Queues a frame of `kind` (run `key`), written by the next [`Tcp::flush`] or send. What
     /// is already written is dropped from the front first when the frame would not fit the
     /// buffer otherwise, so a steady stream (a remote plant's telemetry) stays in the
-    /// pre-allocated buffer.
-    pub fn queue(&mut self, kind: Kind, key: u64, parts: &[&[u8]]) {
+    /// pre-allocated buffer. A frame that still does not fit is an error: the peer has taken
+    /// nothing for seconds (regression: the buffer grew without bound, on the tick path). After
+    /// the stream closed, frames are dropped: there is no one to take them.
+    pub fn queue(&mut self, kind: Kind, key: u64, parts: &[&[u8]]) -> Result<()> {
+        if self.closed {
+            return Ok(());
+        }
         let len: usize = HEADER + parts.iter().map(|p| p.len()).sum::<usize>();
         if self.out_pos == self.out.len() {
             self.out.clear();
@@ -253,6 +258,12 @@ impl Tcp {
             self.out.truncate(self.out.len() - self.out_pos);
             self.out_pos = 0;
         }
+        if self.out.len() + 4 + len > self.out.capacity() {
+            bail!(
+                "the link's control connection is backed up: {} bytes not taken by the peer (the link is too slow or down)",
+                self.pending()
+            );
+        }
         self.out.extend_from_slice(&(len as u32).to_ne_bytes());
         let at = self.out.len();
         self.out.resize(at + HEADER, 0);
@@ -260,6 +271,7 @@ impl Tcp {
         for p in parts {
             self.out.extend_from_slice(p);
         }
+        Ok(())
     }
 
     /// Writes what the socket takes now.

@@ -162,10 +162,11 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
             started_ns: None,
             heard_ns: 0,
             copies: VecDeque::with_capacity(COPIES),
+            final_ns: None,
             hold_ns: emu.delay_ns + emu.jitter_ns + 1_000_000,
         };
         let r = n.forward(term);
-        finish(&mut n.peer, &emu, (0, 0), r)
+        finish(&mut n.peer, &emu, None, r)
     } else {
         let ports = Ports::open(run_id, ipc::RELAY_BUFFER)?;
         let Some(peer) = connect(a, &hello, &ports.control, term)? else {
@@ -178,7 +179,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         };
         let r = n.forward(term);
         let counts = (n.host.resent, n.host.inbox.recovered);
-        finish(&mut n.peer, &emu, counts, r)
+        finish(&mut n.peer, &emu, Some(counts), r)
     }
 }
 
@@ -284,21 +285,13 @@ fn connect(
 fn finish(
     p: &mut Peer,
     emu: &Emulation,
-    (resent, recovered): (u64, u64),
+    counts: Option<(u64, u64)>,
     r: Result<(u8, Option<String>)>,
 ) -> Result<(u8, Option<String>)> {
     p.tcp.flush().ok();
     std::thread::sleep(ipc::LINGER);
     let end = r?;
-    if !emu.is_off() || resent > 0 || recovered > 0 {
-        eprintln!(
-            "deltaloop-bridge: {}: {} datagram(s) dropped here, {} state(s) sent again, {} repl(ies) recovered from a later datagram",
-            describe(emu),
-            p.udp.emulated_lost,
-            resent,
-            recovered
-        );
-    }
+    link_summary(emu, p.udp.emulated_lost, counts);
     if p.udp.refused > 0 {
         eprintln!(
             "deltaloop-bridge: warning: refused {} datagram(s) on the link (first: {})",
@@ -307,6 +300,26 @@ fn finish(
         );
     }
     Ok(end)
+}
+
+/// The link's statistics on stderr, if there is anything to say: the datagrams the emulation
+/// dropped here and, on the plant's host (`counts`), the states sent again (lockstep) and the
+/// replies recovered from a later datagram.
+pub fn link_summary(emu: &Emulation, dropped: u64, counts: Option<(u64, u64)>) {
+    let (resent, recovered) = counts.unwrap_or_default();
+    if emu.is_off() && resent == 0 && recovered == 0 {
+        return;
+    }
+    let mut line = format!(
+        "deltaloop-bridge: {}: {dropped} datagram(s) dropped here",
+        describe(emu)
+    );
+    if counts.is_some() {
+        line += &format!(
+            ", {resent} state(s) sent again, {recovered} repl(ies) recovered from a later datagram"
+        );
+    }
+    eprintln!("{line}");
 }
 
 /// Whether the supervisor said STOP (or SIGTERM came), before START.
@@ -352,6 +365,7 @@ impl Peer {
                 }
                 (Some(ControlKind::Stop), Some(Sender::Supervisor)) => {
                     self.tcp.send(Kind::Control, self.key, &[bytes_of(&c)])?;
+                    self.stop_sent_ns.get_or_insert(rt::now_ns());
                 }
                 _ => {}
             }
@@ -381,6 +395,22 @@ impl Peer {
         }
         Ok(None)
     }
+
+    /// A STOP (the supervisor's, or SIGTERM's) went out [`FAR_END_WAIT_NS`] ago and the far side
+    /// has not reported its end: the near side gives up waiting (the link is down?).
+    fn stop_overdue(&self, now: u64) -> Option<(u8, Option<String>)> {
+        self.stop_sent_ns
+            .is_some_and(|t| now > t + FAR_END_WAIT_NS)
+            .then(|| {
+                (
+                    EXIT_STOPPED,
+                    Some(format!(
+                        "stopped; the far side did not report its end within {} ms (the link is down?)",
+                        FAR_END_WAIT_NS / 1_000_000
+                    )),
+                )
+            })
+    }
 }
 
 /// `--role controller`: the controller's stand-in on the plant's host.
@@ -406,18 +436,8 @@ impl Near {
                 return Ok(end);
             }
             let now = rt::now_ns();
-            if self
-                .peer
-                .stop_sent_ns
-                .is_some_and(|t| now > t + FAR_END_WAIT_NS)
-            {
-                return Ok((
-                    EXIT_STOPPED,
-                    Some(format!(
-                        "stopped by SIGTERM; the far side did not report its end within {} ms (the link is down?)",
-                        FAR_END_WAIT_NS / 1_000_000
-                    )),
-                ));
+            if let Some(end) = self.peer.stop_overdue(now) {
+                return Ok(end);
             }
             if self
                 .host
@@ -491,6 +511,8 @@ struct NearPlant {
     /// that a newer state has overtaken, is published itself, so the supervisor here records
     /// every state. Pre-allocated ([`COPIES`]).
     copies: VecDeque<(u64, StateMsg)>,
+    /// When the final state was published here (the far plant's, or ours on giving up).
+    final_ns: Option<u64>,
     /// How long a copy waits for its datagram: the emulated delay and jitter, and 1 ms.
     hold_ns: u64,
 }
@@ -518,6 +540,21 @@ impl NearPlant {
                 return Ok(end);
             }
             let now = rt::now_ns();
+            if let Some(end) = self.peer.stop_overdue(now) {
+                // Nothing more will come: release the controller here, as the plant would.
+                self.release()?;
+                return Ok(end);
+            }
+            if let Some(t) = self.final_ns {
+                if now > t + FAR_END_WAIT_NS {
+                    eprintln!(
+                        "deltaloop-bridge: warning: the far side did not report its end within {} ms of the final state (the link is down?)",
+                        FAR_END_WAIT_NS / 1_000_000
+                    );
+                    return Ok((0, None));
+                }
+                continue;
+            }
             if self.host.awaiting_reply() {
                 self.heard_ns = now;
             }
@@ -558,16 +595,23 @@ impl NearPlant {
             return Ok(());
         }
         let (ports, far_end, copies) = (&self.ports, &mut p.far_end, &mut self.copies);
-        let (mut heard, mut finals, mut overflow) = (false, None, None);
+        let host = &mut self.host;
+        let (mut heard, mut finals) = (false, None);
         let now = rt::now_ns();
         p.tcp.poll(|kind, b| {
             heard = true;
             match kind {
                 Kind::State => {
                     if let Some(s) = frame::read::<StateMsg>(b) {
-                        if copies.len() == COPIES {
-                            // Published as soon as the poll is over (its datagram is long due).
-                            overflow = copies.pop_front().map(|(_, s)| s).or(overflow);
+                        if copies.len() == COPIES
+                            && let Some((_, old)) = copies.pop_front()
+                            && host.started
+                            && !host.published(old.tick)
+                        {
+                            // Its datagram is long due: published now, each one (regression:
+                            // only the last copy evicted in one poll was, the others were lost
+                            // to the record).
+                            host.publish_state((&ports.state, &ports.state_ready), old)?;
                         }
                         copies.push_back((now, s));
                     }
@@ -604,14 +648,11 @@ impl NearPlant {
         if heard {
             self.heard_ns = rt::now_ns();
         }
-        let ports = (&self.ports.state, &self.ports.state_ready);
-        if let Some(s) = overflow.filter(|s| !self.host.published(s.tick)) {
-            self.host.publish_state(ports, s)?;
-        }
         if let Some(s) = finals {
             self.settle_copies_until(u64::MAX)?;
             self.host
                 .publish_state((&self.ports.state, &self.ports.state_ready), s)?;
+            self.final_ns.get_or_insert(rt::now_ns());
         }
         Ok(())
     }
@@ -644,11 +685,7 @@ impl NearPlant {
     /// would) and ends with a fault saying what is known.
     fn link_lost(&mut self) -> Result<(u8, Option<String>)> {
         let last = self.host.last_state;
-        if let Some(mut s) = last {
-            s.flags |= wire::STATE_FINAL;
-            let ports = (&self.ports.state, &self.ports.state_ready);
-            self.host.publish_state(ports, s)?;
-        }
+        self.release()?;
         let after = last.map_or("before tick 0".into(), |s| format!("after tick {}", s.tick));
         Ok((
             EXIT_FAULT,
@@ -657,6 +694,23 @@ impl NearPlant {
                 self.silence_ns / 1_000_000
             )),
         ))
+    }
+}
+
+impl NearPlant {
+    /// Releases the controller here with a final state (the last one again), as the plant
+    /// would at its end, unless the final state came.
+    fn release(&mut self) -> Result<()> {
+        if self.final_ns.is_some() {
+            return Ok(());
+        }
+        if let Some(mut s) = self.host.last_state {
+            s.flags |= wire::STATE_FINAL;
+            let ports = (&self.ports.state, &self.ports.state_ready);
+            self.host.publish_state(ports, s)?;
+        }
+        self.final_ns = Some(rt::now_ns());
+        Ok(())
     }
 }
 

@@ -109,7 +109,7 @@ impl PlantHost {
                 let now = rt::now_ns();
                 udp.send(Kind::State, &[bytes_of(st)], now)?;
                 if self.record {
-                    tcp.queue(Kind::State, key, &[bytes_of(st)]);
+                    tcp.queue(Kind::State, key, &[bytes_of(st)])?;
                 }
                 self.poll_until = now + self.spin_ns;
                 if let Some(r) = &mut self.resend {
@@ -247,8 +247,10 @@ pub struct ControllerHost {
 /// States whose arrival time a [`ControllerHost`] keeps.
 const ARRIVALS: usize = 64;
 
-/// States a [`ControllerHost`] remembers having published.
-pub const RECENT: usize = 256;
+/// States a [`ControllerHost`] remembers having published: more than a remote plant's near side
+/// holds copies of (1024), so a copy is never taken for unpublished because it is old
+/// (regression: 256, and a TCP retransmission of 200 ms had every copy published twice).
+pub const RECENT: usize = 4096;
 
 impl ControllerHost {
     pub fn new(spin_ns: u64, local_stamps: bool) -> Self {
@@ -352,8 +354,9 @@ impl ControllerHost {
                 // Sent again: its reply was lost on the way back.
                 let now = rt::now_ns();
                 udp.send(Kind::Torque, &[self.replies.payload()], now)?;
-            } else if self.started && self.arrived.0 == s.tick {
-                // Sent again while the controller is still on it: it answers once.
+            } else if self.started && (self.arrived.0 == s.tick || self.published(s.tick)) {
+                // Sent again while the controller is still on it (it answers once), or published
+                // already (its copy over TCP came first).
             } else if self.started {
                 self.publish_state(ports, s)?;
             } else {
