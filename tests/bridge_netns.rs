@@ -2,7 +2,8 @@
 //! each side with its own iceoryx2 root (`DELTALOOP_IOX2_ROOT`), so `deltaloop-bridge` is the only
 //! path between the plant's side and the controller's. Needs root and `ip` (iproute2); where
 //! namespaces cannot be made the test says what it needs on stderr and returns early (it does
-//! not pretend to have checked anything).
+//! not pretend to have checked anything); `DELTALOOP_REQUIRE_NETNS=1` turns such a skip into a
+//! failure, for a machine that must run them.
 
 mod common;
 
@@ -45,11 +46,21 @@ fn not_root(test: &str) -> bool {
     // SAFETY: geteuid has no preconditions.
     let not = unsafe { libc::geteuid() } != 0;
     if not {
-        eprintln!(
-            "SKIPPED {test}: needs root (ip netns add, a veth pair) to make two hosts on one machine"
+        skip(
+            test,
+            "needs root (ip netns add, a veth pair) to make two hosts on one machine",
         );
     }
     not
+}
+
+/// Says on stderr that `test` is skipped and why; with `DELTALOOP_REQUIRE_NETNS=1` (a machine
+/// that must run these tests) a skip fails the test instead.
+fn skip(test: &str, why: &str) {
+    if std::env::var_os("DELTALOOP_REQUIRE_NETNS").is_some_and(|v| v == "1") {
+        panic!("{test} cannot run here ({why}) and DELTALOOP_REQUIRE_NETNS=1");
+    }
+    eprintln!("SKIPPED {test}: {why}");
 }
 
 impl Hosts {
@@ -65,8 +76,11 @@ impl Hosts {
                 ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner()),
             )),
             Err(e) => {
-                eprintln!(
-                    "SKIPPED {test}: cannot make two network namespaces joined by a veth pair (needs root and iproute2 with netns and veth): {e:#}"
+                skip(
+                    test,
+                    &format!(
+                        "cannot make two network namespaces joined by a veth pair (needs root and iproute2 with netns and veth): {e:#}"
+                    ),
                 );
                 None
             }
@@ -629,7 +643,7 @@ fn bench_net_prints_its_three_rows_and_a_last_line() {
         .err()
         .map(|e| format!("needs `ip` (iproute2): {e}"))
     {
-        eprintln!("SKIPPED {test}: {why}");
+        skip(test, &why);
         return;
     }
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
