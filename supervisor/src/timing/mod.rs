@@ -62,6 +62,15 @@ pub struct Timing {
     pub compute: Dist,
     /// Plant: state published → torque received.
     pub round_trip: Dist,
+    /// Controller on another host (`--controller-remote`): the round trip less the far host's
+    /// residence, i.e. the link both ways (network, both bridges, the near hand-offs); recorded
+    /// only when [`Timing::link`]. One-way delays are not measurable without synchronised clocks.
+    pub link_rtt: Dist,
+    /// The run's controller was across the link: `link_rtt` is measured and written.
+    pub link: bool,
+    /// A_k − t_k of every applied command (when it took effect after its tick), ns; not written
+    /// to a file of its own (it is `timing.csv`'s `arrival_ns`).
+    pub arrival: Dist,
     /// Ticks that got a command (0..=N).
     pub ticks: u64,
     /// The plant's latest wake-up (realtime): lateness (ns) and its tick.
@@ -122,17 +131,20 @@ struct TickLatencies {
     state_to_controller: Option<u64>,
     compute: Option<u64>,
     round_trip: Option<u64>,
+    link_rtt: Option<u64>,
 }
 
 impl TickLatencies {
-    /// In the order of `Timing::dists` and of the interval logs.
-    fn in_order(self) -> [Option<u64>; 5] {
+    /// In the order of `Timing::dists` and of the interval logs (`link_rtt` last: only runs
+    /// across the link have its log).
+    fn in_order(self) -> [Option<u64>; 6] {
         [
             self.wake_lateness,
             self.period_jitter,
             self.state_to_controller,
             self.compute,
             self.round_trip,
+            self.link_rtt,
         ]
     }
 }
@@ -163,6 +175,10 @@ pub struct TimingSummary {
     pub state_to_controller: Percentiles,
     pub controller_compute: Percentiles,
     pub round_trip: Percentiles,
+    /// Controller on another host only (absent otherwise): the round trip less the far host's
+    /// residence (see [`Timing::link_rtt`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub link_rtt: Option<Percentiles>,
 }
 
 /// Samples the supervisor lost per stream.
@@ -190,6 +206,12 @@ impl Default for Timing {
                 "controller: state taken -> torque published",
             ),
             round_trip: Dist::new("round_trip", "plant: state published -> torque received"),
+            link_rtt: Dist::new(
+                "link_rtt",
+                "controller on another host: round trip less the far host's residence (the link both ways)",
+            ),
+            link: false,
+            arrival: Dist::new("arrival", "A_k - t_k: when an applied command took effect"),
             ticks: 0,
             worst_wake: None,
             misses: 0,
@@ -219,6 +241,15 @@ pub fn round_trip_ns(m: &TelemetryMsg) -> Option<u64> {
         .then(|| m.t_torque_rx_ns.saturating_sub(m.t_state_pub_ns))
 }
 
+/// The link's round trip of one tick of a run whose controller is on another host, ns: the
+/// round trip ([`round_trip_ns`]) less the far host's residence, which the near bridge puts in
+/// the reply as `t_publish_ns − t_state_rx_ns` (docs/protocol.md §14). None where the round trip
+/// is.
+pub fn link_rtt_ns(m: &TelemetryMsg, q: &TorqueMsg) -> Option<u64> {
+    let residence = q.t_publish_ns.saturating_sub(q.t_state_rx_ns);
+    round_trip_ns(m).map(|rt| rt.saturating_sub(residence))
+}
+
 /// An empty histogram of ns with the bounds and precision of every loop timing histogram.
 pub fn latency_histogram() -> Histogram<u64> {
     Dist::new("", "").hist
@@ -243,7 +274,7 @@ struct Hlogs {
     dir: PathBuf,
     prefix: String,
     /// In the order of [`Timing::dists`].
-    writers: Option<[HlogWriter; 5]>,
+    writers: Option<Vec<HlogWriter>>,
 }
 
 impl Hlogs {
@@ -254,7 +285,7 @@ impl Hlogs {
         t: &Timing,
         k: u64,
         deadline_ns: Option<u64>,
-    ) -> Result<&mut [HlogWriter; 5]> {
+    ) -> Result<&mut [HlogWriter]> {
         if self.writers.is_none() {
             let base = deadline_ns.map_or_else(std::time::SystemTime::now, hlog::system_time_of)
                 - Duration::from_nanos(k.saturating_mul(t.ts_ns));
@@ -270,8 +301,7 @@ impl Hlogs {
                     &d.hist,
                 )
             };
-            let [a, b, c, d, e] = t.dists();
-            self.writers = Some([mk(a)?, mk(b)?, mk(c)?, mk(d)?, mk(e)?]);
+            self.writers = Some(t.dists().into_iter().map(mk).collect::<Result<_>>()?);
         }
         Ok(self.writers.as_mut().expect("just created"))
     }
@@ -298,12 +328,14 @@ pub struct TimingAcc {
 
 impl TimingAcc {
     /// For ticks 0..=`ticks` at period `ts_ns` (ns); wake lateness and jitter only in realtime.
-    pub fn new(ticks: u64, ts_ns: u64, realtime: bool) -> Self {
+    /// `link`: the controller is across the link (`link_rtt` is measured).
+    pub fn new(ticks: u64, ts_ns: u64, realtime: bool, link: bool) -> Self {
         Self {
             t: Timing {
                 timeline: Timeline::new(ticks, ts_ns),
                 ts_ns,
                 realtime,
+                link,
                 ..Timing::default()
             },
             n: ticks,
@@ -368,6 +400,7 @@ impl TimingAcc {
             &mut t.state_to_controller,
             &mut t.compute,
             &mut t.round_trip,
+            &mut t.link_rtt,
         ]
         .into_iter()
         .zip(v)
@@ -438,6 +471,12 @@ impl TimingAcc {
             } else if let Some(rt) = round_trip_ns(&m) {
                 v.round_trip = Some(rt);
             }
+            if m.flags & (wire::TEL_MISSED | wire::TEL_SAFE_STOP) == 0 {
+                t.arrival.record(m.arrival_ns);
+            }
+            if t.link {
+                v.link_rtt = q.and_then(|q| link_rtt_ns(&m, &q));
+            }
             t.late_dropped = t.late_dropped.max(m.late_dropped);
         } else {
             self.prev_wake = None;
@@ -484,15 +523,20 @@ impl Timing {
         }
     }
 
-    /// The distributions, in the order of the `.hgrm` and `.hlog` files.
-    pub fn dists(&self) -> [&Dist; 5] {
-        [
+    /// The distributions, in the order of the `.hgrm` and `.hlog` files: five, and `link_rtt`
+    /// for a run across the link.
+    pub fn dists(&self) -> Vec<&Dist> {
+        let mut v = vec![
             &self.wake_lateness,
             &self.period_jitter,
             &self.state_to_controller,
             &self.compute,
             &self.round_trip,
-        ]
+        ];
+        if self.link {
+            v.push(&self.link_rtt);
+        }
+        v
     }
 
     /// Percentiles and counters for `summary.json`.
@@ -518,6 +562,7 @@ impl Timing {
             state_to_controller: p(&self.state_to_controller),
             controller_compute: p(&self.compute),
             round_trip: p(&self.round_trip),
+            link_rtt: self.link.then(|| p(&self.link_rtt)),
         }
     }
 
@@ -565,11 +610,13 @@ impl Timing {
 pub struct TimingCsv {
     path: std::path::PathBuf,
     w: csv::Writer<std::fs::File>,
-    fields: [String; 12],
+    fields: [String; 13],
+    link: bool,
 }
 
 impl TimingCsv {
-    pub fn create(path: &Path) -> Result<Self> {
+    /// `link`: the controller is across the link (the `link_rtt_ns` column is filled).
+    pub fn create(path: &Path, link: bool) -> Result<Self> {
         let mut w = csv::Writer::from_path(path)
             .with_context(|| format!("cannot create {}", path.display()))?;
         w.write_record([
@@ -585,12 +632,14 @@ impl TimingCsv {
             "clamped",
             "ctrl_skipped",
             "arrival_ns",
+            "link_rtt_ns",
         ])
         .with_context(|| format!("cannot write {}", path.display()))?;
         Ok(Self {
             path: path.to_path_buf(),
             w,
             fields: Default::default(),
+            link,
         })
     }
 
@@ -615,6 +664,9 @@ impl TimingCsv {
             t.map(|t| t.skipped),
             m.filter(|m| m.flags & (wire::TEL_MISSED | wire::TEL_SAFE_STOP) == 0)
                 .map(|m| m.arrival_ns),
+            m.zip(t)
+                .filter(|_| self.link)
+                .and_then(|(m, t)| link_rtt_ns(&m, &t)),
         ];
         for (f, v) in self.fields.iter_mut().zip(cells) {
             use std::fmt::Write as _;
@@ -794,16 +846,36 @@ mod tests {
     /// one cut at the run's end; the timeline holds the same counts and misses.
     #[test]
     fn interval_logs_add_up_to_the_whole_run() {
+        for link in [false, true] {
+            interval_logs_add_up(link);
+        }
+    }
+
+    /// A run across the link has a sixth distribution, `link_rtt` (round trip less the far
+    /// residence); a one-host run has five and no `link_rtt` in its summary.
+    fn interval_logs_add_up(link: bool) {
         let dir = tempfile::tempdir().unwrap();
         let ts = 300_000;
         let n = 11_666; // 3.5 s
-        let mut acc = TimingAcc::new(n, ts, true).with_hlogs(dir.path(), "tdc.");
+        let mut acc = TimingAcc::new(n, ts, true, link).with_hlogs(dir.path(), "tdc.");
         for k in 0..=n {
             acc.push(tick(k, ts)).unwrap();
         }
         let t = acc.finish().unwrap();
         assert_eq!(t.ticks, n + 1);
         assert_eq!(t.misses, 12);
+        assert_eq!(t.dists().len(), if link { 6 } else { 5 });
+        assert_eq!(
+            dir.path().join("tdc.link_rtt.hlog").exists(),
+            link,
+            "the link's log only across the link"
+        );
+        let s = t.summary();
+        assert_eq!(s.link_rtt.is_some(), link);
+        if let Some(l) = s.link_rtt {
+            assert_eq!(l.count, s.round_trip.count);
+            assert!(l.p50_us < s.round_trip.p50_us, "{l:?}");
+        }
         for d in t.dists() {
             let log = crate::timing::hlog::read(&dir.path().join(format!("tdc.{}.hlog", d.name)))
                 .unwrap();
