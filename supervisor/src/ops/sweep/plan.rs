@@ -67,9 +67,10 @@ fn sha256_hex(parts: &[&[u8]]) -> String {
     format!("{:x}", h.finalize())
 }
 
-/// The parameters a point id hashes. `D` is written exactly (Rust's shortest round-trip form).
+/// The parameters a point id hashes. `D` is written exactly (Rust's shortest round-trip form);
+/// a link point adds its emulated link (the other points' ids stay as they were).
 fn params_key(job: &Job, mode: LoopMode) -> String {
-    format!(
+    let mut key = format!(
         "scenario={} preset={} law={} ell={} d={} D_us={:?} compute_us={} mode={}",
         job.scenario.name(),
         job.preset.name(),
@@ -79,7 +80,14 @@ fn params_key(job: &Job, mode: LoopMode) -> String {
         job.us,
         job.compute_us,
         mode.name()
-    )
+    );
+    if let Some(l) = job.link {
+        key += &format!(
+            " link_delay_us={:?} link_jitter_us={:?} link_loss={:?}",
+            l.delay_us, l.jitter_us, l.loss
+        );
+    }
+    key
 }
 
 impl Plan {
