@@ -22,7 +22,7 @@ pub mod shard;
 use plots::*;
 pub use point::*;
 use report::*;
-pub use report::{LINK_MATCH_TOLERANCE, link_match};
+pub use report::{LINK_MATCH_TOLERANCE, link_match, link_verdict};
 pub use schema::*;
 
 /// Loads the sweep file at `path` and runs it into `out`; returns the rows (in grid order).

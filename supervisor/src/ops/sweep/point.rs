@@ -100,14 +100,44 @@ pub struct Row {
     /// `median_arrival_us`, same seed: the delay injected deterministically. Over repeats, means.
     #[serde(default)]
     pub injected_rms_rad: Option<f64>,
+    /// Why the realtime run is not a fair twin of the injected one (empty: it is): more than
+    /// [`LINK_MAX_MISS_SHARE`] of its ticks missed, or the plant once woke a tick or more late
+    /// (the machine stalled the loop).
+    #[serde(default)]
+    pub link_disturbed: Option<String>,
+}
+
+/// The share of missed ticks above which a link point's realtime run is disturbed (see
+/// [`Row::link_disturbed`]).
+pub const LINK_MAX_MISS_SHARE: f64 = 0.02;
+
+/// Why a realtime run with timing `t` and period `ts_s` is disturbed, if it is.
+fn disturbed(t: &crate::timing::TimingSummary, ts_s: f64) -> Option<String> {
+    let share = t.deadline_misses as f64 / t.ticks.max(1) as f64;
+    if share > LINK_MAX_MISS_SHARE {
+        Some(format!(
+            "{} misses ({:.1} % of the ticks, more than {:.0} %)",
+            t.deadline_misses,
+            share * 100.0,
+            LINK_MAX_MISS_SHARE * 100.0
+        ))
+    } else if t.wake_lateness.max_us >= ts_s * 1e6 {
+        Some(format!(
+            "the plant once woke {:.0} µs late (a tick or more)",
+            t.wake_lateness.max_us
+        ))
+    } else {
+        None
+    }
 }
 
 /// What a link point measured besides its metrics (see [`Row::link_delay_us`]).
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub(super) struct LinkResult {
     rtt_p50_us: Option<f64>,
     median_arrival_us: Option<f64>,
     injected_rms_rad: Option<f64>,
+    disturbed: Option<String>,
 }
 
 impl Row {
@@ -210,6 +240,7 @@ pub(super) fn row(
         link_rtt_p50_us: None,
         median_arrival_us: None,
         injected_rms_rad: None,
+        link_disturbed: None,
     }
 }
 
@@ -261,6 +292,7 @@ pub(super) fn summarise(reps: Vec<Row>) -> Row {
     out.link_rtt_p50_us = mean_of(|r| r.link_rtt_p50_us);
     out.median_arrival_us = mean_of(|r| r.median_arrival_us);
     out.injected_rms_rad = mean_of(|r| r.injected_rms_rad);
+    out.link_disturbed = ok.iter().find_map(|r| r.link_disturbed.clone());
     out.eq43_holds = !ok.is_empty() && ok.iter().all(|r| r.eq43_holds);
     out.clamp_count = reps.iter().map(|r| r.clamp_count).max().unwrap_or(0);
     out.deadline_misses = reps.iter().filter_map(|r| r.deadline_misses).max();
@@ -404,6 +436,9 @@ fn run_one(
                         (!h.is_empty()).then(|| h.value_at_quantile(0.5) as f64 / 1e3);
                     let t = r.timing.summary();
                     link.rtt_p50_us = t.link_rtt.as_ref().map(|p| p.p50_us);
+                    if job.link.is_some() {
+                        link.disturbed = disturbed(&t, ts_s);
+                    }
                     (r.run.metrics, Some(t))
                 }
                 Ran::Inproc(run) => (run.metrics, None),
@@ -440,6 +475,7 @@ fn run_one(
             link_rtt_p50_us: link.rtt_p50_us,
             median_arrival_us: link.median_arrival_us,
             injected_rms_rad: link.injected_rms_rad,
+            link_disturbed: link.disturbed,
             ..row(job, ts_s, mode, Some(&m), None, t.as_ref())
         },
         Ok(Err(e)) => row(job, ts_s, mode, None, Some(format!("{e:#}")), None),
