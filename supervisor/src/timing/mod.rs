@@ -78,6 +78,11 @@ pub struct Timing {
     /// Ticks whose torque was not applied (realtime): the controller sent none for the tick within
     /// the torque budget, counted from the state's publication (not from the tick's deadline).
     pub misses: u64,
+    /// The longest run of consecutive missed ticks (realtime): how long the drives held one
+    /// torque at most, in ticks.
+    pub max_consecutive_misses: u64,
+    /// The run of missed ticks that ends at the last tick counted.
+    miss_run: u64,
     /// Late replies the plant dropped (realtime; the telemetry's running count). The plant judges
     /// a reply by the controller's send time, not by when the reply arrives or by its tick number
     /// alone: a reply for the current tick sent after the torque budget (state publication +
@@ -156,6 +161,8 @@ pub struct TimingSummary {
     /// Ticks without an applied torque (see [`Timing::misses`]: the budget runs from the state's
     /// publication).
     pub deadline_misses: u64,
+    /// The longest run of consecutive missed ticks.
+    pub max_consecutive_misses: u64,
     pub miss_ratio: f64,
     /// Replies dropped as late: for this tick but sent after the budget, or for an earlier tick
     /// (see [`Timing::late_dropped`]).
@@ -215,6 +222,8 @@ impl Default for Timing {
             ticks: 0,
             worst_wake: None,
             misses: 0,
+            max_consecutive_misses: 0,
+            miss_run: 0,
             late_dropped: 0,
             skipped: 0,
             lost: [0; 3],
@@ -468,8 +477,11 @@ impl TimingAcc {
             self.prev_wake = Some(m.t_wake_ns);
             if missed {
                 t.misses += 1;
-            } else if let Some(rt) = round_trip_ns(&m) {
-                v.round_trip = Some(rt);
+                t.miss_run += 1;
+                t.max_consecutive_misses = t.max_consecutive_misses.max(t.miss_run);
+            } else {
+                t.miss_run = 0;
+                v.round_trip = round_trip_ns(&m);
             }
             if m.flags & (wire::TEL_MISSED | wire::TEL_SAFE_STOP) == 0 {
                 t.arrival.record(m.arrival_ns);
@@ -545,6 +557,7 @@ impl Timing {
         TimingSummary {
             ticks: self.ticks,
             deadline_misses: self.misses,
+            max_consecutive_misses: self.max_consecutive_misses,
             miss_ratio: self.misses as f64 / self.ticks.max(1) as f64,
             late_replies_dropped: self.late_dropped,
             controller_skipped_states: self.skipped,
@@ -864,6 +877,7 @@ mod tests {
         let t = acc.finish().unwrap();
         assert_eq!(t.ticks, n + 1);
         assert_eq!(t.misses, 12);
+        assert_eq!(t.summary().max_consecutive_misses, 1);
         assert_eq!(t.dists().len(), if link { 6 } else { 5 });
         assert_eq!(
             dir.path().join("tdc.link_rtt.hlog").exists(),

@@ -105,6 +105,9 @@ pub struct Row {
     /// (the machine stalled the loop).
     #[serde(default)]
     pub link_disturbed: Option<String>,
+    /// Process points: the longest run of consecutive missed ticks (over repeats, the largest).
+    #[serde(default)]
+    pub max_consecutive_misses: Option<u64>,
 }
 
 /// The share of missed ticks above which a link point's realtime run is disturbed (see
@@ -241,6 +244,7 @@ pub(super) fn row(
         median_arrival_us: None,
         injected_rms_rad: None,
         link_disturbed: None,
+        max_consecutive_misses: timing.map(|t| t.max_consecutive_misses),
     }
 }
 
@@ -296,6 +300,7 @@ pub(super) fn summarise(reps: Vec<Row>) -> Row {
     out.eq43_holds = !ok.is_empty() && ok.iter().all(|r| r.eq43_holds);
     out.clamp_count = reps.iter().map(|r| r.clamp_count).max().unwrap_or(0);
     out.deadline_misses = reps.iter().filter_map(|r| r.deadline_misses).max();
+    out.max_consecutive_misses = reps.iter().filter_map(|r| r.max_consecutive_misses).max();
     out.round_trip_p999_us = reps
         .iter()
         .filter_map(|r| r.round_trip_p999_us)

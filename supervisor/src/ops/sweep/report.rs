@@ -388,7 +388,7 @@ pub fn link_verdict(r: &Row) -> String {
 fn link_table(s: &mut String, sw: &SweepFile, rows: &[Row]) {
     let _ = writeln!(
         s,
-        "## Emulated network delay (realtime, across the bridge)\n\nEach point ran in realtime with the controller behind `deltaloop-bridge` over this host's loopback (the far side with its own iceoryx2 root), the bridges delaying every datagram by the link delay each way{}. Link round trip: the round trip less the far host's residence (p50). Injected: the same config in-process with `transport_delay_us` = the run's median arrival A_k − t_k, same seed. They match when the RMS differs by at most {:.0} %: realtime is not bit-identical (the arrival varies per tick around its median, a miss holds the torque), the injected delay is one constant. A run with more than {:.0} % of its ticks missed, or whose plant once woke a tick late, was disturbed by the machine and says nothing either way.\n\n| scenario | preset | law | link delay (µs) | status | link round trip p50 (µs) | median arrival (µs) | RMS realtime (rad) | RMS injected (rad) | difference | match | misses | reason |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "## Emulated network delay (realtime, across the bridge)\n\nEach point ran in realtime with the controller behind `deltaloop-bridge` over this host's loopback (the far side with its own iceoryx2 root), the bridges delaying every datagram by the link delay each way{}. Link round trip: the round trip less the far host's residence (p50). Injected: the same config in-process with `transport_delay_us` = the run's median arrival A_k − t_k, same seed. They match when the RMS differs by at most {:.0} %: realtime is not bit-identical (the arrival varies per tick around its median, a miss holds the torque), the injected delay is one constant. A run with more than {:.0} % of its ticks missed, or whose plant once woke a tick late, was disturbed by the machine and says nothing either way; one that was not can still miss the tolerance when a burst of misses falls on a sensitive moment of the motion (the longest burst is in brackets after the misses).\n\n| scenario | preset | law | link delay (µs) | status | link round trip p50 (µs) | median arrival (µs) | RMS realtime (rad) | RMS injected (rad) | difference | match | misses (longest burst) | reason |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         match (sw.link_jitter_us, sw.link_loss) {
             (j, l) if j == 0.0 && l == 0.0 => String::new(),
             (j, l) => format!(" (plus a uniform jitter in [0, {j}] µs; loss {l})"),
@@ -417,7 +417,10 @@ fn link_table(s: &mut String, sw: &SweepFile, rows: &[Row]) {
                 .map_or("–".into(), |v| format!("{v:.3e}")),
             diff.map_or("–".into(), |d| format!("{:+.1} %", d * 100.0)),
             link_verdict(r),
-            r.deadline_misses.map_or("–".into(), |m| m.to_string()),
+            r.deadline_misses.map_or("–".into(), |m| format!(
+                "{m} ({})",
+                r.max_consecutive_misses.unwrap_or(0)
+            )),
             r.reason.replace('|', "\\|").replace('\n', " ")
         );
     }
