@@ -12,13 +12,12 @@
 //! removed when [`TwoHosts`] is dropped: at the end, on an error and after Ctrl-C.
 
 use crate::loops::procs::exe_dir;
-use crate::loops::signals;
-use crate::ops::run::Interrupted;
+use crate::ops::loopback::{Kid, remove_root};
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// The config of the runs: S1 with the `tdc` law (`--law tdc`), its hold given on the command line.
 const S1: &str = include_str!("../../../configs/s1-nominal.toml");
@@ -145,69 +144,10 @@ impl Drop for TwoHosts {
         let _ = ip(&["netns", "del", &self.a]);
         let _ = ip(&["netns", "del", &self.b]);
         for side in ["a", "b"] {
-            if let Some(prefix) = self.shm_prefix(side)
-                && let Ok(rd) = std::fs::read_dir("/dev/shm")
-            {
-                for e in rd.flatten() {
-                    if e.file_name().to_string_lossy().starts_with(&prefix) {
-                        let _ = std::fs::remove_file(e.path());
-                    }
-                }
-            }
+            remove_root(&self.root(side), false);
         }
         if self.remove_dir {
             let _ = std::fs::remove_dir_all(&self.dir);
-        }
-    }
-}
-
-/// A child that is stopped (SIGTERM, then SIGKILL) and reaped if dropped still running.
-struct Kid(Child, &'static str);
-
-impl Kid {
-    fn spawn(mut c: Command, what: &'static str, log: &Path) -> Result<Self> {
-        let f = std::fs::File::create(log)?;
-        c.stdout(f.try_clone()?).stderr(f).stdin(Stdio::null());
-        Ok(Kid(
-            c.spawn().with_context(|| format!("cannot start {what}"))?,
-            what,
-        ))
-    }
-
-    fn signal(&self, sig: i32) {
-        // SAFETY: our own child, not yet reaped (it is reaped only through self.0).
-        unsafe { libc::kill(self.0.id() as i32, sig) };
-    }
-
-    /// Waits up to `limit`; an error on Ctrl-C / SIGTERM (the child stopped first) or timeout.
-    fn wait(&mut self, limit: Duration, out: &Path) -> Result<std::process::ExitStatus> {
-        let t0 = Instant::now();
-        loop {
-            if let Some(s) = self.0.try_wait()? {
-                return Ok(s);
-            }
-            if signals::interrupted() {
-                self.signal(libc::SIGINT);
-                return Err(Interrupted(out.to_path_buf()).into());
-            }
-            if t0.elapsed() > limit {
-                bail!("{} did not end within {} s", self.1, limit.as_secs());
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-}
-
-impl Drop for Kid {
-    fn drop(&mut self) {
-        if matches!(self.0.try_wait(), Ok(None)) {
-            self.signal(libc::SIGTERM);
-            let t0 = Instant::now();
-            while matches!(self.0.try_wait(), Ok(None)) && t0.elapsed() < Duration::from_secs(3) {
-                std::thread::sleep(Duration::from_millis(20));
-            }
-            let _ = self.0.kill();
-            let _ = self.0.wait();
         }
     }
 }

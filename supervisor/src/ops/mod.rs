@@ -5,6 +5,7 @@ pub mod bench;
 pub mod bench_loop;
 pub mod bench_net;
 pub mod join;
+pub mod loopback;
 pub mod paper;
 pub mod replay;
 pub mod run;

@@ -617,8 +617,15 @@ pub fn timing_markdown(
         "All times in µs from CLOCK_MONOTONIC stamps in the messages. Round trip: plant publishes the state → plant has the \
          torque. Wake lateness: plant wake − absolute deadline. Jitter: |period − Ts|. A miss: the controller sent no torque \
          for the tick within {} µs (the torque budget) of the plant publishing its state, so the plant held the last torque \
-         (realtime only). Full distributions: `<law>.<name>.hgrm`.\n",
-        cfg.loop_.torque_budget_us
+         (realtime only). Full distributions: `<law>.<name>.hgrm`.{}\n",
+        cfg.loop_.torque_budget_us,
+        if timing.iter().flatten().any(|t| t.link_rtt.is_some()) {
+            " Link round trip (controller on another host): the round trip less the far host's residence \
+             (controller compute), the link both ways with both bridges; one-way delays are not measurable \
+             without synchronised clocks."
+        } else {
+            ""
+        }
     );
     let _ = writeln!(
         s,
@@ -626,13 +633,17 @@ pub fn timing_markdown(
     );
     for (m, t) in metrics.iter().zip(timing) {
         let Some(t) = t else { continue };
+        let link = t.link_rtt.as_ref().map(|p| ("link round trip", p));
         for (name, p) in [
             ("round trip", &t.round_trip),
             ("wake lateness", &t.wake_lateness),
             ("period jitter", &t.period_jitter),
             ("state → controller", &t.state_to_controller),
             ("controller compute", &t.controller_compute),
-        ] {
+        ]
+        .into_iter()
+        .chain(link)
+        {
             let _ = writeln!(
                 s,
                 "| `{}` | {name} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",

@@ -62,6 +62,17 @@ pub struct Timing {
     pub compute: Dist,
     /// Plant: state published → torque received.
     pub round_trip: Dist,
+    /// A run split over two hosts: the round trip less the time on the controller's host
+    /// ([`link_rtt_ns`]), i.e. the link both ways (network, both bridges, the hand-offs on the
+    /// plant's host); recorded only when [`Timing::link`]. One-way delays are not measurable
+    /// without synchronised clocks.
+    pub link_rtt: Dist,
+    /// Which process of the run was across the link, if one was: `link_rtt` is measured and
+    /// written.
+    pub link: Option<Across>,
+    /// A_k − t_k of every applied command (when it took effect after its tick), ns; not written
+    /// to a file of its own (it is `timing.csv`'s `arrival_ns`).
+    pub arrival: Dist,
     /// Ticks that got a command (0..=N).
     pub ticks: u64,
     /// The plant's latest wake-up (realtime): lateness (ns) and its tick.
@@ -69,6 +80,11 @@ pub struct Timing {
     /// Ticks whose torque was not applied (realtime): the controller sent none for the tick within
     /// the torque budget, counted from the state's publication (not from the tick's deadline).
     pub misses: u64,
+    /// The longest run of consecutive missed ticks (realtime): how long the drives held one
+    /// torque at most, in ticks.
+    pub max_consecutive_misses: u64,
+    /// The run of missed ticks that ends at the last tick counted.
+    miss_run: u64,
     /// Late replies the plant dropped (realtime; the telemetry's running count). The plant judges
     /// a reply by the controller's send time, not by when the reply arrives or by its tick number
     /// alone: a reply for the current tick sent after the torque budget (state publication +
@@ -122,17 +138,20 @@ struct TickLatencies {
     state_to_controller: Option<u64>,
     compute: Option<u64>,
     round_trip: Option<u64>,
+    link_rtt: Option<u64>,
 }
 
 impl TickLatencies {
-    /// In the order of `Timing::dists` and of the interval logs.
-    fn in_order(self) -> [Option<u64>; 5] {
+    /// In the order of `Timing::dists` and of the interval logs (`link_rtt` last: only runs
+    /// across the link have its log).
+    fn in_order(self) -> [Option<u64>; 6] {
         [
             self.wake_lateness,
             self.period_jitter,
             self.state_to_controller,
             self.compute,
             self.round_trip,
+            self.link_rtt,
         ]
     }
 }
@@ -144,6 +163,8 @@ pub struct TimingSummary {
     /// Ticks without an applied torque (see [`Timing::misses`]: the budget runs from the state's
     /// publication).
     pub deadline_misses: u64,
+    /// The longest run of consecutive missed ticks.
+    pub max_consecutive_misses: u64,
     pub miss_ratio: f64,
     /// Replies dropped as late: for this tick but sent after the budget, or for an earlier tick
     /// (see [`Timing::late_dropped`]).
@@ -163,6 +184,10 @@ pub struct TimingSummary {
     pub state_to_controller: Percentiles,
     pub controller_compute: Percentiles,
     pub round_trip: Percentiles,
+    /// A run split over two hosts only (absent otherwise): the link's round trip (see
+    /// [`Timing::link_rtt`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub link_rtt: Option<Percentiles>,
 }
 
 /// Samples the supervisor lost per stream.
@@ -190,9 +215,17 @@ impl Default for Timing {
                 "controller: state taken -> torque published",
             ),
             round_trip: Dist::new("round_trip", "plant: state published -> torque received"),
+            link_rtt: Dist::new(
+                "link_rtt",
+                "across the link: round trip less the time on the controller's host (the link both ways)",
+            ),
+            link: None,
+            arrival: Dist::new("arrival", "A_k - t_k: when an applied command took effect"),
             ticks: 0,
             worst_wake: None,
             misses: 0,
+            max_consecutive_misses: 0,
+            miss_run: 0,
             late_dropped: 0,
             skipped: 0,
             lost: [0; 3],
@@ -219,6 +252,36 @@ pub fn round_trip_ns(m: &TelemetryMsg) -> Option<u64> {
         .then(|| m.t_torque_rx_ns.saturating_sub(m.t_state_pub_ns))
 }
 
+/// The process of a run that is on another host, across `deltaloop-bridge` (docs/protocol.md
+/// §14).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Across {
+    /// `--controller-remote`: the plant and the supervisor here, the controller there.
+    Controller,
+    /// `--plant-remote`: the controller and the supervisor here, the plant there.
+    Plant,
+}
+
+/// The link's round trip of one tick of a run split over two hosts, ns: the round trip
+/// ([`round_trip_ns`], on the plant's clock) less the time the state spent on the controller's
+/// host. With the controller across, that residence is what the near bridge puts in the reply
+/// as `t_publish_ns − t_state_rx_ns`; with the plant across, it is measured here, from the
+/// state's arrival (its `t_publish_ns` on this host's clock) to the reply. None where the round
+/// trip is.
+pub fn link_rtt_ns(
+    across: Across,
+    m: &TelemetryMsg,
+    s: Option<&StateMsg>,
+    q: &TorqueMsg,
+) -> Option<u64> {
+    let from = match across {
+        Across::Controller => q.t_state_rx_ns,
+        Across::Plant => s?.t_publish_ns,
+    };
+    let residence = q.t_publish_ns.saturating_sub(from);
+    round_trip_ns(m).map(|rt| rt.saturating_sub(residence))
+}
+
 /// An empty histogram of ns with the bounds and precision of every loop timing histogram.
 pub fn latency_histogram() -> Histogram<u64> {
     Dist::new("", "").hist
@@ -243,7 +306,7 @@ struct Hlogs {
     dir: PathBuf,
     prefix: String,
     /// In the order of [`Timing::dists`].
-    writers: Option<[HlogWriter; 5]>,
+    writers: Option<Vec<HlogWriter>>,
 }
 
 impl Hlogs {
@@ -254,7 +317,7 @@ impl Hlogs {
         t: &Timing,
         k: u64,
         deadline_ns: Option<u64>,
-    ) -> Result<&mut [HlogWriter; 5]> {
+    ) -> Result<&mut [HlogWriter]> {
         if self.writers.is_none() {
             let base = deadline_ns.map_or_else(std::time::SystemTime::now, hlog::system_time_of)
                 - Duration::from_nanos(k.saturating_mul(t.ts_ns));
@@ -270,8 +333,7 @@ impl Hlogs {
                     &d.hist,
                 )
             };
-            let [a, b, c, d, e] = t.dists();
-            self.writers = Some([mk(a)?, mk(b)?, mk(c)?, mk(d)?, mk(e)?]);
+            self.writers = Some(t.dists().into_iter().map(mk).collect::<Result<_>>()?);
         }
         Ok(self.writers.as_mut().expect("just created"))
     }
@@ -298,12 +360,14 @@ pub struct TimingAcc {
 
 impl TimingAcc {
     /// For ticks 0..=`ticks` at period `ts_ns` (ns); wake lateness and jitter only in realtime.
-    pub fn new(ticks: u64, ts_ns: u64, realtime: bool) -> Self {
+    /// `link`: which process is across the link, if one is (`link_rtt` is measured).
+    pub fn new(ticks: u64, ts_ns: u64, realtime: bool, link: Option<Across>) -> Self {
         Self {
             t: Timing {
                 timeline: Timeline::new(ticks, ts_ns),
                 ts_ns,
                 realtime,
+                link,
                 ..Timing::default()
             },
             n: ticks,
@@ -368,6 +432,7 @@ impl TimingAcc {
             &mut t.state_to_controller,
             &mut t.compute,
             &mut t.round_trip,
+            &mut t.link_rtt,
         ]
         .into_iter()
         .zip(v)
@@ -435,8 +500,17 @@ impl TimingAcc {
             self.prev_wake = Some(m.t_wake_ns);
             if missed {
                 t.misses += 1;
-            } else if let Some(rt) = round_trip_ns(&m) {
-                v.round_trip = Some(rt);
+                t.miss_run += 1;
+                t.max_consecutive_misses = t.max_consecutive_misses.max(t.miss_run);
+            } else {
+                t.miss_run = 0;
+                v.round_trip = round_trip_ns(&m);
+            }
+            if m.flags & (wire::TEL_MISSED | wire::TEL_SAFE_STOP) == 0 {
+                t.arrival.record(m.arrival_ns);
+            }
+            if let Some(across) = t.link {
+                v.link_rtt = q.and_then(|q| link_rtt_ns(across, &m, s.as_ref(), &q));
             }
             t.late_dropped = t.late_dropped.max(m.late_dropped);
         } else {
@@ -484,15 +558,20 @@ impl Timing {
         }
     }
 
-    /// The distributions, in the order of the `.hgrm` and `.hlog` files.
-    pub fn dists(&self) -> [&Dist; 5] {
-        [
+    /// The distributions, in the order of the `.hgrm` and `.hlog` files: five, and `link_rtt`
+    /// for a run across the link.
+    pub fn dists(&self) -> Vec<&Dist> {
+        let mut v = vec![
             &self.wake_lateness,
             &self.period_jitter,
             &self.state_to_controller,
             &self.compute,
             &self.round_trip,
-        ]
+        ];
+        if self.link.is_some() {
+            v.push(&self.link_rtt);
+        }
+        v
     }
 
     /// Percentiles and counters for `summary.json`.
@@ -501,6 +580,7 @@ impl Timing {
         TimingSummary {
             ticks: self.ticks,
             deadline_misses: self.misses,
+            max_consecutive_misses: self.max_consecutive_misses,
             miss_ratio: self.misses as f64 / self.ticks.max(1) as f64,
             late_replies_dropped: self.late_dropped,
             controller_skipped_states: self.skipped,
@@ -518,6 +598,7 @@ impl Timing {
             state_to_controller: p(&self.state_to_controller),
             controller_compute: p(&self.compute),
             round_trip: p(&self.round_trip),
+            link_rtt: self.link.map(|_| p(&self.link_rtt)),
         }
     }
 
@@ -565,11 +646,13 @@ impl Timing {
 pub struct TimingCsv {
     path: std::path::PathBuf,
     w: csv::Writer<std::fs::File>,
-    fields: [String; 12],
+    fields: [String; 13],
+    link: Option<Across>,
 }
 
 impl TimingCsv {
-    pub fn create(path: &Path) -> Result<Self> {
+    /// `link`: which process is across the link, if one is (the `link_rtt_ns` column is filled).
+    pub fn create(path: &Path, link: Option<Across>) -> Result<Self> {
         let mut w = csv::Writer::from_path(path)
             .with_context(|| format!("cannot create {}", path.display()))?;
         w.write_record([
@@ -585,12 +668,14 @@ impl TimingCsv {
             "clamped",
             "ctrl_skipped",
             "arrival_ns",
+            "link_rtt_ns",
         ])
         .with_context(|| format!("cannot write {}", path.display()))?;
         Ok(Self {
             path: path.to_path_buf(),
             w,
             fields: Default::default(),
+            link,
         })
     }
 
@@ -615,6 +700,9 @@ impl TimingCsv {
             t.map(|t| t.skipped),
             m.filter(|m| m.flags & (wire::TEL_MISSED | wire::TEL_SAFE_STOP) == 0)
                 .map(|m| m.arrival_ns),
+            m.zip(t)
+                .zip(self.link)
+                .and_then(|((m, t), across)| link_rtt_ns(across, &m, s.as_ref(), &t)),
         ];
         for (f, v) in self.fields.iter_mut().zip(cells) {
             use std::fmt::Write as _;
@@ -794,16 +882,38 @@ mod tests {
     /// one cut at the run's end; the timeline holds the same counts and misses.
     #[test]
     fn interval_logs_add_up_to_the_whole_run() {
+        for link in [false, true] {
+            interval_logs_add_up(link);
+        }
+    }
+
+    /// A run across the link has a sixth distribution, `link_rtt` (round trip less the far
+    /// residence); a one-host run has five and no `link_rtt` in its summary.
+    fn interval_logs_add_up(link: bool) {
         let dir = tempfile::tempdir().unwrap();
         let ts = 300_000;
         let n = 11_666; // 3.5 s
-        let mut acc = TimingAcc::new(n, ts, true).with_hlogs(dir.path(), "tdc.");
+        let across = link.then_some(Across::Controller);
+        let mut acc = TimingAcc::new(n, ts, true, across).with_hlogs(dir.path(), "tdc.");
         for k in 0..=n {
             acc.push(tick(k, ts)).unwrap();
         }
         let t = acc.finish().unwrap();
         assert_eq!(t.ticks, n + 1);
         assert_eq!(t.misses, 12);
+        assert_eq!(t.summary().max_consecutive_misses, 1);
+        assert_eq!(t.dists().len(), if link { 6 } else { 5 });
+        assert_eq!(
+            dir.path().join("tdc.link_rtt.hlog").exists(),
+            link,
+            "the link's log only across the link"
+        );
+        let s = t.summary();
+        assert_eq!(s.link_rtt.is_some(), link);
+        if let Some(l) = s.link_rtt {
+            assert_eq!(l.count, s.round_trip.count);
+            assert!(l.p50_us < s.round_trip.p50_us, "{l:?}");
+        }
         for d in t.dists() {
             let log = crate::timing::hlog::read(&dir.path().join(format!("tdc.{}.hlog", d.name)))
                 .unwrap();

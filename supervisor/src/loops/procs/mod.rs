@@ -108,13 +108,14 @@ pub fn run_law(
     // Allocate (and touch) everything the observer fills before START, not after: the loop does
     // not wait for the supervisor (regression: a 10-minute lockstep run lost its first 32 k
     // ticks while the supervisor allocated per-tick tables after START).
+    let link = crate::output::link::across(cfg);
     let mut streams = Observation::new(
         lawrun::recorder(study, law, keep)?,
-        TimingAcc::new(n, ts_ns, mode == LoopMode::Realtime)
+        TimingAcc::new(n, ts_ns, mode == LoopMode::Realtime, link)
             .with_hlogs(run_dir, &format!("{law}.")),
         cfg.record
             .timing_csv
-            .then(|| TimingCsv::create(&run_dir.join(format!("{law}.timing.csv"))))
+            .then(|| TimingCsv::create(&run_dir.join(format!("{law}.timing.csv")), link))
             .transpose()?,
         // Shortened to the recorder's lifetime (a coercion Option does not do by itself).
         on_tick.map(|f| -> OnTick<'_> { f }),

@@ -22,6 +22,7 @@ pub mod shard;
 use plots::*;
 pub use point::*;
 use report::*;
+pub use report::{LINK_MATCH_TOLERANCE, link_match, link_verdict};
 pub use schema::*;
 
 /// Loads the sweep file at `path` and runs it into `out`; returns the rows (in grid order).
@@ -259,6 +260,77 @@ mod tests {
         }
     }
 
+    /// The link axis's keys: one line naming the key, the value and what is allowed; a link
+    /// point runs realtime with its own id and folder, and refuses a base with a controller
+    /// command of its own.
+    #[test]
+    fn link_axis_keys_are_checked_with_one_line() {
+        let d = scratch("link");
+        let head = format!("name = \"l\"\nbase = \"base.toml\"\n{AXES}");
+        for (extra, says) in [
+            (
+                "link_delay_us = [50, -1]",
+                "sweep key `link_delay_us` lists -1: each value 0 <= us <= 1000000 µs (emulated delay, each direction)",
+            ),
+            (
+                "link_delay_us = [50, 50]",
+                "sweep key `link_delay_us` lists 50 twice: each value at most once",
+            ),
+            (
+                "link_delay_us = [50]\nlink_jitter_us = -2",
+                "sweep key `link_jitter_us` = -2 is out of range: 0 <= us <= 1000000 µs",
+            ),
+            (
+                "link_delay_us = [50]\nlink_loss = 1.5",
+                "sweep key `link_loss` = 1.5 is out of range: 0 <= loss <= 1 (a fraction of datagrams)",
+            ),
+            (
+                "link_loss = 0.01",
+                "sweep key `link_loss` = 0.01 applies to the link points: list their delays in `link_delay_us` (or leave it out)",
+            ),
+        ] {
+            assert_eq!(load_err(&d.0, &format!("{head}{extra}\n")), says);
+        }
+        let path = d.0.join("sweep.toml");
+        std::fs::write(&path, format!("{head}link_delay_us = [0, 50]\n")).unwrap();
+        let (sw, base) = load(&path).unwrap();
+        let plan = plan::Plan::new(sw.clone(), base.clone()).unwrap();
+        let labels: Vec<(String, LoopMode)> =
+            plan.points.iter().map(|p| (p.label(), p.mode)).collect();
+        assert_eq!(
+            labels,
+            [
+                ("s1/matched/tdc ℓ=1 d=0".to_string(), LoopMode::Inproc),
+                (
+                    "s1/matched/tdc ℓ=1 d=0 link=0us (realtime, across the bridge)".into(),
+                    LoopMode::Realtime
+                ),
+                (
+                    "s1/matched/tdc ℓ=1 d=0 link=50us (realtime, across the bridge)".into(),
+                    LoopMode::Realtime
+                ),
+            ]
+        );
+        let names: Vec<String> = plan
+            .points
+            .iter()
+            .map(|p| point_config(&base, &p.job).unwrap().name)
+            .collect();
+        assert_eq!(names[1], "s1-matched-tdc-l1-d0-u0-c0-link0");
+        assert_eq!(names[2], "s1-matched-tdc-l1-d0-u0-c0-link50000");
+        // A sweep without the link keys serialises (and so hashes) as before they existed.
+        let plain: SweepFile = toml::from_str(&head).unwrap();
+        assert!(!toml::to_string(&plain).unwrap().contains("link"));
+        let mut own = base.clone();
+        own.controller.command = vec!["my-controller".into()];
+        let e = format!("{:#}", point_config(&own, &plan.points[2].job).unwrap_err());
+        assert!(
+            e.starts_with("sweep key `link_delay_us` runs the built-in controller across the bridge: the base's controller.command = \"my-controller\"")
+                && !e.contains('\n'),
+            "{e}"
+        );
+    }
+
     #[test]
     fn regression_sweep_parse_error_is_one_line() {
         let d = scratch("parse");
@@ -301,6 +373,7 @@ mod tests {
             us: 0.0,
             compute_us: 200,
             realtime: true,
+            link: None,
         };
         assert_eq!(rt.to_string(), "s2/paper/tde-is ℓ=2 d=1 c=200us (realtime)");
     }
@@ -316,6 +389,7 @@ mod tests {
             us: 0.0,
             compute_us: 200,
             realtime: true,
+            link: None,
         }
     }
 

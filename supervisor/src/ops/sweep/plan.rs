@@ -2,10 +2,10 @@
 //! on any machine and in any order of execution, and which points a shard runs.
 //!
 //! - **Point id**: `<index>-<hash>`, the point's index in the expansion order (scenario, preset,
-//!   law, then ℓ × d, then the sub-tick and compute-delay side axes), zero-padded to 4 digits, and
-//!   the first 8 hex digits of the SHA-256 of its parameters (scenario, preset, law, ℓ, d, D, the
-//!   compute delay and the loop mode). The index sorts; the hash catches a row that claims the
-//!   index of another point.
+//!   law, then ℓ × d, then the sub-tick, compute-delay and link-delay side axes), zero-padded to 4
+//!   digits, and the first 8 hex digits of the SHA-256 of its parameters (scenario, preset, law,
+//!   ℓ, d, D, the compute delay, the loop mode and a link point's emulated link). The index
+//!   sorts; the hash catches a row that claims the index of another point.
 //! - **Plan hash**: the SHA-256 of the sweep file as parsed (every key but the path of `base`) and
 //!   of the resolved base config. Two copies of the same sweep (another machine, another folder, a
 //!   copy shipped to a cluster worker) have the same hash; a changed axis or base constant does
@@ -67,9 +67,10 @@ fn sha256_hex(parts: &[&[u8]]) -> String {
     format!("{:x}", h.finalize())
 }
 
-/// The parameters a point id hashes. `D` is written exactly (Rust's shortest round-trip form).
+/// The parameters a point id hashes. `D` is written exactly (Rust's shortest round-trip form);
+/// a link point adds its emulated link (the other points' ids stay as they were).
 fn params_key(job: &Job, mode: LoopMode) -> String {
-    format!(
+    let mut key = format!(
         "scenario={} preset={} law={} ell={} d={} D_us={:?} compute_us={} mode={}",
         job.scenario.name(),
         job.preset.name(),
@@ -79,7 +80,14 @@ fn params_key(job: &Job, mode: LoopMode) -> String {
         job.us,
         job.compute_us,
         mode.name()
-    )
+    );
+    if let Some(l) = job.link {
+        key += &format!(
+            " link_delay_us={:?} link_jitter_us={:?} link_loss={:?}",
+            l.delay_us, l.jitter_us, l.loss
+        );
+    }
+    key
 }
 
 impl Plan {

@@ -74,7 +74,7 @@ pub(super) fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(Str
             match axis {
                 "tde_delay" => on_grid(r) && r.transport_delay_samples == d0,
                 "transport_delay" => on_grid(r) && r.tde_delay_samples == l0,
-                _ => r.mode == LoopMode::Realtime,
+                _ => r.mode == LoopMode::Realtime && r.link_delay_us.is_none(),
             }
         };
         let values: Vec<f64> = rows.iter().filter(|r| on_axis(r)).map(x_of).collect();

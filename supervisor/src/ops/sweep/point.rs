@@ -86,6 +86,61 @@ pub struct Row {
     pub rms_rad_roundoff: f64,
     pub max_abs_err_rad_roundoff: f64,
     pub tde_err_rms_roundoff: f64,
+    /// Points of the `link_delay_us` axis only (empty for the others): the emulated delay, µs
+    /// each direction.
+    #[serde(default)]
+    pub link_delay_us: Option<f64>,
+    /// The link's round trip (the round trip less the far host's residence), p50, µs.
+    #[serde(default)]
+    pub link_rtt_p50_us: Option<f64>,
+    /// The median arrival A_k − t_k of the commands the plant applied, µs.
+    #[serde(default)]
+    pub median_arrival_us: Option<f64>,
+    /// Max-joint RMS of the same config in-process with `transport_delay_us` =
+    /// `median_arrival_us`, same seed: the delay injected deterministically. Over repeats, means.
+    #[serde(default)]
+    pub injected_rms_rad: Option<f64>,
+    /// Why the realtime run is not a fair twin of the injected one (empty: it is): more than
+    /// [`LINK_MAX_MISS_SHARE`] of its ticks missed, or the plant once woke a tick or more late
+    /// (the machine stalled the loop).
+    #[serde(default)]
+    pub link_disturbed: Option<String>,
+    /// Process points: the longest run of consecutive missed ticks (over repeats, the largest).
+    #[serde(default)]
+    pub max_consecutive_misses: Option<u64>,
+}
+
+/// The share of missed ticks above which a link point's realtime run is disturbed (see
+/// [`Row::link_disturbed`]).
+pub const LINK_MAX_MISS_SHARE: f64 = 0.02;
+
+/// Why a realtime run with timing `t` and period `ts_s` is disturbed, if it is.
+fn disturbed(t: &crate::timing::TimingSummary, ts_s: f64) -> Option<String> {
+    let share = t.deadline_misses as f64 / t.ticks.max(1) as f64;
+    if share > LINK_MAX_MISS_SHARE {
+        Some(format!(
+            "{} misses ({:.1} % of the ticks, more than {:.0} %)",
+            t.deadline_misses,
+            share * 100.0,
+            LINK_MAX_MISS_SHARE * 100.0
+        ))
+    } else if t.wake_lateness.max_us >= ts_s * 1e6 {
+        Some(format!(
+            "the plant once woke {:.0} µs late (a tick or more)",
+            t.wake_lateness.max_us
+        ))
+    } else {
+        None
+    }
+}
+
+/// What a link point measured besides its metrics (see [`Row::link_delay_us`]).
+#[derive(Debug, Clone, Default)]
+pub(super) struct LinkResult {
+    rtt_p50_us: Option<f64>,
+    median_arrival_us: Option<f64>,
+    injected_rms_rad: Option<f64>,
+    disturbed: Option<String>,
 }
 
 impl Row {
@@ -184,6 +239,12 @@ pub(super) fn row(
             .and_then(|m| m.sensitivity)
             .and_then(|x| x.tde_rel)
             .unwrap_or(nan),
+        link_delay_us: job.link.map(|l| l.delay_us),
+        link_rtt_p50_us: None,
+        median_arrival_us: None,
+        injected_rms_rad: None,
+        link_disturbed: None,
+        max_consecutive_misses: timing.map(|t| t.max_consecutive_misses),
     }
 }
 
@@ -228,9 +289,18 @@ pub(super) fn summarise(reps: Vec<Row>) -> Row {
     out.hf_torque_share = mean(|r| r.hf_torque_share);
     let cost = stats::RatioInterval::of(&ok.iter().map(|r| r.latency_cost).collect::<Vec<_>>());
     out.latency_cost = cost.map_or(f64::NAN, |c| c.geo_mean);
+    let mean_of = |f: fn(&Row) -> Option<f64>| {
+        let v: Vec<f64> = ok.iter().filter_map(|r| f(r)).collect();
+        (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+    };
+    out.link_rtt_p50_us = mean_of(|r| r.link_rtt_p50_us);
+    out.median_arrival_us = mean_of(|r| r.median_arrival_us);
+    out.injected_rms_rad = mean_of(|r| r.injected_rms_rad);
+    out.link_disturbed = ok.iter().find_map(|r| r.link_disturbed.clone());
     out.eq43_holds = !ok.is_empty() && ok.iter().all(|r| r.eq43_holds);
     out.clamp_count = reps.iter().map(|r| r.clamp_count).max().unwrap_or(0);
     out.deadline_misses = reps.iter().filter_map(|r| r.deadline_misses).max();
+    out.max_consecutive_misses = reps.iter().filter_map(|r| r.max_consecutive_misses).max();
     out.round_trip_p999_us = reps
         .iter()
         .filter_map(|r| r.round_trip_p999_us)
@@ -260,16 +330,26 @@ pub(super) fn summarise(reps: Vec<Row>) -> Row {
 pub(super) fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
     let mut c = base.clone();
     c.name = format!(
-        "{}-{}-{}-l{}-d{}-u{}-c{}",
+        "{}-{}-{}-l{}-d{}-u{}-c{}{}",
         job.scenario.name(),
         job.preset.name(),
         job.law,
         job.ell,
         job.d,
         (job.us * 1e3).round(),
-        job.compute_us
+        job.compute_us,
+        job.link.map_or(String::new(), |l| format!(
+            "-link{}",
+            (l.delay_us * 1e3).round()
+        ))
     )
     .to_lowercase();
+    if job.link.is_some() && !c.controller.command.is_empty() {
+        anyhow::bail!(
+            "sweep key `link_delay_us` runs the built-in controller across the bridge: the base's controller.command = {:?} cannot be used with it (leave it out, or run the link axis in a sweep of its own)",
+            c.controller.command.join(" ")
+        );
+    }
     c.scenario.path = job.scenario;
     c.scenario.segments.clear();
     // The preset axis sets the constants that differ between presets (M̄, φ); the base's other
@@ -326,23 +406,62 @@ fn run_one(
     } else {
         mode
     };
-    let attempt = || -> Result<(LawMetrics, Option<crate::timing::TimingSummary>, f64)> {
+    type Attempt = (
+        LawMetrics,
+        Option<crate::timing::TimingSummary>,
+        f64,
+        LinkResult,
+    );
+    let attempt = || -> Result<Attempt> {
         let mut cfg = point_config(base, job)?;
         cfg.sensor.seed = seed;
-        let study = Study::new(cfg).context("reference")?;
-        let mut pdir = dir.join("points").join(&study.config.name);
+        let mut pdir = dir.join("points").join(&cfg.name);
         if let Some(s) = sub {
             pdir = pdir.join(s);
         }
         if mode.is_process() {
             std::fs::create_dir_all(&pdir)?;
+        }
+        // A link point: the far side on this host's loopback, stopped and its root removed
+        // when `far` is dropped (also on an error or Ctrl-C).
+        let far = job
+            .link
+            .map(|l| link_far(&mut cfg, l, seed, &pdir))
+            .transpose()?;
+        let study = Study::new(cfg).context("reference")?;
+        if mode.is_process() {
             std::fs::write(pdir.join("config.toml"), study.config.to_toml_string())?;
         }
+        let mut link = LinkResult::default();
         let (mut m, timing) =
             match loops::run_law(&study, job.law, mode, &pdir, &Keep::default(), None)? {
-                Ran::Process(r) => (r.run.metrics, Some(r.timing.summary())),
+                Ran::Process(r) => {
+                    let h = &r.timing.arrival.hist;
+                    link.median_arrival_us =
+                        (!h.is_empty()).then(|| h.value_at_quantile(0.5) as f64 / 1e3);
+                    let t = r.timing.summary();
+                    link.rtt_p50_us = t.link_rtt.as_ref().map(|p| p.p50_us);
+                    if job.link.is_some() {
+                        link.disturbed = disturbed(&t, ts_s);
+                    }
+                    (r.run.metrics, Some(t))
+                }
                 Ran::Inproc(run) => (run.metrics, None),
             };
+        if let Some(far) = far {
+            far.finish(std::time::Duration::from_secs(2));
+        }
+        if job.link.is_some()
+            && m.status == RunStatus::Ok
+            && let Some(arrival_us) = link.median_arrival_us
+        {
+            let mut c = point_config(base, job)?;
+            c.sensor.seed = seed;
+            c.plant.transport_delay_us = arrival_us;
+            c.validate()?;
+            let injected = inproc::run_law(&Study::new(c)?, job.law, &Keep::default())?;
+            link.injected_rms_rad = Some(maxj(injected.metrics.rms_rad));
+        }
         if twin && mode != LoopMode::Realtime && m.status.is_physical() {
             let t = inproc::run_twin(&study, job.law)?;
             m.sensitivity = Some(Sensitivity::between(&m, &t.metrics));
@@ -353,11 +472,15 @@ fn run_one(
         } else {
             f64::NAN
         };
-        Ok((m, timing, cost))
+        Ok((m, timing, cost, link))
     };
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(attempt)) {
-        Ok(Ok((m, t, cost))) => Row {
+        Ok(Ok((m, t, cost, link))) => Row {
             latency_cost: cost,
+            link_rtt_p50_us: link.rtt_p50_us,
+            median_arrival_us: link.median_arrival_us,
+            injected_rms_rad: link.injected_rms_rad,
+            link_disturbed: link.disturbed,
             ..row(job, ts_s, mode, Some(&m), None, t.as_ref())
         },
         Ok(Err(e)) => row(job, ts_s, mode, None, Some(format!("{e:#}")), None),
@@ -370,4 +493,29 @@ fn run_one(
             row(job, ts_s, mode, None, Some(format!("panic: {what}")), None)
         }
     }
+}
+
+/// Starts the far side of link point `l` on this host's loopback and puts the near bridge in
+/// `cfg`'s controller place (as `deltaloop run --controller-remote 127.0.0.1:PORT` with the
+/// emulated link, seeded with the run's `seed`); the far bridge's log is `pdir/far.log`.
+fn link_far(
+    cfg: &mut RunConfig,
+    l: super::schema::Link,
+    seed: u64,
+    pdir: &Path,
+) -> Result<crate::ops::loopback::LoopbackFar> {
+    let far = crate::ops::loopback::LoopbackFar::start(&pdir.join("far.log"))?;
+    crate::ops::join::RemoteArgs {
+        controller_remote: Some(far.endpoint.clone()),
+        plant_remote: None,
+        emu: deltaloop_bridge::EmuArgs {
+            link_delay_us: l.delay_us,
+            link_jitter_us: l.jitter_us,
+            link_loss: l.loss,
+            link_seed: seed,
+            link_spin_us: 0,
+        },
+    }
+    .apply(cfg)?;
+    Ok(far)
 }

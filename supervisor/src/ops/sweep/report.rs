@@ -1,7 +1,7 @@
 //! The sweep's `report.md`: one table per axis, the latency budget of each law.
 
 use super::plots::on_grid;
-use super::point::{Metric, Row};
+use super::point::{LINK_MAX_MISS_SHARE, Metric, Row};
 use super::schema::SweepFile;
 use crate::record::RunStatus;
 use crate::record::{sensitivity, stats};
@@ -199,7 +199,7 @@ pub(super) fn report(
         );
         for r in rows
             .iter()
-            .filter(|r| r.mode == LoopMode::Realtime && r.is_result())
+            .filter(|r| r.mode == LoopMode::Realtime && r.link_delay_us.is_none() && r.is_result())
         {
             let _ = writeln!(
                 s,
@@ -218,6 +218,9 @@ pub(super) fn report(
             );
         }
         let _ = writeln!(s);
+    }
+    if !sw.link_delay_us.is_empty() {
+        link_table(&mut s, sw, rows);
     }
     if !sw.transport_delay_us.is_empty() {
         budget_table(&mut s, sw, rows);
@@ -352,6 +355,74 @@ fn budget_table(s: &mut String, sw: &SweepFile, rows: &[Row]) {
                 }
             }
         }
+    }
+    let _ = writeln!(s);
+}
+
+/// How far a link point's RMS may be from that of the same delay injected in-process
+/// (`transport_delay_us` = its median arrival), relative, for the two to be said to match, when
+/// the realtime run was not disturbed ([`Row::link_disturbed`]): the realtime run's arrival
+/// varies from tick to tick around its median and a miss holds the torque a tick longer, where
+/// the injected delay is one constant (docs/guide/delay-study.md has the measured spread).
+pub const LINK_MATCH_TOLERANCE: f64 = 0.10;
+
+/// The relative difference of a link point's RMS from that of its injected twin (None: no twin).
+pub fn link_match(r: &Row) -> Option<f64> {
+    r.injected_rms_rad
+        .filter(|&i| i > 0.0 && r.status == RunStatus::Ok)
+        .map(|i| r.rms_rad / i - 1.0)
+}
+
+/// A link point's verdict: `yes` / `no` (within [`LINK_MATCH_TOLERANCE`] or not), or why the
+/// point says nothing (`disturbed: …`, `–` without a twin).
+pub fn link_verdict(r: &Row) -> String {
+    match (link_match(r), &r.link_disturbed) {
+        (None, _) => "–".into(),
+        (Some(_), Some(why)) => format!("disturbed: {why}"),
+        (Some(d), None) if d.abs() <= LINK_MATCH_TOLERANCE => "yes".into(),
+        (Some(_), None) => "no".into(),
+    }
+}
+
+/// The link axis: each point in realtime across the bridge, next to the same delay injected.
+fn link_table(s: &mut String, sw: &SweepFile, rows: &[Row]) {
+    let _ = writeln!(
+        s,
+        "## Emulated network delay (realtime, across the bridge)\n\nEach point ran in realtime with the controller behind `deltaloop-bridge` over this host's loopback (the far side with its own iceoryx2 root), the bridges delaying every datagram by the link delay each way{}. Link round trip: the round trip less the far host's residence (p50). Injected: the same config in-process with `transport_delay_us` = the run's median arrival A_k − t_k, same seed. They match when the RMS differs by at most {:.0} %: realtime is not bit-identical (the arrival varies per tick around its median, a miss holds the torque), the injected delay is one constant. A run with more than {:.0} % of its ticks missed, or whose plant once woke a tick late, was disturbed by the machine and says nothing either way; one that was not can still miss the tolerance when a burst of misses falls on a sensitive moment of the motion (the longest burst is in brackets after the misses).\n\n| scenario | preset | law | link delay (µs) | status | link round trip p50 (µs) | median arrival (µs) | RMS realtime (rad) | RMS injected (rad) | difference | match | misses (longest burst) | reason |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        match (sw.link_jitter_us, sw.link_loss) {
+            (j, l) if j == 0.0 && l == 0.0 => String::new(),
+            (j, l) => format!(" (plus a uniform jitter in [0, {j}] µs; loss {l})"),
+        },
+        LINK_MATCH_TOLERANCE * 100.0,
+        LINK_MAX_MISS_SHARE * 100.0
+    );
+    let opt = |v: Option<f64>, digits: usize| v.map_or("–".into(), |v| format!("{v:.digits$}"));
+    for r in rows
+        .iter()
+        .filter(|r| r.link_delay_us.is_some() && r.is_result())
+    {
+        let diff = link_match(r);
+        let _ = writeln!(
+            s,
+            "| {} | {} | `{}` | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            r.scenario,
+            r.preset,
+            r.law,
+            r.link_delay_us.unwrap_or(0.0),
+            r.status,
+            opt(r.link_rtt_p50_us, 1),
+            opt(r.median_arrival_us, 1),
+            value_text(r, RMS),
+            r.injected_rms_rad
+                .map_or("–".into(), |v| format!("{v:.3e}")),
+            diff.map_or("–".into(), |d| format!("{:+.1} %", d * 100.0)),
+            link_verdict(r),
+            r.deadline_misses.map_or("–".into(), |m| format!(
+                "{m} ({})",
+                r.max_consecutive_misses.unwrap_or(0)
+            )),
+            r.reason.replace('|', "\\|").replace('\n', " ")
+        );
     }
     let _ = writeln!(s);
 }

@@ -33,6 +33,19 @@ pub struct SweepFile {
     /// ℓ and d above. Empty: no realtime runs.
     #[serde(default)]
     pub compute_delay_us: Vec<u32>,
+    /// Emulated network delay axis, µs each way: each value runs every law × scenario × preset
+    /// in realtime at the first ℓ and d above, with the controller across `deltaloop-bridge`
+    /// over this host's loopback (its own iceoryx2 root, a free port), the bridge delaying each
+    /// datagram by this much; next to each, the same config in-process with `transport_delay_us`
+    /// = the run's measured median arrival. Empty: none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub link_delay_us: Vec<f64>,
+    /// Emulated jitter of every link point, µs each way: uniform in [0, this] on top of the delay.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub link_jitter_us: f64,
+    /// Emulated loss of every link point: the fraction of datagrams dropped, each direction.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub link_loss: f64,
     /// Runs per point, with sensor-noise seeds `sensor.seed` of the base, + 1, …, + repeats − 1
     /// (in realtime, that many runs); each row holds the means with standard deviations and
     /// t-based 95 % confidence intervals. 1..=1000, default 1.
@@ -52,6 +65,18 @@ fn yes() -> bool {
     true
 }
 
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
+}
+
+/// The emulated link of a point of the `link_delay_us` axis (each direction).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Link {
+    pub delay_us: f64,
+    pub jitter_us: f64,
+    pub loss: f64,
+}
+
 /// Most repeats a sweep point may run.
 pub const MAX_REPEATS: u32 = 1000;
 
@@ -67,6 +92,8 @@ pub struct Job {
     pub(super) us: f64,
     pub(super) compute_us: u32,
     pub(super) realtime: bool,
+    /// A point of the `link_delay_us` axis (realtime, the controller across the bridge).
+    pub(super) link: Option<Link>,
 }
 
 impl std::fmt::Display for Job {
@@ -84,7 +111,9 @@ impl std::fmt::Display for Job {
         if self.us > 0.0 {
             write!(f, " D+={}us", self.us)?;
         }
-        if self.realtime {
+        if let Some(l) = self.link {
+            write!(f, " link={}us (realtime, across the bridge)", l.delay_us)?;
+        } else if self.realtime {
             write!(f, " c={}us (realtime)", self.compute_us)?;
         }
         Ok(())
@@ -116,20 +145,25 @@ pub(super) fn point_count(sw: &SweepFile) -> Result<u64> {
         .checked_mul(n(sw.transport_delay_samples.len()))
         .and_then(|g| g.checked_add(n(us)))
         .and_then(|g| g.checked_add(n(sw.compute_delay_us.len())))
+        .and_then(|g| g.checked_add(n(sw.link_delay_us.len())))
         .and_then(|g| g.checked_mul(n(sw.laws.len())))
         .and_then(|g| g.checked_mul(n(sw.presets.len())))
         .and_then(|g| g.checked_mul(n(sw.scenarios.len())));
     match count {
         Some(c) if c <= MAX_POINTS => Ok(c),
         _ => bail!(
-            "the sweep has {} points: scenarios {} × presets {} × laws {} × (tde_delay_samples {} × transport_delay_samples {} + transport_delay_us {us} + compute_delay_us {}), more than the {MAX_POINTS} a sweep may have: split it into several sweep files",
+            "the sweep has {} points: scenarios {} × presets {} × laws {} × (tde_delay_samples {} × transport_delay_samples {} + transport_delay_us {us} + compute_delay_us {}{}), more than the {MAX_POINTS} a sweep may have: split it into several sweep files",
             count.map_or_else(|| "more than 2^64".to_string(), |c| c.to_string()),
             sw.scenarios.len(),
             sw.presets.len(),
             sw.laws.len(),
             sw.tde_delay_samples.len(),
             sw.transport_delay_samples.len(),
-            sw.compute_delay_us.len()
+            sw.compute_delay_us.len(),
+            match sw.link_delay_us.len() {
+                0 => String::new(),
+                l => format!(" + link_delay_us {l}"),
+            }
         ),
     }
 }
@@ -161,6 +195,7 @@ pub(super) fn check(sw: &SweepFile) -> Result<()> {
             cfgfile::MAX_TRANSPORT_DELAY_US
         );
     }
+    check_link(sw)?;
     if !(1..=MAX_REPEATS).contains(&sw.repeats) {
         bail!(
             "sweep key `repeats` = {} is out of range: 1..={MAX_REPEATS} runs per point",
@@ -168,7 +203,7 @@ pub(super) fn check(sw: &SweepFile) -> Result<()> {
         );
     }
     point_count(sw)?;
-    let axes: [(&str, Vec<String>, bool); 7] = [
+    let axes: [(&str, Vec<String>, bool); 8] = [
         (
             "scenarios",
             sw.scenarios.iter().map(|s| s.name().to_string()).collect(),
@@ -207,6 +242,11 @@ pub(super) fn check(sw: &SweepFile) -> Result<()> {
             sw.compute_delay_us.iter().map(u32::to_string).collect(),
             false,
         ),
+        (
+            "link_delay_us",
+            sw.link_delay_us.iter().map(f64::to_string).collect(),
+            false,
+        ),
     ];
     for (k, values, required) in axes {
         if required && values.is_empty() {
@@ -214,6 +254,47 @@ pub(super) fn check(sw: &SweepFile) -> Result<()> {
         }
         if let Some(v) = repeated(&values) {
             bail!("sweep key `{k}` lists {v} twice: each value at most once");
+        }
+    }
+    Ok(())
+}
+
+/// Most emulated delay or jitter a link point may ask for, µs (what `deltaloop-bridge` takes).
+pub const MAX_LINK_US: f64 = 1e6;
+
+/// The link axis's keys: delays and jitter 0..=[`MAX_LINK_US`] µs, loss a fraction, and jitter
+/// or loss only with delays to apply them to.
+fn check_link(sw: &SweepFile) -> Result<()> {
+    let in_range = |v: f64| v.is_finite() && (0.0..=MAX_LINK_US).contains(&v);
+    if let Some(&v) = sw.link_delay_us.iter().find(|v| !in_range(**v)) {
+        bail!(
+            "sweep key `link_delay_us` lists {}: each value 0 <= us <= {MAX_LINK_US} µs (emulated delay, each direction)",
+            cfgfile::show_num(v)
+        );
+    }
+    if !in_range(sw.link_jitter_us) {
+        bail!(
+            "sweep key `link_jitter_us` = {} is out of range: 0 <= us <= {MAX_LINK_US} µs",
+            cfgfile::show_num(sw.link_jitter_us)
+        );
+    }
+    if !(sw.link_loss.is_finite() && (0.0..=1.0).contains(&sw.link_loss)) {
+        bail!(
+            "sweep key `link_loss` = {} is out of range: 0 <= loss <= 1 (a fraction of datagrams)",
+            cfgfile::show_num(sw.link_loss)
+        );
+    }
+    if sw.link_delay_us.is_empty() {
+        for (k, v) in [
+            ("link_jitter_us", sw.link_jitter_us),
+            ("link_loss", sw.link_loss),
+        ] {
+            if v != 0.0 {
+                bail!(
+                    "sweep key `{k}` = {} applies to the link points: list their delays in `link_delay_us` (or leave it out)",
+                    cfgfile::show_num(v)
+                );
+            }
         }
     }
     Ok(())
@@ -278,6 +359,7 @@ pub(super) fn jobs(sw: &SweepFile) -> Vec<Job> {
                             us: 0.0,
                             compute_us: 0,
                             realtime: false,
+                            link: None,
                         });
                     }
                 }
@@ -291,12 +373,23 @@ pub(super) fn jobs(sw: &SweepFile) -> Vec<Job> {
                     us,
                     compute_us,
                     realtime,
+                    link: None,
                 };
                 for &us in sw.transport_delay_us.iter().filter(|&&us| us > 0.0) {
                     v.push(side(us, 0, false));
                 }
                 for &c in &sw.compute_delay_us {
                     v.push(side(0.0, c, true));
+                }
+                for &delay_us in &sw.link_delay_us {
+                    v.push(Job {
+                        link: Some(Link {
+                            delay_us,
+                            jitter_us: sw.link_jitter_us,
+                            loss: sw.link_loss,
+                        }),
+                        ..side(0.0, 0, true)
+                    });
                 }
             }
         }
