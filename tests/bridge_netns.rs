@@ -383,7 +383,10 @@ fn realtime_across_the_link_with(name: &str, remote: Remote, extra: &[&str], hol
     assert!(t["round_trip"]["count"].as_u64().unwrap() > 1000, "{t}");
     // The link's own round trip: the round trip less the time on the controller's host.
     let link = t["link_rtt"]["p50_us"].as_f64().unwrap();
-    assert!(link > 5.0 && link < p50, "link round trip p50 {link} µs: {t}");
+    assert!(
+        link > 5.0 && link < p50,
+        "link round trip p50 {link} µs: {t}"
+    );
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     let who = match remote {
         Remote::Controller => "controller on another host",

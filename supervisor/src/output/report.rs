@@ -620,9 +620,10 @@ pub fn timing_markdown(
          (realtime only). Full distributions: `<law>.<name>.hgrm`.{}\n",
         cfg.loop_.torque_budget_us,
         if timing.iter().flatten().any(|t| t.link_rtt.is_some()) {
-            " Link round trip (controller on another host): the round trip less the far host's residence \
-             (controller compute), the link both ways with both bridges; one-way delays are not measurable \
-             without synchronised clocks."
+            " Link round trip (a run split over two hosts): the round trip less the time the state spent on \
+             the controller's host (with the controller remote its residence there, `compute`; with the plant \
+             remote from its arrival here to the reply), the link both ways with both bridges; one-way delays \
+             are not measurable without synchronised clocks."
         } else {
             ""
         }

@@ -842,6 +842,37 @@ mod tests {
 
     /// Tick k of a realtime loop at Ts = 0.3 ms with made-up stamps (a few µs to a few hundred
     /// µs, varying from tick to tick); every 997th tick is missed.
+    /// The link's round trip subtracts the time on the controller's host: with the controller
+    /// across, the far residence the reply carries (t_publish − t_state_rx); with the plant
+    /// across, from the state's arrival here (its t_publish on this host) to the reply.
+    #[test]
+    fn link_rtt_subtracts_the_time_on_the_controllers_host() {
+        let tel = TelemetryMsg {
+            t_state_pub_ns: 1_000,
+            t_torque_rx_ns: 101_000,
+            ..TelemetryMsg::default()
+        };
+        let state = StateMsg {
+            t_publish_ns: 50_000,
+            ..StateMsg::default()
+        };
+        let reply = TorqueMsg {
+            t_state_rx_ns: 60_000,
+            t_publish_ns: 70_000,
+            ..TorqueMsg::default()
+        };
+        // Round trip 100 µs; the far residence 10 µs; the time here 20 µs.
+        assert_eq!(
+            link_rtt_ns(Across::Controller, &tel, Some(&state), &reply),
+            Some(90_000)
+        );
+        assert_eq!(
+            link_rtt_ns(Across::Plant, &tel, Some(&state), &reply),
+            Some(80_000)
+        );
+        assert_eq!(link_rtt_ns(Across::Plant, &tel, None, &reply), None);
+    }
+
     fn tick(k: u64, ts: u64) -> Seen {
         let r = |salt: u64| (k.wrapping_mul(6364136223846793005).wrapping_add(salt) >> 33) % 50_000;
         let deadline = 1_000_000_000 + k * ts;

@@ -101,8 +101,9 @@ pub struct Row {
     #[serde(default)]
     pub injected_rms_rad: Option<f64>,
     /// Why the realtime run is not a fair twin of the injected one (empty: it is): more than
-    /// [`LINK_MAX_MISS_SHARE`] of its ticks missed, or the plant once woke a tick or more late
-    /// (the machine stalled the loop).
+    /// [`LINK_MAX_MISS_SHARE`] of its ticks missed, a burst of [`LINK_MAX_MISS_BURST`] or more
+    /// missed in a row, or the plant once woke a tick or more late (the machine stalled the
+    /// loop).
     #[serde(default)]
     pub link_disturbed: Option<String>,
     /// Process points: the longest run of consecutive missed ticks (over repeats, the largest).
@@ -114,6 +115,12 @@ pub struct Row {
 /// [`Row::link_disturbed`]).
 pub const LINK_MAX_MISS_SHARE: f64 = 0.02;
 
+/// The burst of consecutive missed ticks from which a link point's realtime run is disturbed:
+/// one torque held for 1.5 ms or more can cost more tracking than the whole delay under study
+/// (bursts of 7 to 11 cost `tdc` +16 % to +128 % on S1; bursts of 3 left it within 1 %,
+/// docs/guide/delay-study.md).
+pub const LINK_MAX_MISS_BURST: u64 = 5;
+
 /// Why a realtime run with timing `t` and period `ts_s` is disturbed, if it is.
 fn disturbed(t: &crate::timing::TimingSummary, ts_s: f64) -> Option<String> {
     let share = t.deadline_misses as f64 / t.ticks.max(1) as f64;
@@ -123,6 +130,11 @@ fn disturbed(t: &crate::timing::TimingSummary, ts_s: f64) -> Option<String> {
             t.deadline_misses,
             share * 100.0,
             LINK_MAX_MISS_SHARE * 100.0
+        ))
+    } else if t.max_consecutive_misses >= LINK_MAX_MISS_BURST {
+        Some(format!(
+            "{} ticks missed in a row ({LINK_MAX_MISS_BURST} or more)",
+            t.max_consecutive_misses
         ))
     } else if t.wake_lateness.max_us >= ts_s * 1e6 {
         Some(format!(
@@ -141,6 +153,8 @@ pub(super) struct LinkResult {
     median_arrival_us: Option<f64>,
     injected_rms_rad: Option<f64>,
     disturbed: Option<String>,
+    /// Why the injected twin gave no RMS (it failed, or did not complete).
+    twin_failed: Option<String>,
 }
 
 impl Row {
@@ -436,12 +450,12 @@ fn run_one(
         let (mut m, timing) =
             match loops::run_law(&study, job.law, mode, &pdir, &Keep::default(), None)? {
                 Ran::Process(r) => {
-                    let h = &r.timing.arrival.hist;
-                    link.median_arrival_us =
-                        (!h.is_empty()).then(|| h.value_at_quantile(0.5) as f64 / 1e3);
                     let t = r.timing.summary();
-                    link.rtt_p50_us = t.link_rtt.as_ref().map(|p| p.p50_us);
                     if job.link.is_some() {
+                        let h = &r.timing.arrival.hist;
+                        link.median_arrival_us =
+                            (!h.is_empty()).then(|| h.value_at_quantile(0.5) as f64 / 1e3);
+                        link.rtt_p50_us = t.link_rtt.as_ref().map(|p| p.p50_us);
                         link.disturbed = disturbed(&t, ts_s);
                     }
                     (r.run.metrics, Some(t))
@@ -455,12 +469,28 @@ fn run_one(
             && m.status == RunStatus::Ok
             && let Some(arrival_us) = link.median_arrival_us
         {
-            let mut c = point_config(base, job)?;
-            c.sensor.seed = seed;
-            c.plant.transport_delay_us = arrival_us;
-            c.validate()?;
-            let injected = inproc::run_law(&Study::new(c)?, job.law, &Keep::default())?;
-            link.injected_rms_rad = Some(maxj(injected.metrics.rms_rad));
+            // The median arrival already holds the point's d·Ts (the plant reports A_k − t_k):
+            // the twin injects all of it as one delay (regression: it kept d samples too).
+            let twin = || -> Result<LawMetrics> {
+                let mut c = point_config(base, job)?;
+                c.sensor.seed = seed;
+                c.plant.transport_delay_samples = 0;
+                c.plant.transport_delay_us = arrival_us;
+                c.validate()?;
+                Ok(inproc::run_law(&Study::new(c)?, job.law, &Keep::default())?.metrics)
+            };
+            // A twin that failed leaves the realtime result whole and says why.
+            match twin() {
+                Ok(t) if t.status == RunStatus::Ok => link.injected_rms_rad = Some(maxj(t.rms_rad)),
+                Ok(t) => {
+                    link.twin_failed = Some(format!(
+                        "injected twin {}: {}",
+                        t.status,
+                        t.reason.as_deref().unwrap_or("")
+                    ))
+                }
+                Err(e) => link.twin_failed = Some(format!("injected twin: {e:#}")),
+            }
         }
         if twin && mode != LoopMode::Realtime && m.status.is_physical() {
             let t = inproc::run_twin(&study, job.law)?;
@@ -475,14 +505,20 @@ fn run_one(
         Ok((m, timing, cost, link))
     };
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(attempt)) {
-        Ok(Ok((m, t, cost, link))) => Row {
-            latency_cost: cost,
-            link_rtt_p50_us: link.rtt_p50_us,
-            median_arrival_us: link.median_arrival_us,
-            injected_rms_rad: link.injected_rms_rad,
-            link_disturbed: link.disturbed,
-            ..row(job, ts_s, mode, Some(&m), None, t.as_ref())
-        },
+        Ok(Ok((m, t, cost, link))) => {
+            let mut r = Row {
+                latency_cost: cost,
+                link_rtt_p50_us: link.rtt_p50_us,
+                median_arrival_us: link.median_arrival_us,
+                injected_rms_rad: link.injected_rms_rad,
+                link_disturbed: link.disturbed,
+                ..row(job, ts_s, mode, Some(&m), None, t.as_ref())
+            };
+            if let Some(why) = link.twin_failed {
+                r.reason = why;
+            }
+            r
+        }
         Ok(Err(e)) => row(job, ts_s, mode, None, Some(format!("{e:#}")), None),
         Err(p) => {
             let what = p
