@@ -277,6 +277,14 @@ mod tests {
                 "sweep key `link_delay_us` lists 50 twice: each value at most once",
             ),
             (
+                "link_delay_us = [0.0001, 0.0002]",
+                "sweep key `link_delay_us` lists 0.0001 and 0.0002: the same delay in whole ns (0 ns); each value at most once",
+            ),
+            (
+                "link_delay_us = [0, -0.0]",
+                "sweep key `link_delay_us` lists 0 and -0: the same delay in whole ns (0 ns); each value at most once",
+            ),
+            (
                 "link_delay_us = [50]\nlink_jitter_us = -2",
                 "sweep key `link_jitter_us` = -2 is out of range: 0 <= us <= 1000000 µs",
             ),

@@ -354,7 +354,8 @@ pub(super) fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
         job.compute_us,
         job.link.map_or(String::new(), |l| format!(
             "-link{}",
-            (l.delay_us * 1e3).round()
+            // + 0.0: −0 µs is the 0 µs point (not a folder `link-0`).
+            (l.delay_us * 1e3).round() + 0.0
         ))
     )
     .to_lowercase();

@@ -272,6 +272,21 @@ fn check_link(sw: &SweepFile) -> Result<()> {
             cfgfile::show_num(v)
         );
     }
+    // The bridge and the point's folder name take the delay in whole ns: two values that round
+    // to the same ns are one point (regression: 0.0001 and 0.0002 shared a folder).
+    let ns = |v: f64| (v * 1e3).round() as u64;
+    for (i, &a) in sw.link_delay_us.iter().enumerate() {
+        // (The same value twice is said by the axes' own check.)
+        let same_ns = |&&b: &&f64| ns(b) == ns(a) && b.to_bits() != a.to_bits();
+        if let Some(&b) = sw.link_delay_us[..i].iter().find(same_ns) {
+            bail!(
+                "sweep key `link_delay_us` lists {} and {}: the same delay in whole ns ({} ns); each value at most once",
+                cfgfile::show_num(b),
+                cfgfile::show_num(a),
+                ns(a)
+            );
+        }
+    }
     if !in_range(sw.link_jitter_us) {
         bail!(
             "sweep key `link_jitter_us` = {} is out of range: 0 <= us <= {MAX_LINK_US} µs",
