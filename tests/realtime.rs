@@ -13,20 +13,19 @@ use std::sync::Mutex;
 /// Held by each test: two FIFO loops on one CPU would starve each other.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
-#[test]
-fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let tmp = tempfile::tempdir().unwrap();
-    let (a, b) = (tmp.path().join("inproc"), tmp.path().join("rt"));
-    let laws = ["--law", "tde-is", "--law", "pid"];
-    let si = run("configs/s1-nominal.toml", "inproc", &a, &laws);
-    let sr = run("configs/s1-nominal.toml", "realtime", &b, &laws);
+/// Whether the realtime run `sr` tracked each joint within its allowance of the inproc run `si`
+/// (given the deadlines it missed); the first breach otherwise.
+fn tracking_within_allowance(si: &serde_json::Value, sr: &serde_json::Value) -> Result<(), String> {
     for law in ["tde-is", "pid"] {
         let m = &sr["laws"][law];
-        assert_eq!(m["completed"], true, "{law}: {m}");
         let t = &sr["timing"][law];
+        if m["completed"] != true {
+            return Err(format!("{law}: {m}"));
+        }
         let misses = t["deadline_misses"].as_f64().unwrap();
-        assert!(t["miss_ratio"].as_f64().unwrap() < 0.05, "{law}: {t}");
+        if t["miss_ratio"].as_f64().unwrap() >= 0.05 {
+            return Err(format!("{law}: miss ratio ≥ 5 %: {t}"));
+        }
         for j in 0..3 {
             let (r, i) = (
                 m["rms_rad"][j].as_f64().unwrap(),
@@ -38,12 +37,53 @@ fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
             // tops out at 14 µrad at the 5 % miss ceiling below: still 30x under the smallest wiring
             // error, one extra tick of delay, which costs tde-is 4e-4 rad (docs/delay-sweep).
             let allowed = 3.0 * i + 1e-6 + 1e-7 * misses;
-            assert!(
-                r < allowed,
-                "{law} joint {j}: realtime {r:e} vs inproc {i:e}, allowed {allowed:e} \
-                 with {misses} misses; timing: {t}"
-            );
+            if r >= allowed {
+                return Err(format!(
+                    "{law} joint {j}: realtime {r:e} vs inproc {i:e}, allowed {allowed:e} \
+                     with {misses} misses; timing: {t}"
+                ));
+            }
         }
+    }
+    Ok(())
+}
+
+/// Whether the host stalled the plant of run `sr` a tick (300 µs) or more in some law.
+fn stalled(sr: &serde_json::Value) -> bool {
+    ["tde-is", "pid"].iter().any(|law| {
+        sr["timing"][law]["wake_lateness"]["max_us"]
+            .as_f64()
+            .is_some_and(|us| us >= 300.0)
+    })
+}
+
+#[test]
+fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("inproc"), tmp.path().join("rt"));
+    let laws = ["--law", "tde-is", "--law", "pid"];
+    let si = run("configs/s1-nominal.toml", "inproc", &a, &laws);
+    // The host may stall the loop for milliseconds (a shared 2-vCPU VM): a run it stalled (the
+    // plant woke a tick or more late) and that missed the allowance below is run again, at most
+    // three times, each such attempt said on stderr (regression: one stall of 5 ms, 78 misses,
+    // failed the test while another build ran).
+    let mut sr = serde_json::Value::Null;
+    for attempt in 1..=3 {
+        let _ = std::fs::remove_dir_all(&b);
+        sr = run("configs/s1-nominal.toml", "realtime", &b, &laws);
+        match tracking_within_allowance(&si, &sr) {
+            Ok(()) => break,
+            Err(why) if attempt < 3 && stalled(&sr) => {
+                eprintln!("attempt {attempt}: the host stalled the loop: {why}");
+            }
+            Err(why) => panic!("{why}"),
+        }
+    }
+    for law in ["tde-is", "pid"] {
+        let m = &sr["laws"][law];
+        let t = &sr["timing"][law];
+        assert_eq!(m["completed"], true, "{law}: {m}");
         assert_eq!(t["ticks"], 2668);
         assert!(t["round_trip"]["p50_us"].as_f64().unwrap() > 0.0);
         for h in [
