@@ -359,6 +359,11 @@ pub struct TimingAcc {
 }
 
 impl TimingAcc {
+    /// Which process of the run is across the link, if one is.
+    pub fn across(&self) -> Option<Across> {
+        self.t.link
+    }
+
     /// For ticks 0..=`ticks` at period `ts_ns` (ns); wake lateness and jitter only in realtime.
     /// `link`: which process is across the link, if one is (`link_rtt` is measured).
     pub fn new(ticks: u64, ts_ns: u64, realtime: bool, link: Option<Across>) -> Self {

@@ -115,8 +115,12 @@ pub(super) fn fault_cause(
             f.tick, f.cause
         ));
     }
-    // How long after the dead peer's last message the supervisor saw it exit.
-    if let Some((noticed, who)) = ending.first_exit {
+    // How long after the dead peer's last message the supervisor saw it exit; not for a plant
+    // on another host, whose stamps are on its own clock (docs/protocol.md §14).
+    let far_plant = streams.timing.across() == Some(crate::timing::Across::Plant);
+    if let Some((noticed, who)) = ending.first_exit
+        && !(far_plant && who == Sender::Plant)
+    {
         let last = if who == Sender::Controller {
             last_torque.map(|t| t.t_publish_ns)
         } else {
