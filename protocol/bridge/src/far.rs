@@ -11,6 +11,7 @@
 //!
 //! The process cannot tell it is not on the supervisor's host.
 
+use crate::Role;
 use crate::frame::{self, Hello, Kind, bytes_of};
 use crate::link::{self, Tcp, Udp};
 use crate::sides::{ControllerHost, PlantHost};
@@ -42,8 +43,8 @@ pub struct Args {
     pub connect: SocketAddr,
     /// What runs here: `controller` (the plant and the supervisor are there) or `plant` (the
     /// controller and the supervisor are there).
-    #[arg(long, default_value = "controller", value_parser = ["controller", "plant"])]
-    pub role: String,
+    #[arg(long, value_enum, default_value_t = Role::Controller)]
+    pub role: Role,
     /// Run this controller command instead of the built-in `deltaloop-controller` (split at
     /// whitespace); the run's arguments are appended as for `--controller-cmd`.
     #[arg(long, value_name = "CMD")]
@@ -67,25 +68,19 @@ pub struct Args {
 /// The command to start here for `role` (`cmd`: the user's, or None for the built-in one); one
 /// line naming the flag otherwise.
 pub fn command(
-    role: &str,
+    role: Role,
     controller_cmd: Option<&str>,
     plant_cmd: Option<&str>,
 ) -> Result<Vec<String>> {
-    let (mine, name) = match (role, controller_cmd, plant_cmd) {
-        ("plant", Some(_), _) => bail!(
+    let (mine, name, flag) = match (role, controller_cmd, plant_cmd) {
+        (Role::Plant, Some(_), _) => bail!(
             "--controller-cmd with --role plant: the controller runs on the other host (give it to `deltaloop run --controller-cmd` there); allowed here: --plant-cmd"
         ),
-        ("controller", _, Some(_)) => bail!(
+        (Role::Controller, _, Some(_)) => bail!(
             "--plant-cmd with --role controller: the plant runs on the other host (give it to `deltaloop run --plant-cmd` there); allowed here: --controller-cmd"
         ),
-        ("plant", None, c) => (c, "deltaloop-plant"),
-        ("controller", c, None) => (c, "deltaloop-controller"),
-        (r, _, _) => bail!("--role {r}: allowed controller or plant"),
-    };
-    let flag = if role == "plant" {
-        "--plant-cmd"
-    } else {
-        "--controller-cmd"
+        (Role::Plant, None, c) => (c, "deltaloop-plant", "--plant-cmd"),
+        (Role::Controller, c, None) => (c, "deltaloop-controller", "--controller-cmd"),
     };
     let cmd: Vec<String> = match mine {
         Some(c) => c.split_whitespace().map(str::to_string).collect(),
@@ -99,7 +94,7 @@ pub fn command(
 
 /// Serves `a.runs` runs; the exit code is the last far process's (or why the bridge failed).
 pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
-    let cmd = command(&a.role, a.controller_cmd.as_deref(), a.plant_cmd.as_deref())?;
+    let cmd = command(a.role, a.controller_cmd.as_deref(), a.plant_cmd.as_deref())?;
     let mut last = (0, None);
     let mut served = 0;
     while a.runs == 0 || served < a.runs {
@@ -284,7 +279,7 @@ fn serve(
             ),
         );
     }
-    let plant = a.role == "plant";
+    let plant = a.role == Role::Plant;
     let mode = match LoopMode::parse_process(&hello.mode) {
         Ok(m) => m,
         Err(e) => return fail(&mut tcp, format!("mode {}: {e}", hello.mode)),

@@ -205,8 +205,8 @@ pub fn key_of(b: &[u8]) -> u64 {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Hello {
     pub run_id: String,
-    /// What runs on the far host: `controller` or `plant`.
-    pub role: String,
+    /// What runs on the far host.
+    pub role: crate::Role,
     pub mode: String,
     pub law: String,
     pub emulation: crate::link::Emulation,
@@ -238,7 +238,7 @@ impl Hello {
         let mut h = Hello {
             run_id: String::new(),
             // A HELLO without a role is of a version that knew only the remote controller.
-            role: "controller".into(),
+            role: crate::Role::Controller,
             mode: String::new(),
             law: String::new(),
             emulation: Default::default(),
@@ -254,7 +254,11 @@ impl Hello {
             };
             match k {
                 "run_id" => h.run_id = v.to_string(),
-                "role" => h.role = v.to_string(),
+                "role" => {
+                    h.role = crate::Role::parse(v).ok_or_else(|| {
+                        format!("HELLO role = `{}`: expected controller or plant", escape(v))
+                    })?
+                }
                 "mode" => h.mode = v.to_string(),
                 "law" => h.law = v.to_string(),
                 "delay_ns" => h.emulation.delay_ns = num()?,
@@ -270,12 +274,7 @@ impl Hello {
                 && s.bytes()
                     .all(|c| c.is_ascii_alphanumeric() || c == b'-' || c == b'_')
         };
-        for (what, v) in [
-            ("run_id", &h.run_id),
-            ("role", &h.role),
-            ("mode", &h.mode),
-            ("law", &h.law),
-        ] {
+        for (what, v) in [("run_id", &h.run_id), ("mode", &h.mode), ("law", &h.law)] {
             if !safe(v) {
                 return Err(format!(
                     "HELLO {what} = `{}`: expected 1-128 of A-Z a-z 0-9 - _",
@@ -361,7 +360,7 @@ mod tests {
     fn hello_round_trips_and_refuses_odd_names() {
         let h = Hello {
             run_id: "41cc-0-2cdf".into(),
-            role: "plant".into(),
+            role: crate::Role::Plant,
             mode: "lockstep".into(),
             law: "tdc".into(),
             emulation: crate::link::Emulation {
@@ -382,6 +381,9 @@ mod tests {
         // A HELLO without a role (the remote controller's first version) puts the controller
         // on the far host.
         let old = "run_id=r\nmode=lockstep\nlaw=tdc\n\nname = \"x\"\n";
-        assert_eq!(Hello::decode(old.as_bytes()).unwrap().role, "controller");
+        assert_eq!(
+            Hello::decode(old.as_bytes()).unwrap().role,
+            crate::Role::Controller
+        );
     }
 }

@@ -105,6 +105,39 @@ impl EmuArgs {
     }
 }
 
+/// Which process of a run split over two hosts runs on the far host (`deltaloop join --role`):
+/// the near side stands in for it on the supervisor's host, the far side starts it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Role {
+    /// `--controller-remote`: the controller there, the plant and the supervisor here.
+    Controller,
+    /// `--plant-remote`: the plant there, the controller and the supervisor here.
+    Plant,
+}
+
+impl Role {
+    /// The word: on the command line and in the HELLO.
+    pub fn name(self) -> &'static str {
+        match self {
+            Role::Controller => "controller",
+            Role::Plant => "plant",
+        }
+    }
+
+    /// Parses a word; None if it is neither role.
+    pub fn parse(s: &str) -> Option<Self> {
+        [Role::Controller, Role::Plant]
+            .into_iter()
+            .find(|r| r.name() == s)
+    }
+}
+
+impl std::fmt::Display for Role {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(self.name())
+    }
+}
+
 /// `HOST:PORT` (an IPv4 or IPv6 address or a host name, and a port 1..=65535) → its first address.
 pub fn parse_endpoint(s: &str) -> Result<SocketAddr, String> {
     let shown: String = deltaloop_transport::wire::escape_peer_text(s)

@@ -14,6 +14,7 @@
 //! states' stamps onto this host's clock (their publication = their arrival here) for the
 //! supervisor and the controller here (docs/protocol.md §14).
 
+use crate::Role;
 use crate::frame::{self, Hello, Kind, bytes_of, bytes_of_slice};
 use crate::link::{self, Emulation, Tcp, Udp};
 use crate::sides::{ControllerHost, PlantHost};
@@ -44,8 +45,8 @@ pub struct Args {
     #[arg(long, value_parser = crate::parse_endpoint)]
     pub listen: SocketAddr,
     /// Which process this bridge stands in for (the one that runs on the far host).
-    #[arg(long, default_value = "controller", value_parser = ["controller", "plant"])]
-    pub role: String,
+    #[arg(long, value_enum, default_value_t = Role::Controller)]
+    pub role: Role,
     #[command(flatten)]
     pub emu: crate::EmuArgs,
     #[command(flatten)]
@@ -125,7 +126,7 @@ impl PlantPorts {
 
 /// Runs the near side; returns the exit code and its one line (None: completed).
 pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
-    let plant = a.role == "plant";
+    let plant = a.role == Role::Plant;
     let law = match (plant, a.law) {
         (false, None) => bail!("--law is needed with --role controller"),
         (false, Some(l)) => l.name().to_string(),
@@ -139,7 +140,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
     let spin_ns = crate::spin_ns(&a.run.config, a.run.mode, a.emu.link_spin_us)?;
     let hello = Hello {
         run_id: run_id.clone(),
-        role: a.role.clone(),
+        role: a.role,
         mode: a.run.mode.name().to_string(),
         law,
         emulation: emu,

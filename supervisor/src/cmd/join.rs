@@ -5,6 +5,7 @@
 use super::Context;
 use crate::ops::join::{self, Join};
 use anyhow::Result;
+use deltaloop_bridge::Role;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -13,8 +14,8 @@ pub struct Args {
     endpoint: String,
     /// What runs on this host: the controller (`--controller-remote` there) or the plant
     /// (`--plant-remote` there).
-    #[arg(long, value_parser = ["controller", "plant"], default_value = "controller")]
-    role: String,
+    #[arg(long, value_enum, default_value_t = Role::Controller)]
+    role: Role,
     /// Run this command instead of the built-in controller (split at whitespace); it gets the
     /// usual --run-id, --config, --mode and --law.
     #[arg(long, value_name = "CMD")]
@@ -38,7 +39,7 @@ pub struct Args {
 pub fn exec(a: Args, _cx: &Context) -> Result<()> {
     join::join(&Join {
         endpoint: &a.endpoint,
-        role: &a.role,
+        role: a.role,
         controller_cmd: a.controller_cmd.as_deref(),
         plant_cmd: a.plant_cmd.as_deref(),
         runs: a.runs,

@@ -142,6 +142,20 @@ mod tests {
     use super::*;
     use strum::VariantArray;
 
+    /// `join --role` takes the two roles only: anything else is a one-line error naming them
+    /// (clap's, exit 2).
+    #[test]
+    fn join_refuses_an_unknown_role_naming_the_allowed_ones() {
+        let e = Cli::try_parse_from(["deltaloop", "join", "127.0.0.1:7447", "--role", "observer"])
+            .unwrap_err()
+            .to_string();
+        let first = e.lines().next().unwrap_or_default();
+        assert!(
+            first.contains("observer") && e.contains("controller") && e.contains("plant"),
+            "{e}"
+        );
+    }
+
     /// A divergence is a result (0), an interrupt is 130 as in a shell, everything else fails.
     #[test]
     fn every_status_has_its_exit_code() {

@@ -7,7 +7,7 @@
 
 use crate::loops::procs::exe_dir;
 use anyhow::{Context, Result, bail};
-use deltaloop_bridge::EmuArgs;
+use deltaloop_bridge::{EmuArgs, Role};
 use deltaloop_config::{LoopMode, RunConfig};
 use std::process::Command;
 
@@ -29,13 +29,13 @@ pub struct RemoteArgs {
 impl RemoteArgs {
     /// The remote process's flag, its role and endpoint, if one is remote; one line naming the
     /// flags if both are.
-    fn remote(&self) -> Result<Option<(&'static str, &'static str, &str)>> {
+    fn remote(&self) -> Result<Option<(&'static str, Role, &str)>> {
         match (&self.controller_remote, &self.plant_remote) {
             (Some(_), Some(_)) => bail!(
                 "--plant-remote with --controller-remote: one process runs on another host, the other here with the supervisor (give one of the two)"
             ),
-            (Some(ep), None) => Ok(Some(("--controller-remote", "controller", ep))),
-            (None, Some(ep)) => Ok(Some(("--plant-remote", "plant", ep))),
+            (Some(ep), None) => Ok(Some(("--controller-remote", Role::Controller, ep))),
+            (None, Some(ep)) => Ok(Some(("--plant-remote", Role::Plant, ep))),
             (None, None) => Ok(None),
         }
     }
@@ -53,7 +53,7 @@ impl RemoteArgs {
         };
         let addr =
             deltaloop_bridge::parse_endpoint(ep).map_err(|e| anyhow::anyhow!("{flag}: {e}"))?;
-        let command = if role == "plant" {
+        let command = if role == Role::Plant {
             &mut cfg.plant.command
         } else {
             &mut cfg.controller.command
@@ -69,7 +69,7 @@ impl RemoteArgs {
             bridge.display().to_string(),
             "near".into(),
             "--role".into(),
-            role.into(),
+            role.name().into(),
             "--listen".into(),
             addr.to_string(),
             format!("--link-delay-us={}", e.link_delay_us),
@@ -96,7 +96,7 @@ impl RemoteArgs {
 pub struct Join<'a> {
     pub endpoint: &'a str,
     /// `controller` or `plant`.
-    pub role: &'a str,
+    pub role: Role,
     pub controller_cmd: Option<&'a str>,
     pub plant_cmd: Option<&'a str>,
     pub runs: u32,
@@ -112,10 +112,16 @@ pub fn join(j: &Join<'_>) -> Result<()> {
     deltaloop_bridge::far::command(j.role, j.controller_cmd, j.plant_cmd)?;
     let bridge = exe_dir()?.join("deltaloop-bridge");
     let mut c = Command::new(&bridge);
-    c.args(["far", "--role", j.role, "--connect", &addr.to_string()])
-        .arg(format!("--runs={}", j.runs))
-        .arg(format!("--wait-s={}", j.wait_s))
-        .arg(format!("--spin-us={}", j.spin_us));
+    c.args([
+        "far",
+        "--role",
+        j.role.name(),
+        "--connect",
+        &addr.to_string(),
+    ])
+    .arg(format!("--runs={}", j.runs))
+    .arg(format!("--wait-s={}", j.wait_s))
+    .arg(format!("--spin-us={}", j.spin_us));
     if let Some(cmd) = j.controller_cmd {
         c.arg(format!("--controller-cmd={cmd}"));
     }
@@ -260,24 +266,18 @@ mod tests {
         };
         for (role, c, p, says) in [
             (
-                "plant",
+                Role::Plant,
                 Some("ctl"),
                 None,
                 "--controller-cmd with --role plant",
             ),
             (
-                "controller",
+                Role::Controller,
                 None,
                 Some("pl"),
                 "--plant-cmd with --role controller",
             ),
-            ("plant", None, Some("  "), "--plant-cmd is empty"),
-            (
-                "observer",
-                None,
-                None,
-                "--role observer: allowed controller or plant",
-            ),
+            (Role::Plant, None, Some("  "), "--plant-cmd is empty"),
         ] {
             let e = join(&j(role, c, p)).unwrap_err().to_string();
             assert!(e.contains(says) && !e.contains('\n'), "{e}");

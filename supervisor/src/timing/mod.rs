@@ -253,14 +253,8 @@ pub fn round_trip_ns(m: &TelemetryMsg) -> Option<u64> {
 }
 
 /// The process of a run that is on another host, across `deltaloop-bridge` (docs/protocol.md
-/// §14).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Across {
-    /// `--controller-remote`: the plant and the supervisor here, the controller there.
-    Controller,
-    /// `--plant-remote`: the controller and the supervisor here, the plant there.
-    Plant,
-}
+/// §14): the bridge's own [`Role`](deltaloop_bridge::Role).
+pub use deltaloop_bridge::Role as Across;
 
 /// The link's round trip of one tick of a run split over two hosts, ns: the round trip
 /// ([`round_trip_ns`], on the plant's clock) less the time the state spent on the controller's
