@@ -221,8 +221,8 @@ pub struct ControllerHost {
     pub started: bool,
     /// A state that came before START (the datagram overtook the TCP frame).
     stash: Option<StateMsg>,
-    /// The last state published here: its tick and when it arrived (this host's clock, ns).
-    arrived: (u64, u64),
+    /// The newest state published here that a reply is owed for (None before the first).
+    owed: Option<u64>,
     /// The controller's last `t_poll_until_ns` (this host's clock).
     controller_poll_until: u64,
     /// How long to poll for the reply after publishing a state, ns.
@@ -257,7 +257,7 @@ impl ControllerHost {
         Self {
             started: false,
             stash: None,
-            arrived: (u64::MAX, 0),
+            owed: None,
             controller_poll_until: 0,
             spin_ns,
             poll_until: 0,
@@ -312,7 +312,7 @@ impl ControllerHost {
 
     /// Whether a state is out to the controller and not yet answered.
     pub fn awaiting_reply(&self) -> bool {
-        self.arrived.0 != u64::MAX && self.replies.newest_tick() != Some(self.arrived.0)
+        self.owed.is_some() && self.replies.newest_tick() != self.owed
     }
 
     /// The controller's replies, out as datagrams with the residence here.
@@ -354,7 +354,7 @@ impl ControllerHost {
                 // Sent again: its reply was lost on the way back.
                 let now = rt::now_ns();
                 udp.send(Kind::Torque, &[self.replies.payload()], now)?;
-            } else if self.started && (self.arrived.0 == s.tick || self.published(s.tick)) {
+            } else if self.started && self.published(s.tick) {
                 // Sent again while the controller is still on it (it answers once), or published
                 // already (its copy over TCP came first).
             } else if self.started {
@@ -400,10 +400,8 @@ impl ControllerHost {
         }
         // A reply is owed for the newest state only (not the final one, nor an older one
         // published late for the record).
-        if s.flags & wire::STATE_FINAL == 0
-            && (self.arrived.0 == u64::MAX || s.tick > self.arrived.0)
-        {
-            self.arrived = (s.tick, now);
+        if s.flags & wire::STATE_FINAL == 0 && self.owed.is_none_or(|o| s.tick > o) {
+            self.owed = Some(s.tick);
             self.arrivals[(s.tick % ARRIVALS as u64) as usize] = (s.tick, now);
         }
         self.recent[(s.tick % RECENT as u64) as usize] = s.tick;
