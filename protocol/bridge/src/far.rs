@@ -397,16 +397,7 @@ fn spawn(
     if let Some(law) = law {
         c.args(["--law", law]);
     }
-    // SAFETY: signal() and prctl() are async-signal-safe; nothing else runs between fork and exec.
-    unsafe {
-        use std::os::unix::process::CommandExt;
-        c.pre_exec(|| {
-            libc::signal(libc::SIGINT, libc::SIG_IGN);
-            libc::signal(libc::SIGHUP, libc::SIG_IGN);
-            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
-            Ok(())
-        });
-    }
+    rt::die_with_parent(&mut c);
     let child = c
         .spawn()
         .with_context(|| format!("cannot start the {what} `{}`", cmd.join(" ")))?;

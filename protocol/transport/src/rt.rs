@@ -160,6 +160,30 @@ pub fn child_signals() -> std::sync::Arc<std::sync::atomic::AtomicBool> {
     flag
 }
 
+/// Makes `cmd` a child that does not outlive this process: it starts with SIGINT and SIGHUP
+/// ignored (kept across exec: a Ctrl-C or a hang-up reaches the whole process group, possibly
+/// before the child has set up its own handling, and the parent stops its children in order),
+/// gets SIGTERM when this process dies (a parent killed outright, SIGKILL or the OOM killer,
+/// cannot stop it: regression, a SIGKILLed supervisor left its plant running to the scenario's
+/// end), and does not start at all if this process died before that was set.
+pub fn die_with_parent(cmd: &mut std::process::Command) {
+    use std::os::unix::process::CommandExt;
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: signal(), prctl() and getppid() are async-signal-safe; nothing else runs between
+    // fork and exec.
+    unsafe {
+        cmd.pre_exec(move || {
+            libc::signal(libc::SIGINT, libc::SIG_IGN);
+            libc::signal(libc::SIGHUP, libc::SIG_IGN);
+            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+            if libc::getppid() != parent {
+                return Err(std::io::Error::other("the parent is gone"));
+            }
+            Ok(())
+        });
+    }
+}
+
 /// A loop process's start: apply its scheduling, print one warning line per thing not permitted
 /// (prefixed with the process name), then tell the supervisor it is ready.
 pub fn schedule_and_report_ready<E>(

@@ -133,19 +133,8 @@ impl LoopbackFar {
             .env(deltaloop_transport::ipc::ROOT_ENV, &far.root);
         // Its own process group: the terminal's Ctrl-C reaches the supervisor, which stops the
         // run in order (STOP crosses the link); a supervisor killed outright takes it along.
-        let parent = std::process::id() as libc::pid_t;
-        // SAFETY: prctl() and getppid() are async-signal-safe; nothing else runs between fork
-        // and exec.
-        unsafe {
-            use std::os::unix::process::CommandExt;
-            c.process_group(0).pre_exec(move || {
-                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
-                if libc::getppid() != parent {
-                    return Err(std::io::Error::other("the supervisor is gone"));
-                }
-                Ok(())
-            });
-        }
+        std::os::unix::process::CommandExt::process_group(&mut c, 0);
+        deltaloop_transport::rt::die_with_parent(&mut c);
         far.kid = Some(Kid::spawn(c, "deltaloop-bridge far", log).with_context(|| {
             format!(
                 "{} (build it: `cargo build --release` puts it next to deltaloop)",

@@ -129,28 +129,9 @@ pub(super) fn spawn(launch: &Launch, args: &[String], log: &Path, who: Sender) -
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(err);
-    // The terminal's Ctrl-C and hang-up reach the whole process group, and may come before the
-    // child has set up its own signal handling: it starts with both ignored (kept across exec),
-    // and the supervisor stops it in order.
-    // A supervisor killed outright (SIGKILL, the OOM killer) cannot stop its children: the kernel
-    // sends them SIGTERM then, and they stop as they would on STOP (regression: a SIGKILLed
-    // supervisor left its plant running to the scenario's end, a soak's up to 24 h).
-    let parent = std::process::id() as libc::pid_t;
-    // SAFETY: signal(), prctl() and getppid() are async-signal-safe; nothing else runs between
-    // fork and exec.
-    unsafe {
-        use std::os::unix::process::CommandExt;
-        cmd.pre_exec(move || {
-            libc::signal(libc::SIGINT, libc::SIG_IGN);
-            libc::signal(libc::SIGHUP, libc::SIG_IGN);
-            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
-            // The supervisor died before the line above: do not start an orphan.
-            if libc::getppid() != parent {
-                return Err(std::io::Error::other("the supervisor is gone"));
-            }
-            Ok(())
-        });
-    }
+    // Stopped in order by the supervisor, and by the kernel if the supervisor is killed
+    // outright (regression: a SIGKILLed supervisor left its plant running, a soak's up to 24 h).
+    deltaloop_transport::rt::die_with_parent(&mut cmd);
     let child = cmd.spawn().with_context(|| {
         if launch.custom {
             format!(
