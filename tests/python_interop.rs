@@ -71,6 +71,7 @@ fn python_wire_types_match_the_rust_layouts() {
         "ARMED": ControlKind::Armed as u32,
         "DIVERGED": ControlKind::Diverged as u32,
         "STOPPED": ControlKind::Stopped as u32,
+        "OVERRUN": ControlKind::Overrun as u32,
         "FROM_PLANT": Sender::Plant as u32,
         "FROM_CONTROLLER": Sender::Controller as u32,
         "FROM_SUPERVISOR": Sender::Supervisor as u32,

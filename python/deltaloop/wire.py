@@ -28,6 +28,7 @@ FAULT = 4
 ARMED = 6
 DIVERGED = 7
 STOPPED = 8
+OVERRUN = 9
 
 # ControlMsg.from
 FROM_PLANT = 1

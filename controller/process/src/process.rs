@@ -75,7 +75,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
     };
     ipc::connect_now(&[&ports.state, &ports.torque, &ports.torque_ready])?;
     let spin_ns = layout.spin_ns();
-    let lp = Loop {
+    let mut lp = Loop {
         cfg: &cfg,
         law: args.law,
         rows: start.ticks + 2,
@@ -86,11 +86,13 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
                 t0_ns: start.t0_ns,
                 ts_ns: cfg.ts_ns(),
                 lead_ns,
+                epochs: [0; EPOCHS],
+                seen: 0,
             }),
             _ => None,
         },
     };
-    let end = answer_states(&ports, &lp, &mut ring, term);
+    let end = answer_states(&ports, &mut lp, &mut ring, term);
     std::thread::sleep(ipc::LINGER);
     end
 }
@@ -149,13 +151,20 @@ struct Loop<'c> {
     schedule: Option<Schedule>,
 }
 
-/// The plant's clock as START gave it: the controller sleeps until `lead_ns` before each
-/// deadline t0 + k·Ts and polls for the state from there.
+/// The plant's clock as START gave it, and as its states move it: the controller sleeps until
+/// `lead_ns` before each deadline t0 + k·Ts and polls for the state from there.
 struct Schedule {
     t0_ns: u64,
     ts_ns: u64,
     lead_ns: u64,
+    /// The epochs (deadline − k·Ts, ns) the last [`EPOCHS`] states said, a ring.
+    epochs: [u64; EPOCHS],
+    seen: usize,
 }
+
+/// States whose epochs must all have moved before the schedule follows: one late state (a link's
+/// jitter spike, when its stamps were moved to this host's clock) does not move it.
+const EPOCHS: usize = 8;
 
 impl Schedule {
     /// The deadline of tick `k`, ns.
@@ -165,6 +174,25 @@ impl Schedule {
 }
 
 impl Loop<'_> {
+    /// Follows the plant's clock: its epoch moves later when simulated time pauses for a stall of
+    /// the plant's own process (`overrun = "stretch"`), and a state's deadline says where it is.
+    /// Only a deadline already past when the state was taken (`rx_ns`) moves it, and only later:
+    /// a plant's stamp cannot make the controller sleep past the states it publishes.
+    fn follow(&mut self, state: &StateMsg, rx_ns: u64) {
+        if let Some(s) = &mut self.schedule
+            && state.t_deadline_ns <= rx_ns
+        {
+            s.epochs[s.seen % EPOCHS] = state
+                .t_deadline_ns
+                .saturating_sub(state.tick.saturating_mul(s.ts_ns));
+            s.seen += 1;
+            if s.seen >= EPOCHS {
+                let moved = s.epochs.iter().copied().min().unwrap_or(0);
+                s.t0_ns = s.t0_ns.max(moved);
+            }
+        }
+    }
+
     /// The wait for state `k`, from `from_ns` (START for state 0, else the last reply's
     /// publication): with a schedule, sleep to `lead_ns` before its deadline and poll to `spin_ns`
     /// past the deadline, or past `from_ns` if that deadline has gone by (after a freeze the plant
@@ -190,7 +218,7 @@ impl Loop<'_> {
 /// The loop: answer every state until the final one, the plant's silence, or a stop.
 fn answer_states(
     ports: &Ports,
-    lp: &Loop,
+    lp: &mut Loop,
     ring: &mut RefRing,
     term: &AtomicBool,
 ) -> Result<ProcessEnd> {
@@ -259,6 +287,7 @@ fn answer_states(
         msg.skipped = skipped;
         msg.t_state_rx_ns = rx;
         msg.t_publish_ns = rt::now_ns();
+        lp.follow(&state, rx);
         wait = lp.wait_for(state.tick + 1, msg.t_publish_ns, wait.poll_until_ns);
         msg.t_poll_until_ns = wait.poll_until_ns;
         ports.torque.send_copy(msg).ipc("publish torque")?;
@@ -465,6 +494,8 @@ mod tests {
                 t0_ns: T0,
                 ts_ns: 300 * US,
                 lead_ns: 100 * US,
+                epochs: [0; EPOCHS],
+                seen: 0,
             }),
         }
     }
@@ -516,6 +547,49 @@ mod tests {
         };
         let w = lockstep.wait_for(0, start, 0);
         assert_eq!((w.wake_ns, w.poll_until_ns), (None, start + 150 * US));
+    }
+
+    /// After the plant paused simulated time for its own stall (`stretch`), its deadlines are
+    /// later than t0 + k·Ts: once [`EPOCHS`] states in a row say so the controller's schedule
+    /// follows them; one late state (a jitter spike), a deadline in the future (no honest plant
+    /// stamps one) or an earlier epoch does not move it.
+    #[test]
+    fn the_schedule_follows_a_stretched_plant_clock_not_one_late_state() {
+        let cfg = cfg();
+        let mut lp = realtime_loop(&cfg);
+        let pause = 10_000 * US;
+        let state = |k: u64, deadline| StateMsg {
+            tick: k,
+            t_deadline_ns: deadline,
+            ..StateMsg::default()
+        };
+        let d = |k: u64| T0 + k * 300 * US;
+        // One state 10 ms late among on-time ones: the schedule stays.
+        for k in 0..20 {
+            let late = if k == 9 { pause } else { 0 };
+            lp.follow(&state(k, d(k) + late), d(k) + late + 20 * US);
+        }
+        assert_eq!(lp.wait_for(20, d(19), 0).wake_ns, Some(d(20) - 100 * US));
+        // Simulated time paused 10 ms at tick 20: after 8 states on the moved epoch, it follows.
+        for k in 20..28 {
+            assert_eq!(lp.wait_for(k, d(k), 0).wake_ns, Some(d(k) - 100 * US));
+            lp.follow(&state(k, d(k) + pause), d(k) + pause + 20 * US);
+        }
+        assert_eq!(
+            lp.wait_for(28, d(27), 0).wake_ns,
+            Some(d(28) + pause - 100 * US)
+        );
+        // A stamp from the future, or an earlier epoch: ignored.
+        for k in 28..40 {
+            lp.follow(&state(k, d(k) + 3 * pause), d(k) + pause + 20 * US);
+        }
+        for k in 40..50 {
+            lp.follow(&state(k, d(k)), d(k) + pause + 20 * US);
+        }
+        assert_eq!(
+            lp.wait_for(50, d(49), 0).wake_ns,
+            Some(d(50) + pause - 100 * US)
+        );
     }
 
     #[test]

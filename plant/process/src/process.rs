@@ -16,7 +16,7 @@
 use crate::{Arrival, PlantSide, PlantStop};
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use deltaloop_config::config::{ApplyTorque, Poll};
+use deltaloop_config::config::{ApplyTorque, Overrun, Poll};
 use deltaloop_config::{LoopMode, RunConfig};
 use deltaloop_model::Vec3;
 use deltaloop_transport::args::LoopArgs;
@@ -94,7 +94,7 @@ impl Ports {
     }
 }
 
-/// The loop's settings, in integer nanoseconds.
+/// The loop's settings, in integer nanoseconds, and the realtime clock's epoch.
 struct Clock {
     mode: LoopMode,
     t0_ns: u64,
@@ -107,22 +107,67 @@ struct Clock {
     poll: Poll,
     /// Replies act on the physics at their measured arrival (realtime, `apply_torque = "arrival"`).
     at_arrival: bool,
+    /// What a wake later than `overrun_after_ns` does (realtime).
+    overrun: Overrun,
+    overrun_after_ns: u64,
+    /// How far the epoch has moved: the stalls simulated time paused for (`stretch`), ns.
+    paused_ns: u64,
+}
+
+/// Tick k's times: its deadline and when the plant woke for it, ns.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Woke {
+    deadline: u64,
+    wake: u64,
 }
 
 impl Clock {
-    /// Waits for tick k: (deadline, wake time). Lockstep has no deadline: both are now.
-    fn wake(&self, k: u64) -> (u64, u64) {
+    /// Waits for tick k. Lockstep has no deadline: both times are now. In realtime a wake more
+    /// than the overrun bound late (the host did not run this process) moves the epoch with
+    /// `stretch`: tick k is due now, and simulated time has paused for the stall.
+    fn wake(&mut self, k: u64) -> Woke {
         match self.mode {
             LoopMode::Realtime => {
-                let d = self.t0_ns + k * self.ts_ns;
+                let d = self.t0_ns + self.paused_ns + k * self.ts_ns;
                 rt::wake_at_ns(d, self.early_ns);
-                (d, rt::now_ns())
+                let woke = self.overrun_of(Woke {
+                    deadline: d,
+                    wake: rt::now_ns(),
+                });
+                self.paused_ns += woke.deadline - d;
+                woke
             }
             _ => {
                 let now = rt::now_ns();
-                (now, now)
+                Woke {
+                    deadline: now,
+                    wake: now,
+                }
             }
         }
+    }
+
+    /// The tick's times after the overrun policy: with `stretch` and a wake beyond the bound, the
+    /// deadline moves to the wake.
+    fn overrun_of(&self, w: Woke) -> Woke {
+        let late = w.wake.saturating_sub(w.deadline);
+        if self.overrun == Overrun::Stretch && late > self.overrun_after_ns {
+            Woke {
+                deadline: w.wake,
+                ..w
+            }
+        } else {
+            w
+        }
+    }
+
+    /// With `fault`, how late (ns) the plant woke for a tick beyond the bound: the loop stops.
+    fn overrun_fault(&self, w: Woke) -> Option<u64> {
+        let late = w.wake.saturating_sub(w.deadline);
+        (self.mode == LoopMode::Realtime
+            && self.overrun == Overrun::Fault
+            && late > self.overrun_after_ns)
+            .then_some(late)
     }
 }
 
@@ -130,10 +175,9 @@ impl Clock {
 struct LoopStop {
     tick: u64,
     cause: String,
-    /// A stop on request (STOP, SIGTERM) rather than a fault.
-    requested: bool,
-    /// The model still works, so the drives can brake.
-    can_brake: bool,
+    /// What the plant tells the supervisor: STOPPED (on request), FAULT, OVERRUN (it can brake)
+    /// or DIVERGED (the model failed: it cannot).
+    kind: ControlKind,
     /// The last deadline the loop kept, ns (the safe stop keeps the clock from there).
     last_deadline_ns: u64,
 }
@@ -177,7 +221,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
     ])?;
     let mut side = PlantSide::from_config(&cfg, Vec3::from(start.q0), start.ticks)
         .context("initial configuration")?;
-    let clock = Clock {
+    let mut clock = Clock {
         mode: args.run.mode,
         t0_ns: start.t0_ns,
         ts_ns: (cfg.loop_.ts_s * 1e9).round() as u64,
@@ -188,8 +232,11 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         poll: layout.poll,
         at_arrival: args.run.mode == LoopMode::Realtime
             && cfg.plant.apply_torque == ApplyTorque::Arrival,
+        overrun: cfg.loop_.overrun,
+        overrun_after_ns: cfg.overrun_after_ns(),
+        paused_ns: 0,
     };
-    let end = match run_loop(&ports, &mut side, &clock, &cfg, term)? {
+    let end = match run_loop(&ports, &mut side, &mut clock, &cfg, term)? {
         Some(stop) => end_run(&ports, &mut side, &clock, &cfg, stop),
         // No DONE message: the final state and the exit status say it, and the controller's ports
         // are already going away (a send now would race their teardown).
@@ -203,7 +250,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
 fn run_loop(
     ports: &Ports,
     side: &mut PlantSide,
-    clock: &Clock,
+    clock: &mut Clock,
     cfg: &RunConfig,
     term: &AtomicBool,
 ) -> Result<Option<LoopStop>> {
@@ -211,7 +258,7 @@ fn run_loop(
     let mut ctrl_poll_until = 0;
     loop {
         let k = side.tick();
-        let (deadline, wake) = clock.wake(k);
+        let Woke { deadline, wake } = clock.wake(k);
         let why = if stop_requested(&ports.control.1) {
             Some("stopped by the supervisor (STOP)")
         } else if term.load(Ordering::Relaxed) {
@@ -223,8 +270,19 @@ fn run_loop(
             return Ok(Some(LoopStop {
                 tick: k,
                 cause: why.into(),
-                requested: true,
-                can_brake: true,
+                kind: ControlKind::Stopped,
+                last_deadline_ns: deadline,
+            }));
+        }
+        if let Some(late) = clock.overrun_fault(Woke { deadline, wake }) {
+            return Ok(Some(LoopStop {
+                tick: k,
+                cause: format!(
+                    "overrun: the plant process woke {:.3} ms late for tick {k} (bound {:.3} ms, overrun = \"fault\"): the host did not run it",
+                    late as f64 * 1e-6,
+                    clock.overrun_after_ns as f64 * 1e-6
+                ),
+                kind: ControlKind::Overrun,
                 last_deadline_ns: deadline,
             }));
         }
@@ -267,8 +325,7 @@ fn run_loop(
                         "controller silent: no torque for tick {k} within {} ms",
                         cfg.loop_.silence_timeout_ms
                     ),
-                    requested: false,
-                    can_brake: true,
+                    kind: ControlKind::Fault,
                     last_deadline_ns: deadline,
                 }));
             }
@@ -280,8 +337,10 @@ fn run_loop(
                 return Ok(Some(LoopStop {
                     tick: stop.tick(),
                     cause: stop.cause().to_string(),
-                    requested: false,
-                    can_brake: matches!(stop, PlantStop::ControllerSilent { .. }),
+                    kind: match stop {
+                        PlantStop::ControllerSilent { .. } => ControlKind::Fault,
+                        PlantStop::Diverged { .. } => ControlKind::Diverged,
+                    },
                     last_deadline_ns: deadline,
                 }));
             }
@@ -309,12 +368,12 @@ fn end_run(
     let LoopStop {
         tick,
         cause,
-        requested,
-        can_brake,
+        kind,
         last_deadline_ns,
     } = stop;
     let t = tick as f64 * cfg.loop_.ts_s;
-    let kind = end_kind(requested, can_brake);
+    let requested = kind == ControlKind::Stopped;
+    let can_brake = kind != ControlKind::Diverged;
     let _ = ports
         .control
         .0
@@ -340,17 +399,6 @@ fn end_run(
             cfg.faults.safe_stop_ms
         )),
         Err(e) => end(format!("t = {t:.4} s: {cause}; the safe stop failed: {e}")),
-    }
-}
-
-/// What the plant tells the supervisor when the loop ends early: STOPPED for a stop on request
-/// (regression: it said FAULT, as if it had failed), FAULT when it stops the loop itself and can
-/// brake, DIVERGED when the model failed.
-fn end_kind(requested: bool, can_brake: bool) -> ControlKind {
-    match (requested, can_brake) {
-        (true, _) => ControlKind::Stopped,
-        (false, true) => ControlKind::Fault,
-        (false, false) => ControlKind::Diverged,
     }
 }
 
@@ -556,11 +604,67 @@ mod tests {
         assert_eq!(verdict(&reply(7, 1_001), 7, 1_000), Reply::Late);
     }
 
+    fn realtime_clock(overrun: Overrun) -> Clock {
+        Clock {
+            mode: LoopMode::Realtime,
+            t0_ns: 1_000_000,
+            ts_ns: 300_000,
+            budget_ns: 150_000,
+            silence_ns: 2_000_000_000,
+            spin_ns: 0,
+            early_ns: 0,
+            poll: Poll::Spin,
+            at_arrival: true,
+            overrun,
+            overrun_after_ns: 300_000,
+            paused_ns: 0,
+        }
+    }
+
+    /// With `stretch`, a wake beyond the bound moves the deadline to the wake (simulated time
+    /// pauses for the stall); within the bound, and with the other policies, the deadline stays.
     #[test]
-    fn regression_a_stop_on_request_is_reported_as_stopped_not_as_a_fault() {
-        assert_eq!(end_kind(true, true), ControlKind::Stopped);
-        assert_eq!(end_kind(false, true), ControlKind::Fault);
-        assert_eq!(end_kind(false, false), ControlKind::Diverged);
+    fn stretch_moves_the_deadline_of_a_wake_beyond_the_bound_to_the_wake() {
+        let late = |ns: u64| Woke {
+            deadline: 5_000_000,
+            wake: 5_000_000 + ns,
+        };
+        let c = realtime_clock(Overrun::Stretch);
+        assert_eq!(c.overrun_of(late(300_000)), late(300_000), "at the bound");
+        assert_eq!(
+            c.overrun_of(late(10_300_000)),
+            Woke {
+                deadline: 15_300_000,
+                wake: 15_300_000
+            }
+        );
+        assert_eq!(c.overrun_fault(late(10_300_000)), None);
+        let c = realtime_clock(Overrun::CatchUp);
+        assert_eq!(c.overrun_of(late(10_300_000)), late(10_300_000));
+        assert_eq!(c.overrun_fault(late(10_300_000)), None);
+        let c = realtime_clock(Overrun::Fault);
+        assert_eq!(c.overrun_of(late(10_300_000)), late(10_300_000));
+        assert_eq!(c.overrun_fault(late(300_000)), None);
+        assert_eq!(c.overrun_fault(late(300_001)), Some(300_001));
+        let lockstep = Clock {
+            mode: LoopMode::Lockstep,
+            ..realtime_clock(Overrun::Fault)
+        };
+        assert_eq!(lockstep.overrun_fault(late(10_300_000)), None);
+    }
+
+    /// After a stretch every later deadline keeps the moved epoch: t0 + pauses + k·Ts.
+    #[test]
+    fn the_epoch_stays_moved_after_a_stretch() {
+        let mut c = realtime_clock(Overrun::Stretch);
+        let now = rt::now_ns();
+        c.t0_ns = now.saturating_sub(10 * c.ts_ns + 5_000_000);
+        let k = 10;
+        let w = c.wake(k);
+        assert_eq!(w.deadline, w.wake, "woke ≈ 5 ms late: stretched");
+        assert_eq!(c.paused_ns, w.deadline - (c.t0_ns + k * c.ts_ns));
+        let next = c.t0_ns + c.paused_ns + (k + 1) * c.ts_ns;
+        assert_eq!(next, w.deadline + c.ts_ns);
     }
 
     #[test]

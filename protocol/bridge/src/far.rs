@@ -620,7 +620,7 @@ impl Far {
     fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
         while let Some(s) = self.ports.control_in.receive().ipc("receive control")? {
             let c = *s.payload();
-            if matches!(c.kind(), Some(ControlKind::Ready | ControlKind::Armed)) {
+            if c.kind().is_some_and(ControlKind::said_by_controller) {
                 l.tcp.send(Kind::Control, l.key, &[bytes_of(&c)])?;
             }
         }
@@ -706,7 +706,7 @@ impl FarPlant {
             if kind == Kind::Control {
                 FarLink::run_control(&ports.control, p)?;
                 if let Some(c) = frame::read::<ControlMsg>(p)
-                    && let Some(k @ (ControlKind::Ready | ControlKind::Armed)) = c.kind()
+                    && let Some(k) = c.kind().filter(|k| k.said_by_controller())
                 {
                     let said = ControlMsg::new(k, Sender::Controller);
                     ports

@@ -481,7 +481,7 @@ impl Near {
                     // Only what a controller may say, as the controller (this process is its
                     // stand-in).
                     if let Some(c) = frame::read::<ControlMsg>(p)
-                        && let Some(kind @ (ControlKind::Ready | ControlKind::Armed)) = c.kind()
+                        && let Some(kind) = c.kind().filter(|k| k.said_by_controller())
                     {
                         ports.send_control(kind)?;
                     }
@@ -585,7 +585,7 @@ impl NearPlant {
             .ipc("receive control")?
         {
             let c = *s.payload();
-            if matches!(c.kind(), Some(ControlKind::Ready | ControlKind::Armed)) {
+            if c.kind().is_some_and(ControlKind::said_by_controller) {
                 p.tcp.send(Kind::Control, p.key, &[bytes_of(&c)])?;
             }
         }
@@ -620,15 +620,7 @@ impl NearPlant {
                 Kind::Control => {
                     // Only what a plant may say, as the plant (this process is its stand-in).
                     if let Some(mut c) = frame::read::<ControlMsg>(b)
-                        && matches!(
-                            c.kind(),
-                            Some(
-                                ControlKind::Ready
-                                    | ControlKind::Fault
-                                    | ControlKind::Diverged
-                                    | ControlKind::Stopped
-                            )
-                        )
+                        && c.kind().is_some_and(ControlKind::said_by_plant)
                     {
                         c.from = Sender::Plant as u32;
                         ports.control.0.send_copy(c).ipc("send plant control")?;

@@ -34,7 +34,7 @@ pub use files::{MAX_FILE_BYTES, read_text_file};
 pub use layout::{Layout, Poll, Priority, ResolvedLayout};
 pub use mode::LoopMode;
 pub use schema::{
-    ApplyTorque, ControllerSection, FaultInjection, FaultSection, LoopSection, PathKind,
+    ApplyTorque, ControllerSection, FaultInjection, FaultSection, LoopSection, Overrun, PathKind,
     PlantSection, RecordSection, RunConfig, ScenarioSection, Segment, SensorSection, TorqueLimit,
 };
 pub use text::{
@@ -53,10 +53,10 @@ pub mod config {
         ApplyTorque, ConfigError, ControllerParams, ControllerSection, FaultInjection,
         FaultSection, Law, Layout, LoopMode, LoopSection, MAX_ECHO_CHARS, MAX_FILE_BYTES,
         MAX_HOLD_S, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TRANSPORT_DELAY, MAX_TRANSPORT_DELAY_US,
-        NAME_RULE, PathKind, PlantSection, Poll, Preset, Priority, RecordSection, ResolvedLayout,
-        RunConfig, ScenarioSection, Segment, SensorSection, TorqueLimit, VelocitySource,
-        clean_message, name_is_valid, read_text_file, show_num, show_path, show_str,
-        toml_error_line, toml_error_position,
+        NAME_RULE, Overrun, PathKind, PlantSection, Poll, Preset, Priority, RecordSection,
+        ResolvedLayout, RunConfig, ScenarioSection, Segment, SensorSection, TorqueLimit,
+        VelocitySource, clean_message, name_is_valid, read_text_file, show_num, show_path,
+        show_str, toml_error_line, toml_error_position,
     };
 }
 

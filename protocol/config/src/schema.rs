@@ -142,6 +142,25 @@ impl Default for PlantSection {
     }
 }
 
+deltaloop_law::text_enum! {
+    "kebab-case", "overrun policy";
+    /// What the realtime plant does when its own process wakes for a tick later than the bound
+    /// (`[loop] overrun`, `--overrun`): the host stalled the simulator, not the robot.
+    #[derive(Default)]
+    pub enum Overrun {
+        /// Simulated time pauses for the stall: the plant's clock epoch moves by its lateness, the
+        /// backlog is not integrated, and the run's real-time factor falls below 1 (and says so).
+        #[default]
+        Stretch,
+        /// The plant stays locked to the wall clock: it runs the missed ticks back to back, each
+        /// reply acting at its (late) arrival, as a real robot would have moved meanwhile.
+        CatchUp,
+        /// The plant stops the loop with an overrun fault and brakes, as a realtime target does on
+        /// a task overrun.
+        Fault,
+    }
+}
+
 /// When a realtime reply takes effect (`[plant] apply_torque`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
@@ -387,6 +406,18 @@ pub struct LoopSection {
     /// A peer silent this long is a fault (lockstep, and the controller's wait for states), ms.
     #[serde(default = "default_silence")]
     pub silence_timeout_ms: u32,
+
+    /// Realtime: what the plant does when its own process wakes for a tick more than
+    /// `overrun_after_us` late (the host did not run it): pause simulated time (`stretch`), run
+    /// the backlog on the wall clock (`catch-up`), or end the run (`fault`). A late reply from
+    /// the controller or the link never triggers it: that latency acts on the physics.
+    #[serde(default)]
+    pub overrun: Overrun,
+
+    /// Realtime: the plant's wake lateness beyond which `overrun` acts, µs (1..=1000000).
+    /// Default: one period Ts (a later wake would push every reply past its tick).
+    #[serde(default)]
+    pub overrun_after_us: Option<u32>,
     #[serde(default)]
     pub realtime: Layout,
     #[serde(default)]
@@ -409,6 +440,8 @@ impl Default for LoopSection {
             ts_s: default_ts(),
             torque_budget_us: default_budget(),
             silence_timeout_ms: default_silence(),
+            overrun: Overrun::default(),
+            overrun_after_us: None,
             realtime: Layout::default(),
             lockstep: Layout::default(),
         }
@@ -506,6 +539,9 @@ impl RunConfig {
         cfg.loop_
             .lockstep
             .fill(Layout::lockstep_default().wake_early_within(ts));
+        if cfg.loop_.overrun_after_us.is_none() && ts.is_finite() && ts > 0.0 {
+            cfg.loop_.overrun_after_us = Some((ts * 1e6).round().clamp(1.0, 1e6) as u32);
+        }
         cfg.validate()?;
         Ok(cfg)
     }
@@ -544,6 +580,15 @@ impl RunConfig {
         c.pid_p = Some(p.pid_p);
         c.pid_i = Some(p.pid_i);
         c.pid_d = Some(p.pid_d);
+    }
+
+    /// The plant's wake lateness beyond which the overrun policy acts, ns (see
+    /// [`LoopSection::overrun_after_us`]; one period if unset).
+    pub fn overrun_after_ns(&self) -> u64 {
+        self.loop_.overrun_after_us.map_or_else(
+            || (self.loop_.ts_s * 1e9).round() as u64,
+            |us| u64::from(us) * 1000,
+        )
     }
 
     /// Motion duration T of the scenario, s.

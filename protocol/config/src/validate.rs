@@ -217,6 +217,15 @@ impl LoopSection {
                 "10 <= silence_timeout_ms <= 600000 ms",
             ));
         }
+        if let Some(after) = self.overrun_after_us
+            && !(1..=1_000_000).contains(&after)
+        {
+            return Err(range(
+                "loop.overrun_after_us",
+                after,
+                "1 <= overrun_after_us <= 1000000 us",
+            ));
+        }
         self.realtime.validate("loop.realtime", ts)?;
         self.lockstep.validate("loop.lockstep", ts)
     }

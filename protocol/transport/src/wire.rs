@@ -151,9 +151,23 @@ pub enum ControlKind {
     /// The plant stopped the loop at `tick` on request (STOP from the supervisor, or SIGTERM) and
     /// brakes; `text` says which.
     Stopped = 8,
+    /// The plant's own process woke for `tick` later than its overrun bound with
+    /// `overrun = "fault"`: it stopped the loop and brakes; `text` says how late.
+    Overrun = 9,
 }
 
 impl ControlKind {
+    /// Whether a plant may send this kind (what the supervisor and a bridge believe from one).
+    pub fn said_by_plant(self) -> bool {
+        use ControlKind::*;
+        matches!(self, Ready | Fault | Diverged | Stopped | Overrun)
+    }
+
+    /// Whether a controller may send this kind.
+    pub fn said_by_controller(self) -> bool {
+        matches!(self, ControlKind::Ready | ControlKind::Armed)
+    }
+
     /// The kind of a wire value, None for a value this version does not know.
     pub fn from_wire(v: u32) -> Option<Self> {
         [
@@ -164,6 +178,7 @@ impl ControlKind {
             Self::Armed,
             Self::Diverged,
             Self::Stopped,
+            Self::Overrun,
         ]
         .into_iter()
         .find(|k| *k as u32 == v)
@@ -318,6 +333,7 @@ mod tests {
             ControlKind::Armed,
             ControlKind::Diverged,
             ControlKind::Stopped,
+            ControlKind::Overrun,
         ] {
             assert_eq!(ControlKind::from_wire(k as u32), Some(k));
         }

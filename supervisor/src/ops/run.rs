@@ -12,7 +12,7 @@ use crate::study::Study;
 use crate::study::analysis::mismatch;
 use crate::timing::{PeakRss, Timing, TimingSummary};
 use anyhow::{Context, Result, bail};
-use deltaloop_config::{Law, LoopMode, RunConfig};
+use deltaloop_config::{Law, LoopMode, Overrun, RunConfig};
 use deltaloop_transport::ipc;
 use std::path::{Path, PathBuf};
 
@@ -65,6 +65,11 @@ pub struct Overrides {
     /// Sensor noise seed (sensor.seed).
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Realtime: what the plant does when its own process wakes later than
+    /// loop.overrun_after_us (default one tick): stretch (pause simulated time for the stall),
+    /// catch-up (run the backlog on the wall clock) or fault (stop the run) (loop.overrun).
+    #[arg(long, value_parser = Overrun::parse)]
+    pub overrun: Option<Overrun>,
     /// Hold at the end point after the motion, s (scenario.hold_s, 0..=86400).
     #[arg(long)]
     pub hold_s: Option<f64>,
@@ -99,6 +104,9 @@ impl Overrides {
         }
         if let Some(v) = self.seed {
             cfg.sensor.seed = v;
+        }
+        if let Some(v) = self.overrun {
+            cfg.loop_.overrun = v;
         }
         if let Some(v) = self.hold_s {
             cfg.scenario.hold_s = v;

@@ -6,7 +6,7 @@ use crate::record::sensitivity;
 use crate::study::analysis::Mismatch;
 use crate::timing::TimingSummary;
 use deltaloop_config::config::{PathKind, VelocitySource};
-use deltaloop_config::{ControllerParams, Law, LoopMode, Preset, RunConfig};
+use deltaloop_config::{ControllerParams, Law, LoopMode, Overrun, Preset, RunConfig};
 use std::fmt::Write;
 
 /// The paper's published RMS errors (rad) for TDC+IS and TDC+IS+STA (Tables II–IV).
@@ -686,6 +686,9 @@ pub fn timing_markdown(
         "\nOn a virtual machine, stolen CPU time is time the hypervisor gave the (virtual) CPU to someone else: the loop \
          cannot run then, whatever its priority. Compare misses with it before blaming the loop."
     );
+    if mode == LoopMode::Realtime {
+        s.push_str(&overrun_markdown(cfg, metrics, timing));
+    }
     let _ = writeln!(
         s,
         "\n### Latency figures\n\nLatency by percentile, HdrHistogram style: x is the percentile on a log scale of \
@@ -710,6 +713,80 @@ pub fn timing_markdown(
             let _ = writeln!(
                 s,
                 "\n![`{law}` latency by percentile]({law}.latency.png)\n\n![`{law}` latency over run time]({law}.timeline.png)"
+            );
+        }
+    }
+    s
+}
+
+/// Pauses listed per law in the report (all are in `summary.json`, up to its own limit).
+const PAUSES_SHOWN: usize = 8;
+
+/// The realtime plant's own stalls: the policy, each law's real-time factor, its pauses of
+/// simulated time and whether its record says the machine disturbed it.
+fn overrun_markdown(
+    cfg: &RunConfig,
+    metrics: &[LawMetrics],
+    timing: &[Option<TimingSummary>],
+) -> String {
+    let mut s = String::new();
+    let policy = cfg.loop_.overrun;
+    let bound_us = cfg.overrun_after_ns() as f64 * 1e-3;
+    let _ = writeln!(
+        s,
+        "\n### The plant's own stalls\n\nOverrun policy `{policy}`: when the plant's own process woke more than {bound_us:.0} µs \
+         late (the host did not run it), {}. Real-time factor: simulated time over wall time. Disturbance: what in the \
+         run's record says the machine may have disturbed its timing.\n",
+        match policy {
+            Overrun::Stretch => {
+                "simulated time paused for the stall (the backlog was not integrated; replies and arrivals \
+                 kept a continuous simulated clock)"
+            }
+            Overrun::CatchUp => {
+                "it ran the missed ticks back to back on the wall clock, each reply acting at its late arrival"
+            }
+            Overrun::Fault => "the run stopped with an overrun fault",
+        }
+    );
+    let _ = writeln!(
+        s,
+        "| law | real-time factor | pauses | paused (ms) | disturbance |\n|---|---|---|---|---|"
+    );
+    for (m, t) in metrics.iter().zip(timing) {
+        let Some(t) = t else { continue };
+        let _ = writeln!(
+            s,
+            "| `{}` | {} | {} | {:.1} | {} |",
+            m.law,
+            t.realtime_factor.map_or("–".into(), |f| format!("{f:.4}")),
+            t.pauses,
+            t.paused_ms,
+            t.disturbance.as_deref().unwrap_or("none")
+        );
+    }
+    for (m, t) in metrics.iter().zip(timing) {
+        let Some(t) = t.as_ref().filter(|t| t.pauses > 0) else {
+            continue;
+        };
+        let _ = writeln!(s, "\nPauses of `{}`:\n", m.law);
+        for p in t.pause_list.iter().take(PAUSES_SHOWN) {
+            let _ = writeln!(
+                s,
+                "- tick {} (t = {:.4} s): {:.2} ms{}",
+                p.tick,
+                p.t_s,
+                p.ms,
+                p.host_steal_ms.map_or(String::new(), |st| format!(
+                    "; the host stole {st:.0} ms of CPU around it"
+                ))
+            );
+        }
+        if t.pauses as usize > PAUSES_SHOWN {
+            let _ = writeln!(
+                s,
+                "- … {} more (`summary.json` lists the first {})",
+                t.pauses as usize - PAUSES_SHOWN,
+                crate::timing::pauses::MAX_LISTED
             );
         }
     }

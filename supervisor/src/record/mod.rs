@@ -148,6 +148,9 @@ deltaloop_law::text_enum! {
         PlantExited,
         /// The plant exited normally (status 0) before the end of the run.
         PlantQuit,
+        /// The plant stopped the loop (OVERRUN) because its own process woke later than
+        /// `loop.overrun_after_us` with `loop.overrun = "fault"` (the host stalled it), and braked.
+        PlantOverrun,
         /// A loop process exited with its set-up failure code.
         Setup,
         /// A loop process stopped on request (its stopped code) that this supervisor never made.

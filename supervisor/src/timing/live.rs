@@ -3,6 +3,7 @@
 //! [`crate::timing`]) and the joint tracking error (as [`crate::record::metrics`] computes it: reference
 //! minus true joint angles). No I/O: `deltaloop top` and `deltaloop soak` feed it.
 
+use crate::timing::pauses::Pauses;
 use crate::timing::{self, Percentiles};
 use deltaloop_model::Vec3;
 use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg};
@@ -28,6 +29,10 @@ pub struct LiveStats {
     err_now: Option<(u64, Vec3)>,
     err_sq: [f64; 3],
     err_n: u64,
+    /// Ts, ns, when known (realtime): the plant's pauses of simulated time are read off the
+    /// deadlines with it.
+    ts_ns: Option<u64>,
+    pauses: Pauses,
 }
 
 /// What [`LiveStats`] shows at one instant.
@@ -51,6 +56,13 @@ pub struct Snapshot {
     pub err_now: Option<(u64, [f64; 3])>,
     /// RMS tracking error per joint over the ticks seen, rad.
     pub err_rms: Option<[f64; 3]>,
+    /// Simulated time over wall time since the observer started (realtime, period known).
+    pub realtime_factor: Option<f64>,
+    /// The plant's pauses of simulated time for its own stalls seen so far, and their total, ms.
+    pub pauses: u64,
+    pub paused_ms: f64,
+    /// The longest pause: ms, and the tick after it.
+    pub longest_pause: Option<(f64, u64)>,
 }
 
 impl LiveStats {
@@ -68,7 +80,15 @@ impl LiveStats {
             err_now: None,
             err_sq: [0.0; 3],
             err_n: 0,
+            ts_ns: None,
+            pauses: Pauses::default(),
         }
+    }
+
+    /// Also counts the plant's pauses of simulated time (realtime), with the loop's period Ts, ns.
+    pub fn with_period(mut self, ts_ns: u64) -> Self {
+        self.ts_ns = (ts_ns > 0).then_some(ts_ns);
+        self
     }
 
     /// Adds one telemetry message (the safe stop after a fault is not part of the loop).
@@ -87,6 +107,9 @@ impl LiveStats {
         if self.realtime {
             self.wake_lateness
                 .saturating_record(timing::wake_lateness_ns(m).max(1));
+            if let Some(ts) = self.ts_ns.filter(|_| m.t_deadline_ns > 0) {
+                self.pauses.tick(m.tick, m.t_deadline_ns, ts, None);
+            }
         }
         if let Some(rt) = timing::round_trip_ns(m) {
             self.round_trip.saturating_record(rt.max(1));
@@ -119,6 +142,13 @@ impl LiveStats {
                 .then(|| timing::percentiles(&self.wake_lateness)),
             err_now: self.err_now.map(|(k, e)| (k, e.into())),
             err_rms: (self.err_n > 0).then(|| self.err_sq.map(|s| (s / n).sqrt())),
+            realtime_factor: self
+                .ts_ns
+                .filter(|_| self.realtime)
+                .and_then(|ts| self.pauses.realtime_factor(ts)),
+            pauses: self.pauses.count,
+            paused_ms: self.pauses.total_ns as f64 * 1e-6,
+            longest_pause: self.pauses.longest.map(|(ns, k)| (ns as f64 * 1e-6, k)),
         }
     }
 }
@@ -180,6 +210,26 @@ mod tests {
         assert!((s.miss_ratio - 9e-3).abs() < 1e-12);
         // Lockstep: no deadline, no wake lateness.
         assert!(LiveStats::new(false).snapshot().wake_lateness.is_none());
+        assert_eq!(s.realtime_factor, None, "no period given");
+    }
+
+    /// With the period known, a deadline later than the ticks account for is a pause of the
+    /// plant's clock: counted, its longest named, and the real-time factor below 1.
+    #[test]
+    fn pauses_of_the_plants_clock_show_live() {
+        let mut l = LiveStats::new(true).with_period(300_000);
+        for k in 0..1000u64 {
+            let mut m = tel(k, 10_000, 2_000, 0, 0);
+            if k >= 400 {
+                m.t_deadline_ns += 10_000_000;
+                m.t_wake_ns += 10_000_000;
+            }
+            l.telemetry(&m);
+        }
+        let s = l.snapshot();
+        assert_eq!((s.pauses, s.longest_pause), (1, Some((10.0, 400))));
+        let f = s.realtime_factor.unwrap();
+        assert!((f - 299.7 / 309.7).abs() < 1e-12, "{f}");
     }
 
     /// The tracking error is q_d − q_true per joint, its RMS over the states seen.

@@ -3,6 +3,7 @@
 
 pub mod hlog;
 pub mod live;
+pub mod pauses;
 pub mod timeline;
 
 use crate::timing::timeline::Timeline;
@@ -10,6 +11,7 @@ use anyhow::{Context, Result};
 use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
 use hdrhistogram::Histogram;
 use hlog::HlogWriter;
+use pauses::{Pause, Pauses, StealLog};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -77,6 +79,8 @@ pub struct Timing {
     pub ticks: u64,
     /// The plant's latest wake-up (realtime): lateness (ns) and its tick.
     pub worst_wake: Option<(u64, u64)>,
+    /// The plant's pauses of simulated time for its own stalls (realtime, `overrun = "stretch"`).
+    pub pauses: Pauses,
     /// Ticks whose torque was not applied (realtime): the controller sent none for the tick within
     /// the torque budget, counted from the state's publication (not from the tick's deadline).
     pub misses: u64,
@@ -180,6 +184,20 @@ pub struct TimingSummary {
     pub wake_lateness: Percentiles,
     /// The tick of the plant's latest wake-up (`wake_lateness.max_us`), realtime.
     pub wake_lateness_max_tick: Option<u64>,
+    /// Simulated time over wall time (realtime): 1 when the plant kept to the wall clock, below
+    /// 1 when it paused simulated time for its own stalls (`overrun = "stretch"`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub realtime_factor: Option<f64>,
+    /// The plant's pauses of simulated time for its own stalls: how many, and their total, ms.
+    pub pauses: u64,
+    pub paused_ms: f64,
+    /// The first [`pauses::MAX_LISTED`] pauses: tick, length, the host's steal around each.
+    pub pause_list: Vec<Pause>,
+    /// Why the machine may have disturbed this run's timing (realtime; None: nothing in its
+    /// record says so): the plant paused or woke a tick or more late, or misses beyond
+    /// [`MAX_MISS_SHARE`] of the ticks or a burst of [`MAX_MISS_BURST`]; the host's steal is
+    /// added for context. Outcomes that depend on timing are judged only on runs without it.
+    pub disturbance: Option<String>,
     pub period_jitter: Percentiles,
     pub state_to_controller: Percentiles,
     pub controller_compute: Percentiles,
@@ -189,6 +207,16 @@ pub struct TimingSummary {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub link_rtt: Option<Percentiles>,
 }
+
+/// The share of missed ticks above which a realtime run counts as disturbed by the machine (see
+/// [`TimingSummary::disturbance`]).
+pub const MAX_MISS_SHARE: f64 = 0.02;
+
+/// The burst of consecutive missed ticks from which a realtime run counts as disturbed: one
+/// torque held for 1.5 ms or more can cost more tracking than a whole delay under study (bursts
+/// of 7 to 11 cost `tdc` +16 % to +128 % on S1; bursts of 3 left it within 1 %,
+/// docs/guide/delay-study.md).
+pub const MAX_MISS_BURST: u64 = 5;
 
 /// Samples the supervisor lost per stream.
 #[derive(Debug, Clone, Serialize, PartialEq)]
@@ -223,6 +251,7 @@ impl Default for Timing {
             arrival: Dist::new("arrival", "A_k - t_k: when an applied command took effect"),
             ticks: 0,
             worst_wake: None,
+            pauses: Pauses::default(),
             misses: 0,
             max_consecutive_misses: 0,
             miss_run: 0,
@@ -350,6 +379,8 @@ pub struct TimingAcc {
     /// The last tick counted.
     last: Option<u64>,
     hlogs: Option<Hlogs>,
+    /// The host's steal, sampled while the loop runs (realtime process runs).
+    steal: Option<StealLog>,
 }
 
 impl TimingAcc {
@@ -377,6 +408,22 @@ impl TimingAcc {
             reached: 0,
             last: None,
             hlogs: None,
+            steal: None,
+        }
+    }
+
+    /// Also samples the host's steal while the loop runs ([`TimingAcc::sample_steal`]), so each
+    /// pause says what the host took at the time.
+    pub fn with_steal(mut self) -> Self {
+        self.steal = Some(StealLog::default());
+        self
+    }
+
+    /// Samples the host's steal at `now_ns` (every [`pauses::STEAL_EVERY_NS`] at most, unless
+    /// `last`: the loop has ended), if asked for.
+    pub fn sample_steal(&mut self, now_ns: u64, last: bool) {
+        if let Some(s) = &mut self.steal {
+            s.sample(now_ns, last);
         }
     }
 
@@ -491,6 +538,10 @@ impl TimingAcc {
             }
             t.span_ns.1 = m.t_wake_ns;
             if self.realtime {
+                if m.t_deadline_ns > 0 {
+                    t.pauses
+                        .tick(seen.k, m.t_deadline_ns, self.ts_ns, self.steal.as_ref());
+                }
                 v.wake_lateness = Some(wake_lateness_ns(&m));
                 if let Some(p) = self.prev_wake {
                     v.period_jitter = Some(m.t_wake_ns.saturating_sub(p).abs_diff(self.ts_ns));
@@ -593,12 +644,72 @@ impl Timing {
             peak_rss_mib: self.peak_rss.clone(),
             wake_lateness: p(&self.wake_lateness),
             wake_lateness_max_tick: self.worst_wake.map(|(_, k)| k),
+            realtime_factor: if self.realtime {
+                self.pauses.realtime_factor(self.ts_ns)
+            } else {
+                None
+            },
+            pauses: self.pauses.count,
+            paused_ms: self.pauses.total_ns as f64 * 1e-6,
+            pause_list: self.pauses.listed.clone(),
+            disturbance: self.disturbance(),
             period_jitter: p(&self.period_jitter),
             state_to_controller: p(&self.state_to_controller),
             controller_compute: p(&self.compute),
             round_trip: p(&self.round_trip),
             link_rtt: self.link.map(|_| p(&self.link_rtt)),
         }
+    }
+
+    /// Why the machine may have disturbed this run (see [`TimingSummary::disturbance`]); None for
+    /// a run that is not realtime or whose record shows nothing.
+    pub fn disturbance(&self) -> Option<String> {
+        if !self.realtime {
+            return None;
+        }
+        let mut why = Vec::new();
+        if let Some((ns, k)) = self.pauses.longest {
+            why.push(format!(
+                "the plant's own process stalled: simulated time paused {} time(s), {:.1} ms in all (longest {:.1} ms at tick {k})",
+                self.pauses.count,
+                self.pauses.total_ns as f64 * 1e-6,
+                ns as f64 * 1e-6
+            ));
+        }
+        if let Some((ns, k)) = self.worst_wake.filter(|(ns, _)| *ns >= self.ts_ns) {
+            why.push(format!(
+                "the plant once woke {:.0} µs late (tick {k}, a tick or more)",
+                ns as f64 * 1e-3
+            ));
+        }
+        let share = self.misses as f64 / self.ticks.max(1) as f64;
+        if share > MAX_MISS_SHARE {
+            why.push(format!(
+                "{} misses ({:.1} % of the ticks, more than {:.0} %)",
+                self.misses,
+                share * 100.0,
+                MAX_MISS_SHARE * 100.0
+            ));
+        }
+        if self.max_consecutive_misses >= MAX_MISS_BURST {
+            why.push(format!(
+                "{} ticks missed in a row ({MAX_MISS_BURST} or more)",
+                self.max_consecutive_misses
+            ));
+        }
+        if why.is_empty() {
+            return None;
+        }
+        let stolen: Vec<String> = self
+            .steal
+            .iter()
+            .filter(|c| c.ms > 0.0)
+            .map(|c| format!("{:.0} ms of CPU {}", c.ms, c.cpu))
+            .collect();
+        if !stolen.is_empty() {
+            why.push(format!("the host took {}", stolen.join(" and ")));
+        }
+        Some(why.join("; "))
     }
 
     /// If the plant once woke ten ticks or more late (realtime), what that means for the run: the

@@ -138,22 +138,28 @@ pub(super) fn fault_cause(
     let cause = parts.join("; ");
     Some(Fault {
         tick,
-        kind: fault_kind(plant, ctrl, plant_quit, streams.plant_fault.is_some()),
+        kind: fault_kind(
+            plant,
+            ctrl,
+            plant_quit,
+            streams.plant_fault.as_ref().map(|f| f.overrun),
+        ),
         cause: peer_text::sanitize(cause.as_bytes(), 4 * peer_text::MAX_CHARS),
     })
 }
 
 /// What kind of fault ended the run, from how the children exited (None: still running when
 /// the supervisor stopped it), whether the plant quit early with status 0, and whether it sent
-/// FAULT. A child killed or panicking is the root cause whatever the other did next; then the
-/// controller's own failure (the plant's FAULT for its silence follows from it); then a stop of
-/// the plant on request nobody here made; then the plant's FAULT (the controller went silent
-/// while alive); then the plant's exit code.
+/// FAULT or OVERRUN (`plant_fault`: Some(true) for OVERRUN). A child killed or panicking is the
+/// root cause whatever the other did next; then the controller's own failure (the plant's FAULT
+/// for its silence follows from it); then a stop of the plant on request nobody here made; then
+/// the plant's FAULT (the controller went silent while alive) or OVERRUN (its own process woke
+/// too late); then the plant's exit code.
 fn fault_kind(
     plant: Option<ExitStatus>,
     ctrl: Option<ExitStatus>,
     plant_quit: bool,
-    plant_fault: bool,
+    plant_fault: Option<bool>,
 ) -> FaultKind {
     let failed = |s: Option<ExitStatus>, who| s.filter(|s| !s.success()).map(|s| exit_kind(who, s));
     let (ctrl, plant) = (
@@ -174,7 +180,13 @@ fn fault_kind(
         .or(plant.filter(severe))
         .or(ctrl)
         .or(plant.filter(stopped))
-        .or(plant_fault.then_some(FaultKind::ControllerSilent))
+        .or(plant_fault.map(|overrun| {
+            if overrun {
+                FaultKind::PlantOverrun
+            } else {
+                FaultKind::ControllerSilent
+            }
+        }))
         .or(plant)
         .unwrap_or(if plant_quit {
             FaultKind::PlantQuit
@@ -215,7 +227,7 @@ mod tests {
         let code = |c: i32| Some(ExitStatus::from_raw(c << 8));
         let sig = |s: i32| Some(ExitStatus::from_raw(s));
         let (ok, fault, stopped, setup) = (code(0), code(4), code(5), code(3));
-        let k = |p, c, quit, said| fault_kind(p, c, quit, said);
+        let k = |p, c, quit, said: bool| fault_kind(p, c, quit, said.then_some(false));
         assert_eq!(
             k(fault, sig(libc::SIGKILL), false, true),
             FaultKind::ControllerKilled
@@ -241,6 +253,11 @@ mod tests {
         assert_eq!(k(ok, code(9), false, false), FaultKind::ControllerExited);
         assert_eq!(k(ok, ok, true, false), FaultKind::PlantQuit);
         assert_eq!(k(ok, None, false, false), FaultKind::Hung);
+        // OVERRUN: the plant's own stall, not the controller's silence.
+        assert_eq!(
+            fault_kind(fault, ok, false, Some(true)),
+            FaultKind::PlantOverrun
+        );
     }
 
     /// Regression: a full /dev/shm mid-run killed the plant with a bare "signal 7".

@@ -54,10 +54,9 @@ impl ControlIn {
 
     /// The kinds `who` may send.
     pub(super) fn allowed(&self, kind: ControlKind) -> bool {
-        use ControlKind::*;
         match self.who {
-            Sender::Plant => matches!(kind, Ready | Fault | Diverged | Stopped),
-            Sender::Controller => matches!(kind, Ready | Armed),
+            Sender::Plant => kind.said_by_plant(),
+            Sender::Controller => kind.said_by_controller(),
             Sender::Supervisor => false,
         }
     }

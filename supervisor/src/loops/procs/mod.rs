@@ -109,10 +109,15 @@ pub fn run_law(
     // not wait for the supervisor (regression: a 10-minute lockstep run lost its first 32 k
     // ticks while the supervisor allocated per-tick tables after START).
     let link = crate::output::link::across(cfg);
+    let mut timing = TimingAcc::new(n, ts_ns, mode == LoopMode::Realtime, link)
+        .with_hlogs(run_dir, &format!("{law}."));
+    // The steal at each pause of the plant's clock, when the plant runs on this host.
+    if mode == LoopMode::Realtime && link != Some(crate::timing::Across::Plant) {
+        timing = timing.with_steal();
+    }
     let mut streams = Observation::new(
         lawrun::recorder(study, law, keep)?,
-        TimingAcc::new(n, ts_ns, mode == LoopMode::Realtime, link)
-            .with_hlogs(run_dir, &format!("{law}.")),
+        timing,
         cfg.record
             .timing_csv
             .then(|| TimingCsv::create(&run_dir.join(format!("{law}.timing.csv")), link))

@@ -115,10 +115,12 @@ pub(super) struct Observation<'a> {
     pub(super) on_tick: Option<OnTick<'a>>,
 }
 
-/// A tick and a line from the plant's control channel (FAULT, DIVERGED).
+/// A tick and a line from the plant's control channel (FAULT, OVERRUN, DIVERGED).
 pub(super) struct PlantSaid {
     pub(super) tick: u64,
     pub(super) cause: String,
+    /// OVERRUN: the plant stopped because its own process woke too late (`overrun = "fault"`).
+    pub(super) overrun: bool,
 }
 
 pub(super) fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
@@ -204,12 +206,13 @@ impl<'a> Observation<'a> {
             let fault = || PlantSaid {
                 tick: m.tick,
                 cause: m.text(),
+                overrun: m.kind() == Some(ControlKind::Overrun),
             };
             match m.kind() {
                 Some(ControlKind::Diverged) if self.diverged.is_none() => {
                     self.diverged = Some(fault())
                 }
-                Some(ControlKind::Fault) if self.plant_fault.is_none() => {
+                Some(ControlKind::Fault | ControlKind::Overrun) if self.plant_fault.is_none() => {
                     self.plant_fault = Some(fault())
                 }
                 _ => {}
@@ -381,6 +384,7 @@ pub(super) fn observe(
     let mut diverged_stop = false;
     let mut first_exit: Option<(u64, Sender)> = None;
     loop {
+        streams.timing.sample_steal(rt::now_ns(), false);
         streams.drain(obs)?;
         if let Some(a) = streams.answered() {
             feed.feed(&study.reference, a)?;
@@ -425,6 +429,7 @@ pub(super) fn observe(
         }
         std::thread::sleep(Duration::from_millis(1));
     }
+    streams.timing.sample_steal(rt::now_ns(), true);
     streams.drain(obs)?;
     Ok(Ending {
         plant: pair.plant.exited(),

@@ -113,38 +113,10 @@ pub struct Row {
 
 /// The share of missed ticks above which a link point's realtime run is disturbed (see
 /// [`Row::link_disturbed`]).
-pub const LINK_MAX_MISS_SHARE: f64 = 0.02;
+pub const LINK_MAX_MISS_SHARE: f64 = crate::timing::MAX_MISS_SHARE;
 
-/// The burst of consecutive missed ticks from which a link point's realtime run is disturbed:
-/// one torque held for 1.5 ms or more can cost more tracking than the whole delay under study
-/// (bursts of 7 to 11 cost `tdc` +16 % to +128 % on S1; bursts of 3 left it within 1 %,
-/// docs/guide/delay-study.md).
-pub const LINK_MAX_MISS_BURST: u64 = 5;
-
-/// Why a realtime run with timing `t` and period `ts_s` is disturbed, if it is.
-fn disturbed(t: &crate::timing::TimingSummary, ts_s: f64) -> Option<String> {
-    let share = t.deadline_misses as f64 / t.ticks.max(1) as f64;
-    if share > LINK_MAX_MISS_SHARE {
-        Some(format!(
-            "{} misses ({:.1} % of the ticks, more than {:.0} %)",
-            t.deadline_misses,
-            share * 100.0,
-            LINK_MAX_MISS_SHARE * 100.0
-        ))
-    } else if t.max_consecutive_misses >= LINK_MAX_MISS_BURST {
-        Some(format!(
-            "{} ticks missed in a row ({LINK_MAX_MISS_BURST} or more)",
-            t.max_consecutive_misses
-        ))
-    } else if t.wake_lateness.max_us >= ts_s * 1e6 {
-        Some(format!(
-            "the plant once woke {:.0} µs late (a tick or more)",
-            t.wake_lateness.max_us
-        ))
-    } else {
-        None
-    }
-}
+/// The burst of consecutive missed ticks from which a link point's realtime run is disturbed.
+pub const LINK_MAX_MISS_BURST: u64 = crate::timing::MAX_MISS_BURST;
 
 /// What a link point measured besides its metrics (see [`Row::link_delay_us`]).
 #[derive(Debug, Clone, Default)]
@@ -457,7 +429,7 @@ fn run_one(
                         link.median_arrival_us =
                             (!h.is_empty()).then(|| h.value_at_quantile(0.5) as f64 / 1e3);
                         link.rtt_p50_us = t.link_rtt.as_ref().map(|p| p.p50_us);
-                        link.disturbed = disturbed(&t, ts_s);
+                        link.disturbed = t.disturbance.clone();
                     }
                     (r.run.metrics, Some(t))
                 }

@@ -103,10 +103,14 @@ impl Watched {
             .and_then(|c| RunConfig::from_file(c).ok())
             .and_then(|c| Study::new(c).ok());
         let realtime = info.mode == Some(LoopMode::Realtime);
+        let mut stats = LiveStats::new(realtime);
+        if let Some(st) = &study {
+            stats = stats.with_period(st.config.ts_ns());
+        }
         Self {
             info,
             study,
-            stats: LiveStats::new(realtime),
+            stats,
             status: Status::Waiting,
             stop_reason: None,
             last_liveness: Instant::now(),
@@ -152,7 +156,9 @@ impl Watched {
                 )
             };
             let why = match m.kind() {
-                Some(ControlKind::Fault) => format!("fault at tick {}: {}", m.tick, text()),
+                Some(ControlKind::Fault | ControlKind::Overrun) => {
+                    format!("fault at tick {}: {}", m.tick, text())
+                }
                 Some(ControlKind::Diverged) => format!("diverged at tick {}: {}", m.tick, text()),
                 Some(ControlKind::Stopped) => format!("stopped at tick {}: {}", m.tick, text()),
                 _ => continue,

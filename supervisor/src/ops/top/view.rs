@@ -93,6 +93,16 @@ pub fn lines(info: &RunInfo, total: Option<u64>, s: &Snapshot, status: &Status) 
             "misses   {} (ratio {:.2e})   observer missed {} ticks",
             s.misses, s.miss_ratio, s.observer_gaps
         ),
+        match (s.realtime_factor, s.longest_pause) {
+            (Some(f), Some((ms, k))) => format!(
+                "sim time real-time factor {f:.4}: the plant paused {} time(s), {:.1} ms (longest {ms:.1} ms at tick {k})",
+                s.pauses, s.paused_ms
+            ),
+            (Some(f), None) => {
+                format!("sim time real-time factor {f:.4}: no pause of the plant's clock")
+            }
+            (None, _) => "sim time real-time factor -".into(),
+        },
         String::new(),
         format!(
             "{:<15} {:>9} {:>9} {:>9} {:>9}  µs, since tick {since}",
@@ -153,6 +163,12 @@ pub fn plain(info: &RunInfo, s: &Snapshot, status: &Status) -> String {
         s.miss_ratio,
         s.observer_gaps
     );
+    if let Some(f) = s.realtime_factor {
+        line.push_str(&format!(
+            " rtf={f:.4} pauses={} paused_ms={:.1}",
+            s.pauses, s.paused_ms
+        ));
+    }
     line.push_str(&p("rt", &s.round_trip));
     if let Some(w) = &s.wake_lateness {
         line.push_str(&p("wake", w));
