@@ -421,6 +421,11 @@ fn summary_line(s: &SummaryInput<'_>) -> String {
             format!("{prefix}_miss_ratio"),
             format!("{:.2e}", t.miss_ratio),
         ));
+        kv.push((
+            format!("{prefix}_rtf"),
+            t.realtime_factor.map_or("na".into(), |f| format!("{f:.5}")),
+        ));
+        kv.push((format!("{prefix}_pauses"), t.pauses.to_string()));
         if prefix == "rt_split" {
             let share = s
                 .split_steal_share
@@ -713,7 +718,7 @@ fn realtime(out: &Path, name: &str, seconds: f64, layout: Layout) -> Result<crat
         .map(|c| format!("cpu{} {:.0} ms", c.cpu, c.ms))
         .collect();
     println!(
-        "(d) {name:<15} round trip p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us; wake lateness p99.9 {:.1} us; misses {} of {} ({:.2e}); CPU stolen by the host: {}",
+        "(d) {name:<15} round trip p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us; wake lateness p99.9 {:.1} us; misses {} of {} ({:.2e}); real-time factor {} ({} pauses, {:.1} ms); CPU stolen by the host: {}",
         t.round_trip.p50_us,
         t.round_trip.p99_us,
         t.round_trip.p999_us,
@@ -722,6 +727,10 @@ fn realtime(out: &Path, name: &str, seconds: f64, layout: Layout) -> Result<crat
         t.deadline_misses,
         t.ticks,
         t.miss_ratio,
+        t.realtime_factor
+            .map_or("n/a".into(), |f| format!("{f:.5}")),
+        t.pauses,
+        t.paused_ms,
         if steal.is_empty() {
             "n/a".into()
         } else {

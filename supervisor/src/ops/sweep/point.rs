@@ -102,7 +102,7 @@ pub struct Row {
     pub injected_rms_rad: Option<f64>,
     /// Why the realtime run is not a fair twin of the injected one (empty: it is): more than
     /// [`LINK_MAX_MISS_SHARE`] of its ticks missed, a burst of [`LINK_MAX_MISS_BURST`] or more
-    /// missed in a row, or the plant once woke a tick or more late (the machine stalled the
+    /// missed in a row, or the plant paused its clock or once woke a tick or more late (the machine stalled the
     /// loop).
     #[serde(default)]
     pub link_disturbed: Option<String>,
