@@ -14,6 +14,7 @@
 use crate::Role;
 use crate::frame::{self, Hello, Kind, bytes_of};
 use crate::link::{self, Tcp, Udp};
+use crate::seal::{self, End, LinkKey, Session};
 use crate::sides::{ControllerHost, PlantHost};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
@@ -95,6 +96,7 @@ pub fn command(
 /// Serves `a.runs` runs; the exit code is the last far process's (or why the bridge failed).
 pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
     let cmd = command(a.role, a.controller_cmd.as_deref(), a.plant_cmd.as_deref())?;
+    remove_leftovers();
     let mut last = (0, None);
     let mut served = 0;
     while a.runs == 0 || served < a.runs {
@@ -104,7 +106,18 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
                 Some("interrupted while waiting for the near side".into()),
             ));
         };
-        last = serve(a, stream, &cmd, term)?;
+        last = match serve(a, stream, &cmd, term) {
+            Ok(end) => end,
+            // Serving until interrupted: a connection that closed at once, a join that raced
+            // this one, a near side that went away: say so and wait for the next run
+            // (regression: `join --runs 0` exited).
+            Err(e) if a.runs == 0 && !term.load(Ordering::Relaxed) => {
+                eprintln!("deltaloop-bridge: warning: {e:#}; waiting for the next run");
+                std::thread::sleep(Duration::from_secs(1));
+                continue;
+            }
+            Err(e) => return Err(e),
+        };
         served += 1;
         if term.load(Ordering::Relaxed) {
             break;
@@ -225,6 +238,23 @@ impl PlantSidePorts {
     }
 }
 
+/// Proves the link key to the near side ([`seal::initiate`]: a near side without it cannot
+/// answer) and says which role this side joined for, the first sealed frame. One line naming the
+/// near side otherwise.
+fn join(a: &Args, mut stream: TcpStream) -> Result<(Tcp, Session)> {
+    let key = LinkKey::from_env().map_err(anyhow::Error::msg)?;
+    let session = seal::initiate(&mut stream, &key, Duration::from_secs(5))
+        .map_err(|e| anyhow::anyhow!("the near side at {} {e}", a.connect))?;
+    let mut tcp = Tcp::new(stream, &session, End::Far)?;
+    tcp.send(Kind::Join, &[&a.role.to_wire().to_ne_bytes()])?;
+    eprintln!(
+        "deltaloop-bridge: joined the run at {} (link key {})",
+        a.connect,
+        key.fingerprint()
+    );
+    Ok((tcp, session))
+}
+
 /// One run: HELLO, ports, the far process, the loop, the end.
 fn serve(
     a: &Args,
@@ -232,7 +262,7 @@ fn serve(
     cmd: &[String],
     term: &AtomicBool,
 ) -> Result<(u8, Option<String>)> {
-    let mut tcp = Tcp::new(stream)?;
+    let (mut tcp, session) = join(a, stream)?;
     let mut hello = None;
     let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
     while hello.is_none() {
@@ -248,18 +278,22 @@ fn serve(
         if let Some(e) = err {
             bail!("{e}");
         }
+        if term.load(Ordering::Relaxed) {
+            return Ok((
+                EXIT_STOPPED,
+                Some("interrupted while waiting for the near side's HELLO".into()),
+            ));
+        }
         if tcp.closed || rt::now_ns() > end {
             bail!("the near side at {} sent no HELLO", a.connect);
         }
         std::thread::sleep(Duration::from_millis(1));
     }
     let hello = hello.unwrap_or_else(|| unreachable!());
-    let key = frame::run_key(&hello.run_id);
     let fail = |tcp: &mut Tcp, why: String| -> Result<(u8, Option<String>)> {
         let line = format!("far side: {why}");
         tcp.send(
             Kind::Exit,
-            key,
             &[&u32::from(EXIT_SETUP).to_ne_bytes(), line.as_bytes()],
         )?;
         let t = rt::now_ns() + 1_000_000_000;
@@ -269,7 +303,6 @@ fn serve(
         }
         Ok((EXIT_SETUP, Some(line)))
     };
-    tcp.set_key(key);
     if hello.role != a.role {
         return fail(
             &mut tcp,
@@ -287,15 +320,14 @@ fn serve(
     if !plant && let Err(e) = Law::parse(&hello.law) {
         return fail(&mut tcp, format!("law {}: {e}", hello.law));
     }
-    let dir = std::env::temp_dir().join(format!(
-        "deltaloop-join-{}-{}",
-        std::process::id(),
-        hello.run_id
-    ));
+    let dir = match private_dir(&hello.run_id) {
+        Ok(d) => d,
+        Err(e) => return fail(&mut tcp, format!("{e:#}")),
+    };
     let _tmp = TempDir(dir.clone());
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let config = dir.join("config.toml");
-    std::fs::write(&config, &hello.config)?;
+    crate::files::create_private(&config, hello.config.as_bytes())
+        .with_context(|| format!("cannot write {}", config.display()))?;
     if let Err(e) = RunConfig::from_file(&config) {
         return fail(&mut tcp, format!("the run's config: {e:#}"));
     }
@@ -314,7 +346,7 @@ fn serve(
     let port = u64::from(udp.local_addr()?.port());
     let mut far_emu = hello.emulation;
     far_emu.seed = far_emu.seed.wrapping_add(1);
-    let mut udp = Udp::new(udp, key, far_emu)?;
+    let mut udp = Udp::sealed(udp, &session, End::Far, far_emu)?;
     let spin_ns = match crate::spin_ns(&config, mode, a.spin_us) {
         Ok(s) => s,
         Err(e) => return fail(&mut tcp, format!("{e:#}")),
@@ -324,12 +356,11 @@ fn serve(
         Ok(c) => c,
         Err(e) => return fail(&mut tcp, format!("{e:#}")),
     };
-    tcp.send(Kind::Ack, key, &[&port.to_ne_bytes()])?;
+    tcp.send(Kind::Ack, &[&port.to_ne_bytes()])?;
     udp.send(Kind::Punch, &[], rt::now_ns())?;
     let mut link = FarLink {
         udp,
         tcp,
-        key,
         child,
         stop_sent: false,
         near_gone_ns: None,
@@ -371,6 +402,65 @@ enum Either {
 
 /// Removes the run's temporary folder (its config) when the run is over.
 struct TempDir(PathBuf);
+
+/// The prefix of a far bridge's private folder in the temporary directory.
+const DIR_PREFIX: &str = "deltaloop-join-";
+
+/// A new folder of this process for run `run_id`, mode 700, under a name no one can guess
+/// (regression: the name was `deltaloop-join-<pid>-<run id>`, and a link planted there made
+/// `join` write the run's config through it). Never an existing path.
+fn private_dir(run_id: &str) -> Result<PathBuf> {
+    use std::os::unix::fs::DirBuilderExt;
+    let salt: [u8; 8] = crate::seal::random_bytes().map_err(anyhow::Error::msg)?;
+    let salt: String = salt.iter().map(|b| format!("{b:02x}")).collect();
+    let dir = std::env::temp_dir().join(format!(
+        "{DIR_PREFIX}{}-{run_id}-{salt}",
+        std::process::id()
+    ));
+    std::fs::DirBuilder::new()
+        .mode(0o700)
+        .create(&dir)
+        .with_context(|| format!("cannot create {}", dir.display()))?;
+    Ok(dir)
+}
+
+/// Removes what far bridges killed outright left behind: their private folders (a process that
+/// is gone named in the folder's name) and their dead iceoryx2 nodes' resources (regression: a
+/// far bridge killed with -9 left 17 entries, 11 MiB, in /dev/shm and its folder, and no later
+/// `join` removed them). Says what it removed.
+pub fn remove_leftovers() {
+    let mut gone = 0;
+    if let Ok(rd) = std::fs::read_dir(std::env::temp_dir()) {
+        for e in rd.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let Some(pid) = name
+                .strip_prefix(DIR_PREFIX)
+                .and_then(|r| r.split('-').next())
+                .and_then(|p| p.parse::<i32>().ok())
+            else {
+                continue;
+            };
+            // SAFETY: kill with signal 0 only asks whether the process exists.
+            let alive = unsafe { libc::kill(pid, 0) } == 0
+                || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM);
+            // SAFETY: geteuid has no preconditions.
+            let me = unsafe { libc::geteuid() };
+            let mine = e
+                .metadata()
+                .is_ok_and(|m| std::os::unix::fs::MetadataExt::uid(&m) == me);
+            if !alive && mine && std::fs::remove_dir_all(e.path()).is_ok() {
+                gone += 1;
+            }
+        }
+    }
+    let nodes = ipc::remove_dead_nodes();
+    if gone > 0 || !nodes.is_empty() {
+        eprintln!(
+            "deltaloop-bridge: removed what earlier far bridges killed outright left: {gone} folder(s), the iceoryx2 resources of {} dead node(s)",
+            nodes.len()
+        );
+    }
+}
 
 impl Drop for TempDir {
     fn drop(&mut self) {
@@ -447,7 +537,6 @@ impl Drop for FarChild {
 struct FarLink {
     udp: Udp,
     tcp: Tcp,
-    key: u64,
     child: FarChild,
     stop_sent: bool,
     /// When the near side closed the control connection.
@@ -550,7 +639,7 @@ impl FarLink {
             let line: Vec<u8> = c.stderr_buf.drain(..=i).collect();
             let line = wire::escape_peer_text(&String::from_utf8_lossy(&line[..i]));
             eprintln!("{line}");
-            self.tcp.send(Kind::Log, self.key, &[line.as_bytes()])?;
+            self.tcp.send(Kind::Log, &[line.as_bytes()])?;
             c.last_line = line;
         }
         Ok(())
@@ -562,7 +651,6 @@ impl FarLink {
         let line = self.child.last_line.clone();
         self.tcp.send(
             Kind::Exit,
-            self.key,
             &[&u32::from(code).to_ne_bytes(), line.as_bytes()],
         )?;
         let t = rt::now_ns() + 500_000_000;
@@ -621,7 +709,7 @@ impl Far {
         while let Some(s) = self.ports.control_in.receive().ipc("receive control")? {
             let c = *s.payload();
             if c.kind().is_some_and(ControlKind::said_by_controller) {
-                l.tcp.send(Kind::Control, l.key, &[bytes_of(&c)])?;
+                l.tcp.send(Kind::Control, &[bytes_of(&c)])?;
             }
         }
         if l.tcp.pending() > 0 {
@@ -682,15 +770,14 @@ impl FarPlant {
             let c = &self.ports;
             let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
             let ready = (state_in, udp_in);
-            self.host
-                .turn(&ports, ready, &mut l.udp, &mut l.tcp, l.key)?;
+            self.host.turn(&ports, ready, &mut l.udp, &mut l.tcp)?;
             self.plant_out(l)?;
             if let Some(code) = l.ended(&self.ports.control, err_in, term)? {
                 // What the plant published last (its final state, the safe stop's telemetry)
                 // goes out before its end.
                 self.plant_out(l)?;
                 let ports = (&self.ports.state, &self.ports.state_ready);
-                self.host.states(ports, &mut l.udp, &mut l.tcp, l.key)?;
+                self.host.states(ports, &mut l.udp, &mut l.tcp)?;
                 return Ok(code);
             }
         }
@@ -727,15 +814,56 @@ impl FarPlant {
             .receive()
             .ipc("receive plant control")?
         {
-            l.tcp.send(Kind::Control, l.key, &[bytes_of(s.payload())])?;
+            l.tcp.send(Kind::Control, &[bytes_of(s.payload())])?;
         }
         while let Some(s) = self.ports.telemetry.receive().ipc("receive telemetry")? {
-            l.tcp
-                .queue(Kind::Telemetry, l.key, &[bytes_of(s.payload())])?;
+            l.tcp.queue(Kind::Telemetry, &[bytes_of(s.payload())])?;
         }
         if l.tcp.pending() > 0 {
             l.tcp.flush()?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Regression: the far bridge's folder was `deltaloop-join-<pid>-<run id>`, so a link planted
+    /// at that path made `join` write the run's config through it. The folder is new, private
+    /// (mode 700) and named with 64 random bits; two for the same run never collide.
+    #[test]
+    fn regression_the_far_folder_is_new_private_and_unguessable() {
+        use std::os::unix::fs::PermissionsExt;
+        let a = private_dir("r1").unwrap();
+        let b = private_dir("r1").unwrap();
+        assert_ne!(a, b);
+        let mode = std::fs::metadata(&a).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode, 0o700);
+        let name = a.file_name().unwrap().to_string_lossy().into_owned();
+        assert!(name.starts_with(&format!("{DIR_PREFIX}{}-r1-", std::process::id())));
+        // A config written there never follows a link planted at its name.
+        let target = a.join("elsewhere");
+        std::os::unix::fs::symlink(&target, b.join("config.toml")).unwrap();
+        assert!(crate::files::create_private(&b.join("config.toml"), b"x").is_err());
+        assert!(!target.exists());
+        for d in [a, b] {
+            std::fs::remove_dir_all(d).unwrap();
+        }
+    }
+
+    /// Regression: a far bridge killed with -9 left its folder behind for good. The next one
+    /// removes the folders of processes that are gone, and only those.
+    #[test]
+    fn regression_leftover_folders_of_dead_far_bridges_are_removed() {
+        // A pid that is not running: past the largest pid the kernel hands out.
+        let dead = std::env::temp_dir().join(format!("{DIR_PREFIX}{}-r-00", i32::MAX - 7));
+        let live = private_dir("r").unwrap();
+        std::fs::create_dir_all(&dead).unwrap();
+        remove_leftovers();
+        assert!(!dead.exists());
+        assert!(live.exists());
+        std::fs::remove_dir_all(live).unwrap();
     }
 }

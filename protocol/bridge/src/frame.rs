@@ -1,21 +1,26 @@
 //! The link's wire format: what crosses between the two hosts. Every datagram (UDP, the loop) and
-//! every frame (TCP, the control plane) starts with the same 16-byte [`Header`]: magic `DLB1`,
-//! a kind, and the run key (FNV-1a 64 of the run id), so a datagram of another run, another
-//! program or another byte order is dropped. The payloads are the `#[repr(C)]` wire types of
-//! `deltaloop_transport::wire`, byte for byte (one copy: shared memory → socket, socket → shared
+//! every frame (TCP, the control plane) starts with the same 24-byte header: magic `DLB2`, a
+//! kind, the run's session id and the message's counter; then its payload, sealed, and the
+//! 16-byte AEAD tag ([`crate::seal`]: the header is authenticated with it, the counter is the
+//! nonce). A message of another run, another program or another byte order is dropped before
+//! any decryption. The payloads are the `#[repr(C)]` wire types of `deltaloop_transport::wire`,
+//! byte for byte (encrypted in place: shared memory → socket buffer, socket buffer → shared
 //! memory). Both hosts must have the same byte order (checked by the magic).
 
 use deltaloop_transport::wire::{ControlMsg, RefSample, StateMsg, TelemetryMsg, TorqueMsg};
 
-/// `DLB1`, read as a native u32: a host of the other byte order reads `1BLD` and drops it.
-pub const MAGIC: u32 = u32::from_ne_bytes(*b"DLB1");
+/// `DLB2`, read as a native u32: a host of the other byte order reads `2BLD` and drops it (and a
+/// peer of the unsealed link, `DLB1`, is told it is of another version).
+pub const MAGIC: u32 = u32::from_ne_bytes(*b"DLB2");
 /// Header bytes before every payload.
-pub const HEADER: usize = 16;
+pub const HEADER: usize = 24;
+/// Bytes after every sealed payload: the AEAD tag.
+pub const TAG: usize = crate::seal::TAG_LEN;
 /// The largest TCP frame (after its u32 length): the HELLO's config text or a reference chunk.
 pub const MAX_FRAME: usize = 1 << 20;
-/// The largest datagram the loop sends, bytes (three replies: header + 3 × 144; a state is
-/// header + 168).
-pub const MAX_DATAGRAM: usize = HEADER + crate::replies::COPIES * crate::replies::ENTRY;
+/// The largest datagram the loop sends, bytes (three replies: header + 3 × 144 + tag; a state
+/// is header + 168 + tag).
+pub const MAX_DATAGRAM: usize = HEADER + crate::replies::COPIES * crate::replies::ENTRY + TAG;
 
 /// What a datagram or frame carries.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -48,6 +53,10 @@ pub enum Kind {
     Log = 22,
     /// TCP, far → near (remote plant): one `TelemetryMsg`.
     Telemetry = 23,
+    /// TCP, far → near, the first sealed frame after the handshake: which role the far side
+    /// joined for (u32: [`crate::Role`] as 1 controller, 2 plant). It proves the far side holds
+    /// the session; the near side says nothing of the run before it.
+    Join = 24,
 }
 
 impl Kind {
@@ -55,7 +64,7 @@ impl Kind {
         use Kind::*;
         [
             State, Torque, Ping, Pong, Punch, Hello, Ack, Control, Reference, Final, Exit, Log,
-            Telemetry,
+            Telemetry, Join,
         ]
         .into_iter()
         .find(|k| *k as u16 == v)
@@ -81,6 +90,8 @@ unsafe impl Pod for RefSample {}
 unsafe impl Pod for TelemetryMsg {}
 // SAFETY: a primitive.
 unsafe impl Pod for u64 {}
+// SAFETY: a primitive.
+unsafe impl Pod for u32 {}
 
 /// The bytes of `v`.
 pub fn bytes_of<T: Pod>(v: &T) -> &[u8] {
@@ -111,12 +122,14 @@ pub fn run_key(run_id: &str) -> u64 {
     h
 }
 
-/// Writes the header of a `kind` message of run `key` into `out[..HEADER]`.
-pub fn put_header(out: &mut [u8], kind: Kind, key: u64) {
+/// Writes the header of a `kind` message of session `session`, counter `counter`, into
+/// `out[..HEADER]`.
+pub fn put_header(out: &mut [u8], kind: Kind, session: u64, counter: u64) {
     out[0..4].copy_from_slice(&MAGIC.to_ne_bytes());
     out[4..6].copy_from_slice(&(kind as u16).to_ne_bytes());
     out[6..8].copy_from_slice(&0u16.to_ne_bytes());
-    out[8..16].copy_from_slice(&key.to_ne_bytes());
+    out[8..16].copy_from_slice(&session.to_ne_bytes());
+    out[16..24].copy_from_slice(&counter.to_le_bytes());
 }
 
 /// Why a datagram or frame was refused: one line.
@@ -129,13 +142,26 @@ pub enum Refused {
     Size { kind: Kind, got: usize },
 }
 
+impl Refused {
+    /// The reason it is counted under.
+    pub fn reason(&self) -> crate::seal::Refusal {
+        match self {
+            Refused::Run => crate::seal::Refusal::OtherRun,
+            _ => crate::seal::Refusal::Malformed,
+        }
+    }
+}
+
 impl std::fmt::Display for Refused {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Refused::Short(n) => write!(f, "{n} bytes, shorter than the {HEADER}-byte header"),
-            Refused::Magic => write!(f, "not a deltaloop link message (magic is not DLB1)"),
+            Refused::Magic => write!(
+                f,
+                "not a message of this deltaloop link version (magic is not DLB2)"
+            ),
             Refused::Kind(k) => write!(f, "unknown kind {k}"),
-            Refused::Run => write!(f, "for another run (run key differs)"),
+            Refused::Run => write!(f, "for another run (session id differs)"),
             Refused::Size { kind, got } => write!(f, "{kind:?} with a {got}-byte payload"),
         }
     }
@@ -150,30 +176,46 @@ fn fixed_size(kind: Kind) -> Option<usize> {
         Kind::Ack => Some(8),
         Kind::Control => Some(size_of::<ControlMsg>()),
         Kind::Telemetry => Some(size_of::<TelemetryMsg>()),
-        Kind::Hello | Kind::Reference | Kind::Exit | Kind::Log | Kind::Torque => None,
+        Kind::Hello | Kind::Join | Kind::Reference | Kind::Exit | Kind::Log | Kind::Torque => None,
     }
 }
 
-/// Checks a message of run `key` (`None`: any run, for the HELLO) and returns its kind and
-/// payload. Never panics, whatever the bytes.
-pub fn parse(b: &[u8], key: Option<u64>) -> Result<(Kind, &[u8]), Refused> {
+/// A message's header, read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Head {
+    pub kind: Kind,
+    pub session: u64,
+    pub counter: u64,
+}
+
+/// Reads the header of message `b` of session `session` (`None`: any). Never panics.
+pub fn head(b: &[u8], session: Option<u64>) -> Result<Head, Refused> {
     if b.len() < HEADER {
         return Err(Refused::Short(b.len()));
     }
     let word = |r: std::ops::Range<usize>| {
         let mut a = [0u8; 8];
         a[..r.len()].copy_from_slice(&b[r]);
-        u64::from_ne_bytes(a)
+        a
     };
-    if word(0..4) as u32 != MAGIC {
+    if u32::from_ne_bytes(word(0..4)[..4].try_into().unwrap_or_default()) != MAGIC {
         return Err(Refused::Magic);
     }
-    let raw = word(4..6) as u16;
+    let raw = u16::from_ne_bytes([b[4], b[5]]);
     let kind = Kind::from_wire(raw).ok_or(Refused::Kind(raw))?;
-    if key.is_some_and(|k| k != word(8..16)) {
+    let id = u64::from_ne_bytes(word(8..16));
+    if session.is_some_and(|s| s != id) {
         return Err(Refused::Run);
     }
-    let payload = &b[HEADER..];
+    Ok(Head {
+        kind,
+        session: id,
+        counter: u64::from_le_bytes(word(16..24)),
+    })
+}
+
+/// Whether `payload` (opened) has a size `kind` allows.
+pub fn check_size(kind: Kind, payload: &[u8]) -> Result<(), Refused> {
     let ok = match kind {
         Kind::Reference => {
             !payload.is_empty()
@@ -184,20 +226,23 @@ pub fn parse(b: &[u8], key: Option<u64>) -> Result<(Kind, &[u8]), Refused> {
         Kind::Torque => crate::replies::valid_len(payload.len()),
         _ => fixed_size(kind).is_none_or(|n| n == payload.len()),
     };
-    if !ok {
-        return Err(Refused::Size {
+    if ok {
+        Ok(())
+    } else {
+        Err(Refused::Size {
             kind,
             got: payload.len(),
-        });
+        })
     }
-    Ok((kind, payload))
 }
 
-/// The key of a message (after [`parse`] accepted it).
-pub fn key_of(b: &[u8]) -> u64 {
-    let mut a = [0u8; 8];
-    a.copy_from_slice(&b[8..16]);
-    u64::from_ne_bytes(a)
+/// Checks an unsealed message (the bench's ping-pong) of session `session` and returns its kind
+/// and payload. Never panics, whatever the bytes.
+pub fn parse(b: &[u8], session: Option<u64>) -> Result<(Kind, &[u8]), Refused> {
+    let h = head(b, session)?;
+    let payload = &b[HEADER..];
+    check_size(h.kind, payload)?;
+    Ok((h.kind, payload))
 }
 
 /// The run as the near side announces it: run id, mode, law, the emulated link, and the resolved
@@ -261,9 +306,9 @@ impl Hello {
                 }
                 "mode" => h.mode = v.to_string(),
                 "law" => h.law = v.to_string(),
-                "delay_ns" => h.emulation.delay_ns = num()?,
-                "jitter_ns" => h.emulation.jitter_ns = num()?,
-                "loss_ppm" => h.emulation.loss_ppm = num()?.min(1_000_000) as u32,
+                "delay_ns" => h.emulation.delay_ns = bounded(k, num()?, MAX_EMULATED_NS)?,
+                "jitter_ns" => h.emulation.jitter_ns = bounded(k, num()?, MAX_EMULATED_NS)?,
+                "loss_ppm" => h.emulation.loss_ppm = bounded(k, num()?, 1_000_000)? as u32,
                 "seed" => h.emulation.seed = num()?,
                 _ => {}
             }
@@ -286,6 +331,19 @@ impl Hello {
     }
 }
 
+/// The largest emulated delay or jitter a HELLO may ask for, ns: what `--link-delay-us` and
+/// `--link-jitter-us` allow (10⁶ µs).
+pub const MAX_EMULATED_NS: u64 = 1_000_000_000;
+
+/// `v` if it is at most `max`, else one line naming the HELLO field.
+fn bounded(k: &str, v: u64, max: u64) -> Result<u64, String> {
+    if v <= max {
+        Ok(v)
+    } else {
+        Err(format!("HELLO {k} = {v}: allowed 0..={max}"))
+    }
+}
+
 fn escape(s: &str) -> String {
     let s: String = s.chars().take(80).collect();
     deltaloop_transport::wire::escape_peer_text(&s)
@@ -297,7 +355,7 @@ mod tests {
 
     fn msg(kind: Kind, key: u64, payload: &[u8]) -> Vec<u8> {
         let mut v = vec![0u8; HEADER];
-        put_header(&mut v, kind, key);
+        put_header(&mut v, kind, key, 0);
         v.extend_from_slice(payload);
         v
     }
@@ -330,6 +388,7 @@ mod tests {
                 got: 167
             })
         ));
+        assert_eq!(Refused::Run.reason(), crate::seal::Refusal::OtherRun);
         m[0] = b'X';
         assert_eq!(parse(&m, Some(1)).unwrap_err(), Refused::Magic);
         let mut m = msg(Kind::Ping, 1, &[0; 168]);
@@ -350,10 +409,37 @@ mod tests {
                     &mut b,
                     Kind::from_wire((n % 23) as u16).unwrap_or(Kind::State),
                     9,
+                    n as u64,
                 );
             }
             let _ = parse(&b, Some(9));
         }
+    }
+
+    /// Regression: a HELLO with jitter_ns = 2⁶⁴ − 1 made the far bridge panic on its first
+    /// datagram (a remainder by jitter + 1 = 0). The emulation is bounded like its flags.
+    #[test]
+    fn regression_a_hello_with_jitter_2_64_minus_1_is_refused_not_a_panic() {
+        let text = format!(
+            "run_id=r\nmode=lockstep\nlaw=tdc\njitter_ns={}\n\nx",
+            u64::MAX
+        );
+        let e = Hello::decode(text.as_bytes()).unwrap_err();
+        assert!(
+            e.contains("jitter_ns") && e.contains("allowed 0..=1000000000"),
+            "{e}"
+        );
+        let text = "run_id=r\nmode=lockstep\nlaw=tdc\nloss_ppm=1000001\n\nx";
+        assert!(
+            Hello::decode(text.as_bytes())
+                .unwrap_err()
+                .contains("loss_ppm")
+        );
+        let ok = format!("run_id=r\nmode=lockstep\nlaw=tdc\njitter_ns={MAX_EMULATED_NS}\n\nx");
+        assert_eq!(
+            Hello::decode(ok.as_bytes()).unwrap().emulation.jitter_ns,
+            MAX_EMULATED_NS
+        );
     }
 
     #[test]

@@ -17,11 +17,13 @@
 //! `recv`/`send` of one datagram, iceoryx2's publish and notify, the clock.
 
 pub mod far;
+pub mod files;
 pub mod frame;
 pub mod link;
 pub mod near;
 pub mod ping;
 pub mod replies;
+pub mod seal;
 pub mod sides;
 #[cfg(feature = "zenoh")]
 pub mod zping;
@@ -122,6 +124,21 @@ impl Role {
             Role::Controller => "controller",
             Role::Plant => "plant",
         }
+    }
+
+    /// The role as a JOIN frame carries it (1 controller, 2 plant).
+    pub fn to_wire(self) -> u32 {
+        match self {
+            Role::Controller => 1,
+            Role::Plant => 2,
+        }
+    }
+
+    /// The role of a JOIN frame's value (None: neither).
+    pub fn from_wire(v: u32) -> Option<Self> {
+        [Role::Controller, Role::Plant]
+            .into_iter()
+            .find(|r| r.to_wire() == v)
     }
 
     /// Parses a word; None if it is neither role.

@@ -3,7 +3,8 @@
 //! stream (frames: a u32 length, then a header and payload), both non-blocking, waited on with
 //! `ppoll` together with the iceoryx2 wake-up event.
 
-use crate::frame::{self, HEADER, Kind, MAX_DATAGRAM, MAX_FRAME};
+use crate::frame::{self, HEADER, Kind, MAX_DATAGRAM, MAX_FRAME, TAG};
+use crate::seal::{Channel, End, Opener, Refusals, Sealer, Session};
 use anyhow::{Context, Result, bail};
 use std::io::{ErrorKind, Read, Write};
 use std::net::{TcpStream, UdpSocket};
@@ -48,10 +49,12 @@ impl Rng {
 const QUEUE: usize = 1024;
 
 /// The loop's datagram socket, connected to the peer (the kernel drops datagrams from anyone
-/// else), with its pre-allocated buffers.
+/// else), with its pre-allocated buffers and, on a run's link, the session's sealing.
 pub struct Udp {
     pub sock: UdpSocket,
-    key: u64,
+    session: u64,
+    /// Sealing and opening (None: the bench's plain ping-pong, never a run).
+    seal: Option<(Sealer, Opener)>,
     buf: [u8; MAX_DATAGRAM],
     emu: Emulation,
     rng: Rng,
@@ -60,19 +63,39 @@ pub struct Udp {
     head: usize,
     len: usize,
     last_due: u64,
-    /// Datagrams refused on receipt (another run, malformed), and the last reason.
-    pub refused: u64,
+    /// Datagrams refused on receipt, by reason, and the first reason in words.
+    pub refused: Refusals,
     pub last_refusal: Option<String>,
     /// Datagrams the emulation dropped.
     pub emulated_lost: u64,
 }
 
 impl Udp {
-    pub fn new(sock: UdpSocket, key: u64, emu: Emulation) -> Result<Self> {
+    /// The loop's socket of a run's link: every datagram sealed under `session` as end `me`.
+    pub fn sealed(sock: UdpSocket, session: &Session, me: End, emu: Emulation) -> Result<Self> {
+        let seal = (
+            session.sealer(me, Channel::Udp),
+            session.opener(me, Channel::Udp),
+        );
+        Self::new(sock, session.id, Some(seal), emu)
+    }
+
+    /// A socket whose datagrams carry `key` in the clear (the bench's ping-pong, never a run).
+    pub fn plain(sock: UdpSocket, key: u64) -> Result<Self> {
+        Self::new(sock, key, None, Emulation::default())
+    }
+
+    fn new(
+        sock: UdpSocket,
+        session: u64,
+        seal: Option<(Sealer, Opener)>,
+        emu: Emulation,
+    ) -> Result<Self> {
         sock.set_nonblocking(true)?;
         Ok(Self {
             sock,
-            key,
+            session,
+            seal,
             buf: [0; MAX_DATAGRAM],
             emu,
             rng: Rng(emu.seed),
@@ -81,19 +104,26 @@ impl Udp {
             head: 0,
             len: 0,
             last_due: 0,
-            refused: 0,
+            refused: Refusals::default(),
             last_refusal: None,
             emulated_lost: 0,
         })
     }
 
-    /// Sends `kind` with `parts` as payload (now, or when the emulated delay says).
+    /// Sends `kind` with `parts` as payload (now, or when the emulated delay says), sealed.
     pub fn send(&mut self, kind: Kind, parts: &[&[u8]], now_ns: u64) -> Result<()> {
+        let counter = self.seal.as_ref().map_or(0, |s| s.0.next_counter());
+        frame::put_header(&mut self.buf, kind, self.session, counter);
         let mut n = HEADER;
-        frame::put_header(&mut self.buf, kind, self.key);
         for p in parts {
             self.buf[n..n + p.len()].copy_from_slice(p);
             n += p.len();
+        }
+        if let Some((sealer, _)) = &mut self.seal {
+            let (head, body) = self.buf.split_at_mut(HEADER);
+            let tag = sealer.seal(head, &mut body[..n - HEADER]);
+            self.buf[n..n + TAG].copy_from_slice(&tag);
+            n += TAG;
         }
         if self.emu.is_off() {
             return self.send_raw(n);
@@ -104,7 +134,7 @@ impl Udp {
         }
         let jitter = match self.emu.jitter_ns {
             0 => 0,
-            j => self.rng.next() % (j + 1),
+            j => self.rng.next() % j.saturating_add(1),
         };
         if self.len == self.queue.len() {
             self.emulated_lost += 1;
@@ -161,8 +191,9 @@ impl Udp {
         (self.len > 0).then(|| self.queue[self.head].0)
     }
 
-    /// Receives one datagram of this run: its kind and payload, None when there is none. Refused
-    /// datagrams are counted and skipped.
+    /// Receives one datagram of this run: its kind and payload (opened), None when there is
+    /// none. Refused datagrams (malformed, of another run, forged, replayed) are counted by
+    /// reason and skipped: never applied.
     pub fn recv(&mut self) -> Result<Option<(Kind, &[u8])>> {
         loop {
             let n = match self.sock.recv(&mut self.buf) {
@@ -177,17 +208,16 @@ impl Udp {
                 }
                 Err(e) => return Err(e).context("receive on the link's UDP socket"),
             };
-            match frame::parse(&self.buf[..n], Some(self.key)) {
-                Ok(_) => {
-                    // Parsed again to give the borrow its lifetime; cheap (a header).
-                    let (k, p) = frame::parse(&self.buf[..n], Some(self.key))
-                        .map_err(|e| anyhow::anyhow!("{e}"))?;
-                    return Ok(Some((k, p)));
-                }
-                Err(e) => {
-                    self.refused += 1;
+            match open(
+                &mut self.buf[..n],
+                self.session,
+                self.seal.as_mut().map(|s| &mut s.1),
+            ) {
+                Ok((kind, len)) => return Ok(Some((kind, &self.buf[HEADER..HEADER + len]))),
+                Err((reason, why)) => {
+                    self.refused.add(reason);
                     if self.last_refusal.is_none() {
-                        self.last_refusal = Some(e.to_string());
+                        self.last_refusal = Some(why);
                     }
                 }
             }
@@ -195,11 +225,43 @@ impl Udp {
     }
 }
 
+/// Opens message `b` (header, sealed payload, tag) of `session` in place with `opener` (None:
+/// unsealed): its kind and the payload's length at `b[HEADER..]`, or the reason and a line.
+fn open(
+    b: &mut [u8],
+    session: u64,
+    opener: Option<&mut Opener>,
+) -> std::result::Result<(Kind, usize), (crate::seal::Refusal, String)> {
+    let refused = |e: frame::Refused| (e.reason(), e.to_string());
+    let h = frame::head(b, Some(session)).map_err(refused)?;
+    let mut len = b.len() - HEADER;
+    if let Some(o) = opener {
+        if len < TAG {
+            return Err((
+                crate::seal::Refusal::Malformed,
+                format!("{} bytes, shorter than a sealed message", b.len()),
+            ));
+        }
+        let (head, sealed) = b.split_at_mut(HEADER);
+        len = o.open(head, h.counter, sealed).map_err(|r| {
+            (
+                r,
+                format!("{:?} counter {}: {}", h.kind, h.counter, r.name()),
+            )
+        })?;
+    }
+    frame::check_size(h.kind, &b[HEADER..HEADER + len]).map_err(refused)?;
+    Ok((h.kind, len))
+}
+
 /// The control plane: a TCP stream with an input buffer for whole frames and an output buffer
-/// written as the socket takes it (never blocking the loop).
+/// written as the socket takes it (never blocking the loop). Every frame is sealed; a frame that
+/// does not open (forged, replayed, out of order, another run) ends the stream with an error.
 pub struct Tcp {
     pub stream: TcpStream,
-    key: Option<u64>,
+    session: u64,
+    seal: Sealer,
+    open: Opener,
     inbuf: Vec<u8>,
     in_len: usize,
     out: Vec<u8>,
@@ -209,12 +271,18 @@ pub struct Tcp {
 }
 
 impl Tcp {
-    pub fn new(stream: TcpStream) -> Result<Self> {
+    /// The control plane of a run's link after the handshake: sealed under `session` as end
+    /// `me`.
+    pub fn new(stream: TcpStream, session: &Session, me: End) -> Result<Self> {
         stream.set_nodelay(true)?;
         stream.set_nonblocking(true)?;
+        stream.set_read_timeout(None)?;
+        stream.set_write_timeout(None)?;
         Ok(Self {
             stream,
-            key: None,
+            session: session.id,
+            seal: session.sealer(me, Channel::Tcp),
+            open: session.opener(me, Channel::Tcp),
             inbuf: vec![0; 4 + MAX_FRAME],
             in_len: 0,
             out: Vec::with_capacity(4 * (HEADER + MAX_FRAME)),
@@ -223,33 +291,29 @@ impl Tcp {
         })
     }
 
-    /// From now on frames of other runs are refused.
-    pub fn set_key(&mut self, key: u64) {
-        self.key = Some(key);
-    }
-
     /// Bytes queued and not yet written.
     pub fn pending(&self) -> usize {
         self.out.len() - self.out_pos
     }
 
-    /// Queues a frame of `kind` (run `key`) and writes what the socket takes now.
-    pub fn send(&mut self, kind: Kind, key: u64, parts: &[&[u8]]) -> Result<()> {
-        self.queue(kind, key, parts)?;
+    /// Queues a frame of `kind` and writes what the socket takes now.
+    pub fn send(&mut self, kind: Kind, parts: &[&[u8]]) -> Result<()> {
+        self.queue(kind, parts)?;
         self.flush()
     }
 
-    /// Queues a frame of `kind` (run `key`), written by the next [`Tcp::flush`] or send. What
-    /// is already written is dropped from the front first when the frame would not fit the
-    /// buffer otherwise, so a steady stream (a remote plant's telemetry) stays in the
-    /// pre-allocated buffer. A frame that still does not fit is an error: the peer has taken
-    /// nothing for seconds (regression: the buffer grew without bound, on the tick path). After
-    /// the stream closed, frames are dropped: there is no one to take them.
-    pub fn queue(&mut self, kind: Kind, key: u64, parts: &[&[u8]]) -> Result<()> {
+    /// Queues a frame of `kind`, sealed, written by the next [`Tcp::flush`] or send. What is
+    /// already written is dropped from the front first when the frame would not fit the buffer
+    /// otherwise, so a steady stream (a remote plant's telemetry) stays in the pre-allocated
+    /// buffer. A frame that still does not fit is an error: the peer has taken nothing for
+    /// seconds (regression: the buffer grew without bound, on the tick path). After the stream
+    /// closed, frames are dropped: there is no one to take them.
+    pub fn queue(&mut self, kind: Kind, parts: &[&[u8]]) -> Result<()> {
         if self.closed {
             return Ok(());
         }
-        let len: usize = HEADER + parts.iter().map(|p| p.len()).sum::<usize>();
+        let body: usize = parts.iter().map(|p| p.len()).sum();
+        let len = HEADER + body + TAG;
         if self.out_pos == self.out.len() {
             self.out.clear();
             self.out_pos = 0;
@@ -267,10 +331,18 @@ impl Tcp {
         self.out.extend_from_slice(&(len as u32).to_ne_bytes());
         let at = self.out.len();
         self.out.resize(at + HEADER, 0);
-        frame::put_header(&mut self.out[at..], kind, key);
+        frame::put_header(
+            &mut self.out[at..],
+            kind,
+            self.session,
+            self.seal.next_counter(),
+        );
         for p in parts {
             self.out.extend_from_slice(p);
         }
+        let (head, body) = self.out[at..].split_at_mut(HEADER);
+        let tag = self.seal.seal(head, body);
+        self.out.extend_from_slice(&tag);
         Ok(())
     }
 
@@ -294,8 +366,8 @@ impl Tcp {
         Ok(())
     }
 
-    /// Reads what has arrived and hands every whole frame to `f` (kind, payload). A malformed
-    /// frame ends the stream with an error naming it.
+    /// Reads what has arrived and hands every whole frame to `f` (kind, opened payload). A frame
+    /// that is malformed or does not open ends the stream with an error naming it.
     pub fn poll(&mut self, mut f: impl FnMut(Kind, &[u8]) -> Result<()>) -> Result<()> {
         loop {
             match self.stream.read(&mut self.inbuf[self.in_len..]) {
@@ -320,16 +392,19 @@ impl Tcp {
             let mut l = [0u8; 4];
             l.copy_from_slice(&self.inbuf[at..at + 4]);
             let len = u32::from_ne_bytes(l) as usize;
-            if !(HEADER..=MAX_FRAME).contains(&len) {
-                bail!("control frame of {len} bytes (allowed {HEADER}..={MAX_FRAME})");
+            if !(HEADER + TAG..=MAX_FRAME).contains(&len) {
+                bail!(
+                    "control frame of {len} bytes (allowed {}..={MAX_FRAME})",
+                    HEADER + TAG
+                );
             }
             if self.in_len - at - 4 < len {
                 break;
             }
-            let b = &self.inbuf[at + 4..at + 4 + len];
-            let (kind, payload) =
-                frame::parse(b, self.key).map_err(|e| anyhow::anyhow!("control frame: {e}"))?;
-            f(kind, payload)?;
+            let b = &mut self.inbuf[at + 4..at + 4 + len];
+            let (kind, n) = open(b, self.session, Some(&mut self.open))
+                .map_err(|(_, why)| anyhow::anyhow!("control frame refused: {why}"))?;
+            f(kind, &self.inbuf[at + 4 + HEADER..at + 4 + HEADER + n])?;
             at += 4 + len;
         }
         self.inbuf.copy_within(at..self.in_len, 0);
@@ -410,8 +485,8 @@ mod tests {
         a.connect(b.local_addr().unwrap()).unwrap();
         b.connect(a.local_addr().unwrap()).unwrap();
         (
-            Udp::new(a, 3, emu).unwrap(),
-            Udp::new(b, 3, Emulation::default()).unwrap(),
+            Udp::new(a, 3, None, emu).unwrap(),
+            Udp::new(b, 3, None, Emulation::default()).unwrap(),
         )
     }
 

@@ -17,6 +17,7 @@
 use crate::Role;
 use crate::frame::{self, Hello, Kind, bytes_of, bytes_of_slice};
 use crate::link::{self, Emulation, Tcp, Udp};
+use crate::seal::{self, End, LinkKey, LinkReport, Session};
 use crate::sides::{ControllerHost, PlantHost};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
@@ -147,6 +148,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         config,
     };
     let lockstep = a.run.mode == LoopMode::Lockstep;
+    let report = LinkReport::path(&a.run.config, run_id);
     if plant {
         let cfg = RunConfig::from_file(&a.run.config)?;
         let silence_ms = u64::from(cfg.loop_.silence_timeout_ms);
@@ -167,7 +169,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
             hold_ns: emu.delay_ns + emu.jitter_ns + 1_000_000,
         };
         let r = n.forward(term);
-        finish(&mut n.peer, &emu, None, r)
+        finish(&mut n.peer, &report, &emu, None, r)
     } else {
         let ports = Ports::open(run_id, ipc::RELAY_BUFFER)?;
         let Some(peer) = connect(a, &hello, &ports.control, term)? else {
@@ -180,7 +182,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         };
         let r = n.forward(term);
         let counts = (n.host.resent, n.host.inbox.recovered);
-        finish(&mut n.peer, &emu, Some(counts), r)
+        finish(&mut n.peer, &report, &emu, Some(counts), r)
     }
 }
 
@@ -195,21 +197,71 @@ fn stopped_early() -> (u8, Option<String>) {
 struct Peer {
     udp: Udp,
     tcp: Tcp,
-    key: u64,
+    /// What the supervisor is told of the link (written at the end).
+    report: LinkReport,
+    /// The far process's stderr lines, written to this side's log up to a cap.
+    log: FarLog,
     far_end: Option<FarEnd>,
     /// When a STOP (SIGTERM) went to the far side.
     stop_sent_ns: Option<u64>,
 }
 
-/// Waits for the far side, sends the HELLO, connects the UDP socket to the port it answers with.
-/// None: stopped (STOP or SIGTERM) before it joined.
+/// Connections the near side authenticates at once at most; more wait in the kernel's backlog.
+const MAX_PENDING: usize = 8;
+
+/// How long one connection may take to prove the link key and send its first sealed frame.
+const PER_CONNECTION: Duration = Duration::from_secs(5);
+
+/// An authenticated far side: its control plane, address and the role it joined for.
+type Joined = (Tcp, SocketAddr, Option<Role>);
+
+/// Proves an accepted connection holds the link key (Noise handshake, [`seal::respond`]) and
+/// waits for its first sealed frame (JOIN), which a replayed handshake cannot send; nothing of
+/// the run is said before. One line saying why otherwise.
+fn authenticate(
+    mut stream: std::net::TcpStream,
+    peer: SocketAddr,
+    key: &LinkKey,
+    session: &Session,
+) -> std::result::Result<Joined, String> {
+    let end = rt::now_ns() + PER_CONNECTION.as_nanos() as u64;
+    seal::respond(&mut stream, key, session, PER_CONNECTION).map_err(|e| e.to_string())?;
+    let mut tcp = Tcp::new(stream, session, End::Near).map_err(|e| format!("{e:#}"))?;
+    loop {
+        let mut joined = None;
+        tcp.poll(|k, p| {
+            if k == Kind::Join {
+                joined = Some(frame::read::<u32>(p).and_then(Role::from_wire));
+            }
+            Ok(())
+        })
+        .map_err(|e| format!("{e:#}"))?;
+        if let Some(role) = joined {
+            return Ok((tcp, peer, role));
+        }
+        if tcp.closed {
+            return Err("closed the connection after the handshake".into());
+        }
+        if rt::now_ns() > end {
+            return Err("sent nothing sealed after the handshake".into());
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// Waits for the far side: every connection must prove the link key before anything of the run
+/// is said, a stranger's is dropped (and counted) and the wait goes on; at most
+/// [`MAX_PENDING`] are authenticated at once, each within [`PER_CONNECTION`]. Then sends the
+/// HELLO and connects the UDP socket to the port the far side answers with. None: stopped (STOP
+/// or SIGTERM) before it joined.
 fn connect(
     a: &Args,
     hello: &Hello,
     control: &ControlPorts,
     term: &AtomicBool,
 ) -> Result<Option<Peer>> {
-    let key = frame::run_key(&hello.run_id);
+    let key = LinkKey::from_env().map_err(anyhow::Error::msg)?;
+    let session = Session::generate().map_err(anyhow::Error::msg)?;
     let listener = TcpListener::bind(a.listen)
         .with_context(|| format!("cannot listen on --listen {} (TCP)", a.listen))?;
     let udp = UdpSocket::bind(a.listen)
@@ -217,9 +269,29 @@ fn connect(
     listener.set_nonblocking(true)?;
     // The far side connects: wait for it as long as a handshake step may take.
     let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
-    let (stream, peer) = loop {
+    let (results, done) = std::sync::mpsc::channel();
+    let (mut pending, mut refused) = (0usize, 0u64);
+    let (mut tcp, peer, role) = 'wait: loop {
+        while let Ok(r) = done.try_recv() {
+            pending -= 1;
+            match r {
+                Ok(joined) => break 'wait joined,
+                Err((who, why)) => {
+                    refused += 1;
+                    eprintln!("deltaloop-bridge: refused a connection from {who}: it {why}");
+                }
+            }
+        }
         match listener.accept() {
-            Ok(s) => break s,
+            Ok((s, who)) if pending < MAX_PENDING => {
+                pending += 1;
+                let (tx, key, session) = (results.clone(), key.clone(), session.clone());
+                std::thread::spawn(move || {
+                    let _ = tx.send(authenticate(s, who, &key, &session).map_err(|e| (who, e)));
+                });
+            }
+            // Too many at once: this one is closed unheard (the honest side connects again).
+            Ok((s, _)) => drop(s),
             Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
             Err(e) => return Err(e).context("accept the far side"),
         }
@@ -228,19 +300,30 @@ fn connect(
         }
         if rt::now_ns() > end {
             bail!(
-                "no far side joined at {} within {} s (run `deltaloop join {} --role {}` on the other host)",
+                "no far side joined at {} within {} s{} (run `deltaloop join {} --role {}` with this run's link key on the other host)",
                 a.listen,
                 ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000,
+                if refused > 0 {
+                    format!("; {refused} connection(s) were refused for the wrong key or silence")
+                } else {
+                    String::new()
+                },
                 a.listen,
                 a.role
             );
         }
-        std::thread::sleep(Duration::from_millis(5));
+        std::thread::sleep(Duration::from_millis(2));
     };
     drop(listener);
-    let mut tcp = Tcp::new(stream)?;
-    tcp.send(Kind::Hello, key, &[&hello.encode()])?;
-    tcp.set_key(key);
+    if let Some(r) = role.filter(|r| *r != a.role) {
+        bail!(
+            "the far side {peer} joined with --role {r}, and this run puts the {} there (run `deltaloop join {} --role {}` on the other host)",
+            a.role,
+            a.listen,
+            a.role
+        );
+    }
+    tcp.send(Kind::Hello, &[&hello.encode()])?;
     let (mut far_udp, mut far_end) = (None, None);
     while far_udp.is_none() {
         tcp.poll(|k, p| {
@@ -272,31 +355,76 @@ fn connect(
     };
     udp.connect(SocketAddr::new(peer.ip(), far_port))
         .context("connect the link's UDP socket")?;
+    eprintln!(
+        "deltaloop-bridge: the far side {peer} joined (link key {})",
+        key.fingerprint()
+    );
     Ok(Some(Peer {
-        udp: Udp::new(udp, key, hello.emulation)?,
+        udp: Udp::sealed(udp, &session, End::Near, hello.emulation)?,
         tcp,
-        key,
         far_end: None,
         stop_sent_ns: None,
+        log: FarLog::default(),
+        report: LinkReport {
+            peer: peer.to_string(),
+            key_fingerprint: key.fingerprint(),
+            refused_connections: refused,
+            ..LinkReport::default()
+        },
     }))
+}
+
+/// The far process's stderr lines kept in this side's log at most, bytes: enough for any honest
+/// run's messages; a flood is cut (regression: a far side grew `<law>.controller.log` to 97 MB in
+/// 0.8 s).
+const FAR_LOG_CAP: usize = 1 << 20;
+
+/// The far process's stderr, line by line, escaped, up to [`FAR_LOG_CAP`] bytes.
+#[derive(Default)]
+struct FarLog {
+    written: usize,
+    cut: bool,
+}
+
+impl FarLog {
+    fn line(&mut self, b: &[u8]) {
+        if self.written + b.len() > FAR_LOG_CAP {
+            if !self.cut {
+                self.cut = true;
+                eprintln!(
+                    "deltaloop-bridge: the far side's log passed {} KiB: the rest of it is dropped here",
+                    FAR_LOG_CAP / 1024
+                );
+            }
+            return;
+        }
+        self.written += b.len() + 1;
+        eprintln!("{}", wire::escape_peer_text(&String::from_utf8_lossy(b)));
+    }
 }
 
 /// After the loop: the control plane flushed, the ports kept a moment (the supervisor drains
 /// them), the link's statistics said (states sent again, replies recovered).
 fn finish(
     p: &mut Peer,
+    report: &std::path::Path,
     emu: &Emulation,
     counts: Option<(u64, u64)>,
     r: Result<(u8, Option<String>)>,
 ) -> Result<(u8, Option<String>)> {
     p.tcp.flush().ok();
     std::thread::sleep(ipc::LINGER);
+    p.report.refused_datagrams = p.udp.refused.into();
+    if let Err(e) = p.report.write(report) {
+        eprintln!("deltaloop-bridge: warning: {e}");
+    }
     let end = r?;
     link_summary(emu, p.udp.emulated_lost, counts);
-    if p.udp.refused > 0 {
+    if p.udp.refused.total() > 0 {
         eprintln!(
-            "deltaloop-bridge: warning: refused {} datagram(s) on the link (first: {})",
-            p.udp.refused,
+            "deltaloop-bridge: warning: refused {} datagram(s) on the link ({}; first: {})",
+            p.udp.refused.total(),
+            p.udp.refused.describe(),
             p.udp.last_refusal.as_deref().unwrap_or("")
         );
     }
@@ -361,11 +489,11 @@ impl Peer {
             match (c.kind(), c.sender()) {
                 (Some(ControlKind::Start), Some(Sender::Supervisor)) => {
                     c.t0_ns = c.t0_ns.saturating_sub(rt::now_ns());
-                    self.tcp.send(Kind::Control, self.key, &[bytes_of(&c)])?;
+                    self.tcp.send(Kind::Control, &[bytes_of(&c)])?;
                     started = true;
                 }
                 (Some(ControlKind::Stop), Some(Sender::Supervisor)) => {
-                    self.tcp.send(Kind::Control, self.key, &[bytes_of(&c)])?;
+                    self.tcp.send(Kind::Control, &[bytes_of(&c)])?;
                     self.stop_sent_ns.get_or_insert(rt::now_ns());
                 }
                 _ => {}
@@ -391,7 +519,7 @@ impl Peer {
         }
         if term.load(Ordering::Relaxed) && self.stop_sent_ns.is_none() {
             let stop = ControlMsg::new(ControlKind::Stop, Sender::Supervisor);
-            self.tcp.send(Kind::Control, self.key, &[bytes_of(&stop)])?;
+            self.tcp.send(Kind::Control, &[bytes_of(&stop)])?;
             self.stop_sent_ns = Some(rt::now_ns());
         }
         Ok(None)
@@ -430,8 +558,7 @@ impl Near {
             let (p, c) = (&mut self.peer, &self.ports);
             let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
             let ready = (state_in, udp_in);
-            self.host
-                .turn(&ports, ready, &mut p.udp, &mut p.tcp, p.key)?;
+            self.host.turn(&ports, ready, &mut p.udp, &mut p.tcp)?;
             self.control_plane(tcp_in)?;
             if let Some(end) = self.peer.ended(term)? {
                 return Ok(end);
@@ -466,7 +593,7 @@ impl Near {
                 break;
             };
             p.tcp
-                .send(Kind::Reference, p.key, &[bytes_of_slice(chunk.payload())])?;
+                .send(Kind::Reference, &[bytes_of_slice(chunk.payload())])?;
         }
         if p.tcp.pending() > 0 {
             p.tcp.flush()?;
@@ -474,7 +601,7 @@ impl Near {
         if !tcp_in {
             return Ok(());
         }
-        let (ports, far_end) = (&self.ports, &mut p.far_end);
+        let (ports, far_end, log) = (&self.ports, &mut p.far_end, &mut p.log);
         p.tcp.poll(|kind, p| {
             match kind {
                 Kind::Control => {
@@ -486,7 +613,7 @@ impl Near {
                         ports.send_control(kind)?;
                     }
                 }
-                Kind::Log => eprintln!("{}", wire::escape_peer_text(&String::from_utf8_lossy(p))),
+                Kind::Log => log.line(p),
                 Kind::Exit => *far_end = Some(FarEnd::of(p)),
                 _ => {}
             }
@@ -586,7 +713,7 @@ impl NearPlant {
         {
             let c = *s.payload();
             if c.kind().is_some_and(ControlKind::said_by_controller) {
-                p.tcp.send(Kind::Control, p.key, &[bytes_of(&c)])?;
+                p.tcp.send(Kind::Control, &[bytes_of(&c)])?;
             }
         }
         if p.tcp.pending() > 0 {
@@ -595,7 +722,8 @@ impl NearPlant {
         if !tcp_in {
             return Ok(());
         }
-        let (ports, far_end, copies) = (&self.ports, &mut p.far_end, &mut self.copies);
+        let (ports, far_end, copies, log) =
+            (&self.ports, &mut p.far_end, &mut self.copies, &mut p.log);
         let host = &mut self.host;
         let (mut heard, mut finals) = (false, None);
         let now = rt::now_ns();
@@ -632,7 +760,7 @@ impl NearPlant {
                     }
                 }
                 Kind::Final => finals = frame::read::<StateMsg>(b),
-                Kind::Log => eprintln!("{}", wire::escape_peer_text(&String::from_utf8_lossy(b))),
+                Kind::Log => log.line(b),
                 Kind::Exit => *far_end = Some(FarEnd::of(b)),
                 _ => {}
             }

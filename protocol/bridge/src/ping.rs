@@ -3,7 +3,7 @@
 //! round trip, µs.
 
 use crate::frame::{self, Kind};
-use crate::link::{self, Emulation, Udp};
+use crate::link::{self, Udp};
 use anyhow::{Context, Result};
 use deltaloop_transport::rt;
 use std::net::{SocketAddr, UdpSocket};
@@ -42,7 +42,7 @@ pub fn ping(a: &PingArgs) -> Result<()> {
         0,
     ))?;
     s.connect(a.connect).context("connect to the echo side")?;
-    let mut u = Udp::new(s, KEY, Emulation::default())?;
+    let mut u = Udp::plain(s, KEY)?;
     let mut rtt = Vec::with_capacity(a.count as usize);
     let mut lost = 0u64;
     for i in 0..(a.count as u64 + 1000) {

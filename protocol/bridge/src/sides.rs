@@ -96,20 +96,19 @@ impl PlantHost {
         (state, state_ready): (&Subscriber<Svc, StateMsg, ()>, &Listener<Svc>),
         udp: &mut Udp,
         tcp: &mut Tcp,
-        key: u64,
     ) -> Result<()> {
         state_ready.try_wait(|_| {}).ipc("drain state-ready")?;
         while let Some(s) = state.receive().ipc("receive state")? {
             let st: &StateMsg = s.payload();
             if st.flags & wire::STATE_FINAL != 0 {
-                tcp.send(Kind::Final, key, &[bytes_of(st)])?;
+                tcp.send(Kind::Final, &[bytes_of(st)])?;
                 self.final_sent_ns.get_or_insert(rt::now_ns());
             } else {
                 self.last_state = (st.tick, st.t_poll_until_ns);
                 let now = rt::now_ns();
                 udp.send(Kind::State, &[bytes_of(st)], now)?;
                 if self.record {
-                    tcp.queue(Kind::State, key, &[bytes_of(st)])?;
+                    tcp.queue(Kind::State, &[bytes_of(st)])?;
                 }
                 self.poll_until = now + self.spin_ns;
                 if let Some(r) = &mut self.resend {
@@ -156,10 +155,9 @@ impl PlantHost {
         (state_in, udp_in): (bool, bool),
         udp: &mut Udp,
         tcp: &mut Tcp,
-        key: u64,
     ) -> Result<()> {
         if state_in {
-            self.states((ports.0, ports.2), udp, tcp, key)?;
+            self.states((ports.0, ports.2), udp, tcp)?;
         }
         if udp_in {
             self.torques((ports.1, ports.3), udp)?;

@@ -34,6 +34,12 @@ pub struct Args {
     /// (0: block at once). Worth it where the bridge has a CPU of its own.
     #[arg(long, default_value_t = 0)]
     spin_us: u32,
+    /// The run's link key file (a copy of the one given to `deltaloop run --link-key`).
+    #[arg(long, value_name = "FILE")]
+    link_key: Option<std::path::PathBuf>,
+    /// The run's one-time link key, as `deltaloop run` printed it (64 hex digits).
+    #[arg(long, value_name = "HEX")]
+    link_token: Option<String>,
 }
 
 pub fn exec(a: Args, _cx: &Context) -> Result<()> {
@@ -45,5 +51,7 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
         runs: a.runs,
         wait_s: a.wait_s,
         spin_us: a.spin_us,
+        link_key: a.link_key.as_deref(),
+        link_token: a.link_token.as_deref(),
     })
 }

@@ -5,6 +5,7 @@
 mod bench;
 mod helpers;
 mod join;
+mod link_key;
 mod paper;
 mod replay;
 mod run;
@@ -52,6 +53,9 @@ enum Command {
     /// host, the supervisor being on another (`deltaloop run … --controller-remote HOST:PORT` or
     /// `--plant-remote HOST:PORT` there).
     Join(join::Args),
+    /// Write a fresh random link key to a new file (mode 600), for `run --link-key` and
+    /// `join --link-key`.
+    LinkKey(link_key::Args),
     /// Internal: the controller side of `bench loop`'s iceoryx2 baseline.
     #[command(hide = true)]
     IoxController(helpers::IoxArgs),
@@ -101,6 +105,7 @@ pub fn main() -> ExitCode {
         Command::Soak(a) => soak::exec(a, &cx),
         Command::Bench(a) => bench::exec(a, &cx),
         Command::Join(a) => join::exec(a, &cx),
+        Command::LinkKey(a) => link_key::exec(a, &cx),
         Command::IoxController(a) => helpers::exec_iox(a, &cx),
         Command::UdsController(a) => helpers::exec_uds(a, &cx),
     };

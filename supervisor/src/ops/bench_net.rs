@@ -324,9 +324,21 @@ pub fn run(
         .map(String::from)
         .to_vec()
     };
+    // Both sides of every run across the link hold this key (the link has no unauthenticated
+    // mode: the bench measures it sealed).
+    let key_file = dir.join("link.key");
+    deltaloop_bridge::seal::LinkKey::write_new(&key_file).map_err(anyhow::Error::msg)?;
+    let key_arg = key_file.display().to_string();
     let across = |name: &str, label: &str, join_extra: &[&str], run_extra: &[&str]| {
         let remote = dir.join(name);
-        let mut jargs = vec!["join", endpoint.as_str(), "--wait-s", "60"];
+        let mut jargs = vec![
+            "join",
+            endpoint.as_str(),
+            "--wait-s",
+            "60",
+            "--link-key",
+            key_arg.as_str(),
+        ];
         jargs.extend_from_slice(join_extra);
         let mut join = Kid::spawn(
             h.cmd("b", &deltaloop, &jargs),
@@ -334,7 +346,12 @@ pub fn run(
             &dir.join(format!("join-{name}.log")),
         )?;
         let mut args = run_args(&remote);
-        args.extend(["--controller-remote".into(), endpoint.clone()]);
+        args.extend([
+            "--controller-remote".into(),
+            endpoint.clone(),
+            "--link-key".into(),
+            key_arg.clone(),
+        ]);
         args.extend(run_extra.iter().map(|a| a.to_string()));
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         let log = dir.join(format!("run-{name}.log"));

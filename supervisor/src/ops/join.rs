@@ -7,9 +7,50 @@
 
 use crate::loops::procs::exe_dir;
 use anyhow::{Context, Result, bail};
+use deltaloop_bridge::seal::{KEY_ENV, LinkKey};
 use deltaloop_bridge::{EmuArgs, Role};
 use deltaloop_config::{LoopMode, RunConfig};
+use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::OnceLock;
+
+/// The link key of this process's runs across a link: handed to every near bridge it starts (in
+/// its environment, never in a file of the run), and to the far bridges of a sweep's loopback.
+static LINK_KEY: OnceLock<LinkKey> = OnceLock::new();
+
+/// This process's link key, if a remote run set one.
+pub fn link_key() -> Option<&'static LinkKey> {
+    LINK_KEY.get()
+}
+
+/// This process's link key: `key` if none was set yet (the first one set stays).
+fn install_link_key(key: LinkKey) -> &'static LinkKey {
+    let _ = LINK_KEY.set(key);
+    LINK_KEY.get().unwrap_or_else(|| unreachable!("just set"))
+}
+
+/// This process's link key, a one-time one made now if none was set (a sweep's loopback).
+pub fn one_time_link_key() -> Result<&'static LinkKey> {
+    match LINK_KEY.get() {
+        Some(k) => Ok(k),
+        None => Ok(install_link_key(
+            LinkKey::generate().map_err(anyhow::Error::msg)?,
+        )),
+    }
+}
+
+/// Gives `cmd` this process's link key if it starts a bridge (`near`/`far`), and never any
+/// other program: a key in this process's own environment is not passed on.
+pub fn hand_key(cmd: &mut Command, program: &Path, first_arg: Option<&str>) {
+    cmd.env_remove(KEY_ENV);
+    let bridge = program.file_name().is_some_and(|n| n == "deltaloop-bridge");
+    if bridge
+        && matches!(first_arg, Some("near" | "far"))
+        && let Some(k) = link_key()
+    {
+        cmd.env(KEY_ENV, k.to_hex());
+    }
+}
 
 /// `--controller-remote`, `--plant-remote` and the emulated link, shared by `run` and `soak`.
 #[derive(Clone, Debug, Default, clap::Args)]
@@ -22,8 +63,15 @@ pub struct RemoteArgs {
     /// `deltaloop join HOST:PORT --role plant` there. Lockstep or realtime.
     #[arg(long, value_name = "HOST:PORT")]
     pub plant_remote: Option<String>,
+    /// The link's key file (`deltaloop link-key FILE` makes one; the other host's `join` needs a
+    /// copy). Without it a one-time key is made and the `join` command that carries it printed.
+    #[arg(long, value_name = "FILE")]
+    pub link_key: Option<PathBuf>,
     #[command(flatten)]
     pub emu: EmuArgs,
+    /// Say nothing of how to join (a sweep's loopback joins by itself).
+    #[arg(skip)]
+    pub quiet: bool,
 }
 
 impl RemoteArgs {
@@ -48,6 +96,9 @@ impl RemoteArgs {
                 bail!(
                     "--link-delay-us, --link-jitter-us and --link-loss need --controller-remote or --plant-remote"
                 );
+            }
+            if self.link_key.is_some() {
+                bail!("--link-key needs --controller-remote or --plant-remote");
             }
             return Ok(());
         };
@@ -78,7 +129,30 @@ impl RemoteArgs {
             format!("--link-seed={}", e.link_seed),
             format!("--link-spin-us={}", e.link_spin_us),
         ];
+        let key = match &self.link_key {
+            Some(path) => install_link_key(LinkKey::read(path).map_err(anyhow::Error::msg)?),
+            None => one_time_link_key()?,
+        };
+        if !self.quiet {
+            eprintln!("{}", self.join_hint(role, &addr.to_string(), key));
+        }
         Ok(())
+    }
+
+    /// How the other host joins: the exact `deltaloop join` command, with the key file's name or
+    /// the one-time key.
+    fn join_hint(&self, role: Role, endpoint: &str, key: &LinkKey) -> String {
+        match &self.link_key {
+            Some(p) => format!(
+                "deltaloop: the {role} joins from the other host with: deltaloop join {endpoint} --role {role} --link-key {} (a copy of this key file there; key {})",
+                p.display(),
+                key.fingerprint()
+            ),
+            None => format!(
+                "deltaloop: the {role} joins from the other host with (a one-time key for this run; --link-key FILE uses a key of yours):\n  deltaloop join {endpoint} --role {role} --link-token {}",
+                key.to_hex()
+            ),
+        }
     }
 
     /// A remote process needs a process mode.
@@ -102,6 +176,21 @@ pub struct Join<'a> {
     pub runs: u32,
     pub wait_s: u64,
     pub spin_us: u32,
+    /// The link key: a key file, or the token `deltaloop run` printed.
+    pub link_key: Option<&'a Path>,
+    pub link_token: Option<&'a str>,
+}
+
+/// The key `join` was given; one line if it was given none, both, or a bad one.
+fn join_key(j: &Join<'_>) -> Result<LinkKey> {
+    match (j.link_key, j.link_token) {
+        (Some(p), None) => LinkKey::read(p).map_err(anyhow::Error::msg),
+        (None, Some(t)) => LinkKey::from_hex(t).map_err(|e| anyhow::anyhow!("--link-token: {e}")),
+        (Some(_), Some(_)) => bail!("--link-key and --link-token exclude each other: give one"),
+        (None, None) => bail!(
+            "deltaloop join needs the run's link key: --link-key FILE (a copy of the file given to `deltaloop run --link-key`) or --link-token HEX (printed by `deltaloop run` on the supervisor's host)"
+        ),
+    }
 }
 
 /// Replaces this process with `deltaloop-bridge far` (its exit code is the far process's);
@@ -110,8 +199,10 @@ pub fn join(j: &Join<'_>) -> Result<()> {
     let addr = deltaloop_bridge::parse_endpoint(j.endpoint)
         .map_err(|e| anyhow::anyhow!("deltaloop join: {e}"))?;
     deltaloop_bridge::far::command(j.role, j.controller_cmd, j.plant_cmd)?;
+    let key = join_key(j)?;
     let bridge = exe_dir()?.join("deltaloop-bridge");
     let mut c = Command::new(&bridge);
+    c.env(KEY_ENV, key.to_hex());
     c.args([
         "far",
         "--role",
@@ -263,6 +354,8 @@ mod tests {
             runs: 1,
             wait_s: 1,
             spin_us: 0,
+            link_key: None,
+            link_token: None,
         };
         for (role, c, p, says) in [
             (
@@ -282,5 +375,60 @@ mod tests {
             let e = join(&j(role, c, p)).unwrap_err().to_string();
             assert!(e.contains(says) && !e.contains('\n'), "{e}");
         }
+    }
+
+    /// No unauthenticated mode: `join` without a key, with both, or with a bad token says so
+    /// in one line; `run` refuses `--link-key` without a remote process, and a key file others
+    /// can read.
+    #[test]
+    fn join_and_run_need_a_good_link_key() {
+        let j = |link_key, link_token| Join {
+            endpoint: "127.0.0.1:7447",
+            role: Role::Controller,
+            controller_cmd: None,
+            plant_cmd: None,
+            runs: 1,
+            wait_s: 1,
+            spin_us: 0,
+            link_key,
+            link_token,
+        };
+        let one_line = |e: anyhow::Error, says: &str| {
+            let e = e.to_string();
+            assert!(e.contains(says) && !e.contains('\n'), "{e}");
+        };
+        one_line(
+            join(&j(None, None)).unwrap_err(),
+            "needs the run's link key",
+        );
+        one_line(
+            join(&j(Some(Path::new("/nonexistent.key")), Some("ab"))).unwrap_err(),
+            "exclude each other",
+        );
+        one_line(
+            join(&j(None, Some("abc"))).unwrap_err(),
+            "--link-token: a link key is 64 hex digits",
+        );
+        let d = tempfile::tempdir().unwrap();
+        let open = d.path().join("open.key");
+        std::fs::write(&open, format!("{}\n", "ab".repeat(32))).unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&open, std::fs::Permissions::from_mode(0o644)).unwrap();
+        one_line(join(&j(Some(&open), None)).unwrap_err(), "chmod 600");
+        let lone = RemoteArgs {
+            link_key: Some(open.clone()),
+            ..Default::default()
+        };
+        one_line(
+            lone.apply(&mut cfg()).unwrap_err(),
+            "--link-key needs --controller-remote or --plant-remote",
+        );
+        let remote = RemoteArgs {
+            controller_remote: Some("127.0.0.1:7447".into()),
+            link_key: Some(open),
+            quiet: true,
+            ..Default::default()
+        };
+        one_line(remote.apply(&mut cfg()).unwrap_err(), "chmod 600");
     }
 }

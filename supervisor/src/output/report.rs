@@ -686,6 +686,24 @@ pub fn timing_markdown(
         "\nOn a virtual machine, stolen CPU time is time the hypervisor gave the (virtual) CPU to someone else: the loop \
          cannot run then, whatever its priority. Compare misses with it before blaming the loop."
     );
+    for (m, t) in metrics.iter().zip(timing) {
+        if let Some(r) = t.as_ref().and_then(|t| t.link_security.as_ref()) {
+            let d = &r.refused_datagrams;
+            let _ = writeln!(
+                s,
+                "\nLink of `{}`: the far side {} joined with link key {}; refused {} connection(s) before it and {} datagram(s) during the run (malformed {}, other run {}, forged {}, replayed {}), none of which reached the loop.",
+                m.law,
+                r.peer,
+                r.key_fingerprint,
+                r.refused_connections,
+                d.total(),
+                d.malformed,
+                d.other_run,
+                d.forged,
+                d.replayed
+            );
+        }
+    }
     if mode == LoopMode::Realtime {
         s.push_str(&overrun_markdown(cfg, metrics, timing));
     }

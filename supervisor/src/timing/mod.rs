@@ -8,6 +8,7 @@ pub mod timeline;
 
 use crate::timing::timeline::Timeline;
 use anyhow::{Context, Result};
+use deltaloop_bridge::seal::LinkReport;
 use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
 use hdrhistogram::Histogram;
 use hlog::HlogWriter;
@@ -72,6 +73,8 @@ pub struct Timing {
     /// Which process of the run was across the link, if one was: `link_rtt` is measured and
     /// written.
     pub link: Option<Across>,
+    /// Across the link: who joined, with which key (its fingerprint), what the link refused.
+    pub link_report: Option<LinkReport>,
     /// A_k − t_k of every applied command (when it took effect after its tick), ns; not written
     /// to a file of its own (it is `timing.csv`'s `arrival_ns`).
     pub arrival: Dist,
@@ -206,6 +209,31 @@ pub struct TimingSummary {
     /// [`Timing::link_rtt`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub link_rtt: Option<Percentiles>,
+    /// A run split over two hosts only: the far side's address, the link key's fingerprint (never
+    /// the key), the connections refused before it joined and the datagrams refused by reason
+    /// (malformed, other_run, forged, replayed), none of which reached the loop.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub link_security: Option<LinkReport>,
+}
+
+/// One line if the link refused anything during a run (connections before the far side
+/// joined, datagrams during the run): what, and that none of it reached the loop.
+pub fn link_refusals_note(r: Option<&LinkReport>) -> Option<String> {
+    let r = r?;
+    let d = &r.refused_datagrams;
+    if r.refused_connections == 0 && d.total() == 0 {
+        return None;
+    }
+    Some(format!(
+        "the link refused {} connection(s) before {} joined and {} datagram(s) during the run (malformed {}, other run {}, forged {}, replayed {}); none reached the loop",
+        r.refused_connections,
+        r.peer,
+        d.total(),
+        d.malformed,
+        d.other_run,
+        d.forged,
+        d.replayed
+    ))
 }
 
 /// The share of missed ticks above which a realtime run counts as disturbed by the machine (see
@@ -248,6 +276,7 @@ impl Default for Timing {
                 "across the link: round trip less the time on the controller's host (the link both ways)",
             ),
             link: None,
+            link_report: None,
             arrival: Dist::new("arrival", "A_k - t_k: when an applied command took effect"),
             ticks: 0,
             worst_wake: None,
@@ -566,11 +595,17 @@ impl TimingAcc {
         } else {
             self.prev_wake = None;
         }
-        if let (Some(s), Some(q)) = (s, q) {
+        // A reply whose stamp the plant replaced (it could not be true) says nothing of the
+        // controller's hand-off or compute (regression: forged stamps gave compute p50 0.00 µs,
+        // max 100 s).
+        let replaced = m.is_some_and(|m| m.flags & wire::TEL_STAMP_REPLACED != 0);
+        if let (Some(s), Some(q), false) = (s, q, replaced) {
             v.state_to_controller = Some(q.t_state_rx_ns.saturating_sub(s.t_publish_ns));
         }
         if let Some(q) = q {
-            v.compute = Some(q.t_publish_ns.saturating_sub(q.t_state_rx_ns));
+            if !replaced {
+                v.compute = Some(q.t_publish_ns.saturating_sub(q.t_state_rx_ns));
+            }
             t.skipped += q.skipped;
         }
         v
@@ -658,6 +693,7 @@ impl Timing {
             controller_compute: p(&self.compute),
             round_trip: p(&self.round_trip),
             link_rtt: self.link.map(|_| p(&self.link_rtt)),
+            link_security: self.link_report.clone(),
         }
     }
 
@@ -1016,6 +1052,30 @@ mod tests {
                 ..TelemetryMsg::default()
             }),
         }
+    }
+
+    /// Regression: a controller that forged its stamps (0, or 100 s in the future) was reported
+    /// with a compute p50 of 0.00 µs and a max of 100 s although the plant had replaced them: a
+    /// tick whose stamp the plant replaced adds nothing to the controller's distributions.
+    #[test]
+    fn regression_compute_leaves_out_the_stamps_the_plant_replaced() {
+        let ts = 300_000;
+        let mut acc = TimingAcc::new(99, ts, true, None);
+        for k in 0..100 {
+            let mut t = tick(k, ts);
+            if k % 2 == 0
+                && let (Some(q), Some(m)) = (t.torque.as_mut(), t.tel.as_mut())
+            {
+                q.t_state_rx_ns = 0;
+                q.t_publish_ns = 100_000_000_000;
+                m.flags |= wire::TEL_STAMP_REPLACED;
+            }
+            acc.push(t).unwrap();
+        }
+        let t = acc.finish().unwrap();
+        assert_eq!(t.compute.hist.len(), 50);
+        assert_eq!(t.state_to_controller.hist.len(), 50);
+        assert!(t.compute.hist.max() < 10_000, "{}", t.compute.hist.max());
     }
 
     /// The interval logs hold every value of the run exactly once: per quantity, the intervals

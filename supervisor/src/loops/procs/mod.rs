@@ -165,6 +165,15 @@ pub fn run_law(
     let (run, mut timing) = streams.finish(ending.interrupted, cause.as_ref())?;
     timing.steal = crate::timing::steal_ms_between(&steal_before, &crate::timing::steal_jiffies());
     timing.peak_rss = PeakRss::from_kib(own_peak_rss_kib(), plant_rss, ctrl_rss);
+    if timing.link.is_some() {
+        let path = deltaloop_bridge::seal::LinkReport::path(&run_dir.join("config.toml"), &rid);
+        timing.link_report = deltaloop_bridge::seal::LinkReport::read(&path);
+        // The supervisor's copy is in summary.json; the file was only the way here.
+        let _ = std::fs::remove_file(&path);
+        if let Some(n) = crate::timing::link_refusals_note(timing.link_report.as_ref()) {
+            child_messages.push(format!("deltaloop: warning: {n}"));
+        }
+    }
     Ok(ProcessRun {
         fault: cause,
         interrupted: ending.interrupted,

@@ -124,6 +124,12 @@ pub(super) fn spawn(launch: &Launch, args: &[String], log: &Path, who: Sender) -
     let err =
         std::fs::File::create(log).with_context(|| format!("cannot create {}", log.display()))?;
     let mut cmd = Command::new(&launch.program);
+    // A near bridge (a remote run) gets the link key; no other child ever does.
+    crate::ops::join::hand_key(
+        &mut cmd,
+        &launch.program,
+        launch.args.first().map(String::as_str),
+    );
     cmd.args(&launch.args)
         .args(args)
         .stdin(Stdio::null())

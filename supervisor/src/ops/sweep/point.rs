@@ -524,6 +524,8 @@ fn link_far(
             link_seed: seed,
             link_spin_us: 0,
         },
+        link_key: None,
+        quiet: true,
     }
     .apply(cfg)?;
     Ok(far)
