@@ -478,6 +478,7 @@ pub fn readable(fd: &impl AsRawFd) -> libc::pollfd {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::seal::{End, Session};
 
     fn pair(emu: Emulation) -> (Udp, Udp) {
         let a = UdpSocket::bind("127.0.0.1:0").unwrap();
@@ -532,5 +533,88 @@ mod tests {
             let (k, p) = b.recv().unwrap().unwrap();
             assert_eq!((k, frame::read::<u64>(&p[..8])), (Kind::Ping, Some(i)));
         }
+    }
+
+    /// An attacker on the path (a forwarder between the two ends, which reads every datagram):
+    /// what it forwards as is opens; a copy it sends again, one with a byte flipped, one with
+    /// another session id, one of another run sealed under other keys, and junk are refused,
+    /// each counted under its reason, and never handed to the loop.
+    #[test]
+    fn forged_replayed_and_other_run_datagrams_are_refused_and_counted() {
+        let session = Session::generate().unwrap();
+        let far = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let tap = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let near = UdpSocket::bind("127.0.0.1:0").unwrap();
+        far.connect(tap.local_addr().unwrap()).unwrap();
+        near.connect(tap.local_addr().unwrap()).unwrap();
+        let mut tx = Udp::sealed(far, &session, End::Far, Emulation::default()).unwrap();
+        let mut rx = Udp::sealed(near, &session, End::Near, Emulation::default()).unwrap();
+        let to_near = rx.sock.local_addr().unwrap();
+        let relay = |tx: &mut Udp, i: u64| -> Vec<u8> {
+            let mut buf = [0u8; MAX_DATAGRAM];
+            tx.send(Kind::Ping, &[&i.to_ne_bytes(), &[0u8; 160]], 0)
+                .unwrap();
+            let n = tap.recv(&mut buf).unwrap();
+            buf[..n].to_vec()
+        };
+        let recv_all = |rx: &mut Udp| {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+            let mut got = Vec::new();
+            while let Some((k, p)) = rx.recv().unwrap() {
+                got.push((k, frame::read::<u64>(&p[..8]).unwrap()));
+            }
+            got
+        };
+        let first = relay(&mut tx, 1);
+        assert_eq!(first.len(), HEADER + 168 + TAG);
+        assert_ne!(
+            &first[HEADER..HEADER + 8],
+            &1u64.to_ne_bytes(),
+            "sealed on the wire"
+        );
+        tap.send_to(&first, to_near).unwrap();
+        assert_eq!(recv_all(&mut rx), [(Kind::Ping, 1)]);
+        // Replayed, forged, another session, another run's keys, junk.
+        tap.send_to(&first, to_near).unwrap();
+        let mut forged = relay(&mut tx, 2);
+        forged[HEADER] ^= 0x40;
+        tap.send_to(&forged, to_near).unwrap();
+        let mut moved = relay(&mut tx, 3);
+        moved[8] ^= 1;
+        tap.send_to(&moved, to_near).unwrap();
+        let other = Session {
+            id: session.id,
+            ..Session::generate().unwrap()
+        };
+        let (a, b) = (
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+        );
+        a.connect(b.local_addr().unwrap()).unwrap();
+        let mut stranger = Udp::sealed(a, &other, End::Far, Emulation::default()).unwrap();
+        stranger
+            .send(Kind::Ping, &[&9u64.to_ne_bytes(), &[0u8; 160]], 0)
+            .unwrap();
+        let mut buf = [0u8; MAX_DATAGRAM];
+        let n = b.recv(&mut buf).unwrap();
+        tap.send_to(&buf[..n], to_near).unwrap();
+        tap.send_to(b"junk", to_near).unwrap();
+        // And the honest next one still opens.
+        let next = relay(&mut tx, 4);
+        tap.send_to(&next, to_near).unwrap();
+        assert_eq!(recv_all(&mut rx), [(Kind::Ping, 4)]);
+        use crate::seal::Refusal::*;
+        let count = |r: crate::seal::Refusal| rx.refused.counts[r as usize];
+        assert_eq!(
+            (
+                count(Replayed),
+                count(Forged),
+                count(OtherRun),
+                count(Malformed)
+            ),
+            (1, 2, 1, 1),
+            "{}",
+            rx.refused.describe()
+        );
     }
 }

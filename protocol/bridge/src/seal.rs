@@ -228,7 +228,7 @@ impl LinkReport {
 #[derive(Clone)]
 pub struct Session {
     pub id: u64,
-    keys: [[u8; KEY_LEN]; 4],
+    pub(crate) keys: [[u8; KEY_LEN]; 4],
 }
 
 /// Which end of the link: the near side (the supervisor's host, which listens and answers the
@@ -482,18 +482,22 @@ impl Opener {
         counter: u64,
         sealed: &mut [u8],
     ) -> Result<usize, Refusal> {
-        let expected = self.window.top.map_or(0, |t| t + 1);
-        if (self.strict && counter != expected) || !self.window.fresh(counter) {
-            return Err(Refusal::Replayed);
-        }
         if sealed.len() < TAG_LEN {
             return Err(Refusal::Malformed);
         }
+        // Authenticated first, so a forgery is counted as one whatever counter it claims; a
+        // genuine message whose counter is not new is a replay, and its bytes are never handed
+        // on.
+        let expected = self.window.top.map_or(0, |t| t + 1);
+        let fresh = !(self.strict && counter != expected) && self.window.fresh(counter);
         let n = self
             .aead
             .open_in_place(nonce(counter), Aad::from(header), sealed)
             .map_err(|_| Refusal::Forged)?
             .len();
+        if !fresh {
+            return Err(Refusal::Replayed);
+        }
         self.window.mark(counter);
         Ok(n)
     }
