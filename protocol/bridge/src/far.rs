@@ -64,6 +64,79 @@ pub struct Args {
     /// once; at most loop.torque_budget_us in realtime).
     #[arg(long, default_value_t = 0)]
     pub spin_us: u32,
+    #[command(flatten)]
+    pub placement: Placement,
+}
+
+/// Where and how the process runs on this host: this host's choice, never the near side's.
+#[derive(clap::Args, Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Placement {
+    /// CPU of the process started here (−1: not pinned; default: the mode's default layout).
+    #[arg(long, allow_hyphen_values = true, value_parser = clap::value_parser!(i32).range(-1..=1023))]
+    pub cpu: Option<i32>,
+    /// Its SCHED_FIFO priority, 1..=99 (0: SCHED_OTHER; default: the mode's default layout).
+    #[arg(long, value_parser = clap::value_parser!(i32).range(0..=99))]
+    pub priority: Option<i32>,
+}
+
+/// The run's config with the placement of the process that runs here (`role`) taken from this
+/// host (`join --cpu/--priority`, else the mode's default layout), whatever the near side's
+/// config asked (regression: a fake near side set the far controller's SCHED_FIFO priority and
+/// CPU). A line saying what was replaced, if anything was.
+fn this_hosts_placement(
+    mut cfg: RunConfig,
+    role: Role,
+    p: Placement,
+) -> (RunConfig, Option<String>) {
+    use deltaloop_config::Layout;
+    let mut replaced = Vec::new();
+    for (name, layout, default) in [
+        (
+            "realtime",
+            &mut cfg.loop_.realtime,
+            Layout::realtime_default(),
+        ),
+        (
+            "lockstep",
+            &mut cfg.loop_.lockstep,
+            Layout::lockstep_default(),
+        ),
+    ] {
+        let (cpu, prio, dcpu, dprio) = match role {
+            Role::Controller => (
+                &mut layout.controller_cpu,
+                &mut layout.controller_priority,
+                default.controller_cpu,
+                default.controller_priority,
+            ),
+            Role::Plant => (
+                &mut layout.plant_cpu,
+                &mut layout.plant_priority,
+                default.plant_cpu,
+                default.plant_priority,
+            ),
+        };
+        let (want_cpu, want_prio) = (p.cpu.or(dcpu), p.priority.or(dprio));
+        if *cpu != want_cpu || *prio != want_prio {
+            replaced.push(format!(
+                "{name} {role} CPU {} priority {} asked by the near side",
+                show(*cpu),
+                show(*prio)
+            ));
+        }
+        (*cpu, *prio) = (want_cpu, want_prio);
+    }
+    let line = (!replaced.is_empty()).then(|| {
+        format!(
+            "the {role} runs where this host says (join --cpu/--priority, or the default layout), not where the near side asked ({})",
+            replaced.join("; ")
+        )
+    });
+    (cfg, line)
+}
+
+fn show(v: Option<i32>) -> String {
+    v.map_or("default".into(), |v| v.to_string())
 }
 
 /// The command to start here for `role` (`cmd`: the user's, or None for the built-in one); one
@@ -313,24 +386,24 @@ fn serve(
         );
     }
     let plant = a.role == Role::Plant;
-    let mode = match LoopMode::parse_process(&hello.mode) {
-        Ok(m) => m,
-        Err(e) => return fail(&mut tcp, format!("mode {}: {e}", hello.mode)),
-    };
-    if !plant && let Err(e) = Law::parse(&hello.law) {
-        return fail(&mut tcp, format!("law {}: {e}", hello.law));
-    }
+    let mode = hello.mode;
     let dir = match private_dir(&hello.run_id) {
         Ok(d) => d,
         Err(e) => return fail(&mut tcp, format!("{e:#}")),
     };
     let _tmp = TempDir(dir.clone());
     let config = dir.join("config.toml");
-    crate::files::create_private(&config, hello.config.as_bytes())
-        .with_context(|| format!("cannot write {}", config.display()))?;
-    if let Err(e) = RunConfig::from_file(&config) {
-        return fail(&mut tcp, format!("the run's config: {e:#}"));
+    let cfg = match RunConfig::from_toml_str(&hello.config, None) {
+        Ok(c) => c,
+        Err(e) => return fail(&mut tcp, format!("the run's config: {e:#}")),
+    };
+    let (cfg, said) = this_hosts_placement(cfg, a.role, a.placement);
+    if let Some(line) = said {
+        eprintln!("deltaloop-bridge: {line}");
+        tcp.send(Kind::Log, &[format!("far side: {line}").as_bytes()])?;
     }
+    crate::files::create_private(&config, cfg.to_toml_string().as_bytes())
+        .with_context(|| format!("cannot write {}", config.display()))?;
     let ports = if plant {
         PlantSidePorts::open(&hello.run_id).map(Either::Plant)
     } else {
@@ -351,7 +424,7 @@ fn serve(
         Ok(s) => s,
         Err(e) => return fail(&mut tcp, format!("{e:#}")),
     };
-    let law = (!plant).then_some(hello.law.as_str());
+    let law = hello.law.filter(|_| !plant).map(Law::name);
     let child = match spawn(cmd, &hello.run_id, mode, &config, law) {
         Ok(c) => c,
         Err(e) => return fail(&mut tcp, format!("{e:#}")),
@@ -829,6 +902,51 @@ impl FarPlant {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression: the far controller ran at the SCHED_FIFO priority and on the CPU that the
+    /// near side's config named (a fake near side chose them). This host's flags, else the
+    /// mode's default layout, decide, and a line says what the near side had asked.
+    #[test]
+    fn regression_the_near_side_cannot_place_the_far_process() {
+        let text = "[scenario]\npath = \"s1\"\n[loop.realtime]\ncontroller_cpu = 0\ncontroller_priority = 99\n";
+        let cfg = RunConfig::from_toml_str(text, None).unwrap();
+        let (c, said) = this_hosts_placement(cfg.clone(), Role::Controller, Placement::default());
+        let d = deltaloop_config::Layout::realtime_default();
+        assert_eq!(
+            (
+                c.loop_.realtime.controller_cpu,
+                c.loop_.realtime.controller_priority
+            ),
+            (d.controller_cpu, d.controller_priority)
+        );
+        let said = said.unwrap();
+        assert!(
+            said.contains("CPU 0 priority 99 asked by the near side"),
+            "{said}"
+        );
+        let mine = Placement {
+            cpu: Some(-1),
+            priority: Some(0),
+        };
+        let (c, _) = this_hosts_placement(cfg.clone(), Role::Controller, mine);
+        assert_eq!(
+            (
+                c.loop_.realtime.controller_cpu,
+                c.loop_.realtime.controller_priority
+            ),
+            (Some(-1), Some(0))
+        );
+        assert_eq!(
+            c.loop_.realtime.plant_cpu, cfg.loop_.realtime.plant_cpu,
+            "not ours"
+        );
+        // A config that asks nothing of it says nothing.
+        let plain = RunConfig::from_toml_str("[scenario]\npath = \"s1\"\n", None).unwrap();
+        assert_eq!(
+            this_hosts_placement(plain, Role::Plant, Placement::default()).1,
+            None
+        );
+    }
 
     /// Regression: the far bridge's folder was `deltaloop-join-<pid>-<run id>`, so a link planted
     /// at that path made `join` write the run's config through it. The folder is new, private

@@ -7,6 +7,7 @@
 //! byte for byte (encrypted in place: shared memory → socket buffer, socket buffer → shared
 //! memory). Both hosts must have the same byte order (checked by the magic).
 
+use deltaloop_config::{Law, LoopMode};
 use deltaloop_transport::wire::{ControlMsg, RefSample, StateMsg, TelemetryMsg, TorqueMsg};
 
 /// `DLB2`, read as a native u32: a host of the other byte order reads `2BLD` and drops it (and a
@@ -252,8 +253,10 @@ pub struct Hello {
     pub run_id: String,
     /// What runs on the far host.
     pub role: crate::Role,
-    pub mode: String,
-    pub law: String,
+    /// Lockstep or realtime (never inproc: it has no processes).
+    pub mode: LoopMode,
+    /// The controller's law (None: the far side runs the plant, which takes none).
+    pub law: Option<Law>,
     pub emulation: crate::link::Emulation,
     pub config: String,
 }
@@ -265,8 +268,8 @@ impl Hello {
             "run_id={}\nrole={}\nmode={}\nlaw={}\ndelay_ns={}\njitter_ns={}\nloss_ppm={}\nseed={}\n\n{}",
             self.run_id,
             self.role,
-            self.mode,
-            self.law,
+            self.mode.name(),
+            self.law.map_or("none", Law::name),
             e.delay_ns,
             e.jitter_ns,
             e.loss_ppm,
@@ -284,8 +287,8 @@ impl Hello {
             run_id: String::new(),
             // A HELLO without a role is of a version that knew only the remote controller.
             role: crate::Role::Controller,
-            mode: String::new(),
-            law: String::new(),
+            mode: LoopMode::Lockstep,
+            law: None,
             emulation: Default::default(),
             config: config.to_string(),
         };
@@ -304,8 +307,14 @@ impl Hello {
                         format!("HELLO role = `{}`: expected controller or plant", escape(v))
                     })?
                 }
-                "mode" => h.mode = v.to_string(),
-                "law" => h.law = v.to_string(),
+                "mode" => {
+                    h.mode = LoopMode::parse_process(v)
+                        .map_err(|e| format!("HELLO mode: {}", escape(&e)))?
+                }
+                "law" if v == "none" => h.law = None,
+                "law" => {
+                    h.law = Some(Law::parse(v).map_err(|e| format!("HELLO law: {}", escape(&e)))?)
+                }
                 "delay_ns" => h.emulation.delay_ns = bounded(k, num()?, MAX_EMULATED_NS)?,
                 "jitter_ns" => h.emulation.jitter_ns = bounded(k, num()?, MAX_EMULATED_NS)?,
                 "loss_ppm" => h.emulation.loss_ppm = bounded(k, num()?, 1_000_000)? as u32,
@@ -319,13 +328,20 @@ impl Hello {
                 && s.bytes()
                     .all(|c| c.is_ascii_alphanumeric() || c == b'-' || c == b'_')
         };
-        for (what, v) in [("run_id", &h.run_id), ("mode", &h.mode), ("law", &h.law)] {
-            if !safe(v) {
-                return Err(format!(
-                    "HELLO {what} = `{}`: expected 1-128 of A-Z a-z 0-9 - _",
-                    escape(v)
-                ));
-            }
+        if !safe(&h.run_id) {
+            return Err(format!(
+                "HELLO run_id = `{}`: expected 1-128 of A-Z a-z 0-9 - _",
+                escape(&h.run_id)
+            ));
+        }
+        if !head.lines().any(|l| l.starts_with("mode=")) {
+            return Err("HELLO has no mode".into());
+        }
+        if (h.role == crate::Role::Controller) != h.law.is_some() {
+            return Err(format!(
+                "HELLO law = {}: a remote controller needs a law, a remote plant takes none",
+                h.law.map_or("none", Law::name)
+            ));
         }
         Ok(h)
     }
@@ -447,8 +463,8 @@ mod tests {
         let h = Hello {
             run_id: "41cc-0-2cdf".into(),
             role: crate::Role::Plant,
-            mode: "lockstep".into(),
-            law: "tdc".into(),
+            mode: LoopMode::Lockstep,
+            law: None,
             emulation: crate::link::Emulation {
                 delay_ns: 5,
                 jitter_ns: 6,

@@ -130,9 +130,9 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
     let plant = a.role == Role::Plant;
     let law = match (plant, a.law) {
         (false, None) => bail!("--law is needed with --role controller"),
-        (false, Some(l)) => l.name().to_string(),
-        // The far side needs a name there; the plant takes no law.
-        (true, _) => "none".to_string(),
+        (false, l) => l,
+        // The plant takes no law.
+        (true, _) => None,
     };
     let config = std::fs::read_to_string(&a.run.config)
         .with_context(|| format!("cannot read --config {}", a.run.config.display()))?;
@@ -142,7 +142,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
     let hello = Hello {
         run_id: run_id.clone(),
         role: a.role,
-        mode: a.run.mode.name().to_string(),
+        mode: a.run.mode,
         law,
         emulation: emu,
         config,

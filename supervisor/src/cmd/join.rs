@@ -40,6 +40,9 @@ pub struct Args {
     /// The run's one-time link key, as `deltaloop run` printed it (64 hex digits).
     #[arg(long, value_name = "HEX")]
     link_token: Option<String>,
+    /// Where the process runs on this host (this host's choice; the run's config cannot set it).
+    #[command(flatten)]
+    placement: deltaloop_bridge::far::Placement,
 }
 
 pub fn exec(a: Args, _cx: &Context) -> Result<()> {
@@ -53,5 +56,6 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
         spin_us: a.spin_us,
         link_key: a.link_key.as_deref(),
         link_token: a.link_token.as_deref(),
+        placement: a.placement,
     })
 }

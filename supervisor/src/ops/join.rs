@@ -179,6 +179,8 @@ pub struct Join<'a> {
     /// The link key: a key file, or the token `deltaloop run` printed.
     pub link_key: Option<&'a Path>,
     pub link_token: Option<&'a str>,
+    /// The far process's CPU and priority (this host's, not the run config's).
+    pub placement: deltaloop_bridge::far::Placement,
 }
 
 /// The key `join` was given; one line if it was given none, both, or a bad one.
@@ -218,6 +220,12 @@ pub fn join(j: &Join<'_>) -> Result<()> {
     }
     if let Some(cmd) = j.plant_cmd {
         c.arg(format!("--plant-cmd={cmd}"));
+    }
+    if let Some(cpu) = j.placement.cpu {
+        c.arg(format!("--cpu={cpu}"));
+    }
+    if let Some(p) = j.placement.priority {
+        c.arg(format!("--priority={p}"));
     }
     use std::os::unix::process::CommandExt;
     let e = c.exec();
@@ -356,6 +364,7 @@ mod tests {
             spin_us: 0,
             link_key: None,
             link_token: None,
+            placement: Default::default(),
         };
         for (role, c, p, says) in [
             (
@@ -392,6 +401,7 @@ mod tests {
             spin_us: 0,
             link_key,
             link_token,
+            placement: Default::default(),
         };
         let one_line = |e: anyhow::Error, says: &str| {
             let e = e.to_string();
