@@ -369,6 +369,24 @@ impl Tcp {
     /// Reads what has arrived and hands every whole frame to `f` (kind, opened payload). A frame
     /// that is malformed or does not open ends the stream with an error naming it.
     pub fn poll(&mut self, mut f: impl FnMut(Kind, &[u8]) -> Result<()>) -> Result<()> {
+        self.poll_until(|k, p| f(k, p).map(|()| false))
+    }
+
+    /// Whether bytes that arrived are still held, not yet handed on (after
+    /// [`Tcp::poll_until`] stopped early): the next poll must come without waiting for the socket.
+    pub fn held(&self) -> bool {
+        if self.in_len < 4 {
+            return false;
+        }
+        let mut l = [0u8; 4];
+        l.copy_from_slice(&self.inbuf[..4]);
+        self.in_len - 4 >= u32::from_ne_bytes(l) as usize
+    }
+
+    /// [`Tcp::poll`], stopping after the frame for which `f` says true: the frames after it stay
+    /// for the next poll (regression: the far controller's READY, in the same read as the ACK
+    /// the handshake waited for, was dropped).
+    pub fn poll_until(&mut self, mut f: impl FnMut(Kind, &[u8]) -> Result<bool>) -> Result<()> {
         loop {
             match self.stream.read(&mut self.inbuf[self.in_len..]) {
                 Ok(0) => {
@@ -404,8 +422,11 @@ impl Tcp {
             let b = &mut self.inbuf[at + 4..at + 4 + len];
             let (kind, n) = open(b, self.session, Some(&mut self.open))
                 .map_err(|(_, why)| anyhow::anyhow!("control frame refused: {why}"))?;
-            f(kind, &self.inbuf[at + 4 + HEADER..at + 4 + HEADER + n])?;
+            let stop = f(kind, &self.inbuf[at + 4 + HEADER..at + 4 + HEADER + n])?;
             at += 4 + len;
+            if stop {
+                break;
+            }
         }
         self.inbuf.copy_within(at..self.in_len, 0);
         self.in_len -= at;
@@ -616,5 +637,38 @@ mod tests {
             "{}",
             rx.refused.describe()
         );
+    }
+
+    /// Regression: the far controller's READY came in the same read as the ACK, and the near
+    /// side's wait for the ACK dropped it (the run then waited 30 s for a READY that had come).
+    /// `poll_until` stops after the ACK and the READY stays for the next poll.
+    #[test]
+    fn regression_a_frame_in_the_same_read_as_the_ack_is_kept() {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let c = TcpStream::connect(l.local_addr().unwrap()).unwrap();
+        let (sv, _) = l.accept().unwrap();
+        let session = Session::generate().unwrap();
+        let mut far = Tcp::new(c, &session, End::Far).unwrap();
+        let mut near = Tcp::new(sv, &session, End::Near).unwrap();
+        far.queue(Kind::Ack, &[&7u64.to_ne_bytes()]).unwrap();
+        far.queue(Kind::Log, &[b"READY"]).unwrap();
+        far.flush().unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        let mut seen = Vec::new();
+        near.poll_until(|k, _| {
+            seen.push(k);
+            Ok(k == Kind::Ack)
+        })
+        .unwrap();
+        assert_eq!(seen, [Kind::Ack]);
+        assert!(near.held());
+        near.poll(|k, p| {
+            seen.push(k);
+            assert_eq!(p, b"READY");
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(seen, [Kind::Ack, Kind::Log]);
+        assert!(!near.held());
     }
 }

@@ -326,13 +326,14 @@ fn connect(
     tcp.send(Kind::Hello, &[&hello.encode()])?;
     let (mut far_udp, mut far_end) = (None, None);
     while far_udp.is_none() {
-        tcp.poll(|k, p| {
+        // Up to the ACK only: what the far side says after it (READY) is the loop's to forward.
+        tcp.poll_until(|k, p| {
             match k {
                 Kind::Ack => far_udp = frame::read::<u64>(p),
                 Kind::Exit => far_end = Some(FarEnd::of(p)),
                 _ => {}
             }
-            Ok(())
+            Ok(far_udp.is_some())
         })?;
         if let Some(e) = far_end {
             // The far side refused the run (wrong role, a bad config, …): its line says why.
@@ -598,7 +599,7 @@ impl Near {
         if p.tcp.pending() > 0 {
             p.tcp.flush()?;
         }
-        if !tcp_in {
+        if !tcp_in && !p.tcp.held() {
             return Ok(());
         }
         let (ports, far_end, log) = (&self.ports, &mut p.far_end, &mut p.log);
@@ -719,7 +720,7 @@ impl NearPlant {
         if p.tcp.pending() > 0 {
             p.tcp.flush()?;
         }
-        if !tcp_in {
+        if !tcp_in && !p.tcp.held() {
             return Ok(());
         }
         let (ports, far_end, copies, log) =
