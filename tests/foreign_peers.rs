@@ -170,17 +170,27 @@ fn regression_forged_reply_stamps_are_replaced_by_what_the_plant_observed() {
         "name = \"stamps\"\n[scenario]\npath = \"s1\"\n[loop]\nts_s = 1e-3\ntorque_budget_us = 900\n[faults]\ncontroller_silence_ticks = 1000\n[loop.realtime]\nplant_cpu = -1\ncontroller_cpu = -1\nsupervisor_cpu = -1\nplant_priority = 0\ncontroller_priority = 0\nwake_early_us = 0\nlock_memory = false\n",
     );
     let cmd = peer("controller.py", "stamp-zero");
-    let (o, out) = run(
-        tmp.path(),
-        cfg.to_str().unwrap(),
-        "realtime",
-        &["--controller-cmd", &cmd],
-    );
+    // How many replies a Python controller gets in within the budget depends on timing: judged
+    // on a run the machine left alone; what is said of the stamps holds whatever the host did.
+    let test = "regression_forged_reply_stamps_are_replaced_by_what_the_plant_observed";
+    common::on_a_noisy_host(test, |n| {
+        let dir = tmp.path().join(format!("attempt-{n}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        forged_stamps_once(&dir, cfg.to_str().unwrap(), &cmd)
+    });
+}
+
+/// One run of [`regression_forged_reply_stamps_are_replaced_by_what_the_plant_observed`] in `dir`.
+fn forged_stamps_once(dir: &Path, cfg: &str, cmd: &str) -> Result<(), String> {
+    let (o, out) = run(dir, cfg, "realtime", &["--controller-cmd", cmd]);
     let s = summary(&out);
     let m = &s["laws"]["tdc"];
     let rows = fates(&out);
     let applied: Vec<_> = rows.iter().filter(|r| r.0 == "applied").collect();
-    assert!(applied.len() > 100, "{}\n{m}", text(&o.stderr));
+    if applied.is_empty() {
+        let why = format!("no reply applied: {}\n{m}", text(&o.stderr));
+        return common::judge(common::disturbance(&s, "tdc"), Err(why));
+    }
     assert!(
         applied.iter().all(|r| r.2.parse::<u64>().unwrap() > 0),
         "an applied reply stamped 0 was charged no latency"
@@ -198,6 +208,16 @@ fn regression_forged_reply_stamps_are_replaced_by_what_the_plant_observed() {
         )),
         "{report}"
     );
+    common::judge(
+        common::disturbance(&s, "tdc"),
+        (applied.len() > 100).then_some(()).ok_or_else(|| {
+            format!(
+                "{} replies applied: {}\n{m}",
+                applied.len(),
+                text(&o.stderr)
+            )
+        }),
+    )
 }
 
 /// Regression: a second reply for the same tick was what trace.csv recorded, while the plant had

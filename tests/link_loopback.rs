@@ -139,21 +139,24 @@ fn verdict(r: &std::collections::HashMap<String, String>) -> Result<f64, String>
 
 /// A link-delay sweep: each point in realtime across the loopback bridge, next to the same delay
 /// injected in-process at its median arrival; each point must match its twin within the
-/// tolerance in one of at most three sweeps (each attempt said on stderr). A run the loaded
-/// machine disturbed (a fault, too many misses or a burst of them, a stalled plant) says nothing;
-/// an undisturbed one may still miss the tolerance now and then (a few misses at a sensitive
-/// moment of the motion: docs/guide/delay-study.md), so the test fails when a point had
-/// undisturbed runs and none matched; a point the machine disturbed in all three is not checked
-/// (said on stderr), the rest of the test is.
+/// tolerance in one of at most three sweeps (`common::on_a_noisy_host`). What every sweep must
+/// do whatever the host does is asserted on each: it ends, writes both link points in realtime
+/// with their round-trip logs and the report's section, and leaves no far side behind. A run the
+/// loaded machine disturbed (a fault, too many misses or a burst of them, a stalled plant: the
+/// sweep's `link_disturbed`, the runs' own classifier) says nothing; an undisturbed one may still
+/// miss the tolerance now and then (a few misses at a sensitive moment of the motion:
+/// docs/guide/delay-study.md), so the test fails when a point had undisturbed runs and none
+/// matched in three sweeps; a point the machine disturbed in all three is inconclusive.
 #[test]
 fn link_delay_sweep_matches_the_injected_delay() {
+    let test = "link_delay_sweep_matches_the_injected_delay";
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let (tmp, sweep, far_tmp) = link_sweep();
     let mut matched = std::collections::BTreeMap::<String, f64>::new();
     let mut missed = std::collections::BTreeMap::<String, Vec<String>>::new();
     // The largest growth of the median arrival from 0 to 25 µs each way within one sweep.
     let mut grew = f64::NEG_INFINITY;
-    for attempt in 1..=3 {
+    common::on_a_noisy_host(test, |attempt| {
         let out = tmp.path().join(format!("out{attempt}"));
         let child = sweep_cmd(&sweep, &out, &far_tmp).spawn().unwrap();
         let pid = child.id();
@@ -222,23 +225,25 @@ fn link_delay_sweep_matches_the_injected_delay() {
             }
         }
         if matched.len() == 2 && grew > 25.0 {
-            return;
+            return Ok(());
         }
-        eprintln!("attempt {attempt}: not every point matched yet: {why:?}");
-    }
-    assert!(
-        grew > 25.0,
-        "the median arrival grew by {grew} µs at most from 0 to 25 µs each way in one sweep (2·25 expected)"
-    );
-    missed.retain(|d, _| !matched.contains_key(d));
-    assert!(
-        missed.is_empty(),
-        "undisturbed runs that never matched in three sweeps: {missed:?}"
-    );
-    eprintln!(
-        "NOT CHECKED: the match of {} point(s): the machine disturbed every run of them (matched: {matched:?})",
-        2 - matched.len()
-    );
+        if attempt == common::ATTEMPTS {
+            // The last sweep: what no disturbance excuses fails the test.
+            assert!(
+                grew > 25.0,
+                "the median arrival grew by {grew} µs at most from 0 to 25 µs each way in one sweep (2·25 expected)"
+            );
+            missed.retain(|d, _| !matched.contains_key(d));
+            assert!(
+                missed.is_empty(),
+                "undisturbed runs that never matched in three sweeps: {missed:?}"
+            );
+        }
+        Err(format!(
+            "the match of {} point(s) is not checked: {why:?} (matched: {matched:?})",
+            2 - matched.len()
+        ))
+    });
 }
 
 /// A lockstep run across the loopback bridge (deterministic, so no retry) fills `link_rtt_ns`
@@ -256,24 +261,11 @@ fn link_round_trip_is_measured_across_the_bridge_only() {
     };
     let ep = format!("127.0.0.1:{port}");
     let far_root = tmp.path().join("far-root");
-    let join = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(["join", &ep, "--role", "controller", "--wait-s", "60"])
-        .env("DELTALOOP_IOX2_ROOT", &far_root)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let key = tmp.path().join("link.key");
+    deltaloop_bridge::seal::LinkKey::write_new(&key).unwrap();
+    let join = join_with(&ep, &key, &far_root);
     let remote = tmp.path().join("remote");
-    let o = deltaloop(&[
-        "run",
-        cfg.to_str().unwrap(),
-        "--mode",
-        "lockstep",
-        "--controller-remote",
-        &ep,
-        "--out",
-        remote.to_str().unwrap(),
-    ]);
+    let o = deltaloop(&remote_lockstep(&cfg, &ep, &key, &remote));
     let j = common::finish_within(join, Duration::from_secs(30), "deltaloop join");
     // The far root's shared memory (iceoryx2's management segment stays behind otherwise).
     deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
@@ -340,4 +332,159 @@ fn an_interrupted_link_sweep_leaves_nothing_behind() {
     eprintln!("{}", text(&o.stderr));
     assert_eq!(o.status.code(), Some(130), "{}", text(&o.stderr));
     assert_no_far_roots(&far_tmp, pid);
+}
+
+/// A free port of 127.0.0.1 (TCP; the near bridge binds UDP on it too).
+fn free_port() -> u16 {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().port()
+}
+
+/// A connection to `ep` once something listens there (the near bridge, after set-up).
+fn connect_when_listening(ep: &str) -> std::net::TcpStream {
+    let t0 = std::time::Instant::now();
+    loop {
+        if let Ok(s) = std::net::TcpStream::connect(ep) {
+            return s;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "nothing listens at {ep}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Everything a connection receives until the other side closes it (or 8 s pass).
+fn all_it_hears(mut s: std::net::TcpStream) -> Vec<u8> {
+    use std::io::Read;
+    s.set_read_timeout(Some(Duration::from_secs(8))).unwrap();
+    let mut got = Vec::new();
+    let _ = s.read_to_end(&mut got);
+    got
+}
+
+/// `deltaloop run CFG --mode lockstep --controller-remote EP --link-key KEY --out OUT`'s
+/// arguments.
+fn remote_lockstep<'a>(cfg: &'a Path, ep: &'a str, key: &'a Path, out: &'a Path) -> [&'a str; 10] {
+    let s = |p: &'a Path| p.to_str().unwrap();
+    [
+        "run",
+        s(cfg),
+        "--mode",
+        "lockstep",
+        "--controller-remote",
+        ep,
+        "--link-key",
+        s(key),
+        "--out",
+        s(out),
+    ]
+}
+
+/// `deltaloop join EP --link-key KEY` with its own iceoryx2 root, output captured.
+fn join_with(ep: &str, key: &Path, root: &Path) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["join", ep, "--role", "controller", "--wait-s", "60"])
+        .args(["--link-key", key.to_str().unwrap()])
+        .env("DELTALOOP_IOX2_ROOT", root)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// The link's mutual authentication, from the outside: a stranger who connects first to a
+/// waiting `run --controller-remote --link-key` (and one who connects and stays silent) learns
+/// nothing of the run and cannot be its controller; a `join` with another key is refused in one
+/// line on both sides within seconds; the honest `join` that comes after them completes the run,
+/// its trace byte-identical to in-process, and the run records whom it refused.
+#[test]
+fn strangers_and_wrong_keys_are_refused_and_the_honest_join_runs_byte_identical() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("s1.toml");
+    std::fs::write(&cfg, BASE).unwrap();
+    let (key, other) = (tmp.path().join("link.key"), tmp.path().join("other.key"));
+    deltaloop_bridge::seal::LinkKey::write_new(&key).unwrap();
+    deltaloop_bridge::seal::LinkKey::write_new(&other).unwrap();
+    let ep = format!("127.0.0.1:{}", free_port());
+    let remote = tmp.path().join("remote");
+    let run = common::spawn(&remote_lockstep(&cfg, &ep, &key, &remote));
+    // A stranger first: a handshake-shaped message of junk. Then one that says nothing at all
+    // and holds its connection while the others come.
+    let mut stranger = connect_when_listening(&ep);
+    let silent = connect_when_listening(&ep);
+    std::io::Write::write_all(
+        &mut stranger,
+        &[&48u16.to_le_bytes()[..], &[7u8; 48]].concat(),
+    )
+    .unwrap();
+    let heard = all_it_hears(stranger);
+    assert!(
+        heard.is_empty(),
+        "the stranger was told {} bytes",
+        heard.len()
+    );
+    // A join with another key: refused in one line, here and there, within seconds.
+    let t0 = std::time::Instant::now();
+    let wrong = join_with(&ep, &other, &tmp.path().join("root-wrong"));
+    let w = common::finish_within(wrong, Duration::from_secs(15), "join with another key");
+    assert!(t0.elapsed() < Duration::from_secs(10), "{:?}", t0.elapsed());
+    assert!(!w.status.success());
+    let line = text(&w.stderr);
+    assert!(
+        line.trim_end().lines().count() == 1 && line.contains("does it hold this link key?"),
+        "{line}"
+    );
+    // The honest side, last: the run completes as if the others had never been there.
+    let far_root = tmp.path().join("far-root");
+    let honest = join_with(&ep, &key, &far_root);
+    let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
+    let j = common::finish_within(honest, Duration::from_secs(30), "honest join");
+    drop(silent);
+    deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(j.status.success(), "join: {}", text(&j.stderr));
+    let local = tmp.path().join("local");
+    common::run(cfg.to_str().unwrap(), "inproc", &local, &[]);
+    assert!(
+        std::fs::read(remote.join("trace.csv")).unwrap()
+            == std::fs::read(local.join("trace.csv")).unwrap(),
+        "trace.csv across the sealed link differs from inproc"
+    );
+    let s = summary(&remote);
+    let sec = &s["timing"]["tdc"]["link_security"];
+    let fp = deltaloop_bridge::seal::LinkKey::read(&key)
+        .unwrap()
+        .fingerprint();
+    assert_eq!(sec["key_fingerprint"], fp.as_str(), "{sec}");
+    assert!(
+        sec["peer"].as_str().unwrap().starts_with("127.0.0.1:"),
+        "{sec}"
+    );
+    // The stranger and the wrong key at least (the silent one, if its 5 s ran out first).
+    assert!(sec["refused_connections"].as_u64().unwrap() >= 2, "{sec}");
+    assert_eq!(sec["refused_datagrams"]["forged"], 0, "{sec}");
+    let log = std::fs::read_to_string(remote.join("tdc.controller.log")).unwrap();
+    assert!(log.contains("failed authentication"), "{log}");
+    let report = std::fs::read_to_string(remote.join("report.md")).unwrap();
+    assert!(
+        report.contains(&format!("joined with link key {fp}")),
+        "{report}"
+    );
+    assert!(
+        !report.contains(
+            &deltaloop_bridge::seal::LinkKey::read(&key)
+                .unwrap()
+                .to_hex()
+        )
+    );
+    assert!(
+        !text(&o.stderr).contains(
+            &deltaloop_bridge::seal::LinkKey::read(&key)
+                .unwrap()
+                .to_hex()
+        )
+    );
 }

@@ -112,8 +112,8 @@ pub fn iceoryx_leftovers(run_id: &str) -> Vec<String> {
     left
 }
 
-/// `deltaloop run <config> --mode <mode> --out <out> <extra…>`, asserted to succeed; its summary.json.
-pub fn run(config: &str, mode: &str, out: &Path, extra: &[&str]) -> Value {
+/// `deltaloop run <config> --mode <mode> --out <out> <extra…>`, however it ends.
+pub fn run_output(config: &str, mode: &str, out: &Path, extra: &[&str]) -> Output {
     let mut args = vec![
         "run",
         config,
@@ -123,7 +123,12 @@ pub fn run(config: &str, mode: &str, out: &Path, extra: &[&str]) -> Value {
         out.to_str().unwrap(),
     ];
     args.extend_from_slice(extra);
-    let o = deltaloop(&args);
+    deltaloop(&args)
+}
+
+/// `deltaloop run <config> --mode <mode> --out <out> <extra…>`, asserted to succeed; its summary.json.
+pub fn run(config: &str, mode: &str, out: &Path, extra: &[&str]) -> Value {
+    let o = run_output(config, mode, out, extra);
     assert!(
         o.status.success(),
         "{mode} run failed: {}\n{}",
@@ -295,3 +300,139 @@ macro_rules! wire_types {
 }
 #[allow(unused_imports)]
 pub(crate) use wire_types;
+
+/// Why the machine may have disturbed the timing of `law` in a realtime run, as the run's own
+/// record says (`timing.<law>.disturbance`: the plant paused or woke a tick or more late, misses
+/// beyond 2 % of the ticks or a burst of 5, with the host's steal); None: nothing in the record.
+pub fn disturbance(summary: &Value, law: &str) -> Option<String> {
+    summary["timing"][law]["disturbance"]
+        .as_str()
+        .map(|why| format!("{law}: {why}"))
+}
+
+/// A timing-dependent outcome, judged by the run's record: Ok if it held (`check`); Err(why) if
+/// it did not in a run the machine disturbed (`disturbed`: see [`disturbance`]), which says
+/// nothing about the code and is run again; a panic if it did not in an undisturbed run.
+pub fn judge(disturbed: Option<String>, check: Result<(), String>) -> Result<(), String> {
+    match (check, disturbed) {
+        (Ok(()), _) => Ok(()),
+        (Err(wrong), Some(why)) => Err(format!("{wrong} (disturbed: {why})")),
+        (Err(wrong), None) => panic!("undisturbed and still wrong: {wrong}"),
+    }
+}
+
+/// How many times a realtime test is attempted before it is called inconclusive.
+pub const ATTEMPTS: u32 = 3;
+
+/// A realtime test on a host that may stall it: `attempt(n)` (n = 1..=[`ATTEMPTS`]) asserts
+/// what must hold whatever the host does itself (a panic is a failure) and returns Err(why) only
+/// when an outcome that depends on timing failed in a run the machine disturbed (see [`judge`]).
+/// Each such attempt is said on stderr and run again; after the last, one line
+/// `INCONCLUSIVE on this host: <test>: <why>` and None (the timing outcome is not asserted: CI
+/// must not fail on a hypervisor's bad hour). The first attempt that returns Ok gives Some.
+pub fn on_a_noisy_host<T>(
+    test: &str,
+    mut attempt: impl FnMut(u32) -> Result<T, String>,
+) -> Option<T> {
+    for n in 1..=ATTEMPTS {
+        // One line each, whatever the reason quotes (a run's stderr).
+        match attempt(n).map_err(|why| why.lines().collect::<Vec<_>>().join(" ⏎ ")) {
+            Ok(v) => return Some(v),
+            Err(why) if n < ATTEMPTS => {
+                eprintln!(
+                    "{test}: attempt {n} of {ATTEMPTS} disturbed by the machine, run again: {why}"
+                );
+            }
+            Err(why) => eprintln!("INCONCLUSIVE on this host: {test}: {why}"),
+        }
+    }
+    None
+}
+
+/// The plant's own stalls in the record of `law` (its process woke late: simulated time paused,
+/// or it woke a tick or more late), whatever else the record says; None if it kept to the clock.
+pub fn plant_stalled(summary: &Value, law: &str) -> Option<String> {
+    let t = &summary["timing"][law];
+    let ts_us = summary["ts_s"].as_f64().unwrap_or(3e-4) * 1e6;
+    let pauses = t["pauses"].as_u64().unwrap_or(0);
+    let late_us = t["wake_lateness"]["max_us"].as_f64().unwrap_or(0.0);
+    (pauses > 0 || late_us >= ts_us).then(|| {
+        format!(
+            "{law}: the plant paused {pauses} time(s) ({} ms) and woke at worst {late_us} µs late",
+            t["paused_ms"]
+        )
+    })
+}
+
+/// Misses in the record of `law` beyond what the run's classifier allows (more than
+/// [`MAX_MISS_SHARE`](deltaloop_supervisor::timing::MAX_MISS_SHARE) of the ticks, or a burst
+/// of [`MAX_MISS_BURST`](deltaloop_supervisor::timing::MAX_MISS_BURST)), whatever else it says.
+pub fn missed_too_many(summary: &Value, law: &str) -> Option<String> {
+    use deltaloop_supervisor::timing::{MAX_MISS_BURST, MAX_MISS_SHARE};
+    let t = &summary["timing"][law];
+    let share = t["miss_ratio"].as_f64().unwrap_or(0.0);
+    let burst = t["max_consecutive_misses"].as_u64().unwrap_or(0);
+    (share > MAX_MISS_SHARE || burst >= MAX_MISS_BURST).then(|| {
+        format!(
+            "{law}: {} misses ({:.1} %), {burst} in a row",
+            t["deadline_misses"],
+            share * 100.0
+        )
+    })
+}
+
+/// The ticks of `law` in the run folder's trace.csv, in order.
+pub fn trace_ticks(out: &Path, law: &str) -> Vec<u64> {
+    let f = std::fs::File::open(out.join("trace.csv")).unwrap();
+    let prefix = format!("{law},");
+    std::io::BufRead::lines(std::io::BufReader::new(f))
+        .skip(1)
+        .map(Result::unwrap)
+        .filter_map(|l| {
+            let rest = l.strip_prefix(&prefix)?;
+            Some(rest.split(',').next().unwrap().parse().unwrap())
+        })
+        .collect()
+}
+
+/// What holds whatever the host did: `law` ended with a typed status (returned), and every tick
+/// it ran (0..=`ticks`) is on disk in order, but for those the summary counts as lost.
+pub fn assert_every_tick_on_disk(summary: &Value, out: &Path, law: &str) -> RunStatus {
+    let (status, _) = outcome(summary, law);
+    let m = &summary["laws"][law];
+    let ticks = m["ticks"]
+        .as_u64()
+        .unwrap_or_else(|| panic!("ticks of {law}: {m}"));
+    let lost = m["lost_ticks"].as_u64().unwrap_or(0);
+    let ks = trace_ticks(out, law);
+    assert_eq!(
+        ks.len() as u64 + lost,
+        ticks + 1,
+        "{law}: trace rows + lost ticks vs ticks 0..={ticks}: {m}"
+    );
+    assert!(
+        ks.windows(2).all(|w| w[0] < w[1]),
+        "{law}: ticks out of order"
+    );
+    if lost == 0 {
+        assert!(
+            ks.iter().copied().eq(0..=ticks),
+            "{law}: not ticks 0..={ticks}"
+        );
+    }
+    status
+}
+
+/// `deltaloop replay <out>` reproduces the run's trace.csv byte for byte.
+pub fn assert_replays(out: &Path) {
+    let o = deltaloop(&["replay", out.to_str().unwrap()]);
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert!(
+        o.status.success() && stdout.contains("byte for byte"),
+        "replay of {}: {stdout}{stderr}",
+        out.display()
+    );
+}

@@ -334,6 +334,16 @@ fn run_loop(
         let mut tel = match side.advance(arrival) {
             Ok(tel) => tel,
             Err(stop) => {
+                // The failed interval's telemetry first (its reply's arrival: the record keeps
+                // it, and the run replays), then DIVERGED.
+                if let Some(t) = stop.failed_interval() {
+                    let mut t = *t;
+                    t.t_deadline_ns = deadline;
+                    t.t_wake_ns = wake;
+                    t.t_state_pub_ns = msg.t_publish_ns;
+                    t.t_torque_rx_ns = reply.map_or(0, |r| r.rx_ns);
+                    ports.telemetry.send_copy(t).ipc("publish telemetry")?;
+                }
                 return Ok(Some(LoopStop {
                     tick: stop.tick(),
                     cause: stop.cause().to_string(),

@@ -66,7 +66,13 @@ pub enum PlantStop {
     /// The controller missed `controller_silence_ticks` ticks in a row: a safe stop follows.
     ControllerSilent { tick: u64, cause: String },
     /// The model failed at `tick` (left the workspace, non-finite state): no safe stop possible.
-    Diverged { tick: u64, cause: String },
+    /// `tel` is the failed interval's telemetry as far as it goes (the reply's arrival, misses;
+    /// no drive flags): every mode records it, so a run that diverged replays byte for byte.
+    Diverged {
+        tick: u64,
+        cause: String,
+        tel: Box<TelemetryMsg>,
+    },
 }
 
 impl PlantStop {
@@ -74,6 +80,14 @@ impl PlantStop {
     pub fn tick(&self) -> u64 {
         match self {
             PlantStop::ControllerSilent { tick, .. } | PlantStop::Diverged { tick, .. } => *tick,
+        }
+    }
+
+    /// The telemetry of the interval the model failed in (None for a silence stop).
+    pub fn failed_interval(&self) -> Option<&TelemetryMsg> {
+        match self {
+            PlantStop::Diverged { tel, .. } => Some(tel),
+            PlantStop::ControllerSilent { .. } => None,
         }
     }
 
@@ -206,18 +220,19 @@ impl PlantSide {
                 (None, 0)
             }
         };
+        tel.misses = self.misses;
+        tel.late_dropped = self.late;
         let a = self
             .plant
             .advance_after(cmd, latency_ns)
             .map_err(|e| PlantStop::Diverged {
                 tick: k + 1,
                 cause: e.to_string(),
+                tel: Box::new(tel),
             })?;
         tel.flags |= if a.clamped { wire::TEL_CLAMPED } else { 0 }
             | if a.held { wire::TEL_HELD } else { 0 }
             | if a.rejected { wire::TEL_REJECTED } else { 0 };
-        tel.misses = self.misses;
-        tel.late_dropped = self.late;
         Ok(tel)
     }
 
@@ -287,5 +302,38 @@ mod tests {
             }
             other => panic!("expected a silence stop at tick 1, got {other:?}"),
         }
+    }
+
+    /// Regression: when the model failed integrating a tick, its telemetry was lost with it, so
+    /// the trace's last row had an applied reply and no arrival, and `deltaloop replay` refused
+    /// every run that diverged that way. The failed interval's telemetry (the reply's arrival)
+    /// comes with the stop.
+    #[test]
+    fn regression_a_failed_interval_keeps_its_reply_arrival() {
+        let mut cfg = RunConfig::from_toml_str(
+            "name = \"t\"\n[scenario]\npath = \"s1\"\n[plant]\ntau_max_nm = 10000.0\n",
+            None,
+        )
+        .expect("config");
+        cfg.faults.controller_silence_ticks = 100;
+        let q0 = DeltaRobot::default()
+            .ik(&Vec3::new(0.0, 0.0, -0.4))
+            .expect("reachable");
+        let mut p = PlantSide::from_config(&cfg, q0, 1_000_000).expect("plant");
+        let stop = (0..100_000u64)
+            .find_map(|k| {
+                let reply = TorqueMsg {
+                    tick: k,
+                    tau: [1e4, -1e4, 1e4],
+                    ..TorqueMsg::default()
+                };
+                p.advance(Arrival::ReplyAfter(reply, 1_234)).err()
+            })
+            .expect("flung past the margins");
+        let tel = stop.failed_interval().expect("a model failure");
+        assert!(matches!(stop, PlantStop::Diverged { .. }), "{stop:?}");
+        assert_eq!(tel.tick + 1, stop.tick());
+        assert_eq!(tel.arrival_ns, 1_234);
+        assert_eq!(tel.flags & wire::TEL_MISSED, 0);
     }
 }

@@ -168,6 +168,11 @@ pub fn run_schedule<'a>(
         match plant.advance(arrival) {
             Ok(tel) => rec.applied(Some(&tel)),
             Err(stop) => {
+                // The failed interval's reply and arrival are recorded, as the process modes
+                // record the telemetry the plant sends before DIVERGED.
+                if let Some(tel) = stop.failed_interval() {
+                    rec.applied(Some(tel));
+                }
                 rec.plant_failed(stop.cause().to_string());
                 return lawrun::finish(rec, None);
             }
