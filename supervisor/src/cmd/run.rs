@@ -26,6 +26,7 @@ pub struct Args {
 pub fn exec(a: Args, cx: &Context) -> Result<()> {
     a.overrides.remote.check_mode(a.mode)?;
     let cfg = run::load_config(&a.config, &a.overrides)?;
+    a.overrides.remote.check_run(a.mode, &cfg, a.sensitivity)?;
     let o = run::run(RunRequest {
         out: a.out.out,
         force: a.out.force,

@@ -164,6 +164,30 @@ impl RemoteArgs {
         }
         Ok(())
     }
+
+    /// Everything a run with these flags needs of its mode, config and other flags, checked
+    /// before anything is written (regression: `--link-spin-us 151` was refused by the near
+    /// bridge after the run folder existed, and `--sensitivity` blamed a `controller.command` the
+    /// user never gave).
+    pub fn check_run(&self, mode: LoopMode, cfg: &RunConfig, sensitivity: bool) -> Result<()> {
+        self.check_mode(mode)?;
+        let Some((flag, ..)) = self.remote()? else {
+            return Ok(());
+        };
+        let budget = cfg.loop_.torque_budget_us;
+        if mode == LoopMode::Realtime && self.emu.link_spin_us > budget {
+            bail!(
+                "--link-spin-us {}: allowed 0..={budget} (loop.torque_budget_us) in realtime",
+                self.emu.link_spin_us
+            );
+        }
+        if sensitivity {
+            bail!(
+                "--sensitivity with {flag}: the round-off twin reruns the law with the built-in processes on this host; run the twin without {flag}"
+            );
+        }
+        Ok(())
+    }
 }
 
 /// `deltaloop join`: what to run on the other host.
@@ -384,6 +408,35 @@ mod tests {
             let e = join(&j(role, c, p)).unwrap_err().to_string();
             assert!(e.contains(says) && !e.contains('\n'), "{e}");
         }
+    }
+
+    #[test]
+    fn regression_remote_run_flags_are_checked_before_the_run_folder_exists() {
+        let remote = RemoteArgs {
+            controller_remote: Some("127.0.0.1:7447".into()),
+            emu: EmuArgs {
+                link_spin_us: 151,
+                ..Default::default()
+            },
+            quiet: true,
+            ..Default::default()
+        };
+        let c = cfg();
+        let e = remote
+            .check_run(LoopMode::Realtime, &c, false)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--link-spin-us 151: allowed 0..=150"), "{e}");
+        remote.check_run(LoopMode::Lockstep, &c, false).unwrap();
+        let e = remote
+            .check_run(LoopMode::Lockstep, &c, true)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("--sensitivity with --controller-remote")
+                && !e.contains("controller.command"),
+            "{e}"
+        );
     }
 
     /// No unauthenticated mode: `join` without a key, with both, or with a bad token says so

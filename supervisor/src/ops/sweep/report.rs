@@ -249,7 +249,7 @@ fn reading_note(s: &mut String, sw: &SweepFile, rows: &[Row]) {
             "Each point ran {} times, with sensor-noise seeds {} to {}; a cell is the mean over the runs that ended `ok` (`(k/N not ok)`: the others, left out), ± the half-width of its {} (relative to the mean); a latency cost, a ratio, is a geometric mean with its interval in brackets ({}). `sweep.csv` has the standard deviations and both ends of each interval.\n",
             sw.repeats,
             first,
-            first.wrapping_add(u64::from(sw.repeats) - 1),
+            first.saturating_add(u64::from(sw.repeats) - 1),
             stats::CI_METHOD,
             stats::RATIO_CI_METHOD
         );

@@ -355,7 +355,24 @@ pub fn load_with_base(path: &Path, base: Option<&Path>) -> Result<(SweepFile, Ru
         Path::to_path_buf,
     );
     let base = load_base(&base_path)?;
+    check_seeds(&sw, &base)?;
     Ok((sw, base))
+}
+
+/// The seeds of the repeats, `sensor.seed` … + repeats − 1, must not wrap past 2⁶⁴ − 1
+/// (regression: `sensor.seed = 18446744073709551615` with 3 repeats was reported as "seeds
+/// 18446744073709551615 to 1").
+fn check_seeds(sw: &SweepFile, base: &RunConfig) -> Result<()> {
+    let last = u64::MAX - u64::from(sw.repeats - 1);
+    if base.sensor.seed > last {
+        bail!(
+            "base key `sensor.seed` = {} with repeats = {}: the repeats' seeds would wrap past {}; allowed 0..={last}",
+            base.sensor.seed,
+            sw.repeats,
+            u64::MAX
+        );
+    }
+    Ok(())
 }
 
 pub(super) fn jobs(sw: &SweepFile) -> Vec<Job> {
@@ -410,4 +427,30 @@ pub(super) fn jobs(sw: &SweepFile) -> Vec<Job> {
         }
     }
     v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Regression: `sensor.seed = 2⁶⁴ − 1` with 3 repeats ran seeds that wrapped to 0 and 1, and
+    /// the report said "seeds 18446744073709551615 to 1". The sweep is refused in one line.
+    #[test]
+    fn regression_repeat_seeds_that_would_wrap_are_refused() {
+        let sw: SweepFile = toml::from_str(
+            "name = \"s\"\nbase = \"b.toml\"\nscenarios = [\"s1\"]\npresets = [\"matched\"]\nlaws = [\"tdc\"]\ntde_delay_samples = [1]\ntransport_delay_samples = [0]\nrepeats = 3\n",
+        )
+        .unwrap();
+        let mut base = RunConfig::from_toml_str("[scenario]\npath = \"s1\"\n", None).unwrap();
+        base.sensor.seed = u64::MAX;
+        let e = check_seeds(&sw, &base).unwrap_err().to_string();
+        assert!(
+            e.contains("`sensor.seed` = 18446744073709551615 with repeats = 3")
+                && e.contains("allowed 0..=18446744073709551613")
+                && !e.contains('\n'),
+            "{e}"
+        );
+        base.sensor.seed = u64::MAX - 2;
+        check_seeds(&sw, &base).unwrap();
+    }
 }
