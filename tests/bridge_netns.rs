@@ -769,3 +769,98 @@ fn bench_net_prints_its_three_rows_and_a_last_line() {
         "{ns}"
     );
 }
+
+/// An attacker on the far host's wire: it reads the first reply datagram the far bridge sends
+/// (AF_PACKET on the far veth), then sends it again (a replay), a copy with a byte of its sealed
+/// payload flipped (a forgery) and a copy with another session id (another run), five of each,
+/// all from the far bridge's address and port (a raw socket), while the run goes on.
+const ATTACKER: &str = r#"
+import socket, struct, sys, time
+dev, near, port = sys.argv[1], sys.argv[2], int(sys.argv[3])
+cap = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.ntohs(3))
+cap.bind((dev, 0))
+cap.settimeout(60)
+while True:
+    f = cap.recv(4096)
+    if f[12:14] != b"\x08\x00" or f[14 + 9] != 17:
+        continue
+    ip = f[14:]
+    ihl = (ip[0] & 15) * 4
+    if socket.inet_ntoa(ip[16:20]) != near:
+        continue
+    sport, dport, ulen = struct.unpack("!HHH", ip[ihl:ihl + 6])
+    payload = ip[ihl + 8:ihl + ulen]
+    if dport == port and payload[:4] == b"DLB2":
+        src = ip[12:16]
+        break
+raw = socket.socket(socket.AF_INET, socket.SOCK_RAW, socket.IPPROTO_RAW)
+def send(data):
+    udp = struct.pack("!HHHH", sport, port, 8 + len(data), 0) + data
+    iph = struct.pack("!BBHHHBBH4s4s", 0x45, 0, 20 + len(udp), 0, 0, 64, 17, 0, src, socket.inet_aton(near))
+    raw.sendto(iph + udp, (near, 0))
+forged = bytearray(payload); forged[30] ^= 0x40
+other = bytearray(payload); other[8] ^= 1
+for _ in range(5):
+    send(payload); send(bytes(forged)); send(bytes(other))
+    time.sleep(0.05)
+print("sent", len(payload))
+"#;
+
+/// Forged, replayed and other-run datagrams injected on the wire during a realtime run across
+/// the link are never applied: each is refused and counted by its reason in `summary.json`, the
+/// terminal says the link refused them, and the run replays byte for byte.
+#[test]
+fn forged_replayed_and_other_run_datagrams_on_the_wire_are_refused_and_counted() {
+    let name = "forged_replayed_and_other_run_datagrams_on_the_wire_are_refused_and_counted";
+    let Some((h, _one)) = Hosts::new(name) else {
+        return;
+    };
+    if Command::new("python3").arg("-V").output().is_err() {
+        return skip(
+            name,
+            "needs python3 (its socket module) to play the attacker",
+        );
+    }
+    let out = h.tmp.path().join("remote");
+    let join = h.join(&[]);
+    let run = h.run_with(
+        Remote::Controller,
+        &h.roomy_config(),
+        &out,
+        &["--mode", "realtime", "--hold-s", "3"],
+    );
+    let veth_b = h.net.veth_a.trim_end_matches('a').to_string() + "b";
+    let attacker = h
+        .cmd(
+            "b",
+            "python3",
+            &["-c", ATTACKER, &veth_b, "10.77.0.1", "7447"],
+        )
+        .output()
+        .unwrap();
+    assert!(
+        attacker.status.success(),
+        "attacker: {}",
+        text(&attacker.stderr)
+    );
+    let (r, _j) = both(run, join, Duration::from_secs(120));
+    let s = summary(&out);
+    let status = common::assert_every_tick_on_disk(&s, &out, "tdc");
+    assert_eq!(
+        r.status.success(),
+        status == RunStatus::Ok,
+        "{}",
+        text(&r.stderr)
+    );
+    let refused = &s["timing"]["tdc"]["link_security"]["refused_datagrams"];
+    for reason in ["replayed", "forged", "other_run"] {
+        assert_eq!(refused[reason], 5, "{reason}: {refused}");
+    }
+    assert!(
+        text(&r.stderr).contains("the link refused 0 connection(s) before"),
+        "{}",
+        text(&r.stderr)
+    );
+    common::assert_replays(&out);
+    h.assert_roots_empty();
+}
