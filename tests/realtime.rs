@@ -141,9 +141,9 @@ fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
         // peer's data segment, inside tick 0's budget; then the notifiers still opened their
         // listener's socket in the first notify: tick 0's round trip 135–190 µs of 150). The cause
         // is guarded deterministically by protocol/transport/tests/connect_now.rs. Here only what a
-        // busy host cannot fake: a systematic regression misses tick 0 in every law, while one
-        // disturbed tick 0 (it is the slowest tick of a run, ≈ 120 µs in a debug build) may miss
-        // in one of them.
+        // busy host cannot fake: a systematic regression misses tick 0 in every law of a run the
+        // host left alone, while a disturbed tick 0 (it is the slowest tick of a run, ≈ 120 µs in
+        // a debug build) may miss in any of them (seen: both, while another build ran).
         let tick0: Vec<String> = laws
             .iter()
             .map(|law| {
@@ -154,10 +154,14 @@ fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
                 row0.split(',').nth_back(2).unwrap().to_string()
             })
             .collect();
-        assert!(
-            tick0.iter().any(|r| r == "applied"),
-            "tick 0 missed in every law: {tick0:?}"
-        );
+        judge(
+            disturbance_of(&sr, &laws),
+            if tick0.iter().any(|r| r == "applied") {
+                Ok(())
+            } else {
+                Err(format!("tick 0 missed in every law: {tick0:?}"))
+            },
+        )?;
 
         // What depends on timing: both laws completed and tracked as the inproc run allows.
         judge(

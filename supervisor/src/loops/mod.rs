@@ -6,6 +6,7 @@
 pub mod feed;
 pub mod inproc;
 pub mod lawrun;
+pub mod link_key;
 pub mod peer_text;
 pub mod pool;
 pub mod procs;

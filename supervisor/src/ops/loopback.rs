@@ -129,8 +129,8 @@ impl LoopbackFar {
         let bridge = exe_dir()?.join("deltaloop-bridge");
         let mut c = Command::new(&bridge);
         // The sweep's own one-time key, which its near bridges get too.
-        crate::ops::join::one_time_link_key()?;
-        crate::ops::join::hand_key(&mut c, &bridge, Some("far"));
+        crate::loops::link_key::one_time_link_key()?;
+        crate::loops::link_key::hand_key(&mut c, &bridge, Some("far"));
         c.args(["far", "--role", "controller", "--runs=1", "--wait-s=30"])
             .arg(format!("--connect={}", far.endpoint))
             .env(deltaloop_transport::ipc::ROOT_ENV, &far.root);

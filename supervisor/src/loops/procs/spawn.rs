@@ -125,7 +125,7 @@ pub(super) fn spawn(launch: &Launch, args: &[String], log: &Path, who: Sender) -
         std::fs::File::create(log).with_context(|| format!("cannot create {}", log.display()))?;
     let mut cmd = Command::new(&launch.program);
     // A near bridge (a remote run) gets the link key; no other child ever does.
-    crate::ops::join::hand_key(
+    crate::loops::link_key::hand_key(
         &mut cmd,
         &launch.program,
         launch.args.first().map(String::as_str),
