@@ -389,7 +389,7 @@ fn realtime_across_the_link_with(name: &str, remote: Remote, extra: &[&str], hol
         let status = assert_every_tick_on_disk(&s, &out, "tdc");
         assert_eq!(
             r.status.success(),
-            status == RunStatus::Ok,
+            status.is_physical(),
             "run: {}",
             text(&r.stderr)
         );
@@ -711,6 +711,7 @@ fn bench_net_prints_its_three_rows_and_a_last_line() {
     let out = text(&o.stdout);
     assert!(o.status.success(), "{}{out}", text(&o.stderr));
     // Each row's p50 is finite and positive.
+    let mut bridge_answered = true;
     for path in ["UDP ping-pong", "bridge", "one host"] {
         let row = out
             .lines()
@@ -743,6 +744,9 @@ fn bench_net_prints_its_three_rows_and_a_last_line() {
         };
         assert!(p50.is_finite() && p50 >= 0.0, "{row}");
         assert!(p50 > 0.0 || !answered, "{row}");
+        if path == "bridge" {
+            bridge_answered = answered;
+        }
     }
     let last = out.lines().last().unwrap();
     let kv: std::collections::HashMap<&str, f64> = last
@@ -758,7 +762,10 @@ fn bench_net_prints_its_three_rows_and_a_last_line() {
         "one_host_p50_us",
         "bridge_over_udp",
     ] {
-        assert!(kv[k].is_finite() && kv[k] > 0.0, "{k}: {last}");
+        // The bridge's figures are 0 when its run faulted before any reply (see above).
+        let measured = !k.starts_with("bridge") || bridge_answered;
+        assert!(kv[k].is_finite() && kv[k] >= 0.0, "{k}: {last}");
+        assert!(kv[k] > 0.0 || !measured, "{k}: {last}");
     }
     // Nothing left: neither namespace of the command (named by its pid).
     let ns = text(
@@ -827,46 +834,58 @@ fn forged_replayed_and_other_run_datagrams_on_the_wire_are_refused_and_counted()
             "needs python3 (its socket module) to play the attacker",
         );
     }
-    let out = h.tmp.path().join("remote");
-    let join = h.join(&[]);
-    let run = h.run_with(
-        Remote::Controller,
-        &h.roomy_config(),
-        &out,
-        &["--mode", "realtime", "--hold-s", "3"],
-    );
-    let veth_b = h.net.veth_a.trim_end_matches('a').to_string() + "b";
-    let attacker = h
-        .cmd(
-            "b",
-            "python3",
-            &["-c", ATTACKER, &veth_b, "10.77.0.1", "7447"],
+    on_a_noisy_host(name, |attempt| {
+        let out = h.tmp.path().join(format!("remote-{attempt}"));
+        let join = h.join(&[]);
+        let run = h.run_with(
+            Remote::Controller,
+            &h.roomy_config(),
+            &out,
+            &["--mode", "realtime", "--hold-s", "3"],
+        );
+        let veth_b = h.net.veth_a.trim_end_matches('a').to_string() + "b";
+        let attacker = h
+            .cmd(
+                "b",
+                "python3",
+                &["-c", ATTACKER, &veth_b, "10.77.0.1", "7447"],
+            )
+            .output()
+            .unwrap();
+        assert!(
+            attacker.status.success(),
+            "attacker: {}",
+            text(&attacker.stderr)
+        );
+        let (r, _j) = both(run, join, Duration::from_secs(120));
+        // Whatever the host did: a typed status, every tick on disk, a byte-for-byte replay (no
+        // injected datagram reached the loop), both roots empty.
+        let s = summary(&out);
+        let status = common::assert_every_tick_on_disk(&s, &out, "tdc");
+        assert_eq!(
+            r.status.success(),
+            status.is_physical(),
+            "{}",
+            text(&r.stderr)
+        );
+        common::assert_replays(&out);
+        h.assert_roots_empty();
+        // The counts need the run to have lasted through the attack (0.25 s from the first
+        // reply): judged on a run the host left alone.
+        let refused = &s["timing"]["tdc"]["link_security"]["refused_datagrams"];
+        let counted = ["replayed", "forged", "other_run"]
+            .iter()
+            .map(|r| (*r, refused[r].as_u64().unwrap_or(0)))
+            .collect::<Vec<_>>();
+        judge(
+            common::disturbance(&s, "tdc"),
+            if counted.iter().all(|(_, n)| *n == 5)
+                && text(&r.stderr).contains("the link refused 0 connection(s) before")
+            {
+                Ok(())
+            } else {
+                Err(format!("refused {counted:?}: {}", text(&r.stderr)))
+            },
         )
-        .output()
-        .unwrap();
-    assert!(
-        attacker.status.success(),
-        "attacker: {}",
-        text(&attacker.stderr)
-    );
-    let (r, _j) = both(run, join, Duration::from_secs(120));
-    let s = summary(&out);
-    let status = common::assert_every_tick_on_disk(&s, &out, "tdc");
-    assert_eq!(
-        r.status.success(),
-        status == RunStatus::Ok,
-        "{}",
-        text(&r.stderr)
-    );
-    let refused = &s["timing"]["tdc"]["link_security"]["refused_datagrams"];
-    for reason in ["replayed", "forged", "other_run"] {
-        assert_eq!(refused[reason], 5, "{reason}: {refused}");
-    }
-    assert!(
-        text(&r.stderr).contains("the link refused 0 connection(s) before"),
-        "{}",
-        text(&r.stderr)
-    );
-    common::assert_replays(&out);
-    h.assert_roots_empty();
+    });
 }
