@@ -137,6 +137,9 @@ impl TraceRows {
             ),
         };
         let arrival_ns = match (fate, arrival) {
+            // The row the divergence rule ended the run on: recorded before the drives took its
+            // reply, so it has none (checked in `step`: only a law's last row may be so).
+            (ReplyFate::Applied, "") => None,
             (ReplyFate::Applied, a) => {
                 let ns: u64 = a.parse().map_err(|_| {
                     anyhow::anyhow!(
@@ -205,6 +208,18 @@ impl Schedule for Replayed<'_> {
                 self.rows.line,
                 r.k
             );
+        }
+        if r.fate == ReplyFate::Applied && r.arrival_ns.is_none() {
+            let line = self.rows.line;
+            if self.rows.next_of(self.law)?.is_some() {
+                bail!(
+                    "{} line {line}: column arrival_ns is empty: an applied reply needs its arrival in ns (only the row a run diverged on has none)",
+                    self.rows.path.display()
+                );
+            }
+            // Regression: every run that diverged by the tracking rule was refused. Its last row
+            // is replayed as recorded; the rule ends the replay on it before any arrival counts.
+            return Ok(Some(Step::Now));
         }
         Ok(Some(match (r.fate, r.arrival_ns) {
             (ReplyFate::Applied, Some(a)) => Step::After(a.saturating_sub(self.delay_ns)),
