@@ -229,8 +229,9 @@ fn link_delay_sweep_matches_the_injected_delay() {
         }
         if attempt == common::ATTEMPTS {
             // The last sweep: what no disturbance excuses fails the test.
+            // Only a sweep none of whose points the machine disturbed must show the growth.
             assert!(
-                grew > 25.0,
+                grew > 25.0 || !why.is_empty(),
                 "the median arrival grew by {grew} µs at most from 0 to 25 µs each way in one sweep (2·25 expected)"
             );
             missed.retain(|d, _| !matched.contains_key(d));
