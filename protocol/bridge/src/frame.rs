@@ -114,15 +114,6 @@ pub fn read<T: Pod>(b: &[u8]) -> Option<T> {
     })
 }
 
-/// The run key of a run id: FNV-1a 64 of its bytes.
-pub fn run_key(run_id: &str) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in run_id.as_bytes() {
-        h = (h ^ u64::from(*b)).wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
-}
-
 /// Writes the header of a `kind` message of session `session`, counter `counter`, into
 /// `out[..HEADER]`.
 pub fn put_header(out: &mut [u8], kind: Kind, session: u64, counter: u64) {

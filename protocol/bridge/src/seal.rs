@@ -48,11 +48,6 @@ impl std::fmt::Debug for LinkKey {
 
 /// Random bytes from the operating system.
 pub fn random_bytes<const N: usize>() -> Result<[u8; N], String> {
-    random()
-}
-
-/// Random bytes from the operating system.
-fn random<const N: usize>() -> Result<[u8; N], String> {
     let mut b = [0u8; N];
     getrandom::fill(&mut b).map_err(|e| format!("no random bytes from the system: {e}"))?;
     Ok(b)
@@ -61,7 +56,7 @@ fn random<const N: usize>() -> Result<[u8; N], String> {
 impl LinkKey {
     /// A fresh random key.
     pub fn generate() -> Result<Self, String> {
-        random().map(Self)
+        random_bytes().map(Self)
     }
 
     /// The key of 64 hex digits (surrounding whitespace ignored); one line naming what is wrong.
@@ -250,8 +245,13 @@ impl Session {
     /// A fresh session (the near side makes it).
     pub fn generate() -> Result<Self, String> {
         Ok(Self {
-            id: u64::from_ne_bytes(random()?),
-            keys: [random()?, random()?, random()?, random()?],
+            id: u64::from_ne_bytes(random_bytes()?),
+            keys: [
+                random_bytes()?,
+                random_bytes()?,
+                random_bytes()?,
+                random_bytes()?,
+            ],
         })
     }
 
