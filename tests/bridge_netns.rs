@@ -455,11 +455,17 @@ fn realtime_across_the_link_with(name: &str, remote: Remote, extra: &[&str], hol
         } else {
             disturbance(&s, "tdc")
         };
+        // …and most ticks were answered in time (a run the host slowed to 72 % misses still
+        // completes, with fewer answers: judged, not asserted).
         let completed = (status == RunStatus::Ok)
             .then_some(())
-            .ok_or_else(|| format!("{status:?}: {}", text(&r.stderr)));
+            .ok_or_else(|| format!("{status:?}: {}", text(&r.stderr)))
+            .and_then(|()| {
+                (answered > 1000)
+                    .then_some(())
+                    .ok_or_else(|| format!("only {answered} ticks answered: {t}"))
+            });
         judge(disturbed, completed)?;
-        assert!(answered > 1000, "{t}");
         Ok(())
     });
 }

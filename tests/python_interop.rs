@@ -64,6 +64,8 @@ fn python_wire_types_match_the_rust_layouts() {
         "TEL_REJECTED": wire::TEL_REJECTED,
         "TEL_SAFE_STOP": wire::TEL_SAFE_STOP,
         "TEL_STAMP_REPLACED": wire::TEL_STAMP_REPLACED,
+        "WIRE_VERSION": wire::WIRE_VERSION,
+        "WIRE_ATTRIBUTE": wire::WIRE_ATTRIBUTE,
         "READY": ControlKind::Ready as u32,
         "START": ControlKind::Start as u32,
         "STOP": ControlKind::Stop as u32,
@@ -99,7 +101,7 @@ types = {
     }
     for name, t in wire.TYPES.items()
 }
-names = ["STATE_FINAL", "TEL_CLAMPED", "TEL_HELD", "TEL_MISSED", "TEL_REJECTED", "TEL_SAFE_STOP", "TEL_STAMP_REPLACED",
+names = ["WIRE_VERSION", "WIRE_ATTRIBUTE", "STATE_FINAL", "TEL_CLAMPED", "TEL_HELD", "TEL_MISSED", "TEL_REJECTED", "TEL_SAFE_STOP", "TEL_STAMP_REPLACED",
          "READY", "START", "STOP", "FAULT", "ARMED", "DIVERGED", "STOPPED", "OVERRUN", "FROM_PLANT", "FROM_CONTROLLER", "FROM_SUPERVISOR"]
 consts = {n: getattr(wire, n) for n in names}
 consts.update({n: getattr(controller, n) for n in ["REF_CHUNK", "REF_RING", "LOOP_BUFFER", "OBSERVER_BUFFER", "HANDSHAKE_TIMEOUT_NS"]})
@@ -257,6 +259,52 @@ fn a_python_controller_names_the_expected_and_found_types() {
         ] {
             assert!(err.contains(&want), "no `{want}` in: {err}");
         }
+    }
+}
+
+/// Regression: a peer written for the single shared `control` service (wire version 2) failed
+/// with iceoryx2's `DoesNotSupportRequestedAmountOfPublishers` and no word of why; the run's
+/// error now says the control services are one per sender, with the wire version.
+#[test]
+fn regression_a_peer_of_the_single_control_service_is_told_they_are_per_sender() {
+    let tmp = tempfile::tempdir().unwrap();
+    let script = tmp.path().join("old_controller.py");
+    std::fs::write(
+        &script,
+        r#"
+import ctypes, sys
+import iceoryx2 as iox2
+from deltaloop import wire
+from deltaloop.services import guest_config
+run_id = sys.argv[sys.argv.index("--run-id") + 1]
+node = iox2.NodeBuilder.new().config(guest_config()).create(iox2.ServiceType.Ipc)
+try:
+    (node.service_builder(iox2.ServiceName.new(f"deltaloop/{run_id}/control"))
+        .publish_subscribe(wire.ControlMsg).max_publishers(3).max_subscribers(3).max_nodes(4)
+        .subscriber_max_buffer_size(64).history_size(0).enable_safe_overflow(True).open())
+except Exception as e:
+    print(f"cannot open control: {e!r}", file=sys.stderr)
+    sys.exit(3)
+"#,
+    )
+    .unwrap();
+    let cmd = format!("{} {}", python().display(), script.display());
+    let out = tmp.path().join("run");
+    let o = common::run_output(
+        "configs/s1-nominal.toml",
+        "lockstep",
+        &out,
+        &["--law", "tdc", "--controller-cmd", &cmd],
+    );
+    assert!(!o.status.success());
+    let line = common::one_line_error(&o);
+    for want in [
+        "DoesNotSupportRequestedAmountOfPublishers",
+        "wire version 3",
+        "one per sender",
+        "control-controller",
+    ] {
+        assert!(line.contains(want), "no `{want}` in: {line}");
     }
 }
 

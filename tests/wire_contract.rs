@@ -317,6 +317,7 @@ fn table_value(doc: &str, key: &str) -> Option<u64> {
 fn constants_and_enum_values_are_documented_exactly() {
     let doc = doc();
     let mut expected: Vec<(String, u64)> = [
+        ("WIRE_VERSION", u64::from(wire::WIRE_VERSION)),
         ("STATE_FINAL", u64::from(wire::STATE_FINAL)),
         ("TEL_CLAMPED", u64::from(wire::TEL_CLAMPED)),
         ("TEL_HELD", u64::from(wire::TEL_HELD)),
@@ -333,6 +334,7 @@ fn constants_and_enum_values_are_documented_exactly() {
         ("REF_CHUNK", ipc::REF_CHUNK as u64),
         ("REF_RING", ipc::REF_RING as u64),
         ("HANDSHAKE_TIMEOUT_NS", ipc::HANDSHAKE_TIMEOUT_NS),
+        ("START_TIMEOUT_NS", ipc::START_TIMEOUT_NS),
     ]
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))

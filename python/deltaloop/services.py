@@ -27,6 +27,10 @@ OPEN_HINTS = {
     "IncompatibleTypes": "another wire version or layout",
     "VersionMismatch": "the run uses another iceoryx2 version",
     "DoesNotExist": "no such service: the run is gone, or the run id is wrong",
+    "DoesNotSupportRequestedAmountOfPublishers": (
+        "the run's control services are one per sender, each with one publisher: "
+        "publish on control-plant or control-controller, read control (docs/protocol.md §3)"
+    ),
 }
 
 
@@ -70,6 +74,17 @@ def open_error(name: str, t, e: Exception, who: str) -> str:
         f"cannot open service {name}: {kind} ({hint}): the run carries {carried(name)}, "
         f"this {who} expects {describe(t)} on iceoryx2 {ICEORYX2_VERSION}"
     )
+
+
+def check_wire_version(name: str, svc) -> None:
+    """Refuses a service whose run speaks another wire version than this package (or none)."""
+    values = svc.attributes.key_values(iox2.AttributeKey.new(wire.WIRE_ATTRIBUTE))
+    found = [v.to_string() for v in values]
+    if found != [str(wire.WIRE_VERSION)]:
+        raise SetupError(
+            f"cannot open service {name}: the run speaks deltaloop wire version "
+            f"{', '.join(found) or 'none'}, this package speaks {wire.WIRE_VERSION} (docs/protocol.md §2)"
+        )
 
 
 class SetupError(Exception):
@@ -142,9 +157,11 @@ class RunPorts:
         if borrowed is not None:
             b = b.subscriber_max_borrowed_samples(borrowed)
         try:
-            return b.open()
+            svc = b.open()
         except Exception as e:  # noqa: BLE001 - reported as one line
             raise SetupError(open_error(name, t, e, self.role)) from None
+        check_wire_version(name, svc)
+        return svc
 
     def control(self, me):
         """Run control for sender `me` (wire.FROM_PLANT / FROM_CONTROLLER): a publisher on its own

@@ -10,6 +10,11 @@ import ctypes
 Vec3 = ctypes.c_double * 3
 
 # StateMsg.flags
+# The run's wire version and the service attribute that carries it (wire.rs WIRE_VERSION):
+# every publish-subscribe service of a run holds it; a peer checks it when it opens them.
+WIRE_VERSION = 3
+WIRE_ATTRIBUTE = "deltaloop-wire"
+
 STATE_FINAL = 1
 
 # TelemetryMsg.flags

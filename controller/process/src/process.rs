@@ -102,7 +102,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
 /// starts with them in the ring). Returns START; None if the supervisor stopped the run first
 /// (STOP or SIGTERM).
 fn handshake(ports: &Ports, ring: &mut RefRing, term: &AtomicBool) -> Result<Option<ControlMsg>> {
-    let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
+    let end = rt::now_ns() + ipc::START_TIMEOUT_NS;
     while ring.get(0).is_none() {
         drain_reference(&ports.reference, ring)?;
         if drain_control(&ports.control.1)?.stop || term.load(Ordering::Relaxed) {
@@ -111,7 +111,7 @@ fn handshake(ports: &Ports, ring: &mut RefRing, term: &AtomicBool) -> Result<Opt
         if rt::now_ns() > end {
             bail!(
                 "no reference from the supervisor within {} s",
-                ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000
+                ipc::START_TIMEOUT_NS / 1_000_000_000
             );
         }
         std::thread::sleep(Duration::from_millis(1));
@@ -129,7 +129,7 @@ fn handshake(ports: &Ports, ring: &mut RefRing, term: &AtomicBool) -> Result<Opt
         if rt::now_ns() > end {
             bail!(
                 "no START from the supervisor within {} s",
-                ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000
+                ipc::START_TIMEOUT_NS / 1_000_000_000
             );
         }
         std::thread::sleep(Duration::from_micros(200));

@@ -71,10 +71,7 @@ impl Ports {
             ipc::plant_loop(&node, run_id, ipc::LOOP_BUFFER)?;
         Ok(Self {
             state,
-            telemetry: ipc::telemetry(&node, run_id)?
-                .publisher_builder()
-                .create()
-                .ipc("telemetry publisher")?,
+            telemetry: ipc::sole_publisher(&ipc::telemetry(&node, run_id)?, "telemetry")?,
             torque,
             state_ready,
             torque_ready,
@@ -204,7 +201,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
             Ok(())
         },
     )?;
-    let handshake_ms = u32::try_from(ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000).unwrap_or(u32::MAX);
+    let handshake_ms = u32::try_from(ipc::START_TIMEOUT_NS / 1_000_000).unwrap_or(u32::MAX);
     let Some(start) = wait_for_start(
         &ports.control.1,
         cfg.loop_.silence_timeout_ms.max(handshake_ms),

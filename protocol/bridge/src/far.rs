@@ -453,7 +453,7 @@ fn serve(
                 host: PlantHost::new(spin_ns, mode == LoopMode::Lockstep).with_record(),
             };
             let code = f.forward(&mut link, term)?;
-            let counts = (f.host.resent, f.host.inbox.recovered);
+            let counts = f.host.counts();
             crate::near::link_summary(&far_emu, link.udp.emulated_lost, Some(counts));
             code
         }

@@ -153,7 +153,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         let cfg = RunConfig::from_file(&a.run.config)?;
         let silence_ms = u64::from(cfg.loop_.silence_timeout_ms);
         let ports = PlantPorts::open(run_id)?;
-        let Some(peer) = connect(a, &hello, &ports.control, term)? else {
+        let Some(peer) = connect(a, &hello, &ports.control, term, &report)? else {
             return Ok(stopped_early());
         };
         let mut n = NearPlant {
@@ -172,7 +172,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         finish(&mut n.peer, &report, &emu, None, r)
     } else {
         let ports = Ports::open(run_id, ipc::RELAY_BUFFER)?;
-        let Some(peer) = connect(a, &hello, &ports.control, term)? else {
+        let Some(peer) = connect(a, &hello, &ports.control, term, &report)? else {
             return Ok(stopped_early());
         };
         let mut n = Near {
@@ -181,7 +181,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
             host: PlantHost::new(spin_ns, lockstep),
         };
         let r = n.forward(term);
-        let counts = (n.host.resent, n.host.inbox.recovered);
+        let counts = n.host.counts();
         finish(&mut n.peer, &report, &emu, Some(counts), r)
     }
 }
@@ -252,13 +252,15 @@ fn authenticate(
 /// Waits for the far side: every connection must prove the link key before anything of the run
 /// is said, a stranger's is dropped (and counted) and the wait goes on; at most
 /// [`MAX_PENDING`] are authenticated at once, each within [`PER_CONNECTION`]. Then sends the
-/// HELLO and connects the UDP socket to the port the far side answers with. None: stopped (STOP
-/// or SIGTERM) before it joined.
+/// HELLO and connects the UDP socket to the port the far side answers with; the link report is
+/// written at once, so a far side that joined and then fell silent is named by the supervisor.
+/// None: stopped (STOP or SIGTERM) before it joined.
 fn connect(
     a: &Args,
     hello: &Hello,
     control: &ControlPorts,
     term: &AtomicBool,
+    report_path: &std::path::Path,
 ) -> Result<Option<Peer>> {
     let key = LinkKey::from_env().map_err(anyhow::Error::msg)?;
     let session = Session::generate().map_err(anyhow::Error::msg)?;
@@ -360,18 +362,22 @@ fn connect(
         "deltaloop-bridge: the far side {peer} joined (link key {})",
         key.fingerprint()
     );
+    let report = LinkReport {
+        peer: peer.to_string(),
+        key_fingerprint: key.fingerprint(),
+        refused_connections: refused,
+        ..LinkReport::default()
+    };
+    if let Err(e) = report.write(report_path) {
+        eprintln!("deltaloop-bridge: warning: {e}");
+    }
     Ok(Some(Peer {
         udp: Udp::sealed(udp, &session, End::Near, hello.emulation)?,
         tcp,
         far_end: None,
         stop_sent_ns: None,
         log: FarLog::default(),
-        report: LinkReport {
-            peer: peer.to_string(),
-            key_fingerprint: key.fingerprint(),
-            refused_connections: refused,
-            ..LinkReport::default()
-        },
+        report,
     }))
 }
 
@@ -410,7 +416,7 @@ fn finish(
     p: &mut Peer,
     report: &std::path::Path,
     emu: &Emulation,
-    counts: Option<(u64, u64)>,
+    counts: Option<crate::sides::PlantHostCounts>,
     r: Result<(u8, Option<String>)>,
 ) -> Result<(u8, Option<String>)> {
     p.tcp.flush().ok();
@@ -433,10 +439,18 @@ fn finish(
 }
 
 /// The link's statistics on stderr, if there is anything to say: the datagrams the emulation
-/// dropped here and, on the plant's host (`counts`), the states sent again (lockstep) and the
-/// replies recovered from a later datagram.
-pub fn link_summary(emu: &Emulation, dropped: u64, counts: Option<(u64, u64)>) {
-    let (resent, recovered) = counts.unwrap_or_default();
+/// dropped here and, on the plant's host (`counts`), the states sent again (lockstep), the
+/// replies recovered from a later datagram and (a warning) those for a state not yet sent.
+pub fn link_summary(emu: &Emulation, dropped: u64, counts: Option<crate::sides::PlantHostCounts>) {
+    let c = counts.unwrap_or_default();
+    if c.future > 0 {
+        eprintln!(
+            "deltaloop-bridge: warning: left out {} repl(ies) for a state not yet sent \
+             (the far controller answered a tick it was never given)",
+            c.future
+        );
+    }
+    let (resent, recovered) = (c.resent, c.recovered);
     if emu.is_off() && resent == 0 && recovered == 0 {
         return;
     }

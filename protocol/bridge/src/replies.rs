@@ -73,6 +73,8 @@ pub struct Inbox {
     seen: [u64; SEEN],
     /// Replies taken from an older copy (their own datagram was lost or overtaken).
     pub recovered: u64,
+    /// Replies for a state not yet sent, left out (protocol §8: a future tick is ignored).
+    pub future: u64,
 }
 
 impl Default for Inbox {
@@ -80,19 +82,26 @@ impl Default for Inbox {
         Self {
             seen: [0; SEEN],
             recovered: 0,
+            future: 0,
         }
     }
 }
 
 impl Inbox {
     /// The replies of payload `p` not taken before, oldest first, each once; `f` gets each with
-    /// its residence.
-    pub fn take(&mut self, p: &[u8], mut f: impl FnMut(TorqueMsg, u64)) {
+    /// its residence. A reply for a tick past `newest_sent` (the newest state sent, None before
+    /// the first) answers nothing and is left out before it is remembered, so it can never pass
+    /// for, or shadow, the honest reply of that tick when it comes.
+    pub fn take(&mut self, p: &[u8], newest_sent: Option<u64>, mut f: impl FnMut(TorqueMsg, u64)) {
         let n = p.len() / ENTRY;
         for i in (0..n).rev() {
             let Some((t, residence)) = entry(p, i) else {
                 continue;
             };
+            if newest_sent.is_none_or(|k| t.tick > k) {
+                self.future += 1;
+                continue;
+            }
             let slot = &mut self.seen[(t.tick % SEEN as u64) as usize];
             if *slot == t.tick.wrapping_add(1) {
                 continue;
@@ -130,7 +139,7 @@ mod tests {
             assert_eq!(out.newest_tick(), Some(k));
             // Datagrams 3 and 6, 7 are lost (two in a row is still within COPIES − 1).
             if ![3, 6, 7].contains(&k) {
-                inbox.take(&p, |t, res| got.push((t.tick, res, t.tau[0])));
+                inbox.take(&p, Some(k), |t, res| got.push((t.tick, res, t.tau[0])));
             }
         }
         let want: Vec<_> = (0..10u64).map(|k| (k, 100 + k, k as f64)).collect();
@@ -146,10 +155,29 @@ mod tests {
         for k in 0..8u64 {
             let p = out.push(&reply(k), 0).to_vec();
             if !(2..=4).contains(&k) {
-                inbox.take(&p, |t, _| got.push(t.tick));
+                inbox.take(&p, Some(k), |t, _| got.push(t.tick));
             }
         }
         assert_eq!(got, [0, 1, 3, 4, 5, 6, 7]);
+    }
+
+    /// Regression: a reply for a future tick was remembered as taken, so the honest reply of
+    /// that tick, when its state came, was dropped as a duplicate (and the plant missed it).
+    #[test]
+    fn regression_a_reply_for_a_future_tick_neither_passes_nor_shadows_the_honest_one() {
+        let mut inbox = Inbox::default();
+        let mut far = Outbox::default();
+        let mut got = Vec::new();
+        inbox.take(far.push(&reply(15), 0), Some(10), |t, _| got.push(t.tick));
+        inbox.take(far.push(&reply(0), 0), None, |t, _| got.push(t.tick));
+        assert!(got.is_empty(), "{got:?}");
+        // 15, then 0 and its copy of 15 (before any state was sent).
+        assert_eq!(inbox.future, 3);
+        let mut honest = Outbox::default();
+        for k in 11..=16u64 {
+            inbox.take(honest.push(&reply(k), 0), Some(k), |t, _| got.push(t.tick));
+        }
+        assert_eq!(got, [11, 12, 13, 14, 15, 16]);
     }
 
     #[test]

@@ -49,6 +49,17 @@ pub struct PlantHost {
     pub inbox: Inbox,
 }
 
+/// What a [`PlantHost`] counted on the link, for its closing line.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PlantHostCounts {
+    /// States sent again (lockstep).
+    pub resent: u64,
+    /// Replies taken from a later datagram.
+    pub recovered: u64,
+    /// Replies for a state not yet sent, left out.
+    pub future: u64,
+}
+
 struct Resend {
     state: StateMsg,
     /// When to send it again; None once its reply came.
@@ -69,6 +80,15 @@ impl PlantHost {
             resent: 0,
             record: false,
             inbox: Inbox::default(),
+        }
+    }
+
+    /// What was counted on the link.
+    pub fn counts(&self) -> PlantHostCounts {
+        PlantHostCounts {
+            resent: self.resent,
+            recovered: self.inbox.recovered,
+            future: self.inbox.future,
         }
     }
 
@@ -136,7 +156,8 @@ impl PlantHost {
             }
             let mut res = Ok(());
             let (last_state, resend) = (self.last_state, &mut self.resend);
-            self.inbox.take(p, |t, residence| {
+            let newest_sent = (last_state.0 != u64::MAX).then_some(last_state.0);
+            self.inbox.take(p, newest_sent, |t, residence| {
                 if res.is_ok() {
                     res = republish((torque, torque_ready), t, residence, last_state, resend);
                 }

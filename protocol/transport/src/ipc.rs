@@ -2,7 +2,7 @@
 //! settings agree (iceoryx2 refuses to open a service with different settings). Service and node
 //! names carry the run id: two runs, or two tests in parallel, never meet.
 
-use crate::wire::{ControlMsg, RefSample, Sender, StateMsg, TelemetryMsg, TorqueMsg};
+use crate::wire::{self, ControlMsg, RefSample, Sender, StateMsg, TelemetryMsg, TorqueMsg};
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
@@ -15,6 +15,10 @@ pub type Svc = ipc::Service;
 pub const OBSERVER_BUFFER: usize = 8192;
 /// How long each handshake step (READY, ARMED, START) may take before the run is given up, ns.
 pub const HANDSHAKE_TIMEOUT_NS: u64 = 30_000_000_000;
+/// How long the built-in plant and controller wait for the supervisor's reference and START: the
+/// whole handshake of a run across the link, whose near bridge waits up to
+/// [`HANDSHAKE_TIMEOUT_NS`] for the far side to join before the far side's own steps begin. ns.
+pub const START_TIMEOUT_NS: u64 = 2 * HANDSHAKE_TIMEOUT_NS;
 /// Per-subscriber queue of a bridge (`deltaloop-bridge`), which relays every message across the
 /// link: as deep as an observer's, so a bridge the host holds up loses nothing (regression: the
 /// far side's torque queue held [`LOOP_BUFFER`] replies, a bridge held up for two ticks lost the
@@ -146,6 +150,38 @@ pub fn connect_now(
 /// Nodes a service admits: supervisor, plant, controller, and one spare for an observer.
 pub const MAX_NODES: usize = 4;
 
+/// Opens (or creates, for the supervisor) a service of this wire version: the creator stores
+/// [`wire::WIRE_ATTRIBUTE`] = [`wire::WIRE_VERSION`], an opener requires it, so a peer of another
+/// version is refused at set-up with a line that says so.
+fn wire_version() -> Result<iceoryx2::service::attribute::AttributeVerifier, IpcError> {
+    let key = wire::WIRE_ATTRIBUTE.try_into().ipc("wire attribute key")?;
+    let value = wire::WIRE_VERSION
+        .to_string()
+        .as_str()
+        .try_into()
+        .ipc("wire attribute value")?;
+    iceoryx2::service::attribute::AttributeVerifier::new()
+        .require(&key, &value)
+        .ipc("wire attribute")
+}
+
+/// The error of opening service `what`, with what it means when it is deltaloop's to say.
+fn open_error(what: &str, e: impl Debug) -> IpcError {
+    let detail = format!("{e:?}");
+    let hint = if detail.contains("IncompatibleAttributes") {
+        format!(
+            " (the run speaks another deltaloop wire version than this process's {}: docs/protocol.md §2)",
+            wire::WIRE_VERSION
+        )
+    } else {
+        String::new()
+    };
+    IpcError {
+        what: format!("open service {what}"),
+        detail: detail + &hint,
+    }
+}
+
 fn pubsub<T: ZeroCopySend + Debug + Copy + 'static>(
     node: &Node<Svc>,
     run_id: &str,
@@ -163,8 +199,8 @@ fn pubsub<T: ZeroCopySend + Debug + Copy + 'static>(
         .history_size(0)
         // A slow observer loses its oldest samples (counted by tick gaps); it never blocks the loop.
         .enable_safe_overflow(true)
-        .open_or_create()
-        .ipc(format!("open service {what}"))
+        .open_or_create_with_attributes(&wire_version()?)
+        .map_err(|e| open_error(what, e))
 }
 
 /// Plant → controller + supervisor.
@@ -206,6 +242,51 @@ pub fn control_service(from: Sender) -> &'static str {
     }
 }
 
+/// A process as a message names it: `pid 1234, \`its command line\`` (escaped; the pid alone when
+/// its command line cannot be read, 0 when iceoryx2 could not say).
+pub fn describe_process(pid: u32) -> String {
+    let cmd = std::fs::read(format!("/proc/{pid}/cmdline"))
+        .map(|c| {
+            let c = String::from_utf8_lossy(&c).replace('\0', " ");
+            wire::escape_peer_text(c.trim())
+        })
+        .unwrap_or_default();
+    if cmd.is_empty() {
+        format!("pid {pid}")
+    } else {
+        format!("pid {pid}, `{cmd}`")
+    }
+}
+
+/// The only publisher of service `what` (created by `factory`), or an error that names the
+/// process holding its one slot (regression: a stranger that took the slot of `state` first
+/// had the run blame the plant, with nobody named).
+pub fn sole_publisher<T: ZeroCopySend + Debug + Copy + 'static>(
+    factory: &publish_subscribe::PortFactory<Svc, T, ()>,
+    what: &str,
+) -> Result<iceoryx2::port::publisher::Publisher<Svc, T, ()>, IpcError> {
+    factory.publisher_builder().create().map_err(|e| {
+        let mut holders = Vec::new();
+        factory.dynamic_config().list_publishers(|p| {
+            holders.push(p.node_id.pid::<Svc>().map_or(0, |p| p.value() as u32));
+            CallbackProgression::Continue
+        });
+        let held = if holders.is_empty() {
+            String::new()
+        } else {
+            let who: Vec<String> = holders.into_iter().map(describe_process).collect();
+            format!(
+                ": its only publisher slot is held by another process ({})",
+                who.join("; ")
+            )
+        };
+        IpcError {
+            what: format!("publisher on {what}"),
+            detail: format!("{e:?}{held}"),
+        }
+    })
+}
+
 /// Run control sent by `from` (see [`control_service`]): one publisher, the other two roles and
 /// an observer subscribe.
 pub fn control(
@@ -226,10 +307,7 @@ pub type ControlPorts = (
 /// Opens run control for the loop process `me`: a publisher on its own service, a subscriber on
 /// the supervisor's. The publisher fails if another process already holds the slot.
 pub fn control_ports(node: &Node<Svc>, run_id: &str, me: Sender) -> Result<ControlPorts, IpcError> {
-    let publisher = control(node, run_id, me)?
-        .publisher_builder()
-        .create()
-        .ipc(format!("publisher on {}", control_service(me)))?;
+    let publisher = sole_publisher(&control(node, run_id, me)?, control_service(me))?;
     let subscriber = control(node, run_id, Sender::Supervisor)?
         .subscriber_builder()
         .create()
@@ -285,8 +363,8 @@ pub fn reference(
         .subscriber_max_borrowed_samples(1)
         .history_size(0)
         .enable_safe_overflow(true)
-        .open_or_create()
-        .ipc("open service reference")
+        .open_or_create_with_attributes(&wire_version()?)
+        .map_err(|e| open_error("reference", e))
 }
 
 /// The supervisor's end of the reference: chunks of up to [`REF_CHUNK`] rows, one loaned at a
@@ -353,10 +431,7 @@ pub fn controller_loop(
             .buffer_size(buffer)
             .create()
             .ipc("state subscriber")?,
-        torque(node, run_id)?
-            .publisher_builder()
-            .create()
-            .ipc("torque publisher")?,
+        sole_publisher(&torque(node, run_id)?, "torque")?,
         wakeup(node, run_id, "state-ready")?
             .listener_builder()
             .create()
@@ -421,10 +496,7 @@ pub type PlantLoop = (
 /// Opens [`PlantLoop`].
 pub fn plant_loop(node: &Node<Svc>, run_id: &str, buffer: usize) -> Result<PlantLoop, IpcError> {
     Ok((
-        state(node, run_id)?
-            .publisher_builder()
-            .create()
-            .ipc("state publisher")?,
+        sole_publisher(&state(node, run_id)?, "state")?,
         torque(node, run_id)?
             .subscriber_builder()
             .buffer_size(buffer)
@@ -561,6 +633,27 @@ pub fn wait_event(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression: a process that took the `state` publisher slot before the plant had the run
+    /// blame the plant, without a word about who held the slot.
+    #[test]
+    fn regression_a_taken_publisher_slot_names_the_process_that_holds_it() {
+        let run_id = format!("slot-{:x}", std::process::id());
+        let stranger = node("stranger", &run_id).unwrap();
+        let factory = state(&stranger, &run_id).unwrap();
+        let _held = factory.publisher_builder().create().unwrap();
+        let plant = node("plant", &run_id).unwrap();
+        let e = plant_loop(&plant, &run_id, LOOP_BUFFER).err().unwrap();
+        let line = e.to_string();
+        assert!(
+            line.contains("publisher on state")
+                && line.contains(&format!(
+                    "held by another process (pid {}",
+                    std::process::id()
+                )),
+            "{line}"
+        );
+    }
 
     #[test]
     fn shm_check_names_free_and_needed_space() {

@@ -4,6 +4,14 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
+/// The version of the run's wire as a whole (the services, who publishes where, what each kind
+/// means), carried by every publish-subscribe service as the attribute [`WIRE_ATTRIBUTE`] so a
+/// peer can check it when it opens the run's services. Bumped when a peer of the previous version
+/// could no longer take part: 3 is the first with one control service per sender.
+pub const WIRE_VERSION: u32 = 3;
+/// The service attribute that holds [`WIRE_VERSION`] (its value in decimal).
+pub const WIRE_ATTRIBUTE: &str = "deltaloop-wire";
+
 /// `StateMsg::flags`: the last message of a run (tick N + 1); the controller exits on it.
 pub const STATE_FINAL: u32 = 1;
 

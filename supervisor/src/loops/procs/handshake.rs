@@ -13,7 +13,7 @@ use deltaloop_config::Law;
 use deltaloop_transport::ipc::{self, IpcContext, OBSERVER_BUFFER, Svc};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{
-    self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
+    ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
 };
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -97,16 +97,9 @@ impl ControlIn {
     pub(super) fn intrusion(&self) -> Option<String> {
         let pid = self.intruder.get()?;
         let who = role(self.who);
-        let cmd = std::fs::read(format!("/proc/{pid}/cmdline"))
-            .map(|c| {
-                let c = String::from_utf8_lossy(&c).replace('\0', " ");
-                wire::escape_peer_text(c.trim())
-            })
-            .unwrap_or_default();
         Some(format!(
-            "a process that is not the {who} (pid {pid}{}{cmd}{}) published on the {who}'s control service `{}`; its messages were ignored: only the {who} may speak there",
-            if cmd.is_empty() { "" } else { ", `" },
-            if cmd.is_empty() { "" } else { "`" },
+            "a process that is not the {who} ({}) published on the {who}'s control service `{}`; its messages were ignored: only the {who} may speak there",
+            ipc::describe_process(pid),
             ipc::control_service(self.who),
         ))
     }
@@ -197,7 +190,8 @@ pub(super) fn await_control(
     step: &dyn Fn() -> String,
     done: &mut dyn FnMut(&ControlMsg) -> bool,
 ) -> Result<bool> {
-    let deadline = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
+    let timeout = pair.handshake_timeout_ns();
+    let deadline = rt::now_ns() + timeout;
     loop {
         while let Some(m) = obs.receive()? {
             if done(&m) {
@@ -214,9 +208,10 @@ pub(super) fn await_control(
         if rt::now_ns() > deadline {
             let said = pair.logs.said();
             bail!(
-                "{} within {} s{}{said}",
+                "{}{} within {} s{}{said}",
                 step(),
-                ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000,
+                pair.far_side_note(),
+                timeout / 1_000_000_000,
                 if said.is_empty() { "" } else { ": " }
             );
         }

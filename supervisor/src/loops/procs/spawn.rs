@@ -6,6 +6,7 @@ use super::{exe_dir, role};
 use crate::loops::peer_text::{self, Tail};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
+use deltaloop_transport::ipc;
 use deltaloop_transport::wire::Sender;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
@@ -111,6 +112,14 @@ impl Launch {
         }
     }
 
+    /// Whether it starts the near side of a bridge (the other role is across the link).
+    pub(super) fn is_near_bridge(&self) -> bool {
+        self.program
+            .file_name()
+            .is_some_and(|n| n == "deltaloop-bridge")
+            && self.args.first().is_some_and(|a| a == "near")
+    }
+
     /// The command line as the user would type it.
     pub(super) fn shown(&self) -> String {
         std::iter::once(self.program.display().to_string())
@@ -188,6 +197,9 @@ pub(super) struct Pair {
     pub(super) logs: Logs,
     /// The plant's and the controller's command lines, for messages.
     pub(super) shown: (String, String),
+    /// Where a near bridge (one side across the link) writes the link's report: present once a
+    /// far side joined. None when both children are on this host.
+    pub(super) link_report: Option<PathBuf>,
 }
 
 /// The children's stderr logs.
@@ -213,7 +225,8 @@ impl Logs {
             .iter()
             .filter_map(|(who, p)| {
                 let r = Tail::read(p).reason();
-                (!r.is_empty()).then(|| format!("the {who}: {r} (log: {})", p.display()))
+                (!r.is_empty())
+                    .then(|| format!("the {who}: {r} (log: {}){}", p.display(), slot_hint(&r)))
             })
             .collect::<Vec<_>>()
             .join("; ")
@@ -257,7 +270,20 @@ impl Pair {
                 controller: ctrl_log,
             },
             shown: (pl.shown(), cl.shown()),
+            link_report: (pl.is_near_bridge() || cl.is_near_bridge()).then(|| {
+                deltaloop_bridge::seal::LinkReport::path(&run_dir.join("config.toml"), run_id)
+            }),
         })
+    }
+
+    /// How long the handshake may take: a run across the link waits for the far side to join
+    /// (the near bridge's own deadline, whose message is the more precise one) and then for it.
+    pub(super) fn handshake_timeout_ns(&self) -> u64 {
+        if self.link_report.is_some() {
+            ipc::START_TIMEOUT_NS
+        } else {
+            ipc::HANDSHAKE_TIMEOUT_NS
+        }
     }
 
     /// Fails, with the children's stderr, if either child has exited.
@@ -275,11 +301,71 @@ impl Pair {
         }
         Ok(())
     }
+
+    /// For a run across the link, who had joined when a step timed out.
+    pub(super) fn far_side_note(&self) -> String {
+        far_side_note(self.link_report.as_deref())
+    }
+}
+
+/// What a peer's iceoryx2 error about publisher slots means here: the control services are one
+/// per sender (wire version 3), so a peer written for one shared `control` cannot open it.
+fn slot_hint(reason: &str) -> String {
+    if [
+        "DoesNotSupportRequestedAmountOfPublishers",
+        "ExceedsMaxSupportedPublishers",
+    ]
+    .iter()
+    .any(|e| reason.contains(e))
+    {
+        format!(
+            " — this run speaks deltaloop wire version {}: its control services are one per sender, each with one publisher (the plant publishes on `control-plant`, the controller on `control-controller`, both read `control`); a peer written for one shared `control` service must be updated (docs/protocol.md §2, §3)",
+            deltaloop_transport::wire::WIRE_VERSION
+        )
+    } else {
+        String::new()
+    }
+}
+
+/// Who had joined across the link, from the near bridge's report at `link_report` (empty when the
+/// run is not across a link).
+fn far_side_note(link_report: Option<&Path>) -> String {
+    let Some(path) = link_report else {
+        return String::new();
+    };
+    match deltaloop_bridge::seal::LinkReport::read(path) {
+        Some(r) => format!(
+            " (the far side {} had joined, link key {}: see its host's `join` output)",
+            r.peer, r.key_fingerprint
+        ),
+        None => " (no far side had joined)".into(),
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression: "never said READY within 30 s" when a far side had joined across the link
+    /// and then said nothing: the message now names it (and says so when none had joined).
+    #[test]
+    fn regression_a_far_side_that_joined_and_fell_silent_is_named() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = deltaloop_bridge::seal::LinkReport::path(&tmp.path().join("config.toml"), "r1");
+        assert_eq!(far_side_note(None), "");
+        assert_eq!(far_side_note(Some(&path)), " (no far side had joined)");
+        let r = deltaloop_bridge::seal::LinkReport {
+            peer: "10.0.0.2:40512".into(),
+            key_fingerprint: "ab12cd34".into(),
+            ..Default::default()
+        };
+        r.write(&path).unwrap();
+        let note = far_side_note(Some(&path));
+        assert!(
+            note.contains("far side 10.0.0.2:40512 had joined") && note.contains("ab12cd34"),
+            "{note}"
+        );
+    }
 
     /// A child's control service is believed from the child or a process it started (a wrapper
     /// script's child), never from another branch of the tree.

@@ -451,6 +451,58 @@ mod tests {
         assert!(one.rms_rad_std.is_nan() && one.rms_rad_ci95_lo.is_nan());
     }
 
+    /// Regression: `repeats = 1` wrote the text `NaN` in the spread columns where the docs say
+    /// a value that does not exist is an empty cell; an empty cell (or an old shard's `NaN`)
+    /// reads back as no value.
+    #[test]
+    fn regression_a_single_repeat_leaves_its_spread_cells_empty_not_nan() {
+        let job = Job {
+            compute_us: 0,
+            realtime: false,
+            ..s2_tdc_realtime_job()
+        };
+        let one = summarise(vec![row(
+            &job,
+            3e-4,
+            LoopMode::Inproc,
+            Some(&some_metrics()),
+            None,
+            None,
+        )]);
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.serialize(&one).unwrap();
+        let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        assert!(!text.contains("NaN"), "{text}");
+        let mut rd = csv::Reader::from_reader(text.as_bytes());
+        let head = rd.headers().unwrap().clone();
+        let rec = rd.records().next().unwrap().unwrap();
+        for col in ["rms_rad_std", "rms_rad_ci95_lo", "latency_cost"] {
+            let i = head.iter().position(|h| h == col).unwrap();
+            assert_eq!(&rec[i], "", "{col} in {text}");
+        }
+        let i = head.iter().position(|h| h == "rms_rad").unwrap();
+        assert!(rec[i].parse::<f64>().unwrap() > 0.0);
+        // A shard of an older version wrote `NaN` there.
+        let std = head.iter().position(|h| h == "rms_rad_std").unwrap();
+        let old: csv::StringRecord = rec
+            .iter()
+            .enumerate()
+            .map(|(k, c)| if k == std { "NaN" } else { c })
+            .collect();
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.write_record(&head).unwrap();
+        w.write_record(&old).unwrap();
+        let old = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        for t in [text, old] {
+            let back: Row = csv::Reader::from_reader(t.as_bytes())
+                .deserialize()
+                .next()
+                .unwrap()
+                .unwrap();
+            assert!(back.rms_rad_std.is_nan() && back.rms_rad == one.rms_rad);
+        }
+    }
+
     /// Metrics of a real (short) run, to vary.
     fn some_metrics() -> LawMetrics {
         let cfg = RunConfig::from_toml_str(

@@ -28,8 +28,10 @@ pub struct Row {
     pub tde_delay_samples: u32,
     pub transport_delay_samples: u32,
     /// The sub-tick transport delay, µs (the delay D is d·Ts plus this).
+    #[serde(with = "nan_empty")]
     pub transport_delay_us: f64,
     /// The effective estimation delay L_eff/Ts = ℓ + D/Ts, ticks.
+    #[serde(with = "nan_empty")]
     pub effective_delay_ticks: f64,
     pub compute_delay_us: u32,
     /// How the point ended: the run's [`RunStatus`] (`error`: the point could not run).
@@ -39,16 +41,24 @@ pub struct Row {
     /// Why, for every status but `ok`.
     pub reason: String,
     /// Max over joints of the RMS joint error, rad.
+    #[serde(with = "nan_empty")]
     pub rms_rad: f64,
+    #[serde(with = "nan_empty")]
     pub max_abs_err_rad: f64,
+    #[serde(with = "nan_empty")]
     pub task_rms_mm: f64,
     /// Max over joints of the TDE error RMS, rad/s².
+    #[serde(with = "nan_empty")]
     pub tde_err_rms: f64,
     /// Max over joints of δ_N max and of its 99.9th percentile, rad/s³.
+    #[serde(with = "nan_empty")]
     pub delta_n_max: f64,
+    #[serde(with = "nan_empty")]
     pub delta_n_p999: f64,
+    #[serde(with = "nan_empty")]
     pub k2_required: f64,
     pub eq43_holds: bool,
+    #[serde(with = "nan_empty")]
     pub hf_torque_share: f64,
     pub clamp_count: u64,
     pub deadline_misses: Option<u64>,
@@ -56,6 +66,7 @@ pub struct Row {
     pub round_trip_p999_us: Option<f64>,
     /// Realtime points: max-joint RMS over that of the same config with ideal timing
     /// (in-process, same seed); over repeats, the geometric mean; NaN for the other points.
+    #[serde(with = "nan_empty")]
     pub latency_cost: f64,
     /// Runs this row summarises: sensor-noise seeds `seed`, `seed` + 1, …; the metrics above
     /// are their means over the runs that ended `ok` (`repeats_ok` of them).
@@ -64,27 +75,42 @@ pub struct Row {
     pub seed: u64,
     /// Sample standard deviation and t-based 95 % confidence interval of the mean
     /// ([`crate::record::stats::Interval`]) of `rms_rad` over the repeats; NaN below 2.
+    #[serde(with = "nan_empty")]
     pub rms_rad_std: f64,
+    #[serde(with = "nan_empty")]
     pub rms_rad_ci95_lo: f64,
+    #[serde(with = "nan_empty")]
     pub rms_rad_ci95_hi: f64,
     /// The same for `max_abs_err_rad`.
+    #[serde(with = "nan_empty")]
     pub max_abs_err_rad_std: f64,
+    #[serde(with = "nan_empty")]
     pub max_abs_err_rad_ci95_lo: f64,
+    #[serde(with = "nan_empty")]
     pub max_abs_err_rad_ci95_hi: f64,
     /// The same for `tde_err_rms`.
+    #[serde(with = "nan_empty")]
     pub tde_err_rms_std: f64,
+    #[serde(with = "nan_empty")]
     pub tde_err_rms_ci95_lo: f64,
+    #[serde(with = "nan_empty")]
     pub tde_err_rms_ci95_hi: f64,
     /// For `latency_cost`, a ratio: the standard deviation of its logarithm and the 95 % CI of
     /// its geometric mean ([`crate::record::stats::RatioInterval`]).
+    #[serde(with = "nan_empty")]
     pub latency_cost_log_std: f64,
+    #[serde(with = "nan_empty")]
     pub latency_cost_ci95_lo: f64,
+    #[serde(with = "nan_empty")]
     pub latency_cost_ci95_hi: f64,
     /// Relative change of `rms_rad`, `max_abs_err_rad` and `tde_err_rms` under the round-off
     /// twin of the first seed's run (see [`crate::record::sensitivity`]); NaN without a twin
     /// (realtime points, `sensitivity = false`).
+    #[serde(with = "nan_empty")]
     pub rms_rad_roundoff: f64,
+    #[serde(with = "nan_empty")]
     pub max_abs_err_rad_roundoff: f64,
+    #[serde(with = "nan_empty")]
     pub tde_err_rms_roundoff: f64,
     /// Points of the `link_delay_us` axis only (empty for the others): the emulated delay, µs
     /// each direction.
@@ -109,6 +135,25 @@ pub struct Row {
     /// Process points: the longest run of consecutive missed ticks (over repeats, the largest).
     #[serde(default)]
     pub max_consecutive_misses: Option<u64>,
+}
+
+/// A metric that may have no value (NaN in memory: a single repeat has no spread, an in-process
+/// point no latency cost) as an empty cell of `sweep.csv` (null in JSON), never the text `NaN`;
+/// an empty cell, or a `NaN` of an older shard, reads back as NaN.
+mod nan_empty {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if x.is_nan() {
+            s.serialize_none()
+        } else {
+            s.serialize_some(x)
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+    }
 }
 
 /// The share of missed ticks above which a link point's realtime run is disturbed (see
