@@ -365,6 +365,18 @@ fn all_it_hears(mut s: std::net::TcpStream) -> Vec<u8> {
     got
 }
 
+/// A temp folder with S1 ([`BASE`]) and a fresh link key in it, and a free endpoint of
+/// 127.0.0.1: (folder, config, key file, endpoint).
+fn s1_with_key() -> (tempfile::TempDir, PathBuf, PathBuf, String) {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("s1.toml");
+    std::fs::write(&cfg, BASE).unwrap();
+    let key = tmp.path().join("link.key");
+    deltaloop_bridge::seal::LinkKey::write_new(&key).unwrap();
+    let ep = format!("127.0.0.1:{}", free_port());
+    (tmp, cfg, key, ep)
+}
+
 /// `deltaloop run CFG --mode lockstep --controller-remote EP --link-key KEY --out OUT`'s
 /// arguments.
 fn remote_lockstep<'a>(cfg: &'a Path, ep: &'a str, key: &'a Path, out: &'a Path) -> [&'a str; 10] {
@@ -403,13 +415,9 @@ fn join_with(ep: &str, key: &Path, root: &Path) -> std::process::Child {
 #[test]
 fn strangers_and_wrong_keys_are_refused_and_the_honest_join_runs_byte_identical() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let tmp = tempfile::tempdir().unwrap();
-    let cfg = tmp.path().join("s1.toml");
-    std::fs::write(&cfg, BASE).unwrap();
-    let (key, other) = (tmp.path().join("link.key"), tmp.path().join("other.key"));
-    deltaloop_bridge::seal::LinkKey::write_new(&key).unwrap();
+    let (tmp, cfg, key, ep) = s1_with_key();
+    let other = tmp.path().join("other.key");
     deltaloop_bridge::seal::LinkKey::write_new(&other).unwrap();
-    let ep = format!("127.0.0.1:{}", free_port());
     let remote = tmp.path().join("remote");
     let run = common::spawn(&remote_lockstep(&cfg, &ep, &key, &remote));
     // A stranger first: a handshake-shaped message of junk. Then one that says nothing at all
@@ -488,4 +496,163 @@ fn strangers_and_wrong_keys_are_refused_and_the_honest_join_runs_byte_identical(
                 .to_hex()
         )
     );
+}
+
+/// A `join --runs N` waiting at a listener of this test (the near side), with its own root.
+fn join_runs(port: u16, key: &Path, runs: u32, root: &Path) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["join", &format!("127.0.0.1:{port}"), "--role", "controller"])
+        .args(["--runs", &runs.to_string(), "--wait-s", "60"])
+        .args(["--link-key", key.to_str().unwrap()])
+        .env("DELTALOOP_IOX2_ROOT", root)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// The next connection to `l`, within 30 s.
+fn accept_within(l: &std::net::TcpListener) -> std::net::TcpStream {
+    l.set_nonblocking(true).unwrap();
+    let t0 = std::time::Instant::now();
+    loop {
+        match l.accept() {
+            Ok((s, _)) => {
+                s.set_nonblocking(false).unwrap();
+                return s;
+            }
+            Err(_) if t0.elapsed() < Duration::from_secs(30) => {
+                std::thread::sleep(Duration::from_millis(10))
+            }
+            Err(e) => panic!("nobody connected within 30 s: {e}"),
+        }
+    }
+}
+
+/// SIGTERM to `child`, then its output within 5 s and how long that took.
+fn terminate(child: std::process::Child) -> (std::process::Output, Duration) {
+    let t0 = std::time::Instant::now();
+    // SAFETY: our own child, not yet reaped.
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let o = common::finish_within(child, Duration::from_secs(10), "deltaloop join");
+    (o, t0.elapsed())
+}
+
+/// Regression: a `join` whose near side authenticated and then said nothing ignored SIGINT and
+/// SIGTERM for 28 s; it now stops at once, exit 5, saying what it was waiting for.
+#[test]
+fn regression_join_stops_on_sigterm_while_the_near_side_is_silent() {
+    let tmp = tempfile::tempdir().unwrap();
+    let key = tmp.path().join("link.key");
+    let k = deltaloop_bridge::seal::LinkKey::write_new(&key).unwrap();
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = l.local_addr().unwrap().port();
+    let root = tmp.path().join("far-root");
+    let join = join_runs(port, &key, 1, &root);
+    let mut s = accept_within(&l);
+    let session = deltaloop_bridge::seal::Session::generate().unwrap();
+    deltaloop_bridge::seal::respond(&mut s, &k, &session, Duration::from_secs(10)).unwrap();
+    // Authenticated, and then no HELLO: the join waits for it.
+    std::thread::sleep(Duration::from_millis(500));
+    let (o, took) = terminate(join);
+    drop(s);
+    deltaloop_supervisor::ops::loopback::remove_root(&root, false);
+    let err = text(&o.stderr);
+    assert!(took < Duration::from_secs(3), "{took:?}: {err}");
+    assert_eq!(o.status.code(), Some(5), "{err}");
+    assert!(err.contains("waiting for the near side's HELLO"), "{err}");
+}
+
+/// Regression: `join --runs 0` exited when a connector closed at once (or a second join raced
+/// it); it keeps serving: it connects again after each, until it is stopped.
+#[test]
+fn regression_join_runs_0_keeps_serving_after_a_connection_closed_at_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let key = tmp.path().join("link.key");
+    deltaloop_bridge::seal::LinkKey::write_new(&key).unwrap();
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = l.local_addr().unwrap().port();
+    let root = tmp.path().join("far-root");
+    let mut join = join_runs(port, &key, 0, &root);
+    for _ in 0..2 {
+        drop(accept_within(&l));
+    }
+    // Still serving: it comes back a third time.
+    let third = accept_within(&l);
+    assert!(join.try_wait().unwrap().is_none(), "join --runs 0 exited");
+    // Stopped in the middle of that one's handshake: at once, and a stop.
+    let (o, took) = terminate(join);
+    drop(third);
+    deltaloop_supervisor::ops::loopback::remove_root(&root, false);
+    let err = text(&o.stderr);
+    assert!(took < Duration::from_secs(3), "{took:?}: {err}");
+    assert_eq!(o.status.code(), Some(5), "{err}");
+    assert!(err.contains("waiting for the next run"), "{err}");
+}
+
+/// The shared-memory files of iceoryx2 root `root`.
+fn shm_of(root: &Path) -> Vec<String> {
+    let (_, prefix) = deltaloop_transport::ipc::root_of(root.to_str().unwrap()).unwrap();
+    std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(&prefix))
+        .collect()
+}
+
+/// Regression: a far bridge killed with -9 left its shared memory (17 entries, 11 MiB) and its
+/// temp folder, and later `join`s never removed them; the next `join` on that host does.
+#[test]
+fn regression_what_a_far_bridge_killed_outright_left_is_removed_by_the_next_join() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, cfg, key, ep) = s1_with_key();
+    let out = tmp.path().join("remote");
+    // Long enough (20 s of hold) to be killed in the middle of.
+    let mut args = remote_lockstep(&cfg, &ep, &key, &out).to_vec();
+    args.extend(["--hold-s", "20"]);
+    let run = common::spawn(&args);
+    let far_root = tmp.path().join("far-root");
+    let join = join_with(&ep, &key, &far_root);
+    // Once the far side holds the run's services, it dies outright.
+    let t0 = std::time::Instant::now();
+    while shm_of(&far_root).len() < 5 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "the far side never opened the run's services"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_secs(1));
+    // SAFETY: our own child (`join` exec'd the far bridge), not yet reaped.
+    unsafe { libc::kill(join.id() as i32, libc::SIGKILL) };
+    let _ = common::finish_within(join, Duration::from_secs(10), "the killed join");
+    let _ = common::finish_within(run, Duration::from_secs(60), "deltaloop run");
+    let left = shm_of(&far_root);
+    assert!(!left.is_empty(), "nothing was left to remove");
+    // The next join on this host, even one that reaches nobody, removes it first.
+    let next = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args([
+            "join",
+            &format!("127.0.0.1:{}", free_port()),
+            "--wait-s",
+            "1",
+        ])
+        .args(["--link-key", key.to_str().unwrap()])
+        .env("DELTALOOP_IOX2_ROOT", &far_root)
+        .output()
+        .unwrap();
+    let err = text(&next.stderr);
+    // Every resource of the dead nodes; iceoryx2's own management file of the root stays (the
+    // new join made it, as any process of that root does).
+    let after: Vec<String> = shm_of(&far_root)
+        .into_iter()
+        .filter(|n| !n.ends_with(".global_mgmt"))
+        .collect();
+    deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+    assert!(
+        err.contains("removed what earlier far bridges killed outright left"),
+        "{err}"
+    );
+    assert!(after.is_empty(), "of {left:?}, left: {after:?}");
 }

@@ -184,7 +184,14 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
             // Serving until interrupted: a connection that closed at once, a join that raced
             // this one, a near side that went away: say so and wait for the next run
             // (regression: `join --runs 0` exited).
-            Err(e) if a.runs == 0 && !term.load(Ordering::Relaxed) => {
+            // Stopped mid-way (a SIGTERM cuts the handshake short): a stop, not a failure.
+            Err(_) if term.load(Ordering::Relaxed) => {
+                return Ok((
+                    EXIT_STOPPED,
+                    Some("interrupted while joining the near side".into()),
+                ));
+            }
+            Err(e) if a.runs == 0 => {
                 eprintln!("deltaloop-bridge: warning: {e:#}; waiting for the next run");
                 std::thread::sleep(Duration::from_secs(1));
                 continue;
@@ -314,10 +321,27 @@ impl PlantSidePorts {
 /// Proves the link key to the near side ([`seal::initiate`]: a near side without it cannot
 /// answer) and says which role this side joined for, the first sealed frame. One line naming the
 /// near side otherwise.
-fn join(a: &Args, mut stream: TcpStream) -> Result<(Tcp, Session)> {
+fn join(a: &Args, mut stream: TcpStream, term: &AtomicBool) -> Result<(Tcp, Session)> {
     let key = LinkKey::from_env().map_err(anyhow::Error::msg)?;
-    let session = seal::initiate(&mut stream, &key, Duration::from_secs(5))
-        .map_err(|e| anyhow::anyhow!("the near side at {} {e}", a.connect))?;
+    // A SIGTERM during the handshake shuts the socket, so the blocking read ends at once
+    // (regression: a join waiting for a silent near side ignored SIGTERM for seconds).
+    let done = AtomicBool::new(false);
+    let watch = stream.try_clone()?;
+    let session = std::thread::scope(|sc| {
+        sc.spawn(|| {
+            while !done.load(Ordering::Relaxed) {
+                if term.load(Ordering::Relaxed) {
+                    let _ = watch.shutdown(std::net::Shutdown::Both);
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        });
+        let r = seal::initiate(&mut stream, &key, Duration::from_secs(5));
+        done.store(true, Ordering::Relaxed);
+        r
+    })
+    .map_err(|e| anyhow::anyhow!("the near side at {} {e}", a.connect))?;
     let mut tcp = Tcp::new(stream, &session, End::Far)?;
     tcp.send(Kind::Join, &[&a.role.to_wire().to_ne_bytes()])?;
     eprintln!(
@@ -335,7 +359,7 @@ fn serve(
     cmd: &[String],
     term: &AtomicBool,
 ) -> Result<(u8, Option<String>)> {
-    let (mut tcp, session) = join(a, stream)?;
+    let (mut tcp, session) = join(a, stream, term)?;
     let mut hello = None;
     let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
     while hello.is_none() {

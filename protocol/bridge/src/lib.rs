@@ -141,6 +141,22 @@ impl Role {
             .find(|r| r.to_wire() == v)
     }
 
+    /// The role of the config's `[link] remote`.
+    pub fn of(side: deltaloop_config::RemoteSide) -> Self {
+        match side {
+            deltaloop_config::RemoteSide::Controller => Role::Controller,
+            deltaloop_config::RemoteSide::Plant => Role::Plant,
+        }
+    }
+
+    /// The config's `[link] remote` of this role.
+    pub fn side(self) -> deltaloop_config::RemoteSide {
+        match self {
+            Role::Controller => deltaloop_config::RemoteSide::Controller,
+            Role::Plant => deltaloop_config::RemoteSide::Plant,
+        }
+    }
+
     /// Parses a word; None if it is neither role.
     pub fn parse(s: &str) -> Option<Self> {
         [Role::Controller, Role::Plant]
@@ -188,8 +204,20 @@ pub fn spin_ns(
     mode: deltaloop_config::LoopMode,
     spin_us: u32,
 ) -> Result<u64> {
-    let cfg = deltaloop_config::RunConfig::from_file(config)?;
-    if mode.layout(&cfg).is_none() {
+    spin_ns_of(
+        &deltaloop_config::RunConfig::from_file(config)?,
+        mode,
+        spin_us,
+    )
+}
+
+/// [`spin_ns`] of a config already read.
+pub fn spin_ns_of(
+    cfg: &deltaloop_config::RunConfig,
+    mode: deltaloop_config::LoopMode,
+    spin_us: u32,
+) -> Result<u64> {
+    if mode.layout(cfg).is_none() {
         bail!("mode {mode} has no processes");
     }
     let budget_us = cfg.loop_.torque_budget_us;

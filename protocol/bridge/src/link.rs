@@ -27,6 +27,17 @@ pub struct Emulation {
 }
 
 impl Emulation {
+    /// The emulation of the config's `[link]` (validated there: delay and jitter 0..=1 s, loss
+    /// 0..=1).
+    pub fn of(link: &deltaloop_config::LinkSection) -> Self {
+        Self {
+            delay_ns: (link.delay_us * 1000.0).round() as u64,
+            jitter_ns: (link.jitter_us * 1000.0).round() as u64,
+            loss_ppm: (link.loss * 1e6).round() as u32,
+            seed: link.seed,
+        }
+    }
+
     pub fn is_off(&self) -> bool {
         self.delay_ns == 0 && self.jitter_ns == 0 && self.loss_ppm == 0
     }

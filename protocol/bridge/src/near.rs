@@ -38,18 +38,10 @@ use std::net::{SocketAddr, TcpListener, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-/// `deltaloop-bridge near`.
+/// `deltaloop-bridge near`: the loop process's arguments; what the link is (the far role, where
+/// to listen, the emulation) is the run config's `[link]`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Where to wait for the far side: HOST:PORT of this host (TCP for the control plane, UDP for
-    /// the loop, the same port).
-    #[arg(long, value_parser = crate::parse_endpoint)]
-    pub listen: SocketAddr,
-    /// Which process this bridge stands in for (the one that runs on the far host).
-    #[arg(long, value_enum, default_value_t = Role::Controller)]
-    pub role: Role,
-    #[command(flatten)]
-    pub emu: crate::EmuArgs,
     #[command(flatten)]
     pub run: LoopArgs,
     /// The control law (passed on to the far controller; `--role controller` only).
@@ -127,7 +119,21 @@ impl PlantPorts {
 
 /// Runs the near side; returns the exit code and its one line (None: completed).
 pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
-    let plant = a.role == Role::Plant;
+    let cfg = RunConfig::from_file(&a.run.config)?;
+    let Some(link) = &cfg.link else {
+        bail!(
+            "the run's config {} has no [link]: the near bridge stands in for a process on another host (`deltaloop run --controller-remote` or `--plant-remote`)",
+            a.run.config.display()
+        );
+    };
+    let at = Listen {
+        addr: link
+            .listen
+            .parse()
+            .with_context(|| format!("link.listen {}", link.listen))?,
+        role: Role::of(link.remote),
+    };
+    let plant = at.role == Role::Plant;
     let law = match (plant, a.law) {
         (false, None) => bail!("--law is needed with --role controller"),
         (false, l) => l,
@@ -137,11 +143,11 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
     let config = std::fs::read_to_string(&a.run.config)
         .with_context(|| format!("cannot read --config {}", a.run.config.display()))?;
     let run_id = &a.run.run_id;
-    let emu = a.emu.emulation()?;
-    let spin_ns = crate::spin_ns(&a.run.config, a.run.mode, a.emu.link_spin_us)?;
+    let emu = Emulation::of(link);
+    let spin_ns = crate::spin_ns_of(&cfg, a.run.mode, link.spin_us)?;
     let hello = Hello {
         run_id: run_id.clone(),
-        role: a.role,
+        role: at.role,
         mode: a.run.mode,
         law,
         emulation: emu,
@@ -150,10 +156,9 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
     let lockstep = a.run.mode == LoopMode::Lockstep;
     let report = LinkReport::path(&a.run.config, run_id);
     if plant {
-        let cfg = RunConfig::from_file(&a.run.config)?;
         let silence_ms = u64::from(cfg.loop_.silence_timeout_ms);
         let ports = PlantPorts::open(run_id)?;
-        let Some(peer) = connect(a, &hello, &ports.control, term, &report)? else {
+        let Some(peer) = connect(&at, &hello, &ports.control, term, &report)? else {
             return Ok(stopped_early());
         };
         let mut n = NearPlant {
@@ -172,7 +177,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         finish(&mut n.peer, &report, &emu, None, r)
     } else {
         let ports = Ports::open(run_id, ipc::RELAY_BUFFER)?;
-        let Some(peer) = connect(a, &hello, &ports.control, term, &report)? else {
+        let Some(peer) = connect(&at, &hello, &ports.control, term, &report)? else {
             return Ok(stopped_early());
         };
         let mut n = Near {
@@ -249,6 +254,12 @@ fn authenticate(
     }
 }
 
+/// Where the near side waits, and for which far process.
+struct Listen {
+    addr: SocketAddr,
+    role: Role,
+}
+
 /// Waits for the far side: every connection must prove the link key before anything of the run
 /// is said, a stranger's is dropped (and counted) and the wait goes on; at most
 /// [`MAX_PENDING`] are authenticated at once, each within [`PER_CONNECTION`]. Then sends the
@@ -256,7 +267,7 @@ fn authenticate(
 /// written at once, so a far side that joined and then fell silent is named by the supervisor.
 /// None: stopped (STOP or SIGTERM) before it joined.
 fn connect(
-    a: &Args,
+    at: &Listen,
     hello: &Hello,
     control: &ControlPorts,
     term: &AtomicBool,
@@ -264,10 +275,10 @@ fn connect(
 ) -> Result<Option<Peer>> {
     let key = LinkKey::from_env().map_err(anyhow::Error::msg)?;
     let session = Session::generate().map_err(anyhow::Error::msg)?;
-    let listener = TcpListener::bind(a.listen)
-        .with_context(|| format!("cannot listen on --listen {} (TCP)", a.listen))?;
-    let udp = UdpSocket::bind(a.listen)
-        .with_context(|| format!("cannot bind --listen {} (UDP)", a.listen))?;
+    let listener = TcpListener::bind(at.addr)
+        .with_context(|| format!("cannot listen on --listen {} (TCP)", at.addr))?;
+    let udp = UdpSocket::bind(at.addr)
+        .with_context(|| format!("cannot bind --listen {} (UDP)", at.addr))?;
     listener.set_nonblocking(true)?;
     // The far side connects: wait for it as long as a handshake step may take.
     let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
@@ -303,26 +314,26 @@ fn connect(
         if rt::now_ns() > end {
             bail!(
                 "no far side joined at {} within {} s{} (run `deltaloop join {} --role {}` with this run's link key on the other host)",
-                a.listen,
+                at.addr,
                 ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000,
                 if refused > 0 {
                     format!("; {refused} connection(s) were refused for the wrong key or silence")
                 } else {
                     String::new()
                 },
-                a.listen,
-                a.role
+                at.addr,
+                at.role
             );
         }
         std::thread::sleep(Duration::from_millis(2));
     };
     drop(listener);
-    if let Some(r) = role.filter(|r| *r != a.role) {
+    if let Some(r) = role.filter(|r| *r != at.role) {
         bail!(
             "the far side {peer} joined with --role {r}, and this run puts the {} there (run `deltaloop join {} --role {}` on the other host)",
-            a.role,
-            a.listen,
-            a.role
+            at.role,
+            at.addr,
+            at.role
         );
     }
     tcp.send(Kind::Hello, &[&hello.encode()])?;
@@ -395,18 +406,26 @@ struct FarLog {
 
 impl FarLog {
     fn line(&mut self, b: &[u8]) {
+        if let Some(l) = self.admit(b) {
+            eprintln!("{l}");
+        }
+    }
+
+    /// What to write of the far side's line `b`: the line escaped while under the cap, the
+    /// notice of the cut once, then nothing (its exit line still crosses in the EXIT frame).
+    fn admit(&mut self, b: &[u8]) -> Option<String> {
+        if self.cut {
+            return None;
+        }
         if self.written + b.len() > FAR_LOG_CAP {
-            if !self.cut {
-                self.cut = true;
-                eprintln!(
-                    "deltaloop-bridge: the far side's log passed {} KiB: the rest of it is dropped here",
-                    FAR_LOG_CAP / 1024
-                );
-            }
-            return;
+            self.cut = true;
+            return Some(format!(
+                "deltaloop-bridge: the far side's log passed {} KiB: the rest of it is dropped here",
+                FAR_LOG_CAP / 1024
+            ));
         }
         self.written += b.len() + 1;
-        eprintln!("{}", wire::escape_peer_text(&String::from_utf8_lossy(b)));
+        Some(wire::escape_peer_text(&String::from_utf8_lossy(b)))
     }
 }
 
@@ -865,4 +884,25 @@ pub fn describe(e: &Emulation) -> String {
         e.loss_ppm,
         e.seed
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Regression: a far side grew the near host's `<law>.controller.log` to 97 MB in 0.8 s; what
+    /// it sends is kept up to [`FAR_LOG_CAP`], and the cut is said once.
+    #[test]
+    fn regression_a_far_side_cannot_grow_the_near_log_past_its_cap() {
+        let mut log = FarLog::default();
+        let flood = vec![b'x'; 1000];
+        let kept: Vec<String> = (0..5000).filter_map(|_| log.admit(&flood)).collect();
+        let bytes: usize = kept.iter().map(|l| l.len() + 1).sum();
+        assert!(bytes <= FAR_LOG_CAP + 200, "{bytes}");
+        assert!(bytes > FAR_LOG_CAP - 2000, "{bytes}");
+        let cuts = kept.iter().filter(|l| l.contains("dropped here")).count();
+        assert_eq!(cuts, 1);
+        assert!(kept.last().unwrap().contains("dropped here"));
+        assert_eq!(log.admit(b"short"), None, "nothing after the cut");
+    }
 }

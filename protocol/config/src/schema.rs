@@ -472,6 +472,66 @@ pub struct RunConfig {
     pub faults: FaultSection,
     #[serde(default)]
     pub record: RecordSection,
+    /// One process of the run on another host (None: every process on this one).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub link: Option<LinkSection>,
+}
+
+/// `[link]`: one process of the run on another host, across `deltaloop-bridge`
+/// (docs/guide/two-hosts.md). `deltaloop run --controller-remote/--plant-remote` and a sweep's
+/// `link_delay_us` axis write it into the run's config; the near bridge, the report and the
+/// supervisor read it from there. The emulated delay, jitter and loss act on each datagram, each
+/// direction.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LinkSection {
+    /// Which process runs on the other host.
+    pub remote: RemoteSide,
+    /// Where this host listens for the far side (TCP and UDP, one port): `IP:PORT`.
+    pub listen: String,
+    /// Emulated one-way delay, µs.
+    #[serde(default)]
+    pub delay_us: f64,
+    /// Emulated one-way jitter, µs: uniform in [0, this] on top of the delay.
+    #[serde(default)]
+    pub jitter_us: f64,
+    /// Emulated loss: the fraction of datagrams dropped, 0..=1.
+    #[serde(default)]
+    pub loss: f64,
+    /// Seed of the emulated jitter and loss (the far side draws with seed + 1).
+    #[serde(default = "default_link_seed")]
+    pub seed: u64,
+    /// How long the near bridge polls for a reply after sending a state before it blocks, µs.
+    #[serde(default)]
+    pub spin_us: u32,
+}
+
+fn default_link_seed() -> u64 {
+    1
+}
+
+/// The process of a run that is on the other host.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RemoteSide {
+    Controller,
+    Plant,
+}
+
+impl RemoteSide {
+    pub fn name(self) -> &'static str {
+        match self {
+            RemoteSide::Controller => "controller",
+            RemoteSide::Plant => "plant",
+        }
+    }
+}
+
+impl LinkSection {
+    /// Whether any emulation (delay, jitter or loss) is on.
+    pub fn emulated(&self) -> bool {
+        self.delay_us > 0.0 || self.jitter_us > 0.0 || self.loss > 0.0
+    }
 }
 
 /// `[record]`: which per-tick files a run writes. Both are on by default: every tick of every law

@@ -4,7 +4,7 @@
 use crate::error::{ConfigError, range};
 use crate::layout::{Layout, Poll};
 use crate::schema::{
-    ControllerSection, FaultSection, LoopSection, PathKind, PlantSection, RunConfig,
+    ControllerSection, FaultSection, LinkSection, LoopSection, PathKind, PlantSection, RunConfig,
     ScenarioSection, SensorSection, step_tick,
 };
 use crate::text::{show_num, show_str};
@@ -257,6 +257,47 @@ impl SensorSection {
     }
 }
 
+/// Largest accepted emulated link delay or jitter (`link.delay_us`, `link.jitter_us`), µs.
+pub const MAX_LINK_DELAY_US: f64 = 1e6;
+
+impl LinkSection {
+    /// `[link]`: the address this host listens on, the emulation's and the spin's bounds (in
+    /// realtime the spin is bounded by the torque budget too, where the mode is known).
+    fn validate(&self) -> Result<(), ConfigError> {
+        if self.listen.parse::<std::net::SocketAddr>().is_err() {
+            return Err(range(
+                "link.listen",
+                show_str(&self.listen),
+                "IP:PORT of this host, e.g. 10.0.0.1:7447",
+            ));
+        }
+        for (key, v) in [
+            ("link.delay_us", self.delay_us),
+            ("link.jitter_us", self.jitter_us),
+        ] {
+            check(
+                key,
+                v,
+                (0.0..=MAX_LINK_DELAY_US).contains(&v),
+                "0 <= value <= 1000000 us",
+            )?;
+        }
+        if self.spin_us > 1_000_000 {
+            return Err(range(
+                "link.spin_us",
+                self.spin_us,
+                "0 <= spin_us <= 1000000 us",
+            ));
+        }
+        check(
+            "link.loss",
+            self.loss,
+            (0.0..=1.0).contains(&self.loss),
+            "0 <= loss <= 1 (a fraction of the datagrams)",
+        )
+    }
+}
+
 impl FaultSection {
     /// `[faults]`: silence window, safe stop, brake.
     fn validate(&self) -> Result<(), ConfigError> {
@@ -451,6 +492,9 @@ impl RunConfig {
         self.sensor.validate()?;
         self.faults.validate()?;
         self.controller.validate()?;
+        if let Some(link) = &self.link {
+            link.validate()?;
+        }
         self.validate_timing()
     }
 

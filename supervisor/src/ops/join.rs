@@ -10,7 +10,7 @@ use crate::loops::procs::exe_dir;
 use anyhow::{Context, Result, bail};
 use deltaloop_bridge::seal::{KEY_ENV, LinkKey};
 use deltaloop_bridge::{EmuArgs, Role};
-use deltaloop_config::{LoopMode, RunConfig};
+use deltaloop_config::{LinkSection, LoopMode, RunConfig};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -50,54 +50,66 @@ impl RemoteArgs {
         }
     }
 
-    /// Puts the near bridge in the remote process's place; one line naming the flag otherwise.
+    /// Puts the near bridge in the remote process's place and the link in the config's
+    /// `[link]`, from the flags or, without them, from a `[link]` the config already has (a run
+    /// folder's config run again); one line naming the flag or key otherwise.
     pub fn apply(&self, cfg: &mut RunConfig) -> Result<()> {
         let emu = self.emu.emulation()?;
-        let Some((flag, role, ep)) = self.remote()? else {
-            if !emu.is_off() {
-                bail!(
-                    "--link-delay-us, --link-jitter-us and --link-loss need --controller-remote or --plant-remote"
-                );
+        let link = match (self.remote()?, &cfg.link) {
+            (Some((flag, role, ep)), _) => {
+                let addr = deltaloop_bridge::parse_endpoint(ep)
+                    .map_err(|e| anyhow::anyhow!("{flag}: {e}"))?;
+                let e = &self.emu;
+                LinkSection {
+                    remote: role.side(),
+                    listen: addr.to_string(),
+                    delay_us: e.link_delay_us,
+                    jitter_us: e.link_jitter_us,
+                    loss: e.link_loss,
+                    seed: e.link_seed,
+                    spin_us: e.link_spin_us,
+                }
             }
-            if self.link_key.is_some() {
-                bail!("--link-key needs --controller-remote or --plant-remote");
+            (None, Some(link)) if emu.is_off() => link.clone(),
+            (None, _) => {
+                if !emu.is_off() {
+                    bail!(
+                        "--link-delay-us, --link-jitter-us and --link-loss need --controller-remote or --plant-remote"
+                    );
+                }
+                if self.link_key.is_some() {
+                    bail!("--link-key needs --controller-remote or --plant-remote");
+                }
+                return Ok(());
             }
-            return Ok(());
         };
-        let addr =
-            deltaloop_bridge::parse_endpoint(ep).map_err(|e| anyhow::anyhow!("{flag}: {e}"))?;
-        let command = if role == Role::Plant {
-            &mut cfg.plant.command
-        } else {
-            &mut cfg.controller.command
+        let role = Role::of(link.remote);
+        let flag = format!("--{role}-remote");
+        let bridge = exe_dir()?.join("deltaloop-bridge");
+        let near = vec![bridge.display().to_string(), "near".into()];
+        let command = match role {
+            Role::Plant => &mut cfg.plant.command,
+            Role::Controller => &mut cfg.controller.command,
         };
-        if !command.is_empty() {
+        // A run folder's config holds the near bridge already: it is replaced by this one's.
+        let ours = command
+            .first()
+            .is_some_and(|p| p.ends_with("deltaloop-bridge"))
+            && command.get(1).is_some_and(|a| a == "near");
+        if !command.is_empty() && !ours {
             bail!(
                 "{flag} and a {role} command (--{role}-cmd or {role}.command) exclude each other: give the command to `deltaloop join --role {role} --{role}-cmd` on the other host"
             );
         }
-        let bridge = exe_dir()?.join("deltaloop-bridge");
-        let e = &self.emu;
-        *command = vec![
-            bridge.display().to_string(),
-            "near".into(),
-            "--role".into(),
-            role.name().into(),
-            "--listen".into(),
-            addr.to_string(),
-            format!("--link-delay-us={}", e.link_delay_us),
-            format!("--link-jitter-us={}", e.link_jitter_us),
-            format!("--link-loss={}", e.link_loss),
-            format!("--link-seed={}", e.link_seed),
-            format!("--link-spin-us={}", e.link_spin_us),
-        ];
+        *command = near;
         let key = match &self.link_key {
             Some(path) => install_link_key(LinkKey::read(path).map_err(anyhow::Error::msg)?),
             None => one_time_link_key()?,
         };
         if !self.quiet {
-            eprintln!("{}", self.join_hint(role, &addr.to_string(), key));
+            eprintln!("{}", self.join_hint(role, &link.listen, key));
         }
+        cfg.link = Some(link);
         Ok(())
     }
 
@@ -133,14 +145,18 @@ impl RemoteArgs {
     /// user never gave).
     pub fn check_run(&self, mode: LoopMode, cfg: &RunConfig, sensitivity: bool) -> Result<()> {
         self.check_mode(mode)?;
-        let Some((flag, ..)) = self.remote()? else {
+        let Some(link) = &cfg.link else {
             return Ok(());
         };
+        let flag = format!("--{}-remote", link.remote.name());
+        if mode == LoopMode::Inproc {
+            bail!("{flag} needs --mode lockstep or realtime (inproc has no processes)");
+        }
         let budget = cfg.loop_.torque_budget_us;
-        if mode == LoopMode::Realtime && self.emu.link_spin_us > budget {
+        if mode == LoopMode::Realtime && link.spin_us > budget {
             bail!(
                 "--link-spin-us {}: allowed 0..={budget} (loop.torque_budget_us) in realtime",
-                self.emu.link_spin_us
+                link.spin_us
             );
         }
         if sensitivity {
@@ -226,6 +242,7 @@ pub fn join(j: &Join<'_>) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use deltaloop_config::RemoteSide;
 
     fn cfg() -> RunConfig {
         RunConfig::from_file(std::path::Path::new(concat!(
@@ -244,7 +261,11 @@ mod tests {
         let mut c = cfg();
         remote("127.0.0.1:7447").apply(&mut c).unwrap();
         assert!(c.controller.command[0].ends_with("deltaloop-bridge"));
-        assert!(c.controller.command.contains(&"127.0.0.1:7447".to_string()));
+        let link = c.link.unwrap();
+        assert_eq!(
+            (link.remote, link.listen.as_str()),
+            (RemoteSide::Controller, "127.0.0.1:7447")
+        );
         let e = remote("127.0.0.1")
             .apply(&mut cfg())
             .unwrap_err()
@@ -289,8 +310,7 @@ mod tests {
         let mut c = cfg();
         remote("127.0.0.1:7447").apply(&mut c).unwrap();
         assert!(c.plant.command[0].ends_with("deltaloop-bridge"));
-        assert!(c.plant.command.windows(2).any(|w| w == ["--role", "plant"]));
-        assert!(c.plant.command.contains(&"127.0.0.1:7447".to_string()));
+        assert_eq!(c.link.as_ref().unwrap().remote, RemoteSide::Plant);
         assert!(c.controller.command.is_empty());
         let one_line = |e: anyhow::Error, says: &[&str]| {
             let e = e.to_string();
@@ -383,7 +403,8 @@ mod tests {
             quiet: true,
             ..Default::default()
         };
-        let c = cfg();
+        let mut c = cfg();
+        remote.apply(&mut c).unwrap();
         let e = remote
             .check_run(LoopMode::Realtime, &c, false)
             .unwrap_err()
@@ -399,6 +420,60 @@ mod tests {
                 && !e.contains("controller.command"),
             "{e}"
         );
+    }
+
+    /// Regression: where the remote process ran and how the link was emulated lived only in the
+    /// near bridge's command line, which the report parsed back by strings. It is the config's
+    /// typed `[link]` now: the run folder's config.toml keeps it, the report reads it, a bad
+    /// value in a scenario file is refused naming its key, and a run folder's config runs again
+    /// as the same remote run.
+    #[test]
+    fn regression_remote_placement_is_typed_in_the_config() {
+        let remote = RemoteArgs {
+            plant_remote: Some("127.0.0.1:7447".into()),
+            emu: EmuArgs {
+                link_delay_us: 40.0,
+                link_loss: 0.01,
+                link_seed: 7,
+                ..Default::default()
+            },
+            quiet: true,
+            ..Default::default()
+        };
+        let mut c = cfg();
+        remote.apply(&mut c).unwrap();
+        assert_eq!(c.plant.command.len(), 2, "{:?}", c.plant.command);
+        assert_eq!(c.plant.command[1], "near");
+        let back = RunConfig::from_toml_str(&c.to_toml_string(), None).unwrap();
+        assert_eq!(back.link, c.link);
+        let note = crate::output::link::note(&back).unwrap();
+        assert!(
+            note.starts_with("plant on another host, across the link at 127.0.0.1:7447")
+                && note.contains("delay 40 µs, jitter 0 µs, loss 0.01, seed 7"),
+            "{note}"
+        );
+        // The same config again, no flags: the same remote run.
+        let mut again = back.clone();
+        RemoteArgs {
+            quiet: true,
+            ..Default::default()
+        }
+        .apply(&mut again)
+        .unwrap();
+        assert_eq!(
+            (again.link, again.plant.command),
+            (back.link, back.plant.command)
+        );
+        let text = "[scenario]\npath = \"s1\"\n[link]\nremote = \"controller\"\nlisten = \"10.0.0.1:7447\"\nloss = 1.5\n";
+        let e = RunConfig::from_toml_str(text, None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("link.loss") && e.contains("0 <= loss <= 1"),
+            "{e}"
+        );
+        let text = text.replace("loss = 1.5", "listen2 = 1");
+        assert!(RunConfig::from_toml_str(&text, None).is_err());
     }
 
     /// No unauthenticated mode: `join` without a key, with both, or with a bad token says so

@@ -112,14 +112,6 @@ impl Launch {
         }
     }
 
-    /// Whether it starts the near side of a bridge (the other role is across the link).
-    pub(super) fn is_near_bridge(&self) -> bool {
-        self.program
-            .file_name()
-            .is_some_and(|n| n == "deltaloop-bridge")
-            && self.args.first().is_some_and(|a| a == "near")
-    }
-
     /// The command line as the user would type it.
     pub(super) fn shown(&self) -> String {
         std::iter::once(self.program.display().to_string())
@@ -270,7 +262,7 @@ impl Pair {
                 controller: ctrl_log,
             },
             shown: (pl.shown(), cl.shown()),
-            link_report: (pl.is_near_bridge() || cl.is_near_bridge()).then(|| {
+            link_report: cfg.link.is_some().then(|| {
                 deltaloop_bridge::seal::LinkReport::path(&run_dir.join("config.toml"), run_id)
             }),
         })
