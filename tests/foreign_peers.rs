@@ -435,3 +435,142 @@ fn regression_the_controller_exits_5_on_stop() {
     assert_eq!(outcome(&s, "tdc"), (RunStatus::Interrupted, None), "{s}");
     assert!(s["laws"]["tdc"]["interrupted_at_tick"].as_u64().is_some());
 }
+
+/// `examples/<example>`'s program `exe`, built once with its `make` against this build's library
+/// (into the target folder); None (and one line saying what is missing) without the compiler
+/// (`cc` or `c++`) or make.
+fn built(example: &'static str, exe: &str, compiler: &str) -> Option<PathBuf> {
+    static BUILT: std::sync::Mutex<std::collections::BTreeMap<&'static str, Option<PathBuf>>> =
+        std::sync::Mutex::new(std::collections::BTreeMap::new());
+    let mut built = BUILT.lock().unwrap_or_else(|e| e.into_inner());
+    built
+        .entry(example)
+        .or_insert_with(|| {
+            for tool in [compiler, "make"] {
+                if Command::new(tool).arg("--version").output().is_err() {
+                    eprintln!(
+                        "SKIPPED: no `{tool}` on this machine (apt-get install build-essential)"
+                    );
+                    return None;
+                }
+            }
+            let lib = common::peer_lib_dir();
+            let path = lib.join(exe);
+            let o = Command::new("make")
+                .arg("-C")
+                .arg(root().join("examples").join(example))
+                .arg(format!("LIB={}", lib.display()))
+                .arg(format!("OUT={}", path.display()))
+                .arg("--always-make")
+                .output()
+                .unwrap();
+            assert!(o.status.success(), "make {example}: {}", text(&o.stderr));
+            Some(path)
+        })
+        .clone()
+}
+
+/// The C `tdc` controller (examples/c-controller).
+fn c_tdc() -> Option<PathBuf> {
+    built("c-controller", "c-tdc", "cc")
+}
+
+use std::process::Command;
+
+/// The C `tdc` controller (examples/c-controller, on the C ABI) and the C++ one
+/// (examples/cpp-controller, on its RAII wrapper) each write the built-in `tdc`'s trace byte for
+/// byte in lockstep, leave nothing behind, and refuse a law they do not implement in one line
+/// of their own.
+#[test]
+fn c_and_cpp_controllers_in_lockstep_write_the_builtin_trace_byte_for_byte() {
+    let tmp = tempfile::tempdir().unwrap();
+    let builtin = tmp.path().join("builtin");
+    common::run(
+        "configs/s1-nominal.toml",
+        "inproc",
+        &builtin,
+        &["--law", "tdc"],
+    );
+    let want = std::fs::read(builtin.join("trace.csv")).unwrap();
+    let examples = [c_tdc(), built("cpp-controller", "cpp-tdc", "c++")];
+    for exe in examples.into_iter().flatten() {
+        let name = exe.file_name().unwrap().to_string_lossy().into_owned();
+        let dir = tmp.path().join(&name);
+        let (o, out) = run(
+            &dir,
+            "configs/s1-nominal.toml",
+            "lockstep",
+            &["--controller-cmd", exe.to_str().unwrap()],
+        );
+        assert!(o.status.success(), "{name}: {}", text(&o.stderr));
+        assert!(
+            std::fs::read(out.join("trace.csv")).unwrap() == want,
+            "{name}'s trace.csv differs from the built-in tdc's"
+        );
+        common::assert_clean(&out, &summary(&out));
+        let (o, _) = run(
+            &dir.join("other"),
+            "configs/s1-nominal.toml",
+            "lockstep",
+            &["--controller-cmd", exe.to_str().unwrap(), "--law", "pid"],
+        );
+        assert!(!o.status.success());
+        assert!(
+            text(&o.stderr).contains(&format!(
+                "{name}: the controller refused the run: this controller implements only tdc, not pid"
+            )),
+            "{}",
+            text(&o.stderr)
+        );
+    }
+}
+
+/// In realtime the C controller answers as the built-in does: round trip p50 within 1.5× of the
+/// built-in controller's in the same test, and no more misses (judged on an undisturbed run).
+#[test]
+fn a_c_controller_in_realtime_answers_as_fast_as_the_builtin() {
+    let Some(exe) = c_tdc() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    common::on_a_noisy_host(
+        "a_c_controller_in_realtime_answers_as_fast_as_the_builtin",
+        |attempt| {
+            let timing = |name: &str, extra: &[&str]| {
+                let out = tmp.path().join(format!("{name}-{attempt}"));
+                let mut args = vec!["--law", "tdc"];
+                args.extend_from_slice(extra);
+                let o = common::run_output("configs/s1-nominal.toml", "realtime", &out, &args);
+                let s = summary(&out);
+                let status = common::assert_every_tick_on_disk(&s, &out, "tdc");
+                assert_eq!(
+                    o.status.success(),
+                    status.is_physical(),
+                    "{}",
+                    text(&o.stderr)
+                );
+                (
+                    s["timing"]["tdc"].clone(),
+                    common::disturbance(&s, "tdc"),
+                    status,
+                )
+            };
+            let (b, b_dist, b_status) = timing("builtin", &[]);
+            let (c, c_dist, c_status) = timing("c", &["--controller-cmd", exe.to_str().unwrap()]);
+            let p50 = |t: &Value| t["round_trip"]["p50_us"].as_f64().unwrap_or(f64::INFINITY);
+            let misses = |t: &Value| t["deadline_misses"].as_u64().unwrap_or(u64::MAX);
+            let check = if b_status != RunStatus::Ok || c_status != RunStatus::Ok {
+                Err(format!("built-in {b_status:?}, C {c_status:?}"))
+            } else if p50(&c) > 1.5 * p50(&b) {
+                Err(format!(
+                    "round trip p50: C {} µs, built-in {} µs",
+                    p50(&c),
+                    p50(&b)
+                ))
+            } else if misses(&c) > misses(&b) {
+                Err(format!("misses: C {}, built-in {}", misses(&c), misses(&b)))
+            } else {
+                Ok(())
+            };
+            common::judge(b_dist.or(c_dist), check)
+        },
+    );
+}

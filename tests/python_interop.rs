@@ -262,6 +262,38 @@ fn a_python_controller_names_the_expected_and_found_types() {
     }
 }
 
+/// The C ABI from a second language: the Python `tdc` law served through `ctypes` by the C
+/// library (examples/c-controller/ctypes_tdc.py) writes the built-in `tdc`'s trace byte for byte.
+#[test]
+fn the_c_library_serves_a_python_law_through_ctypes_byte_for_byte() {
+    let tmp = tempfile::tempdir().unwrap();
+    let lib = common::peer_lib_dir().join("libdeltaloop_peer.so");
+    let cmd = format!(
+        "{} examples/c-controller/ctypes_tdc.py {}",
+        python().display(),
+        lib.display()
+    );
+    let (ours, builtin) = (tmp.path().join("ctypes"), tmp.path().join("builtin"));
+    let s = common::run(
+        "configs/s1-nominal.toml",
+        "lockstep",
+        &ours,
+        &["--law", "tdc", "--controller-cmd", &cmd],
+    );
+    common::run(
+        "configs/s1-nominal.toml",
+        "inproc",
+        &builtin,
+        &["--law", "tdc"],
+    );
+    assert!(
+        std::fs::read(ours.join("trace.csv")).unwrap()
+            == std::fs::read(builtin.join("trace.csv")).unwrap(),
+        "the ctypes controller's trace.csv differs from the built-in tdc's"
+    );
+    common::assert_clean(&ours, &s);
+}
+
 /// Regression: a peer written for the single shared `control` service (wire version 2) failed
 /// with iceoryx2's `DoesNotSupportRequestedAmountOfPublishers` and no word of why; the run's
 /// error now says the control services are one per sender, with the wire version.

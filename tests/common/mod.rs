@@ -8,7 +8,7 @@ pub mod python;
 #[allow(unused_imports)]
 pub use deltaloop_supervisor::record::{FaultKind, RunStatus};
 use serde_json::Value;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// Runs `deltaloop` with `args` from the repository root.
@@ -435,4 +435,18 @@ pub fn assert_replays(out: &Path) {
         "replay of {}: {stdout}{stderr}",
         out.display()
     );
+}
+
+/// The folder holding the C ABI's library (`libdeltaloop_peer.so`, built with the tests: a
+/// dev-dependency), next to the test binary.
+#[allow(dead_code)]
+pub fn peer_lib_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let dir = exe.parent().unwrap().to_path_buf();
+    assert!(
+        dir.join("libdeltaloop_peer.so").is_file(),
+        "no libdeltaloop_peer.so in {}",
+        dir.display()
+    );
+    dir
 }

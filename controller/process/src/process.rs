@@ -12,6 +12,7 @@
 //! in `deltaloop_transport::exit` (0 done, 2 arguments, 3 set-up, 4 fault, 5 stopped).
 
 use crate::ControllerSide;
+
 use crate::ring::RefRing;
 use anyhow::{Result, bail};
 use clap::Parser;
@@ -47,18 +48,48 @@ struct Args {
 pub fn main() -> ExitCode {
     let args = Args::parse();
     let term = rt::child_signals();
-    exit::exit(NAME, run(&args, &term))
+    let law = args.law;
+    exit::exit(
+        NAME,
+        serve(&args.run, &term, NAME, |cfg| {
+            Ok(crate::ControllerSide::from_config(cfg, law))
+        }),
+    )
+}
+
+/// What answers each state: the built-in law ([`ControllerSide`]), or a peer's own step (the C
+/// ABI). Everything else of the process (handshake, reference ring, waits, stamps, exit) is
+/// [`serve`]'s, the same for both.
+pub trait Step {
+    /// Tick k's reply to `state` with tick k's reference `row`: `tau`, `s`, `n_hat`, `u` (the
+    /// transport sets the tick's stamps), or why the step failed (the run ends with a fault).
+    fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<wire::TorqueMsg, String>;
+}
+
+impl Step for ControllerSide {
+    fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<wire::TorqueMsg, String> {
+        Ok(self.answer(state, &crate::reference(row)))
+    }
 }
 
 /// The controller's iceoryx2 ports.
 type Ports = ipc::ControllerPorts;
 
-fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
-    let cfg = RunConfig::from_file(&args.run.config)?;
-    let Some(layout) = args.run.mode.layout(&cfg) else {
-        bail!("mode {} has no processes", args.run.mode);
+/// The controller process of run `args`: `make` builds what answers the states from the run's
+/// config (before READY), then the handshake and the loop until the run ends; `name` prefixes
+/// its warnings.
+pub fn serve<S: Step>(
+    args: &LoopArgs,
+    term: &AtomicBool,
+    name: &str,
+    make: impl FnOnce(&RunConfig) -> Result<S>,
+) -> Result<ProcessEnd> {
+    let cfg = RunConfig::from_file(&args.config)?;
+    let Some(layout) = args.mode.layout(&cfg) else {
+        bail!("mode {} has no processes", args.mode);
     };
-    let ports = Ports::open(&args.run.run_id, ipc::LOOP_BUFFER)?;
+    let mut side = make(&cfg)?;
+    let ports = Ports::open(&args.run_id, ipc::LOOP_BUFFER)?;
     // Allocated and touched before READY: the loop files rows without allocating or faulting.
     let mut ring = RefRing::new();
     rt::schedule_and_report_ready(
@@ -67,7 +98,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
             priority: layout.controller_priority,
             lock_memory: layout.lock_memory,
         },
-        NAME,
+        name,
         || ports.send_control(ControlKind::Ready),
     )?;
     let Some(start) = handshake(&ports, &mut ring, term)? else {
@@ -77,11 +108,11 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
     let spin_ns = layout.spin_ns();
     let mut lp = Loop {
         cfg: &cfg,
-        law: args.law,
+        name,
         rows: start.ticks + 2,
         spin_ns,
         poll: layout.poll,
-        schedule: match (args.run.mode, layout.controller_lead_ns()) {
+        schedule: match (args.mode, layout.controller_lead_ns()) {
             (LoopMode::Realtime, Some(lead_ns)) => Some(Schedule {
                 t0_ns: start.t0_ns,
                 ts_ns: cfg.ts_ns(),
@@ -92,7 +123,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
             _ => None,
         },
     };
-    let end = answer_states(&ports, &mut lp, &mut ring, term);
+    let end = answer_states(&ports, &mut lp, &mut side, &mut ring, term);
     std::thread::sleep(ipc::LINGER);
     end
 }
@@ -139,7 +170,8 @@ fn handshake(ports: &Ports, ring: &mut RefRing, term: &AtomicBool) -> Result<Opt
 /// What the loop runs with.
 struct Loop<'c> {
     cfg: &'c RunConfig,
-    law: Law,
+    /// The process's name, for its warnings.
+    name: &'c str,
     /// Rows of the reference, N + 2 (ticks 0..=N + 1), from START.
     rows: u64,
     /// Busy-poll time before blocking on the state wake-up, ns (with a schedule: past the
@@ -219,13 +251,13 @@ impl Loop<'_> {
 fn answer_states(
     ports: &Ports,
     lp: &mut Loop,
+    side: &mut impl Step,
     ring: &mut RefRing,
     term: &AtomicBool,
 ) -> Result<ProcessEnd> {
     let cfg = lp.cfg;
     let compute_delay_us = cfg.controller.compute_delay_us;
     let inject = cfg.faults.inject;
-    let mut side = ControllerSide::from_config(cfg, lp.law);
     let silence_ns = u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000;
     let mut wait = lp.wait_for(0, rt::now_ns(), 0);
     // The last tick answered, and the states not newer than it that were ignored.
@@ -276,7 +308,13 @@ fn answer_states(
             Ok(r) => r,
             Err(end) => break end,
         };
-        let mut msg = side.answer(&state, &crate::reference(&r));
+        let mut msg = match side.step(&state, &r) {
+            Ok(m) => m,
+            Err(why) => {
+                break ProcessEnd::Fault(format!("the step failed at tick {}: {why}", state.tick));
+            }
+        };
+        msg.tick = state.tick;
         if matches!(inject, FaultInjection::NanTorque(k) if state.tick == k) {
             msg.tau = [f64::NAN; 3];
         }
@@ -305,7 +343,8 @@ fn answer_states(
     };
     if stale > 0 {
         eprintln!(
-            "{NAME}: warning: ignored {stale} state(s) whose tick was not newer than the last one answered{}",
+            "{}: warning: ignored {stale} state(s) whose tick was not newer than the last one answered{}",
+            lp.name,
             answered.map_or(String::new(), |a| format!(" (tick {a})"))
         );
     }
@@ -486,7 +525,7 @@ mod tests {
     fn realtime_loop(cfg: &RunConfig) -> Loop<'_> {
         Loop {
             cfg,
-            law: Law::TdcIsSta,
+            name: NAME,
             rows: 100,
             spin_ns: 150 * US,
             poll: Poll::Spin,

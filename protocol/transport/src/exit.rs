@@ -47,15 +47,20 @@ impl ProcessEnd {
 
 /// Prints the one-line reason for `name`'s end on stderr and returns its exit code.
 pub fn exit<E: Display>(name: &str, end: Result<ProcessEnd, E>) -> ExitCode {
+    ExitCode::from(code(name, end))
+}
+
+/// [`exit`]'s code as a number (for a process whose `main` is not Rust's: the C ABI).
+pub fn code<E: Display>(name: &str, end: Result<ProcessEnd, E>) -> u8 {
     match &end {
-        Ok(ProcessEnd::Completed) => ExitCode::SUCCESS,
+        Ok(ProcessEnd::Completed) => 0,
         Ok(e @ (ProcessEnd::Stopped(why) | ProcessEnd::Fault(why))) => {
             eprintln!("{name}: {why}");
-            ExitCode::from(e.code())
+            e.code()
         }
         Err(e) => {
             eprintln!("{name}: {e:#}");
-            ExitCode::from(EXIT_SETUP)
+            EXIT_SETUP
         }
     }
 }
