@@ -621,6 +621,17 @@ fn a_python_controller_joins_from_the_other_host() {
     assert_lockstep_identical(&h, &[], &["--controller-cmd", &cmd]);
 }
 
+/// The C `tdc` controller (the C ABI, examples/c-controller) joins from the other host: lockstep
+/// across the link is byte-identical to inproc.
+#[test]
+fn a_c_controller_joins_from_the_other_host() {
+    let Some((h, _one)) = Hosts::new("a_c_controller_joins_from_the_other_host") else {
+        return;
+    };
+    let Some(exe) = common::c_tdc() else { return };
+    assert_lockstep_identical(&h, &[], &["--controller-cmd", exe.to_str().unwrap()]);
+}
+
 #[test]
 fn ctrl_c_on_the_plants_host_stops_both_sides_cleanly() {
     ctrl_c_stops_both_sides(

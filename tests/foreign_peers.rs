@@ -436,46 +436,7 @@ fn regression_the_controller_exits_5_on_stop() {
     assert!(s["laws"]["tdc"]["interrupted_at_tick"].as_u64().is_some());
 }
 
-/// `examples/<example>`'s program `exe`, built once with its `make` against this build's library
-/// (into the target folder); None (and one line saying what is missing) without the compiler
-/// (`cc` or `c++`) or make.
-fn built(example: &'static str, exe: &str, compiler: &str) -> Option<PathBuf> {
-    static BUILT: std::sync::Mutex<std::collections::BTreeMap<&'static str, Option<PathBuf>>> =
-        std::sync::Mutex::new(std::collections::BTreeMap::new());
-    let mut built = BUILT.lock().unwrap_or_else(|e| e.into_inner());
-    built
-        .entry(example)
-        .or_insert_with(|| {
-            for tool in [compiler, "make"] {
-                if Command::new(tool).arg("--version").output().is_err() {
-                    eprintln!(
-                        "SKIPPED: no `{tool}` on this machine (apt-get install build-essential)"
-                    );
-                    return None;
-                }
-            }
-            let lib = common::peer_lib_dir();
-            let path = lib.join(exe);
-            let o = Command::new("make")
-                .arg("-C")
-                .arg(root().join("examples").join(example))
-                .arg(format!("LIB={}", lib.display()))
-                .arg(format!("OUT={}", path.display()))
-                .arg("--always-make")
-                .output()
-                .unwrap();
-            assert!(o.status.success(), "make {example}: {}", text(&o.stderr));
-            Some(path)
-        })
-        .clone()
-}
-
-/// The C `tdc` controller (examples/c-controller).
-fn c_tdc() -> Option<PathBuf> {
-    built("c-controller", "c-tdc", "cc")
-}
-
-use std::process::Command;
+use common::{built, c_tdc};
 
 /// The C `tdc` controller (examples/c-controller, on the C ABI) and the C++ one
 /// (examples/cpp-controller, on its RAII wrapper) each write the built-in `tdc`'s trace byte for

@@ -450,3 +450,52 @@ pub fn peer_lib_dir() -> PathBuf {
     );
     dir
 }
+
+/// `examples/<example>`'s program `exe`, built once with its `make` against this build's library
+/// (into the target folder); None (and one line saying what is missing) without the compiler
+/// (`cc` or `c++`) or make.
+#[allow(dead_code)]
+pub fn built(example: &'static str, exe: &str, compiler: &str) -> Option<PathBuf> {
+    static BUILT: std::sync::Mutex<std::collections::BTreeMap<&'static str, Option<PathBuf>>> =
+        std::sync::Mutex::new(std::collections::BTreeMap::new());
+    let mut built = BUILT.lock().unwrap_or_else(|e| e.into_inner());
+    built
+        .entry(example)
+        .or_insert_with(|| {
+            for tool in [compiler, "make"] {
+                if std::process::Command::new(tool)
+                    .arg("--version")
+                    .output()
+                    .is_err()
+                {
+                    eprintln!(
+                        "SKIPPED: no `{tool}` on this machine (apt-get install build-essential)"
+                    );
+                    return None;
+                }
+            }
+            let lib = peer_lib_dir();
+            let path = lib.join(exe);
+            let o = std::process::Command::new("make")
+                .arg("-C")
+                .arg(python::root().join("examples").join(example))
+                .arg(format!("LIB={}", lib.display()))
+                .arg(format!("OUT={}", path.display()))
+                .arg("--always-make")
+                .output()
+                .unwrap();
+            assert!(
+                o.status.success(),
+                "make {example}: {}",
+                python::text(&o.stderr)
+            );
+            Some(path)
+        })
+        .clone()
+}
+
+/// The C `tdc` controller (examples/c-controller).
+#[allow(dead_code)]
+pub fn c_tdc() -> Option<PathBuf> {
+    built("c-controller", "c-tdc", "cc")
+}
