@@ -336,14 +336,18 @@ pub fn on_a_noisy_host<T>(
 ) -> Option<T> {
     for n in 1..=ATTEMPTS {
         // One line each, whatever the reason quotes (a run's stderr).
+        // Straight to stderr, past the test harness's capture: a retry and an inconclusive
+        // test show in the log of a passing run too (and can be counted).
+        let say = |line: String| {
+            use std::io::Write as _;
+            let _ = writeln!(std::io::stderr(), "{line}");
+        };
         match attempt(n).map_err(|why| why.lines().collect::<Vec<_>>().join(" ⏎ ")) {
             Ok(v) => return Some(v),
-            Err(why) if n < ATTEMPTS => {
-                eprintln!(
-                    "{test}: attempt {n} of {ATTEMPTS} disturbed by the machine, run again: {why}"
-                );
-            }
-            Err(why) => eprintln!("INCONCLUSIVE on this host: {test}: {why}"),
+            Err(why) if n < ATTEMPTS => say(format!(
+                "{test}: attempt {n} of {ATTEMPTS} disturbed by the machine, run again: {why}"
+            )),
+            Err(why) => say(format!("INCONCLUSIVE on this host: {test}: {why}")),
         }
     }
     None

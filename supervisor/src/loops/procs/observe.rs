@@ -314,6 +314,19 @@ impl<'a> Observation<'a> {
             }
             self.finish_tick(t)?;
         }
+        // The plant said it ran to a tick past the last one the supervisor saw (its FAULT,
+        // OVERRUN or DIVERGED names it): the ticks between ran and were lost on the way (the
+        // supervisor had not taken them when the plant's samples went with the plant), and the
+        // record says so instead of ending where its observation did (regression: a starved
+        // supervisor recorded ticks 0..465 of a run the plant faulted at 5968, lost_ticks 0).
+        let said = [&self.plant_fault, &self.diverged]
+            .into_iter()
+            .flatten()
+            .map(|p| p.tick)
+            .max();
+        if let Some(t) = said.filter(|&t| t > stop && !self.stopped) {
+            (stop..t.min(self.window.last)).for_each(|j| self.rec.lost(j));
+        }
         if let Some(csv) = self.csv {
             csv.finish()?;
         }
@@ -438,4 +451,60 @@ pub(super) fn observe(
         interrupted: stop_sent.is_some() && !diverged_stop,
         diverged_stop,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::record::FaultKind;
+    use deltaloop_config::{Law, RunConfig};
+
+    /// Regression: a supervisor starved of the CPU saw the loop up to tick 465, the plant's
+    /// samples after it went with the plant, and the plant's FAULT said tick 5968; the record
+    /// ended at 465 with `lost_ticks` 0, as if the loop had stopped there. The ticks the plant
+    /// said it ran are lost, and counted.
+    #[test]
+    fn regression_ticks_the_plant_ran_past_what_the_supervisor_saw_are_counted_lost() {
+        let cfg =
+            RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s2\"\n", None).unwrap();
+        let study = Study::new(cfg).unwrap();
+        let n = study.reference.n as u64;
+        let rec = lawrun::recorder(&study, Law::Tdc, &lawrun::Keep::default()).unwrap();
+        let mut obs = Observation::new(rec, TimingAcc::new(n, 300_000, false, None), None, None);
+        for k in 0..10u64 {
+            let row = study.reference.row(k as usize).joint;
+            let state = StateMsg {
+                tick: k,
+                q: row.q.into(),
+                qd: row.qd.into(),
+                q_true: row.q.into(),
+                qd_true: row.qd.into(),
+                ..StateMsg::default()
+            };
+            let slot = obs.window.slot(k);
+            slot.state = Some(state);
+            slot.torque = Some(TorqueMsg {
+                tick: k,
+                ..TorqueMsg::default()
+            });
+            slot.tel = Some(TelemetryMsg {
+                tick: k,
+                ..TelemetryMsg::default()
+            });
+            obs.last_seen = Some(k);
+        }
+        obs.plant_fault = Some(PlantSaid {
+            tick: 100,
+            cause: "no torque within the budget".into(),
+            overrun: false,
+        });
+        let fault = Fault {
+            tick: 100,
+            kind: FaultKind::ControllerSilent,
+            cause: "no torque within the budget".into(),
+        };
+        let (run, _) = obs.finish(false, Some(&fault)).unwrap();
+        assert_eq!(run.end.lost_ticks, 90, "ticks 10..100");
+        assert_eq!(run.end.first_lost, Some(10));
+    }
 }
