@@ -134,6 +134,16 @@ fn verdict(r: &std::collections::HashMap<String, String>) -> Result<f64, String>
     if !disturbed.is_empty() {
         return Err(format!("link {d} µs: disturbed: {disturbed}"));
     }
+    // A few scattered misses leave the run a fair twin for the sweep's verdict, but a constant
+    // delay does not model them: at a sensitive moment of the motion they move the RMS by more
+    // than the tolerance (seen: 11 % in a clean clone's CI). Only a run without a miss must match.
+    let misses = f("deadline_misses").unwrap_or(0.0);
+    if misses > 0.0 && diff.abs() > TOLERANCE {
+        return Err(format!(
+            "link {d} µs: {misses} miss(es), {:+.2} %: not matched, not conclusive",
+            diff * 100.0
+        ));
+    }
     Ok(diff)
 }
 
