@@ -262,8 +262,14 @@ impl DlRun {
     }
 }
 
-/// The run behind `run` and the key `key`, or the error code.
-unsafe fn lookup<'a>(run: *const DlRun, key: *const c_char) -> Result<&'a toml::Value, c_int> {
+/// The value at `key` of the run, as `pick` reads it (`what` names the type for the error), or
+/// the error code (with its message in [`dl_last_error`]).
+unsafe fn lookup<'a, T>(
+    run: *const DlRun,
+    key: *const c_char,
+    what: &str,
+    pick: impl FnOnce(&'a toml::Value) -> Option<T>,
+) -> Result<T, c_int> {
     if run.is_null() || key.is_null() {
         set_error("a null run or key");
         return Err(DL_BAD_ARGUMENT);
@@ -274,10 +280,27 @@ unsafe fn lookup<'a>(run: *const DlRun, key: *const c_char) -> Result<&'a toml::
         set_error("the key is not UTF-8");
         return Err(DL_BAD_ARGUMENT);
     };
-    run.value(key).ok_or_else(|| {
+    let Some(v) = run.value(key) else {
         set_error(&format!("the run's config has no key {key}"));
-        DL_NOT_FOUND
+        return Err(DL_NOT_FOUND);
+    };
+    pick(v).ok_or_else(|| {
+        set_error(&format!("{key} is not {what}"));
+        DL_WRONG_TYPE
     })
+}
+
+/// Writes `v` to `out` (DL_OK), or DL_BAD_ARGUMENT if `out` is null.
+unsafe fn put<T>(out: *mut T, v: Result<T, c_int>) -> c_int {
+    match v {
+        Err(code) => code,
+        Ok(_) if out.is_null() => DL_BAD_ARGUMENT,
+        Ok(x) => {
+            // SAFETY: non-null and writable (the caller's promise).
+            unsafe { *out = x };
+            DL_OK
+        }
+    }
 }
 
 /// The number at dotted `key` of the run's resolved config (`"controller.m_bar"`,
@@ -289,24 +312,14 @@ unsafe fn lookup<'a>(run: *const DlRun, key: *const c_char) -> Result<&'a toml::
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn dl_run_f64(run: *const DlRun, key: *const c_char, out: *mut f64) -> c_int {
     // SAFETY: forwarded promises.
-    let v = match unsafe { lookup(run, key) } {
-        Ok(v) => v,
-        Err(code) => return code,
-    };
-    let x = match v {
-        toml::Value::Float(x) => *x,
-        toml::Value::Integer(i) => *i as f64,
-        _ => {
-            set_error("not a number");
-            return DL_WRONG_TYPE;
-        }
-    };
-    if out.is_null() {
-        return DL_BAD_ARGUMENT;
+    unsafe {
+        let v = lookup(run, key, "a number", |v| match v {
+            toml::Value::Float(x) => Some(*x),
+            toml::Value::Integer(i) => Some(*i as f64),
+            _ => None,
+        });
+        put(out, v)
     }
-    // SAFETY: writable (the caller's promise).
-    unsafe { *out = x };
-    DL_OK
 }
 
 /// The integer at dotted `key` (`"controller.tde_delay_samples"`) into `*out`; as
@@ -317,20 +330,7 @@ pub unsafe extern "C" fn dl_run_f64(run: *const DlRun, key: *const c_char, out: 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn dl_run_i64(run: *const DlRun, key: *const c_char, out: *mut i64) -> c_int {
     // SAFETY: forwarded promises.
-    let v = match unsafe { lookup(run, key) } {
-        Ok(v) => v,
-        Err(code) => return code,
-    };
-    let Some(i) = v.as_integer() else {
-        set_error("not an integer");
-        return DL_WRONG_TYPE;
-    };
-    if out.is_null() {
-        return DL_BAD_ARGUMENT;
-    }
-    // SAFETY: writable (the caller's promise).
-    unsafe { *out = i };
-    DL_OK
+    unsafe { put(out, lookup(run, key, "an integer", toml::Value::as_integer)) }
 }
 
 /// The text at dotted `key` (`"sensor.velocity"`), NUL-terminated, into `buf` of `len` bytes.
@@ -347,13 +347,9 @@ pub unsafe extern "C" fn dl_run_str(
     len: usize,
 ) -> c_int {
     // SAFETY: forwarded promises.
-    let v = match unsafe { lookup(run, key) } {
-        Ok(v) => v,
+    let s = match unsafe { lookup(run, key, "text", toml::Value::as_str) } {
+        Ok(s) => s,
         Err(code) => return code,
-    };
-    let Some(s) = v.as_str() else {
-        set_error("not text");
-        return DL_WRONG_TYPE;
     };
     if buf.is_null() || s.len() >= len {
         set_error("the buffer is too small");
