@@ -416,12 +416,22 @@ fn regression_the_controller_exits_5_on_stop() {
         "name = \"stop\"\n[scenario]\npath = \"s1\"\nhold_s = 30.0\n[controller]\nlaws = [\"tdc\"]\n",
     );
     child(&out, "deltaloop-controller");
-    std::thread::sleep(Duration::from_millis(300));
+    // Running, not only spawned (a loaded host may take longer than any fixed wait to START).
+    let t0 = Instant::now();
+    let part = out.join("trace.tdc.part");
+    while std::fs::read_to_string(&part).map_or(0, |t| t.lines().count()) < 2 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the run did not start"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
     signal(sup.id(), libc::SIGTERM);
     let o = sup.wait_with_output().unwrap();
     assert!(
         text(&o.stderr).contains("interrupted"),
-        "{}",
+        "{:?} {}",
+        o.status,
         text(&o.stderr)
     );
     let log = read(&out.join("tdc.controller.log"));
@@ -483,6 +493,72 @@ fn c_and_cpp_controllers_in_lockstep_write_the_builtin_trace_byte_for_byte() {
             "{}",
             text(&o.stderr)
         );
+    }
+}
+
+/// The C plant (examples/c-plant: the library's plant loop around the project's own model) with
+/// the built-in controller writes the built-in plant's trace byte for byte in lockstep, with
+/// sensor noise (measure is not truth), friction and a payload step; and when the controller
+/// falls silent it stops and brakes as the built-in does (same trace, same fault, same speed
+/// after the brake).
+#[test]
+fn a_c_plant_writes_the_builtin_plants_trace_byte_for_byte() {
+    let Some(exe) = built("c-plant", "c-plant", "cc") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let noisy = "name = \"c-plant\"\n[scenario]\npath = \"s1\"\n[plant]\nfriction = true\npayload_step_kg = 0.5\n[sensor]\nencoder_counts_per_rev = 65536\nq_noise_std_rad = 1e-5\nqd_noise_std_rad_s = 1e-3\nseed = 7\n";
+    let silent = format!("{noisy}[faults]\ninject = \"stall@1500\"\n");
+    for (case, toml, law) in [
+        ("noisy", noisy.to_string(), "tdc-is-sta"),
+        ("silent", silent, "tdc"),
+    ] {
+        let dir = tmp.path().join(case);
+        std::fs::create_dir_all(&dir).unwrap();
+        let cfg = config(&dir, &toml);
+        let cfg = cfg.to_str().unwrap();
+        let go = |name: &str, extra: &[&str]| {
+            let out = dir.join(name);
+            let mut args = vec!["run", cfg, "--mode", "lockstep", "--law", law, "--out"];
+            args.push(out.to_str().unwrap());
+            args.extend_from_slice(extra);
+            let o = deltaloop(&args);
+            (o, out)
+        };
+        let (want_o, want) = go("builtin", &[]);
+        let (o, out) = go("c", &["--plant-cmd", exe.to_str().unwrap()]);
+        assert_eq!(
+            o.status.success(),
+            want_o.status.success(),
+            "{case}: {}",
+            text(&o.stderr)
+        );
+        let trace = |d: &Path| std::fs::read(d.join("trace.csv")).unwrap();
+        assert!(
+            trace(&out) == trace(&want),
+            "{case}: the C plant's trace.csv differs from the built-in plant's"
+        );
+        let (s, w) = (summary(&out), summary(&want));
+        assert_eq!(outcome(&s, law), outcome(&w, law), "{case}");
+        if case == "silent" {
+            assert_eq!(
+                outcome(&s, law).1,
+                Some(FaultKind::ControllerSilent),
+                "{case}: {s}"
+            );
+            // The brake ran in the C plant too: the same speed after it, in the same words.
+            let braked = |e: &Output| {
+                let t = text(&e.stderr);
+                t.split("safe stop, max |q̇| = ")
+                    .nth(1)
+                    .map(|r| r.split(' ').next().unwrap_or("").to_string())
+            };
+            assert!(braked(&o).is_some(), "{}", text(&o.stderr));
+            assert_eq!(braked(&o), braked(&want_o));
+        } else {
+            assert!(o.status.success(), "{}", text(&o.stderr));
+            common::assert_clean(&out, &s);
+        }
     }
 }
 

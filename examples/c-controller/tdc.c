@@ -5,7 +5,7 @@
  * with the constants of the run's resolved config. The library (peer/include/deltaloop.h) does
  * the process: arguments, ports, handshake, waits, stamps, STOP/SIGTERM, exit code. The
  * arithmetic follows law.rs operation by operation, so a lockstep run gives the built-in
- * controller's trace bit for bit. Build: `make` (README.md here), then
+ * controller's trace bit for bit. Build: `make` (docs/guide/own-process.md), then
  *
  *   deltaloop run configs/s1-nominal.toml --mode lockstep --law tdc \
  *       --controller-cmd examples/c-controller/c-tdc

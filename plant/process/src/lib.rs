@@ -5,4 +5,4 @@
 pub mod process;
 pub mod tick;
 
-pub use tick::{Arrival, PlantSide, PlantStop, plant_from_config, sim_config};
+pub use tick::{Arrival, Physics, PlantSide, PlantStop, plant_from_config, sim_config};

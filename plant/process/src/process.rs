@@ -13,7 +13,7 @@
 //! codes: the table in `deltaloop_transport::exit` (0 done, 2 arguments, 3 set-up, 4 fault,
 //! 5 stopped).
 
-use crate::{Arrival, PlantSide, PlantStop};
+use crate::{Arrival, Physics, PlantSide, PlantStop, plant_from_config};
 use anyhow::{Context, Result, bail};
 use clap::Parser;
 use deltaloop_config::config::{ApplyTorque, Overrun, Poll};
@@ -50,7 +50,11 @@ struct Args {
 pub fn main() -> ExitCode {
     let args = Args::parse();
     let term = rt::child_signals();
-    exit::exit(NAME, run(&args, &term))
+    let end = serve(&args.run, &term, NAME, |cfg| {
+        let cfg = cfg.clone();
+        Ok(move |q0| Ok(plant_from_config(&cfg, q0)?))
+    });
+    exit::exit(NAME, end)
 }
 
 /// The plant's iceoryx2 ports.
@@ -179,19 +183,32 @@ struct LoopStop {
     last_deadline_ns: u64,
 }
 
-fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
-    let cfg = RunConfig::from_file(&args.run.config)?;
-    let Some(layout) = args.run.mode.layout(&cfg) else {
-        bail!("mode {} has no processes", args.run.mode);
+/// The plant process of run `args`: `open` prepares the plant from the run's config (before
+/// READY: a rig opens its drives here) and returns how to start it at rest at q0 (rad, after
+/// START); then the loop until the run ends, and the safe stop. `name` prefixes its messages.
+pub fn serve<P, S>(
+    args: &LoopArgs,
+    term: &AtomicBool,
+    name: &str,
+    open: impl FnOnce(&RunConfig) -> Result<S>,
+) -> Result<ProcessEnd>
+where
+    P: Physics,
+    S: FnOnce(Vec3) -> Result<P>,
+{
+    let cfg = RunConfig::from_file(&args.config)?;
+    let Some(layout) = args.mode.layout(&cfg) else {
+        bail!("mode {} has no processes", args.mode);
     };
-    let ports = Ports::open(&args.run.run_id)?;
+    let start_at = open(&cfg)?;
+    let ports = Ports::open(&args.run_id)?;
     rt::schedule_and_report_ready(
         &rt::Sched {
             core: layout.plant_cpu,
             priority: layout.plant_priority,
             lock_memory: layout.lock_memory,
         },
-        NAME,
+        name,
         || -> Result<()> {
             ports
                 .control
@@ -216,10 +233,10 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         &ports.torque,
         &ports.state_ready,
     ])?;
-    let mut side = PlantSide::from_config(&cfg, Vec3::from(start.q0), start.ticks)
-        .context("initial configuration")?;
+    let physics = start_at(Vec3::from(start.q0)).context("initial configuration")?;
+    let mut side = PlantSide::new(physics, &cfg, start.ticks);
     let mut clock = Clock {
-        mode: args.run.mode,
+        mode: args.mode,
         t0_ns: start.t0_ns,
         ts_ns: (cfg.loop_.ts_s * 1e9).round() as u64,
         budget_ns: u64::from(cfg.loop_.torque_budget_us) * 1000,
@@ -227,7 +244,7 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
         spin_ns: layout.spin_ns(),
         early_ns: layout.wake_early_ns(),
         poll: layout.poll,
-        at_arrival: args.run.mode == LoopMode::Realtime
+        at_arrival: args.mode == LoopMode::Realtime
             && cfg.plant.apply_torque == ApplyTorque::Arrival,
         overrun: cfg.loop_.overrun,
         overrun_after_ns: cfg.overrun_after_ns(),
@@ -244,9 +261,9 @@ fn run(args: &Args, term: &AtomicBool) -> Result<ProcessEnd> {
 }
 
 /// Ticks 0..=N, then the final state N + 1. Some(stop) if the loop ended early.
-fn run_loop(
+fn run_loop<P: Physics>(
     ports: &Ports,
-    side: &mut PlantSide,
+    side: &mut PlantSide<P>,
     clock: &mut Clock,
     cfg: &RunConfig,
     term: &AtomicBool,
@@ -365,9 +382,9 @@ fn run_loop(
 
 /// After an early stop: tell the supervisor, release the controller, and brake if the model
 /// still works (keeping the clock in realtime).
-fn end_run(
+fn end_run<P: Physics>(
     ports: &Ports,
-    side: &mut PlantSide,
+    side: &mut PlantSide<P>,
     clock: &Clock,
     cfg: &RunConfig,
     stop: LoopStop,
@@ -410,14 +427,14 @@ fn end_run(
 }
 
 /// The drives brake (τ = G(q) − D q̇) for `safe_stop_ms`; returns the final max |q̇|, rad/s.
-fn safe_stop(
+fn safe_stop<P: Physics>(
     ports: &Ports,
-    side: &mut PlantSide,
+    side: &mut PlantSide<P>,
     clock: &Clock,
     cfg: &RunConfig,
     tick: u64,
     last_deadline_ns: u64,
-) -> Result<f64, deltaloop_model::KinematicsError> {
+) -> Result<f64, String> {
     let stop_ticks = (f64::from(cfg.faults.safe_stop_ms) * 1e-3 / cfg.loop_.ts_s).round() as u64;
     for i in 1..=stop_ticks {
         if clock.mode == LoopMode::Realtime {
@@ -485,13 +502,13 @@ struct Received {
 /// (docs/protocol.md §6.1). Replies judged late are
 /// dropped and counted on `side`; replies for later ticks are ignored. `state_pub_ns` is when
 /// state `tick` was published.
-fn wait_torque(
+fn wait_torque<P: Physics>(
     sub: &Subscriber<Svc, TorqueMsg, ()>,
     listener: &Listener<Svc>,
     tick: u64,
     (state_pub_ns, poll_until_ns, until_ns): (u64, u64, u64),
     poll: Poll,
-    side: &mut PlantSide,
+    side: &mut PlantSide<P>,
 ) -> Result<Option<Received>> {
     loop {
         let now = rt::now_ns();

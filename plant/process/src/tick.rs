@@ -6,7 +6,9 @@
 use deltaloop_config::RunConfig;
 use deltaloop_config::config::TorqueLimit;
 use deltaloop_model::sensor::{Sensor, SensorConfig};
-use deltaloop_model::{DeltaRobot, KinematicsError, PayloadStep, Plant, SimConfig, Vec3};
+use deltaloop_model::{
+    DeltaRobot, KinematicsError, PayloadStep, Plant, PlantSample, SimConfig, Vec3,
+};
 use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
 
 /// The plant's simulation settings for a config (one mapping for every mode).
@@ -45,6 +47,60 @@ pub fn plant_from_config(cfg: &RunConfig, q0: Vec3) -> Result<Plant, KinematicsE
             seed: se.seed,
         }))
     })
+}
+
+/// What the drives did in one interval (the tick's telemetry flags).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Drives {
+    /// A command was clamped to ±τ_max.
+    pub clamped: bool,
+    /// No command took effect: the drives held the last torque.
+    pub held: bool,
+    /// A command beyond ±τ_max was rejected.
+    pub rejected: bool,
+}
+
+/// The physical plant under a [`PlantSide`]: the project's model ([`Plant`]), or another one
+/// that answers the same questions (a model or a rig's drives in C, through the C ABI). Errors
+/// are one line saying why the plant cannot go on.
+pub trait Physics {
+    /// The current tick k (the state is at t_k = k·Ts).
+    fn tick(&self) -> u64;
+    /// The true state at tick k: q (rad), q̇ (rad/s), τᵃ_k (N m), joint space.
+    fn sample(&self) -> PlantSample;
+    /// What the encoders report at tick k ([`Physics::sample`] through the sensors). Called once
+    /// per published state: it may advance a noise stream.
+    fn measure(&mut self) -> PlantSample;
+    /// Takes tick k's command (None: none arrived) reaching the drives `latency_ns` after t_k
+    /// (plus the configured transport delay), and runs [t_k, t_{k+1}).
+    fn advance_after(&mut self, cmd: Option<Vec3>, latency_ns: u64) -> Result<Drives, String>;
+    /// One tick of safe stop: the drives brake with τ = G(q) − D q̇ (D = `damping`, N m s/rad).
+    fn brake_tick(&mut self, damping: f64) -> Result<(), String>;
+}
+
+impl Physics for Plant {
+    fn tick(&self) -> u64 {
+        self.sim().tick()
+    }
+    fn sample(&self) -> PlantSample {
+        Plant::sample(self)
+    }
+    fn measure(&mut self) -> PlantSample {
+        Plant::measure(self)
+    }
+    fn advance_after(&mut self, cmd: Option<Vec3>, latency_ns: u64) -> Result<Drives, String> {
+        let a = Plant::advance_after(self, cmd, latency_ns).map_err(|e| e.to_string())?;
+        Ok(Drives {
+            clamped: a.clamped,
+            held: a.held,
+            rejected: a.rejected,
+        })
+    }
+    fn brake_tick(&mut self, damping: f64) -> Result<(), String> {
+        Plant::brake_tick(self, damping)
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    }
 }
 
 /// What reached the plant for the current tick.
@@ -99,10 +155,11 @@ impl PlantStop {
     }
 }
 
-/// The plant side of the loop: the plant, its counters, and the run's last tick N.
+/// The plant side of the loop: the plant (the project's model unless another [`Physics`] is
+/// given), its counters, and the run's last tick N.
 #[derive(Clone, Debug)]
-pub struct PlantSide {
-    plant: Plant,
+pub struct PlantSide<P = Plant> {
+    plant: P,
     /// N: the last tick that gets a command; the plant then publishes tick N + 1 as final.
     last_tick: u64,
     ts_s: f64,
@@ -117,8 +174,15 @@ pub struct PlantSide {
 impl PlantSide {
     /// The plant of `cfg` at rest at `q0` (rad), for a run of ticks 0..=`last_tick`.
     pub fn from_config(cfg: &RunConfig, q0: Vec3, last_tick: u64) -> Result<Self, KinematicsError> {
-        Ok(Self {
-            plant: plant_from_config(cfg, q0)?,
+        Ok(PlantSide::new(plant_from_config(cfg, q0)?, cfg, last_tick))
+    }
+}
+
+impl<P: Physics> PlantSide<P> {
+    /// `plant` run by the loop settings of `cfg`, for ticks 0..=`last_tick`.
+    pub fn new(plant: P, cfg: &RunConfig, last_tick: u64) -> Self {
+        Self {
+            plant,
             last_tick,
             ts_s: cfg.loop_.ts_s,
             delay_ns: cfg.transport_delay_ns(),
@@ -126,16 +190,16 @@ impl PlantSide {
             misses: 0,
             late: 0,
             consecutive: 0,
-        })
+        }
     }
 
     /// The current tick k (the plant's state is at t_k = k·Ts).
     pub fn tick(&self) -> u64 {
-        self.plant.sim().tick()
+        self.plant.tick()
     }
 
     /// The plant itself (model, drives, sensors).
-    pub fn plant(&self) -> &Plant {
+    pub fn plant(&self) -> &P {
         &self.plant
     }
 
@@ -225,9 +289,9 @@ impl PlantSide {
         let a = self
             .plant
             .advance_after(cmd, latency_ns)
-            .map_err(|e| PlantStop::Diverged {
+            .map_err(|cause| PlantStop::Diverged {
                 tick: k + 1,
-                cause: e.to_string(),
+                cause,
                 tel: Box::new(tel),
             })?;
         tel.flags |= if a.clamped { wire::TEL_CLAMPED } else { 0 }
@@ -238,7 +302,7 @@ impl PlantSide {
 
     /// One tick of safe stop: the drives brake with τ = G(q) − D q̇ (D = `damping`, N m s/rad),
     /// no controller. Returns the telemetry of the braked interval, numbered `tick`.
-    pub fn brake(&mut self, tick: u64, damping: f64) -> Result<TelemetryMsg, KinematicsError> {
+    pub fn brake(&mut self, tick: u64, damping: f64) -> Result<TelemetryMsg, String> {
         self.plant.brake_tick(damping)?;
         Ok(TelemetryMsg {
             tick,

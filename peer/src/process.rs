@@ -1,0 +1,55 @@
+//! What both `*_main` entry points share: the C arguments, the process's name, and no panic
+//! across the boundary.
+
+use std::ffi::{CStr, c_char, c_int};
+use std::panic::{AssertUnwindSafe, catch_unwind};
+
+use deltaloop_transport::exit::{EXIT_FAULT, EXIT_USAGE};
+
+/// Runs `body` with the arguments as strings and the process's name (argv[0]'s file name), and
+/// returns its exit code; a panic is caught and reported as a fault.
+///
+/// # Safety
+/// `argv` holds `argc` valid C strings (or is null).
+pub(crate) unsafe fn main_of(
+    argc: c_int,
+    argv: *const *const c_char,
+    body: impl FnOnce(&[String], &str) -> u8,
+) -> c_int {
+    let r = catch_unwind(AssertUnwindSafe(|| {
+        // SAFETY: as the caller promised.
+        let words = unsafe { args_of(argc, argv) };
+        let name = words
+            .first()
+            .map(|w| w.rsplit('/').next().unwrap_or(w).to_string())
+            .unwrap_or_else(|| "deltaloop-peer".into());
+        body(&words, &name)
+    }));
+    c_int::from(r.unwrap_or_else(|_| {
+        eprintln!("deltaloop-peer: the library panicked (a bug: please report it)");
+        EXIT_FAULT
+    }))
+}
+
+/// The parsed arguments, or the exit code after clap printed why not (0 for `--help`).
+pub(crate) fn parse<A: clap::Parser>(words: &[String]) -> Result<A, u8> {
+    A::try_parse_from(words).map_err(|e| {
+        let _ = e.print();
+        if e.use_stderr() { EXIT_USAGE } else { 0 }
+    })
+}
+
+/// The C arguments as strings (lossy UTF-8).
+unsafe fn args_of(argc: c_int, argv: *const *const c_char) -> Vec<String> {
+    if argv.is_null() {
+        return Vec::new();
+    }
+    (0..usize::try_from(argc).unwrap_or(0))
+        .filter_map(|i| {
+            // SAFETY: argv holds argc pointers (the caller's promise).
+            let p = unsafe { *argv.add(i) };
+            // SAFETY: each non-null one is a C string.
+            (!p.is_null()).then(|| unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned())
+        })
+        .collect()
+}
