@@ -1,7 +1,6 @@
 //! `deltaloop bench loop | plant | net`: the transport's cost, the plant's speed and the link's.
 
 use super::Context;
-use crate::ops::bench::parse_positive_seconds;
 use anyhow::Result;
 use clap::Subcommand;
 use std::path::PathBuf;
@@ -90,5 +89,15 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
             }
             crate::ops::bench_net::run(hold_s, out.as_deref(), zenoh_bridge.as_deref(), polling)
         }
+    }
+}
+
+/// A positive duration in seconds, at most an hour (`--seconds` and the like).
+fn parse_positive_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= 3600.0 => Ok(v),
+        _ => Err(format!(
+            "`{s}` is not a duration: expected seconds, 0 < s <= 3600"
+        )),
     }
 }

@@ -6,6 +6,7 @@ mod bench;
 mod helpers;
 mod join;
 mod link_key;
+mod overrides;
 mod paper;
 mod replay;
 mod run;

@@ -1,5 +1,6 @@
 //! `deltaloop run CONFIG`: one scenario, its laws, one run folder.
 
+use super::overrides::OverrideArgs;
 use super::{Context, OutArgs};
 use crate::ops::run::{self, Overrides, RunRequest};
 use anyhow::Result;
@@ -18,15 +19,16 @@ pub struct Args {
     #[arg(long)]
     sensitivity: bool,
     #[command(flatten)]
-    overrides: Overrides,
+    overrides: OverrideArgs,
     #[command(flatten)]
     out: OutArgs,
 }
 
 pub fn exec(a: Args, cx: &Context) -> Result<()> {
-    a.overrides.remote.check_mode(a.mode)?;
-    let cfg = run::load_config(&a.config, &a.overrides)?;
-    a.overrides.remote.check_run(a.mode, &cfg, a.sensitivity)?;
+    let overrides = Overrides::from(a.overrides);
+    overrides.remote.check_mode(a.mode)?;
+    let cfg = run::load_config(&a.config, &overrides)?;
+    overrides.remote.check_run(a.mode, &cfg, a.sensitivity)?;
     let o = run::run(RunRequest {
         out: a.out.out,
         force: a.out.force,

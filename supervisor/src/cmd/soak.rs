@@ -1,5 +1,6 @@
 //! `deltaloop soak CONFIG --duration 2h`: the loop for a long time, a summary per minute.
 
+use super::overrides::OverrideArgs;
 use super::{Context, OutArgs};
 use crate::ops::run::Overrides;
 use crate::ops::soak;
@@ -18,7 +19,7 @@ pub struct Args {
     #[arg(long, value_parser = LoopMode::parse_process, default_value = "realtime")]
     mode: LoopMode,
     #[command(flatten)]
-    overrides: Overrides,
+    overrides: OverrideArgs,
     #[command(flatten)]
     out: OutArgs,
 }
@@ -28,7 +29,7 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
         config: &a.config,
         duration: a.duration,
         mode: a.mode,
-        overrides: &a.overrides,
+        overrides: &Overrides::from(a.overrides),
         out: a.out.out,
         force: a.out.force,
         command: &cx.command_line,

@@ -9,16 +9,6 @@ use deltaloop_model::{DeltaRobot, Plant, SimConfig, Vec3};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// clap parser for a positive duration in seconds.
-pub fn parse_positive_seconds(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 && v <= 3600.0 => Ok(v),
-        _ => Err(format!(
-            "`{s}` is not a duration: expected seconds, 0 < s <= 3600"
-        )),
-    }
-}
-
 fn median(mut xs: Vec<f64>) -> f64 {
     xs.sort_by(f64::total_cmp);
     xs[xs.len() / 2]
@@ -142,7 +132,7 @@ impl Mujoco {
                     script: root.join(MUJOCO_SCRIPT),
                 })),
                 _ => Ok(Err(format!(
-                    "MuJoCo: skipped (no {TEST_VENV_PYTHON}: `cargo test --test mujoco_plant` builds it from python/requirements.txt, or pass --mujoco PYTHON with mujoco installed)"
+                    "MuJoCo: skipped (no {TEST_VENV_PYTHON}: `cargo test --test e2e mujoco_plant::` builds it from python/requirements.txt, or pass --mujoco PYTHON with mujoco installed)"
                 ))),
             },
         }

@@ -14,25 +14,21 @@ use deltaloop_config::{LinkSection, LoopMode, RunConfig};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// `--controller-remote`, `--plant-remote` and the emulated link, shared by `run` and `soak`.
-#[derive(Clone, Debug, Default, clap::Args)]
+/// Which process runs on another host, where the supervisor listens for it, and the emulated
+/// link: `run`'s and `soak`'s `--controller-remote`, `--plant-remote`, `--link-*`.
+#[derive(Clone, Debug, Default)]
 pub struct RemoteArgs {
     /// Run the controller on another host: listen on HOST:PORT of this host (TCP and UDP) for
     /// `deltaloop join HOST:PORT --role controller` there. Lockstep or realtime.
-    #[arg(long, value_name = "HOST:PORT")]
     pub controller_remote: Option<String>,
     /// Run the plant on another host: listen on HOST:PORT of this host (TCP and UDP) for
     /// `deltaloop join HOST:PORT --role plant` there. Lockstep or realtime.
-    #[arg(long, value_name = "HOST:PORT")]
     pub plant_remote: Option<String>,
     /// The link's key file (`deltaloop link-key FILE` makes one; the other host's `join` needs a
     /// copy). Without it a one-time key is made and the `join` command that carries it printed.
-    #[arg(long, value_name = "FILE")]
     pub link_key: Option<PathBuf>,
-    #[command(flatten)]
     pub emu: EmuArgs,
     /// Say nothing of how to join (a sweep's loopback joins by itself).
-    #[arg(skip)]
     pub quiet: bool,
 }
 

@@ -44,43 +44,32 @@ impl RunOutput {
     }
 }
 
-/// Command-line overrides of a scenario file (None: keep the file's value).
-#[derive(Clone, Debug, Default, clap::Args)]
+/// Overrides of a scenario file, as `run` and `soak` take them (None: keep the file's value).
+#[derive(Clone, Debug, Default)]
 pub struct Overrides {
     /// Run only this law (repeatable): tdc, tde-is, tdc-is-sta, tdc-is-ista, pid.
-    #[arg(long = "law", value_parser = Law::parse)]
     pub laws: Vec<Law>,
     /// TDE delay ℓ in ticks (controller.tde_delay_samples).
-    #[arg(long)]
     pub tde_delay: Option<u32>,
     /// Transport delay d in ticks (plant.transport_delay_samples).
-    #[arg(long)]
     pub transport_delay: Option<u32>,
     /// Transport delay beyond whole ticks, µs (plant.transport_delay_us; adds to --transport-delay).
-    #[arg(long)]
     pub transport_delay_us: Option<f64>,
     /// Extra controller compute time per tick, µs (controller.compute_delay_us; realtime).
-    #[arg(long)]
     pub compute_delay_us: Option<u32>,
     /// Sensor noise seed (sensor.seed).
-    #[arg(long)]
     pub seed: Option<u64>,
     /// Realtime: what the plant does when its own process wakes later than
     /// loop.overrun_after_us (default one tick): stretch (pause simulated time for the stall),
     /// catch-up (run the backlog on the wall clock) or fault (stop the run) (loop.overrun).
-    #[arg(long, value_parser = Overrun::parse)]
     pub overrun: Option<Overrun>,
     /// Hold at the end point after the motion, s (scenario.hold_s, 0..=86400).
-    #[arg(long)]
     pub hold_s: Option<f64>,
     /// Run this command in place of the built-in plant process (plant.command; split at
     /// whitespace: put arguments with spaces in the scenario file's array).
-    #[arg(long, value_name = "CMD")]
     pub plant_cmd: Option<String>,
     /// Run this command in place of the built-in controller process (controller.command).
-    #[arg(long, value_name = "CMD")]
     pub controller_cmd: Option<String>,
-    #[command(flatten)]
     pub remote: crate::ops::join::RemoteArgs,
 }
 

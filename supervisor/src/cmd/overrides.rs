@@ -1,0 +1,97 @@
+//! The flags `run` and `soak` share: overrides of the scenario file and the remote process, as
+//! clap reads them; [`crate::ops`] takes them as plain [`Overrides`] and [`RemoteArgs`].
+
+use crate::ops::join::RemoteArgs;
+use crate::ops::run::Overrides;
+use deltaloop_bridge::EmuArgs;
+use deltaloop_config::{Law, Overrun};
+use std::path::PathBuf;
+
+/// `--law`, `--seed`, `--plant-cmd`, … : overrides of a scenario file (None: keep the file's value).
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct OverrideArgs {
+    /// Run only this law (repeatable): tdc, tde-is, tdc-is-sta, tdc-is-ista, pid.
+    #[arg(long = "law", value_parser = Law::parse)]
+    pub laws: Vec<Law>,
+    /// TDE delay ℓ in ticks (controller.tde_delay_samples).
+    #[arg(long)]
+    pub tde_delay: Option<u32>,
+    /// Transport delay d in ticks (plant.transport_delay_samples).
+    #[arg(long)]
+    pub transport_delay: Option<u32>,
+    /// Transport delay beyond whole ticks, µs (plant.transport_delay_us; adds to --transport-delay).
+    #[arg(long)]
+    pub transport_delay_us: Option<f64>,
+    /// Extra controller compute time per tick, µs (controller.compute_delay_us; realtime).
+    #[arg(long)]
+    pub compute_delay_us: Option<u32>,
+    /// Sensor noise seed (sensor.seed).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Realtime: what the plant does when its own process wakes later than
+    /// loop.overrun_after_us (default one tick): stretch (pause simulated time for the stall),
+    /// catch-up (run the backlog on the wall clock) or fault (stop the run) (loop.overrun).
+    #[arg(long, value_parser = Overrun::parse)]
+    pub overrun: Option<Overrun>,
+    /// Hold at the end point after the motion, s (scenario.hold_s, 0..=86400).
+    #[arg(long)]
+    pub hold_s: Option<f64>,
+    /// Run this command in place of the built-in plant process (plant.command; split at
+    /// whitespace: put arguments with spaces in the scenario file's array).
+    #[arg(long, value_name = "CMD")]
+    pub plant_cmd: Option<String>,
+    /// Run this command in place of the built-in controller process (controller.command).
+    #[arg(long, value_name = "CMD")]
+    pub controller_cmd: Option<String>,
+    #[command(flatten)]
+    pub remote: RemoteFlags,
+}
+
+/// `--controller-remote`, `--plant-remote` and the emulated link, shared by `run` and `soak`.
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct RemoteFlags {
+    /// Run the controller on another host: listen on HOST:PORT of this host (TCP and UDP) for
+    /// `deltaloop join HOST:PORT --role controller` there. Lockstep or realtime.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub controller_remote: Option<String>,
+    /// Run the plant on another host: listen on HOST:PORT of this host (TCP and UDP) for
+    /// `deltaloop join HOST:PORT --role plant` there. Lockstep or realtime.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub plant_remote: Option<String>,
+    /// The link's key file (`deltaloop link-key FILE` makes one; the other host's `join` needs a
+    /// copy). Without it a one-time key is made and the `join` command that carries it printed.
+    #[arg(long, value_name = "FILE")]
+    pub link_key: Option<PathBuf>,
+    #[command(flatten)]
+    pub emu: EmuArgs,
+}
+
+impl From<OverrideArgs> for Overrides {
+    fn from(a: OverrideArgs) -> Self {
+        Self {
+            laws: a.laws,
+            tde_delay: a.tde_delay,
+            transport_delay: a.transport_delay,
+            transport_delay_us: a.transport_delay_us,
+            compute_delay_us: a.compute_delay_us,
+            seed: a.seed,
+            overrun: a.overrun,
+            hold_s: a.hold_s,
+            plant_cmd: a.plant_cmd,
+            controller_cmd: a.controller_cmd,
+            remote: a.remote.into(),
+        }
+    }
+}
+
+impl From<RemoteFlags> for RemoteArgs {
+    fn from(a: RemoteFlags) -> Self {
+        Self {
+            controller_remote: a.controller_remote,
+            plant_remote: a.plant_remote,
+            link_key: a.link_key,
+            emu: a.emu,
+            quiet: false,
+        }
+    }
+}
