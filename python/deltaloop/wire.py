@@ -2,7 +2,7 @@
 
 Field order, sizes and alignments are those of the Rust `#[repr(C)]` structs; each type's
 `type_name()` is its iceoryx2 type name, which iceoryx2 compares (with size and alignment) when a
-service is opened. `tests/python_interop.rs` checks all of it against the Rust types.
+service is opened. `tests/e2e/python_interop.rs` checks all of it against the Rust types.
 """
 
 import ctypes

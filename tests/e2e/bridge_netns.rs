@@ -5,7 +5,7 @@
 //! not pretend to have checked anything); `DELTALOOP_REQUIRE_NETNS=1` turns such a skip into a
 //! failure, for a machine that must run them.
 
-mod common;
+use crate::common;
 
 use common::{
     FaultKind, RunStatus, assert_every_tick_on_disk, disturbance, judge, on_a_noisy_host, outcome,

@@ -1,6 +1,6 @@
 //! End-to-end: the `deltaloop` binary on the shipped configs, and its answers to bad input.
 
-mod common;
+use crate::common;
 
 use common::{deltaloop, summary};
 use std::path::PathBuf;

@@ -2,7 +2,7 @@
 //! executable runs in place of a built-in process, with the same arguments, and is treated the
 //! same; a command that cannot start, or a bad one in the file, gets a clear one-line error.
 
-mod common;
+use crate::common;
 
 use common::{deltaloop, run};
 

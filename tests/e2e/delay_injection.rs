@@ -1,7 +1,7 @@
 //! End-to-end: `deltaloop sweep` (divergence recorded, files complete), CLI delay overrides, and a
 //! realtime compute delay that produces real misses.
 
-mod common;
+use crate::common;
 
 use common::{FaultKind, RunStatus, deltaloop, json, outcome};
 use std::path::Path;

@@ -1,7 +1,7 @@
 //! Faults, signals and debris, end to end with real processes and real signals. Each test checks
 //! the exit code, the message, the files on disk, and that no child process outlives the run.
 
-mod common;
+use crate::common;
 
 use common::{
     FaultKind, RunStatus, children_mentioning, deltaloop, iceoryx_leftovers, outcome, summary,
@@ -593,7 +593,7 @@ fn regression_sigstop_sigcont_of_the_controller_is_a_non_event() {
 /// 40 ms, and its error spoke only of a singularity. Here the plant is stopped (SIGSTOP) for
 /// 60 ms in the hold, the way a host freezes a virtual CPU. With `--overrun catch-up`: the
 /// default, `stretch`, pauses simulated time for the freeze instead, and no tick wakes late
-/// (tests/realtime.rs).
+/// (tests/e2e/realtime.rs).
 #[test]
 fn a_frozen_realtime_loop_is_named_with_its_tick() {
     let tmp = tempfile::tempdir().unwrap();
@@ -683,7 +683,7 @@ fn regression_ctrl_c_during_setup_sends_no_start() {
 }
 
 /// Regression: a long safe stop (60 s is allowed) was cut off by the supervisor after ≈14 s, and
-/// the plant's reason was lost. Slow (≈50 s; the old limit was ≈30 s for this run): `cargo test --test faults -- --ignored`.
+/// the plant's reason was lost. Slow (≈50 s; the old limit was ≈30 s for this run): `cargo test --test e2e faults:: -- --ignored`.
 #[test]
 #[ignore]
 fn regression_long_safe_stop_is_not_cut_off() {
@@ -764,7 +764,7 @@ fn regression_a_diverged_process_run_stops_the_loop() {
     let tmp = tempfile::tempdir().unwrap();
     let run = |mode: &str| {
         let out = tmp.path().join(mode);
-        // S2, paper preset, tdc, d = 8: diverges within the motion (tests/delay_injection.rs);
+        // S2, paper preset, tdc, d = 8: diverges within the motion (tests/e2e/delay_injection.rs);
         // the 300 s hold is 10^6 ticks the loop must not run.
         let o = deltaloop(&[
             "run",
@@ -865,7 +865,7 @@ fn regression_child_killed_during_setup_leaves_no_debris() {
 /// The runs write no per-tick file (`[record]` off): the 400 s run's trace and timing file took
 /// 1 GB, and once filled a CI machine's disk ("No space left on device" on
 /// `tdc.timing.csv`). The per-tick writers reuse one row's buffers whatever the run's length;
-/// with them on, memory is checked by the 30-minute soak (`tests/soak.rs`, ignored by default).
+/// with them on, memory is checked by the 30-minute soak (`tests/e2e/soak.rs`, ignored by default).
 #[test]
 fn regression_long_run_memory_is_flat_and_no_tick_is_lost() {
     let tmp = tempfile::tempdir().unwrap();

@@ -3,10 +3,10 @@
 //! injection. Each test names the defect it guards against; the run's record must stay true, or
 //! say that it is not.
 //!
-//! The Python peers need the test venv (`tests/common/python.rs`: Python ≥ 3.11, PyPI the first
+//! The Python peers need the test venv (`tests/e2e/common/python.rs`: Python ≥ 3.11, PyPI the first
 //! time).
 
-mod common;
+use crate::common;
 
 use common::python::{python, root, text};
 use common::{FaultKind, RunStatus, deltaloop, outcome, summary};

@@ -1,7 +1,7 @@
 //! End-to-end: hostile input to `deltaloop run` and `deltaloop sweep` (issue 10). Every refusal is
 //! exit 1 with one line on stderr, quickly, and leaves nothing behind.
 
-mod common;
+use crate::common;
 
 use common::{finish_within, mkfifo, one_line_error, spawn};
 use std::path::{Path, PathBuf};

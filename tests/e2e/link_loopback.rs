@@ -5,7 +5,7 @@
 //! link's round trip per tick (`link_rtt_ns`, `link_rtt.hlog`, `summary.json`, the report) and a
 //! one-host run does not.
 
-mod common;
+use crate::common;
 
 use common::{deltaloop, summary};
 use std::path::{Path, PathBuf};
@@ -16,7 +16,7 @@ use std::time::Duration;
 static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// S1 with room for two "hosts" on this machine's two CPUs: a torque budget of 250 µs and 1000
-/// misses in a row before the safe stop (as `tests/bridge_netns.rs`).
+/// misses in a row before the safe stop (as `tests/e2e/bridge_netns.rs`).
 const BASE: &str = "name = \"link\"\n[scenario]\npath = \"s1\"\n[plant]\nfriction = true\n[controller]\npreset = \"matched\"\nlaws = [\"tdc\"]\n[loop]\ntorque_budget_us = 250\n[faults]\ncontroller_silence_ticks = 1000\n";
 
 const SWEEP: &str = "name = \"link\"\nbase = \"base.toml\"\nscenarios = [\"s1\"]\npresets = [\"matched\"]\nlaws = [\"tdc\"]\ntde_delay_samples = [1]\ntransport_delay_samples = [0]\nlink_delay_us = [0, 25]\nsensitivity = false\n";

@@ -1,6 +1,6 @@
 //! `deltaloop top` end to end in a tmux pane, and `deltaloop soak` interrupted by SIGINT.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::{Child, Command, Stdio};

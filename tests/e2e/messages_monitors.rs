@@ -3,7 +3,7 @@
 //! `top` does not keep the run's observer slot; nothing outlives a killed parent; a soak that
 //! diverged says so; `python -m deltaloop.dask` without its extras says what to install.
 
-mod common;
+use crate::common;
 
 use common::{FaultKind, RunStatus, children_mentioning, deltaloop, outcome, summary};
 use std::io::BufRead;
@@ -394,7 +394,7 @@ fn regression_python_dask_without_its_extras_says_what_to_install() {
 fn regression_a_diverged_soak_says_so_and_prints_real_rss() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("soak");
-    // S2, paper preset, tdc, d = 8 diverges within the motion (tests/delay_injection.rs).
+    // S2, paper preset, tdc, d = 8 diverges within the motion (tests/e2e/delay_injection.rs).
     let o = deltaloop(&[
         "soak",
         "configs/paper/s2-fast.toml",

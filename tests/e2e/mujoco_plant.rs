@@ -5,7 +5,7 @@
 //! The venv (`target/python-venv`, with MuJoCo) is set up by `tests/common/python.rs`; without
 //! Python the tests fail and say what to install.
 
-mod common;
+use crate::common;
 
 use common::python::{python, root, run_cmd, text};
 use serde_json::Value;

@@ -1,7 +1,7 @@
 //! `deltaloop paper`: the folder is complete (every table and figure, non-trivial) and the numbers
 //! in report.md are the ones in summary.json.
 
-mod common;
+use crate::common;
 
 use common::{deltaloop, summary};
 use serde_json::Value;

@@ -1,7 +1,7 @@
 //! End-to-end with real processes over iceoryx2 in lockstep: lockstep ≡ inproc bit for bit, two
 //! runs at once, and nothing left behind. The realtime run has its own test binary (realtime.rs).
 
-mod common;
+use crate::common;
 
 use common::{assert_clean, run};
 use serde_json::Value;

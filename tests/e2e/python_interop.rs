@@ -8,7 +8,7 @@
 //! PyPI the first time). Without Python they fail and say what to install; they never pass
 //! silently.
 
-mod common;
+use crate::common;
 
 use common::python::{py_snippet, python, root, run_cmd, text};
 

@@ -7,7 +7,7 @@
 //! every run; what depends on timing only on a run whose own record says the machine left it
 //! alone (`common::on_a_noisy_host`).
 
-mod common;
+use crate::common;
 
 use common::{
     FaultKind, RunStatus, assert_clean, assert_every_tick_on_disk, assert_replays, disturbance,

@@ -1,7 +1,7 @@
 //! `deltaloop replay`: a run folder re-run in-process reproduces its trace byte for byte, and a
 //! damaged folder gets a clear error naming the file and line.
 
-mod common;
+use crate::common;
 
 use common::{deltaloop, run};
 use std::path::Path;

@@ -3,7 +3,7 @@
 //! is not a regular file, refuse a sweep too large to hold, never copy through a link, and
 //! replay's "byte for byte" means every byte.
 
-mod common;
+use crate::common;
 
 use common::{deltaloop, finish_within, mkfifo, one_line_error, run, spawn};
 use std::path::{Path, PathBuf};

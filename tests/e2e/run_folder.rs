@@ -1,7 +1,7 @@
 //! The run folder belongs to one run: a non-empty `--out` is refused unless `--force` (which
 //! only ever empties a deltaloop folder), and two runs never share a folder.
 
-mod common;
+use crate::common;
 
 use common::deltaloop;
 use std::path::Path;

@@ -1,6 +1,6 @@
 //! End-to-end: round-off twins (`--sensitivity`) and the digits they leave each figure.
 
-mod common;
+use crate::common;
 
 use common::{deltaloop, summary};
 

@@ -1,7 +1,7 @@
 //! Long realtime soak (ignored by default: ≈ 33 minutes). Run with
-//! `cargo test --release --test soak -- --ignored --nocapture`.
+//! `cargo test --release --test e2e soak:: -- --ignored --nocapture`.
 
-mod common;
+use crate::common;
 
 use common::{RunStatus, assert_every_tick_on_disk, disturbance, judge, on_a_noisy_host};
 

@@ -1,9 +1,9 @@
 //! Sweeps beyond one machine: `deltaloop sweep plan | run | merge`, and `python -m deltaloop.dask`
 //! on a real Dask cluster (a scheduler and two worker processes over TCP on 127.0.0.1, started
 //! here and killed at the end, also when a test fails), and the Slurm job script of
-//! dask-jobqueue. The Python side comes from the project's own venv (tests/common/python.rs).
+//! dask-jobqueue. The Python side comes from the project's own venv (tests/e2e/common/python.rs).
 
-mod common;
+use crate::common;
 
 use common::python::{python, run_cmd, text};
 use std::os::unix::process::CommandExt;

@@ -2,7 +2,7 @@
 //! the mean, standard deviation and 95 % CI of each headline metric, the round-off spread of its
 //! twin, and figures with error bars.
 
-mod common;
+use crate::common;
 
 use common::{deltaloop, summary};
 

@@ -3,7 +3,7 @@
 //! python/requirements.txt), checked against `summary.json` and the `.hgrm`; the latency figures
 //! and their place in `report.md`.
 
-mod common;
+use crate::common;
 
 use common::python::{python, run_cmd, text};
 use common::run;

@@ -17,7 +17,7 @@ use std::collections::BTreeSet;
 use std::mem::{align_of, offset_of, size_of};
 use std::path::Path;
 
-mod common;
+use crate::common;
 
 fn read(rel: &str) -> String {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);

@@ -1,4 +1,4 @@
-"""A misbehaving deltaloop controller for tests/foreign_peers.rs: the `tdc` law of
+"""A misbehaving deltaloop controller for tests/e2e/foreign_peers.rs: the `tdc` law of
 examples/python-controller on the `deltaloop` helper, plus one kind of misbehaviour chosen by the
 first argument (the supervisor's own arguments follow it):
 

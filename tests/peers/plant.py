@@ -1,4 +1,4 @@
-"""A misbehaving deltaloop plant for tests/foreign_peers.rs: a free rotor per joint (0.03 kg m²)
+"""A misbehaving deltaloop plant for tests/e2e/foreign_peers.rs: a free rotor per joint (0.03 kg m²)
 with gravity held by the start torque, on the `deltaloop` helper, plus one misbehaviour chosen
 by the first argument (the supervisor's own arguments follow it):
 

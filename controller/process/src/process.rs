@@ -569,7 +569,7 @@ mod tests {
     }
 
     /// Regression (one of the two causes of tick 0's miss; the other, the lazy port connection,
-    /// is checked in tests/realtime.rs): the controller waited for state 0 as lockstep does
+    /// is checked in tests/e2e/realtime.rs): the controller waited for state 0 as lockstep does
     /// (polled 150 µs after START, then blocked), so the state published at t0 = START + 10 ms
     /// had to wake it across CPUs.
     #[test]

@@ -1,5 +1,4 @@
 //! Helpers shared by the end-to-end tests.
-#![allow(dead_code)]
 
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
@@ -443,7 +442,6 @@ pub fn assert_replays(out: &Path) {
 
 /// The folder holding the C ABI's library (`libdeltaloop_peer.so`, built with the tests: a
 /// dev-dependency), next to the test binary.
-#[allow(dead_code)]
 pub fn peer_lib_dir() -> PathBuf {
     let exe = std::env::current_exe().unwrap();
     let dir = exe.parent().unwrap().to_path_buf();
@@ -458,7 +456,6 @@ pub fn peer_lib_dir() -> PathBuf {
 /// `examples/<example>`'s program `exe`, built once with its `make` against this build's library
 /// (into the target folder); None (and one line saying what is missing) without the compiler
 /// (`cc` or `c++`) or make.
-#[allow(dead_code)]
 pub fn built(example: &'static str, exe: &str, compiler: &str) -> Option<PathBuf> {
     static BUILT: std::sync::Mutex<std::collections::BTreeMap<&'static str, Option<PathBuf>>> =
         std::sync::Mutex::new(std::collections::BTreeMap::new());
@@ -499,7 +496,6 @@ pub fn built(example: &'static str, exe: &str, compiler: &str) -> Option<PathBuf
 }
 
 /// The C `tdc` controller (examples/c-controller).
-#[allow(dead_code)]
 pub fn c_tdc() -> Option<PathBuf> {
     built("c-controller", "c-tdc", "cc")
 }
