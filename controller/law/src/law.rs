@@ -146,36 +146,36 @@ impl Controller {
         let s = ed + e * p.kd + self.e_int * p.kp;
         let n_hat = a_lag - tau_lag / p.m_bar;
 
-        let mut u = Vec3::zeros();
+        // The switching term u_k, one arm per law: a new law must say what it adds here.
+        let u = match self.law {
+            Law::Tdc | Law::Pid => Vec3::zeros(),
+            Law::TdeIs if p.phi > 0.0 => s.map(|si| p.ks * sat(si / p.phi)),
+            Law::TdeIs => s.map(|si| p.ks * sgn(si)),
+            Law::TdcIsSta => {
+                // u_k from v_k; the state moves on to v_{k+1} (used from tick k + 1).
+                let (k1, k2, v) = (p.k1, p.k2, &mut self.v);
+                Vec3::from_fn(|i, _| {
+                    let (ui, vi) = crate::sta::explicit(s[i], v[i], k1, k2, ts);
+                    v[i] = vi;
+                    ui
+                })
+            }
+            Law::TdcIsIsta => {
+                let (k1, k2, v) = (p.k1, p.k2, &mut self.v);
+                Vec3::from_fn(|i, _| {
+                    let (ui, vi) = crate::sta::implicit(s[i], v[i], k1, k2, ts);
+                    v[i] = vi;
+                    ui
+                })
+            }
+        };
         let tau = match self.law {
             Law::Pid => {
                 self.z += e * (p.pid_i * ts);
                 e * p.pid_p + self.z + ed * p.pid_d
             }
-            law => {
-                u = match law {
-                    Law::TdeIs if p.phi > 0.0 => s.map(|si| p.ks * sat(si / p.phi)),
-                    Law::TdeIs => s.map(|si| p.ks * sgn(si)),
-                    Law::TdcIsSta => {
-                        // u_k from v_k; the state moves on to v_{k+1} (used from tick k + 1).
-                        let (k1, k2, v) = (p.k1, p.k2, &mut self.v);
-                        Vec3::from_fn(|i, _| {
-                            let (ui, vi) = crate::sta::explicit(s[i], v[i], k1, k2, ts);
-                            v[i] = vi;
-                            ui
-                        })
-                    }
-                    Law::TdcIsIsta => {
-                        let (k1, k2, v) = (p.k1, p.k2, &mut self.v);
-                        Vec3::from_fn(|i, _| {
-                            let (ui, vi) = crate::sta::implicit(s[i], v[i], k1, k2, ts);
-                            v[i] = vi;
-                            ui
-                        })
-                    }
-                    _ => Vec3::zeros(),
-                };
-                // The expanded form of the spec: τ = τᵃ_{k−ℓ+1} − M̄ a_{k−ℓ} + M̄ (q̈_d + K_d ė + K_p e + u).
+            // The expanded form of the spec: τ = τᵃ_{k−ℓ+1} − M̄ a_{k−ℓ} + M̄ (q̈_d + K_d ė + K_p e + u).
+            Law::Tdc | Law::TdeIs | Law::TdcIsSta | Law::TdcIsIsta => {
                 tau_lag - a_lag * p.m_bar + (r.qdd + ed * p.kd + e * p.kp + u) * p.m_bar
             }
         };
