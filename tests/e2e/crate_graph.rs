@@ -152,3 +152,166 @@ fn bridge_is_lean_and_zenoh_is_opt_in() {
     );
     assert_none_of("deltaloop", &["zenoh"]);
 }
+
+/// The module a source file is (`a::b::c` from `src/a/b/c.rs` or `src/a/b/c/mod.rs`), and the
+/// parent module its siblings share.
+fn module_of(src: &std::path::Path, file: &std::path::Path) -> Vec<String> {
+    let rel = file.strip_prefix(src).unwrap().with_extension("");
+    let mut parts: Vec<String> = rel
+        .iter()
+        .map(|p| p.to_string_lossy().into_owned())
+        .collect();
+    if matches!(
+        parts.last().map(String::as_str),
+        Some("mod" | "lib" | "main")
+    ) {
+        parts.pop();
+    }
+    parts
+}
+
+/// The sibling modules `text` (module `me`) names: through `super::` or its full `crate::` path.
+fn sibling_uses(text: &str, me: &[String], siblings: &[String]) -> Vec<String> {
+    let parent = me[..me.len() - 1].join("::");
+    let prefixes = if parent.is_empty() {
+        vec!["super::".to_string(), "crate::".to_string()]
+    } else {
+        vec!["super::".to_string(), format!("crate::{parent}::")]
+    };
+    let mut named = Vec::new();
+    for prefix in &prefixes {
+        for (i, _) in text.match_indices(prefix.as_str()) {
+            let rest = &text[i + prefix.len()..];
+            // `super::{a, b::X}`: the first word of each item; else the word after the prefix.
+            let items: Vec<&str> = match rest.strip_prefix('{') {
+                Some(list) => list[..list.find('}').unwrap_or(list.len())]
+                    .split(',')
+                    .collect(),
+                None => vec![rest],
+            };
+            for item in items {
+                let word: String = item
+                    .trim_start()
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || *c == '_')
+                    .collect();
+                if siblings.contains(&word) && *me.last().unwrap() != word {
+                    named.push(word);
+                }
+            }
+        }
+    }
+    named.sort();
+    named.dedup();
+    named
+}
+
+/// No module imports a sibling that (directly or around a circle) imports it back: shared types
+/// live in a leaf module both use. Parents and children may use each other; unit tests (after
+/// `#[cfg(test)]`) are left out.
+#[test]
+fn no_import_circles_among_sibling_modules() {
+    let root = crate::common::python::root();
+    let mut srcs = Vec::new();
+    for dir in [
+        "bridge",
+        "peer",
+        "supervisor",
+        "plant",
+        "controller",
+        "protocol",
+    ] {
+        for entry in walk(&root.join(dir)) {
+            if entry.ends_with("src") && entry.is_dir() {
+                srcs.push(entry);
+            }
+        }
+    }
+    assert!(srcs.len() >= 8, "found the crates' src folders: {srcs:?}");
+    for src in srcs {
+        let files: Vec<std::path::PathBuf> = walk(&src)
+            .into_iter()
+            .filter(|p| p.extension().is_some_and(|e| e == "rs"))
+            .collect();
+        let modules: Vec<Vec<String>> = files.iter().map(|f| module_of(&src, f)).collect();
+        // Edges among siblings: files whose modules share a parent.
+        let mut edges: std::collections::BTreeMap<Vec<String>, Vec<Vec<String>>> =
+            Default::default();
+        for (file, me) in files.iter().zip(&modules) {
+            if me.is_empty() {
+                continue;
+            }
+            let parent = &me[..me.len() - 1];
+            let siblings: Vec<String> = modules
+                .iter()
+                .filter(|m| m.len() == me.len() && m[..m.len() - 1] == *parent)
+                .map(|m| m.last().unwrap().clone())
+                .collect();
+            let text = std::fs::read_to_string(file).unwrap();
+            let code: String = text[..text.find("#[cfg(test)]").unwrap_or(text.len())]
+                .lines()
+                .filter(|l| !l.trim_start().starts_with("//"))
+                .collect::<Vec<_>>()
+                .join("\n");
+            for s in sibling_uses(&code, me, &siblings) {
+                let mut to = parent.to_vec();
+                to.push(s);
+                edges.entry(me.clone()).or_default().push(to);
+            }
+        }
+        // A depth-first search finds any circle.
+        fn visit(
+            m: &Vec<String>,
+            edges: &std::collections::BTreeMap<Vec<String>, Vec<Vec<String>>>,
+            path: &mut Vec<Vec<String>>,
+            done: &mut std::collections::BTreeSet<Vec<String>>,
+        ) -> Option<Vec<Vec<String>>> {
+            if let Some(i) = path.iter().position(|p| p == m) {
+                return Some(path[i..].to_vec());
+            }
+            if !done.insert(m.clone()) {
+                return None;
+            }
+            path.push(m.clone());
+            for n in edges.get(m).into_iter().flatten() {
+                if let Some(c) = visit(n, edges, path, done) {
+                    return Some(c);
+                }
+            }
+            path.pop();
+            None
+        }
+        let mut done = Default::default();
+        for m in edges.keys() {
+            let circle = visit(m, &edges, &mut Vec::new(), &mut done);
+            assert!(
+                circle.is_none(),
+                "{}: modules import each other in a circle: {:?}",
+                src.display(),
+                circle.unwrap_or_default()
+            );
+        }
+    }
+}
+
+/// Every path under `dir` (files and folders), `target` and hidden folders left out.
+fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    let Ok(rd) = std::fs::read_dir(dir) else {
+        return out;
+    };
+    for e in rd.flatten() {
+        let p = e.path();
+        let name = e.file_name().to_string_lossy().into_owned();
+        if name.starts_with('.') || name == "target" {
+            continue;
+        }
+        if p.is_dir() {
+            out.push(p.clone());
+            out.extend(walk(&p));
+        } else {
+            out.push(p);
+        }
+    }
+    out
+}

@@ -60,31 +60,57 @@ crate::text_enum! {
     }
 }
 
-/// The controller constants, all per joint (M̄ = m_bar · I).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ControllerParams {
-    /// Nominal inertia M̄ (diagonal entry), kg m².
-    pub m_bar: f64,
-    /// Integral-surface gain K_p, 1/s² (rad/s² per rad of integrated error per s).
-    pub kp: f64,
-    /// Derivative gain K_d, 1/s.
-    pub kd: f64,
-    /// Switching gain K_s of `tde-is`, rad/s².
-    pub ks: f64,
-    /// Boundary-layer width φ of `tde-is`, rad/s (0 means sgn).
-    pub phi: f64,
-    /// Super-twisting gain k1, rad^½/s^(3/2).
-    pub k1: f64,
-    /// Super-twisting gain k2, rad/s³.
-    pub k2: f64,
-    /// PID proportional gain P, N m/rad.
-    pub pid_p: f64,
-    /// PID integral gain I, N m/(rad s).
-    pub pid_i: f64,
-    /// PID derivative gain D, N m s/rad.
-    pub pid_d: f64,
+/// Calls the macro `$then!` with every controller constant, each once with its doc (name, unit):
+/// [`ControllerParams`] is made from it here, and the config's `[controller]` overrides, their
+/// defaults from the preset and their range check from it in the config crate, so a new gain is
+/// one line here and its value in [`ControllerParams::preset`].
+#[macro_export]
+macro_rules! with_controller_gains {
+    ($then:ident) => {
+        $then! {
+            /// Nominal inertia M̄ (diagonal entry), kg m².
+            m_bar,
+            /// Integral-surface gain K_p, 1/s² (rad/s² per rad of integrated error per s).
+            kp,
+            /// Derivative gain K_d, 1/s.
+            kd,
+            /// Switching gain K_s of `tde-is`, rad/s².
+            ks,
+            /// Boundary-layer width φ of `tde-is`, rad/s (0 means sgn).
+            phi,
+            /// Super-twisting gain k1, rad^½/s^(3/2).
+            k1,
+            /// Super-twisting gain k2, rad/s³.
+            k2,
+            /// PID proportional gain P, N m/rad.
+            pid_p,
+            /// PID integral gain I, N m/(rad s).
+            pid_i,
+            /// PID derivative gain D, N m s/rad.
+            pid_d,
+        }
+    };
 }
+
+macro_rules! controller_params {
+    ($($(#[$doc:meta])* $name:ident,)*) => {
+        /// The controller constants, all per joint (M̄ = m_bar · I).
+        #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+        #[serde(deny_unknown_fields)]
+        pub struct ControllerParams {
+            $($(#[$doc])* pub $name: f64,)*
+        }
+
+        impl ControllerParams {
+            /// Every constant with its name, in declaration order.
+            pub fn named(&self) -> Vec<(&'static str, f64)> {
+                vec![$((stringify!($name), self.$name),)*]
+            }
+        }
+    };
+}
+
+with_controller_gains!(controller_params);
 
 impl ControllerParams {
     /// The constants of a preset (docs/controllers.md, Table I and the preset table).

@@ -4,8 +4,8 @@
 use crate::error::ConfigError;
 use crate::files::read_text_file;
 use crate::layout::Layout;
+use crate::text::name_from_stem;
 use crate::text::{clean_message, show_path, toml_error_position};
-use crate::validate::name_from_stem;
 use deltaloop_law::{ControllerParams, Law, Preset, VelocitySource};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -337,46 +337,59 @@ impl SensorSection {
     }
 }
 
-/// `[controller]`: laws, preset, TDE delay, and per-key overrides of the preset's constants.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ControllerSection {
-    /// The preset the constants start from.
-    #[serde(default)]
-    pub preset: Preset,
+macro_rules! controller_section {
+    ($($(#[$doc:meta])* $name:ident,)*) => {
+        /// `[controller]`: laws, preset, TDE delay, and per-key overrides of the preset's constants
+        /// (None: the preset's value; every gain of [`ControllerParams`], with its unit there).
+        #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+        #[serde(deny_unknown_fields)]
+        pub struct ControllerSection {
+            /// The preset the constants start from.
+            #[serde(default)]
+            pub preset: Preset,
 
-    /// The laws to run (each is one run of the scenario).
-    #[serde(default = "default_laws")]
-    pub laws: Vec<Law>,
+            /// The laws to run (each is one run of the scenario).
+            #[serde(default = "default_laws")]
+            pub laws: Vec<Law>,
 
-    /// TDE delay ℓ (L = ℓ·Ts), ticks, ≥ 1.
-    #[serde(default = "default_ell")]
-    pub tde_delay_samples: u32,
+            /// TDE delay ℓ (L = ℓ·Ts), ticks, ≥ 1.
+            #[serde(default = "default_ell")]
+            pub tde_delay_samples: u32,
 
-    /// Extra wall time the controller process spends before each reply, µs (realtime: real
-    /// misses; lockstep: only slower; inproc: no effect).
-    #[serde(default)]
-    pub compute_delay_us: u32,
+            /// Extra wall time the controller process spends before each reply, µs (realtime: real
+            /// misses; lockstep: only slower; inproc: no effect).
+            #[serde(default)]
+            pub compute_delay_us: u32,
 
-    /// Run this executable (program, then arguments) in place of the built-in
-    /// `deltaloop-controller` in the process modes; it gets the same arguments after these
-    /// (`--run-id`, `--config`, `--mode`, `--law`) and must speak the wire contract
-    /// (docs/protocol.md). Empty: the built-in controller.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub command: Vec<String>,
+            /// Run this executable (program, then arguments) in place of the built-in
+            /// `deltaloop-controller` in the process modes; it gets the same arguments after these
+            /// (`--run-id`, `--config`, `--mode`, `--law`) and must speak the wire contract
+            /// (docs/protocol.md). Empty: the built-in controller.
+            #[serde(default, skip_serializing_if = "Vec::is_empty")]
+            pub command: Vec<String>,
 
-    /// Overrides (None: the preset's value). See [`ControllerParams`] for units.
-    pub m_bar: Option<f64>,
-    pub kp: Option<f64>,
-    pub kd: Option<f64>,
-    pub ks: Option<f64>,
-    pub phi: Option<f64>,
-    pub k1: Option<f64>,
-    pub k2: Option<f64>,
-    pub pid_p: Option<f64>,
-    pub pid_i: Option<f64>,
-    pub pid_d: Option<f64>,
+            $($(#[$doc])* pub $name: Option<f64>,)*
+        }
+
+        impl ControllerSection {
+            /// The constants: the preset with this section's overrides applied.
+            pub(crate) fn params(&self) -> ControllerParams {
+                let p = ControllerParams::preset(self.preset);
+                ControllerParams {
+                    $($name: self.$name.unwrap_or(p.$name),)*
+                }
+            }
+
+            /// Writes the constants into every override that is not set: the config is explicit.
+            fn resolve_preset(&mut self) {
+                let p = self.params();
+                $(self.$name = Some(p.$name);)*
+            }
+        }
+    };
 }
+
+deltaloop_law::with_controller_gains!(controller_section);
 
 fn default_laws() -> Vec<Law> {
     Law::STUDY.to_vec()
@@ -558,25 +571,6 @@ impl Default for RecordSection {
         }
     }
 }
-impl ControllerSection {
-    /// The constants: the preset with this section's overrides applied.
-    pub(crate) fn params(&self) -> ControllerParams {
-        let p = ControllerParams::preset(self.preset);
-        ControllerParams {
-            m_bar: self.m_bar.unwrap_or(p.m_bar),
-            kp: self.kp.unwrap_or(p.kp),
-            kd: self.kd.unwrap_or(p.kd),
-            ks: self.ks.unwrap_or(p.ks),
-            phi: self.phi.unwrap_or(p.phi),
-            k1: self.k1.unwrap_or(p.k1),
-            k2: self.k2.unwrap_or(p.k2),
-            pid_p: self.pid_p.unwrap_or(p.pid_p),
-            pid_i: self.pid_i.unwrap_or(p.pid_i),
-            pid_d: self.pid_d.unwrap_or(p.pid_d),
-        }
-    }
-}
-
 impl RunConfig {
     /// Parses, fills the preset, and validates. `path` only labels errors.
     pub fn from_toml_str(text: &str, path: Option<&Path>) -> Result<Self, ConfigError> {
@@ -591,7 +585,7 @@ impl RunConfig {
                 |s| name_from_stem(&s.to_string_lossy()),
             );
         }
-        cfg.resolve_preset();
+        cfg.controller.resolve_preset();
         let ts = cfg.loop_.ts_s;
         cfg.loop_
             .realtime
@@ -624,22 +618,6 @@ impl RunConfig {
     /// The controller constants: the preset with the file's overrides applied.
     pub fn controller_params(&self) -> ControllerParams {
         self.controller.params()
-    }
-
-    /// Writes the preset's values into every override that is not set, so the config is explicit.
-    fn resolve_preset(&mut self) {
-        let p = self.controller_params();
-        let c = &mut self.controller;
-        c.m_bar = Some(p.m_bar);
-        c.kp = Some(p.kp);
-        c.kd = Some(p.kd);
-        c.ks = Some(p.ks);
-        c.phi = Some(p.phi);
-        c.k1 = Some(p.k1);
-        c.k2 = Some(p.k2);
-        c.pid_p = Some(p.pid_p);
-        c.pid_i = Some(p.pid_i);
-        c.pid_d = Some(p.pid_d);
     }
 
     /// The plant's wake lateness beyond which the overrun policy acts, ns (see

@@ -39,28 +39,6 @@ pub fn name_is_valid(name: &str) -> bool {
             .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-'))
 }
 
-/// The default name from a file stem: every character outside [`NAME_RULE`] becomes `_`, a
-/// leading `.` or `-` too, cut to 64 characters (`scenario` if nothing is left).
-pub(crate) fn name_from_stem(stem: &str) -> String {
-    let mut name: String = stem
-        .chars()
-        .take(64)
-        .enumerate()
-        .map(|(i, c)| {
-            let ok = c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-');
-            if ok && !(i == 0 && matches!(c, '.' | '-')) {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    if name.is_empty() {
-        name = "scenario".into();
-    }
-    name
-}
-
 /// A process command: empty (the built-in process), or a program and its arguments, each a
 /// non-empty string without NUL of at most 4096 bytes.
 fn check_command(key: &str, cmd: &[String]) -> Result<(), ConfigError> {
@@ -364,19 +342,9 @@ impl ControllerSection {
             k.m_bar > 0.0 && k.m_bar <= 100.0,
             "0 < m_bar <= 100 kg m^2",
         )?;
-        for (key, v) in [
-            ("controller.kp", k.kp),
-            ("controller.kd", k.kd),
-            ("controller.ks", k.ks),
-            ("controller.phi", k.phi),
-            ("controller.k1", k.k1),
-            ("controller.k2", k.k2),
-            ("controller.pid_p", k.pid_p),
-            ("controller.pid_i", k.pid_i),
-            ("controller.pid_d", k.pid_d),
-        ] {
+        for (name, v) in k.named().into_iter().filter(|(n, _)| *n != "m_bar") {
             check(
-                key,
+                &format!("controller.{name}"),
                 v,
                 (0.0..=1e9).contains(&v),
                 "a finite number, 0 <= value <= 1e9",

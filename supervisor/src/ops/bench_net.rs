@@ -240,162 +240,52 @@ pub fn run(
             true,
         ),
     };
-    let h = TwoHosts::new(&dir, remove)?;
-    let dir = h.dir.clone();
-    let bin = exe_dir()?;
-    let (deltaloop, bridge) = (bin.join("deltaloop"), bin.join("deltaloop-bridge"));
-    let config = dir.join("s1-nominal.toml");
-    // A hold window of 1000 ticks (300 ms) instead of S1's 100: a link whose first ticks come
-    // slower than the 150 µs budget (the far side's first wake-ups, its caches cold) ended about
-    // one bench run in three in a fault before a round trip was measured; the misses still count.
-    std::fs::write(
-        &config,
-        format!("{S1}\n[faults]\ncontroller_silence_ticks = 1000\n"),
-    )?;
-    let config = config.display().to_string();
-    let hold = format!("{hold_s}");
-    let count = ((MOTION_S + hold_s) * 1e6 / PERIOD_US).round().max(1000.0) as u32;
+    let b = Bench::new(TwoHosts::new(&dir, remove)?, hold_s)?;
     println!(
-        "deltaloop bench net: two network namespaces joined by veth ({ADDR_A} | {ADDR_B}), S1 + {hold_s} s hold (tdc, realtime, 1000-tick hold window), {count} UDP round trips; folders in {}",
+        "deltaloop bench net: two network namespaces joined by veth ({ADDR_A} | {ADDR_B}), S1 + {hold_s} s hold (tdc, realtime, 1000-tick hold window), {} UDP round trips; folders in {}",
+        b.count,
         if remove {
             "a temporary folder".to_string()
         } else {
-            dir.display().to_string()
+            b.h.dir.display().to_string()
         }
     );
-    let mut rows = Vec::new();
-    let wait = Duration::from_secs_f64(120.0 + 3.0 * hold_s);
-
     // 1, 4: the ping-pongs.
-    let ping = |prog: &Path, serve: &str, call: &str, ep: &str, label: &str| -> Result<Row> {
-        let name: String = label.chars().filter(char::is_ascii_alphanumeric).collect();
-        let log = dir.join(format!("{serve}-{name}.log"));
-        let mut pong = Kid::spawn(h.cmd("b", prog, &[serve, "--listen", ep]), "pong", &log)?;
-        std::thread::sleep(Duration::from_millis(if serve == "pong" {
-            300
-        } else {
-            1000
-        }));
-        let plog = dir.join(format!("{call}-{name}.log"));
-        let mut p = Kid::spawn(
-            h.cmd(
-                "a",
-                prog,
-                &[call, "--connect", ep, "--count", &count.to_string()],
-            ),
-            "ping",
-            &plog,
-        )?;
-        let st = p.wait(wait, &dir)?;
-        pong.signal(libc::SIGTERM);
-        let _ = pong.wait(Duration::from_secs(5), &dir);
-        let text = std::fs::read_to_string(&plog).unwrap_or_default();
-        match parse_ping(label, &text) {
-            Some(r) if st.success() => Ok(r),
-            _ => bail!("{call} failed ({st}): {}", tail(&plog)),
-        }
-    };
-    rows.push(ping(
-        &bridge,
+    let mut rows = vec![b.ping(
+        &b.bridge,
         "pong",
         "ping",
         &format!("{ADDR_B}:7500"),
         "UDP ping-pong, veth",
-    )?);
+    )?];
     if let Some(z) = zenoh_bridge {
         for (ep, label) in [
             (format!("tcp/{ADDR_B}:7600"), "Zenoh ping-pong, TCP"),
             (format!("udp/{ADDR_B}:7601"), "Zenoh ping-pong, UDP"),
         ] {
-            let r = ping(z, "zpong", "zping", &ep, label)?;
-            rows.push(r);
+            rows.push(b.ping(z, "zpong", "zping", &ep, label)?);
         }
     }
-
     // 2: across the bridge, both sides blocking; with `polling`, also each side polling.
-    let endpoint = format!("{ADDR_A}:7447");
-    let run_args = |out: &Path| -> Vec<String> {
-        [
-            "run",
-            &config,
-            "--law",
-            "tdc",
-            "--mode",
-            "realtime",
-            "--hold-s",
-            &hold,
-            "--out",
-            out.to_str().unwrap_or_default(),
-        ]
-        .map(String::from)
-        .to_vec()
-    };
-    // Both sides of every run across the link hold this key (the link has no unauthenticated
-    // mode: the bench measures it sealed).
-    let key_file = dir.join("link.key");
-    deltaloop_bridge::seal::LinkKey::write_new(&key_file).map_err(anyhow::Error::msg)?;
-    let key_arg = key_file.display().to_string();
-    let across = |name: &str, label: &str, join_extra: &[&str], run_extra: &[&str]| {
-        let remote = dir.join(name);
-        let mut jargs = vec![
-            "join",
-            endpoint.as_str(),
-            "--wait-s",
-            "60",
-            "--link-key",
-            key_arg.as_str(),
-        ];
-        jargs.extend_from_slice(join_extra);
-        let mut join = Kid::spawn(
-            h.cmd("b", &deltaloop, &jargs),
-            "deltaloop join",
-            &dir.join(format!("join-{name}.log")),
-        )?;
-        let mut args = run_args(&remote);
-        args.extend([
-            "--controller-remote".into(),
-            endpoint.clone(),
-            "--link-key".into(),
-            key_arg.clone(),
-        ]);
-        args.extend(run_extra.iter().map(|a| a.to_string()));
-        let args: Vec<&str> = args.iter().map(String::as_str).collect();
-        let log = dir.join(format!("run-{name}.log"));
-        Kid::spawn(h.cmd("a", &deltaloop, &args), "deltaloop run", &log)?.wait(wait, &remote)?;
-        let _ = join.wait(Duration::from_secs(10), &remote);
-        run_row(label, &remote).with_context(|| format!("the run {label}: {}", tail(&log)))
-    };
     let blocking = rows.len();
-    rows.push(across("bridge", "bridge (both sides blocking)", &[], &[])?);
+    rows.push(b.across("bridge", "bridge (both sides blocking)", &[], &[])?);
     if polling {
         let spin = format!("{POLL_US}");
-        rows.push(across(
+        rows.push(b.across(
             "bridge-far-polling",
             &format!("bridge, far side polling (join --spin-us {POLL_US})"),
             &["--spin-us", &spin],
             &[],
         )?);
-        rows.push(across(
+        rows.push(b.across(
             "bridge-near-polling",
             &format!("bridge, near side polling (--link-spin-us {POLL_US})"),
             &[],
             &[&format!("--link-spin-us={POLL_US}")],
         )?);
     }
-
     // 3: one host.
-    let local = dir.join("one-host");
-    let args = run_args(&local);
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let log = dir.join("run-one-host.log");
-    let mut c = Command::new(&deltaloop);
-    c.args(&args);
-    Kid::spawn(c, "deltaloop run", &log)?.wait(wait, &local)?;
-    rows.push(
-        run_row("one host, no bridge", &local)
-            .with_context(|| format!("the run on one host: {}", tail(&log)))?,
-    );
-
+    rows.push(b.one_host()?);
     println!("{}", table(&rows));
     let (udp, bridge_p50, one) = (rows[0].p50, rows[blocking].p50, rows[rows.len() - 1].p50);
     println!(
@@ -403,6 +293,158 @@ pub fn run(
         bridge_p50 / udp
     );
     Ok(())
+}
+
+/// One `bench net`: the two hosts, the programs, the S1 config and the link key every row uses.
+struct Bench {
+    h: TwoHosts,
+    deltaloop: PathBuf,
+    bridge: PathBuf,
+    config: String,
+    hold: String,
+    /// UDP round trips of a ping-pong.
+    count: u32,
+    /// How long any one program may take.
+    wait: Duration,
+    key: String,
+    endpoint: String,
+}
+
+impl Bench {
+    fn new(h: TwoHosts, hold_s: f64) -> Result<Self> {
+        let dir = h.dir.clone();
+        let bin = exe_dir()?;
+        let config = dir.join("s1-nominal.toml");
+        // A hold window of 1000 ticks (300 ms) instead of S1's 100: a link whose first ticks come
+        // slower than the 150 µs budget (the far side's first wake-ups, its caches cold) ended
+        // about one bench run in three in a fault before a round trip was measured; the misses
+        // still count.
+        std::fs::write(
+            &config,
+            format!("{S1}\n[faults]\ncontroller_silence_ticks = 1000\n"),
+        )?;
+        // Both sides of every run across the link hold this key (the link has no
+        // unauthenticated mode: the bench measures it sealed).
+        let key_file = dir.join("link.key");
+        deltaloop_bridge::seal::LinkKey::write_new(&key_file).map_err(anyhow::Error::msg)?;
+        Ok(Self {
+            h,
+            deltaloop: bin.join("deltaloop"),
+            bridge: bin.join("deltaloop-bridge"),
+            config: config.display().to_string(),
+            hold: format!("{hold_s}"),
+            count: ((MOTION_S + hold_s) * 1e6 / PERIOD_US).round().max(1000.0) as u32,
+            wait: Duration::from_secs_f64(120.0 + 3.0 * hold_s),
+            key: key_file.display().to_string(),
+            endpoint: format!("{ADDR_A}:7447"),
+        })
+    }
+
+    /// A ping-pong: `prog serve` on host b, `prog call` on host a, `count` round trips.
+    fn ping(&self, prog: &Path, serve: &str, call: &str, ep: &str, label: &str) -> Result<Row> {
+        let dir = &self.h.dir;
+        let name: String = label.chars().filter(char::is_ascii_alphanumeric).collect();
+        let log = dir.join(format!("{serve}-{name}.log"));
+        let mut pong = Kid::spawn(
+            self.h.cmd("b", prog, &[serve, "--listen", ep]),
+            "pong",
+            &log,
+        )?;
+        std::thread::sleep(Duration::from_millis(if serve == "pong" {
+            300
+        } else {
+            1000
+        }));
+        let plog = dir.join(format!("{call}-{name}.log"));
+        let count = self.count.to_string();
+        let cmd = self
+            .h
+            .cmd("a", prog, &[call, "--connect", ep, "--count", &count]);
+        let st = Kid::spawn(cmd, "ping", &plog)?.wait(self.wait, dir)?;
+        pong.signal(libc::SIGTERM);
+        let _ = pong.wait(Duration::from_secs(5), dir);
+        let text = std::fs::read_to_string(&plog).unwrap_or_default();
+        match parse_ping(label, &text) {
+            Some(r) if st.success() => Ok(r),
+            _ => bail!("{call} failed ({st}): {}", tail(&plog)),
+        }
+    }
+
+    /// `deltaloop run …` of S1 in realtime into `out`, and `extra`.
+    fn run_args(&self, out: &Path, extra: &[String]) -> Vec<String> {
+        let mut args: Vec<String> = [
+            "run",
+            &self.config,
+            "--law",
+            "tdc",
+            "--mode",
+            "realtime",
+            "--hold-s",
+            &self.hold,
+            "--out",
+            out.to_str().unwrap_or_default(),
+        ]
+        .map(String::from)
+        .to_vec();
+        args.extend_from_slice(extra);
+        args
+    }
+
+    /// A run with its controller on host b (`join`), the supervisor on host a.
+    fn across(
+        &self,
+        name: &str,
+        label: &str,
+        join_extra: &[&str],
+        run_extra: &[&str],
+    ) -> Result<Row> {
+        let dir = &self.h.dir;
+        let remote = dir.join(name);
+        let mut jargs = vec![
+            "join",
+            &self.endpoint,
+            "--wait-s",
+            "60",
+            "--link-key",
+            &self.key,
+        ];
+        jargs.extend_from_slice(join_extra);
+        let mut join = Kid::spawn(
+            self.h.cmd("b", &self.deltaloop, &jargs),
+            "deltaloop join",
+            &dir.join(format!("join-{name}.log")),
+        )?;
+        let mut extra = vec![
+            "--controller-remote".to_string(),
+            self.endpoint.clone(),
+            "--link-key".into(),
+            self.key.clone(),
+        ];
+        extra.extend(run_extra.iter().map(|a| a.to_string()));
+        let args = self.run_args(&remote, &extra);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let log = dir.join(format!("run-{name}.log"));
+        Kid::spawn(
+            self.h.cmd("a", &self.deltaloop, &args),
+            "deltaloop run",
+            &log,
+        )?
+        .wait(self.wait, &remote)?;
+        let _ = join.wait(Duration::from_secs(10), &remote);
+        run_row(label, &remote).with_context(|| format!("the run {label}: {}", tail(&log)))
+    }
+
+    /// The same run on one host, no bridge.
+    fn one_host(&self) -> Result<Row> {
+        let local = self.h.dir.join("one-host");
+        let args = self.run_args(&local, &[]);
+        let log = self.h.dir.join("run-one-host.log");
+        let mut c = Command::new(&self.deltaloop);
+        c.args(&args);
+        Kid::spawn(c, "deltaloop run", &log)?.wait(self.wait, &local)?;
+        run_row("one host, no bridge", &local)
+            .with_context(|| format!("the run on one host: {}", tail(&log)))
+    }
 }
 
 /// The table, Markdown.

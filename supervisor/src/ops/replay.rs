@@ -80,7 +80,13 @@ impl TraceRows {
                 )
             })
         };
-        let cols = [col("law")?, col("k")?, col("reply")?, col("arrival_ns")?];
+        use crate::output::trace::{ARRIVAL, K, LAW, REPLY};
+        let cols = [
+            col(LAW.name)?,
+            col(K.name)?,
+            col(REPLY.name)?,
+            col(ARRIVAL.name)?,
+        ];
         Ok(Self {
             path: path.to_path_buf(),
             rows: r.into_records(),

@@ -6,7 +6,6 @@ use crate::loops::procs::{self, OnTick};
 use crate::output::report;
 use crate::output::{self, Summary};
 use crate::record::metrics::LawMetrics;
-use crate::record::sensitivity::Sensitivity;
 use crate::record::{Fault, RunStatus};
 use crate::study::Study;
 use crate::study::analysis::mismatch;
@@ -262,7 +261,7 @@ fn add_sensitivity(study: &Study, runs: &mut [LawRun]) -> Result<()> {
     let laws: Vec<Law> = physical.iter().map(|r| r.law).collect();
     for (run, twin) in physical.iter_mut().zip(inproc::run_twins(study, &laws)) {
         let twin = twin.context("the round-off twin")?;
-        run.metrics.sensitivity = Some(Sensitivity::between(&run.metrics, &twin.metrics));
+        run.metrics.sensitivity = Some(run.metrics.against_twin(&twin.metrics));
     }
     Ok(())
 }

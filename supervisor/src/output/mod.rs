@@ -4,16 +4,16 @@
 pub mod link;
 pub mod plot;
 pub mod report;
+pub mod trace;
 
-use crate::record::TickRecord;
+pub use trace::{TraceWriter, join_trace, trace_part};
+
 use crate::record::metrics::LawMetrics;
 use crate::study::analysis::Mismatch;
-use crate::study::reference::RefRow;
 use crate::timing::TimingSummary;
 use anyhow::{Context, Result};
 use deltaloop_config::{LoopMode, Preset};
 use deltaloop_law::{ControllerParams, Law};
-use deltaloop_model::Vec3;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -240,182 +240,6 @@ fn resolved(p: &Path) -> PathBuf {
 /// UTC now, RFC 3339.
 pub fn now_utc() -> String {
     chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Secs, true)
-}
-
-fn header() -> Vec<String> {
-    let mut h = vec!["law".to_string(), "k".into(), "t_s".into()];
-    for name in [
-        "q_des",
-        "q",
-        "qdot",
-        "e",
-        "tau",
-        "tau_applied",
-        "s",
-        "n_hat",
-        "n_true",
-    ] {
-        for j in 1..=3 {
-            h.push(format!("{name}_{j}"));
-        }
-    }
-    h.extend(["reply".into(), "drives".into(), "arrival_ns".into()]);
-    h
-}
-
-/// What the drives did over [t_k, t_{k+1}) (`trace.csv` column `drives`).
-fn drives(r: &TickRecord) -> &'static str {
-    match (r.rejected, r.held, r.clamped) {
-        (true, _, _) => "rejected",
-        (_, true, _) => "held",
-        (_, _, true) => "clamped",
-        _ => "commanded",
-    }
-}
-
-/// `trace.csv` rows of one law, written as the ticks are recorded (the file's part for that law;
-/// [`join_trace`] puts the parts behind the header). Every float in shortest round-trip exponent
-/// form (e.g. `-7.776579935558914e-10`). Columns: law, k, t_s, then per joint q_des (rad), q (rad,
-/// true), qdot (rad/s, true), e (rad), tau (commanded τ_k, N m), tau_applied (τᵃ_k, N m), s
-/// (rad/s), n_hat (rad/s²), n_true (rad/s²); then `reply` (what became of the controller's reply
-/// to tick k: applied, late, skipped, missed) and `drives` (what the drives did over
-/// [t_k, t_{k+1}): commanded, clamped, held, rejected; both `unknown` on a tick whose telemetry
-/// never reached the supervisor), and `arrival_ns` (A_k − t_k, when the
-/// command reached the drives: the transport delay plus, in realtime, its measured latency).
-/// tau, s and n_hat are empty on a tick the controller never answered; n_true is empty where the
-/// next state is unknown; arrival_ns where no command was applied.
-///
-/// A write error is kept (the first one, naming the file) and returned by [`TraceWriter::finish`].
-pub struct TraceWriter {
-    path: PathBuf,
-    law: Law,
-    w: csv::Writer<std::fs::File>,
-    fields: Vec<String>,
-    error: Option<anyhow::Error>,
-}
-
-impl TraceWriter {
-    /// Creates the part file `path` for `law`'s rows, starting with the header (a part is a valid
-    /// CSV on its own: what a killed run leaves is readable).
-    pub fn create(path: &Path, law: Law) -> Result<Self> {
-        let mut w = csv::WriterBuilder::new()
-            .has_headers(false)
-            .from_path(path)
-            .with_context(|| format!("cannot create {}", path.display()))?;
-        w.write_record(header())
-            .with_context(|| format!("cannot write {}", path.display()))?;
-        Ok(Self {
-            path: path.to_path_buf(),
-            law,
-            w,
-            fields: vec![String::new(); header().len()],
-            error: None,
-        })
-    }
-
-    /// Writes tick k's row.
-    pub fn write(&mut self, r: &TickRecord, rf: &RefRow, n_true: Option<Vec3>) {
-        use std::fmt::Write as _;
-        if self.error.is_some() {
-            return;
-        }
-        let mut f = self.fields.iter_mut();
-        let mut put = |v: std::fmt::Arguments<'_>| {
-            if let Some(s) = f.next() {
-                s.clear();
-                let _ = s.write_fmt(v);
-            }
-        };
-        put(format_args!("{}", self.law.name()));
-        put(format_args!("{}", r.sample.k));
-        put(format_args!("{:e}", rf.t));
-        let e = rf.joint.q - r.q_true;
-        for v in [&rf.joint.q, &r.q_true, &r.qd_true, &e] {
-            v.iter().for_each(|x| put(format_args!("{x:e}")));
-        }
-        let out = r.out.as_ref();
-        for v in [
-            out.map(|o| o.tau),
-            Some(r.sample.tau_applied),
-            out.map(|o| o.s),
-            out.map(|o| o.n_hat),
-            n_true,
-        ] {
-            match v {
-                Some(v) => v.iter().for_each(|x| put(format_args!("{x:e}"))),
-                None => (0..3).for_each(|_| put(format_args!(""))),
-            }
-        }
-        // Without the plant's telemetry nothing says what it did with the reply: say so.
-        let (fate, drives) = if r.telemetry {
-            (r.fate.name(), drives(r))
-        } else {
-            ("unknown", "unknown")
-        };
-        put(format_args!("{fate}"));
-        put(format_args!("{drives}"));
-        match r.arrival_ns {
-            Some(a) => put(format_args!("{a}")),
-            None => put(format_args!("")),
-        }
-        if let Err(e) = self.w.write_record(&self.fields) {
-            self.error = Some(
-                anyhow::Error::new(e).context(format!("cannot write {}", self.path.display())),
-            );
-        }
-    }
-
-    /// Flushes the part file; the first write error, if any.
-    pub fn finish(mut self) -> Result<()> {
-        if let Some(e) = self.error.take() {
-            return Err(e);
-        }
-        self.w
-            .flush()
-            .with_context(|| format!("cannot write {}", self.path.display()))
-    }
-}
-
-/// The part file of `law`'s rows in run folder `dir`.
-pub fn trace_part(dir: &Path, law: Law) -> PathBuf {
-    dir.join(format!("trace.{law}.part"))
-}
-
-/// Writes `trace.csv` in `dir` from the part files of `laws`, in order: the first part becomes the
-/// file (renamed, not copied: an hour-long trace is gigabytes), the others are appended without
-/// their header lines, and each part is removed once it is in. A missing part (the law never ran)
-/// adds no rows; with no part at all the file is the header alone.
-pub fn join_trace(dir: &Path, laws: &[Law]) -> Result<()> {
-    use std::io::{BufRead, Write as _};
-    let path = dir.join("trace.csv");
-    let named = || format!("cannot write {}", path.display());
-    let parts: Vec<PathBuf> = laws
-        .iter()
-        .map(|&l| trace_part(dir, l))
-        .filter(|p| p.is_file())
-        .collect();
-    let Some((first, rest)) = parts.split_first() else {
-        let mut w = csv::Writer::from_path(&path)
-            .with_context(|| format!("cannot create {}", path.display()))?;
-        w.write_record(header()).with_context(named)?;
-        return w.flush().with_context(named);
-    };
-    std::fs::rename(first, &path).with_context(named)?;
-    let mut out = std::fs::OpenOptions::new()
-        .append(true)
-        .open(&path)
-        .with_context(named)?;
-    for part in rest {
-        let mut r = std::io::BufReader::new(
-            std::fs::File::open(part).with_context(|| format!("cannot read {}", part.display()))?,
-        );
-        let mut head = String::new();
-        r.read_line(&mut head)
-            .with_context(|| format!("cannot read {}", part.display()))?;
-        std::io::copy(&mut r, &mut out).with_context(named)?;
-        let _ = std::fs::remove_file(part);
-    }
-    out.flush().with_context(named)
 }
 
 /// Writes a text file, naming it on failure.

@@ -1,7 +1,7 @@
 //! The study's metrics (docs/controllers.md, "What the study measures"): accumulated tick by tick
 //! from a run's records, its reference and the controller constants, in bounded memory.
 
-use crate::record::sensitivity::Sensitivity;
+use crate::record::sensitivity::{self, Sensitivity};
 use crate::record::{FaultKind, Outcome, RunEnd, RunStatus, TickRecord};
 use crate::study::reference::RefRow;
 use deltaloop_law::{ControllerParams, Law};
@@ -524,6 +524,23 @@ impl<'a> MetricsAcc<'a> {
             k2_in_use: params.k2,
             eq43_holds: k2_req.map(|r| params.k2 > r),
             sensitivity: None,
+        }
+    }
+}
+
+impl LawMetrics {
+    /// The spreads between this run's metrics and its round-off twin's.
+    pub fn against_twin(&self, twin: &LawMetrics) -> Sensitivity {
+        let run = self;
+        Sensitivity {
+            rms_rel: sensitivity::rel3(run.rms_rad, twin.rms_rad),
+            max_err_rel: sensitivity::rel3(run.max_abs_err_rad, twin.max_abs_err_rad),
+            task_rms_rel: sensitivity::rel_spread(run.task_rms_mm, twin.task_rms_mm),
+            tde_rel: run
+                .tde_err_rms
+                .zip(twin.tde_err_rms)
+                .map(|(a, b)| sensitivity::rel3(a, b)),
+            twin_rms_rad: twin.rms_rad.into_iter().fold(0.0, f64::max),
         }
     }
 }

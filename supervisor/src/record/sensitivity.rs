@@ -7,7 +7,6 @@
 //! grow to a percent of the RMS by the end of a run, while `tdc` and `pid` keep 10 or more
 //! digits. A figure is only worth the digits its twin reproduces.
 
-use crate::record::metrics::LawMetrics;
 use serde::{Deserialize, Serialize};
 
 /// What the twin changed, as `summary.json` and the reports say it.
@@ -45,25 +44,12 @@ pub fn rel_spread(a: f64, b: f64) -> f64 {
     }
 }
 
-fn rel3(a: [f64; 3], b: [f64; 3]) -> f64 {
+/// The largest [`rel_spread`] over three joints.
+pub fn rel3(a: [f64; 3], b: [f64; 3]) -> f64 {
     (0..3).map(|j| rel_spread(a[j], b[j])).fold(0.0, f64::max)
 }
 
 impl Sensitivity {
-    /// The spreads between a run's metrics and its twin's.
-    pub fn between(run: &LawMetrics, twin: &LawMetrics) -> Self {
-        Self {
-            rms_rel: rel3(run.rms_rad, twin.rms_rad),
-            max_err_rel: rel3(run.max_abs_err_rad, twin.max_abs_err_rad),
-            task_rms_rel: rel_spread(run.task_rms_mm, twin.task_rms_mm),
-            tde_rel: run
-                .tde_err_rms
-                .zip(twin.tde_err_rms)
-                .map(|(a, b)| rel3(a, b)),
-            twin_rms_rad: twin.rms_rad.into_iter().fold(0.0, f64::max),
-        }
-    }
-
     /// The largest of the spreads: the figure a report quotes for the law.
     pub fn worst(&self) -> f64 {
         [self.rms_rel, self.max_err_rel, self.task_rms_rel]

@@ -12,6 +12,7 @@ mod faults;
 mod handshake;
 mod observe;
 mod spawn;
+mod status;
 
 use crate::loops::feed::ReferenceFeed;
 use crate::loops::lawrun::{self, Keep, LawRun};

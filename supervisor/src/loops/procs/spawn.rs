@@ -1,7 +1,7 @@
 //! Spawning the pair: the children's commands and logs, each child reaped with its resource
 //! usage and killed on drop, and the process-tree check the control services rely on.
 
-use super::faults::status_text;
+use super::status::status_text;
 use super::{exe_dir, role};
 use crate::loops::peer_text::{self, Tail};
 use anyhow::{Context, Result, bail};

@@ -218,9 +218,9 @@ fn check_row(plan: &Plan, d: &Path, m: &Manifest, line: usize, r: &Row) -> Resul
     ) != (p.job.law, p.mode, p.job.ell, p.job.d)
         || r.scenario != p.job.scenario
         || r.preset != p.job.preset
-        || r.compute_delay_us != p.job.compute_us
-        || r.transport_delay_us != p.job.us
-        || r.link_delay_us != p.job.link.map(|l| l.delay_us)
+        || r.compute_delay_us != p.job.kind.compute_us()
+        || r.transport_delay_us != p.job.kind.transport_us()
+        || r.link_delay_us != p.job.kind.link().map(|l| l.delay_us)
     {
         bail!(
             "shard {shown}: sweep.csv row {} says point {} but holds another point's parameters (expected {})",

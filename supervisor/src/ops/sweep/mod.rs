@@ -378,10 +378,7 @@ mod tests {
             law: Law::TdeIs,
             ell: 2,
             d: 1,
-            us: 0.0,
-            compute_us: 200,
-            realtime: true,
-            link: None,
+            kind: PointKind::Compute { us: 200 },
         };
         assert_eq!(rt.to_string(), "s2/paper/tde-is ℓ=2 d=1 c=200us (realtime)");
     }
@@ -394,10 +391,7 @@ mod tests {
             law: Law::Tdc,
             ell: 1,
             d: 0,
-            us: 0.0,
-            compute_us: 200,
-            realtime: true,
-            link: None,
+            kind: PointKind::Compute { us: 200 },
         }
     }
 
@@ -408,8 +402,7 @@ mod tests {
     #[test]
     fn repeats_summarise_to_mean_std_and_t_interval() {
         let job = Job {
-            compute_us: 0,
-            realtime: false,
+            kind: PointKind::Grid,
             ..s2_tdc_realtime_job()
         };
         let m = some_metrics();
@@ -457,8 +450,7 @@ mod tests {
     #[test]
     fn regression_a_single_repeat_leaves_its_spread_cells_empty_not_nan() {
         let job = Job {
-            compute_us: 0,
-            realtime: false,
+            kind: PointKind::Grid,
             ..s2_tdc_realtime_job()
         };
         let one = summarise(vec![row(
@@ -658,7 +650,7 @@ mod tests {
         let m = ended(&ok, Outcome::Interrupted { tick: 3 }, None);
         let cut = row(
             &Job {
-                compute_us: 300,
+                kind: PointKind::Compute { us: 300 },
                 ..job.clone()
             },
             3e-4,

@@ -77,11 +77,11 @@ fn params_key(job: &Job, mode: LoopMode) -> String {
         job.law.name(),
         job.ell,
         job.d,
-        job.us,
-        job.compute_us,
+        job.kind.transport_us(),
+        job.kind.compute_us(),
         mode.name()
     );
-    if let Some(l) = job.link {
+    if let Some(l) = job.kind.link() {
         key += &format!(
             " link_delay_us={:?} link_jitter_us={:?} link_loss={:?}",
             l.delay_us, l.jitter_us, l.loss
@@ -97,7 +97,7 @@ impl Plan {
         check(&sweep)?;
         let mut points = Vec::new();
         for (index, job) in jobs(&sweep).into_iter().enumerate() {
-            let mode = if job.realtime {
+            let mode = if job.kind.realtime() {
                 LoopMode::Realtime
             } else {
                 sweep.mode

@@ -7,7 +7,6 @@ use crate::loops::lawrun::Keep;
 use crate::loops::{self, Ran};
 use crate::record::RunStatus;
 use crate::record::metrics::LawMetrics;
-use crate::record::sensitivity::Sensitivity;
 use crate::record::stats;
 use crate::study::Study;
 use anyhow::{Context, Result};
@@ -226,9 +225,11 @@ pub(super) fn row(
         mode,
         tde_delay_samples: job.ell,
         transport_delay_samples: job.d,
-        transport_delay_us: job.us,
-        effective_delay_ticks: f64::from(job.ell) + f64::from(job.d) + job.us * 1e-6 / ts_s,
-        compute_delay_us: job.compute_us,
+        transport_delay_us: job.kind.transport_us(),
+        effective_delay_ticks: f64::from(job.ell)
+            + f64::from(job.d)
+            + job.kind.transport_us() * 1e-6 / ts_s,
+        compute_delay_us: job.kind.compute_us(),
         status,
         diverged_at_tick: m
             .and_then(|m| m.diverged_at_tick)
@@ -270,7 +271,7 @@ pub(super) fn row(
             .and_then(|m| m.sensitivity)
             .and_then(|x| x.tde_rel)
             .unwrap_or(nan),
-        link_delay_us: job.link.map(|l| l.delay_us),
+        link_delay_us: job.kind.link().map(|l| l.delay_us),
         link_rtt_p50_us: None,
         median_arrival_us: None,
         injected_rms_rad: None,
@@ -367,16 +368,16 @@ pub(super) fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
         job.law,
         job.ell,
         job.d,
-        (job.us * 1e3).round(),
-        job.compute_us,
-        job.link.map_or(String::new(), |l| format!(
+        (job.kind.transport_us() * 1e3).round(),
+        job.kind.compute_us(),
+        job.kind.link().map_or(String::new(), |l| format!(
             "-link{}",
             // + 0.0: −0 µs is the 0 µs point (not a folder `link-0`).
             (l.delay_us * 1e3).round() + 0.0
         ))
     )
     .to_lowercase();
-    if job.link.is_some() && !c.controller.command.is_empty() {
+    if job.kind.link().is_some() && !c.controller.command.is_empty() {
         anyhow::bail!(
             "sweep key `link_delay_us` runs the built-in controller across the bridge: the base's controller.command = {:?} cannot be used with it (leave it out, or run the link axis in a sweep of its own)",
             c.controller.command.join(" ")
@@ -392,9 +393,9 @@ pub(super) fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
     c.controller.phi = Some(p.phi);
     c.controller.laws = vec![job.law];
     c.controller.tde_delay_samples = job.ell;
-    c.controller.compute_delay_us = job.compute_us;
+    c.controller.compute_delay_us = job.kind.compute_us();
     c.plant.transport_delay_samples = job.d;
-    c.plant.transport_delay_us = job.us;
+    c.plant.transport_delay_us = job.kind.transport_us();
     c.validate()?;
     Ok(c)
 }
@@ -433,17 +434,11 @@ fn run_one(
     sub: Option<&str>,
 ) -> Row {
     let ts_s = base.loop_.ts_s;
-    let mode = if job.realtime {
+    let mode = if job.kind.realtime() {
         LoopMode::Realtime
     } else {
         mode
     };
-    type Attempt = (
-        LawMetrics,
-        Option<crate::timing::TimingSummary>,
-        f64,
-        LinkResult,
-    );
     let attempt = || -> Result<Attempt> {
         let mut cfg = point_config(base, job)?;
         cfg.sensor.seed = seed;
@@ -457,7 +452,8 @@ fn run_one(
         // A link point: the far side on this host's loopback, stopped and its root removed
         // when `far` is dropped (also on an error or Ctrl-C).
         let far = job
-            .link
+            .kind
+            .link()
             .map(|l| link_far(&mut cfg, l, seed, &pdir))
             .transpose()?;
         let study = Study::new(cfg).context("reference")?;
@@ -469,7 +465,7 @@ fn run_one(
             match loops::run_law(&study, job.law, mode, &pdir, &Keep::default(), None)? {
                 Ran::Process(r) => {
                     let t = r.timing.summary();
-                    if job.link.is_some() {
+                    if job.kind.link().is_some() {
                         let h = &r.timing.arrival.hist;
                         link.median_arrival_us =
                             (!h.is_empty()).then(|| h.value_at_quantile(0.5) as f64 / 1e3);
@@ -483,36 +479,15 @@ fn run_one(
         if let Some(far) = far {
             far.finish(std::time::Duration::from_secs(2));
         }
-        if job.link.is_some()
+        if job.kind.link().is_some()
             && m.status == RunStatus::Ok
             && let Some(arrival_us) = link.median_arrival_us
         {
-            // The median arrival already holds the point's d·Ts (the plant reports A_k − t_k):
-            // the twin injects all of it as one delay (regression: it kept d samples too).
-            let twin = || -> Result<LawMetrics> {
-                let mut c = point_config(base, job)?;
-                c.sensor.seed = seed;
-                c.plant.transport_delay_samples = 0;
-                c.plant.transport_delay_us = arrival_us;
-                c.validate()?;
-                Ok(inproc::run_law(&Study::new(c)?, job.law, &Keep::default())?.metrics)
-            };
-            // A twin that failed leaves the realtime result whole and says why.
-            match twin() {
-                Ok(t) if t.status == RunStatus::Ok => link.injected_rms_rad = Some(maxj(t.rms_rad)),
-                Ok(t) => {
-                    link.twin_failed = Some(format!(
-                        "injected twin {}: {}",
-                        t.status,
-                        t.reason.as_deref().unwrap_or("")
-                    ))
-                }
-                Err(e) => link.twin_failed = Some(format!("injected twin: {e:#}")),
-            }
+            injected_twin(base, job, seed, arrival_us, &mut link);
         }
         if twin && mode != LoopMode::Realtime && m.status.is_physical() {
             let t = inproc::run_twin(&study, job.law)?;
-            m.sensitivity = Some(Sensitivity::between(&m, &t.metrics));
+            m.sensitivity = Some(m.against_twin(&t.metrics));
         }
         let cost = if mode == LoopMode::Realtime && m.status == RunStatus::Ok {
             let ideal = inproc::run_law(&study, job.law, &Keep::default())?;
@@ -522,7 +497,53 @@ fn run_one(
         };
         Ok((m, timing, cost, link))
     };
-    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(attempt)) {
+    let attempt = std::panic::catch_unwind(std::panic::AssertUnwindSafe(attempt));
+    row_of(job, ts_s, mode, attempt)
+}
+
+/// The in-process twin of a link point: the same point with its median arrival (which already
+/// holds the point's d·Ts: the plant reports A_k − t_k) injected as one constant delay
+/// (regression: it kept d samples too). A twin that failed leaves the realtime result whole and
+/// says why in `link`.
+fn injected_twin(base: &RunConfig, job: &Job, seed: u64, arrival_us: f64, link: &mut LinkResult) {
+    let twin = || -> Result<LawMetrics> {
+        let mut c = point_config(base, job)?;
+        c.sensor.seed = seed;
+        c.plant.transport_delay_samples = 0;
+        c.plant.transport_delay_us = arrival_us;
+        c.validate()?;
+        Ok(inproc::run_law(&Study::new(c)?, job.law, &Keep::default())?.metrics)
+    };
+    match twin() {
+        Ok(t) if t.status == RunStatus::Ok => link.injected_rms_rad = Some(maxj(t.rms_rad)),
+        Ok(t) => {
+            link.twin_failed = Some(format!(
+                "injected twin {}: {}",
+                t.status,
+                t.reason.as_deref().unwrap_or("")
+            ))
+        }
+        Err(e) => link.twin_failed = Some(format!("injected twin: {e:#}")),
+    }
+}
+
+/// What one attempt at a point gives, as `run_one` computes it: the metrics, the loop timing,
+/// the latency cost and the link's figures.
+type Attempt = (
+    LawMetrics,
+    Option<crate::timing::TimingSummary>,
+    f64,
+    LinkResult,
+);
+
+/// The point's row from its attempt: its figures, or the error or panic that ended it.
+fn row_of(
+    job: &Job,
+    ts_s: f64,
+    mode: LoopMode,
+    attempt: std::thread::Result<Result<Attempt>>,
+) -> Row {
+    match attempt {
         Ok(Ok((m, t, cost, link))) => {
             let mut r = Row {
                 latency_cost: cost,

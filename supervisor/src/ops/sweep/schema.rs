@@ -88,12 +88,57 @@ pub struct Job {
     pub(super) law: Law,
     pub(super) ell: u32,
     pub(super) d: u32,
-    /// Sub-tick transport delay, µs.
-    pub(super) us: f64,
-    pub(super) compute_us: u32,
-    pub(super) realtime: bool,
-    /// A point of the `link_delay_us` axis (realtime, the controller across the bridge).
-    pub(super) link: Option<Link>,
+    /// Which axis the point is of, and its value there.
+    pub(super) kind: PointKind,
+}
+
+/// The axes of a sweep beyond the ℓ × d grid, one variant each: what a point of that axis varies.
+/// A new axis is a variant here, its key in [`SweepFile`] and its points in [`expand`], and its
+/// setting in `point_config` (point.rs); its columns in the row.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PointKind {
+    /// A grid point: ℓ × d, in the sweep's mode.
+    Grid,
+    /// The `transport_delay_us` axis: this much transport delay beyond whole ticks, µs.
+    SubTick { us: f64 },
+    /// The `compute_delay_us` axis: realtime, with this extra controller compute per tick, µs.
+    Compute { us: u32 },
+    /// The `link_delay_us` axis: realtime, the controller across the bridge.
+    Link(Link),
+}
+
+impl PointKind {
+    /// The point runs in realtime whatever the sweep's mode.
+    pub fn realtime(self) -> bool {
+        match self {
+            PointKind::Grid | PointKind::SubTick { .. } => false,
+            PointKind::Compute { .. } | PointKind::Link(_) => true,
+        }
+    }
+
+    /// `plant.transport_delay_us` of the point, µs.
+    pub fn transport_us(self) -> f64 {
+        match self {
+            PointKind::SubTick { us } => us,
+            _ => 0.0,
+        }
+    }
+
+    /// `controller.compute_delay_us` of the point, µs.
+    pub fn compute_us(self) -> u32 {
+        match self {
+            PointKind::Compute { us } => us,
+            _ => 0,
+        }
+    }
+
+    /// The emulated link of a link point.
+    pub fn link(self) -> Option<Link> {
+        match self {
+            PointKind::Link(l) => Some(l),
+            _ => None,
+        }
+    }
 }
 
 impl std::fmt::Display for Job {
@@ -108,15 +153,12 @@ impl std::fmt::Display for Job {
             self.ell,
             self.d
         )?;
-        if self.us > 0.0 {
-            write!(f, " D+={}us", self.us)?;
+        match self.kind {
+            PointKind::Grid => Ok(()),
+            PointKind::SubTick { us } => write!(f, " D+={us}us"),
+            PointKind::Compute { us } => write!(f, " c={us}us (realtime)"),
+            PointKind::Link(l) => write!(f, " link={}us (realtime, across the bridge)", l.delay_us),
         }
-        if let Some(l) = self.link {
-            write!(f, " link={}us (realtime, across the bridge)", l.delay_us)?;
-        } else if self.realtime {
-            write!(f, " c={}us (realtime)", self.compute_us)?;
-        }
-        Ok(())
     }
 }
 
@@ -388,40 +430,31 @@ pub(super) fn jobs(sw: &SweepFile) -> Vec<Job> {
                             law,
                             ell,
                             d,
-                            us: 0.0,
-                            compute_us: 0,
-                            realtime: false,
-                            link: None,
+                            kind: PointKind::Grid,
                         });
                     }
                 }
                 // The side axes run at the first ℓ and d; D = 0 is the grid point itself.
-                let side = |us, compute_us, realtime| Job {
+                let side = |kind| Job {
                     scenario,
                     preset,
                     law,
                     ell: sw.tde_delay_samples[0],
                     d: sw.transport_delay_samples[0],
-                    us,
-                    compute_us,
-                    realtime,
-                    link: None,
+                    kind,
                 };
                 for &us in sw.transport_delay_us.iter().filter(|&&us| us > 0.0) {
-                    v.push(side(us, 0, false));
+                    v.push(side(PointKind::SubTick { us }));
                 }
-                for &c in &sw.compute_delay_us {
-                    v.push(side(0.0, c, true));
+                for &us in &sw.compute_delay_us {
+                    v.push(side(PointKind::Compute { us }));
                 }
                 for &delay_us in &sw.link_delay_us {
-                    v.push(Job {
-                        link: Some(Link {
-                            delay_us,
-                            jitter_us: sw.link_jitter_us,
-                            loss: sw.link_loss,
-                        }),
-                        ..side(0.0, 0, true)
-                    });
+                    v.push(side(PointKind::Link(Link {
+                        delay_us,
+                        jitter_us: sw.link_jitter_us,
+                        loss: sw.link_loss,
+                    })));
                 }
             }
         }

@@ -12,7 +12,8 @@
 //! The process cannot tell it is not on the supervisor's host.
 
 use crate::Role;
-use crate::frame::{self, Hello, Kind, bytes_of};
+use crate::bytes::{self, bytes_of};
+use crate::frame::{Hello, Kind};
 use crate::link::{self, Tcp, Udp};
 use crate::seal::{self, End, LinkKey, Session};
 use crate::sides::{ControllerHost, PlantHost};
@@ -35,6 +36,12 @@ use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
+
+mod child;
+mod relay;
+
+use child::*;
+use relay::*;
 
 /// `deltaloop-bridge far`.
 #[derive(clap::Args, Debug)]
@@ -352,18 +359,11 @@ fn join(a: &Args, mut stream: TcpStream, term: &AtomicBool) -> Result<(Tcp, Sess
     Ok((tcp, session))
 }
 
-/// One run: HELLO, ports, the far process, the loop, the end.
-fn serve(
-    a: &Args,
-    stream: TcpStream,
-    cmd: &[String],
-    term: &AtomicBool,
-) -> Result<(u8, Option<String>)> {
-    let (mut tcp, session) = join(a, stream, term)?;
-    let mut hello = None;
+/// Waits for the near side's HELLO (None: SIGTERM came first).
+fn await_hello(a: &Args, tcp: &mut Tcp, term: &AtomicBool) -> Result<Option<Hello>> {
     let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
-    while hello.is_none() {
-        let mut err = None;
+    loop {
+        let (mut hello, mut err) = (None, None);
         tcp.poll(|k, p| {
             match (k, Hello::decode(p)) {
                 (Kind::Hello, Ok(h)) => hello = Some(h),
@@ -375,33 +375,79 @@ fn serve(
         if let Some(e) = err {
             bail!("{e}");
         }
+        if hello.is_some() {
+            return Ok(hello);
+        }
         if term.load(Ordering::Relaxed) {
-            return Ok((
-                EXIT_STOPPED,
-                Some("interrupted while waiting for the near side's HELLO".into()),
-            ));
+            return Ok(None);
         }
         if tcp.closed || rt::now_ns() > end {
             bail!("the near side at {} sent no HELLO", a.connect);
         }
         std::thread::sleep(Duration::from_millis(1));
     }
-    let hello = hello.unwrap_or_else(|| unreachable!());
-    let fail = |tcp: &mut Tcp, why: String| -> Result<(u8, Option<String>)> {
-        let line = format!("far side: {why}");
-        tcp.send(
-            Kind::Exit,
-            &[&u32::from(EXIT_SETUP).to_ne_bytes(), line.as_bytes()],
-        )?;
-        let t = rt::now_ns() + 1_000_000_000;
-        while tcp.pending() > 0 && rt::now_ns() < t {
-            tcp.flush()?;
-            std::thread::sleep(Duration::from_millis(1));
+}
+
+/// Tells the near side why this side cannot take the run (set-up failed), and says it here.
+fn refuse(tcp: &mut Tcp, why: String) -> Result<(u8, Option<String>)> {
+    let line = format!("far side: {why}");
+    tcp.send(
+        Kind::Exit,
+        &[&u32::from(EXIT_SETUP).to_ne_bytes(), line.as_bytes()],
+    )?;
+    let t = rt::now_ns() + 1_000_000_000;
+    while tcp.pending() > 0 && rt::now_ns() < t {
+        tcp.flush()?;
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    Ok((EXIT_SETUP, Some(line)))
+}
+
+/// Relays the run between the local process's ports and the link until it ends; its exit code.
+/// `(spin_ns, mode, far_emu)`: how this side polls, the loop mode, and its emulated link.
+fn relay(
+    ports: Either,
+    link: &mut FarLink,
+    (spin_ns, mode, far_emu): (u64, LoopMode, crate::emulation::Emulation),
+    term: &AtomicBool,
+) -> Result<u8> {
+    Ok(match ports {
+        Either::Controller(ports) => {
+            let mut f = Far {
+                ports,
+                host: ControllerHost::new(spin_ns, false),
+            };
+            f.forward(link, term)?
         }
-        Ok((EXIT_SETUP, Some(line)))
+        Either::Plant(ports) => {
+            let mut f = FarPlant {
+                ports,
+                host: PlantHost::new(spin_ns, mode == LoopMode::Lockstep).with_record(),
+            };
+            let code = f.forward(link, term)?;
+            let counts = f.host.counts();
+            crate::near::link_summary(&far_emu, link.udp.emulated_lost, Some(counts));
+            code
+        }
+    })
+}
+
+/// One run: HELLO, ports, the far process, the loop, the end.
+fn serve(
+    a: &Args,
+    stream: TcpStream,
+    cmd: &[String],
+    term: &AtomicBool,
+) -> Result<(u8, Option<String>)> {
+    let (mut tcp, session) = join(a, stream, term)?;
+    let Some(hello) = await_hello(a, &mut tcp, term)? else {
+        return Ok((
+            EXIT_STOPPED,
+            Some("interrupted while waiting for the near side's HELLO".into()),
+        ));
     };
     if hello.role != a.role {
-        return fail(
+        return refuse(
             &mut tcp,
             format!(
                 "the run at {} puts the {} on this host, and this side joined with --role {} (run `deltaloop join {} --role {}`)",
@@ -413,13 +459,13 @@ fn serve(
     let mode = hello.mode;
     let dir = match private_dir(&hello.run_id) {
         Ok(d) => d,
-        Err(e) => return fail(&mut tcp, format!("{e:#}")),
+        Err(e) => return refuse(&mut tcp, format!("{e:#}")),
     };
     let _tmp = TempDir(dir.clone());
     let config = dir.join("config.toml");
     let cfg = match RunConfig::from_toml_str(&hello.config, None) {
         Ok(c) => c,
-        Err(e) => return fail(&mut tcp, format!("the run's config: {e:#}")),
+        Err(e) => return refuse(&mut tcp, format!("the run's config: {e:#}")),
     };
     let (cfg, said) = this_hosts_placement(cfg, a.role, a.placement);
     if let Some(line) = said {
@@ -435,7 +481,7 @@ fn serve(
     };
     let ports = match ports {
         Ok(p) => p,
-        Err(e) => return fail(&mut tcp, format!("{e:#}")),
+        Err(e) => return refuse(&mut tcp, format!("{e:#}")),
     };
     let local = tcp.stream.local_addr()?;
     let udp = UdpSocket::bind(SocketAddr::new(local.ip(), 0))?;
@@ -446,12 +492,12 @@ fn serve(
     let mut udp = Udp::sealed(udp, &session, End::Far, far_emu)?;
     let spin_ns = match crate::spin_ns(&config, mode, a.spin_us) {
         Ok(s) => s,
-        Err(e) => return fail(&mut tcp, format!("{e:#}")),
+        Err(e) => return refuse(&mut tcp, format!("{e:#}")),
     };
     let law = hello.law.filter(|_| !plant).map(Law::name);
     let child = match spawn(cmd, &hello.run_id, mode, &config, law) {
         Ok(c) => c,
-        Err(e) => return fail(&mut tcp, format!("{e:#}")),
+        Err(e) => return refuse(&mut tcp, format!("{e:#}")),
     };
     tcp.send(Kind::Ack, &[&port.to_ne_bytes()])?;
     udp.send(Kind::Punch, &[], rt::now_ns())?;
@@ -463,25 +509,7 @@ fn serve(
         near_gone_ns: None,
         next_check: 0,
     };
-    let code = match ports {
-        Either::Controller(ports) => {
-            let mut f = Far {
-                ports,
-                host: ControllerHost::new(spin_ns, false),
-            };
-            f.forward(&mut link, term)?
-        }
-        Either::Plant(ports) => {
-            let mut f = FarPlant {
-                ports,
-                host: PlantHost::new(spin_ns, mode == LoopMode::Lockstep).with_record(),
-            };
-            let code = f.forward(&mut link, term)?;
-            let counts = f.host.counts();
-            crate::near::link_summary(&far_emu, link.udp.emulated_lost, Some(counts));
-            code
-        }
-    };
+    let code = relay(ports, &mut link, (spin_ns, mode, far_emu), term)?;
     link.report(code)?;
     std::thread::sleep(ipc::LINGER);
     let line = (!link.child.last_line.is_empty()).then(|| link.child.last_line.clone());
@@ -489,438 +517,6 @@ fn serve(
     let id = hello.run_id.clone();
     ipc::remove_dead_nodes_where(|n| n.ends_with(&id));
     Ok((code, line))
-}
-
-/// The ports of the role this side serves.
-enum Either {
-    Controller(Ports),
-    Plant(PlantSidePorts),
-}
-
-/// Removes the run's temporary folder (its config) when the run is over.
-struct TempDir(PathBuf);
-
-/// The prefix of a far bridge's private folder in the temporary directory.
-const DIR_PREFIX: &str = "deltaloop-join-";
-
-/// A new folder of this process for run `run_id`, mode 700, under a name no one can guess
-/// (regression: the name was `deltaloop-join-<pid>-<run id>`, and a link planted there made
-/// `join` write the run's config through it). Never an existing path.
-fn private_dir(run_id: &str) -> Result<PathBuf> {
-    use std::os::unix::fs::DirBuilderExt;
-    let salt: [u8; 8] = crate::seal::random_bytes().map_err(anyhow::Error::msg)?;
-    let salt: String = salt.iter().map(|b| format!("{b:02x}")).collect();
-    let dir = std::env::temp_dir().join(format!(
-        "{DIR_PREFIX}{}-{run_id}-{salt}",
-        std::process::id()
-    ));
-    std::fs::DirBuilder::new()
-        .mode(0o700)
-        .create(&dir)
-        .with_context(|| format!("cannot create {}", dir.display()))?;
-    Ok(dir)
-}
-
-/// Removes what far bridges killed outright left behind: their private folders (a process that
-/// is gone named in the folder's name) and their dead iceoryx2 nodes' resources (regression: a
-/// far bridge killed with -9 left 17 entries, 11 MiB, in /dev/shm and its folder, and no later
-/// `join` removed them). Says what it removed.
-pub fn remove_leftovers() {
-    let mut gone = 0;
-    if let Ok(rd) = std::fs::read_dir(std::env::temp_dir()) {
-        for e in rd.flatten() {
-            let name = e.file_name().to_string_lossy().into_owned();
-            let Some(pid) = name
-                .strip_prefix(DIR_PREFIX)
-                .and_then(|r| r.split('-').next())
-                .and_then(|p| p.parse::<i32>().ok())
-            else {
-                continue;
-            };
-            // SAFETY: kill with signal 0 only asks whether the process exists.
-            let alive = unsafe { libc::kill(pid, 0) } == 0
-                || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM);
-            // SAFETY: geteuid has no preconditions.
-            let me = unsafe { libc::geteuid() };
-            let mine = e
-                .metadata()
-                .is_ok_and(|m| std::os::unix::fs::MetadataExt::uid(&m) == me);
-            if !alive && mine && std::fs::remove_dir_all(e.path()).is_ok() {
-                gone += 1;
-            }
-        }
-    }
-    let nodes = ipc::remove_dead_nodes();
-    if gone > 0 || !nodes.is_empty() {
-        eprintln!(
-            "deltaloop-bridge: removed what earlier far bridges killed outright left: {gone} folder(s), the iceoryx2 resources of {} dead node(s)",
-            nodes.len()
-        );
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-fn spawn(
-    cmd: &[String],
-    run_id: &str,
-    mode: LoopMode,
-    config: &std::path::Path,
-    law: Option<&str>,
-) -> Result<FarChild> {
-    let what = if law.is_some() { "controller" } else { "plant" };
-    let mut c = Command::new(&cmd[0]);
-    c.args(&cmd[1..])
-        .args(["--run-id", run_id, "--config"])
-        .arg(config)
-        .args(["--mode", mode.name()])
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped());
-    if let Some(law) = law {
-        c.args(["--law", law]);
-    }
-    rt::die_with_parent(&mut c);
-    let child = c
-        .spawn()
-        .with_context(|| format!("cannot start the {what} `{}`", cmd.join(" ")))?;
-    if let Some(e) = &child.stderr {
-        use std::os::fd::AsRawFd;
-        // SAFETY: setting O_NONBLOCK on a pipe descriptor we own.
-        unsafe {
-            let fl = libc::fcntl(e.as_raw_fd(), libc::F_GETFL);
-            libc::fcntl(e.as_raw_fd(), libc::F_SETFL, fl | libc::O_NONBLOCK);
-        }
-    }
-    Ok(FarChild {
-        child,
-        what,
-        stderr_buf: Vec::with_capacity(4096),
-        last_line: String::new(),
-    })
-}
-
-/// The process this side started, its stderr and its end.
-struct FarChild {
-    child: Child,
-    /// `controller` or `plant`.
-    what: &'static str,
-    stderr_buf: Vec<u8>,
-    last_line: String,
-}
-
-impl Drop for FarChild {
-    fn drop(&mut self) {
-        if self.child.try_wait().ok().flatten().is_none() {
-            // SAFETY: signalling our own child, not yet reaped.
-            unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
-            for _ in 0..200 {
-                if self.child.try_wait().ok().flatten().is_some() {
-                    return;
-                }
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
-    }
-}
-
-/// The link and the far process: what both roles do around their loop.
-struct FarLink {
-    udp: Udp,
-    tcp: Tcp,
-    child: FarChild,
-    stop_sent: bool,
-    /// When the near side closed the control connection.
-    near_gone_ns: Option<u64>,
-    /// When to look whether the process has exited next.
-    next_check: u64,
-}
-
-impl FarLink {
-    /// The wait of one turn: the socket, the control connection, the wake-up `event` and the
-    /// process's stderr.
-    fn wait(&self, event: &Listener<Svc>, timeout_ns: u64) -> Result<[bool; 4]> {
-        let err_fd = self
-            .child
-            .child
-            .stderr
-            .as_ref()
-            .map_or(-1, std::os::fd::AsRawFd::as_raw_fd);
-        let mut fds = [
-            link::readable(&self.udp.sock),
-            link::readable(&self.tcp.stream),
-            link::event(event),
-            libc::pollfd {
-                fd: err_fd,
-                events: libc::POLLIN,
-                revents: 0,
-            },
-        ];
-        if self.tcp.pending() > 0 {
-            fds[1].events |= libc::POLLOUT;
-        }
-        link::wait(&mut fds, timeout_ns)?;
-        Ok(fds.map(|f| f.revents != 0))
-    }
-
-    /// The end of a turn: stderr passed on, STOP published here on SIGTERM or when the near side
-    /// has gone (the process is stopped 3 s later if it does not exit), the process's exit.
-    /// Some: its exit code.
-    fn ended(
-        &mut self,
-        control: &Publisher<Svc, ControlMsg, ()>,
-        err_in: bool,
-        term: &AtomicBool,
-    ) -> Result<Option<u8>> {
-        let now = rt::now_ns();
-        if err_in {
-            self.stderr()?;
-        }
-        if term.load(Ordering::Relaxed) || self.tcp.closed {
-            if !self.stop_sent {
-                self.stop_sent = true;
-                let stop = ControlMsg::new(ControlKind::Stop, Sender::Supervisor);
-                control.send_copy(stop).ipc("publish STOP")?;
-            }
-            if self.tcp.closed {
-                let gone = *self.near_gone_ns.get_or_insert(now);
-                if now > gone + 3_000_000_000 {
-                    // SAFETY: signalling our own child, not yet reaped.
-                    unsafe { libc::kill(self.child.child.id() as i32, libc::SIGTERM) };
-                }
-            }
-        }
-        if !(err_in || now > self.next_check) {
-            return Ok(None);
-        }
-        self.next_check = now + 50_000_000;
-        let Some(st) = self.child.child.try_wait()? else {
-            return Ok(None);
-        };
-        self.stderr()?;
-        use std::os::unix::process::ExitStatusExt;
-        Ok(Some(match (st.code(), st.signal()) {
-            (Some(c), _) => u8::try_from(c).unwrap_or(EXIT_FAULT),
-            (None, Some(sig)) => {
-                self.child.last_line =
-                    format!("the {} was killed by signal {sig}", self.child.what);
-                EXIT_FAULT
-            }
-            _ => EXIT_FAULT,
-        }))
-    }
-
-    /// The process's stderr: shown here and sent to the near side line by line.
-    fn stderr(&mut self) -> Result<()> {
-        let c = &mut self.child;
-        let Some(err) = c.child.stderr.as_mut() else {
-            return Ok(());
-        };
-        let mut buf = [0u8; 4096];
-        loop {
-            match err.read(&mut buf) {
-                Ok(0) => break,
-                Ok(n) => c.stderr_buf.extend_from_slice(&buf[..n]),
-                Err(e) if e.kind() == ErrorKind::WouldBlock => break,
-                Err(e) if e.kind() == ErrorKind::Interrupted => {}
-                Err(_) => break,
-            }
-        }
-        while let Some(i) = c.stderr_buf.iter().position(|&b| b == b'\n') {
-            let line: Vec<u8> = c.stderr_buf.drain(..=i).collect();
-            let line = wire::escape_peer_text(&String::from_utf8_lossy(&line[..i]));
-            eprintln!("{line}");
-            self.tcp.send(Kind::Log, &[line.as_bytes()])?;
-            c.last_line = line;
-        }
-        Ok(())
-    }
-
-    /// Tells the near side how the process ended, and waits (a little) for everything queued to
-    /// go out.
-    fn report(&mut self, code: u8) -> Result<()> {
-        let line = self.child.last_line.clone();
-        self.tcp.send(
-            Kind::Exit,
-            &[&u32::from(code).to_ne_bytes(), line.as_bytes()],
-        )?;
-        let t = rt::now_ns() + 500_000_000;
-        while self.tcp.pending() > 0 && !self.tcp.closed && rt::now_ns() < t {
-            self.tcp.flush()?;
-            std::thread::sleep(Duration::from_millis(1));
-        }
-        Ok(())
-    }
-
-    /// A START or STOP from the near side, published here (START's deadline made absolute on
-    /// this host's clock). Returns whether it was START.
-    fn run_control(control: &Publisher<Svc, ControlMsg, ()>, p: &[u8]) -> Result<bool> {
-        let Some(mut c) = frame::read::<ControlMsg>(p) else {
-            return Ok(false);
-        };
-        match c.kind() {
-            Some(ControlKind::Start) => {
-                c.t0_ns = crate::near::absolute_t0(c.t0_ns);
-                control.send_copy(c).ipc("publish START")?;
-                Ok(true)
-            }
-            Some(ControlKind::Stop) => {
-                control.send_copy(c).ipc("publish STOP")?;
-                Ok(false)
-            }
-            _ => Ok(false),
-        }
-    }
-}
-
-/// `--role controller`: the supervisor and the plant on the controller's host.
-struct Far {
-    ports: Ports,
-    host: ControllerHost,
-}
-
-impl Far {
-    /// Carries the run until the controller exits; its exit code.
-    fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
-        loop {
-            let now = rt::now_ns();
-            let timeout = self.host.timeout_ns(&l.udp, now);
-            let [udp_in, tcp_in, torque_in, err_in] = l.wait(&self.ports.torque_ready, timeout)?;
-            let c = &self.ports;
-            let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
-            self.host.turn(&ports, (torque_in, udp_in), &mut l.udp)?;
-            self.control_plane(l, tcp_in)?;
-            if let Some(code) = l.ended(&self.ports.control, err_in, term)? {
-                return Ok(code);
-            }
-        }
-    }
-
-    fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
-        while let Some(s) = self.ports.control_in.receive().ipc("receive control")? {
-            let c = *s.payload();
-            if c.kind().is_some_and(ControlKind::said_by_controller) {
-                l.tcp.send(Kind::Control, &[bytes_of(&c)])?;
-            }
-        }
-        if l.tcp.pending() > 0 {
-            l.tcp.flush()?;
-        }
-        if !tcp_in {
-            return Ok(());
-        }
-        let ports = &self.ports;
-        let (mut started, mut finals) = (false, None);
-        l.tcp.poll(|kind, p| {
-            match kind {
-                Kind::Control => started |= FarLink::run_control(&ports.control, p)?,
-                Kind::Reference => {
-                    let rows = p.len() / size_of::<RefSample>();
-                    let chunk = ports
-                        .reference
-                        .loan_slice_uninit(rows)
-                        .ipc("loan a reference chunk")?;
-                    let chunk = chunk.write_from_fn(|i| {
-                        frame::read::<RefSample>(
-                            &p[i * size_of::<RefSample>()..(i + 1) * size_of::<RefSample>()],
-                        )
-                        .unwrap_or_default()
-                    });
-                    chunk.send().ipc("send a reference chunk")?;
-                }
-                Kind::Final => finals = frame::read::<StateMsg>(p),
-                _ => {}
-            }
-            Ok(())
-        })?;
-        let ports = (&self.ports.state, &self.ports.state_ready);
-        if started {
-            self.host.start(ports)?;
-        }
-        if let Some(s) = finals {
-            self.host.publish_state(ports, s)?;
-        }
-        Ok(())
-    }
-}
-
-/// `--role plant`: the supervisor and the controller on the plant's host.
-struct FarPlant {
-    ports: PlantSidePorts,
-    host: PlantHost,
-}
-
-impl FarPlant {
-    /// Carries the run until the plant exits; its exit code.
-    fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
-        loop {
-            let timeout = self.host.timeout_ns(&l.udp, rt::now_ns());
-            let [udp_in, tcp_in, state_in, err_in] = l.wait(&self.ports.state_ready, timeout)?;
-            // Run control first: a STOP must reach the plant before anything it answers.
-            self.control_plane(l, tcp_in)?;
-            let c = &self.ports;
-            let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
-            let ready = (state_in, udp_in);
-            self.host.turn(&ports, ready, &mut l.udp, &mut l.tcp)?;
-            self.plant_out(l)?;
-            if let Some(code) = l.ended(&self.ports.control, err_in, term)? {
-                // What the plant published last (its final state, the safe stop's telemetry)
-                // goes out before its end.
-                self.plant_out(l)?;
-                let ports = (&self.ports.state, &self.ports.state_ready);
-                self.host.states(ports, &mut l.udp, &mut l.tcp)?;
-                return Ok(code);
-            }
-        }
-    }
-
-    /// The near side's run control and the controller's READY/ARMED in.
-    fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
-        if !tcp_in {
-            return Ok(());
-        }
-        let ports = &self.ports;
-        l.tcp.poll(|kind, p| {
-            if kind == Kind::Control {
-                FarLink::run_control(&ports.control, p)?;
-                if let Some(c) = frame::read::<ControlMsg>(p)
-                    && let Some(k) = c.kind().filter(|k| k.said_by_controller())
-                {
-                    let said = ControlMsg::new(k, Sender::Controller);
-                    ports
-                        .as_controller
-                        .send_copy(said)
-                        .ipc("send controller control")?;
-                }
-            }
-            Ok(())
-        })
-    }
-
-    /// The plant's control messages and telemetry out over TCP (reliable, in order).
-    fn plant_out(&mut self, l: &mut FarLink) -> Result<()> {
-        while let Some(s) = self
-            .ports
-            .control_in
-            .receive()
-            .ipc("receive plant control")?
-        {
-            l.tcp.send(Kind::Control, &[bytes_of(s.payload())])?;
-        }
-        while let Some(s) = self.ports.telemetry.receive().ipc("receive telemetry")? {
-            l.tcp.queue(Kind::Telemetry, &[bytes_of(s.payload())])?;
-        }
-        if l.tcp.pending() > 0 {
-            l.tcp.flush()?;
-        }
-        Ok(())
-    }
 }
 
 #[cfg(test)]

@@ -10,38 +10,7 @@ use std::io::{ErrorKind, Read, Write};
 use std::net::{TcpStream, UdpSocket};
 use std::os::fd::AsRawFd;
 
-/// Emulated network on the sending side of each direction (this kernel has no `netem`): every
-/// datagram is delayed by `delay_ns` plus a uniform draw from [0, `jitter_ns`], or lost with
-/// probability `loss_ppm`/10⁶, from a seeded generator, so a run's link is reproducible. Order is
-/// kept (a datagram never overtakes an earlier one), as on one wire.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Emulation {
-    /// One-way delay, ns.
-    pub delay_ns: u64,
-    /// One-way jitter, ns: uniform in [0, jitter_ns] on top of the delay.
-    pub jitter_ns: u64,
-    /// Loss, parts per million of datagrams.
-    pub loss_ppm: u32,
-    /// Seed of the draws (the far side uses seed + 1 for its direction).
-    pub seed: u64,
-}
-
-impl Emulation {
-    /// The emulation of the config's `[link]` (validated there: delay and jitter 0..=1 s, loss
-    /// 0..=1).
-    pub fn of(link: &deltaloop_config::LinkSection) -> Self {
-        Self {
-            delay_ns: (link.delay_us * 1000.0).round() as u64,
-            jitter_ns: (link.jitter_us * 1000.0).round() as u64,
-            loss_ppm: (link.loss * 1e6).round() as u32,
-            seed: link.seed,
-        }
-    }
-
-    pub fn is_off(&self) -> bool {
-        self.delay_ns == 0 && self.jitter_ns == 0 && self.loss_ppm == 0
-    }
-}
+pub use crate::emulation::Emulation;
 
 /// SplitMix64: small, seeded, allocation-free.
 struct Rng(u64);
@@ -510,6 +479,7 @@ pub fn readable(fd: &impl AsRawFd) -> libc::pollfd {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bytes;
     use crate::seal::{End, Session};
 
     fn pair(emu: Emulation) -> (Udp, Udp) {
@@ -563,7 +533,7 @@ mod tests {
         std::thread::sleep(std::time::Duration::from_millis(20));
         for i in 0..5u64 {
             let (k, p) = b.recv().unwrap().unwrap();
-            assert_eq!((k, frame::read::<u64>(&p[..8])), (Kind::Ping, Some(i)));
+            assert_eq!((k, bytes::read::<u64>(&p[..8])), (Kind::Ping, Some(i)));
         }
     }
 
@@ -593,7 +563,7 @@ mod tests {
             std::thread::sleep(std::time::Duration::from_millis(20));
             let mut got = Vec::new();
             while let Some((k, p)) = rx.recv().unwrap() {
-                got.push((k, frame::read::<u64>(&p[..8]).unwrap()));
+                got.push((k, bytes::read::<u64>(&p[..8]).unwrap()));
             }
             got
         };

@@ -10,7 +10,8 @@
 //!
 //! Neither allocates, locks or makes a syscall beyond the sockets, iceoryx2 and the clock.
 
-use crate::frame::{self, Kind, bytes_of};
+use crate::bytes::{self, bytes_of};
+use crate::frame::Kind;
 use crate::link::{self, Tcp, Udp};
 use crate::replies::{Inbox, Outbox};
 use anyhow::Result;
@@ -366,7 +367,7 @@ impl ControllerHost {
             if kind != Kind::State {
                 continue;
             }
-            let Some(s) = frame::read::<StateMsg>(p) else {
+            let Some(s) = bytes::read::<StateMsg>(p) else {
                 continue;
             };
             if self.replies.newest_tick() == Some(s.tick) {

@@ -16,6 +16,8 @@
 //! The per-tick path allocates nothing and takes no lock: `ppoll` on the socket and the event,
 //! `recv`/`send` of one datagram, iceoryx2's publish and notify, the clock.
 
+pub mod bytes;
+pub mod emulation;
 pub mod far;
 pub mod files;
 pub mod frame;
@@ -88,7 +90,7 @@ pub struct EmuArgs {
 
 impl EmuArgs {
     /// The emulation; one line naming the field otherwise.
-    pub fn emulation(&self) -> Result<link::Emulation> {
+    pub fn emulation(&self) -> Result<emulation::Emulation> {
         let us = |what: &str, v: f64| -> Result<u64> {
             if !(v.is_finite() && (0.0..=1e6).contains(&v)) {
                 bail!("--{what} {v}: allowed 0..=1000000 µs");
@@ -98,7 +100,7 @@ impl EmuArgs {
         if !(self.link_loss.is_finite() && (0.0..=1.0).contains(&self.link_loss)) {
             bail!("--link-loss {}: allowed 0..=1 (a fraction)", self.link_loss);
         }
-        Ok(link::Emulation {
+        Ok(emulation::Emulation {
             delay_ns: us("link-delay-us", self.link_delay_us)?,
             jitter_ns: us("link-jitter-us", self.link_jitter_us)?,
             loss_ppm: (self.link_loss * 1e6).round() as u32,

@@ -8,7 +8,7 @@
 //! entries, newest first, each a `TorqueMsg` and the far side's residence (u64, ns: state in to
 //! reply out, on the far host's clock).
 
-use crate::frame::{self, bytes_of};
+use crate::bytes::{self, bytes_of};
 use deltaloop_transport::wire::TorqueMsg;
 
 /// Replies per datagram: the newest and the two before it.
@@ -61,7 +61,7 @@ impl Outbox {
 fn entry(p: &[u8], i: usize) -> Option<(TorqueMsg, u64)> {
     let e = p.get(i * ENTRY..(i + 1) * ENTRY)?;
     let (msg, res) = e.split_at(ENTRY - 8);
-    Some((frame::read::<TorqueMsg>(msg)?, frame::read::<u64>(res)?))
+    Some((bytes::read::<TorqueMsg>(msg)?, bytes::read::<u64>(res)?))
 }
 
 /// Ticks the near side remembers having republished.

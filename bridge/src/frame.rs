@@ -8,7 +8,7 @@
 //! memory). Both hosts must have the same byte order (checked by the magic).
 
 use deltaloop_config::{Law, LoopMode};
-use deltaloop_transport::wire::{ControlMsg, RefSample, StateMsg, TelemetryMsg, TorqueMsg};
+use deltaloop_transport::wire::{ControlMsg, RefSample, StateMsg, TelemetryMsg};
 
 /// `DLB2`, read as a native u32: a host of the other byte order reads `2BLD` and drops it (and a
 /// peer of the unsealed link, `DLB1`, is told it is of another version).
@@ -70,48 +70,6 @@ impl Kind {
         .into_iter()
         .find(|k| *k as u16 == v)
     }
-}
-
-/// Plain old data: every bit pattern is a valid value and there is no implicit padding, so its
-/// bytes may be read and written as they are.
-///
-/// # Safety
-/// Only for `#[repr(C)]` types of integer and float fields (and arrays of them) whose explicit
-/// `_pad` fields leave no implicit padding.
-pub unsafe trait Pod: Copy + 'static {}
-// SAFETY: repr(C), u64/u32/f64 fields and arrays, explicit padding (docs/protocol.md §4).
-unsafe impl Pod for StateMsg {}
-// SAFETY: as above.
-unsafe impl Pod for TorqueMsg {}
-// SAFETY: as above.
-unsafe impl Pod for ControlMsg {}
-// SAFETY: as above.
-unsafe impl Pod for RefSample {}
-// SAFETY: as above.
-unsafe impl Pod for TelemetryMsg {}
-// SAFETY: a primitive.
-unsafe impl Pod for u64 {}
-// SAFETY: a primitive.
-unsafe impl Pod for u32 {}
-
-/// The bytes of `v`.
-pub fn bytes_of<T: Pod>(v: &T) -> &[u8] {
-    // SAFETY: T is Pod: all of its size_of bytes are initialised.
-    unsafe { std::slice::from_raw_parts((v as *const T).cast::<u8>(), size_of::<T>()) }
-}
-
-/// The bytes of a slice of `T`.
-pub fn bytes_of_slice<T: Pod>(v: &[T]) -> &[u8] {
-    // SAFETY: as in bytes_of, for every element; the length is the slice's in bytes.
-    unsafe { std::slice::from_raw_parts(v.as_ptr().cast::<u8>(), std::mem::size_of_val(v)) }
-}
-
-/// A `T` read from exactly its bytes (None if `b` has another length).
-pub fn read<T: Pod>(b: &[u8]) -> Option<T> {
-    (b.len() == size_of::<T>()).then(|| {
-        // SAFETY: T is Pod (any bit pattern is valid) and b holds size_of::<T>() bytes.
-        unsafe { std::ptr::read_unaligned(b.as_ptr().cast::<T>()) }
-    })
 }
 
 /// Writes the header of a `kind` message of session `session`, counter `counter`, into
@@ -248,7 +206,7 @@ pub struct Hello {
     pub mode: LoopMode,
     /// The controller's law (None: the far side runs the plant, which takes none).
     pub law: Option<Law>,
-    pub emulation: crate::link::Emulation,
+    pub emulation: crate::emulation::Emulation,
     pub config: String,
 }
 
@@ -359,6 +317,7 @@ fn escape(s: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bytes::{bytes_of, read};
 
     fn msg(kind: Kind, key: u64, payload: &[u8]) -> Vec<u8> {
         let mut v = vec![0u8; HEADER];
@@ -456,7 +415,7 @@ mod tests {
             role: crate::Role::Plant,
             mode: LoopMode::Lockstep,
             law: None,
-            emulation: crate::link::Emulation {
+            emulation: crate::emulation::Emulation {
                 delay_ns: 5,
                 jitter_ns: 6,
                 loss_ppm: 7,

@@ -15,8 +15,10 @@
 //! supervisor and the controller here (docs/protocol.md §14).
 
 use crate::Role;
-use crate::frame::{self, Hello, Kind, bytes_of, bytes_of_slice};
-use crate::link::{self, Emulation, Tcp, Udp};
+use crate::bytes::{self, bytes_of, bytes_of_slice};
+use crate::frame::{Hello, Kind};
+use crate::emulation::Emulation;
+use crate::link::{self, Tcp, Udp};
 use crate::seal::{self, End, LinkKey, LinkReport, Session};
 use crate::sides::{ControllerHost, PlantHost};
 use anyhow::{Context, Result, bail};
@@ -37,6 +39,10 @@ use std::collections::VecDeque;
 use std::net::{SocketAddr, TcpListener, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
+
+mod plant;
+
+use plant::*;
 
 /// `deltaloop-bridge near`: the loop process's arguments; what the link is (the far role, where
 /// to listen, the emulation) is the run config's `[link]`.
@@ -236,7 +242,7 @@ fn authenticate(
         let mut joined = None;
         tcp.poll(|k, p| {
             if k == Kind::Join {
-                joined = Some(frame::read::<u32>(p).and_then(Role::from_wire));
+                joined = Some(bytes::read::<u32>(p).and_then(Role::from_wire));
             }
             Ok(())
         })
@@ -260,31 +266,19 @@ struct Listen {
     role: Role,
 }
 
-/// Waits for the far side: every connection must prove the link key before anything of the run
-/// is said, a stranger's is dropped (and counted) and the wait goes on; at most
-/// [`MAX_PENDING`] are authenticated at once, each within [`PER_CONNECTION`]. Then sends the
-/// HELLO and connects the UDP socket to the port the far side answers with; the link report is
-/// written at once, so a far side that joined and then fell silent is named by the supervisor.
-/// None: stopped (STOP or SIGTERM) before it joined.
-fn connect(
+/// Accepts connections until one far side authenticates with the link key (each in a thread of
+/// its own, at most [`MAX_PENDING`] at once); the joined link and how many were refused. None:
+/// STOP or SIGTERM came first. `end`: the deadline, ns.
+fn accept_far(
     at: &Listen,
-    hello: &Hello,
-    control: &ControlPorts,
-    term: &AtomicBool,
-    report_path: &std::path::Path,
-) -> Result<Option<Peer>> {
-    let key = LinkKey::from_env().map_err(anyhow::Error::msg)?;
-    let session = Session::generate().map_err(anyhow::Error::msg)?;
-    let listener = TcpListener::bind(at.addr)
-        .with_context(|| format!("cannot listen on --listen {} (TCP)", at.addr))?;
-    let udp = UdpSocket::bind(at.addr)
-        .with_context(|| format!("cannot bind --listen {} (UDP)", at.addr))?;
-    listener.set_nonblocking(true)?;
-    // The far side connects: wait for it as long as a handshake step may take.
-    let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
+    listener: &TcpListener,
+    (key, session): (&LinkKey, &Session),
+    (control, term): (&ControlPorts, &AtomicBool),
+    end: u64,
+) -> Result<Option<(Joined, u64)>> {
     let (results, done) = std::sync::mpsc::channel();
     let (mut pending, mut refused) = (0usize, 0u64);
-    let (mut tcp, peer, role) = 'wait: loop {
+    let joined = 'wait: loop {
         while let Ok(r) = done.try_recv() {
             pending -= 1;
             match r {
@@ -327,22 +321,22 @@ fn connect(
         }
         std::thread::sleep(Duration::from_millis(2));
     };
-    drop(listener);
-    if let Some(r) = role.filter(|r| *r != at.role) {
-        bail!(
-            "the far side {peer} joined with --role {r}, and this run puts the {} there (run `deltaloop join {} --role {}` on the other host)",
-            at.role,
-            at.addr,
-            at.role
-        );
-    }
-    tcp.send(Kind::Hello, &[&hello.encode()])?;
+    Ok(Some((joined, refused)))
+}
+
+/// Waits for the far side's ACK with its UDP port (up to the ACK only: what it says after it,
+/// READY, is the loop's to forward). None: STOP or SIGTERM came first.
+fn await_ack(
+    tcp: &mut Tcp,
+    peer: SocketAddr,
+    (control, term): (&ControlPorts, &AtomicBool),
+    end: u64,
+) -> Result<Option<u64>> {
     let (mut far_udp, mut far_end) = (None, None);
     while far_udp.is_none() {
-        // Up to the ACK only: what the far side says after it (READY) is the loop's to forward.
         tcp.poll_until(|k, p| {
             match k {
-                Kind::Ack => far_udp = frame::read::<u64>(p),
+                Kind::Ack => far_udp = bytes::read::<u64>(p),
                 Kind::Exit => far_end = Some(FarEnd::of(p)),
                 _ => {}
             }
@@ -363,7 +357,49 @@ fn connect(
         }
         std::thread::sleep(Duration::from_millis(1));
     }
-    let far_port = far_udp.unwrap_or(0);
+    Ok(far_udp)
+}
+
+/// Waits for the far side: every connection must prove the link key before anything of the run
+/// is said, a stranger's is dropped (and counted) and the wait goes on; at most
+/// [`MAX_PENDING`] are authenticated at once, each within [`PER_CONNECTION`]. Then sends the
+/// HELLO and connects the UDP socket to the port the far side answers with; the link report is
+/// written at once, so a far side that joined and then fell silent is named by the supervisor.
+/// None: stopped (STOP or SIGTERM) before it joined.
+fn connect(
+    at: &Listen,
+    hello: &Hello,
+    control: &ControlPorts,
+    term: &AtomicBool,
+    report_path: &std::path::Path,
+) -> Result<Option<Peer>> {
+    let key = LinkKey::from_env().map_err(anyhow::Error::msg)?;
+    let session = Session::generate().map_err(anyhow::Error::msg)?;
+    let listener = TcpListener::bind(at.addr)
+        .with_context(|| format!("cannot listen on --listen {} (TCP)", at.addr))?;
+    let udp = UdpSocket::bind(at.addr)
+        .with_context(|| format!("cannot bind --listen {} (UDP)", at.addr))?;
+    listener.set_nonblocking(true)?;
+    // The far side connects: wait for it as long as a handshake step may take.
+    let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
+    let Some(((mut tcp, peer, role), refused)) =
+        accept_far(at, &listener, (&key, &session), (control, term), end)?
+    else {
+        return Ok(None);
+    };
+    drop(listener);
+    if let Some(r) = role.filter(|r| *r != at.role) {
+        bail!(
+            "the far side {peer} joined with --role {r}, and this run puts the {} there (run `deltaloop join {} --role {}` on the other host)",
+            at.role,
+            at.addr,
+            at.role
+        );
+    }
+    tcp.send(Kind::Hello, &[&hello.encode()])?;
+    let Some(far_port) = await_ack(&mut tcp, peer, (control, term), end)? else {
+        return Ok(None);
+    };
     let Ok(far_port) = u16::try_from(far_port) else {
         bail!("the far side sent UDP port {far_port} (allowed 1..=65535)");
     };
@@ -641,7 +677,7 @@ impl Near {
                 Kind::Control => {
                     // Only what a controller may say, as the controller (this process is its
                     // stand-in).
-                    if let Some(c) = frame::read::<ControlMsg>(p)
+                    if let Some(c) = bytes::read::<ControlMsg>(p)
                         && let Some(kind) = c.kind().filter(|k| k.said_by_controller())
                     {
                         ports.send_control(kind)?;
@@ -653,219 +689,6 @@ impl Near {
             }
             Ok(())
         })
-    }
-}
-
-/// `--role plant`: the plant's stand-in on the controller's (and the supervisor's) host.
-struct NearPlant {
-    ports: PlantPorts,
-    peer: Peer,
-    host: ControllerHost,
-    /// The link is taken for lost after this long without a word from the far side while the
-    /// loop runs and the controller here owes no reply, ns.
-    silence_ns: u64,
-    /// When START went to the far side.
-    started_ns: Option<u64>,
-    /// When the far side was last heard (a datagram or a frame), or a reply last went to it.
-    heard_ns: u64,
-    /// The states' copies that came over TCP (arrival, state), oldest first, each waiting for
-    /// its datagram: a copy whose datagram has not come within `hold_ns` (lost on the link), or
-    /// that a newer state has overtaken, is published itself, so the supervisor here records
-    /// every state. Pre-allocated ([`COPIES`]).
-    copies: VecDeque<(u64, StateMsg)>,
-    /// When the final state was published here (the far plant's, or ours on giving up).
-    final_ns: Option<u64>,
-    /// How long a copy waits for its datagram: the emulated delay and jitter, and 1 ms.
-    hold_ns: u64,
-}
-
-/// States' copies held at most; a fuller queue publishes its oldest.
-const COPIES: usize = 1024;
-
-impl NearPlant {
-    fn forward(&mut self, term: &AtomicBool) -> Result<(u8, Option<String>)> {
-        loop {
-            let now = rt::now_ns();
-            let timeout = self.host.timeout_ns(&self.peer.udp, now);
-            let [udp_in, tcp_in, torque_in] = self.peer.wait(&self.ports.torque_ready, timeout)?;
-            let c = &self.ports;
-            let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
-            if self
-                .host
-                .turn(&ports, (torque_in, udp_in), &mut self.peer.udp)?
-            {
-                self.heard_ns = rt::now_ns();
-            }
-            self.control_plane(tcp_in)?;
-            self.settle_copies()?;
-            if let Some(end) = self.peer.ended(term)? {
-                return Ok(end);
-            }
-            let now = rt::now_ns();
-            if let Some(end) = self.peer.stop_overdue(now) {
-                // Nothing more will come: release the controller here, as the plant would.
-                self.release()?;
-                return Ok(end);
-            }
-            if let Some(t) = self.final_ns {
-                if now > t + FAR_END_WAIT_NS {
-                    eprintln!(
-                        "deltaloop-bridge: warning: the far side did not report its end within {} ms of the final state (the link is down?)",
-                        FAR_END_WAIT_NS / 1_000_000
-                    );
-                    return Ok((0, None));
-                }
-                continue;
-            }
-            if self.host.awaiting_reply() {
-                self.heard_ns = now;
-            }
-            if self.started_ns.is_some() && now > self.heard_ns + self.silence_ns {
-                return self.link_lost();
-            }
-        }
-    }
-
-    /// The supervisor's run control and the controller's READY/ARMED out; the far plant's
-    /// control, telemetry, final state, log and end in.
-    fn control_plane(&mut self, tcp_in: bool) -> Result<()> {
-        let p = &mut self.peer;
-        if p.forward_control(&self.ports.control)? && self.started_ns.is_none() {
-            // START is out (the controller here has it too): from now on the far side must be
-            // heard, and its states go to the controller.
-            let now = rt::now_ns();
-            self.started_ns = Some(now);
-            self.heard_ns = now;
-            self.host
-                .start((&self.ports.state, &self.ports.state_ready))?;
-        }
-        while let Some(s) = self
-            .ports
-            .from_controller
-            .receive()
-            .ipc("receive control")?
-        {
-            let c = *s.payload();
-            if c.kind().is_some_and(ControlKind::said_by_controller) {
-                p.tcp.send(Kind::Control, &[bytes_of(&c)])?;
-            }
-        }
-        if p.tcp.pending() > 0 {
-            p.tcp.flush()?;
-        }
-        if !tcp_in && !p.tcp.held() {
-            return Ok(());
-        }
-        let (ports, far_end, copies, log) =
-            (&self.ports, &mut p.far_end, &mut self.copies, &mut p.log);
-        let host = &mut self.host;
-        let (mut heard, mut finals) = (false, None);
-        let now = rt::now_ns();
-        p.tcp.poll(|kind, b| {
-            heard = true;
-            match kind {
-                Kind::State => {
-                    if let Some(s) = frame::read::<StateMsg>(b) {
-                        if copies.len() == COPIES
-                            && let Some((_, old)) = copies.pop_front()
-                            && host.started
-                            && !host.published(old.tick)
-                        {
-                            // Its datagram is long due: published now, each one (regression:
-                            // only the last copy evicted in one poll was, the others were lost
-                            // to the record).
-                            host.publish_state((&ports.state, &ports.state_ready), old)?;
-                        }
-                        copies.push_back((now, s));
-                    }
-                }
-                Kind::Control => {
-                    // Only what a plant may say, as the plant (this process is its stand-in).
-                    if let Some(mut c) = frame::read::<ControlMsg>(b)
-                        && c.kind().is_some_and(ControlKind::said_by_plant)
-                    {
-                        c.from = Sender::Plant as u32;
-                        ports.control.0.send_copy(c).ipc("send plant control")?;
-                    }
-                }
-                Kind::Telemetry => {
-                    if let Some(t) = frame::read::<TelemetryMsg>(b) {
-                        ports.telemetry.send_copy(t).ipc("publish telemetry")?;
-                    }
-                }
-                Kind::Final => finals = frame::read::<StateMsg>(b),
-                Kind::Log => log.line(b),
-                Kind::Exit => *far_end = Some(FarEnd::of(b)),
-                _ => {}
-            }
-            Ok(())
-        })?;
-        if heard {
-            self.heard_ns = rt::now_ns();
-        }
-        if let Some(s) = finals {
-            self.settle_copies_until(u64::MAX)?;
-            self.host
-                .publish_state((&self.ports.state, &self.ports.state_ready), s)?;
-            self.final_ns.get_or_insert(rt::now_ns());
-        }
-        Ok(())
-    }
-
-    /// Publishes the states' copies whose datagram is lost (see `copies`); drops the others.
-    fn settle_copies(&mut self) -> Result<()> {
-        self.settle_copies_until(rt::now_ns().saturating_sub(self.hold_ns))
-    }
-
-    /// [`Self::settle_copies`], taking a copy that arrived before `due` (ns) for lost.
-    fn settle_copies_until(&mut self, due: u64) -> Result<()> {
-        let ports = (&self.ports.state, &self.ports.state_ready);
-        while let Some(&(at, s)) = self.copies.front() {
-            if self.host.published(s.tick) {
-                self.copies.pop_front();
-                continue;
-            }
-            let overtaken = self.host.newest().is_some_and(|n| n > s.tick);
-            if !(overtaken || at < due) || !self.host.started {
-                break;
-            }
-            self.host.publish_state(ports, s)?;
-            self.copies.pop_front();
-        }
-        Ok(())
-    }
-
-    /// The far side went silent while the loop ran: the far plant's own rules stop it there
-    /// (it brakes to a safe stop). Releases the controller here with a final state (as the plant
-    /// would) and ends with a fault saying what is known.
-    fn link_lost(&mut self) -> Result<(u8, Option<String>)> {
-        let last = self.host.last_state;
-        self.release()?;
-        let after = last.map_or("before tick 0".into(), |s| format!("after tick {}", s.tick));
-        Ok((
-            EXIT_FAULT,
-            Some(format!(
-                "the link to the plant's host went silent {after} (no word for {} ms): the far plant's own rules (controller silence) brake it to a safe stop there, not on record here",
-                self.silence_ns / 1_000_000
-            )),
-        ))
-    }
-}
-
-impl NearPlant {
-    /// Releases the controller here with a final state (the last one again), as the plant
-    /// would at its end, unless the final state came.
-    fn release(&mut self) -> Result<()> {
-        if self.final_ns.is_some() {
-            return Ok(());
-        }
-        if let Some(mut s) = self.host.last_state {
-            s.flags |= wire::STATE_FINAL;
-            let ports = (&self.ports.state, &self.ports.state_ready);
-            self.host.publish_state(ports, s)?;
-        }
-        self.final_ns = Some(rt::now_ns());
-        Ok(())
     }
 }
 

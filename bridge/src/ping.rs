@@ -2,6 +2,7 @@
 //! nothing else on the path (no iceoryx2, no bridge). `ping` prints p50/p99/p99.9/max of the
 //! round trip, µs.
 
+use crate::bytes;
 use crate::frame::{self, Kind};
 use crate::link::{self, Udp};
 use anyhow::{Context, Result};
@@ -55,7 +56,7 @@ pub fn ping(a: &PingArgs) -> Result<()> {
             link::wait(&mut fds, deadline.saturating_sub(rt::now_ns()))?;
             let now = rt::now_ns();
             match u.recv()? {
-                Some((Kind::Pong, p)) if frame::read::<u64>(&p[..8]) == Some(i) => {
+                Some((Kind::Pong, p)) if bytes::read::<u64>(&p[..8]) == Some(i) => {
                     break Some(now - t);
                 }
                 Some(_) => {}

@@ -1,0 +1,296 @@
+//! The far side's loop once the run started: the relay between the local process's iceoryx2\nports and the link (controller here: [`Far`]; plant here: [`FarPlant`]).
+
+use super::*;
+
+/// The link and the far process: what both roles do around their loop.
+pub(super) struct FarLink {
+    pub(super) udp: Udp,
+    pub(super) tcp: Tcp,
+    pub(super) child: FarChild,
+    pub(super) stop_sent: bool,
+    /// When the near side closed the control connection.
+    pub(super) near_gone_ns: Option<u64>,
+    /// When to look whether the process has exited next.
+    pub(super) next_check: u64,
+}
+
+impl FarLink {
+    /// The wait of one turn: the socket, the control connection, the wake-up `event` and the
+    /// process's stderr.
+    pub(super) fn wait(&self, event: &Listener<Svc>, timeout_ns: u64) -> Result<[bool; 4]> {
+        let err_fd = self
+            .child
+            .child
+            .stderr
+            .as_ref()
+            .map_or(-1, std::os::fd::AsRawFd::as_raw_fd);
+        let mut fds = [
+            link::readable(&self.udp.sock),
+            link::readable(&self.tcp.stream),
+            link::event(event),
+            libc::pollfd {
+                fd: err_fd,
+                events: libc::POLLIN,
+                revents: 0,
+            },
+        ];
+        if self.tcp.pending() > 0 {
+            fds[1].events |= libc::POLLOUT;
+        }
+        link::wait(&mut fds, timeout_ns)?;
+        Ok(fds.map(|f| f.revents != 0))
+    }
+
+    /// The end of a turn: stderr passed on, STOP published here on SIGTERM or when the near side
+    /// has gone (the process is stopped 3 s later if it does not exit), the process's exit.
+    /// Some: its exit code.
+    pub(super) fn ended(
+        &mut self,
+        control: &Publisher<Svc, ControlMsg, ()>,
+        err_in: bool,
+        term: &AtomicBool,
+    ) -> Result<Option<u8>> {
+        let now = rt::now_ns();
+        if err_in {
+            self.stderr()?;
+        }
+        if term.load(Ordering::Relaxed) || self.tcp.closed {
+            if !self.stop_sent {
+                self.stop_sent = true;
+                let stop = ControlMsg::new(ControlKind::Stop, Sender::Supervisor);
+                control.send_copy(stop).ipc("publish STOP")?;
+            }
+            if self.tcp.closed {
+                let gone = *self.near_gone_ns.get_or_insert(now);
+                if now > gone + 3_000_000_000 {
+                    // SAFETY: signalling our own child, not yet reaped.
+                    unsafe { libc::kill(self.child.child.id() as i32, libc::SIGTERM) };
+                }
+            }
+        }
+        if !(err_in || now > self.next_check) {
+            return Ok(None);
+        }
+        self.next_check = now + 50_000_000;
+        let Some(st) = self.child.child.try_wait()? else {
+            return Ok(None);
+        };
+        self.stderr()?;
+        use std::os::unix::process::ExitStatusExt;
+        Ok(Some(match (st.code(), st.signal()) {
+            (Some(c), _) => u8::try_from(c).unwrap_or(EXIT_FAULT),
+            (None, Some(sig)) => {
+                self.child.last_line =
+                    format!("the {} was killed by signal {sig}", self.child.what);
+                EXIT_FAULT
+            }
+            _ => EXIT_FAULT,
+        }))
+    }
+
+    /// The process's stderr: shown here and sent to the near side line by line.
+    pub(super) fn stderr(&mut self) -> Result<()> {
+        let c = &mut self.child;
+        let Some(err) = c.child.stderr.as_mut() else {
+            return Ok(());
+        };
+        let mut buf = [0u8; 4096];
+        loop {
+            match err.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) => c.stderr_buf.extend_from_slice(&buf[..n]),
+                Err(e) if e.kind() == ErrorKind::WouldBlock => break,
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                Err(_) => break,
+            }
+        }
+        while let Some(i) = c.stderr_buf.iter().position(|&b| b == b'\n') {
+            let line: Vec<u8> = c.stderr_buf.drain(..=i).collect();
+            let line = wire::escape_peer_text(&String::from_utf8_lossy(&line[..i]));
+            eprintln!("{line}");
+            self.tcp.send(Kind::Log, &[line.as_bytes()])?;
+            c.last_line = line;
+        }
+        Ok(())
+    }
+
+    /// Tells the near side how the process ended, and waits (a little) for everything queued to
+    /// go out.
+    pub(super) fn report(&mut self, code: u8) -> Result<()> {
+        let line = self.child.last_line.clone();
+        self.tcp.send(
+            Kind::Exit,
+            &[&u32::from(code).to_ne_bytes(), line.as_bytes()],
+        )?;
+        let t = rt::now_ns() + 500_000_000;
+        while self.tcp.pending() > 0 && !self.tcp.closed && rt::now_ns() < t {
+            self.tcp.flush()?;
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        Ok(())
+    }
+
+    /// A START or STOP from the near side, published here (START's deadline made absolute on
+    /// this host's clock). Returns whether it was START.
+    pub(super) fn run_control(control: &Publisher<Svc, ControlMsg, ()>, p: &[u8]) -> Result<bool> {
+        let Some(mut c) = bytes::read::<ControlMsg>(p) else {
+            return Ok(false);
+        };
+        match c.kind() {
+            Some(ControlKind::Start) => {
+                c.t0_ns = crate::near::absolute_t0(c.t0_ns);
+                control.send_copy(c).ipc("publish START")?;
+                Ok(true)
+            }
+            Some(ControlKind::Stop) => {
+                control.send_copy(c).ipc("publish STOP")?;
+                Ok(false)
+            }
+            _ => Ok(false),
+        }
+    }
+}
+
+/// `--role controller`: the supervisor and the plant on the controller's host.
+pub(super) struct Far {
+    pub(super) ports: Ports,
+    pub(super) host: ControllerHost,
+}
+
+impl Far {
+    /// Carries the run until the controller exits; its exit code.
+    pub(super) fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
+        loop {
+            let now = rt::now_ns();
+            let timeout = self.host.timeout_ns(&l.udp, now);
+            let [udp_in, tcp_in, torque_in, err_in] = l.wait(&self.ports.torque_ready, timeout)?;
+            let c = &self.ports;
+            let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
+            self.host.turn(&ports, (torque_in, udp_in), &mut l.udp)?;
+            self.control_plane(l, tcp_in)?;
+            if let Some(code) = l.ended(&self.ports.control, err_in, term)? {
+                return Ok(code);
+            }
+        }
+    }
+
+    pub(super) fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
+        while let Some(s) = self.ports.control_in.receive().ipc("receive control")? {
+            let c = *s.payload();
+            if c.kind().is_some_and(ControlKind::said_by_controller) {
+                l.tcp.send(Kind::Control, &[bytes_of(&c)])?;
+            }
+        }
+        if l.tcp.pending() > 0 {
+            l.tcp.flush()?;
+        }
+        if !tcp_in {
+            return Ok(());
+        }
+        let ports = &self.ports;
+        let (mut started, mut finals) = (false, None);
+        l.tcp.poll(|kind, p| {
+            match kind {
+                Kind::Control => started |= FarLink::run_control(&ports.control, p)?,
+                Kind::Reference => {
+                    let rows = p.len() / size_of::<RefSample>();
+                    let chunk = ports
+                        .reference
+                        .loan_slice_uninit(rows)
+                        .ipc("loan a reference chunk")?;
+                    let chunk = chunk.write_from_fn(|i| {
+                        bytes::read::<RefSample>(
+                            &p[i * size_of::<RefSample>()..(i + 1) * size_of::<RefSample>()],
+                        )
+                        .unwrap_or_default()
+                    });
+                    chunk.send().ipc("send a reference chunk")?;
+                }
+                Kind::Final => finals = bytes::read::<StateMsg>(p),
+                _ => {}
+            }
+            Ok(())
+        })?;
+        let ports = (&self.ports.state, &self.ports.state_ready);
+        if started {
+            self.host.start(ports)?;
+        }
+        if let Some(s) = finals {
+            self.host.publish_state(ports, s)?;
+        }
+        Ok(())
+    }
+}
+
+/// `--role plant`: the supervisor and the controller on the plant's host.
+pub(super) struct FarPlant {
+    pub(super) ports: PlantSidePorts,
+    pub(super) host: PlantHost,
+}
+
+impl FarPlant {
+    /// Carries the run until the plant exits; its exit code.
+    pub(super) fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
+        loop {
+            let timeout = self.host.timeout_ns(&l.udp, rt::now_ns());
+            let [udp_in, tcp_in, state_in, err_in] = l.wait(&self.ports.state_ready, timeout)?;
+            // Run control first: a STOP must reach the plant before anything it answers.
+            self.control_plane(l, tcp_in)?;
+            let c = &self.ports;
+            let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
+            let ready = (state_in, udp_in);
+            self.host.turn(&ports, ready, &mut l.udp, &mut l.tcp)?;
+            self.plant_out(l)?;
+            if let Some(code) = l.ended(&self.ports.control, err_in, term)? {
+                // What the plant published last (its final state, the safe stop's telemetry)
+                // goes out before its end.
+                self.plant_out(l)?;
+                let ports = (&self.ports.state, &self.ports.state_ready);
+                self.host.states(ports, &mut l.udp, &mut l.tcp)?;
+                return Ok(code);
+            }
+        }
+    }
+
+    /// The near side's run control and the controller's READY/ARMED in.
+    pub(super) fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
+        if !tcp_in {
+            return Ok(());
+        }
+        let ports = &self.ports;
+        l.tcp.poll(|kind, p| {
+            if kind == Kind::Control {
+                FarLink::run_control(&ports.control, p)?;
+                if let Some(c) = bytes::read::<ControlMsg>(p)
+                    && let Some(k) = c.kind().filter(|k| k.said_by_controller())
+                {
+                    let said = ControlMsg::new(k, Sender::Controller);
+                    ports
+                        .as_controller
+                        .send_copy(said)
+                        .ipc("send controller control")?;
+                }
+            }
+            Ok(())
+        })
+    }
+
+    /// The plant's control messages and telemetry out over TCP (reliable, in order).
+    pub(super) fn plant_out(&mut self, l: &mut FarLink) -> Result<()> {
+        while let Some(s) = self
+            .ports
+            .control_in
+            .receive()
+            .ipc("receive plant control")?
+        {
+            l.tcp.send(Kind::Control, &[bytes_of(s.payload())])?;
+        }
+        while let Some(s) = self.ports.telemetry.receive().ipc("receive telemetry")? {
+            l.tcp.queue(Kind::Telemetry, &[bytes_of(s.payload())])?;
+        }
+        if l.tcp.pending() > 0 {
+            l.tcp.flush()?;
+        }
+        Ok(())
+    }
+}
