@@ -16,8 +16,8 @@
 
 use crate::Role;
 use crate::bytes::{self, bytes_of, bytes_of_slice};
-use crate::frame::{Hello, Kind};
 use crate::emulation::Emulation;
+use crate::frame::{Hello, Kind};
 use crate::link::{self, Tcp, Udp};
 use crate::seal::{self, End, LinkKey, LinkReport, Session};
 use crate::sides::{ControllerHost, PlantHost};

@@ -6,6 +6,7 @@
 //! failure, for a machine that must run them.
 
 use crate::common;
+use std::io::Write as _;
 
 use common::{
     FaultKind, RunStatus, assert_every_tick_on_disk, disturbance, judge, on_a_noisy_host, outcome,
@@ -475,13 +476,17 @@ fn realtime_across_the_link_with(name: &str, remote: Remote, extra: &[&str], hol
     });
 }
 
-/// The run in `out` ended in a fault of `kind` after the cut (1.5 s into the loop), with no tick
-/// lost: the trace holds the header and ticks 0.. the fault tick, and at most `extra` more.
+/// The run in `out` ended in a fault of `kind` after the cut (1.5 s into the loop), and every tick
+/// up to it is accounted for: the trace holds the header and ticks 0.. the fault tick (and at most
+/// `extra` more), each either on disk or counted in `lost_ticks`. A supervisor this machine starved
+/// of the CPU loses ticks whose samples went with the process that published them; the run says
+/// so, and the test says it on stderr (regression: such a run recorded ticks 0..672 of a fault at
+/// 4929 and counted none lost).
 fn assert_fault_after_the_cut(out: &Path, kind: FaultKind, extra: u64) {
     let s = summary(out);
     assert_eq!(outcome(&s, "tdc"), (RunStatus::Fault, Some(kind)), "{s}");
     let m = &s["laws"]["tdc"];
-    assert_eq!(m["lost_ticks"], 0, "{m}");
+    let lost = m["lost_ticks"].as_u64().unwrap();
     let tick = m["fault_at_tick"].as_u64().unwrap();
     // Cut after 1.5 s of ticks (5000) and before the 5.8 s run's end.
     assert!((3000..19_000).contains(&tick), "fault at tick {tick}");
@@ -490,9 +495,15 @@ fn assert_fault_after_the_cut(out: &Path, kind: FaultKind, extra: u64) {
         .lines()
         .count() as u64;
     assert!(
-        (tick + 1..=tick + 1 + extra).contains(&rows),
-        "{rows} rows: header + ticks 0..fault tick {tick} (+ at most {extra})"
+        (tick + 1..=tick + 1 + extra).contains(&(rows + lost)),
+        "{rows} rows + {lost} lost: header + ticks 0..fault tick {tick} (+ at most {extra})"
     );
+    if lost > 0 {
+        let _ = writeln!(
+            std::io::stderr(),
+            "NOTE: the supervisor lost {lost} ticks to this machine (counted in lost_ticks)"
+        );
+    }
 }
 
 /// A 5.8 s realtime run with `remote` in `b`, its link taken down 1.5 s into the loop; the run

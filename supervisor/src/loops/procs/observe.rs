@@ -315,7 +315,9 @@ impl<'a> Observation<'a> {
             self.finish_tick(t)?;
         }
         // The plant said it ran to a tick past the last one the supervisor saw (its FAULT,
-        // OVERRUN or DIVERGED names it): the ticks between ran and were lost on the way (the
+        // OVERRUN or DIVERGED names it, or the fault the ending was classified as; the near
+        // bridge of a remote plant says it for the link): the ticks between ran and were lost on
+        // the way (the
         // supervisor had not taken them when the plant's samples went with the plant), and the
         // record says so instead of ending where its observation did (regression: a starved
         // supervisor recorded ticks 0..465 of a run the plant faulted at 5968, lost_ticks 0).
@@ -323,6 +325,7 @@ impl<'a> Observation<'a> {
             .into_iter()
             .flatten()
             .map(|p| p.tick)
+            .chain(cause.map(|f| f.tick))
             .max();
         if let Some(t) = said.filter(|&t| t > stop && !self.stopped) {
             (stop..t.min(self.window.last)).for_each(|j| self.rec.lost(j));
@@ -459,17 +462,10 @@ mod tests {
     use crate::record::FaultKind;
     use deltaloop_config::{Law, RunConfig};
 
-    /// Regression: a supervisor starved of the CPU saw the loop up to tick 465, the plant's
-    /// samples after it went with the plant, and the plant's FAULT said tick 5968; the record
-    /// ended at 465 with `lost_ticks` 0, as if the loop had stopped there. The ticks the plant
-    /// said it ran are lost, and counted.
-    #[test]
-    fn regression_ticks_the_plant_ran_past_what_the_supervisor_saw_are_counted_lost() {
-        let cfg =
-            RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s2\"\n", None).unwrap();
-        let study = Study::new(cfg).unwrap();
+    /// An observation of a run of S2 that saw ticks 0..10 whole, and nothing after.
+    fn seen_up_to_tick_9(study: &Study) -> Observation<'_> {
         let n = study.reference.n as u64;
-        let rec = lawrun::recorder(&study, Law::Tdc, &lawrun::Keep::default()).unwrap();
+        let rec = lawrun::recorder(study, Law::Tdc, &lawrun::Keep::default()).unwrap();
         let mut obs = Observation::new(rec, TimingAcc::new(n, 300_000, false, None), None, None);
         for k in 0..10u64 {
             let row = study.reference.row(k as usize).joint;
@@ -493,6 +489,23 @@ mod tests {
             });
             obs.last_seen = Some(k);
         }
+        obs
+    }
+
+    fn s2() -> Study {
+        let cfg =
+            RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s2\"\n", None).unwrap();
+        Study::new(cfg).unwrap()
+    }
+
+    /// Regression: a supervisor starved of the CPU saw the loop up to tick 465, the plant's
+    /// samples after it went with the plant, and the plant's FAULT said tick 5968; the record
+    /// ended at 465 with `lost_ticks` 0, as if the loop had stopped there. The ticks the plant
+    /// said it ran are lost, and counted.
+    #[test]
+    fn regression_ticks_the_plant_ran_past_what_the_supervisor_saw_are_counted_lost() {
+        let study = s2();
+        let mut obs = seen_up_to_tick_9(&study);
         obs.plant_fault = Some(PlantSaid {
             tick: 100,
             cause: "no torque within the budget".into(),
@@ -502,6 +515,24 @@ mod tests {
             tick: 100,
             kind: FaultKind::ControllerSilent,
             cause: "no torque within the budget".into(),
+        };
+        let (run, _) = obs.finish(false, Some(&fault)).unwrap();
+        assert_eq!(run.end.lost_ticks, 90, "ticks 10..100");
+        assert_eq!(run.end.first_lost, Some(10));
+    }
+
+    /// Regression: with the plant across the link, a starved supervisor saw ticks 0..672 of a
+    /// run whose link went silent at tick 4929 (the near bridge's fault; no FAULT of the plant's
+    /// reached this host), and trace.csv ended at 672 with `lost_ticks` 0. The fault's own tick
+    /// counts the ticks between as lost.
+    #[test]
+    fn regression_a_fault_past_what_the_supervisor_saw_counts_the_ticks_between_lost() {
+        let study = s2();
+        let obs = seen_up_to_tick_9(&study);
+        let fault = Fault {
+            tick: 100,
+            kind: FaultKind::PlantFailed,
+            cause: "the link to the plant's host went silent".into(),
         };
         let (run, _) = obs.finish(false, Some(&fault)).unwrap();
         assert_eq!(run.end.lost_ticks, 90, "ticks 10..100");
