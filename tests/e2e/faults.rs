@@ -2,13 +2,14 @@
 //! the exit code, the message, the files on disk, and that no child process outlives the run.
 
 use crate::common;
+use common::spawn;
 
 use common::{
     FaultKind, RunStatus, children_mentioning, deltaloop, iceoryx_leftovers, outcome, summary,
 };
 use serde_json::Value;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::Child;
 use std::time::{Duration, Instant};
 
 /// S1 plus a hold (long enough to act on mid-run), one law, realtime unless `extra` says otherwise.
@@ -32,16 +33,6 @@ fn config(dir: &Path, hold_s: f64, extra: &str) -> String {
     };
     std::fs::write(&p, format!("name = \"fault\"\n[scenario]\npath = \"s1\"\nhold_s = {hold_s}\n[plant]\nfriction = true\n[controller]\nlaws = [\"tdc\"]\n{faults}{layout}")).unwrap();
     p.display().to_string()
-}
-
-fn spawn(args: &[&str]) -> Child {
-    Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap()
 }
 
 /// The processes of the run in `out` whose command line contains `who`.
@@ -343,17 +334,7 @@ fn sigterm_ctrl_c_and_sighup_stop_everything_and_keep_the_data() {
         let out = tmp.path().join("run");
         let cfg = config(tmp.path(), 5.0, "");
         // Its own process group, so SIGINT reaches all three like a terminal's Ctrl-C does.
-        let child = {
-            use std::os::unix::process::CommandExt;
-            Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-                .args(["run", &cfg, "--out", out.to_str().unwrap()])
-                .current_dir(env!("CARGO_MANIFEST_DIR"))
-                .process_group(0)
-                .stderr(Stdio::piped())
-                .stdout(Stdio::piped())
-                .spawn()
-                .unwrap()
-        };
+        let child = common::spawn_group(&["run", &cfg, "--out", out.to_str().unwrap()]);
         let pgid = child.id() as i32;
         signal_child(&out, "deltaloop-plant", 0, 400);
         let t0 = Instant::now();
@@ -651,17 +632,7 @@ fn regression_ctrl_c_during_setup_sends_no_start() {
     let out = tmp.path().join("run");
     // A long hold makes the reference slice (and so the handshake) take a while.
     let cfg = config(tmp.path(), 120.0, "");
-    let child = {
-        use std::os::unix::process::CommandExt;
-        Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-            .args(["run", &cfg, "--out", out.to_str().unwrap()])
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .process_group(0)
-            .stderr(Stdio::piped())
-            .stdout(Stdio::piped())
-            .spawn()
-            .unwrap()
-    };
+    let child = common::spawn_group(&["run", &cfg, "--out", out.to_str().unwrap()]);
     let t0 = Instant::now();
     while pids_of(&out, "deltaloop-plant").is_empty() {
         assert!(t0.elapsed() < Duration::from_secs(30), "no plant started");

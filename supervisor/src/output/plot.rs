@@ -1,7 +1,7 @@
 //! Line charts with plotters, written as SVG and PNG. The PNG text uses a bundled font
 //! (DejaVu Sans, see `assets/DejaVuSans.LICENSE`), so it renders on machines without fonts.
 
-use anyhow::{Result, anyhow};
+use anyhow::{Context, Result, anyhow};
 use deltaloop_config::Law;
 use plotters::coord::Shift;
 pub use plotters::prelude::RGBColor;
@@ -212,6 +212,25 @@ where
     Ok(())
 }
 
+/// Draws with `draw` into an RGB buffer of `size` (pixels) and writes it to `path` as a PNG:
+/// plotters' bitmap backend draws, the `png` crate encodes.
+pub fn png(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl for<'a> FnOnce(DrawingArea<BitMapBackend<'a>, Shift>) -> Result<()>,
+) -> Result<()> {
+    let mut buf = vec![0u8; size.0 as usize * size.1 as usize * 3];
+    draw(BitMapBackend::with_buffer(&mut buf, size).into_drawing_area())?;
+    let named = || format!("cannot write {}", path.display());
+    let file = std::fs::File::create(path).with_context(named)?;
+    let mut enc = ::png::Encoder::new(std::io::BufWriter::new(file), size.0, size.1);
+    enc.set_color(::png::ColorType::Rgb);
+    enc.set_depth(::png::BitDepth::Eight);
+    enc.write_header()
+        .and_then(|mut w| w.write_image_data(&buf))
+        .with_context(named)
+}
+
 /// Writes `<stem>.svg` and `<stem>.png` with the panels in a grid of `cols` columns.
 pub fn figure(stem: &Path, title: &str, panels: &[Panel], cols: usize) -> Result<()> {
     register_font();
@@ -223,12 +242,9 @@ pub fn figure(stem: &Path, title: &str, panels: &[Panel], cols: usize) -> Result
         panels,
         cols,
     )?;
-    draw(
-        BitMapBackend::new(&stem.with_extension("png"), size).into_drawing_area(),
-        title,
-        panels,
-        cols,
-    )?;
+    png(&stem.with_extension("png"), size, |area| {
+        draw(area, title, panels, cols)
+    })?;
     Ok(())
 }
 
@@ -309,10 +325,8 @@ pub fn figure3(stem: &Path, title: &str, series: &[Series3]) -> Result<()> {
         title,
         series,
     )?;
-    draw3(
-        BitMapBackend::new(&stem.with_extension("png"), size).into_drawing_area(),
-        title,
-        series,
-    )?;
+    png(&stem.with_extension("png"), size, |area| {
+        draw3(area, title, series)
+    })?;
     Ok(())
 }

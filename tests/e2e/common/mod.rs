@@ -30,6 +30,20 @@ pub fn spawn(args: &[&str]) -> std::process::Child {
         .expect("deltaloop starts")
 }
 
+/// [`spawn`] in a process group of its own, so that a signal to the group reaches the
+/// supervisor and its children as a terminal's Ctrl-C does.
+pub fn spawn_group(args: &[&str]) -> std::process::Child {
+    use std::os::unix::process::CommandExt;
+    Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .process_group(0)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("deltaloop starts")
+}
+
 /// Waits for `child` at most `limit`; kills it (and fails) if it takes longer.
 pub fn finish_within(
     mut child: std::process::Child,

@@ -254,7 +254,7 @@ macro_rules! write_both {
     ($stem:expr, $size:expr, $draw:expr) => {{
         register_font();
         $draw(SVGBackend::new(&with_ext($stem, "svg"), $size).into_drawing_area())?;
-        $draw(BitMapBackend::new(&with_ext($stem, "png"), $size).into_drawing_area())?;
+        super::png(&with_ext($stem, "png"), $size, |area| $draw(area))?;
         Ok(())
     }};
 }
