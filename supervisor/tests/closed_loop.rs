@@ -17,8 +17,8 @@ fn study(extra: &str) -> Study {
 /// Keep every record (these runs are short).
 fn keep() -> Keep {
     Keep {
-        trace: None,
         records: true,
+        ..Keep::default()
     }
 }
 

@@ -9,8 +9,8 @@ use deltaloop_supervisor::study::Study;
 /// The in-process run of `law`, every record kept.
 fn run_law(s: &Study, law: Law) -> LawRun {
     let keep = Keep {
-        trace: None,
         records: true,
+        ..Keep::default()
     };
     inproc::run_law(s, law, &keep).unwrap()
 }

@@ -9,6 +9,7 @@ mod cli_run;
 mod crate_graph;
 mod custom_process;
 mod delay_injection;
+mod export_mcap;
 mod faults;
 mod foreign_peers;
 mod input_hardening;

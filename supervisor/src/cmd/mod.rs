@@ -3,6 +3,7 @@
 //! [`crate::ops`]; nothing outside this folder uses it.
 
 mod bench;
+mod export;
 mod helpers;
 mod join;
 mod link_key;
@@ -39,6 +40,9 @@ enum Command {
     /// Run a grid of delays × laws × scenarios × presets (see configs/delay-sweep.toml); `plan`,
     /// `run` and `merge` split it over machines.
     Sweep(sweep::Args),
+    /// Write a finished run as one MCAP file (Foxglove, PlotJuggler, ros2 bag): joint states,
+    /// the control signals, loop timing, events and the robot in 3D, per law.
+    Export(export::Args),
     /// Re-run a finished run in-process from its folder (config, replies and arrivals in its
     /// trace) and check that it reproduces `trace.csv` byte for byte.
     Replay(replay::Args),
@@ -102,6 +106,7 @@ pub fn main() -> ExitCode {
         Command::Paper(a) => paper::exec(a, &cx),
         Command::Sweep(a) => sweep::exec(a, &cx),
         Command::Replay(a) => replay::exec(a, &cx),
+        Command::Export(a) => export::exec(a, &cx),
         Command::Top(a) => top::exec(a, &cx),
         Command::Soak(a) => soak::exec(a, &cx),
         Command::Bench(a) => bench::exec(a, &cx),

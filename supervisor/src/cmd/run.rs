@@ -18,6 +18,9 @@ pub struct Args {
     /// figure with the digits that survive it (inproc and lockstep; doubles the cost).
     #[arg(long)]
     sensitivity: bool,
+    /// Also write each law's `<law>.mcap` (Foxglove, PlotJuggler, ros2 bag) while it records.
+    #[arg(long)]
+    mcap: bool,
     #[command(flatten)]
     overrides: OverrideArgs,
     #[command(flatten)]
@@ -33,6 +36,7 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
         out: a.out.out,
         force: a.out.force,
         sensitivity: a.sensitivity,
+        mcap: a.mcap,
         ..RunRequest::new(cfg, a.mode, &cx.command_line)
     })?;
     o.print();

@@ -18,6 +18,9 @@ pub struct Args {
     /// Loop transport (lockstep: --duration is loop time, run as fast as it goes).
     #[arg(long, value_parser = LoopMode::parse_process, default_value = "realtime")]
     mode: LoopMode,
+    /// Also write the law's `<law>.mcap` (Foxglove, PlotJuggler, ros2 bag) while it records.
+    #[arg(long)]
+    mcap: bool,
     #[command(flatten)]
     overrides: OverrideArgs,
     #[command(flatten)]
@@ -34,5 +37,6 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
         force: a.out.force,
         command: &cx.command_line,
         tty: cx.tty,
+        mcap: a.mcap,
     })
 }

@@ -3,6 +3,7 @@
 //! it ends ([`LawRun`]). Every loop mode records through [`LawRecorder`].
 
 use crate::output::TraceWriter;
+use crate::output::mcap::Live;
 use crate::record::metrics::{LawMetrics, MetricsAcc};
 use crate::record::{Recorder, RunEnd, TickRecord, TickSink};
 use crate::study::Study;
@@ -20,6 +21,8 @@ pub struct Keep {
     pub trace: Option<PathBuf>,
     /// Keep every record in memory (for figures; only for runs known to be short).
     pub records: bool,
+    /// Write this MCAP file of the law while it records.
+    pub mcap: Option<PathBuf>,
 }
 
 /// The sinks of one law's ticks.
@@ -27,6 +30,9 @@ pub struct RunSinks<'a> {
     metrics: MetricsAcc<'a>,
     trace: Option<TraceWriter>,
     records: Option<Vec<TickRecord>>,
+    mcap: Option<Live>,
+    /// The first MCAP write error (the file then stops; the run and its trace go on).
+    mcap_error: Option<anyhow::Error>,
 }
 
 impl TickSink for RunSinks<'_> {
@@ -37,6 +43,12 @@ impl TickSink for RunSinks<'_> {
         }
         if let Some(v) = &mut self.records {
             v.push(*r);
+        }
+        if let Some(m) = &mut self.mcap
+            && let Err(e) = m.take(r, row, n_true)
+        {
+            self.mcap_error = Some(e);
+            self.mcap = None;
         }
     }
 }
@@ -55,6 +67,12 @@ pub fn recorder<'a>(study: &'a Study, law: Law, keep: &Keep) -> Result<LawRecord
             .map(|p| TraceWriter::create(p, law))
             .transpose()?,
         records: keep.records.then(|| Vec::with_capacity(reference.n + 1)),
+        mcap: keep
+            .mcap
+            .as_deref()
+            .map(|p| Live::create(p, study, law))
+            .transpose()?,
+        mcap_error: None,
     };
     Ok(Recorder::new(law, reference, study.params.m_bar, sinks))
 }
@@ -76,9 +94,16 @@ pub fn finish(rec: LawRecorder<'_>, after: Option<&StateMsg>) -> Result<LawRun> 
     if let Some(t) = sinks.trace {
         t.finish()?;
     }
+    let metrics = sinks.metrics.finish(&end);
+    if let Some(e) = sinks.mcap_error {
+        return Err(e.context("the run's MCAP file"));
+    }
+    if let Some(m) = sinks.mcap {
+        m.finish(&serde_json::to_value(&metrics)?)?;
+    }
     Ok(LawRun {
         law: end.law,
-        metrics: sinks.metrics.finish(&end),
+        metrics,
         records: sinks.records.unwrap_or_default(),
         end,
     })

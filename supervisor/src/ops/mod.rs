@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod bench_loop;
 pub mod bench_net;
+pub mod export;
 pub mod join;
 pub mod loopback;
 pub mod paper;

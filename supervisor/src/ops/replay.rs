@@ -305,7 +305,7 @@ pub fn replay(run_dir: &Path, out: &Path) -> Result<(Verdict, Vec<LawRun>)> {
         rows.peeked = Some(first);
         let keep = Keep {
             trace: Some(output::trace_part(out, first.law)),
-            records: false,
+            ..Keep::default()
         };
         runs.push(replay_law(&study, first.law, &mut rows, &keep)?);
         laws.push(first.law);

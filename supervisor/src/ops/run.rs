@@ -137,6 +137,8 @@ pub struct RunRequest<'a> {
     pub command: &'a str,
     /// Sees every tick the process modes finish, in tick order (see [`procs::OnTick`]).
     pub on_tick: Option<OnTick<'a>>,
+    /// Also write each law's `<law>.mcap` while it records ([`output::mcap::Live`]).
+    pub mcap: bool,
 }
 
 impl<'a> RunRequest<'a> {
@@ -151,6 +153,7 @@ impl<'a> RunRequest<'a> {
             sensitivity: false,
             command,
             on_tick: None,
+            mcap: false,
         }
     }
 }
@@ -180,6 +183,7 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
         sensitivity,
         command,
         mut on_tick,
+        mcap,
     } = req;
     if sensitivity && mode == LoopMode::Realtime {
         bail!(
@@ -212,9 +216,10 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
             if mode == LoopMode::Lockstep { " except for wall time" } else { "" }
         ));
     }
-    let keep = |law| Keep {
+    let keep = |law: Law| Keep {
         trace: cfg.record.trace.then(|| output::trace_part(&dir, law)),
         records: keep_records,
+        mcap: mcap.then(|| dir.join(format!("{law}.mcap"))),
     };
     let mut laws = match mode {
         LoopMode::Inproc => run_inproc(&study, keep),

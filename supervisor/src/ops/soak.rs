@@ -369,6 +369,8 @@ pub struct Request<'a> {
     pub command: &'a str,
     /// Draw a progress bar (stderr is a terminal); else a plain progress line every 10 s.
     pub tty: bool,
+    /// Also write the law's `<law>.mcap` while it records.
+    pub mcap: bool,
 }
 
 /// Runs the soak: the run's table and folder on stdout at the end, like `deltaloop run`.
@@ -436,6 +438,7 @@ pub fn soak(r: Request<'_>) -> Result<()> {
         out: Some(out),
         force: r.force,
         on_tick: Some(&mut on_tick),
+        mcap: r.mcap,
         ..run::RunRequest::new(cfg, r.mode, r.command)
     });
     if let Ok(mut a) = acc.lock() {

@@ -2,6 +2,7 @@
 //! written by [`crate::ops::run::run`] before the runs).
 
 pub mod link;
+pub mod mcap;
 pub mod plot;
 pub mod report;
 pub mod trace;

@@ -204,6 +204,34 @@ pub fn header() -> Vec<String> {
         .collect()
 }
 
+/// Renders tick k's row of `law` into `fields` (one per header field, reused: no allocation once
+/// they have grown).
+pub fn render(
+    law: Law,
+    rec: &TickRecord,
+    reference: &RefRow,
+    n_true: Option<Vec3>,
+    fields: &mut [String],
+) {
+    use std::fmt::Write as _;
+    let row = Row {
+        law,
+        rec,
+        reference,
+        n_true,
+    };
+    let mut f = fields.iter_mut();
+    let mut put = |v: Arguments<'_>| {
+        if let Some(s) = f.next() {
+            s.clear();
+            let _ = s.write_fmt(v);
+        }
+    };
+    for c in &COLUMNS {
+        (c.write)(&row, &mut put);
+    }
+}
+
 /// `trace.csv` rows of one law ([`COLUMNS`]), written as the ticks are recorded (the file's
 /// part for that law; [`join_trace`] puts the parts behind the header).
 ///
@@ -238,26 +266,10 @@ impl TraceWriter {
 
     /// Writes tick k's row (into the fields allocated at creation: no allocation per row).
     pub fn write(&mut self, rec: &TickRecord, reference: &RefRow, n_true: Option<Vec3>) {
-        use std::fmt::Write as _;
         if self.error.is_some() {
             return;
         }
-        let row = Row {
-            law: self.law,
-            rec,
-            reference,
-            n_true,
-        };
-        let mut f = self.fields.iter_mut();
-        let mut put = |v: Arguments<'_>| {
-            if let Some(s) = f.next() {
-                s.clear();
-                let _ = s.write_fmt(v);
-            }
-        };
-        for c in &COLUMNS {
-            (c.write)(&row, &mut put);
-        }
+        render(self.law, rec, reference, n_true, &mut self.fields);
         if let Err(e) = self.w.write_record(&self.fields) {
             self.error = Some(
                 anyhow::Error::new(e).context(format!("cannot write {}", self.path.display())),

@@ -1,0 +1,572 @@
+//! Runs in MCAP, for Foxglove, PlotJuggler and `ros2 bag` (docs/guide/run-folder.md):
+//! `deltaloop export RUN_DIR --mcap` writes a finished run as one file ([`export`]), and
+//! `run … --mcap` writes `<law>.mcap` while the law records ([`Live`], a sink of the recorder: a
+//! run killed outright leaves every chunk it closed). Every law's channels, stamped on the
+//! simulated clock (t = k·Ts):
+//!
+//! - `/<law>/joint_states`: `sensor_msgs/msg/JointState` (CDR): q (rad), q̇ (rad/s) and the
+//!   applied torque τᵃ (N m) of each joint, the numbers of `trace.csv` bit for bit;
+//! - `/<law>/control`: JSON, the rest of the trace row (reference, error, command, s, N̂, N, the
+//!   reply's fate, the drives, the arrival), every number as the shortest text that reads back
+//!   as the same double;
+//! - `/<law>/timing`: JSON, the row of `<law>.timing.csv` (process modes) and its round trip;
+//! - `/<law>/events`: `foxglove.Log`: missed, late and skipped replies, held and rejected
+//!   commands, and how the run ended;
+//! - `/<law>/scene`: `foxglove.SceneUpdate`, the robot drawn from the plant's kinematics;
+//!   `/reference_path` once;
+//!
+//! and (in an export) the run's `config.toml` and `summary.json` as attachments. The file is
+//! written a chunk at a time (LZ4), a row at a time: memory does not grow with the run.
+
+mod cdr;
+mod scene;
+
+use crate::output::trace;
+use crate::record::TickRecord;
+use crate::study::Study;
+use crate::study::reference::RefRow;
+use anyhow::{Context, Result, bail};
+use deltaloop_config::{Law, RunConfig};
+use deltaloop_model::{DeltaRobot, Vec3};
+use mcap::records::{MessageHeader, Metadata};
+use serde_json::{Map, Value, json};
+use std::collections::BTreeMap;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+/// What to export, and where (default `RUN_DIR/run.mcap`).
+pub struct ExportRequest<'a> {
+    pub run_dir: &'a Path,
+    pub out: Option<PathBuf>,
+}
+
+/// What an export wrote.
+pub struct Exported {
+    pub path: PathBuf,
+    /// Messages per channel topic.
+    pub messages: BTreeMap<String, u64>,
+    pub bytes: u64,
+}
+
+/// A JSON schema that says only "an object" (the channel's fields are named in the guide).
+const OBJECT_SCHEMA: &str = r#"{"type":"object"}"#;
+
+/// The JSON schema of `foxglove.Log`.
+const LOG_SCHEMA: &str = r#"{"title":"foxglove.Log","type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"level":{"type":"integer"},"message":{"type":"string"},"name":{"type":"string"},"file":{"type":"string"},"line":{"type":"integer"}}}"#;
+
+/// `foxglove.Log` levels.
+const INFO: u8 = 2;
+const WARNING: u8 = 3;
+const ERROR: u8 = 4;
+
+/// The file being written: its channels, and a message counter per channel.
+struct Out {
+    w: mcap::Writer<BufWriter<std::fs::File>>,
+    counts: BTreeMap<u16, (String, u32)>,
+    schemas: BTreeMap<&'static str, u16>,
+}
+
+impl Out {
+    /// A new file at `path`, chunked and LZ4-compressed.
+    fn create(path: &Path) -> Result<Self> {
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        let w = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Lz4))
+            .profile("ros2")
+            .library(concat!("deltaloop ", env!("CARGO_PKG_VERSION")))
+            .create(BufWriter::new(file))?;
+        Ok(Out {
+            w,
+            counts: BTreeMap::new(),
+            schemas: BTreeMap::new(),
+        })
+    }
+
+    fn schema(&mut self, name: &'static str, encoding: &str, data: &str) -> Result<u16> {
+        if let Some(&id) = self.schemas.get(name) {
+            return Ok(id);
+        }
+        let id = self.w.add_schema(name, encoding, data.as_bytes())?;
+        self.schemas.insert(name, id);
+        Ok(id)
+    }
+
+    fn channel(&mut self, schema: u16, topic: &str, encoding: &str) -> Result<u16> {
+        let id = self
+            .w
+            .add_channel(schema, topic, encoding, &BTreeMap::new())?;
+        self.counts.insert(id, (topic.to_string(), 0));
+        Ok(id)
+    }
+
+    fn write(&mut self, channel: u16, t_ns: u64, data: &[u8]) -> Result<()> {
+        let seq = self.counts.get_mut(&channel).map_or(0, |c| {
+            c.1 += 1;
+            c.1
+        });
+        self.w.write_to_known_channel(
+            &MessageHeader {
+                channel_id: channel,
+                sequence: seq,
+                log_time: t_ns,
+                publish_time: t_ns,
+            },
+            data,
+        )?;
+        Ok(())
+    }
+
+    fn json(&mut self, channel: u16, t_ns: u64, v: &Value) -> Result<()> {
+        self.write(channel, t_ns, &serde_json::to_vec(v)?)
+    }
+
+    fn log(
+        &mut self,
+        channel: u16,
+        t_ns: u64,
+        level: u8,
+        law: &str,
+        message: String,
+    ) -> Result<()> {
+        let v = json!({
+            "timestamp": {"sec": t_ns / 1_000_000_000, "nsec": t_ns % 1_000_000_000},
+            "level": level, "message": message, "name": law, "file": "", "line": 0,
+        });
+        self.json(channel, t_ns, &v)
+    }
+}
+
+/// One law's channels.
+struct Channels {
+    joints: u16,
+    control: u16,
+    timing: u16,
+    events: u16,
+    scene: u16,
+}
+
+/// Writes the run in `req.run_dir` as one MCAP file.
+pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
+    let dir = req.run_dir;
+    let cfg = RunConfig::from_file(&dir.join("config.toml"))
+        .with_context(|| format!("{} is not a run folder", dir.display()))?;
+    let summary_text = std::fs::read_to_string(dir.join("summary.json"))
+        .with_context(|| format!("cannot read {}", dir.join("summary.json").display()))?;
+    let summary: Value = serde_json::from_str(&summary_text)
+        .with_context(|| format!("{}: not JSON", dir.join("summary.json").display()))?;
+    let trace_path = dir.join("trace.csv");
+    if !trace_path.is_file() {
+        bail!(
+            "{} has no trace.csv (a run with [record] trace = false cannot be exported)",
+            dir.display()
+        );
+    }
+    let path = req.out.clone().unwrap_or_else(|| dir.join("run.mcap"));
+    let mut out = Out::create(&path)?;
+    let study = Study::new(cfg.clone()).context("the run's reference")?;
+    reference_path(&mut out, &study)?;
+    let ts_ns = cfg.ts_ns();
+    let payload = cfg
+        .payload_step_tick()
+        .map(|k| (k, cfg.plant.payload_step_kg));
+    let mut rows = csv::Reader::from_path(&trace_path)
+        .with_context(|| format!("cannot read {}", trace_path.display()))?;
+    let header = rows.headers()?.clone();
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|c| c == name)
+            .with_context(|| format!("{}: no column `{name}`", trace_path.display()))
+    };
+    let cols = Columns::find(&col)?;
+    let mut current: Option<(String, Channels)> = None;
+    for (i, row) in rows.records().enumerate() {
+        let line = i + 2;
+        let at = || format!("{} line {line}", trace_path.display());
+        let row = row.with_context(at)?;
+        let law = row.get(cols.law).unwrap_or("").to_string();
+        if current.as_ref().is_none_or(|(l, _)| *l != law) {
+            if let Some((done, ch)) = current.take() {
+                finish_law(&mut out, dir, &summary, &done, &ch, ts_ns)?;
+            }
+            let ch = law_channels(&mut out, &law)?;
+            current = Some((law.clone(), ch));
+        }
+        let Some((_, ch)) = current.as_ref() else {
+            continue;
+        };
+        let r = Row::parse(&|i| row.get(i).unwrap_or(""), &cols).with_context(at)?;
+        write_row(&mut out, ch, &law, &r, ts_ns, &study.robot, payload)?;
+    }
+    if let Some((done, ch)) = current.take() {
+        finish_law(&mut out, dir, &summary, &done, &ch, ts_ns)?;
+    }
+    for (name, media) in [
+        ("config.toml", "application/toml"),
+        ("summary.json", "application/json"),
+    ] {
+        let data = std::fs::read(dir.join(name)).unwrap_or_default();
+        out.w.attach(&mcap::Attachment {
+            log_time: 0,
+            create_time: 0,
+            name: name.into(),
+            media_type: media.into(),
+            data: data.into(),
+        })?;
+    }
+    out.w.write_metadata(&Metadata {
+        name: "deltaloop".into(),
+        metadata: BTreeMap::from([
+            ("scenario".into(), cfg.name.clone()),
+            ("ts_s".into(), format!("{:e}", cfg.loop_.ts_s)),
+            (
+                "mode".into(),
+                summary["mode"].as_str().unwrap_or("").to_string(),
+            ),
+            (
+                "command".into(),
+                summary["command"].as_str().unwrap_or("").to_string(),
+            ),
+        ]),
+    })?;
+    out.w.finish()?;
+    drop(out.w);
+    let bytes = std::fs::metadata(&path).map_or(0, |m| m.len());
+    let messages = out
+        .counts
+        .into_values()
+        .map(|(topic, n)| (topic, u64::from(n)))
+        .collect();
+    Ok(Exported {
+        path,
+        messages,
+        bytes,
+    })
+}
+
+/// The reference path (task space, every tick up to 2000 points), drawn once at t = 0.
+fn reference_path(out: &mut Out, study: &Study) -> Result<()> {
+    let s = out.schema(
+        "foxglove.SceneUpdate",
+        "jsonschema",
+        scene::SCENE_UPDATE_SCHEMA,
+    )?;
+    let ch = out.channel(s, "/reference_path", "json")?;
+    let n = study.reference.row_count();
+    let stride = n.div_ceil(2000).max(1);
+    let points: Vec<Vec3> = (0..n)
+        .step_by(stride)
+        .map(|k| study.reference.row(k).task.x)
+        .collect();
+    out.json(ch, 0, &scene::path(&points))
+}
+
+fn law_channels(out: &mut Out, law: &str) -> Result<Channels> {
+    let js = out.schema(
+        "sensor_msgs/msg/JointState",
+        "ros2msg",
+        cdr::JOINT_STATE_MSGDEF,
+    )?;
+    let obj = out.schema("deltaloop.Tick", "jsonschema", OBJECT_SCHEMA)?;
+    let log = out.schema("foxglove.Log", "jsonschema", LOG_SCHEMA)?;
+    let sc = out.schema(
+        "foxglove.SceneUpdate",
+        "jsonschema",
+        scene::SCENE_UPDATE_SCHEMA,
+    )?;
+    Ok(Channels {
+        joints: out.channel(js, &format!("/{law}/joint_states"), "cdr")?,
+        control: out.channel(obj, &format!("/{law}/control"), "json")?,
+        timing: out.channel(obj, &format!("/{law}/timing"), "json")?,
+        events: out.channel(log, &format!("/{law}/events"), "json")?,
+        scene: out.channel(sc, &format!("/{law}/scene"), "json")?,
+    })
+}
+
+/// Where each trace column is.
+struct Columns {
+    law: usize,
+    k: usize,
+    /// `(name, first column)` of every per-joint group, in trace order.
+    joints: Vec<(&'static str, usize)>,
+    reply: usize,
+    drives: usize,
+    arrival: usize,
+}
+
+impl Columns {
+    fn find(col: &dyn Fn(&str) -> Result<usize>) -> Result<Self> {
+        let joints = trace::COLUMNS
+            .iter()
+            .filter(|c| c.per_joint)
+            .map(|c| Ok((c.name, col(&format!("{}_1", c.name))?)))
+            .collect::<Result<_>>()?;
+        Ok(Self {
+            law: col(trace::LAW.name)?,
+            k: col(trace::K.name)?,
+            joints,
+            reply: col(trace::REPLY.name)?,
+            drives: col(trace::DRIVES.name)?,
+            arrival: col(trace::ARRIVAL.name)?,
+        })
+    }
+}
+
+/// One trace row, parsed.
+struct Row {
+    k: u64,
+    /// Every per-joint group: its name and three values (None: an empty cell).
+    joints: Vec<(&'static str, [Option<f64>; 3])>,
+    reply: String,
+    drives: String,
+    arrival_ns: Option<u64>,
+}
+
+impl Row {
+    /// The row whose field `i` is `cell(i)`.
+    fn parse<'a>(cell: &dyn Fn(usize) -> &'a str, c: &Columns) -> Result<Self> {
+        let num = |i: usize| -> Result<Option<f64>> {
+            match cell(i) {
+                "" => Ok(None),
+                s => s
+                    .parse()
+                    .map(Some)
+                    .map_err(|_| anyhow::anyhow!("column {} = `{s}` is not a number", i + 1)),
+            }
+        };
+        let k = cell(c.k)
+            .parse()
+            .map_err(|_| anyhow::anyhow!("column k = `{}` is not a tick", cell(c.k)))?;
+        let joints = c
+            .joints
+            .iter()
+            .map(|&(name, at)| Ok((name, [num(at)?, num(at + 1)?, num(at + 2)?])))
+            .collect::<Result<_>>()?;
+        let arrival_ns = match cell(c.arrival) {
+            "" => None,
+            s => Some(
+                s.parse()
+                    .map_err(|_| anyhow::anyhow!("column arrival_ns = `{s}` is not ns"))?,
+            ),
+        };
+        Ok(Self {
+            k,
+            joints,
+            reply: cell(c.reply).into(),
+            drives: cell(c.drives).into(),
+            arrival_ns,
+        })
+    }
+
+    fn group(&self, name: &str) -> [Option<f64>; 3] {
+        self.joints
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map_or([None; 3], |(_, v)| *v)
+    }
+}
+
+fn write_row(
+    out: &mut Out,
+    ch: &Channels,
+    law: &str,
+    r: &Row,
+    ts_ns: u64,
+    robot: &DeltaRobot,
+    payload: Option<(u64, f64)>,
+) -> Result<()> {
+    let t = r.k * ts_ns;
+    let all = |g: [Option<f64>; 3]| g.map(|x| x.unwrap_or(f64::NAN));
+    let (q, qd, tau_a) = (
+        all(r.group("q")),
+        all(r.group("qdot")),
+        all(r.group("tau_applied")),
+    );
+    out.write(ch.joints, t, &cdr::joint_state(t, &q, &qd, &tau_a))?;
+    let mut control = Map::new();
+    control.insert("k".into(), json!(r.k));
+    control.insert("t_s".into(), json!(t as f64 * 1e-9));
+    for (name, v) in &r.joints {
+        if !matches!(*name, "q" | "qdot" | "tau_applied") {
+            control.insert((*name).into(), json!(v));
+        }
+    }
+    control.insert("reply".into(), json!(r.reply));
+    control.insert("drives".into(), json!(r.drives));
+    control.insert("arrival_ns".into(), json!(r.arrival_ns));
+    out.json(ch.control, t, &Value::Object(control))?;
+    if r.reply != "applied" {
+        out.log(
+            ch.events,
+            t,
+            WARNING,
+            law,
+            format!("tick {}: reply {}", r.k, r.reply),
+        )?;
+    }
+    if matches!(r.drives.as_str(), "held" | "rejected") {
+        out.log(
+            ch.events,
+            t,
+            INFO,
+            law,
+            format!("tick {}: drives {}", r.k, r.drives),
+        )?;
+    }
+    let mass = payload.filter(|&(k, _)| r.k >= k).map_or(0.0, |p| p.1);
+    if let Some(s) = scene::robot(robot, t, &Vec3::from(q), mass) {
+        out.json(ch.scene, t, &s)?;
+    }
+    Ok(())
+}
+
+/// After a law's rows: its timing rows and how it ended.
+fn finish_law(
+    out: &mut Out,
+    dir: &Path,
+    summary: &Value,
+    law: &str,
+    ch: &Channels,
+    ts_ns: u64,
+) -> Result<()> {
+    let timing = dir.join(format!("{law}.timing.csv"));
+    if timing.is_file() {
+        let mut rows = csv::Reader::from_path(&timing)
+            .with_context(|| format!("cannot read {}", timing.display()))?;
+        let header = rows.headers()?.clone();
+        for (i, row) in rows.records().enumerate() {
+            let row = row.with_context(|| format!("{} line {}", timing.display(), i + 2))?;
+            let mut m = Map::new();
+            for (name, cell) in header.iter().zip(row.iter()) {
+                m.insert(
+                    name.into(),
+                    cell.parse::<u64>().map_or(Value::Null, |v| json!(v)),
+                );
+            }
+            let get = |n: &str| m.get(n).and_then(Value::as_u64);
+            let rtt = get("torque_rx_ns")
+                .zip(get("state_pub_ns"))
+                .map(|(a, b)| a.saturating_sub(b));
+            let k = get("k").unwrap_or(0);
+            m.insert("round_trip_ns".into(), json!(rtt));
+            out.json(ch.timing, k * ts_ns, &Value::Object(m))?;
+        }
+    }
+    ending(out, ch, law, &summary["laws"][law], ts_ns)
+}
+
+/// The last event of a law: how it ended, from its metrics (`summary.json`'s entry).
+fn ending(out: &mut Out, ch: &Channels, law: &str, m: &Value, ts_ns: u64) -> Result<()> {
+    let status = m["status"].as_str().unwrap_or("unknown");
+    let (tick, level, why) = if let Some(t) = m["fault_at_tick"].as_u64() {
+        (t, ERROR, m["fault"].as_str().unwrap_or(""))
+    } else if let Some(t) = m["diverged_at_tick"].as_u64() {
+        (t, ERROR, m["diverged_reason"].as_str().unwrap_or(""))
+    } else if let Some(t) = m["interrupted_at_tick"].as_u64() {
+        (t, WARNING, "stopped on request")
+    } else {
+        (m["ticks"].as_u64().unwrap_or(0), INFO, "")
+    };
+    let line = if why.is_empty() {
+        format!("run {status}")
+    } else {
+        format!("run {status} at tick {tick}: {why}")
+    };
+    out.log(ch.events, tick * ts_ns, level, law, line)
+}
+
+/// `<law>.mcap` written while the law records: a sink of the recorder, one row at a time (the
+/// trace's own rendering of the row, so both say the same numbers). A run killed outright
+/// leaves every chunk this closed (readers open the file up to its last chunk).
+pub struct Live {
+    out: Out,
+    ch: Channels,
+    cols: Columns,
+    law: Law,
+    ts_ns: u64,
+    robot: DeltaRobot,
+    payload: Option<(u64, f64)>,
+    fields: Vec<String>,
+}
+
+impl Live {
+    /// Starts `path` for `law` of `study`.
+    pub fn create(path: &Path, study: &Study, law: Law) -> Result<Self> {
+        let mut out = Out::create(path)?;
+        reference_path(&mut out, study)?;
+        let ch = law_channels(&mut out, law.name())?;
+        let header = trace::header();
+        let cols = Columns::find(&|name: &str| {
+            header
+                .iter()
+                .position(|h| h == name)
+                .with_context(|| format!("no trace column {name}"))
+        })?;
+        let cfg = &study.config;
+        Ok(Self {
+            out,
+            ch,
+            cols,
+            law,
+            ts_ns: cfg.ts_ns(),
+            robot: study.robot.clone(),
+            payload: cfg
+                .payload_step_tick()
+                .map(|k| (k, cfg.plant.payload_step_kg)),
+            fields: vec![String::new(); header.len()],
+        })
+    }
+
+    /// Writes tick k's messages; an error is returned (the caller keeps the first).
+    pub fn take(&mut self, r: &TickRecord, row: &RefRow, n_true: Option<Vec3>) -> Result<()> {
+        trace::render(self.law, r, row, n_true, &mut self.fields);
+        let fields = &self.fields;
+        let row = Row::parse(&|i| fields.get(i).map_or("", String::as_str), &self.cols)?;
+        write_row(
+            &mut self.out,
+            &self.ch,
+            self.law.name(),
+            &row,
+            self.ts_ns,
+            &self.robot,
+            self.payload,
+        )
+    }
+
+    /// Ends the file with how the law ended (its metrics, as `summary.json` has them).
+    pub fn finish(mut self, metrics: &Value) -> Result<()> {
+        ending(
+            &mut self.out,
+            &self.ch,
+            self.law.name(),
+            metrics,
+            self.ts_ns,
+        )?;
+        self.out.w.finish()?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A run folder whose trace.csv is missing is refused in one line naming it.
+    #[test]
+    fn a_folder_without_a_trace_is_refused_in_one_line() {
+        let d = tempfile::tempdir().unwrap();
+        let cfg =
+            RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s1\"\n", None).unwrap();
+        std::fs::write(d.path().join("config.toml"), cfg.to_toml_string()).unwrap();
+        std::fs::write(d.path().join("summary.json"), "{}").unwrap();
+        let e = export(&ExportRequest {
+            run_dir: d.path(),
+            out: None,
+        })
+        .err()
+        .unwrap()
+        .to_string();
+        assert!(e.contains("has no trace.csv") && !e.contains('\n'), "{e}");
+    }
+}

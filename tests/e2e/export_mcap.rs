@@ -1,0 +1,165 @@
+//! `deltaloop export RUN_DIR --mcap` read back by the MCAP readers of PyPI (the test venv's
+//! `mcap` and `mcap-ros2-support`): every channel against trace.csv, row for row, bit for bit.
+
+use crate::common;
+
+use common::deltaloop;
+use common::python::{python, root, run_cmd, text};
+use std::process::Command;
+
+/// The check script's line for `law`, after the export of a run of `config` in `mode`.
+fn exported(mode: &str, extra: &[&str]) -> (String, std::path::PathBuf, tempfile::TempDir) {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let mut args = vec![
+        "run",
+        "configs/s1-payload.toml",
+        "--mode",
+        mode,
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let o = deltaloop(&args);
+    assert!(o.status.success(), "run: {}", text(&o.stderr));
+    let o = deltaloop(&["export", out.to_str().unwrap(), "--mcap"]);
+    assert!(o.status.success(), "export: {}", text(&o.stderr));
+    assert!(
+        text(&o.stdout).contains("run.mcap: "),
+        "{}",
+        text(&o.stdout)
+    );
+    let check = run_cmd(
+        Command::new(python())
+            .arg(root().join("examples/foxglove/read_mcap.py"))
+            .arg(&out),
+        "read_mcap.py",
+    );
+    assert!(
+        check.status.success(),
+        "read_mcap.py: {}{}",
+        text(&check.stdout),
+        text(&check.stderr)
+    );
+    let said = text(&check.stdout);
+    assert!(
+        !said.contains("truncated"),
+        "a finished export reads whole: {said}"
+    );
+    (said, out, tmp)
+}
+
+/// An in-process run (two laws, the payload step): every message the readers decode equals the
+/// trace; one joint state, one control message and one scene per row; the events end with how
+/// the run ended; the reference path is there once.
+#[test]
+fn an_exported_run_reads_back_bit_for_bit_with_the_pypi_readers() {
+    let (said, _, _tmp) = exported("inproc", &["--law", "tdc", "--law", "tdc-is-sta"]);
+    for law in ["tdc", "tdc-is-sta"] {
+        let line = said
+            .lines()
+            .find(|l| l.starts_with(&format!("{law} ")))
+            .unwrap_or_else(|| panic!("no line for {law}: {said}"));
+        let n = |key: &str| -> u64 {
+            line.split_whitespace()
+                .find_map(|w| w.strip_prefix(&format!("{key}=")))
+                .and_then(|v| v.parse().ok())
+                .unwrap_or_else(|| panic!("no {key} in {line}"))
+        };
+        assert_eq!(n("rows"), 2668, "{line}");
+        assert_eq!(n("joint_states"), n("rows"), "{line}");
+        assert_eq!(n("scene"), n("rows"), "{line}");
+        assert_eq!(n("timing"), 0, "inproc has no timing file: {line}");
+        assert!(line.contains("last_event='run ok'"), "{line}");
+    }
+    assert!(said.contains("reference_path=1"), "{said}");
+}
+
+/// A lockstep run carries its timing rows too, one per tick; the `<law>.mcap` that `--mcap`
+/// wrote while it recorded reads back whole and equal to the trace; and a run folder that is not
+/// one is refused in one line.
+#[test]
+fn a_process_run_exports_its_timing_and_a_non_run_is_refused() {
+    let (said, out, _tmp) = exported("lockstep", &["--law", "tdc", "--mcap"]);
+    let timing: u64 = said
+        .split_whitespace()
+        .find_map(|w| w.strip_prefix("timing="))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    assert!(timing >= 2668, "{said}");
+    let live = run_cmd(
+        Command::new(python())
+            .arg(root().join("examples/foxglove/read_mcap.py"))
+            .arg(&out)
+            .arg(out.join("tdc.mcap")),
+        "read_mcap.py",
+    );
+    let live_said = text(&live.stdout);
+    assert!(live.status.success(), "{live_said}{}", text(&live.stderr));
+    assert!(!live_said.contains("truncated"), "{live_said}");
+    assert!(
+        live_said.contains("tdc rows=2668 joint_states=2668"),
+        "{live_said}"
+    );
+    assert!(live_said.contains("last_event='run ok'"), "{live_said}");
+    let o = deltaloop(&["export", out.join("nothing").to_str().unwrap(), "--mcap"]);
+    assert!(!o.status.success());
+    let err = text(&o.stderr);
+    assert!(
+        err.contains("is not a run folder") && err.lines().count() == 1,
+        "{err}"
+    );
+}
+
+/// `run --mcap` writes `<law>.mcap` while the law records: killed with -9 mid-run, the file reads
+/// back up to its last whole record, and what it holds equals the rows the trace part kept; a
+/// run that ends writes the whole file, equal to the export of the same run.
+#[test]
+fn a_live_mcap_reads_back_also_after_kill_9() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = tmp.path().join("long.toml");
+    std::fs::write(
+        &cfg,
+        "name = \"long\"\n[scenario]\npath = \"s1\"\nhold_s = 60.0\n[controller]\nlaws = [\"tdc\"]\n",
+    )
+    .unwrap();
+    let mut child = common::spawn_group(&[
+        "run",
+        cfg.to_str().unwrap(),
+        "--mode",
+        "lockstep",
+        "--mcap",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let live = out.join("tdc.mcap");
+    let t0 = std::time::Instant::now();
+    while std::fs::metadata(&live).map_or(0, |m| m.len()) < 4_000_000 {
+        assert!(
+            t0.elapsed() < std::time::Duration::from_secs(120),
+            "tdc.mcap did not grow"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    // SAFETY: killing the process group this test started.
+    unsafe { libc::kill(-(child.id() as i32), libc::SIGKILL) };
+    let _ = child.wait();
+    let check = run_cmd(
+        Command::new(python())
+            .arg(root().join("examples/foxglove/read_mcap.py"))
+            .arg(&out)
+            .arg(&live)
+            .arg(out.join("trace.tdc.part")),
+        "read_mcap.py",
+    );
+    let said = text(&check.stdout);
+    assert!(check.status.success(), "{said}{}", text(&check.stderr));
+    assert!(said.starts_with("truncated"), "{said}");
+    let rows: u64 = said
+        .split_whitespace()
+        .find_map(|w| w.strip_prefix("joint_states="))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    assert!(rows > 1000, "only {rows} joint states read back: {said}");
+}
