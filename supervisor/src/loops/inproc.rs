@@ -9,6 +9,7 @@
 //! [`Recorder`]: crate::record::Recorder
 
 use crate::loops::lawrun::{self, Keep, LawRecorder, LawRun};
+use crate::record::metrics::LawMetrics;
 use crate::study::Study;
 use anyhow::Result;
 use deltaloop_config::Law;
@@ -27,23 +28,36 @@ pub fn run_law_through(study: &Study, law: Law, keep: &Keep, last: u64) -> Resul
     run_from(study, law, keep, last, study.reference.q0())
 }
 
-/// The round-off twin of a law's in-process run: the same run with the plant starting one ulp
-/// away, every joint angle q_i(0) moved to the next larger `f64` ([`Study::twin_q0`]); only the
-/// metrics are kept. How far its metrics drift from the run's says how many of their digits
-/// survive round-off (see [`crate::record::sensitivity`]).
-pub fn run_twin(study: &Study, law: Law) -> Result<LawRun> {
-    run_from(
-        study,
-        law,
-        &Keep::default(),
-        study.reference.n as u64,
-        study.twin_q0(),
-    )
+/// The round-off twins of a law's in-process run: the same run with the plant starting one ulp
+/// away, in each of the ways [`Study::twin_q0s`] lists; only the metrics are kept. How far their
+/// metrics drift from the run's says how many of its digits survive round-off (see
+/// [`crate::record::sensitivity`]).
+pub fn run_twins_of(study: &Study, law: Law) -> Result<Vec<LawMetrics>> {
+    run_twin_jobs(study, &[law])
+        .pop()
+        .unwrap_or_else(|| Ok(Vec::new()))
 }
 
-/// Runs every law's round-off twin, each on its own thread.
-pub fn run_twins(study: &Study, laws: &[Law]) -> Vec<Result<LawRun>> {
-    on_threads(laws.to_vec(), |law| run_twin(study, law))
+/// Every law's round-off twins, all of them on every core; per law, in `laws`' order.
+pub fn run_twins(study: &Study, laws: &[Law]) -> Vec<Result<Vec<LawMetrics>>> {
+    run_twin_jobs(study, laws)
+}
+
+fn run_twin_jobs(study: &Study, laws: &[Law]) -> Vec<Result<Vec<LawMetrics>>> {
+    let q0s = study.twin_q0s();
+    let jobs: Vec<(Law, Vec3)> = laws
+        .iter()
+        .flat_map(|&l| q0s.iter().map(move |&q| (l, q)))
+        .collect();
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let last = study.reference.n as u64;
+    let mut done = crate::loops::pool::map(&jobs, threads, |&(law, q0)| {
+        run_from(study, law, &Keep::default(), last, q0).map(|r| r.metrics)
+    })
+    .into_iter();
+    laws.iter()
+        .map(|_| done.by_ref().take(q0s.len()).collect())
+        .collect()
 }
 
 /// `run(job)` for every job (one a law), each on its own thread (they share nothing but the

@@ -253,7 +253,7 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
     })
 }
 
-/// Runs each law's round-off twin (in-process, each on its own thread) and files the spreads
+/// Runs each law's round-off twins (in-process, on every core) and files the spreads
 /// with the law's metrics. In lockstep too the twin runs in-process: the two modes give the
 /// same bits.
 fn add_sensitivity(study: &Study, runs: &mut [LawRun]) -> Result<()> {
@@ -264,9 +264,9 @@ fn add_sensitivity(study: &Study, runs: &mut [LawRun]) -> Result<()> {
         .filter(|r| r.metrics.status.is_physical())
         .collect();
     let laws: Vec<Law> = physical.iter().map(|r| r.law).collect();
-    for (run, twin) in physical.iter_mut().zip(inproc::run_twins(study, &laws)) {
-        let twin = twin.context("the round-off twin")?;
-        run.metrics.sensitivity = Some(run.metrics.against_twin(&twin.metrics));
+    for (run, twins) in physical.iter_mut().zip(inproc::run_twins(study, &laws)) {
+        let twins = twins.context("the round-off twins")?;
+        run.metrics.sensitivity = run.metrics.against_twins(&twins);
     }
     Ok(())
 }

@@ -136,7 +136,7 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
     if twins {
         let _ = writeln!(
             s,
-            "round-off: relative change of a law's RMS when q(0) moves one ulp; RMS, task and TDE figures keep the digits that survive their own change (summary.json: sensitivity)"
+            "round-off: the largest relative change of a law's RMS over its 8 twins (q(0) one ulp up or down, per joint and in all); RMS, task and TDE figures keep the digits that survive their own largest change (summary.json: sensitivity)"
         );
     }
     s
@@ -264,7 +264,7 @@ fn injected(cfg: &RunConfig) -> Vec<String> {
 fn sensitivity_note(s: &mut String, metrics: &[LawMetrics]) {
     let _ = writeln!(
         s,
-        "\nRound-off: each law ran a twin with {} (`--sensitivity`); the column is the relative change of its RMS, and each figure keeps only the digits that survive it (`summary.json` has the changes of the max, task and TDE errors too).",
+        "\nRound-off: each law ran its twins, {} (`--sensitivity`); the column is the largest relative change of its RMS over them, and each figure keeps only the digits that survive its own largest change (`summary.json` has the changes of the max, task and TDE errors too, the twins' count and the median RMS change). The largest of a few twins is a sample of how far round-off can move the law, not a bound.",
         sensitivity::PERTURBATION
     );
     let touchy: Vec<String> = metrics

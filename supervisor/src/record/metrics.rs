@@ -530,7 +530,7 @@ impl<'a> MetricsAcc<'a> {
 
 impl LawMetrics {
     /// The spreads between this run's metrics and its round-off twin's.
-    pub fn against_twin(&self, twin: &LawMetrics) -> Sensitivity {
+    fn against_twin(&self, twin: &LawMetrics) -> Sensitivity {
         let run = self;
         Sensitivity {
             rms_rel: sensitivity::rel3(run.rms_rad, twin.rms_rad),
@@ -541,7 +541,40 @@ impl LawMetrics {
                 .zip(twin.tde_err_rms)
                 .map(|(a, b)| sensitivity::rel3(a, b)),
             twin_rms_rad: twin.rms_rad.into_iter().fold(0.0, f64::max),
+            twins: 1,
+            rms_rel_median: f64::NAN,
         }
+    }
+
+    /// The spreads against several twins: each the largest over them (the digits kept follow
+    /// it), with the twins' count and the median RMS spread. None without a twin.
+    pub fn against_twins(&self, twins: &[LawMetrics]) -> Option<Sensitivity> {
+        let each: Vec<Sensitivity> = twins.iter().map(|t| self.against_twin(t)).collect();
+        let worst = each
+            .iter()
+            .copied()
+            .max_by(|a, b| a.rms_rel.total_cmp(&b.rms_rel))?;
+        let max = |f: fn(&Sensitivity) -> f64| each.iter().map(f).fold(0.0, f64::max);
+        let mut rms: Vec<f64> = each.iter().map(|s| s.rms_rel).collect();
+        rms.sort_by(f64::total_cmp);
+        let median = if rms.len() % 2 == 1 {
+            rms[rms.len() / 2]
+        } else {
+            (rms[rms.len() / 2 - 1] + rms[rms.len() / 2]) / 2.0
+        };
+        Some(Sensitivity {
+            rms_rel: worst.rms_rel,
+            max_err_rel: max(|s| s.max_err_rel),
+            task_rms_rel: max(|s| s.task_rms_rel),
+            tde_rel: each
+                .iter()
+                .map(|s| s.tde_rel)
+                .collect::<Option<Vec<f64>>>()
+                .map(|v| v.into_iter().fold(0.0, f64::max)),
+            twin_rms_rad: worst.twin_rms_rad,
+            twins: each.len() as u32,
+            rms_rel_median: median,
+        })
     }
 }
 

@@ -1,6 +1,6 @@
 //! Round-off sensitivity: how far a law's metrics move when its run is repeated with the plant
-//! started one ulp away (the round-off twin, [`crate::loops::inproc::run_twin`]), and how many
-//! digits of each figure survive that.
+//! started one ulp away (the round-off twins, [`crate::loops::inproc::run_twins`]: eight ways),
+//! and how many digits of each figure survive the largest of those moves.
 //!
 //! Why: the super-twisting term k₁|s|^½ sign(s) is not Lipschitz at s = 0, so a difference of
 //! 10⁻¹³ in s (round-off of the integrator, or of another implementation's operation order) can
@@ -10,7 +10,8 @@
 use serde::{Deserialize, Serialize};
 
 /// What the twin changed, as `summary.json` and the reports say it.
-pub const PERTURBATION: &str = "q(0) one ulp up in every joint";
+pub const PERTURBATION: &str =
+    "q(0) one ulp up and one ulp down in each joint alone and in all three together (8 twins)";
 
 /// Below this relative spread a figure keeps every digit the reports print (4 significant).
 pub const FULL_DIGITS_BELOW: f64 = 5e-5;
@@ -27,8 +28,18 @@ pub struct Sensitivity {
     pub task_rms_rel: f64,
     /// TDE error RMS (`tde_err_rms`); None for `pid`.
     pub tde_rel: Option<f64>,
-    /// The twin's max-joint RMS tracking error, rad.
+    /// The max-joint RMS tracking error of the twin that moved it most, rad.
     pub twin_rms_rad: f64,
+    /// How many twins the spreads are the largest of.
+    #[serde(default = "one")]
+    pub twins: u32,
+    /// The median over the twins of the RMS spread (`rms_rel` is their largest).
+    #[serde(default)]
+    pub rms_rel_median: f64,
+}
+
+fn one() -> u32 {
+    1
 }
 
 /// |a − b| / max(|a|, |b|): 0 for two zeros, 1 if either is not finite (nothing holds).

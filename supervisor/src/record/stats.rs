@@ -91,6 +91,41 @@ impl Interval {
     }
 }
 
+/// Two-sided p-value of Student's one-sample t-test that a mean of `n` values with sample
+/// standard deviation `std` is 0: 2·(1 − F(|t|)), t = mean/(std/√n), n − 1 degrees of freedom.
+/// NaN for n < 2; with `std` 0 it is 1 for a mean of 0 and 0 otherwise.
+pub fn t_test_p(mean: f64, std: f64, n: usize) -> f64 {
+    if n < 2 || !(mean.is_finite() && std.is_finite()) {
+        return f64::NAN;
+    }
+    if std == 0.0 {
+        return if mean == 0.0 { 1.0 } else { 0.0 };
+    }
+    let t = mean / (std / (n as f64).sqrt());
+    StudentsT::new(0.0, 1.0, (n - 1) as f64)
+        .map(|d| 2.0 * d.sf(t.abs()))
+        .unwrap_or(f64::NAN)
+}
+
+/// Holm's step-down correction of `p` for their number (family-wise error rate): sorted
+/// ascending, the i-th smallest becomes max over j ≤ i of min(1, (m − j + 1)·p₍ⱼ₎), m the number
+/// of finite p-values; NaN entries are not tests and stay NaN. Returned in the input's order.
+pub fn holm(p: &[f64]) -> Vec<f64> {
+    let mut order: Vec<usize> = (0..p.len()).filter(|&i| p[i].is_finite()).collect();
+    order.sort_by(|&a, &b| p[a].total_cmp(&p[b]));
+    let m = order.len();
+    let mut out = vec![f64::NAN; p.len()];
+    let mut running = 0.0f64;
+    for (j, &i) in order.iter().enumerate() {
+        running = running.max(((m - j) as f64 * p[i]).min(1.0));
+        out[i] = running;
+    }
+    out
+}
+
+/// Which correction the robustness verdicts take, in the words of the reports.
+pub const CORRECTION: &str = "Holm's step-down correction over every ratio of the table with 5 or more runs (family-wise error 5 %)";
+
 /// Repeated ratios (law A's RMS over law B's, run by run) summarised in log space: the geometric
 /// mean and the t-based 95 % CI of the mean log ratio, mapped back. Tracking errors are
 /// heavy-tailed in realtime (one missed deadline multiplies a run's RMS), and a ratio's natural
@@ -105,6 +140,9 @@ pub struct RatioInterval {
     pub ci95_hi: f64,
     /// Standard deviation of the log ratio (NaN for n < 2).
     pub log_std: f64,
+    /// Two-sided p-value of the one-sample t-test that the mean log ratio is 0 (the ratio 1):
+    /// below 0.05 exactly when the interval excludes 1; NaN for n < 2.
+    pub p_value: f64,
 }
 
 /// Which interval [`RatioInterval`] is.
@@ -125,6 +163,7 @@ impl RatioInterval {
             ci95_lo: i.ci95_lo.exp(),
             ci95_hi: i.ci95_hi.exp(),
             log_std: i.std,
+            p_value: t_test_p(i.mean, i.std, i.n),
         })
     }
 
@@ -163,6 +202,34 @@ impl RatioInterval {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// By hand: p = 0.01, 0.04, 0.03, 0.005 (m = 4) sorted 0.005, 0.01, 0.03, 0.04 → 4·0.005 =
+    /// 0.02, 3·0.01 = 0.03, 2·0.03 = 0.06, max(0.06, 1·0.04) = 0.06; NaN is no test.
+    #[test]
+    fn holm_matches_the_hand_computed_case() {
+        let h = holm(&[0.01, 0.04, f64::NAN, 0.03, 0.005]);
+        let want = [0.03, 0.06, f64::NAN, 0.06, 0.02];
+        for (a, b) in h.iter().zip(want) {
+            assert!((a.is_nan() && b.is_nan()) || (a - b).abs() < 1e-15, "{h:?}");
+        }
+        assert_eq!(holm(&[0.5, 0.9]), vec![1.0, 1.0]);
+    }
+
+    /// By hand, 2 degrees of freedom (F(t) = 1/2 + t/(2√(2 + t²))): logs 1, 2, 3 → mean 2,
+    /// s = 1, t = 2√3 = 3.4641016, F = 1/2 + 3.4641016/(2√14) = 0.96291005, p = 0.0741799.
+    #[test]
+    fn the_t_test_p_value_matches_the_closed_form_for_two_degrees_of_freedom() {
+        let p = t_test_p(2.0, 1.0, 3);
+        let t = 2.0 * 3f64.sqrt();
+        let closed = 2.0 * (0.5 - t / (2.0 * (2.0 + t * t).sqrt()));
+        assert!((p - closed).abs() < 1e-12, "{p} vs {closed}");
+        assert!((p - 0.0741799).abs() < 1e-6, "{p}");
+        let e = std::f64::consts::E;
+        let r = RatioInterval::of(&[e, e * e, e * e * e]).unwrap();
+        assert!((r.p_value - closed).abs() < 1e-12);
+        // p < 0.05 exactly when the interval excludes 1.
+        assert_eq!(r.p_value < 0.05, r.above(1.0) || r.below(1.0));
+    }
 
     /// Hand-computed: xs = 1, 2, 3, 4, 5 → mean 3, s² = 10/4 = 2.5, s = 1.5811388300841898,
     /// s/√5 = 0.7071067811865476, t₀.₉₇₅,₄ = 2.7764451051977987 (tables: 2.776),

@@ -60,6 +60,22 @@ impl Study {
         self.reference.q0().map(f64::next_up)
     }
 
+    /// The starting angles of every round-off twin ([`crate::record::sensitivity::PERTURBATION`]):
+    /// q(0) one ulp up and one ulp down in each joint alone (6), and in all three together (2).
+    pub fn twin_q0s(&self) -> Vec<Vec3> {
+        let q0 = self.reference.q0();
+        let mut out = Vec::with_capacity(8);
+        for step in [f64::next_up as fn(f64) -> f64, f64::next_down] {
+            for j in 0..3 {
+                let mut q = q0;
+                q[j] = step(q[j]);
+                out.push(q);
+            }
+            out.push(q0.map(step));
+        }
+        out
+    }
+
     /// The controller side of a fresh run of `law`.
     pub fn controller_side(&self, law: Law) -> ControllerSide {
         ControllerSide::from_config(&self.config, law)

@@ -58,6 +58,9 @@ pub struct Row {
     pub sta_over_is: Option<RatioInterval>,
     /// tdc-is-ista / tde-is, paired run by run.
     pub ista_over_is: Option<RatioInterval>,
+    /// The two ratios' p-values after [`stats::CORRECTION`] (None: not a test of the table).
+    pub sta_holm_p: Option<f64>,
+    pub ista_holm_p: Option<f64>,
     /// Realtime: deadline misses over all runs and laws.
     pub misses: Option<u64>,
     /// Realtime: the median over runs and laws of the round trip's median, µs.
@@ -73,6 +76,8 @@ pub struct Robustness {
     /// The interval of the RMS columns and of the ratios.
     pub interval: &'static str,
     pub ratio_interval: &'static str,
+    /// The multiple-comparison correction of the verdicts.
+    pub correction: &'static str,
     pub rows: Vec<Row>,
     /// Wall time of the in-process part and of the realtime part, s.
     pub inproc_s: f64,
@@ -176,6 +181,8 @@ fn row(scenario: PathKind, preset: Preset, mode: LoopMode, samples: &[Sample]) -
             .collect(),
         sta_over_is: ratio(1),
         ista_over_is: ratio(2),
+        sta_holm_p: None,
+        ista_holm_p: None,
         round_trip_p50_us: rtts.get(rtts.len() / 2).copied(),
         // Every run's misses, also those of the runs left out (often the reason they were).
         misses: samples
@@ -236,30 +243,64 @@ pub fn run(out: &Path, seeds: u32, realtime_runs: u32, progress: bool) -> Result
         }
         bar.finish_and_clear();
     }
+    correct(&mut rows);
     Ok(Robustness {
         sensor: sensor(1),
         seeds,
         realtime_runs,
         interval: stats::CI_METHOD,
         ratio_interval: stats::RATIO_CI_METHOD,
+        correction: stats::CORRECTION,
         rows,
         inproc_s,
         realtime_s: t1.elapsed().as_secs_f64(),
     })
 }
 
+/// Corrects every ratio of the table with [`MIN_RUNS`] or more runs for their number (Holm).
+fn correct(rows: &mut [Row]) {
+    let tested = |r: &Option<RatioInterval>| {
+        r.filter(|i| i.n >= MIN_RUNS)
+            .map_or(f64::NAN, |i| i.p_value)
+    };
+    let p: Vec<f64> = rows
+        .iter()
+        .flat_map(|r| [tested(&r.sta_over_is), tested(&r.ista_over_is)])
+        .collect();
+    let adjusted = stats::holm(&p);
+    let finite = |x: f64| x.is_finite().then_some(x);
+    for (row, pair) in rows.iter_mut().zip(adjusted.chunks(2)) {
+        row.sta_holm_p = finite(pair[0]);
+        row.ista_holm_p = finite(pair[1]);
+    }
+}
+
 /// Fewest runs a verdict is drawn from: below it, t₀.₉₇₅ is so large (12.7 at n = 2) and the
 /// normality of a mean of so few so doubtful that the interval decides nothing.
 pub const MIN_RUNS: usize = 5;
 
-/// The verdict a ratio's interval allows.
-pub fn verdict(r: Option<&RatioInterval>) -> &'static str {
-    match r {
-        Some(i) if i.n < MIN_RUNS => "too few runs (fewer than 5)",
-        Some(i) if i.below(1.0) => "lower: holds",
-        Some(i) if i.above(1.0) => "higher: holds",
-        Some(_) => "not decided (the interval holds 1)",
-        None => "no runs",
+/// The verdict a ratio allows after the correction: `holm_p`, its corrected p-value, below 0.05
+/// (the uncorrected one is below 0.05 exactly when its 95 % interval excludes 1).
+pub fn verdict(r: Option<&RatioInterval>, holm_p: Option<f64>) -> &'static str {
+    match (r, holm_p) {
+        (Some(i), _) if i.n < MIN_RUNS => "too few runs (fewer than 5)",
+        (Some(i), Some(p)) if p < 0.05 && i.geo_mean < 1.0 => "lower: holds",
+        (Some(i), Some(p)) if p < 0.05 && i.geo_mean > 1.0 => "higher: holds",
+        (Some(i), Some(_)) if i.below(1.0) || i.above(1.0) => {
+            "not decided after the correction (the raw interval excludes 1)"
+        }
+        (Some(_), _) => "not decided (the interval holds 1)",
+        (None, _) => "no runs",
+    }
+}
+
+/// A p-value for the table: 2 significant digits, `< 1e-6` below.
+fn show_p(p: Option<f64>) -> String {
+    match p {
+        Some(p) if p < 1e-6 => "< 1e-6".into(),
+        Some(p) if p < 0.01 => format!("{p:.1e}"),
+        Some(p) => format!("{p:.2}"),
+        None => "–".into(),
     }
 }
 
@@ -273,24 +314,27 @@ pub fn markdown(o: &mut String, r: &Robustness) {
          a {}-count joint encoder (quantum {:.2} µrad), noise σ_q = {:e} rad before quantisation, \
          σ_q̇ = {:e} rad/s on the measured velocity (`sensor` in `summary.json`). Each case ran {} seed(s) (1..={}) in-process; \
          the ratios are paired seed by seed (max-joint RMS of the law over that of `tde-is`, same \
-         seed), as the {}. \"holds\": the whole interval is on one side of 1.\n",
+         seed), as the {}. Each ratio is also a two-sided one-sample t-test of the mean log ratio \
+         against 0 (p), and the verdicts take {}: \"holds\" when the corrected p (Holm p) is below 0.05, on the side \
+         of 1 the geometric mean is on.\n",
         se.encoder_counts_per_rev,
         std::f64::consts::TAU / f64::from(se.encoder_counts_per_rev) * 1e6,
         se.q_noise_std_rad,
         se.qd_noise_std_rad_s,
         r.seeds,
         r.seeds,
-        r.ratio_interval
+        r.ratio_interval,
+        r.correction
     );
     let _ = writeln!(
         o,
-        "| scenario | preset | mode | runs | `tde-is` RMS (rad) | `tdc-is-sta` / `tde-is` | verdict | `tdc-is-ista` / `tde-is` | verdict |\n|---|---|---|---|---|---|---|---|---|"
+        "| scenario | preset | mode | runs | `tde-is` RMS (rad) | `tdc-is-sta` / `tde-is` | p | Holm p | verdict | `tdc-is-ista` / `tde-is` | p | Holm p | verdict |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|"
     );
     for row in &r.rows {
         let show = |i: Option<&RatioInterval>| i.map_or("–".into(), |i| i.show());
         let _ = writeln!(
             o,
-            "| {} | {} | {}{} | {}{} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {}{} | {}{} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             row.scenario.name().to_uppercase(),
             row.preset,
             row.mode,
@@ -309,9 +353,17 @@ pub fn markdown(o: &mut String, r: &Robustness) {
                 .get(&Law::TdeIs)
                 .map_or("–".into(), |i| format!("{:.3e}", i.mean)),
             show(row.sta_over_is.as_ref()),
-            verdict(row.sta_over_is.as_ref()),
+            show_p(row.sta_over_is.map(|i| i.p_value).filter(|p| p.is_finite())),
+            show_p(row.sta_holm_p),
+            verdict(row.sta_over_is.as_ref(), row.sta_holm_p),
             show(row.ista_over_is.as_ref()),
-            verdict(row.ista_over_is.as_ref()),
+            show_p(
+                row.ista_over_is
+                    .map(|i| i.p_value)
+                    .filter(|p| p.is_finite())
+            ),
+            show_p(row.ista_holm_p),
+            verdict(row.ista_over_is.as_ref(), row.ista_holm_p),
         );
     }
     let _ = writeln!(
@@ -369,7 +421,10 @@ mod tests {
             Some(9),
             "every run's misses, the left-out one's too"
         );
-        let v = |xs: &[f64]| verdict(RatioInterval::of(xs).as_ref());
+        let v = |xs: &[f64]| {
+            let r = RatioInterval::of(xs);
+            verdict(r.as_ref(), r.map(|i| i.p_value))
+        };
         assert_eq!(v(&[0.5, 0.6, 0.55, 0.52, 0.58]), "lower: holds");
         assert_eq!(v(&[1.5, 1.6, 1.55, 1.52, 1.58]), "higher: holds");
         assert_eq!(
@@ -378,5 +433,49 @@ mod tests {
         );
         assert_eq!(v(&[0.5, 0.6, 0.55, 0.52]), "too few runs (fewer than 5)");
         assert_eq!(v(&[]), "no runs");
+    }
+
+    /// The table's verdicts take Holm's correction over its tests: a ratio whose raw interval
+    /// just excludes 1 is not decided among many tests, and one far from 1 still holds; rows
+    /// with too few runs are not tests (they widen nobody's correction).
+    #[test]
+    fn verdicts_are_corrected_for_the_number_of_ratios() {
+        let mut rows = Vec::new();
+        let near = [0.9, 1.0, 0.92, 0.98, 0.91]; // raw p ≈ 0.03
+        let far = [0.5, 0.52, 0.49, 0.51, 0.5];
+        for (sta, ista) in [
+            (&near[..], &near[..]),
+            (&near[..], &far[..]),
+            (&far[..4], &near[..]),
+        ] {
+            rows.push(Row {
+                sta_over_is: RatioInterval::of(sta),
+                ista_over_is: RatioInterval::of(ista),
+                ..row(PathKind::S1, Preset::Matched, LoopMode::Inproc, &[])
+            });
+        }
+        let raw = rows[0].sta_over_is.unwrap();
+        assert!(raw.p_value < 0.05 && raw.below(1.0), "{raw:?}");
+        correct(&mut rows);
+        // Five tests (the four-run ratio is not one): the far one first (×5), then the four equal
+        // near ones, the first of them ×4, and the later ones keep that running maximum.
+        let p = rows[0].sta_holm_p.unwrap();
+        assert!(p > 0.05 && (p - 4.0 * raw.p_value).abs() < 1e-12, "{p}");
+        assert_eq!(rows[0].ista_holm_p, Some(p));
+        assert_eq!(
+            verdict(rows[0].sta_over_is.as_ref(), rows[0].sta_holm_p),
+            "not decided after the correction (the raw interval excludes 1)"
+        );
+        let far_p = rows[1].ista_over_is.unwrap().p_value;
+        assert!((rows[1].ista_holm_p.unwrap() - 5.0 * far_p).abs() < 1e-15);
+        assert_eq!(
+            verdict(rows[1].ista_over_is.as_ref(), rows[1].ista_holm_p),
+            "lower: holds"
+        );
+        assert_eq!(rows[2].sta_holm_p, None);
+        assert_eq!(
+            verdict(rows[2].sta_over_is.as_ref(), rows[2].sta_holm_p),
+            "too few runs (fewer than 5)"
+        );
     }
 }

@@ -261,16 +261,33 @@ pub(super) fn max3(v: [f64; 3]) -> f64 {
 }
 
 /// One row of the explicit-vs-implicit table, as printed (the test rebuilds it from summary.json).
+/// Each figure keeps the digits its round-off twins leave (the RMS and max error their own
+/// spreads, the torque's HF share and variation the law's largest spread).
 pub fn sta_row(scenario: &str, preset: &str, law: &str, m: &LawMetrics) -> String {
+    let s = m.sensitivity;
+    let rel = |f: fn(&sensitivity::Sensitivity) -> f64| s.as_ref().map_or(0.0, f);
     format!(
-        "| {} | `{preset}` | `{law}` | {} | {} | {:.4} | {:.1} | {} |",
+        "| {} | `{preset}` | `{law}` | {} | {} | {} | {} | {} |",
         scenario.to_uppercase(),
-        fmt_rms(max3(m.rms_rad)),
-        fmt_rms(max3(m.max_abs_err_rad)),
-        max3(m.hf_torque_share),
-        max3(m.torque_tv_nm),
+        sensitivity::sci(max3(m.rms_rad), rel(|s| s.rms_rel)),
+        sensitivity::sci(max3(m.max_abs_err_rad), rel(|s| s.max_err_rel)),
+        fixed(max3(m.hf_torque_share), 4, rel(|s| s.worst())),
+        fixed(max3(m.torque_tv_nm), 1, rel(|s| s.worst())),
         m.clamp_count
     )
+}
+
+/// `x` with `decimals` decimals, or fewer: no more significant digits than a relative spread
+/// `rel` leaves ([`sensitivity::digits`]).
+fn fixed(x: f64, decimals: usize, rel: f64) -> String {
+    let sig = sensitivity::digits(x, rel) as i64;
+    let lead = if x == 0.0 || !x.is_finite() {
+        0
+    } else {
+        x.abs().log10().floor() as i64
+    };
+    let d = (sig - 1 - lead).clamp(0, decimals as i64) as usize;
+    format!("{x:.d$}")
 }
 
 /// min–max of `f(num) / f(den)` over the cases of `preset` (None if it has none).
@@ -553,7 +570,7 @@ pub fn terminal(s: &PaperSummary, out: &Path) -> String {
     if let Some(r) = &s.robustness {
         let _ = writeln!(
             o,
-            "robustness ({} seeds in-process, {} realtime runs, sensor noise on; ratio: geometric mean [95 % CI]):",
+            "robustness ({} seeds in-process, {} realtime runs, sensor noise on; ratio: geometric mean [95 % CI]; verdicts after Holm's correction):",
             r.seeds, r.realtime_runs
         );
         for row in &r.rows {
@@ -564,7 +581,7 @@ pub fn terminal(s: &PaperSummary, out: &Path) -> String {
                 row.preset,
                 row.mode,
                 row.sta_over_is.map_or("–".into(), |i| i.show()),
-                robust::verdict(row.sta_over_is.as_ref())
+                robust::verdict(row.sta_over_is.as_ref(), row.sta_holm_p)
             );
         }
     }

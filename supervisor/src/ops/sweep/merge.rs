@@ -307,6 +307,12 @@ pub fn write(
     std::fs::write(out.join("sweep.json"), serde_json::to_string_pretty(rows)?)?;
     let figures = plots(&plan.sweep, rows, out)?;
     let mut md = report(&plan.sweep, rows, &figures, Path::new(sweep_file));
+    // An encoder hides the twins' one-ulp perturbation: say so, as a run's report does.
+    if plan.sweep.sensitivity
+        && let Some(note) = crate::record::sensitivity::masked_note(&plan.base)
+    {
+        md.push_str(&format!("\n**Round-off and the encoder**: {note}.\n"));
+    }
     let total = plan.points.len();
     if opts.interrupted {
         let finished = rows.iter().filter(|r| r.is_result()).count();

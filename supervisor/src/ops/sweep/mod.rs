@@ -738,7 +738,7 @@ mod tests {
         assert_eq!(rows[3].rms_rad, rows[1].rms_rad, "300 µs is d = 1");
         let md = std::fs::read_to_string(dir.0.join("out/report.md")).unwrap();
         assert!(
-            md.contains("| s2 | matched | `tdc` | 7.209e-5 | 45 | 9.454e-5 |"),
+            md.contains("| s2 | matched | `tdc` | 7.21e-5 | 45 | 9.45e-5 |"),
             "{md}"
         );
         assert!(dir.0.join("out/rms_vs_effective_delay.png").is_file());

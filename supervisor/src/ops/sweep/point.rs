@@ -486,8 +486,8 @@ fn run_one(
             injected_twin(base, job, seed, arrival_us, &mut link);
         }
         if twin && mode != LoopMode::Realtime && m.status.is_physical() {
-            let t = inproc::run_twin(&study, job.law)?;
-            m.sensitivity = Some(m.against_twin(&t.metrics));
+            let twins = inproc::run_twins_of(&study, job.law)?;
+            m.sensitivity = m.against_twins(&twins);
         }
         let cost = if mode == LoopMode::Realtime && m.status == RunStatus::Ok {
             let ideal = inproc::run_law(&study, job.law, &Keep::default())?;

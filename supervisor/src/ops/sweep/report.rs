@@ -12,14 +12,15 @@ use std::path::Path;
 
 /// The largest sub-tick transport delay (µs) on the grid up to which a law's tracking RMS stays
 /// within 2× its value at D = 0 (every delay up to it included), and the RMS there; None without
-/// a D = 0 result.
-pub(super) fn latency_budget(
+/// a D = 0 result. The rows of D = 0 and of the budget come with it (their round-off spreads cut
+/// the printed digits).
+pub(super) fn latency_budget<'a>(
     sw: &SweepFile,
-    rows: &[Row],
+    rows: &'a [Row],
     scenario: PathKind,
     preset: Preset,
     law: Law,
-) -> Option<(f64, f64, f64)> {
+) -> Option<(&'a Row, f64, &'a Row)> {
     let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
     let at = |us: f64| {
         rows.iter().find(|r| {
@@ -32,15 +33,15 @@ pub(super) fn latency_budget(
                 && r.transport_delay_us == us
         })
     };
-    let zero = at(0.0).filter(|r| r.status == RunStatus::Ok)?.rms_rad;
+    let zero = at(0.0).filter(|r| r.status == RunStatus::Ok)?;
     let mut grid: Vec<f64> = sw.transport_delay_us.clone();
     grid.retain(|&us| us > 0.0);
     grid.sort_by(f64::total_cmp);
     let mut best = (0.0, zero);
     for us in grid {
         match at(us) {
-            Some(r) if r.status == RunStatus::Ok && r.rms_rad <= 2.0 * zero => {
-                best = (us, r.rms_rad)
+            Some(r) if r.status == RunStatus::Ok && r.rms_rad <= 2.0 * zero.rms_rad => {
+                best = (us, r)
             }
             _ => break,
         }
@@ -345,12 +346,14 @@ fn budget_table(s: &mut String, sw: &SweepFile, rows: &[Row]) {
     for &sc in &sw.scenarios {
         for &pr in &sw.presets {
             for &law in &sw.laws {
-                if let Some((zero, us, rms)) = latency_budget(sw, rows, sc, pr, law) {
+                if let Some((zero, us, there)) = latency_budget(sw, rows, sc, pr, law) {
                     let _ = writeln!(
                         s,
-                        "| {} | {} | `{law}` | {zero:.3e} | {us} | {rms:.3e} |",
+                        "| {} | {} | `{law}` | {} | {us} | {} |",
                         sc.name(),
-                        pr.name()
+                        pr.name(),
+                        value_text(zero, RMS),
+                        value_text(there, RMS)
                     );
                 }
             }
