@@ -563,7 +563,9 @@ fn a_c_plant_writes_the_builtin_plants_trace_byte_for_byte() {
 }
 
 /// In realtime the C controller answers as the built-in does: round trip p50 within 1.5× of the
-/// built-in controller's in the same test, and no more misses (judged on an undisturbed run).
+/// built-in controller's in the same test (runs on either side of it), and no more misses
+/// (judged on undisturbed runs; regression: another test's load on the other CPU during the C
+/// run alone made a C p50 of 42 µs against the built-in's 22 µs look like the C library's).
 #[test]
 fn a_c_controller_in_realtime_answers_as_fast_as_the_builtin() {
     let Some(exe) = c_tdc() else { return };
@@ -590,24 +592,47 @@ fn a_c_controller_in_realtime_answers_as_fast_as_the_builtin() {
                     status,
                 )
             };
+            // Built-in, C, built-in: the C run is judged against the built-in runs on either
+            // side of it, and a machine whose load changed between those two (another test's
+            // burst on the other CPU) disturbed the comparison.
             let (b, b_dist, b_status) = timing("builtin", &[]);
             let (c, c_dist, c_status) = timing("c", &["--controller-cmd", exe.to_str().unwrap()]);
+            let (b2, b2_dist, b2_status) = timing("builtin-after", &[]);
             let p50 = |t: &Value| t["round_trip"]["p50_us"].as_f64().unwrap_or(f64::INFINITY);
             let misses = |t: &Value| t["deadline_misses"].as_u64().unwrap_or(u64::MAX);
-            let check = if b_status != RunStatus::Ok || c_status != RunStatus::Ok {
-                Err(format!("built-in {b_status:?}, C {c_status:?}"))
-            } else if p50(&c) > 1.5 * p50(&b) {
+            let (lo, hi) = (p50(&b).min(p50(&b2)), p50(&b).max(p50(&b2)));
+            let load = (hi > 1.3 * lo).then(|| {
+                format!(
+                    "the built-in's p50 moved from {} to {} µs around the C run",
+                    p50(&b),
+                    p50(&b2)
+                )
+            });
+            let check = if [b_status, c_status, b2_status]
+                .iter()
+                .any(|s| *s != RunStatus::Ok)
+            {
                 Err(format!(
-                    "round trip p50: C {} µs, built-in {} µs",
-                    p50(&c),
-                    p50(&b)
+                    "built-in {b_status:?} / {b2_status:?}, C {c_status:?}"
                 ))
-            } else if misses(&c) > misses(&b) {
-                Err(format!("misses: C {}, built-in {}", misses(&c), misses(&b)))
+            } else if p50(&c) > 1.5 * hi {
+                Err(format!(
+                    "round trip p50: C {} µs, built-in {} and {} µs",
+                    p50(&c),
+                    p50(&b),
+                    p50(&b2)
+                ))
+            } else if misses(&c) > misses(&b).max(misses(&b2)) {
+                Err(format!(
+                    "misses: C {}, built-in {} and {}",
+                    misses(&c),
+                    misses(&b),
+                    misses(&b2)
+                ))
             } else {
                 Ok(())
             };
-            common::judge(b_dist.or(c_dist), check)
+            common::judge(b_dist.or(c_dist).or(b2_dist).or(load), check)
         },
     );
 }

@@ -191,7 +191,19 @@ fn link_delay_sweep_matches_the_injected_delay() {
                 cfg.contains("deltaloop-bridge") && cfg.contains("127.0.0.1:"),
                 "{cfg}"
             );
+            // The replay-based verdict is filled for every point that ran to its end, disturbed
+            // or not (the replay is deterministic), and replays the point's own trace.
+            if r["status"] == "ok" {
+                let replay: f64 = r["replay_rms_rad"].parse().unwrap_or(f64::NAN);
+                assert!(replay.is_finite() && replay > 0.0, "{r:?}");
+                assert!(folder.join("replay/trace.csv").is_file(), "{folder:?}");
+            }
         }
+        let report_text = std::fs::read_to_string(out.join("report.md")).unwrap();
+        assert!(
+            report_text.contains("| a constant delay explains it |"),
+            "{report_text}"
+        );
         let report = std::fs::read_to_string(out.join("report.md")).unwrap();
         assert!(
             report.contains("## Emulated network delay (realtime, across the bridge)"),

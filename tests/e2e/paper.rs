@@ -2,6 +2,7 @@
 //! in report.md are the ones in summary.json.
 
 use crate::common;
+use deltaloop_supervisor::record::sensitivity;
 
 use common::{deltaloop, summary};
 use serde_json::Value;
@@ -82,13 +83,21 @@ fn paper_folder_is_complete_and_report_matches_summary() {
                     .map(|v| v.as_f64().unwrap())
                     .fold(0.0, f64::max)
             };
+            // Each figure with the digits the law's round-off spreads leave (the RMS and max error
+            // their own, the HF share and torque variation the largest).
+            let se = &m["sensitivity"];
+            let rel = |k: &str| se[k].as_f64().unwrap_or(0.0);
+            let worst = ["rms_rel", "max_err_rel", "task_rms_rel", "tde_rel"]
+                .iter()
+                .map(|k| rel(k))
+                .fold(0.0, f64::max);
             let row = format!(
-                "| {} | `{preset}` | `{law}` | {:.3e} | {:.3e} | {:.4} | {:.1} | {} |",
+                "| {} | `{preset}` | `{law}` | {} | {} | {} | {} | {} |",
                 scn.to_uppercase(),
-                mx("rms_rad"),
-                mx("max_abs_err_rad"),
-                mx("hf_torque_share"),
-                mx("torque_tv_nm"),
+                sensitivity::sci(mx("rms_rad"), rel("rms_rel")),
+                sensitivity::sci(mx("max_abs_err_rad"), rel("max_err_rel")),
+                sensitivity::fixed(mx("hf_torque_share"), 4, worst),
+                sensitivity::fixed(mx("torque_tv_nm"), 1, worst),
                 m["clamp_count"].as_u64().unwrap()
             );
             let section = report

@@ -86,6 +86,19 @@ pub fn digits(x: f64, rel: f64) -> usize {
     (d as i64).clamp(1, 4) as usize
 }
 
+/// `x` with `decimals` decimals, or fewer: no more significant digits than a relative spread
+/// `rel` leaves ([`digits`]).
+pub fn fixed(x: f64, decimals: usize, rel: f64) -> String {
+    let sig = digits(x, rel) as i64;
+    let lead = if x == 0.0 || !x.is_finite() {
+        0
+    } else {
+        x.abs().log10().floor() as i64
+    };
+    let d = (sig - 1 - lead).clamp(0, decimals as i64) as usize;
+    format!("{x:.d$}")
+}
+
 /// `x` in exponent form with the digits a relative spread leaves (4 when it leaves all).
 pub fn sci(x: f64, rel: f64) -> String {
     format!("{x:.*e}", digits(x, rel) - 1)

@@ -271,23 +271,10 @@ pub fn sta_row(scenario: &str, preset: &str, law: &str, m: &LawMetrics) -> Strin
         scenario.to_uppercase(),
         sensitivity::sci(max3(m.rms_rad), rel(|s| s.rms_rel)),
         sensitivity::sci(max3(m.max_abs_err_rad), rel(|s| s.max_err_rel)),
-        fixed(max3(m.hf_torque_share), 4, rel(|s| s.worst())),
-        fixed(max3(m.torque_tv_nm), 1, rel(|s| s.worst())),
+        sensitivity::fixed(max3(m.hf_torque_share), 4, rel(|s| s.worst())),
+        sensitivity::fixed(max3(m.torque_tv_nm), 1, rel(|s| s.worst())),
         m.clamp_count
     )
-}
-
-/// `x` with `decimals` decimals, or fewer: no more significant digits than a relative spread
-/// `rel` leaves ([`sensitivity::digits`]).
-fn fixed(x: f64, decimals: usize, rel: f64) -> String {
-    let sig = sensitivity::digits(x, rel) as i64;
-    let lead = if x == 0.0 || !x.is_finite() {
-        0
-    } else {
-        x.abs().log10().floor() as i64
-    };
-    let d = (sig - 1 - lead).clamp(0, decimals as i64) as usize;
-    format!("{x:.d$}")
 }
 
 /// min–max of `f(num) / f(den)` over the cases of `preset` (None if it has none).

@@ -131,6 +131,12 @@ pub struct Row {
     /// loop).
     #[serde(default)]
     pub link_disturbed: Option<String>,
+    /// Max-joint RMS of the realtime run's in-process replay: the same run with each reply acting
+    /// at its own measured arrival, deterministic (`deltaloop replay`). Against
+    /// `injected_rms_rad` it says whether one constant delay explains the link's effect, also
+    /// when the realtime run itself was disturbed. Over repeats, means.
+    #[serde(default)]
+    pub replay_rms_rad: Option<f64>,
     /// Process points: the longest run of consecutive missed ticks (over repeats, the largest).
     #[serde(default)]
     pub max_consecutive_misses: Option<u64>,
@@ -168,6 +174,7 @@ pub(super) struct LinkResult {
     rtt_p50_us: Option<f64>,
     median_arrival_us: Option<f64>,
     injected_rms_rad: Option<f64>,
+    replay_rms_rad: Option<f64>,
     disturbed: Option<String>,
     /// Why the injected twin gave no RMS (it failed, or did not complete).
     twin_failed: Option<String>,
@@ -276,6 +283,7 @@ pub(super) fn row(
         median_arrival_us: None,
         injected_rms_rad: None,
         link_disturbed: None,
+        replay_rms_rad: None,
         max_consecutive_misses: timing.map(|t| t.max_consecutive_misses),
     }
 }
@@ -328,6 +336,7 @@ pub(super) fn summarise(reps: Vec<Row>) -> Row {
     out.link_rtt_p50_us = mean_of(|r| r.link_rtt_p50_us);
     out.median_arrival_us = mean_of(|r| r.median_arrival_us);
     out.injected_rms_rad = mean_of(|r| r.injected_rms_rad);
+    out.replay_rms_rad = mean_of(|r| r.replay_rms_rad);
     out.link_disturbed = ok.iter().find_map(|r| r.link_disturbed.clone());
     out.eq43_holds = !ok.is_empty() && ok.iter().all(|r| r.eq43_holds);
     out.clamp_count = reps.iter().map(|r| r.clamp_count).max().unwrap_or(0);
@@ -461,21 +470,28 @@ fn run_one(
             std::fs::write(pdir.join("config.toml"), study.config.to_toml_string())?;
         }
         let mut link = LinkResult::default();
-        let (mut m, timing) =
-            match loops::run_law(&study, job.law, mode, &pdir, &Keep::default(), None)? {
-                Ran::Process(r) => {
-                    let t = r.timing.summary();
-                    if job.kind.link().is_some() {
-                        let h = &r.timing.arrival.hist;
-                        link.median_arrival_us =
-                            (!h.is_empty()).then(|| h.value_at_quantile(0.5) as f64 / 1e3);
-                        link.rtt_p50_us = t.link_rtt.as_ref().map(|p| p.p50_us);
-                        link.disturbed = t.disturbance.clone();
-                    }
-                    (r.run.metrics, Some(t))
+        // A link point keeps its trace: its replay re-runs it from the recorded arrivals.
+        let keep = Keep {
+            trace: job
+                .kind
+                .link()
+                .map(|_| crate::output::trace_part(&pdir, job.law)),
+            ..Keep::default()
+        };
+        let (mut m, timing) = match loops::run_law(&study, job.law, mode, &pdir, &keep, None)? {
+            Ran::Process(r) => {
+                let t = r.timing.summary();
+                if job.kind.link().is_some() {
+                    let h = &r.timing.arrival.hist;
+                    link.median_arrival_us =
+                        (!h.is_empty()).then(|| h.value_at_quantile(0.5) as f64 / 1e3);
+                    link.rtt_p50_us = t.link_rtt.as_ref().map(|p| p.p50_us);
+                    link.disturbed = t.disturbance.clone();
                 }
-                Ran::Inproc(run) => (run.metrics, None),
-            };
+                (r.run.metrics, Some(t))
+            }
+            Ran::Inproc(run) => (run.metrics, None),
+        };
         if let Some(far) = far {
             far.finish(std::time::Duration::from_secs(2));
         }
@@ -484,6 +500,9 @@ fn run_one(
             && let Some(arrival_us) = link.median_arrival_us
         {
             injected_twin(base, job, seed, arrival_us, &mut link);
+        }
+        if job.kind.link().is_some() && m.status == RunStatus::Ok {
+            link.replay_rms_rad = replayed_rms(&pdir, job.law);
         }
         if twin && mode != LoopMode::Realtime && m.status.is_physical() {
             let twins = inproc::run_twins_of(&study, job.law)?;
@@ -527,6 +546,15 @@ fn injected_twin(base: &RunConfig, job: &Job, seed: u64, arrival_us: f64, link: 
     }
 }
 
+/// The max-joint RMS of the in-process replay of the link point in `pdir` (its trace joined,
+/// then re-run from the recorded arrivals into `pdir/replay`); None if it cannot be replayed.
+fn replayed_rms(pdir: &Path, law: Law) -> Option<f64> {
+    crate::output::join_trace(pdir, &[law]).ok()?;
+    let (_, runs) = crate::ops::replay::replay(pdir, &pdir.join("replay")).ok()?;
+    let r = runs.into_iter().next()?;
+    (r.metrics.status == RunStatus::Ok).then(|| maxj(r.metrics.rms_rad))
+}
+
 /// What one attempt at a point gives, as `run_one` computes it: the metrics, the loop timing,
 /// the latency cost and the link's figures.
 type Attempt = (
@@ -550,6 +578,7 @@ fn row_of(
                 link_rtt_p50_us: link.rtt_p50_us,
                 median_arrival_us: link.median_arrival_us,
                 injected_rms_rad: link.injected_rms_rad,
+                replay_rms_rad: link.replay_rms_rad,
                 link_disturbed: link.disturbed,
                 ..row(job, ts_s, mode, Some(&m), None, t.as_ref())
             };

@@ -376,6 +376,25 @@ pub fn link_match(r: &Row) -> Option<f64> {
         .map(|i| r.rms_rad / i - 1.0)
 }
 
+/// The relative difference of a link point's replay RMS from that of its injected twin: the
+/// model's question (does one constant delay explain the link's measured arrivals?) without the
+/// machine's (the replay is deterministic, whatever disturbed the realtime run).
+pub fn replay_match(r: &Row) -> Option<f64> {
+    r.injected_rms_rad
+        .zip(r.replay_rms_rad)
+        .filter(|&(i, _)| i > 0.0)
+        .map(|(i, p)| p / i - 1.0)
+}
+
+/// `yes` / `no` for [`replay_match`] within [`LINK_MATCH_TOLERANCE`], `–` without both runs.
+pub fn replay_verdict(r: &Row) -> &'static str {
+    match replay_match(r) {
+        None => "–",
+        Some(d) if d.abs() <= LINK_MATCH_TOLERANCE => "yes",
+        Some(_) => "no",
+    }
+}
+
 /// A link point's verdict: `yes` / `no` (within [`LINK_MATCH_TOLERANCE`] or not), or why the
 /// point says nothing (`disturbed: …`, `–` without a twin).
 pub fn link_verdict(r: &Row) -> String {
@@ -391,7 +410,7 @@ pub fn link_verdict(r: &Row) -> String {
 fn link_table(s: &mut String, sw: &SweepFile, rows: &[Row]) {
     let _ = writeln!(
         s,
-        "## Emulated network delay (realtime, across the bridge)\n\nEach point ran in realtime with the controller behind `deltaloop-bridge` over this host's loopback (the far side with its own iceoryx2 root), the bridges delaying every datagram by the link delay each way{}. Link round trip: the round trip less the far host's residence (p50). Injected: the same config in-process with `transport_delay_us` = the run's median arrival A_k − t_k, same seed. They match when the RMS differs by at most {:.0} %: realtime is not bit-identical (the arrival varies per tick around its median, a miss holds the torque), the injected delay is one constant. A run with more than {:.0} % of its ticks missed, a burst of 5 or more, or whose plant paused its clock or once woke a tick late, was disturbed by the machine and says nothing either way; one that was not can still miss the tolerance when a burst of misses falls on a sensitive moment of the motion (the longest burst is in brackets after the misses).\n\n| scenario | preset | law | link delay (µs) | status | link round trip p50 (µs) | median arrival (µs) | RMS realtime (rad) | RMS injected (rad) | difference | match | misses (longest burst) | reason |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "## Emulated network delay (realtime, across the bridge)\n\nEach point ran in realtime with the controller behind `deltaloop-bridge` over this host's loopback (the far side with its own iceoryx2 root), the bridges delaying every datagram by the link delay each way{}. Link round trip: the round trip less the far host's residence (p50). Injected: the same config in-process with `transport_delay_us` = the run's median arrival A_k − t_k, same seed. They match when the RMS differs by at most {:.0} %: realtime is not bit-identical (the arrival varies per tick around its median, a miss holds the torque), the injected delay is one constant. A run with more than {:.0} % of its ticks missed, a burst of 5 or more, or whose plant paused its clock or once woke a tick late, was disturbed by the machine and says nothing either way; one that was not can still miss the tolerance when a burst of misses falls on a sensitive moment of the motion (the longest burst is in brackets after the misses). Replay: the realtime run re-run in-process with each reply acting at its own recorded arrival (`deltaloop replay`), deterministic; against the injected run it says whether one constant delay explains the link's measured arrivals, also when the realtime run was disturbed (the same tolerance).\n\n| scenario | preset | law | link delay (µs) | status | link round trip p50 (µs) | median arrival (µs) | RMS realtime (rad) | RMS injected (rad) | difference | match | RMS replay (rad) | replay vs injected | a constant delay explains it | misses (longest burst) | reason |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         match (sw.link_jitter_us, sw.link_loss) {
             (j, l) if j == 0.0 && l == 0.0 => String::new(),
             (j, l) => format!(" (plus a uniform jitter in [0, {j}] µs; loss {l})"),
@@ -407,7 +426,7 @@ fn link_table(s: &mut String, sw: &SweepFile, rows: &[Row]) {
         let diff = link_match(r);
         let _ = writeln!(
             s,
-            "| {} | {} | `{}` | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | `{}` | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.scenario,
             r.preset,
             r.law,
@@ -420,6 +439,9 @@ fn link_table(s: &mut String, sw: &SweepFile, rows: &[Row]) {
                 .map_or("–".into(), |v| format!("{v:.3e}")),
             diff.map_or("–".into(), |d| format!("{:+.1} %", d * 100.0)),
             link_verdict(r),
+            r.replay_rms_rad.map_or("–".into(), |v| format!("{v:.3e}")),
+            replay_match(r).map_or("–".into(), |d| format!("{:+.1} %", d * 100.0)),
+            replay_verdict(r),
             r.deadline_misses.map_or("–".into(), |m| format!(
                 "{m} ({})",
                 r.max_consecutive_misses.unwrap_or(0)
