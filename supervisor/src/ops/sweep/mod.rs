@@ -697,6 +697,31 @@ mod tests {
     }
 
     /// The sub-tick delay axis: its points sit on L_eff/Ts = ℓ + D/Ts, D = 300 µs is the grid's
+    /// With an encoder in the base config the twins' one-ulp change stays inside a count: the
+    /// sweep's report says so, as a run's does.
+    #[test]
+    fn a_sweep_says_when_an_encoder_hides_the_twins() {
+        let dir = scratch("enc");
+        let path = dir.0.join("sweep.toml");
+        std::fs::write(
+            dir.0.join("base.toml"),
+            "[scenario]\npath = \"s2\"\n[sensor]\nencoder_counts_per_rev = 65536\n",
+        )
+        .unwrap();
+        std::fs::write(
+            &path,
+            "name = \"enc\"\nbase = \"base.toml\"\nscenarios = [\"s2\"]\npresets = [\"matched\"]\n\
+             laws = [\"tdc\"]\ntde_delay_samples = [1]\ntransport_delay_samples = [0]\n",
+        )
+        .unwrap();
+        run(&path, &dir.0.join("out"), false).unwrap();
+        let md = std::fs::read_to_string(dir.0.join("out/report.md")).unwrap();
+        assert!(
+            md.contains("**Round-off and the encoder**: the encoder quantises q"),
+            "{md}"
+        );
+    }
+
     /// d = 1 bit for bit, and the latency budget is the largest D within 2× the zero-delay RMS
     /// (S2, matched, tdc: 7.2e-5 rad at 0, 9.5e-5 at 45 µs, 2.0e-4 at 300 µs).
     #[test]

@@ -435,11 +435,12 @@ fn link_table(s: &mut String, sw: &SweepFile, rows: &[Row]) {
             opt(r.link_rtt_p50_us, 1),
             opt(r.median_arrival_us, 1),
             value_text(r, RMS),
+            // Three significant digits, as a value without its own twin (value_text).
             r.injected_rms_rad
-                .map_or("–".into(), |v| format!("{v:.3e}")),
+                .map_or("–".into(), |v| format!("{v:.2e}")),
             diff.map_or("–".into(), |d| format!("{:+.1} %", d * 100.0)),
             link_verdict(r),
-            r.replay_rms_rad.map_or("–".into(), |v| format!("{v:.3e}")),
+            r.replay_rms_rad.map_or("–".into(), |v| format!("{v:.2e}")),
             replay_match(r).map_or("–".into(), |d| format!("{:+.1} %", d * 100.0)),
             replay_verdict(r),
             r.deadline_misses.map_or("–".into(), |m| format!(

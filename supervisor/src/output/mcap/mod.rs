@@ -71,8 +71,11 @@ impl Out {
     fn create(path: &Path) -> Result<Self> {
         let file = std::fs::File::create(path)
             .with_context(|| format!("cannot create {}", path.display()))?;
+        // 4 MiB chunks: a day-long soak's chunk index (what the writer keeps in memory for the
+        // summary) stays in the megabytes; a run killed outright loses the chunk being filled.
         let w = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Lz4))
+            .chunk_size(Some(4 << 20))
             .profile("ros2")
             .library(concat!("deltaloop ", env!("CARGO_PKG_VERSION")))
             .create(BufWriter::new(file))?;
