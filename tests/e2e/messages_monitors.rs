@@ -251,7 +251,18 @@ fn regression_a_sigkilled_top_does_not_keep_the_observer_slot() {
         out.to_str().unwrap(),
     ]);
     let rid = run_id_of(&out);
-    let (mut first, said) = top_attaches(&rid);
+    // The children are up before their services are: until then `top` finds no such run
+    // (regression: on a loaded host the first `top` came too early and the test failed there).
+    let t0 = std::time::Instant::now();
+    let (mut first, said) = loop {
+        let (top, said) = top_attaches(&rid);
+        match &said {
+            Err(why) if why.contains("no live run with id") && t0.elapsed().as_secs() < 20 => {
+                std::thread::sleep(std::time::Duration::from_millis(100));
+            }
+            _ => break (top, said),
+        }
+    };
     assert!(said.is_ok(), "{said:?}");
     kill(first.id(), libc::SIGKILL);
     let _ = first.wait();
