@@ -199,6 +199,18 @@ pub(super) fn latency_figures(
 /// Pauses listed per law in the report (all are in `summary.json`, up to its own limit).
 pub(super) const PAUSES_SHOWN: usize = 8;
 
+/// The [`PAUSES_SHOWN`] longest pauses, in tick order (regression: the report showed the first
+/// eight, so a 30 ms stall after eight sub-millisecond ones of a busy host was not in it).
+fn longest_in_tick_order(
+    list: &[crate::timing::pauses::Pause],
+) -> Vec<&crate::timing::pauses::Pause> {
+    let mut shown: Vec<_> = list.iter().collect();
+    shown.sort_by(|a, b| b.ms.total_cmp(&a.ms));
+    shown.truncate(PAUSES_SHOWN);
+    shown.sort_by_key(|p| p.tick);
+    shown
+}
+
 /// The realtime plant's own stalls: the policy, each law's real-time factor, its pauses of
 /// simulated time and whether its record says the machine disturbed it.
 pub(super) fn overrun_markdown(
@@ -246,7 +258,7 @@ pub(super) fn overrun_markdown(
             continue;
         };
         let _ = writeln!(s, "\nPauses of `{}`:\n", m.law);
-        for p in t.pause_list.iter().take(PAUSES_SHOWN) {
+        for p in longest_in_tick_order(&t.pause_list) {
             let _ = writeln!(
                 s,
                 "- tick {} (t = {:.4} s): {:.2} ms{}",
@@ -261,11 +273,44 @@ pub(super) fn overrun_markdown(
         if t.pauses as usize > PAUSES_SHOWN {
             let _ = writeln!(
                 s,
-                "- … {} more (`summary.json` lists the first {})",
+                "- … {} shorter ones (`summary.json` lists the first {})",
                 t.pauses as usize - PAUSES_SHOWN,
                 crate::timing::pauses::MAX_LISTED
             );
         }
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::timing::pauses::Pause;
+
+    fn pause(tick: u64, ms: f64) -> Pause {
+        Pause {
+            tick,
+            t_s: tick as f64 * 3e-4,
+            ms,
+            host_steal_ms: None,
+        }
+    }
+
+    #[test]
+    fn regression_the_report_shows_the_longest_pauses_not_the_first() {
+        let mut list: Vec<Pause> = (0..10).map(|i| pause(100 + i, 0.4)).collect();
+        list.push(pause(883, 30.3));
+        list.push(pause(900, 0.2));
+        let shown: Vec<u64> = longest_in_tick_order(&list)
+            .iter()
+            .map(|p| p.tick)
+            .collect();
+        assert_eq!(shown.len(), PAUSES_SHOWN);
+        assert!(shown.contains(&883), "{shown:?}");
+        assert!(!shown.contains(&900), "{shown:?}");
+        assert!(
+            shown.windows(2).all(|w| w[0] < w[1]),
+            "tick order: {shown:?}"
+        );
+    }
 }
