@@ -68,6 +68,35 @@ def same(a, b):
     return a == b or (math.isnan(a) and math.isnan(b))
 
 
+def check_timing(law, path, timing, truncated):
+    """The timing channel against `<law>.timing.csv` (process runs), row for row by tick: every
+    stamp and flag equal, and round_trip_ns = torque_rx_ns - state_pub_ns. A file cut short, or a
+    csv cut short by the same kill, is compared on the ticks both hold."""
+    if not path.is_file():
+        if timing:
+            sys.exit(f"{law}: {len(timing)} timing messages and no {path.name}")
+        return
+    with open(path, newline="") as f:
+        want = {int(r["k"]): r for r in csv.DictReader(f)}
+    have = {m["k"]: m for _, m in timing}
+    if len(have) != len(timing):
+        sys.exit(f"{law}: a tick twice on the timing channel")
+    if not truncated and set(have) != set(want):
+        sys.exit(f"{law}: timing channel ticks {len(have)} != {path.name} rows {len(want)}")
+    both = set(have) & set(want)
+    if truncated and len(both) < min(len(have), len(want)) - 1:
+        sys.exit(f"{law}: timing channel and {path.name} share only {len(both)} ticks")
+    for k in sorted(both):
+        m, r = have[k], want[k]
+        for col, cell in r.items():
+            if m[col] != (None if cell == "" else int(cell)):
+                sys.exit(f"{law} tick {k}: timing {col} {m[col]} != {path.name} {cell!r}")
+        rx, tx = m["torque_rx_ns"], m["state_pub_ns"]
+        rt = None if rx is None or tx is None else max(rx - tx, 0)
+        if m["round_trip_ns"] != rt:
+            sys.exit(f"{law} tick {k}: round_trip_ns {m['round_trip_ns']} != {rt}")
+
+
 def main():
     run = Path(sys.argv[1])
     path = Path(sys.argv[2]) if len(sys.argv) > 2 else run / "run.mcap"
@@ -113,6 +142,7 @@ def main():
                 sys.exit(f"{law} tick {k}: {c} against the trace row")
         events = got[f"/{law}/events"]["msgs"]
         timing = got[f"/{law}/timing"]["msgs"]
+        check_timing(law, run / f"{law}.timing.csv", timing, truncated)
         print(f"{law} rows={len(trace)} joint_states={len(joints)} control={len(control)} "
               f"scene={len(scene)} timing={len(timing)} events={len(events)} "
               f"last_event={events[-1][1]['message'] if events else ''!r}")

@@ -76,7 +76,7 @@ fn an_exported_run_reads_back_bit_for_bit_with_the_pypi_readers() {
 }
 
 /// A lockstep run carries its timing rows too, one per tick; the `<law>.mcap` that `--mcap`
-/// wrote while it recorded reads back whole and equal to the trace; and a run folder that is not
+/// wrote while it recorded reads back whole and equal to the trace and the timing file; and a run folder that is not
 /// one is refused in one line.
 #[test]
 fn a_process_run_exports_its_timing_and_a_non_run_is_refused() {
@@ -102,6 +102,11 @@ fn a_process_run_exports_its_timing_and_a_non_run_is_refused() {
         "{live_said}"
     );
     assert!(live_said.contains("last_event='run ok'"), "{live_said}");
+    // The live file's timing channel is the timing file's rows, as the export's is.
+    assert!(
+        live_said.contains(&format!(" timing={timing} ")),
+        "{live_said}"
+    );
     let o = deltaloop(&["export", out.join("nothing").to_str().unwrap(), "--mcap"]);
     assert!(!o.status.success());
     let err = text(&o.stderr);
@@ -111,11 +116,17 @@ fn a_process_run_exports_its_timing_and_a_non_run_is_refused() {
     );
 }
 
-/// `run --mcap` writes `<law>.mcap` while the law records: killed with -9 mid-run, the file reads
-/// back up to its last whole record, and what it holds equals the rows the trace part kept; a
-/// run that ends writes the whole file, equal to the export of the same run.
+/// `run --mcap` writes `<law>.mcap` while the law records, in lockstep and in realtime: killed
+/// with -9 mid-run, the file reads back up to its last whole record, what it holds equals the
+/// rows the trace part kept, and its timing channel equals the rows of `tdc.timing.csv`.
 #[test]
 fn a_live_mcap_reads_back_also_after_kill_9() {
+    for mode in ["lockstep", "realtime"] {
+        killed_mid_run(mode);
+    }
+}
+
+fn killed_mid_run(mode: &str) {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
     let cfg = tmp.path().join("long.toml");
@@ -128,7 +139,7 @@ fn a_live_mcap_reads_back_also_after_kill_9() {
         "run",
         cfg.to_str().unwrap(),
         "--mode",
-        "lockstep",
+        mode,
         "--mcap",
         "--out",
         out.to_str().unwrap(),
@@ -138,7 +149,7 @@ fn a_live_mcap_reads_back_also_after_kill_9() {
     while std::fs::metadata(&live).map_or(0, |m| m.len()) < 4_000_000 {
         assert!(
             t0.elapsed() < std::time::Duration::from_secs(120),
-            "tdc.mcap did not grow"
+            "{mode}: tdc.mcap did not grow"
         );
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
@@ -154,12 +165,21 @@ fn a_live_mcap_reads_back_also_after_kill_9() {
         "read_mcap.py",
     );
     let said = text(&check.stdout);
-    assert!(check.status.success(), "{said}{}", text(&check.stderr));
-    assert!(said.starts_with("truncated"), "{said}");
-    let rows: u64 = said
-        .split_whitespace()
-        .find_map(|w| w.strip_prefix("joint_states="))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(0);
-    assert!(rows > 1000, "only {rows} joint states read back: {said}");
+    assert!(
+        check.status.success(),
+        "{mode}: {said}{}",
+        text(&check.stderr)
+    );
+    assert!(said.starts_with("truncated"), "{mode}: {said}");
+    let count = |what: &str| -> u64 {
+        said.split_whitespace()
+            .find_map(|w| w.strip_prefix(what))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0)
+    };
+    assert!(count("joint_states=") > 1000, "{mode}: {said}");
+    assert!(
+        count("timing=") > 1000,
+        "{mode}: the timing channel: {said}"
+    );
 }

@@ -2,8 +2,7 @@
 
 use crate::common;
 
-use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_deltaloop");
@@ -98,26 +97,6 @@ impl Drop for Tmux {
     }
 }
 
-/// The run id of the live run whose config lies in `out` (from its children's command lines).
-fn run_id_of(out: &Path, run: &mut Child) -> String {
-    let end = Instant::now() + Duration::from_secs(20);
-    loop {
-        for pid in common::children_mentioning(out.to_str().unwrap()) {
-            let cmd = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
-            let args: Vec<String> = cmd
-                .split(|&b| b == 0)
-                .map(|a| String::from_utf8_lossy(a).into_owned())
-                .collect();
-            if let Some(i) = args.iter().position(|a| a == "--run-id") {
-                return args[i + 1].clone();
-            }
-        }
-        assert!(run.try_wait().unwrap().is_none(), "the run ended early");
-        assert!(Instant::now() < end, "the run's processes never showed up");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
 /// The tick count on the screen (`ticks    48020 / 136001 (35.3 %)`).
 fn ticks_on(screen: &str) -> Option<u64> {
     let line = screen
@@ -168,7 +147,7 @@ fn top_watches_a_lockstep_run_in_tmux_and_q_leaves_it_undisturbed() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let rid = run_id_of(&out, &mut run);
+    let rid = common::run_id_of(&out, &mut run);
     let top = format!("{BIN} top {rid}; echo top-exit=$?; sleep 60");
     tmux.cmd(&[
         "new-session",

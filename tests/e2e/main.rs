@@ -29,4 +29,5 @@ mod soak;
 mod sweep_cluster;
 mod sweep_repeats;
 mod timing_files;
+mod top_foxglove;
 mod wire_contract;

@@ -70,26 +70,6 @@ fn wait_until(secs: u64, what: &str, mut ok: impl FnMut() -> bool) {
     }
 }
 
-/// The run id of the live run in `out`, from its children's command lines.
-fn run_id_of(out: &Path) -> String {
-    let mut rid = None;
-    wait_until(20, "the run's processes show up", || {
-        for pid in children_mentioning(out.to_str().unwrap()) {
-            let cmd = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
-            let args: Vec<String> = cmd
-                .split(|&b| b == 0)
-                .map(|a| String::from_utf8_lossy(a).into_owned())
-                .collect();
-            if let Some(i) = args.iter().position(|a| a == "--run-id") {
-                rid = Some(args[i + 1].clone());
-                return true;
-            }
-        }
-        false
-    });
-    rid.unwrap()
-}
-
 fn kill(pid: u32, sig: i32) {
     // SAFETY: signalling a process this test started or found by its command line.
     unsafe { libc::kill(pid as i32, sig) };
@@ -250,7 +230,7 @@ fn regression_a_sigkilled_top_does_not_keep_the_observer_slot() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    let rid = run_id_of(&out);
+    let rid = common::run_id_of(&out, &mut run);
     // The children are up before their services are: until then `top` finds no such run
     // (regression: on a loaded host the first `top` came too early and the test failed there).
     let t0 = std::time::Instant::now();
@@ -348,7 +328,7 @@ fn regression_a_sigkilled_python_driver_takes_its_deltaloop_with_it() {
         ])
         .spawn()
         .unwrap();
-    run_id_of(&out);
+    common::run_id_of(&out, &mut py);
     kill(py.id(), libc::SIGKILL);
     let _ = py.wait();
     wait_until(

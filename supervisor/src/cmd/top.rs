@@ -2,6 +2,7 @@
 
 use super::Context;
 use anyhow::Result;
+use std::net::SocketAddr;
 use std::time::Duration;
 
 #[derive(clap::Args, Debug)]
@@ -15,6 +16,25 @@ pub struct Args {
     /// Time between refreshes, e.g. 250ms, 1s.
     #[arg(long, default_value = "250ms", value_parser = parse_refresh)]
     interval: Duration,
+    /// Also serve the run to Foxglove (its WebSocket protocol) on ADDR, a loopback address
+    /// (default 127.0.0.1:8765; the protocol has no authentication). Needs a build with
+    /// `--features foxglove`.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765", value_parser = parse_addr)]
+    foxglove: Option<SocketAddr>,
+}
+
+/// `top --foxglove ADDR`: a loopback socket address (the protocol has no authentication).
+fn parse_addr(s: &str) -> Result<SocketAddr, String> {
+    let addr: SocketAddr = s.trim().parse().map_err(|_| {
+        format!("`{s}` is not an address: expected IP:PORT, e.g. 127.0.0.1:8765 (a run id goes before --foxglove)")
+    })?;
+    if !addr.ip().is_loopback() {
+        return Err(format!(
+            "`{s}` is not a loopback address: Foxglove's WebSocket protocol has no authentication, so top serves it on 127.0.0.1 or [::1] only (from another machine: ssh -L {p}:127.0.0.1:{p} this-host)",
+            p = addr.port()
+        ));
+    }
+    Ok(addr)
 }
 
 /// `top --interval`: 50 ms ..= 60 s.
@@ -32,5 +52,6 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
         run_id: a.run_id,
         plain: a.plain,
         interval: a.interval,
+        foxglove: a.foxglove,
     })
 }

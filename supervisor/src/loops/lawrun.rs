@@ -53,6 +53,23 @@ impl TickSink for RunSinks<'_> {
     }
 }
 
+impl RunSinks<'_> {
+    /// Whether [`Self::timing`] has anywhere to write.
+    pub fn wants_timing(&self) -> bool {
+        self.mcap.is_some()
+    }
+
+    /// Tick k's timing row (process modes), for the MCAP file.
+    pub fn timing(&mut self, cells: &[Option<u64>; 13]) {
+        if let Some(m) = &mut self.mcap
+            && let Err(e) = m.timing(cells)
+        {
+            self.mcap_error = Some(e);
+            self.mcap = None;
+        }
+    }
+}
+
 /// The recorder every loop mode fills for one law.
 pub type LawRecorder<'a> = Recorder<'a, RunSinks<'a>>;
 

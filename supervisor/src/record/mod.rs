@@ -455,6 +455,16 @@ impl<'a, S: TickSink> Recorder<'a, S> {
         }
     }
 
+    /// Where the finished ticks go.
+    pub fn sink(&self) -> &S {
+        &self.sink
+    }
+
+    /// Where the finished ticks go.
+    pub fn sink_mut(&mut self) -> &mut S {
+        &mut self.sink
+    }
+
     /// `n` replies came for ticks that already had one (the first was kept).
     pub fn duplicate_replies(&mut self, n: u64) {
         self.end.duplicate_replies += n;

@@ -11,7 +11,7 @@ pub mod timeline;
 
 pub use acc::{Seen, TimingAcc};
 pub use steal::{StealMs, steal_jiffies, steal_ms_between};
-pub use tick_csv::TimingCsv;
+pub use tick_csv::{TIMING_COLUMNS, TimingCsv, timing_cells};
 
 use crate::timing::timeline::Timeline;
 use anyhow::{Context, Result};

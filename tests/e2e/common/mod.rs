@@ -513,3 +513,26 @@ pub fn built(example: &'static str, exe: &str, compiler: &str) -> Option<PathBuf
 pub fn c_tdc() -> Option<PathBuf> {
     built("c-controller", "c-tdc", "cc")
 }
+
+/// The run id of the live run whose config lies in `out` (from its children's command lines).
+pub fn run_id_of(out: &Path, run: &mut std::process::Child) -> String {
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    loop {
+        for pid in children_mentioning(out.to_str().unwrap()) {
+            let cmd = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+            let args: Vec<String> = cmd
+                .split(|&b| b == 0)
+                .map(|a| String::from_utf8_lossy(a).into_owned())
+                .collect();
+            if let Some(i) = args.iter().position(|a| a == "--run-id") {
+                return args[i + 1].clone();
+            }
+        }
+        assert!(run.try_wait().unwrap().is_none(), "the run ended early");
+        assert!(
+            std::time::Instant::now() < end,
+            "the run's processes never showed up"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}

@@ -250,6 +250,11 @@ impl<'a> Observation<'a> {
         if let Some(csv) = &mut self.csv {
             csv.write(&seen)?;
         }
+        if self.rec.sink_mut().wants_timing()
+            && let Some(cells) = crate::timing::timing_cells(&seen, self.timing.across())
+        {
+            self.rec.sink_mut().timing(&cells);
+        }
         self.timing.push(seen)?;
         if let Some(f) = self.on_tick.as_mut() {
             f(&seen);

@@ -9,17 +9,22 @@
 //! attaches or leaves does that set-up once.
 
 pub mod find;
+pub mod relay;
 pub mod view;
 
 use crate::study::Study;
 use crate::timing::live::LiveStats;
 use anyhow::{Context, Result, anyhow, bail};
-use deltaloop_config::{LoopMode, RunConfig};
+use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::ipc::{self, IpcContext, OBSERVER_BUFFER, Svc};
-use deltaloop_transport::wire::{self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg};
+use deltaloop_transport::wire::{
+    self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
+};
 use find::RunInfo;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
+use relay::Relay;
+use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 use view::Status;
 
@@ -33,6 +38,8 @@ struct Watch {
     state: Subscriber<Svc, StateMsg, ()>,
     telemetry: Subscriber<Svc, TelemetryMsg, ()>,
     control: Subscriber<Svc, ControlMsg, ()>,
+    /// The replies (only for `--foxglove`: the view draws them; the slot is left free otherwise).
+    torque: Option<Subscriber<Svc, TorqueMsg, ()>>,
     _node: Node<Svc>,
 }
 
@@ -53,7 +60,7 @@ fn attach_error(run_id: &str, what: &str, e: impl std::fmt::Debug) -> anyhow::Er
 impl Watch {
     /// Opens (never creates) the run's services and subscribes. Insists on safe overflow: an
     /// observer on a service without it could make the loop's publishers wait.
-    fn attach(run_id: &str) -> Result<Self> {
+    fn attach(run_id: &str, replies: bool) -> Result<Self> {
         // A `top` killed outright (SIGKILL) keeps its subscriber slots until its node is
         // removed: reclaim them, so the slot is refused only while a live observer holds it.
         find::remove_dead_observers(run_id);
@@ -78,6 +85,11 @@ impl Watch {
             telemetry: sub!(TelemetryMsg, "telemetry", OBSERVER_BUFFER),
             state: sub!(StateMsg, "state", OBSERVER_BUFFER),
             control: sub!(ControlMsg, ipc::control_service(Sender::Plant), 64),
+            torque: if replies {
+                Some(sub!(TorqueMsg, "torque", OBSERVER_BUFFER))
+            } else {
+                None
+            },
             _node: node,
         })
     }
@@ -122,12 +134,22 @@ impl Watched {
         self.study.as_ref().map(|s| s.reference.n as u64 + 1)
     }
 
-    /// Takes everything waiting and updates the status.
-    fn drain(&mut self, w: &Watch) -> Result<()> {
+    /// Takes everything waiting and updates the status (and the Foxglove view, if one is served).
+    fn drain(&mut self, w: &Watch, mut relay: Option<&mut Relay<'_, LiveBus>>) -> Result<()> {
         while let Some(m) = w.telemetry.receive().ipc("receive telemetry")? {
             self.stats.telemetry(m.payload());
+            if let Some(r) = relay.as_deref_mut() {
+                r.telemetry(m.payload());
+            }
             if self.status == Status::Waiting {
                 self.status = Status::Running;
+            }
+        }
+        if let Some(t) = &w.torque {
+            while let Some(m) = t.receive().ipc("receive torque")? {
+                if let Some(r) = relay.as_deref_mut() {
+                    r.torque(m.payload());
+                }
             }
         }
         while let Some(s) = w.state.receive().ipc("receive state")? {
@@ -138,6 +160,9 @@ impl Watched {
                     None => Status::Completed { tick: s.tick },
                 };
                 continue;
+            }
+            if let Some(r) = relay.as_deref_mut() {
+                r.state(&s);
             }
             if let Some(st) = &self.study
                 && s.tick <= st.reference.n as u64 + 1
@@ -181,6 +206,9 @@ impl Watched {
                         .unwrap_or_else(|| "the run's plant is gone".into()),
                 };
             }
+        }
+        if let Some(r) = relay {
+            r.flush(false)?;
         }
         Ok(())
     }
@@ -240,28 +268,145 @@ pub struct Options {
     pub plain: bool,
     /// Time between refreshes.
     pub interval: Duration,
+    /// Also serve the run to Foxglove over its WebSocket protocol on this (loopback) address.
+    pub foxglove: Option<SocketAddr>,
+}
+
+/// The live server's bus (feature `foxglove`); without the feature there is none to make.
+#[cfg(feature = "foxglove")]
+type LiveBus = crate::output::mcap::server::Server;
+#[cfg(not(feature = "foxglove"))]
+enum LiveBus {}
+
+#[cfg(not(feature = "foxglove"))]
+impl crate::output::mcap::Bus for LiveBus {
+    fn schema(&mut self, _: &'static str, _: &str, _: &str) -> Result<u16> {
+        match *self {}
+    }
+    fn channel(&mut self, _: u16, _: &str, _: &str) -> Result<u16> {
+        match *self {}
+    }
+    fn write(&mut self, _: u16, _: u64, _: &[u8]) -> Result<()> {
+        match *self {}
+    }
+}
+
+/// Starts the Foxglove server on `addr`.
+fn serve(addr: SocketAddr) -> Result<LiveBus> {
+    #[cfg(feature = "foxglove")]
+    {
+        LiveBus::start(addr)
+    }
+    #[cfg(not(feature = "foxglove"))]
+    {
+        bail!(
+            "--foxglove {addr}: this deltaloop was built without the `foxglove` feature (build it with: cargo build --release --features foxglove)"
+        )
+    }
+}
+
+/// The robot is drawn at about this rate in the live view (Hz of the run's clock).
+const SCENE_HZ: f64 = 30.0;
+/// How often the reference path is sent again, for clients that connect late.
+const REFERENCE_EVERY: Duration = Duration::from_secs(2);
+
+/// The Foxglove view of a run, while `top` watches it.
+struct Serving<'a> {
+    relay: Option<Relay<'a, LiveBus>>,
+    last_reference: Instant,
+}
+
+impl<'a> Serving<'a> {
+    fn new(addr: Option<SocketAddr>, study: Option<&'a Study>, law: Option<Law>) -> Result<Self> {
+        let relay = match addr {
+            None => None,
+            Some(addr) => {
+                let (Some(study), Some(law)) = (study, law) else {
+                    bail!(
+                        "--foxglove: cannot read this run's config or law (its processes carry no --config/--law)"
+                    );
+                };
+                let bus = serve(addr)?;
+                let every = (1.0 / (SCENE_HZ * study.config.loop_.ts_s)).ceil().max(1.0) as u64;
+                Some(Relay::new(bus, study, law, every)?)
+            }
+        };
+        Ok(Self {
+            relay,
+            last_reference: Instant::now(),
+        })
+    }
+
+    fn relay(&mut self) -> Option<&mut Relay<'a, LiveBus>> {
+        if let Some(r) = &mut self.relay
+            && self.last_reference.elapsed() >= REFERENCE_EVERY
+        {
+            self.last_reference = Instant::now();
+            // A failed re-send shows at the next flush; the view goes on.
+            let _ = r.reference_again();
+        }
+        self.relay.as_mut()
+    }
+
+    /// The run ended: the last rows and how it ended, then a moment for the clients to take
+    /// them before the server closes.
+    fn finish(&mut self, status: &Status) -> Result<()> {
+        if let Some(r) = self.relay.take() {
+            let (ok, how) = match status {
+                Status::Completed { tick } => (true, format!("run completed at tick {tick}")),
+                Status::Stopped { why } => (false, format!("run stopped: {why}")),
+                _ => (false, "top left before the run ended".to_string()),
+            };
+            // The server closes when the bus is dropped, after this pause.
+            let _bus = r.finish(ok, &how)?;
+            std::thread::sleep(Duration::from_millis(500));
+        }
+        Ok(())
+    }
 }
 
 /// Runs `deltaloop top`.
 pub fn run(opts: Options) -> Result<()> {
+    if let Some(addr) = opts.foxglove
+        && !cfg!(feature = "foxglove")
+    {
+        serve(addr)?;
+    }
     let rid = pick(opts.run_id)?;
     let info = find::run_info(&rid);
-    let watch = Watch::attach(&rid)?;
+    let law = info.law;
+    let watch = Watch::attach(&rid, opts.foxglove.is_some())?;
     let mut watched = Watched::new(info);
-    let interactive = !opts.plain && std::io::IsTerminal::is_terminal(&std::io::stdout());
-    if interactive {
-        screen(&watch, &mut watched, opts.interval)
-    } else {
-        plain(&watch, &mut watched, opts.interval)
+    // The view's own copy of the study (the relay's recorder borrows it for the whole watch).
+    let study = opts
+        .foxglove
+        .and(watched.study.as_ref())
+        .map(|s| Study::new(s.config.clone()))
+        .transpose()?;
+    let mut serving = Serving::new(opts.foxglove, study.as_ref(), law)?;
+    #[cfg(feature = "foxglove")]
+    if let Some(r) = &serving.relay {
+        eprintln!(
+            "deltaloop top: serving run {rid} to Foxglove on ws://{} (Open connection → Foxglove WebSocket; layout: examples/foxglove/deltaloop-layout.json)",
+            r.bus().addr()
+        );
     }
+    let interactive = !opts.plain && std::io::IsTerminal::is_terminal(&std::io::stdout());
+    let watched_out = if interactive {
+        screen(&watch, &mut watched, &mut serving, opts.interval)
+    } else {
+        plain(&watch, &mut watched, &mut serving, opts.interval)
+    };
+    serving.finish(&watched.status)?;
+    watched_out
 }
 
 /// `--plain`: a line per refresh until the run ends (or a signal).
-fn plain(watch: &Watch, w: &mut Watched, interval: Duration) -> Result<()> {
+fn plain(watch: &Watch, w: &mut Watched, sv: &mut Serving, interval: Duration) -> Result<()> {
     use std::io::Write;
     let mut next = Instant::now();
     loop {
-        w.drain(watch)?;
+        w.drain(watch, sv.relay())?;
         let ended = w.status.ended();
         if Instant::now() >= next || ended {
             next = Instant::now() + interval;
@@ -292,7 +437,7 @@ impl Drop for Restore {
 
 /// The full-screen view: refreshes every `interval`; `q`, Esc or Ctrl-C quits; once the run has
 /// ended it says so and waits for a key.
-fn screen(watch: &Watch, w: &mut Watched, interval: Duration) -> Result<()> {
+fn screen(watch: &Watch, w: &mut Watched, sv: &mut Serving, interval: Duration) -> Result<()> {
     use crossterm::event::{self, Event, KeyCode, KeyEventKind, KeyModifiers};
     use ratatui::style::{Modifier, Style};
     use ratatui::text::Line;
@@ -301,7 +446,7 @@ fn screen(watch: &Watch, w: &mut Watched, interval: Duration) -> Result<()> {
     let _restore = Restore;
     let mut next = Instant::now();
     loop {
-        w.drain(watch)?;
+        w.drain(watch, sv.relay())?;
         let ended = w.status.ended();
         if Instant::now() >= next || ended {
             next = Instant::now() + interval;

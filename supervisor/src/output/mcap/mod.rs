@@ -20,6 +20,8 @@
 
 mod cdr;
 mod scene;
+#[cfg(feature = "foxglove")]
+pub mod server;
 
 use crate::output::trace;
 use crate::record::TickRecord;
@@ -55,12 +57,48 @@ const OBJECT_SCHEMA: &str = r#"{"type":"object"}"#;
 const LOG_SCHEMA: &str = r#"{"title":"foxglove.Log","type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"level":{"type":"integer"},"message":{"type":"string"},"name":{"type":"string"},"file":{"type":"string"},"line":{"type":"integer"}}}"#;
 
 /// `foxglove.Log` levels.
-const INFO: u8 = 2;
-const WARNING: u8 = 3;
-const ERROR: u8 = 4;
+pub const INFO: u8 = 2;
+pub const WARNING: u8 = 3;
+pub const ERROR: u8 = 4;
+
+/// Where the messages go: an MCAP file ([`Out`]) or, with the `foxglove` feature, the live
+/// server of `top --foxglove`. Channel and schema ids are the sink's own.
+pub trait Bus {
+    /// The id of the schema `name` (registered on first use).
+    fn schema(&mut self, name: &'static str, encoding: &str, data: &str) -> Result<u16>;
+    /// A new channel on `topic` with messages in `encoding`.
+    fn channel(&mut self, schema: u16, topic: &str, encoding: &str) -> Result<u16>;
+    /// One message at `t_ns` on the simulated clock (ns).
+    fn write(&mut self, channel: u16, t_ns: u64, data: &[u8]) -> Result<()>;
+    /// Whether anyone reads the messages now (a live server without clients skips the work of
+    /// rendering them; a file always reads).
+    fn active(&self) -> bool {
+        true
+    }
+
+    fn json(&mut self, channel: u16, t_ns: u64, v: &Value) -> Result<()> {
+        self.write(channel, t_ns, &serde_json::to_vec(v)?)
+    }
+
+    /// A `foxglove.Log` line of `law` at `t_ns`.
+    fn log(
+        &mut self,
+        channel: u16,
+        t_ns: u64,
+        level: u8,
+        law: &str,
+        message: String,
+    ) -> Result<()> {
+        let v = json!({
+            "timestamp": {"sec": t_ns / 1_000_000_000, "nsec": t_ns % 1_000_000_000},
+            "level": level, "message": message, "name": law, "file": "", "line": 0,
+        });
+        self.json(channel, t_ns, &v)
+    }
+}
 
 /// The file being written: its channels, and a message counter per channel.
-struct Out {
+pub struct Out {
     w: mcap::Writer<BufWriter<std::fs::File>>,
     counts: BTreeMap<u16, (String, u32)>,
     schemas: BTreeMap<&'static str, u16>,
@@ -85,7 +123,9 @@ impl Out {
             schemas: BTreeMap::new(),
         })
     }
+}
 
+impl Bus for Out {
     fn schema(&mut self, name: &'static str, encoding: &str, data: &str) -> Result<u16> {
         if let Some(&id) = self.schemas.get(name) {
             return Ok(id);
@@ -118,25 +158,6 @@ impl Out {
             data,
         )?;
         Ok(())
-    }
-
-    fn json(&mut self, channel: u16, t_ns: u64, v: &Value) -> Result<()> {
-        self.write(channel, t_ns, &serde_json::to_vec(v)?)
-    }
-
-    fn log(
-        &mut self,
-        channel: u16,
-        t_ns: u64,
-        level: u8,
-        law: &str,
-        message: String,
-    ) -> Result<()> {
-        let v = json!({
-            "timestamp": {"sec": t_ns / 1_000_000_000, "nsec": t_ns % 1_000_000_000},
-            "level": level, "message": message, "name": law, "file": "", "line": 0,
-        });
-        self.json(channel, t_ns, &v)
     }
 }
 
@@ -200,7 +221,7 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
             continue;
         };
         let r = Row::parse(&|i| row.get(i).unwrap_or(""), &cols).with_context(at)?;
-        write_row(&mut out, ch, &law, &r, ts_ns, &study.robot, payload)?;
+        write_row(&mut out, ch, &law, &r, ts_ns, Some(&study.robot), payload)?;
     }
     if let Some((done, ch)) = current.take() {
         finish_law(&mut out, dir, &summary, &done, &ch, ts_ns)?;
@@ -249,7 +270,7 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
 }
 
 /// The reference path (task space, every tick up to 2000 points), drawn once at t = 0.
-fn reference_path(out: &mut Out, study: &Study) -> Result<()> {
+fn reference_path(out: &mut impl Bus, study: &Study) -> Result<()> {
     let s = out.schema(
         "foxglove.SceneUpdate",
         "jsonschema",
@@ -265,7 +286,7 @@ fn reference_path(out: &mut Out, study: &Study) -> Result<()> {
     out.json(ch, 0, &scene::path(&points))
 }
 
-fn law_channels(out: &mut Out, law: &str) -> Result<Channels> {
+fn law_channels(out: &mut impl Bus, law: &str) -> Result<Channels> {
     let js = out.schema(
         "sensor_msgs/msg/JointState",
         "ros2msg",
@@ -371,12 +392,12 @@ impl Row {
 }
 
 fn write_row(
-    out: &mut Out,
+    out: &mut impl Bus,
     ch: &Channels,
     law: &str,
     r: &Row,
     ts_ns: u64,
-    robot: &DeltaRobot,
+    robot: Option<&DeltaRobot>,
     payload: Option<(u64, f64)>,
 ) -> Result<()> {
     let t = r.k * ts_ns;
@@ -418,7 +439,7 @@ fn write_row(
         )?;
     }
     let mass = payload.filter(|&(k, _)| r.k >= k).map_or(0.0, |p| p.1);
-    if let Some(s) = scene::robot(robot, t, &Vec3::from(q), mass) {
+    if let Some(s) = robot.and_then(|robot| scene::robot(robot, t, &Vec3::from(q), mass)) {
         out.json(ch.scene, t, &s)?;
     }
     Ok(())
@@ -426,7 +447,7 @@ fn write_row(
 
 /// After a law's rows: its timing rows and how it ended.
 fn finish_law(
-    out: &mut Out,
+    out: &mut impl Bus,
     dir: &Path,
     summary: &Value,
     law: &str,
@@ -440,27 +461,33 @@ fn finish_law(
         let header = rows.headers()?.clone();
         for (i, row) in rows.records().enumerate() {
             let row = row.with_context(|| format!("{} line {}", timing.display(), i + 2))?;
-            let mut m = Map::new();
-            for (name, cell) in header.iter().zip(row.iter()) {
-                m.insert(
-                    name.into(),
-                    cell.parse::<u64>().map_or(Value::Null, |v| json!(v)),
-                );
-            }
-            let get = |n: &str| m.get(n).and_then(Value::as_u64);
-            let rtt = get("torque_rx_ns")
-                .zip(get("state_pub_ns"))
-                .map(|(a, b)| a.saturating_sub(b));
-            let k = get("k").unwrap_or(0);
-            m.insert("round_trip_ns".into(), json!(rtt));
-            out.json(ch.timing, k * ts_ns, &Value::Object(m))?;
+            let (k, m) = timing_message(
+                header
+                    .iter()
+                    .zip(row.iter().map(|cell| cell.parse::<u64>().ok())),
+            );
+            out.json(ch.timing, k * ts_ns, &m)?;
         }
     }
     ending(out, ch, law, &summary["laws"][law], ts_ns)
 }
 
+/// A timing row's message: its cells by column name (null: not seen) and the round trip
+/// (torque received − state published, ns); with its tick.
+fn timing_message<'a>(cells: impl Iterator<Item = (&'a str, Option<u64>)>) -> (u64, Value) {
+    let m: Map<String, Value> = cells.map(|(n, v)| (n.to_string(), json!(v))).collect();
+    let get = |n: &str| m.get(n).and_then(Value::as_u64);
+    let rtt = get("torque_rx_ns")
+        .zip(get("state_pub_ns"))
+        .map(|(a, b)| a.saturating_sub(b));
+    let k = get("k").unwrap_or(0);
+    let mut m = m;
+    m.insert("round_trip_ns".into(), json!(rtt));
+    (k, Value::Object(m))
+}
+
 /// The last event of a law: how it ended, from its metrics (`summary.json`'s entry).
-fn ending(out: &mut Out, ch: &Channels, law: &str, m: &Value, ts_ns: u64) -> Result<()> {
+fn ending(out: &mut impl Bus, ch: &Channels, law: &str, m: &Value, ts_ns: u64) -> Result<()> {
     let status = m["status"].as_str().unwrap_or("unknown");
     let (tick, level, why) = if let Some(t) = m["fault_at_tick"].as_u64() {
         (t, ERROR, m["fault"].as_str().unwrap_or(""))
@@ -482,8 +509,8 @@ fn ending(out: &mut Out, ch: &Channels, law: &str, m: &Value, ts_ns: u64) -> Res
 /// `<law>.mcap` written while the law records: a sink of the recorder, one row at a time (the
 /// trace's own rendering of the row, so both say the same numbers). A run killed outright
 /// leaves every chunk this closed (readers open the file up to its last chunk).
-pub struct Live {
-    out: Out,
+pub struct Live<B: Bus = Out> {
+    out: B,
     ch: Channels,
     cols: Columns,
     law: Law,
@@ -491,12 +518,33 @@ pub struct Live {
     robot: DeltaRobot,
     payload: Option<(u64, f64)>,
     fields: Vec<String>,
+    /// The robot is drawn every this many ticks.
+    scene_every: u64,
 }
 
 impl Live {
     /// Starts `path` for `law` of `study`.
     pub fn create(path: &Path, study: &Study, law: Law) -> Result<Self> {
-        let mut out = Out::create(path)?;
+        Live::over(Out::create(path)?, study, law, 1)
+    }
+
+    /// Ends the file with how the law ended (its metrics, as `summary.json` has them).
+    pub fn finish(mut self, metrics: &Value) -> Result<()> {
+        ending(
+            &mut self.out,
+            &self.ch,
+            self.law.name(),
+            metrics,
+            self.ts_ns,
+        )?;
+        self.out.w.finish()?;
+        Ok(())
+    }
+}
+
+impl<B: Bus> Live<B> {
+    /// `law` of `study` on `out`, the robot drawn every `scene_every` ticks (≥ 1).
+    pub fn over(mut out: B, study: &Study, law: Law, scene_every: u64) -> Result<Self> {
         reference_path(&mut out, study)?;
         let ch = law_channels(&mut out, law.name())?;
         let header = trace::header();
@@ -518,11 +566,37 @@ impl Live {
                 .payload_step_tick()
                 .map(|k| (k, cfg.plant.payload_step_kg)),
             fields: vec![String::new(); header.len()],
+            scene_every: scene_every.max(1),
         })
+    }
+
+    /// Draws the reference path again (a client that joined a live stream late has not seen it).
+    pub fn reference_again(&mut self, study: &Study) -> Result<()> {
+        reference_path(&mut self.out, study)
+    }
+
+    /// The bus the messages go to.
+    pub fn bus(&self) -> &B {
+        &self.out
+    }
+
+    /// The bus, once the law is done.
+    pub fn into_bus(self) -> B {
+        self.out
+    }
+
+    /// A line on the law's events channel at tick k.
+    pub fn event(&mut self, k: u64, level: u8, message: String) -> Result<()> {
+        let t = k * self.ts_ns;
+        self.out
+            .log(self.ch.events, t, level, self.law.name(), message)
     }
 
     /// Writes tick k's messages; an error is returned (the caller keeps the first).
     pub fn take(&mut self, r: &TickRecord, row: &RefRow, n_true: Option<Vec3>) -> Result<()> {
+        if !self.out.active() {
+            return Ok(());
+        }
         trace::render(self.law, r, row, n_true, &mut self.fields);
         let fields = &self.fields;
         let row = Row::parse(&|i| fields.get(i).map_or("", String::as_str), &self.cols)?;
@@ -532,22 +606,18 @@ impl Live {
             self.law.name(),
             &row,
             self.ts_ns,
-            &self.robot,
+            (row.k % self.scene_every == 0).then_some(&self.robot),
             self.payload,
         )
     }
 
-    /// Ends the file with how the law ended (its metrics, as `summary.json` has them).
-    pub fn finish(mut self, metrics: &Value) -> Result<()> {
-        ending(
-            &mut self.out,
-            &self.ch,
-            self.law.name(),
-            metrics,
-            self.ts_ns,
-        )?;
-        self.out.w.finish()?;
-        Ok(())
+    /// Writes tick k's timing row (process modes: what `<law>.timing.csv` gets).
+    pub fn timing(&mut self, cells: &[Option<u64>; 13]) -> Result<()> {
+        if !self.out.active() {
+            return Ok(());
+        }
+        let (k, m) = timing_message(crate::timing::TIMING_COLUMNS.into_iter().zip(*cells));
+        self.out.json(self.ch.timing, k * self.ts_ns, &m)
     }
 }
 
