@@ -696,7 +696,6 @@ mod tests {
         assert_eq!((rows[0].law, rows[0].status), (Law::Pid, RunStatus::Ok));
     }
 
-    /// The sub-tick delay axis: its points sit on L_eff/Ts = ℓ + D/Ts, D = 300 µs is the grid's
     /// With an encoder in the base config the twins' one-ulp change stays inside a count: the
     /// sweep's report says so, as a run's does.
     #[test]
@@ -722,6 +721,7 @@ mod tests {
         );
     }
 
+    /// The sub-tick delay axis: its points sit on L_eff/Ts = ℓ + D/Ts, D = 300 µs is the grid's
     /// d = 1 bit for bit, and the latency budget is the largest D within 2× the zero-delay RMS
     /// (S2, matched, tdc: 7.2e-5 rad at 0, 9.5e-5 at 45 µs, 2.0e-4 at 300 µs).
     #[test]

@@ -269,14 +269,21 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
     })
 }
 
-/// The reference path (task space, every tick up to 2000 points), drawn once at t = 0.
-fn reference_path(out: &mut impl Bus, study: &Study) -> Result<()> {
+/// The reference path's channel, and the path (task space, every tick up to 2000 points) drawn
+/// on it at t = 0.
+fn reference_path(out: &mut impl Bus, study: &Study) -> Result<u16> {
     let s = out.schema(
         "foxglove.SceneUpdate",
         "jsonschema",
         scene::SCENE_UPDATE_SCHEMA,
     )?;
     let ch = out.channel(s, "/reference_path", "json")?;
+    draw_reference(out, ch, study)?;
+    Ok(ch)
+}
+
+/// The reference path's message on channel `ch`.
+fn draw_reference(out: &mut impl Bus, ch: u16, study: &Study) -> Result<()> {
     let n = study.reference.row_count();
     let stride = n.div_ceil(2000).max(1);
     let points: Vec<Vec3> = (0..n)
@@ -520,6 +527,8 @@ pub struct Live<B: Bus = Out> {
     fields: Vec<String>,
     /// The robot is drawn every this many ticks.
     scene_every: u64,
+    /// The reference path's channel.
+    reference: u16,
 }
 
 impl Live {
@@ -545,7 +554,7 @@ impl Live {
 impl<B: Bus> Live<B> {
     /// `law` of `study` on `out`, the robot drawn every `scene_every` ticks (≥ 1).
     pub fn over(mut out: B, study: &Study, law: Law, scene_every: u64) -> Result<Self> {
-        reference_path(&mut out, study)?;
+        let reference = reference_path(&mut out, study)?;
         let ch = law_channels(&mut out, law.name())?;
         let header = trace::header();
         let cols = Columns::find(&|name: &str| {
@@ -567,12 +576,13 @@ impl<B: Bus> Live<B> {
                 .map(|k| (k, cfg.plant.payload_step_kg)),
             fields: vec![String::new(); header.len()],
             scene_every: scene_every.max(1),
+            reference,
         })
     }
 
     /// Draws the reference path again (a client that joined a live stream late has not seen it).
     pub fn reference_again(&mut self, study: &Study) -> Result<()> {
-        reference_path(&mut self.out, study)
+        draw_reference(&mut self.out, self.reference, study)
     }
 
     /// The bus the messages go to.

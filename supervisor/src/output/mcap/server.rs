@@ -88,11 +88,6 @@ impl Bus for Server {
             .context(&self.ctx)
             .build_raw()
             .with_context(|| format!("channel {topic}"))?;
-        // A channel is registered once: the same topic again (the reference path, re-sent for
-        // late clients) reuses it.
-        if let Some(i) = self.channels.iter().position(|c| c.id() == ch.id()) {
-            return Ok(u16::try_from(i)?);
-        }
         self.channels.push(ch);
         Ok(u16::try_from(self.channels.len() - 1)?)
     }
