@@ -325,6 +325,32 @@ fn lockstep_stall_is_noticed_after_the_silence_timeout() {
     assert_eq!(lost["state"], 0, "{lost}");
 }
 
+/// Regression: a controller stalled by injection waited out the plant's silence with the same
+/// limit from the same state, so when the plant was late to publish its final state (a loaded
+/// host) the controller exited first ("plant silent", status 4) and the run ended as the
+/// controller's failure instead of its silence (a CI run). Here the plant is stopped (SIGSTOP)
+/// across the controller's old limit: the fault is still the controller's silence.
+#[test]
+fn regression_a_stalled_controller_stays_silent_when_the_plant_is_late() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = config(
+        tmp.path(),
+        0.0,
+        "[faults]\ninject = \"stall@100\"\n[loop]\nsilence_timeout_ms = 1000\n",
+    );
+    // Tick 100 comes within milliseconds of the start; both waits end 1 s after it.
+    let (code, err) = run_pausing_plant(&cfg, &out, &["--mode", "lockstep"], 400, 1200);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(!err.contains("plant silent"), "{err}");
+    let s = assert_kept_and_clean(&out);
+    assert_eq!(
+        outcome(&s, "tdc"),
+        (RunStatus::Fault, Some(FaultKind::ControllerSilent)),
+        "{err}"
+    );
+}
+
 #[test]
 fn sigterm_ctrl_c_and_sighup_stop_everything_and_keep_the_data() {
     // SIGHUP is the terminal closing: it reaches the whole group, like Ctrl-C (regression: it
@@ -548,6 +574,24 @@ fn pause(pid: i32, d: Duration) {
     unsafe { libc::kill(pid, libc::SIGCONT) };
 }
 
+/// Runs `cfg` with `args` into `out`, stops its plant `after_ms` after the pair started for
+/// `stop_ms`, and waits for the run's end: its exit code and stderr.
+fn run_pausing_plant(
+    cfg: &str,
+    out: &Path,
+    args: &[&str],
+    after_ms: u64,
+    stop_ms: u64,
+) -> (Option<i32>, String) {
+    let mut all = vec!["run", cfg, "--out", out.to_str().unwrap()];
+    all.extend_from_slice(args);
+    let child = spawn(&all);
+    let plant = pid_once_running(out, "deltaloop-plant");
+    std::thread::sleep(Duration::from_millis(after_ms));
+    pause(plant, Duration::from_millis(stop_ms));
+    finish(child)
+}
+
 /// Regression: a 5 ms SIGSTOP/SIGCONT of the controller killed it ("wait for state:
 /// InterruptSignal", exit 3), although 5 ms is well inside the hold window. SIGCONT must be a
 /// non-event: the run completes, and the pause shows at most as a few missed ticks.
@@ -580,19 +624,8 @@ fn a_frozen_realtime_loop_is_named_with_its_tick() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
     let cfg = config(tmp.path(), 1.5, "");
-    let child = spawn(&[
-        "run",
-        &cfg,
-        "--overrun",
-        "catch-up",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    let plant = pid_once_running(&out, "deltaloop-plant");
     // In the hold after the motion (t > 0.8 s).
-    std::thread::sleep(Duration::from_millis(1200));
-    pause(plant, Duration::from_millis(60));
-    let (code, err) = finish(child);
+    let (code, err) = run_pausing_plant(&cfg, &out, &["--overrun", "catch-up"], 1200, 60);
     let s = summary(&out);
     let t = &s["timing"]["tdc"];
     let max_ms = t["wake_lateness"]["max_us"].as_f64().unwrap() / 1e3;

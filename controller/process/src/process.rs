@@ -263,7 +263,9 @@ fn answer_states(
     // The last tick answered, and the states not newer than it that were ignored.
     let mut answered: Option<u64> = None;
     let mut stale = 0u64;
+    let mut stalled = false;
     let end = loop {
+        let silence_ns = silence_limit_ns(silence_ns, stalled);
         let waited = wait_state(ports, silence_ns, lp.spin_ns, lp.poll, &wait, term)?;
         let (state, skipped, rx) = match waited {
             Waited::State(s, skipped, rx) => (s, skipped, rx),
@@ -292,7 +294,10 @@ fn answer_states(
         }
         // Injected faults (drills and tests): stall = stop answering, panic = die loudly.
         match inject {
-            FaultInjection::Stall(k) if state.tick >= k => continue,
+            FaultInjection::Stall(k) if state.tick >= k => {
+                stalled = true;
+                continue;
+            }
             FaultInjection::Panic(k) if state.tick >= k => {
                 panic!("injected controller panic at tick {}", state.tick)
             }
@@ -349,6 +354,15 @@ fn answer_states(
         );
     }
     Ok(end)
+}
+
+/// How long a wait for the next state may last before the plant counts as silent, ns. A
+/// controller stalled by injection plays one that is alive but mute: it waits for the plant's
+/// final state (or STOP, or SIGTERM) however long that takes. Waiting the plant's own silence
+/// limit instead raced the plant's: both start at the same state, and on a loaded host the
+/// controller's ran out first, so the run ended on the controller's fault, not its silence.
+fn silence_limit_ns(silence_ns: u64, stalled: bool) -> u64 {
+    if stalled { u64::MAX } else { silence_ns }
 }
 
 /// Tick `k`'s reference row: from the ring, where it normally already is. If it is not, the
@@ -440,7 +454,7 @@ fn wait_state(
         rt::sleep_until_ns(t);
         poll_until_ns = poll_after_wake(poll_until_ns, rt::now_ns(), spin_ns);
     }
-    let until = rt::now_ns() + silence_ns;
+    let until = rt::now_ns().saturating_add(silence_ns);
     // Whether this wait has blocked once already: STOP is looked for only after a block that
     // brought no state, so the tick's normal path (one block, woken by the state) reads no
     // control message.
@@ -541,6 +555,16 @@ mod tests {
 
     fn cfg() -> RunConfig {
         RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s1\"\n", None).expect("config")
+    }
+
+    /// Regression: a controller stalled by `stall@k` timed out on the plant's silence while the
+    /// plant was still waiting out the controller's (the same limit, started at the same state),
+    /// so a loaded host turned the controller's silence into a controller failure.
+    #[test]
+    fn regression_a_stalled_controller_outwaits_the_plants_silence_limit() {
+        let limit = 2_000_000_000;
+        assert_eq!(silence_limit_ns(limit, false), limit);
+        assert_eq!(silence_limit_ns(limit, true), u64::MAX);
     }
 
     #[test]
