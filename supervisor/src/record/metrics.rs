@@ -6,7 +6,7 @@ use crate::record::{FaultKind, Outcome, RunEnd, RunStatus, TickRecord};
 use crate::study::reference::RefRow;
 use deltaloop_law::{ControllerParams, Law};
 use deltaloop_model::{DeltaRobot, Vec3};
-use rustfft::{FftPlanner, num_complex::Complex};
+use deltaloop_spectrum::Spectra;
 use serde::Serialize;
 
 /// High-frequency threshold for torque content, Hz.
@@ -113,36 +113,6 @@ pub fn percentile_type7(xs: &mut [f64], p: f64) -> f64 {
     xs[lo] + (h - lo as f64) * (xs[hi] - xs[lo])
 }
 
-/// The one-sided energy spectrum of a torque series after removing the straight line through
-/// its first and last samples: w_j·|X_j|² for j = 0..=n/2 (w = 2 but at DC and Nyquist).
-fn detrended_spectrum(tau: &[f64], planner: &mut FftPlanner<f64>) -> Vec<f64> {
-    let n = tau.len();
-    let (first, last) = (tau[0], tau[n - 1]);
-    let mut buf: Vec<Complex<f64>> = tau
-        .iter()
-        .enumerate()
-        .map(|(k, &x)| {
-            Complex::new(
-                x - (first + (last - first) * k as f64 / (n - 1) as f64),
-                0.0,
-            )
-        })
-        .collect();
-    planner.plan_fft_forward(n).process(&mut buf);
-    buf.iter()
-        .enumerate()
-        .take(n / 2 + 1)
-        .map(|(j, x)| {
-            let w = if j == 0 || (n.is_multiple_of(2) && j == n / 2) {
-                1.0
-            } else {
-                2.0
-            };
-            w * x.norm_sqr()
-        })
-        .collect()
-}
-
 /// (HF RMS in N m, HF energy share, frequency of the largest non-DC line in Hz) of a one-sided
 /// energy spectrum of an n-point series at period `ts` (s).
 fn spectrum_stats(energy: &[f64], n: usize, ts: f64) -> (f64, f64, f64) {
@@ -169,7 +139,7 @@ pub fn high_frequency(tau: &[f64], ts: f64) -> (f64, f64, f64) {
     if tau.len() < 3 {
         return (0.0, 0.0, 0.0);
     }
-    let energy = detrended_spectrum(tau, &mut FftPlanner::new());
+    let energy = Spectra::new().detrended(tau);
     spectrum_stats(&energy, tau.len(), ts)
 }
 
@@ -189,7 +159,7 @@ pub struct ChatterAcc {
     /// Sum of the segment spectra so far, and how many.
     energy: Vec<f64>,
     segments: usize,
-    planner: FftPlanner<f64>,
+    spectra: Spectra,
 }
 
 impl ChatterAcc {
@@ -200,7 +170,7 @@ impl ChatterAcc {
             count: 0,
             energy: Vec::new(),
             segments: 0,
-            planner: FftPlanner::new(),
+            spectra: Spectra::new(),
         }
     }
 
@@ -221,7 +191,7 @@ impl ChatterAcc {
         let head = self.count % CHATTER_SEGMENT;
         let mut seg = self.ring[head..].to_vec();
         seg.extend_from_slice(&self.ring[..head]);
-        let e = detrended_spectrum(&seg, &mut self.planner);
+        let e = self.spectra.detrended(&seg);
         if self.energy.is_empty() {
             self.energy = e;
         } else {
@@ -626,6 +596,28 @@ mod tests {
         // The detrended series is round-off only, so the HF RMS (not the share of round-off) is ~0.
         let (r, _, _) = high_frequency(&tau, 3e-4);
         assert!(r < 1e-12, "{r}");
+    }
+
+    /// The spectrum keeps the detrended series' energy (Parseval: Σ_j w_j·|X_j|² = n·Σ_k d_k²),
+    /// in odd and even lengths, and a series too short to detrend has none.
+    #[test]
+    fn the_one_sided_spectrum_keeps_the_energy_of_the_detrended_series() {
+        let mut spectra = Spectra::new();
+        for n in [7usize, 8, 1000, 1001] {
+            let x: Vec<f64> = (0..n)
+                .map(|k| (k as f64 * 0.9).sin() + 0.3 * (k as f64 * 2.1).cos() + 0.02 * k as f64)
+                .collect();
+            let line = |k: usize| x[0] + (x[n - 1] - x[0]) * k as f64 / (n - 1) as f64;
+            let time: f64 = (0..n).map(|k| (x[k] - line(k)).powi(2)).sum::<f64>() * n as f64;
+            let e = spectra.detrended(&x);
+            assert_eq!(e.len(), n / 2 + 1);
+            let freq: f64 = e.iter().sum();
+            assert!(
+                (freq - time).abs() <= 1e-9 * time,
+                "n = {n}: {freq} vs {time}"
+            );
+        }
+        assert!(spectra.detrended(&[1.0]).is_empty());
     }
 
     #[test]
