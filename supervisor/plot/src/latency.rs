@@ -2,8 +2,7 @@
 //! time. Both are drawn from what the run kept in fixed memory (histograms, a binned timeline).
 
 use super::{compact, e, register_font};
-use crate::timing::Timing;
-use crate::timing::timeline::{Stat, Timeline};
+use crate::timeline::{Bin, Stat};
 use anyhow::Result;
 use hdrhistogram::Histogram;
 use plotters::coord::Shift;
@@ -242,7 +241,7 @@ where
 }
 
 /// `<stem>.<ext>` (a stem may hold dots: `tdc.latency`).
-fn with_ext(stem: &Path, ext: &str) -> PathBuf {
+pub fn with_ext(stem: &Path, ext: &str) -> PathBuf {
     let mut s = stem.as_os_str().to_owned();
     s.push(".");
     s.push(ext);
@@ -277,7 +276,7 @@ pub fn latency_percentiles(
 }
 
 /// [`latency_percentiles`] with line i in `colors[i % len]`.
-fn latency_percentiles_colored(
+pub fn latency_percentiles_colored(
     stem: &Path,
     title: &str,
     hists: &[(&str, &Histogram<u64>)],
@@ -311,19 +310,19 @@ fn latency_percentiles_colored(
 struct Track<'a> {
     label: &'a str,
     color: RGBColor,
-    stat: fn(&crate::timing::timeline::Bin) -> &Stat,
+    stat: fn(&Bin) -> &Stat,
     /// Draw the budget line and the misses on this panel.
     budget_us: Option<f64>,
     misses: bool,
 }
 
 /// One bin of a timeline: its start and end (s of run time) and what it holds.
-type TimeBin<'a> = (f64, f64, &'a crate::timing::timeline::Bin);
+pub type TimeBin<'a> = (f64, f64, &'a Bin);
 
 fn draw_timeline<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     title: &str,
-    tl: &Timeline,
+    bins: &[TimeBin],
     tracks: &[Track],
 ) -> Result<()>
 where
@@ -332,13 +331,12 @@ where
     root.fill(&WHITE).map_err(e)?;
     let root = root.titled(title, ("sans-serif", 20)).map_err(e)?;
     let areas = root.split_evenly((tracks.len().max(1), 1));
-    let bins: Vec<TimeBin> = tl.bins().collect();
     let misses: u64 = bins.iter().map(|b| b.2.misses).sum();
     for (area, t) in areas.iter().zip(tracks) {
-        let legend = track_legend(t, &bins, misses);
+        let legend = track_legend(t, bins, misses);
         let (strip, area) = area.split_vertically(ROW as u32 + 4);
         draw_legend(&strip, &legend, legend.len(), 86)?;
-        draw_track(&area, t, &bins, misses)?;
+        draw_track(&area, t, bins, misses)?;
     }
     root.present().map_err(e)?;
     Ok(())
@@ -454,11 +452,11 @@ where
 }
 
 /// Writes `<stem>.svg` and `<stem>.png`: round trip (and, in realtime, wake lateness) over run
-/// time from the binned [`Timeline`], misses as red triangles, `budget_us` as a dashed line.
+/// time from a run's bins, misses as red triangles, `budget_us` as a dashed line.
 pub fn timeline(
     stem: &Path,
     title: &str,
-    tl: &Timeline,
+    bins: &[TimeBin],
     realtime: bool,
     budget_us: Option<f64>,
 ) -> Result<()> {
@@ -480,55 +478,6 @@ pub fn timeline(
     }
     let h = 370 * tracks.len() as u32 + 40;
     write_both!(stem, (1100, h), |root| draw_timeline(
-        root, title, tl, &tracks
+        root, title, bins, &tracks
     ))
-}
-
-/// The figures of one law's run in `dir`: `<prefix>latency.{png,svg}` (percentiles of round
-/// trip, wake lateness, state → controller and compute; the budget in realtime) and
-/// `<prefix>timeline.{png,svg}`. `what` names the run in the titles (e.g. "tdc, realtime").
-/// Returns the two PNG paths.
-pub fn timing_figures(
-    dir: &Path,
-    prefix: &str,
-    what: &str,
-    t: &Timing,
-    budget_us: f64,
-) -> Result<[PathBuf; 2]> {
-    let budget = t.realtime.then_some(budget_us);
-    let hists: Vec<(&str, &Histogram<u64>)> = [
-        ("round trip", &t.round_trip),
-        ("wake lateness", &t.wake_lateness),
-        ("state → controller", &t.state_to_controller),
-        ("controller compute", &t.compute),
-    ]
-    .into_iter()
-    .map(|(label, d)| (label, &d.hist))
-    .collect();
-    let lat = dir.join(format!("{prefix}latency"));
-    let s = t.summary();
-    latency_percentiles_colored(
-        &lat,
-        &format!(
-            "{what}: latency by percentile ({} ticks, {} misses)",
-            s.ticks, s.deadline_misses
-        ),
-        &hists,
-        &[
-            quantity_color("round_trip"),
-            quantity_color("wake_lateness"),
-            quantity_color("state_to_controller"),
-            quantity_color("controller_compute"),
-        ],
-        budget,
-    )?;
-    let tl = dir.join(format!("{prefix}timeline"));
-    timeline(
-        &tl,
-        &format!("{what}: latency over run time"),
-        &t.timeline,
-        t.realtime,
-        budget,
-    )?;
-    Ok([with_ext(&lat, "png"), with_ext(&tl, "png")])
 }
