@@ -46,13 +46,20 @@ fn pids_of(out: &Path, who: &str) -> Vec<u32> {
         .collect()
 }
 
-/// Waits until the pair of `out` runs (the handshake is done) plus `after_ms`, then sends `sig`
-/// to `who`.
+/// Whether the loop of `out` has started: the supervisor creates `tdc.timing.csv` once the
+/// handshake is done, just before START (the children's logs exist from their spawn, before the
+/// handshake: regression, a supervisor stopped 800 ms after them on a loaded host was stopped
+/// before START, lost nothing, and the run that should have lost data ended ok).
+fn loop_started(out: &Path) -> bool {
+    out.join("tdc.timing.csv").is_file()
+}
+
+/// Waits until the loop of `out` runs plus `after_ms`, then sends `sig` to `who`.
 fn signal_child(out: &Path, who: &str, sig: i32, after_ms: u64) {
     let t0 = Instant::now();
     loop {
         let pids = pids_of(out, who);
-        if out.join("tdc.controller.log").exists() && !pids.is_empty() {
+        if loop_started(out) && !pids.is_empty() {
             std::thread::sleep(Duration::from_millis(after_ms));
             for p in pids {
                 // SAFETY: signalling a process we found by its command line.
@@ -558,7 +565,7 @@ fn interrupted_sweep_keeps_its_finished_rows() {
 fn pid_once_running(out: &Path, who: &str) -> i32 {
     loop {
         if let Some(&p) = pids_of(out, who).first()
-            && out.join("tdc.controller.log").exists()
+            && loop_started(out)
         {
             return p as i32;
         }
