@@ -641,10 +641,11 @@ fn pulling_the_link_with_the_plant_remote_ends_in_its_safe_stop_there() {
 
 #[test]
 fn a_python_controller_joins_from_the_other_host() {
+    // The venv first: a first run installs it, and the other netns tests need not wait for that.
+    let py = common::python::python().display().to_string();
     let Some((h, _one)) = Hosts::new("a_python_controller_joins_from_the_other_host") else {
         return;
     };
-    let py = common::python::python().display().to_string();
     let cmd = format!("{py} examples/python-controller/controller.py");
     assert_lockstep_identical(&h, &[], &["--controller-cmd", &cmd]);
 }
@@ -653,10 +654,11 @@ fn a_python_controller_joins_from_the_other_host() {
 /// across the link is byte-identical to inproc.
 #[test]
 fn a_c_controller_joins_from_the_other_host() {
+    // Built before the namespaces are taken (see the Python controller's test).
+    let Some(exe) = common::c_tdc() else { return };
     let Some((h, _one)) = Hosts::new("a_c_controller_joins_from_the_other_host") else {
         return;
     };
-    let Some(exe) = common::c_tdc() else { return };
     assert_lockstep_identical(&h, &[], &["--controller-cmd", exe.to_str().unwrap()]);
 }
 

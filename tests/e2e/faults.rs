@@ -750,8 +750,11 @@ fn regression_a_stopped_supervisor_loses_ticks_not_the_run() {
     let s = summary(&out);
     let m = &s["laws"]["tdc"];
     assert_eq!(outcome(&s, "tdc"), (RunStatus::LostData, None), "{m}");
+    // At most the ticks of the 3.5 s stop; how many more than the queue held depends on how
+    // many ticks the loop ran meanwhile, which a loaded host lowers (the plant pauses its
+    // simulated time over its own stalls): a host's bad hour made it 85, so only "some".
     let lost = m["lost_ticks"].as_u64().unwrap();
-    assert!((300..12_000).contains(&lost), "lost {lost}: {m}");
+    assert!((1..12_000).contains(&lost), "lost {lost}: {m}");
     let trace = std::fs::read_to_string(out.join("trace.csv")).unwrap();
     let ks: Vec<u64> = trace
         .lines()
