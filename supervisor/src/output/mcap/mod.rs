@@ -22,19 +22,24 @@ mod cdr;
 mod scene;
 #[cfg(feature = "foxglove")]
 pub mod server;
+mod tick;
 
 use crate::output::trace;
 use crate::record::TickRecord;
 use crate::study::Study;
 use crate::study::reference::RefRow;
+use crate::timing::TIMING_COLUMNS;
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, RunConfig};
-use deltaloop_model::{DeltaRobot, Vec3};
+use deltaloop_model::Vec3;
 use mcap::records::{MessageHeader, Metadata};
-use serde_json::{Map, Value, json};
+use scene::Painter;
+use serde::Serialize;
+use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
+use tick::{Columns, Control, Row, Timing};
 
 /// What to export, and where (default `RUN_DIR/run.mcap`).
 pub struct ExportRequest<'a> {
@@ -76,7 +81,7 @@ pub trait Bus {
         true
     }
 
-    fn json(&mut self, channel: u16, t_ns: u64, v: &Value) -> Result<()> {
+    fn json(&mut self, channel: u16, t_ns: u64, v: &impl Serialize) -> Result<()> {
         self.write(channel, t_ns, &serde_json::to_vec(v)?)
     }
 
@@ -191,9 +196,7 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
     let study = Study::new(cfg.clone()).context("the run's reference")?;
     reference_path(&mut out, &study)?;
     let ts_ns = cfg.ts_ns();
-    let payload = cfg
-        .payload_step_tick()
-        .map(|k| (k, cfg.plant.payload_step_kg));
+    let mut painter = painter(&study);
     let mut rows = csv::Reader::from_path(&trace_path)
         .with_context(|| format!("cannot read {}", trace_path.display()))?;
     let header = rows.headers()?.clone();
@@ -221,7 +224,7 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
             continue;
         };
         let r = Row::parse(&|i| row.get(i).unwrap_or(""), &cols).with_context(at)?;
-        write_row(&mut out, ch, &law, &r, ts_ns, Some(&study.robot), payload)?;
+        write_row(&mut out, ch, &law, (&r, &cols), ts_ns, Some(&mut painter))?;
     }
     if let Some((done, ch)) = current.take() {
         finish_law(&mut out, dir, &summary, &done, &ch, ts_ns)?;
@@ -290,7 +293,16 @@ fn draw_reference(out: &mut impl Bus, ch: u16, study: &Study) -> Result<()> {
         .step_by(stride)
         .map(|k| study.reference.row(k).task.x)
         .collect();
-    out.json(ch, 0, &scene::path(&points))
+    out.write(ch, 0, &scene::path(&points)?)
+}
+
+/// The robot's painter for `study` (its payload step included).
+fn painter(study: &Study) -> Painter {
+    let cfg = &study.config;
+    let payload = cfg
+        .payload_step_tick()
+        .map(|k| (k, cfg.plant.payload_step_kg));
+    Painter::new(study.robot.clone(), payload)
 }
 
 fn law_channels(out: &mut impl Bus, law: &str) -> Result<Channels> {
@@ -315,118 +327,20 @@ fn law_channels(out: &mut impl Bus, law: &str) -> Result<Channels> {
     })
 }
 
-/// Where each trace column is.
-struct Columns {
-    law: usize,
-    k: usize,
-    /// `(name, first column)` of every per-joint group, in trace order.
-    joints: Vec<(&'static str, usize)>,
-    reply: usize,
-    drives: usize,
-    arrival: usize,
-}
-
-impl Columns {
-    fn find(col: &dyn Fn(&str) -> Result<usize>) -> Result<Self> {
-        let joints = trace::COLUMNS
-            .iter()
-            .filter(|c| c.per_joint)
-            .map(|c| Ok((c.name, col(&format!("{}_1", c.name))?)))
-            .collect::<Result<_>>()?;
-        Ok(Self {
-            law: col(trace::LAW.name)?,
-            k: col(trace::K.name)?,
-            joints,
-            reply: col(trace::REPLY.name)?,
-            drives: col(trace::DRIVES.name)?,
-            arrival: col(trace::ARRIVAL.name)?,
-        })
-    }
-}
-
-/// One trace row, parsed.
-struct Row {
-    k: u64,
-    /// Every per-joint group: its name and three values (None: an empty cell).
-    joints: Vec<(&'static str, [Option<f64>; 3])>,
-    reply: String,
-    drives: String,
-    arrival_ns: Option<u64>,
-}
-
-impl Row {
-    /// The row whose field `i` is `cell(i)`.
-    fn parse<'a>(cell: &dyn Fn(usize) -> &'a str, c: &Columns) -> Result<Self> {
-        let num = |i: usize| -> Result<Option<f64>> {
-            match cell(i) {
-                "" => Ok(None),
-                s => s
-                    .parse()
-                    .map(Some)
-                    .map_err(|_| anyhow::anyhow!("column {} = `{s}` is not a number", i + 1)),
-            }
-        };
-        let k = cell(c.k)
-            .parse()
-            .map_err(|_| anyhow::anyhow!("column k = `{}` is not a tick", cell(c.k)))?;
-        let joints = c
-            .joints
-            .iter()
-            .map(|&(name, at)| Ok((name, [num(at)?, num(at + 1)?, num(at + 2)?])))
-            .collect::<Result<_>>()?;
-        let arrival_ns = match cell(c.arrival) {
-            "" => None,
-            s => Some(
-                s.parse()
-                    .map_err(|_| anyhow::anyhow!("column arrival_ns = `{s}` is not ns"))?,
-            ),
-        };
-        Ok(Self {
-            k,
-            joints,
-            reply: cell(c.reply).into(),
-            drives: cell(c.drives).into(),
-            arrival_ns,
-        })
-    }
-
-    fn group(&self, name: &str) -> [Option<f64>; 3] {
-        self.joints
-            .iter()
-            .find(|(n, _)| *n == name)
-            .map_or([None; 3], |(_, v)| *v)
-    }
-}
-
 fn write_row(
     out: &mut impl Bus,
     ch: &Channels,
     law: &str,
-    r: &Row,
+    (r, cols): (&Row, &Columns),
     ts_ns: u64,
-    robot: Option<&DeltaRobot>,
-    payload: Option<(u64, f64)>,
+    painter: Option<&mut Painter>,
 ) -> Result<()> {
     let t = r.k * ts_ns;
     let all = |g: [Option<f64>; 3]| g.map(|x| x.unwrap_or(f64::NAN));
-    let (q, qd, tau_a) = (
-        all(r.group("q")),
-        all(r.group("qdot")),
-        all(r.group("tau_applied")),
-    );
+    let [q, qd, tau_a] = tick::JOINT_STATE.map(|name| all(r.group(name)));
     out.write(ch.joints, t, &cdr::joint_state(t, &q, &qd, &tau_a))?;
-    let mut control = Map::new();
-    control.insert("k".into(), json!(r.k));
-    control.insert("t_s".into(), json!(t as f64 * 1e-9));
-    for (name, v) in &r.joints {
-        if !matches!(*name, "q" | "qdot" | "tau_applied") {
-            control.insert((*name).into(), json!(v));
-        }
-    }
-    control.insert("reply".into(), json!(r.reply));
-    control.insert("drives".into(), json!(r.drives));
-    control.insert("arrival_ns".into(), json!(r.arrival_ns));
-    out.json(ch.control, t, &Value::Object(control))?;
+    let t_s = t as f64 * 1e-9;
+    out.json(ch.control, t, &Control { row: r, cols, t_s })?;
     if r.reply != "applied" {
         out.log(
             ch.events,
@@ -445,9 +359,12 @@ fn write_row(
             format!("tick {}: drives {}", r.k, r.drives),
         )?;
     }
-    let mass = payload.filter(|&(k, _)| r.k >= k).map_or(0.0, |p| p.1);
-    if let Some(s) = robot.and_then(|robot| scene::robot(robot, t, &Vec3::from(q), mass)) {
-        out.json(ch.scene, t, &s)?;
+    if let Some(scene) = painter
+        .map(|p| p.draw(r.k, t, &Vec3::from(q)))
+        .transpose()?
+        .flatten()
+    {
+        out.write(ch.scene, t, scene)?;
     }
     Ok(())
 }
@@ -466,31 +383,18 @@ fn finish_law(
         let mut rows = csv::Reader::from_path(&timing)
             .with_context(|| format!("cannot read {}", timing.display()))?;
         let header = rows.headers()?.clone();
+        let order = tick::timing_order(header.iter());
         for (i, row) in rows.records().enumerate() {
             let row = row.with_context(|| format!("{} line {}", timing.display(), i + 2))?;
-            let (k, m) = timing_message(
-                header
-                    .iter()
-                    .zip(row.iter().map(|cell| cell.parse::<u64>().ok())),
-            );
+            let cells: Vec<_> = header
+                .iter()
+                .zip(row.iter().map(|cell| cell.parse::<u64>().ok()))
+                .collect();
+            let (k, m) = Timing::new(&cells, &order);
             out.json(ch.timing, k * ts_ns, &m)?;
         }
     }
     ending(out, ch, law, &summary["laws"][law], ts_ns)
-}
-
-/// A timing row's message: its cells by column name (null: not seen) and the round trip
-/// (torque received − state published, ns); with its tick.
-fn timing_message<'a>(cells: impl Iterator<Item = (&'a str, Option<u64>)>) -> (u64, Value) {
-    let m: Map<String, Value> = cells.map(|(n, v)| (n.to_string(), json!(v))).collect();
-    let get = |n: &str| m.get(n).and_then(Value::as_u64);
-    let rtt = get("torque_rx_ns")
-        .zip(get("state_pub_ns"))
-        .map(|(a, b)| a.saturating_sub(b));
-    let k = get("k").unwrap_or(0);
-    let mut m = m;
-    m.insert("round_trip_ns".into(), json!(rtt));
-    (k, Value::Object(m))
 }
 
 /// The last event of a law: how it ended, from its metrics (`summary.json`'s entry).
@@ -522,9 +426,10 @@ pub struct Live<B: Bus = Out> {
     cols: Columns,
     law: Law,
     ts_ns: u64,
-    robot: DeltaRobot,
-    payload: Option<(u64, f64)>,
+    painter: Painter,
     fields: Vec<String>,
+    /// The order of the timing message's keys.
+    timing_order: Vec<usize>,
     /// The robot is drawn every this many ticks.
     scene_every: u64,
     /// The reference path's channel.
@@ -570,11 +475,9 @@ impl<B: Bus> Live<B> {
             cols,
             law,
             ts_ns: cfg.ts_ns(),
-            robot: study.robot.clone(),
-            payload: cfg
-                .payload_step_tick()
-                .map(|k| (k, cfg.plant.payload_step_kg)),
+            painter: painter(study),
             fields: vec![String::new(); header.len()],
+            timing_order: tick::timing_order(TIMING_COLUMNS.into_iter()),
             scene_every: scene_every.max(1),
             reference,
         })
@@ -610,14 +513,14 @@ impl<B: Bus> Live<B> {
         trace::render(self.law, r, row, n_true, &mut self.fields);
         let fields = &self.fields;
         let row = Row::parse(&|i| fields.get(i).map_or("", String::as_str), &self.cols)?;
+        let painter = (row.k % self.scene_every == 0).then_some(&mut self.painter);
         write_row(
             &mut self.out,
             &self.ch,
             self.law.name(),
-            &row,
+            (&row, &self.cols),
             self.ts_ns,
-            (row.k % self.scene_every == 0).then_some(&self.robot),
-            self.payload,
+            painter,
         )
     }
 
@@ -626,7 +529,9 @@ impl<B: Bus> Live<B> {
         if !self.out.active() {
             return Ok(());
         }
-        let (k, m) = timing_message(crate::timing::TIMING_COLUMNS.into_iter().zip(*cells));
+        let cells: [(&str, Option<u64>); 13] =
+            std::array::from_fn(|i| (TIMING_COLUMNS[i], cells[i]));
+        let (k, m) = Timing::new(&cells, &self.timing_order);
         self.out.json(self.ch.timing, k * self.ts_ns, &m)
     }
 }
