@@ -64,16 +64,3 @@ pub fn code<E: Display>(name: &str, end: Result<ProcessEnd, E>) -> u8 {
         }
     }
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn each_end_has_its_own_code() {
-        assert_eq!(ProcessEnd::Completed.code(), 0);
-        assert_eq!(ProcessEnd::Fault("x".into()).code(), EXIT_FAULT);
-        assert_eq!(ProcessEnd::Stopped("x".into()).code(), EXIT_STOPPED);
-        assert_ne!(EXIT_FAULT, EXIT_STOPPED);
-    }
-}
