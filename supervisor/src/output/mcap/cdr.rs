@@ -24,7 +24,10 @@ struct Cdr(Vec<u8>);
 
 impl Cdr {
     fn new() -> Self {
-        Cdr(vec![0x00, 0x01, 0x00, 0x00])
+        // A joint state is 156 bytes: one allocation.
+        let mut v = Vec::with_capacity(256);
+        v.extend([0x00, 0x01, 0x00, 0x00]);
+        Cdr(v)
     }
     fn align(&mut self, n: usize) {
         while !(self.0.len() - 4).is_multiple_of(n) {

@@ -82,7 +82,10 @@ pub trait Bus {
     }
 
     fn json(&mut self, channel: u16, t_ns: u64, v: &impl Serialize) -> Result<()> {
-        self.write(channel, t_ns, &serde_json::to_vec(v)?)
+        // One allocation: a tick's control and timing messages are a few hundred bytes.
+        let mut buf = Vec::with_capacity(1024);
+        serde_json::to_writer(&mut buf, v)?;
+        self.write(channel, t_ns, &buf)
     }
 
     /// A `foxglove.Log` line of `law` at `t_ns`.
@@ -539,6 +542,75 @@ impl<B: Bus> Live<B> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::record::ReplyFate;
+    use deltaloop_law::Output;
+    use deltaloop_model::PlantSample;
+
+    /// A bus that drops every message.
+    struct Discard;
+
+    impl Bus for Discard {
+        fn schema(&mut self, _: &'static str, _: &str, _: &str) -> Result<u16> {
+            Ok(0)
+        }
+        fn channel(&mut self, _: u16, _: &str, _: &str) -> Result<u16> {
+            Ok(0)
+        }
+        fn write(&mut self, _: u16, _: u64, _: &[u8]) -> Result<()> {
+            Ok(())
+        }
+    }
+
+    /// Regression: a 10-minute realtime soak with `--mcap` in a test build ended `lost_data`
+    /// (664 079 ticks lost from the supervisor's queues): each tick's messages were built as trees
+    /// of JSON values, the robot's scene alone hundreds of allocations, and the supervisor fell
+    /// behind the 3.3 kHz loop. A tick's joint state, control, timing and scene messages now take
+    /// a handful of allocations (the parsed row's, one buffer per message but the scene's).
+    #[test]
+    fn regression_mcap_soak_lost_ticks_a_tick_allocates_a_handful() {
+        let cfg =
+            RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s1\"\n", None).unwrap();
+        let study = Study::new(cfg).unwrap();
+        let mut live = Live::over(Discard, &study, Law::Tdc, 1).unwrap();
+        let mut tick = |k: u64| {
+            let row = study.reference.row(k as usize);
+            let q = row.joint.q;
+            let out = Output {
+                tau: Vec3::new(0.1, -0.2, 0.3),
+                s: Vec3::zeros(),
+                n_hat: Vec3::zeros(),
+                u: Vec3::zeros(),
+            };
+            let r = TickRecord {
+                sample: PlantSample {
+                    k,
+                    q,
+                    qd: row.joint.qd,
+                    tau_applied: out.tau,
+                },
+                q_true: q,
+                qd_true: row.joint.qd,
+                out: Some(out),
+                tau: out.tau,
+                fate: ReplyFate::Applied,
+                clamped: false,
+                held: false,
+                rejected: false,
+                arrival_ns: Some(41_000),
+                telemetry: true,
+            };
+            live.take(&r, &row, None).unwrap();
+            let t = k * 300_000;
+            live.timing(&std::array::from_fn(|i| Some(t + i as u64)))
+                .unwrap();
+        };
+        // The first ticks size the reused buffers.
+        (0..10).for_each(&mut tick);
+        let before = crate::alloc_count::allocations();
+        (10..110).for_each(&mut tick);
+        let per_tick = (crate::alloc_count::allocations() - before) as f64 / 100.0;
+        assert!(per_tick <= 12.0, "{per_tick} allocations a tick");
+    }
 
     /// A run folder whose trace.csv is missing is refused in one line naming it.
     #[test]
