@@ -17,8 +17,8 @@ const HALF_PARALLELOGRAM_M: f64 = 0.02;
 // records, and a tree of `serde_json::Value`s (a map per point) cost hundreds of allocations a
 // tick. Fields are in alphabetical order, the order the `Value` maps wrote them in.
 
-/// Nothing, written `[]` (the primitives this scene does not use).
-type None0 = [(); 0];
+/// An empty list, written `[]` (the primitives this scene does not use).
+type Empty = [(); 0];
 
 #[derive(Serialize)]
 struct Xyz {
@@ -108,8 +108,8 @@ impl Serialize for Points<'_> {
 #[derive(Serialize)]
 struct Line<'a> {
     color: Color,
-    colors: None0,
-    indices: None0,
+    colors: Empty,
+    indices: Empty,
     points: Points<'a>,
     pose: Pose,
     scale_invariant: bool,
@@ -154,21 +154,21 @@ fn sphere(c: &Vec3, r: f64, rgba: [f64; 4]) -> Sphere {
 
 #[derive(Serialize)]
 struct Entity<'a> {
-    arrows: None0,
-    cones: None0,
-    cubes: None0,
-    cylinders: None0,
+    arrows: Empty,
+    cones: Empty,
+    cubes: Empty,
+    cylinders: Empty,
     frame_id: &'static str,
     frame_locked: bool,
     id: &'static str,
     lifetime: Stamp,
     lines: &'a [Line<'a>],
-    metadata: None0,
-    models: None0,
+    metadata: Empty,
+    models: Empty,
     spheres: &'a [Sphere],
-    texts: None0,
+    texts: Empty,
     timestamp: Stamp,
-    triangles: None0,
+    triangles: Empty,
 }
 
 fn entity<'a>(
@@ -198,7 +198,7 @@ fn entity<'a>(
 
 #[derive(Serialize)]
 struct SceneUpdate<'a> {
-    deletions: None0,
+    deletions: Empty,
     entities: [Entity<'a>; 1],
 }
 
