@@ -8,7 +8,7 @@ pub mod metrics;
 pub mod sensitivity;
 pub mod stats;
 
-use crate::study::reference::{JointReference, RefRow};
+use crate::reference::{JointReference, RefRow};
 use deltaloop_config::Law;
 use deltaloop_law::Output;
 use deltaloop_model::{PlantSample, Vec3};
@@ -552,7 +552,7 @@ impl<'a, S: TickSink> Recorder<'a, S> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::study::scenario::TaskPath;
+    use crate::scenario::TaskPath;
     use deltaloop_config::RunConfig;
     use deltaloop_model::DeltaRobot;
 

@@ -2,7 +2,7 @@
 //! Computed on demand, one tick at a time, so a run of hours costs no more memory than a run of
 //! seconds; the controller still needs no kinematics (the supervisor sends it the rows).
 
-use crate::study::scenario::{TaskPath, TaskSample};
+use crate::scenario::{TaskPath, TaskSample};
 use deltaloop_law::Reference;
 use deltaloop_model::{DeltaRobot, KinematicsError, Vec3};
 

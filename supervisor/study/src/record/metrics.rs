@@ -3,7 +3,7 @@
 
 use crate::record::sensitivity::{self, Sensitivity};
 use crate::record::{FaultKind, Outcome, RunEnd, RunStatus, TickRecord};
-use crate::study::reference::RefRow;
+use crate::reference::RefRow;
 use deltaloop_law::{ControllerParams, Law};
 use deltaloop_model::{DeltaRobot, Vec3};
 use deltaloop_spectrum::Spectra;

@@ -2,7 +2,7 @@
 //! with M̄ ≪ M the TDC core acts like a lightly damped PID, P = M̄K_d/Ts, I = M̄K_p/Ts, D = M̄/Ts,
 //! whose TDE lags Ts·M/M̄ behind the plant. Pure numbers from the model along the reference.
 
-use crate::study::reference::JointReference;
+use crate::reference::JointReference;
 use deltaloop_law::ControllerParams;
 use deltaloop_model::DeltaRobot;
 use serde::Serialize;

@@ -1,12 +1,19 @@
 //! A study: one validated config turned into everything a run needs (robot model, reference,
-//! controller constants). Built once, read by every law and every loop mode.
+//! controller constants). Built once, read by every law and every loop mode. And the recorder
+//! every loop mode feeds, with the one-pass metrics ([`record`]). No I/O.
+//!
+//! The supervisor re-exports this crate as its bottom layers (`study`, `record`). It is a crate of
+//! its own because this is the code every tick of every run goes through (the reference row, the
+//! recorder, the metrics): here it is optimised in test builds too, while the rest of the
+//! supervisor, which runs once per command, is not (`Cargo.toml`, the dev profile).
 
 pub mod analysis;
+pub mod record;
 pub mod reference;
 pub mod scenario;
 
-use crate::study::reference::JointReference;
-use crate::study::scenario::TaskPath;
+use crate::reference::JointReference;
+use crate::scenario::TaskPath;
 use deltaloop_config::{Law, RunConfig};
 use deltaloop_controller::ControllerSide;
 use deltaloop_law::ControllerParams;
