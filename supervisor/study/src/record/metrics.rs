@@ -295,7 +295,7 @@ impl TailPercentile {
 }
 
 /// Whether one-sided bin j of an n-point FFT at period `ts` (s) lies above [`HF_CUTOFF_HZ`]:
-/// j/(n·Ts) > f_c, decided on integers (j·10⁹ > f_c·n·Ts[ns]) so a bin exactly at the cutoff is out.
+/// j/(n·Ts) > f_c, decided on integers (j·10⁹ > f_c·n·Ts in ns) so a bin exactly at the cutoff is out.
 pub fn is_high_frequency(j: usize, n: usize, ts: f64) -> bool {
     let ts_ns = (ts * 1e9).round() as u128;
     (j as u128) * 1_000_000_000 > u128::from(HF_CUTOFF_HZ) * n as u128 * ts_ns

@@ -1,6 +1,6 @@
 //! Round-off sensitivity: how far a law's metrics move when its run is repeated with the plant
-//! started one ulp away (the round-off twins, [`crate::loops::inproc::run_twins`]: eight ways),
-//! and how many digits of each figure survive the largest of those moves.
+//! started one ulp away (the round-off twins, the supervisor's `loops::inproc::run_twins`: eight
+//! ways), and how many digits of each figure survive the largest of those moves.
 //!
 //! Why: the super-twisting term k₁|s|^½ sign(s) is not Lipschitz at s = 0, so a difference of
 //! 10⁻¹³ in s (round-off of the integrator, or of another implementation's operation order) can
