@@ -122,6 +122,9 @@ fn set_up_venv() -> PathBuf {
         let o = run_cmd(
             Command::new(&py)
                 .args(["-m", "pip", "install", "--disable-pip-version-check", "-q"])
+                // No byte-compiling of every installed module (dask, numpy, mujoco, …): a
+                // module is compiled when first imported. 36 -> 22 s for a fresh venv here.
+                .arg("--no-compile")
                 .args(args)
                 .current_dir(root()),
             "pip",
