@@ -68,6 +68,13 @@ def same(a, b):
     return a == b or (math.isnan(a) and math.isnan(b))
 
 
+def whole_rows(path):
+    """The rows of a csv file as dicts, a line at a time, without a last line a kill cut short
+    (no newline yet)."""
+    with open(path, newline="") as f:
+        yield from csv.DictReader(line for line in f if line.endswith("\n"))
+
+
 def check_timing(law, path, timing, truncated):
     """The timing channel against `<law>.timing.csv` (process runs), row for row by tick: every
     stamp and flag equal, and round_trip_ns = torque_rx_ns - state_pub_ns. A file cut short, or a
@@ -76,8 +83,7 @@ def check_timing(law, path, timing, truncated):
         if timing:
             sys.exit(f"{law}: {len(timing)} timing messages and no {path.name}")
         return
-    with open(path, newline="") as f:
-        want = {int(r["k"]): r for r in csv.DictReader(f)}
+    want = {int(r["k"]): r for r in whole_rows(path)}
     have = {m["k"]: m for _, m in timing}
     if len(have) != len(timing):
         sys.exit(f"{law}: a tick twice on the timing channel")
@@ -102,9 +108,8 @@ def main():
     path = Path(sys.argv[2]) if len(sys.argv) > 2 else run / "run.mcap"
     trace_path = Path(sys.argv[3]) if len(sys.argv) > 3 else run / "trace.csv"
     rows = defaultdict(list)
-    with open(trace_path, newline="") as f:
-        for r in csv.DictReader(f):
-            rows[r["law"]].append(r)
+    for r in whole_rows(trace_path):
+        rows[r["law"]].append(r)
     num = lambda s: None if s == "" else float(s)
     got = defaultdict(lambda: defaultdict(list))
     messages, truncated = decoded_messages(path)
