@@ -274,7 +274,7 @@ fn run_loop<P: Physics>(
         let k = side.tick();
         let Woke { deadline, wake } = clock.wake(k);
         let why = if stop_requested(&ports.control.1) {
-            Some("stopped by the supervisor (STOP)")
+            Some(STOPPED)
         } else if term.load(Ordering::Relaxed) {
             Some("stopped by SIGTERM")
         } else {
@@ -332,6 +332,16 @@ fn run_loop<P: Physics>(
                 Arrival::ReplyAfter(r.msg, r.stamp_ns.saturating_sub(deadline))
             }
             Some(r) => Arrival::Reply(r.msg),
+            // A controller that saw STOP before this tick's state stops without answering it:
+            // the silence is the supervisor's stop, not the controller's fault.
+            None if clock.mode != LoopMode::Realtime && stop_requested(&ports.control.1) => {
+                return Ok(Some(LoopStop {
+                    tick: k,
+                    cause: STOPPED.into(),
+                    kind: ControlKind::Stopped,
+                    last_deadline_ns: deadline,
+                }));
+            }
             None if clock.mode != LoopMode::Realtime => {
                 return Ok(Some(LoopStop {
                     tick: k,
@@ -544,6 +554,9 @@ fn wait_torque<P: Physics>(
         ipc::wait_event(listener, until_ns - now)?;
     }
 }
+
+/// The cause of a loop the supervisor ended.
+const STOPPED: &str = "stopped by the supervisor (STOP)";
 
 /// Whether STOP came on the supervisor's control service (the only one the plant reads; only the
 /// supervisor can publish there).
