@@ -332,24 +332,20 @@ fn run_loop<P: Physics>(
                 Arrival::ReplyAfter(r.msg, r.stamp_ns.saturating_sub(deadline))
             }
             Some(r) => Arrival::Reply(r.msg),
-            // A controller that saw STOP before this tick's state stops without answering it:
-            // the silence is the supervisor's stop, not the controller's fault.
-            None if clock.mode != LoopMode::Realtime && stop_requested(&ports.control.1) => {
-                return Ok(Some(LoopStop {
-                    tick: k,
-                    cause: STOPPED.into(),
-                    kind: ControlKind::Stopped,
-                    last_deadline_ns: deadline,
-                }));
-            }
             None if clock.mode != LoopMode::Realtime => {
+                // A controller that saw STOP before this tick's state stops without answering
+                // it: then the silence is the supervisor's stop, not the controller's fault.
+                let (cause, kind) = if stop_requested(&ports.control.1) {
+                    (STOPPED.into(), ControlKind::Stopped)
+                } else {
+                    let ms = cfg.loop_.silence_timeout_ms;
+                    let why = format!("controller silent: no torque for tick {k} within {ms} ms");
+                    (why, ControlKind::Fault)
+                };
                 return Ok(Some(LoopStop {
                     tick: k,
-                    cause: format!(
-                        "controller silent: no torque for tick {k} within {} ms",
-                        cfg.loop_.silence_timeout_ms
-                    ),
-                    kind: ControlKind::Fault,
+                    cause,
+                    kind,
                     last_deadline_ns: deadline,
                 }));
             }
