@@ -515,7 +515,7 @@ fn serve(
     let line = (!link.child.last_line.is_empty()).then(|| link.child.last_line.clone());
     drop(link);
     let id = hello.run_id.clone();
-    ipc::remove_dead_nodes_where(|n| n.ends_with(&id));
+    ipc::remove_dead_nodes_where(&|n| n.ends_with(&id));
     Ok((code, line))
 }
 

@@ -4,9 +4,7 @@
 //! controller `--law`: docs/protocol.md §11).
 
 use deltaloop_config::{Law, LoopMode};
-use deltaloop_transport::ipc::{self, Svc};
-use iceoryx2::node::NodeView;
-use iceoryx2::prelude::*;
+use deltaloop_transport::ipc;
 use std::path::PathBuf;
 
 /// The node name prefix of a run's plant: the plant publishes everything `top` reads, so a run
@@ -15,16 +13,10 @@ const PLANT_NODE: &str = "deltaloop-plant-";
 
 /// Run ids whose plant node is alive, sorted.
 pub fn live_run_ids() -> Vec<String> {
-    let mut ids = Vec::new();
-    let _ = Node::<Svc>::list(&ipc::config(), |state| {
-        if let NodeState::Alive(view) = state
-            && let Some(d) = view.details()
-            && let Some(rid) = d.name().to_string().strip_prefix(PLANT_NODE)
-        {
-            ids.push(rid.to_string());
-        }
-        CallbackProgression::Continue
-    });
+    let mut ids: Vec<String> = ipc::alive_node_names()
+        .into_iter()
+        .filter_map(|n| n.strip_prefix(PLANT_NODE).map(str::to_string))
+        .collect();
     ids.sort();
     ids.dedup();
     ids
@@ -39,7 +31,7 @@ pub fn is_live(run_id: &str) -> bool {
 /// run's own plant, controller and supervisor, which the supervisor cleans and reports itself);
 /// returns their names.
 pub fn remove_dead_observers(run_id: &str) -> Vec<String> {
-    ipc::remove_dead_nodes_where(|name| is_observer_of(name, run_id))
+    ipc::remove_dead_nodes_where(&|name| is_observer_of(name, run_id))
 }
 
 /// Whether node `name` belongs to run `run_id` without being one of its loop processes.

@@ -44,8 +44,7 @@ struct Watch {
 }
 
 /// Why attaching failed, in words the user can act on.
-fn attach_error(run_id: &str, what: &str, e: impl std::fmt::Debug) -> anyhow::Error {
-    let detail = format!("{e:?}");
+fn attach_error(run_id: &str, what: &str, detail: &str) -> anyhow::Error {
     if detail.contains("ExceedsMax") {
         anyhow!(
             "cannot watch run {run_id}: its spare observer slot on `{what}` is taken (another `deltaloop top` or observer is attached; the run keeps one spare slot)"
@@ -67,26 +66,16 @@ impl Watch {
         let node = ipc::node("top", run_id).map_err(|e| {
             anyhow!("cannot watch run {run_id}: {e} (the run's spare node is taken?)")
         })?;
-        macro_rules! sub {
-            ($t:ty, $what:expr, $buf:expr) => {{
-                let svc = node
-                    .service_builder(&ipc::service_name(run_id, $what)?)
-                    .publish_subscribe::<$t>()
-                    .enable_safe_overflow(true)
-                    .open()
-                    .map_err(|e| attach_error(run_id, $what, e))?;
-                svc.subscriber_builder()
-                    .buffer_size($buf)
-                    .create()
-                    .map_err(|e| attach_error(run_id, $what, e))?
-            }};
-        }
+        let fail =
+            |what: &'static str| move |e: ipc::IpcError| attach_error(run_id, what, &e.detail);
         Ok(Self {
-            telemetry: sub!(TelemetryMsg, "telemetry", OBSERVER_BUFFER),
-            state: sub!(StateMsg, "state", OBSERVER_BUFFER),
-            control: sub!(ControlMsg, ipc::control_service(Sender::Plant), 64),
+            telemetry: ipc::observe_telemetry(&node, run_id, OBSERVER_BUFFER)
+                .map_err(fail("telemetry"))?,
+            state: ipc::observe_state(&node, run_id, OBSERVER_BUFFER).map_err(fail("state"))?,
+            control: ipc::observe_control(&node, run_id, Sender::Plant, 64)
+                .map_err(fail(ipc::control_service(Sender::Plant)))?,
             torque: if replies {
-                Some(sub!(TorqueMsg, "torque", OBSERVER_BUFFER))
+                Some(ipc::observe_torque(&node, run_id, OBSERVER_BUFFER).map_err(fail("torque"))?)
             } else {
                 None
             },
