@@ -117,6 +117,17 @@ pub fn node(role: &str, run_id: &str) -> Result<Node<Svc>, IpcError> {
         .ipc(format!("create node for {role}"))
 }
 
+/// A run id unique on this machine: pid, a per-process counter and the clock.
+pub fn new_run_id() -> String {
+    static N: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    format!(
+        "{:x}-{:x}-{:x}",
+        std::process::id(),
+        N.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
+        crate::rt::now_ns() & 0xffff_ffff
+    )
+}
+
 /// `deltaloop/<run id>/<what>`.
 pub fn service_name(run_id: &str, what: &str) -> Result<ServiceName, IpcError> {
     ServiceName::new(&format!("deltaloop/{run_id}/{what}")).ipc(format!("service name {what}"))

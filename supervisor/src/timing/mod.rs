@@ -16,6 +16,7 @@ pub use tick_csv::{TIMING_COLUMNS, TimingCsv, timing_cells};
 use crate::timing::timeline::Timeline;
 use anyhow::{Context, Result};
 use deltaloop_bridge::seal::LinkReport;
+pub use deltaloop_study::latency_histogram;
 use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
 use hdrhistogram::Histogram;
 use hlog::HlogWriter;
@@ -39,7 +40,7 @@ impl Dist {
         Self {
             name,
             what,
-            hist: Histogram::new_with_bounds(1, 100_000_000_000, 3).expect("valid bounds"),
+            hist: latency_histogram(),
         }
     }
 
@@ -339,11 +340,6 @@ pub fn link_rtt_ns(
     };
     let residence = q.t_publish_ns.saturating_sub(from);
     round_trip_ns(m).map(|rt| rt.saturating_sub(residence))
-}
-
-/// An empty histogram of ns with the bounds and precision of every loop timing histogram.
-pub fn latency_histogram() -> Histogram<u64> {
-    Dist::new("", "").hist
 }
 
 impl Timing {

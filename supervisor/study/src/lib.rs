@@ -12,6 +12,12 @@ pub mod record;
 pub mod reference;
 pub mod scenario;
 
+/// An empty latency histogram, ns: 1 ns to 100 s at 3 significant digits, the bounds of every
+/// latency and timing histogram deltaloop keeps.
+pub fn latency_histogram() -> hdrhistogram::Histogram<u64> {
+    hdrhistogram::Histogram::new_with_bounds(1, 100_000_000_000, 3).expect("valid bounds")
+}
+
 use crate::reference::JointReference;
 use crate::scenario::TaskPath;
 use deltaloop_config::{Law, RunConfig};

@@ -30,7 +30,6 @@ use handshake::{Observer, handshake, stopped_before_start};
 use observe::{Observation, observe};
 use spawn::{Pair, own_peak_rss_kib};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 /// What one law's process run produced.
 pub struct ProcessRun {
@@ -61,16 +60,7 @@ pub fn exe_dir() -> Result<PathBuf> {
     Ok(exe.parent().map(Path::to_path_buf).unwrap_or_default())
 }
 
-/// A run id unique on this machine: pid, a per-process counter and the clock.
-pub fn new_run_id() -> String {
-    static N: AtomicU64 = AtomicU64::new(0);
-    format!(
-        "{:x}-{:x}-{:x}",
-        std::process::id(),
-        N.fetch_add(1, Ordering::Relaxed),
-        rt::now_ns() & 0xffff_ffff
-    )
-}
+pub use deltaloop_transport::ipc::new_run_id;
 
 /// A callback on the supervisor's finished ticks: `deltaloop soak` watches its own run through it
 /// (progress and per-minute summaries) without a second observer on the loop, so the run's spare

@@ -1,7 +1,7 @@
 //! `deltaloop bench loop`: the loop against the transport's own cost and the machine's limit,
 //! measured in one run.
 //!
-//! Lockstep: (0)–(4) the transport alone ([`baseline`]: the tick pair in one thread, in two threads
+//! Lockstep: (0)–(4) the transport alone (the `deltaloop-baseline` crate: the tick pair in one thread, in two threads
 //! through shared memory, over iceoryx2 and over a Unix socket pair, nothing recorded, the median
 //! of several interleaved rounds), then
 //! the product's loops with the supervisor recording every tick: (c) inproc and (a) the real
@@ -10,13 +10,13 @@
 //! wake-up limit ([`machine`]).
 //! All of them step the same plant and controller tick on the same scenario.
 
-mod baseline;
 mod machine;
 mod transport;
 
 use transport::*;
 
-pub use baseline::{Handoff, iox_controller, uds_controller};
+use deltaloop_baseline as baseline;
+pub use deltaloop_baseline::{Handoff, iox_controller, uds_controller};
 
 use crate::loops::inproc;
 use crate::loops::lawrun::Keep;

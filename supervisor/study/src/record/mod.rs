@@ -313,17 +313,90 @@ pub const OPEN_TICKS: usize = 64;
 /// Collects ticks, applies the divergence rule and streams finished ticks to a [`TickSink`].
 /// Holds [`OPEN_TICKS`] ticks at most, whatever the run's length.
 pub struct Recorder<'a, S: TickSink> {
+    ticks: OpenTicks<'a>,
+    sink: S,
+}
+
+/// The recorder's state and rules, apart from its sink: its methods are not generic, so they are
+/// compiled (and optimised) here once, not again in each crate that names a sink type.
+struct OpenTicks<'a> {
     reference: &'a JointReference,
     m_bar: f64,
     open: VecDeque<(TickRecord, RefRow)>,
     last_k: Option<u64>,
     end: RunEnd,
-    sink: S,
 }
 
 impl<'a, S: TickSink> Recorder<'a, S> {
     /// A recorder for `law` over `reference`; `m_bar` (kg m²) is the M̄ of the TDE truth.
     pub fn new(law: Law, reference: &'a JointReference, m_bar: f64, sink: S) -> Self {
+        Self {
+            ticks: OpenTicks::new(law, reference, m_bar),
+            sink,
+        }
+    }
+
+    /// Records tick k: the state the plant published and the controller's reply to it (None: it
+    /// never answered this state). Returns false, having marked the run diverged, if the tick
+    /// breaks the divergence rule; the caller must stop. Call [`Recorder::applied`] next.
+    pub fn tick(&mut self, state: &StateMsg, reply: Option<&TorqueMsg>) -> bool {
+        self.ticks.tick(state, reply, &mut self.sink)
+    }
+
+    /// Where the finished ticks go.
+    pub fn sink(&self) -> &S {
+        &self.sink
+    }
+
+    /// Where the finished ticks go.
+    pub fn sink_mut(&mut self) -> &mut S {
+        &mut self.sink
+    }
+
+    /// `n` replies came for ticks that already had one (the first was kept).
+    pub fn duplicate_replies(&mut self, n: u64) {
+        self.ticks.end.duplicate_replies += n;
+    }
+
+    /// Tick k never reached the supervisor (its queues overflowed while it was not draining): it
+    /// is counted, and has no row.
+    pub fn lost(&mut self, k: u64) {
+        self.ticks.lost(k);
+    }
+
+    /// Marks what the plant did over the last recorded tick, from its telemetry (None: not seen,
+    /// counted: the tick's fates are unknown).
+    pub fn applied(&mut self, tel: Option<&TelemetryMsg>) {
+        self.ticks.applied(tel);
+    }
+
+    /// The plant failed while integrating the last recorded tick (e.g. left the workspace).
+    pub fn plant_failed(&mut self, reason: String) {
+        self.ticks.plant_failed(reason);
+    }
+
+    /// The run was interrupted by a signal after the last recorded tick.
+    pub fn interrupt(&mut self) {
+        self.ticks.interrupt();
+    }
+
+    /// The loop faulted at `fault.tick`. It ends the run as [`Outcome::Faulted`] unless something
+    /// else ended the trace (divergence, an interrupt), before or after; the fault is kept either
+    /// way.
+    pub fn fault(&mut self, fault: Fault) {
+        self.ticks.fault(fault);
+    }
+
+    /// Takes the state after the last tick (N + 1, or wherever the plant stopped), if the plant
+    /// got there, closes every open tick and returns how the run ended, with the sink.
+    pub fn finish(mut self, after: Option<&StateMsg>) -> (RunEnd, S) {
+        let end = self.ticks.finish(after, &mut self.sink);
+        (end, self.sink)
+    }
+}
+
+impl<'a> OpenTicks<'a> {
+    fn new(law: Law, reference: &'a JointReference, m_bar: f64) -> Self {
         Self {
             reference,
             m_bar,
@@ -341,14 +414,15 @@ impl<'a, S: TickSink> Recorder<'a, S> {
                 outcome: Outcome::Completed,
                 fault: None,
             },
-            sink,
         }
     }
 
-    /// Records tick k: the state the plant published and the controller's reply to it (None: it
-    /// never answered this state). Returns false, having marked the run diverged, if the tick
-    /// breaks the divergence rule; the caller must stop. Call [`Recorder::applied`] next.
-    pub fn tick(&mut self, state: &StateMsg, reply: Option<&TorqueMsg>) -> bool {
+    fn tick(
+        &mut self,
+        state: &StateMsg,
+        reply: Option<&TorqueMsg>,
+        sink: &mut dyn TickSink,
+    ) -> bool {
         let sample = measured(state);
         self.hold_previous(sample.k, sample.tau_applied);
         // A reply for tick k says how many older states the controller skipped to reach it.
@@ -385,7 +459,7 @@ impl<'a, S: TickSink> Recorder<'a, S> {
             arrival_ns: None,
             telemetry: true,
         };
-        self.push(record, row);
+        self.push(record, row, sink);
         let e = row.joint.q - sample.q;
         let reason = if !(sample
             .q
@@ -417,18 +491,18 @@ impl<'a, S: TickSink> Recorder<'a, S> {
     }
 
     /// Opens a tick; the oldest open tick goes to the sink once more than [`OPEN_TICKS`] are open.
-    fn push(&mut self, record: TickRecord, row: RefRow) {
+    fn push(&mut self, record: TickRecord, row: RefRow, sink: &mut dyn TickSink) {
         self.last_k = Some(record.sample.k);
         self.end.records += 1;
         self.open.push_back((record, row));
         if self.open.len() > OPEN_TICKS {
-            self.close_oldest(None);
+            self.close_oldest(None, sink);
         }
     }
 
     /// Hands the oldest open tick to the sink, with its TDE truth from the tick after it (the
     /// next open one, else `after`).
-    fn close_oldest(&mut self, after: Option<&(PlantSample, Vec3)>) {
+    fn close_oldest(&mut self, after: Option<&(PlantSample, Vec3)>, sink: &mut dyn TickSink) {
         let Some((r, row)) = self.open.pop_front() else {
             return;
         };
@@ -441,7 +515,7 @@ impl<'a, S: TickSink> Recorder<'a, S> {
         };
         let ts = self.reference.ts;
         let n_true = next.map(|(qd1, tau1)| (qd1 - r.qd_true) / ts - tau1 / self.m_bar);
-        self.sink.take(&r, &row, n_true);
+        sink.take(&r, &row, n_true);
     }
 
     /// A tick without a reply counts the torque the drives held over it: τᵃ of the next state
@@ -455,31 +529,16 @@ impl<'a, S: TickSink> Recorder<'a, S> {
         }
     }
 
-    /// Where the finished ticks go.
-    pub fn sink(&self) -> &S {
-        &self.sink
-    }
-
-    /// Where the finished ticks go.
-    pub fn sink_mut(&mut self) -> &mut S {
-        &mut self.sink
-    }
-
-    /// `n` replies came for ticks that already had one (the first was kept).
-    pub fn duplicate_replies(&mut self, n: u64) {
-        self.end.duplicate_replies += n;
-    }
-
     /// Tick k never reached the supervisor (its queues overflowed while it was not draining): it
     /// is counted, and has no row.
-    pub fn lost(&mut self, k: u64) {
+    fn lost(&mut self, k: u64) {
         self.end.lost_ticks += 1;
         self.end.first_lost.get_or_insert(k);
     }
 
     /// Marks what the plant did over the last recorded tick, from its telemetry (None: not seen,
     /// counted: the tick's fates are unknown).
-    pub fn applied(&mut self, tel: Option<&TelemetryMsg>) {
+    fn applied(&mut self, tel: Option<&TelemetryMsg>) {
         let flags = tel.map_or(0, |m| m.flags);
         if let Some((r, _)) = self.open.back_mut() {
             r.telemetry = tel.is_some();
@@ -508,13 +567,13 @@ impl<'a, S: TickSink> Recorder<'a, S> {
     }
 
     /// The plant failed while integrating the last recorded tick (e.g. left the workspace).
-    pub fn plant_failed(&mut self, reason: String) {
+    fn plant_failed(&mut self, reason: String) {
         let tick = self.next_tick();
         self.end.outcome = Outcome::Diverged { tick, reason };
     }
 
     /// The run was interrupted by a signal after the last recorded tick.
-    pub fn interrupt(&mut self) {
+    fn interrupt(&mut self) {
         let tick = self.next_tick();
         self.end.outcome = Outcome::Interrupted { tick };
     }
@@ -522,7 +581,7 @@ impl<'a, S: TickSink> Recorder<'a, S> {
     /// The loop faulted at `fault.tick`. It ends the run as [`Outcome::Faulted`] unless something
     /// else ended the trace (divergence, an interrupt), before or after; the fault is kept either
     /// way.
-    pub fn fault(&mut self, fault: Fault) {
+    fn fault(&mut self, fault: Fault) {
         self.end.fault = Some(fault);
         if self.end.outcome == Outcome::Completed {
             self.end.outcome = Outcome::Faulted;
@@ -531,21 +590,21 @@ impl<'a, S: TickSink> Recorder<'a, S> {
 
     /// Takes the state after the last tick (N + 1, or wherever the plant stopped), if the plant
     /// got there, closes every open tick and returns how the run ended, with the sink.
-    pub fn finish(mut self, after: Option<&StateMsg>) -> (RunEnd, S) {
+    fn finish(mut self, after: Option<&StateMsg>, sink: &mut dyn TickSink) -> RunEnd {
         let after = after.map(|s| {
             let sample = measured(s);
             self.hold_previous(sample.k, sample.tau_applied);
             (sample, Vec3::from(s.qd_true))
         });
         while !self.open.is_empty() {
-            self.close_oldest(after.as_ref());
+            self.close_oldest(after.as_ref(), sink);
         }
         if self.end.outcome == Outcome::Completed
             && (self.end.first_lost.is_some() || self.end.no_telemetry > 0)
         {
             self.end.outcome = Outcome::LostData;
         }
-        (self.end, self.sink)
+        self.end
     }
 }
 
@@ -616,8 +675,8 @@ mod tests {
     fn end(outcome: Outcome, fault: Option<Fault>) -> RunEnd {
         let r = reference();
         let mut rec = Recorder::new(Law::Tdc, &r, 1.0, Ticks::new());
-        rec.end.outcome = outcome;
-        rec.end.fault = fault;
+        rec.ticks.end.outcome = outcome;
+        rec.ticks.end.fault = fault;
         rec.finish(None).0
     }
 
@@ -848,7 +907,7 @@ mod tests {
             s.qd_true = qd(k);
             assert!(rec.tick(&s, Some(&reply(k, 0.0, 0))));
             rec.applied(None);
-            assert!(rec.open.len() <= OPEN_TICKS);
+            assert!(rec.ticks.open.len() <= OPEN_TICKS);
         }
         let mut last = state(&r, n, 0.0, n as f64);
         last.qd_true = qd(n);

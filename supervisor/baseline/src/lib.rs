@@ -8,12 +8,16 @@
 //! two CPUs. (5) sends both messages through iceoryx2 and takes them back in one thread: what
 //! iceoryx2's own code costs per cycle, with no second CPU and no cache line moving between CPUs.
 //! (2) costs about (5) plus (0): the library's instructions plus the lines the CPUs trade.
+//!
+//! A crate of its own so that these loops are optimised as the loop processes are, whatever
+//! the supervisor's own level (`Cargo.toml`): a baseline built with less optimisation than the
+//! code it is compared with would not measure the transport.
 
-use crate::study::Study;
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, Priority, RunConfig};
 use deltaloop_controller::ControllerSide;
 use deltaloop_plant::Arrival;
+use deltaloop_study::{Study, latency_histogram};
 use deltaloop_transport::ipc::{self, IpcContext};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{StateMsg, TorqueMsg};
@@ -67,7 +71,7 @@ fn drive(
 ) -> Result<Measured> {
     let mut plant = study.plant_side()?;
     let ticks = study.reference.n as u64;
-    let mut hist = crate::timing::latency_histogram();
+    let mut hist = latency_histogram();
     let t0 = Instant::now();
     for k in 0..=ticks {
         let sent_ns = rt::now_ns();
@@ -205,7 +209,7 @@ pub enum Handoff {
 /// product's iceoryx2 service and taken back from a subscriber of the same thread: the library's
 /// own code per cycle (loan, copy, deliver, receive, release, reclaim), nothing between CPUs.
 pub fn iox_one_thread(study: &Study, cpu: Option<usize>) -> Result<Measured> {
-    let run_id = crate::loops::procs::new_run_id();
+    let run_id = ipc::new_run_id();
     let node = ipc::node("bench-one-thread", &run_id)?;
     let state = ipc::state(&node, &run_id)?;
     let torque = ipc::torque(&node, &run_id)?;
@@ -319,7 +323,7 @@ pub fn iox_lockstep(
     ctrl_cpu: Option<usize>,
     handoff: Handoff,
 ) -> Result<Measured> {
-    let run_id = crate::loops::procs::new_run_id();
+    let run_id = ipc::new_run_id();
     let node = ipc::node("bench-plant", &run_id)?;
     let state = ipc::state(&node, &run_id)?
         .publisher_builder()
@@ -505,7 +509,7 @@ mod tests {
     /// loop` stopped with "iox baseline: reply for tick 18446744073709551615 at tick 0".
     #[test]
     fn regression_a_late_probe_echo_is_not_taken_for_a_reply() {
-        let run_id = crate::loops::procs::new_run_id();
+        let run_id = ipc::new_run_id();
         let node = ipc::node("bench-test", &run_id).unwrap();
         let torque = ipc::torque(&node, &run_id).unwrap();
         let tx = torque.publisher_builder().create().unwrap();
