@@ -524,67 +524,6 @@ pub fn plant_loop(node: &Node<Svc>, run_id: &str, buffer: usize) -> Result<Plant
     ))
 }
 
-/// An observer's subscriber on the existing service `what` of run `run_id` (opened, never
-/// created; it must have safe overflow, so the observer can never make the loop's publisher wait),
-/// `buffer` deep. The error's `detail` is iceoryx2's (`DoesNotExist`, `ExceedsMax…`).
-///
-/// The observers' ports are opened here, with concrete payloads, for the build: iceoryx2's
-/// `open` instantiates the TOML reading of a service's static config, which each crate that
-/// calls it with a generic payload compiles again (without shared generics in release).
-fn observe<T: ZeroCopySend + Debug + Copy + 'static>(
-    node: &Node<Svc>,
-    run_id: &str,
-    what: &str,
-    buffer: usize,
-) -> Result<iceoryx2::port::subscriber::Subscriber<Svc, T, ()>, IpcError> {
-    node.service_builder(&service_name(run_id, what)?)
-        .publish_subscribe::<T>()
-        .enable_safe_overflow(true)
-        .open()
-        .ipc(format!("open service {what}"))?
-        .subscriber_builder()
-        .buffer_size(buffer)
-        .create()
-        .ipc(format!("subscriber on {what}"))
-}
-
-/// [`observe`] on `state`.
-pub fn observe_state(
-    node: &Node<Svc>,
-    run_id: &str,
-    buffer: usize,
-) -> Result<iceoryx2::port::subscriber::Subscriber<Svc, StateMsg, ()>, IpcError> {
-    observe(node, run_id, "state", buffer)
-}
-
-/// [`observe`] on `torque`.
-pub fn observe_torque(
-    node: &Node<Svc>,
-    run_id: &str,
-    buffer: usize,
-) -> Result<iceoryx2::port::subscriber::Subscriber<Svc, TorqueMsg, ()>, IpcError> {
-    observe(node, run_id, "torque", buffer)
-}
-
-/// [`observe`] on `telemetry`.
-pub fn observe_telemetry(
-    node: &Node<Svc>,
-    run_id: &str,
-    buffer: usize,
-) -> Result<iceoryx2::port::subscriber::Subscriber<Svc, TelemetryMsg, ()>, IpcError> {
-    observe(node, run_id, "telemetry", buffer)
-}
-
-/// [`observe`] on the control service `from` publishes on ([`control_service`]).
-pub fn observe_control(
-    node: &Node<Svc>,
-    run_id: &str,
-    from: Sender,
-    buffer: usize,
-) -> Result<iceoryx2::port::subscriber::Subscriber<Svc, ControlMsg, ()>, IpcError> {
-    observe(node, run_id, control_service(from), buffer)
-}
-
 /// Free space of the shared-memory file system iceoryx2 uses (`/dev/shm`), bytes; None if it
 /// cannot be read.
 pub fn shm_free_bytes() -> Option<u64> {

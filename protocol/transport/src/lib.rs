@@ -1,5 +1,5 @@
 //! How the deltaloop processes talk: the wire types ([`wire`]), the iceoryx2 services of a run
-//! ([`ipc`]), the real-time helpers both loop processes use ([`rt`]), their exit codes
+//! ([`ipc`]) and an observer's ports on them ([`observe`]), the real-time helpers both loop processes use ([`rt`]), their exit codes
 //! ([`exit`]) and, with the cargo feature `args`, their command line (`args`). The config schema lives
 //! apart, in `deltaloop-config`; this crate knows nothing of scenarios or physics.
 
@@ -7,5 +7,6 @@
 pub mod args;
 pub mod exit;
 pub mod ipc;
+pub mod observe;
 pub mod rt;
 pub mod wire;

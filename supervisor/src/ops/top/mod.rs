@@ -17,6 +17,7 @@ use crate::timing::live::LiveStats;
 use anyhow::{Context, Result, anyhow, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::ipc::{self, IpcContext, OBSERVER_BUFFER, Svc};
+use deltaloop_transport::observe;
 use deltaloop_transport::wire::{
     self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
 };
@@ -69,13 +70,13 @@ impl Watch {
         let fail =
             |what: &'static str| move |e: ipc::IpcError| attach_error(run_id, what, &e.detail);
         Ok(Self {
-            telemetry: ipc::observe_telemetry(&node, run_id, OBSERVER_BUFFER)
+            telemetry: observe::telemetry(&node, run_id, OBSERVER_BUFFER)
                 .map_err(fail("telemetry"))?,
-            state: ipc::observe_state(&node, run_id, OBSERVER_BUFFER).map_err(fail("state"))?,
-            control: ipc::observe_control(&node, run_id, Sender::Plant, 64)
+            state: observe::state(&node, run_id, OBSERVER_BUFFER).map_err(fail("state"))?,
+            control: observe::control(&node, run_id, Sender::Plant, 64)
                 .map_err(fail(ipc::control_service(Sender::Plant)))?,
             torque: if replies {
-                Some(ipc::observe_torque(&node, run_id, OBSERVER_BUFFER).map_err(fail("torque"))?)
+                Some(observe::torque(&node, run_id, OBSERVER_BUFFER).map_err(fail("torque"))?)
             } else {
                 None
             },
