@@ -4,8 +4,8 @@
 //!
 //! The supervisor re-exports this crate as its bottom layers (`study`, `record`). It is a crate of
 //! its own because this is the code every tick of every run goes through (the reference row, the
-//! recorder, the metrics): here it is optimised in test builds too, while the rest of the
-//! supervisor, which runs once per command, is not (`Cargo.toml`, the dev profile).
+//! recorder, the metrics): here it is optimised in test and release builds, while the rest of the
+//! supervisor, which runs once per command, is not (`Cargo.toml`, the dev and release profiles).
 
 pub mod analysis;
 pub mod record;
