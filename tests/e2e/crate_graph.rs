@@ -153,6 +153,16 @@ fn bridge_is_lean_and_zenoh_is_opt_in() {
     assert_none_of("deltaloop", &["zenoh"]);
 }
 
+/// The transport baselines of `bench loop` step the two ticks over bare transports: they need
+/// neither the link nor the figures, which would put those crates on their build path.
+#[test]
+fn baselines_need_no_link_and_no_figures() {
+    assert_none_of(
+        "deltaloop-baseline",
+        &["deltaloop-bridge", "deltaloop-plot", "deltaloop-supervisor"],
+    );
+}
+
 /// The module a source file is (`a::b::c` from `src/a/b/c.rs` or `src/a/b/c/mod.rs`), and the
 /// parent module its siblings share.
 fn module_of(src: &std::path::Path, file: &std::path::Path) -> Vec<String> {

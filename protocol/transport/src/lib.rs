@@ -1,5 +1,6 @@
 //! How the deltaloop processes talk: the wire types ([`wire`]), the iceoryx2 services of a run
-//! ([`ipc`]) and an observer's ports on them ([`observe`]), the real-time helpers both loop processes use ([`rt`]), their exit codes
+//! ([`ipc`]) and an observer's ports on them ([`observe`]), the real-time helpers both loop
+//! processes use ([`rt`]), their exit codes
 //! ([`exit`]) and, with the cargo feature `args`, their command line (`args`). The config schema lives
 //! apart, in `deltaloop-config`; this crate knows nothing of scenarios or physics.
 

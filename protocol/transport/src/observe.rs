@@ -14,9 +14,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use std::fmt::Debug;
 
-/// An observer's subscriber on the existing service `what` of run `run_id` (opened, never
-/// created; it must have safe overflow, so the observer can never make the loop's publisher wait),
-/// `buffer` deep. The error's `detail` is iceoryx2's (`DoesNotExist`, `ExceedsMax…`).
+/// An observer's subscriber on the existing service `what` of run `run_id`, `buffer` deep.
 fn subscribe<T: ZeroCopySend + Debug + Copy + 'static>(
     node: &Node<Svc>,
     run_id: &str,

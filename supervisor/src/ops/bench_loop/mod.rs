@@ -1,7 +1,8 @@
 //! `deltaloop bench loop`: the loop against the transport's own cost and the machine's limit,
 //! measured in one run.
 //!
-//! Lockstep: (0)–(4) the transport alone (the `deltaloop-baseline` crate: the tick pair in one thread, in two threads
+//! Lockstep: (0)–(4) the transport alone (the `deltaloop-baseline` crate: the tick pair in one
+//! thread, in two threads
 //! through shared memory, over iceoryx2 and over a Unix socket pair, nothing recorded, the median
 //! of several interleaved rounds), then
 //! the product's loops with the supervisor recording every tick: (c) inproc and (a) the real
