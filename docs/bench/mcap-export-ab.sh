@@ -3,12 +3,13 @@
 # realtime run (S1 + 5 s hold, tdc, with --mcap), then `deltaloop export --mcap` of it by each
 # binary, interleaved N times (default 7); the median wall time per tick of each, their ratio, and
 # whether the two exports are byte-identical. Usage:
-#   docs/bench/mcap-export-ab.sh BASELINE_BINARY [N]     (release builds; this one is target/release)
+#   docs/bench/mcap-export-ab.sh BASELINE_BINARY [N]     (release builds; this one is
+#   target/release/deltaloop, or the binary in $THIS)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 base=${1:?usage: mcap-export-ab.sh BASELINE_BINARY [N]}
 n=${2:-7}
-bin=./target/release/deltaloop
+bin=${THIS:-./target/release/deltaloop}
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 echo "commit $(git rev-parse --short HEAD), $(date -u +%FT%TZ), $(nproc) CPUs, baseline $base"

@@ -163,6 +163,42 @@ fn baselines_need_no_link_and_no_figures() {
     );
 }
 
+/// What the recording supervisor encodes every tick (the MCAP file's scene, joint states and
+/// writer) is a crate of its own, so that it is optimised while the supervisor is built at
+/// opt-level 0: it needs neither the supervisor nor the loop's transport.
+#[test]
+fn mcap_messages_need_no_supervisor() {
+    assert_none_of(
+        "deltaloop-mcap",
+        &["deltaloop-supervisor", "deltaloop-transport", "deltaloop-plot"],
+    );
+}
+
+/// Regression: the supervisor at opt-level 0 in release (9bb8da4) took the MCAP scene with it,
+/// and writing a tick's messages went from about 30 to 140 µs of the recording supervisor's CPU.
+/// The crates whose code runs every tick keep the release profile's optimisation: no
+/// per-package override lowers it.
+#[test]
+fn per_tick_crates_stay_optimised_in_release() {
+    let manifest = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/Cargo.toml"))
+        .expect("the workspace manifest");
+    for krate in [
+        "deltaloop-mcap",
+        "deltaloop-study",
+        "deltaloop-baseline",
+        "deltaloop-plant",
+        "deltaloop-controller",
+        "deltaloop-peer",
+        "iceoryx2",
+    ] {
+        let section = format!("[profile.release.package.{krate}]");
+        assert!(
+            !manifest.contains(&section),
+            "{section} in Cargo.toml: {krate} runs every tick and keeps opt-level 3"
+        );
+    }
+}
+
 /// The module a source file is (`a::b::c` from `src/a/b/c.rs` or `src/a/b/c/mod.rs`), and the
 /// parent module its siblings share.
 fn module_of(src: &std::path::Path, file: &std::path::Path) -> Vec<String> {

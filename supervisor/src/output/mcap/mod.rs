@@ -18,8 +18,6 @@
 //! and (in an export) the run's `config.toml` and `summary.json` as attachments. The file is
 //! written a chunk at a time (LZ4), a row at a time: memory does not grow with the run.
 
-mod cdr;
-mod scene;
 #[cfg(feature = "foxglove")]
 pub mod server;
 mod tick;
@@ -31,13 +29,14 @@ use crate::study::reference::RefRow;
 use crate::timing::TIMING_COLUMNS;
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, RunConfig};
+use deltaloop_mcap::cdr;
+use deltaloop_mcap::file::McapFile;
+use deltaloop_mcap::scene::{self, Painter};
 use deltaloop_model::Vec3;
-use mcap::records::{MessageHeader, Metadata};
-use scene::Painter;
+use mcap::records::Metadata;
 use serde::Serialize;
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
-use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use tick::{Columns, Control, Row, Timing};
 
@@ -107,7 +106,7 @@ pub trait Bus {
 
 /// The file being written: its channels, and a message counter per channel.
 pub struct Out {
-    w: mcap::Writer<BufWriter<std::fs::File>>,
+    w: McapFile,
     counts: BTreeMap<u16, (String, u32)>,
     schemas: BTreeMap<&'static str, u16>,
 }
@@ -115,16 +114,8 @@ pub struct Out {
 impl Out {
     /// A new file at `path`, chunked and LZ4-compressed.
     fn create(path: &Path) -> Result<Self> {
-        let file = std::fs::File::create(path)
+        let w = McapFile::create(path, concat!("deltaloop ", env!("CARGO_PKG_VERSION")))
             .with_context(|| format!("cannot create {}", path.display()))?;
-        // 4 MiB chunks: a day-long soak's chunk index (what the writer keeps in memory for the
-        // summary) stays in the megabytes; a run killed outright loses the chunk being filled.
-        let w = mcap::WriteOptions::new()
-            .compression(Some(mcap::Compression::Lz4))
-            .chunk_size(Some(4 << 20))
-            .profile("ros2")
-            .library(concat!("deltaloop ", env!("CARGO_PKG_VERSION")))
-            .create(BufWriter::new(file))?;
         Ok(Out {
             w,
             counts: BTreeMap::new(),
@@ -144,9 +135,7 @@ impl Bus for Out {
     }
 
     fn channel(&mut self, schema: u16, topic: &str, encoding: &str) -> Result<u16> {
-        let id = self
-            .w
-            .add_channel(schema, topic, encoding, &BTreeMap::new())?;
+        let id = self.w.add_channel(schema, topic, encoding)?;
         self.counts.insert(id, (topic.to_string(), 0));
         Ok(id)
     }
@@ -156,15 +145,7 @@ impl Bus for Out {
             c.1 += 1;
             c.1
         });
-        self.w.write_to_known_channel(
-            &MessageHeader {
-                channel_id: channel,
-                sequence: seq,
-                log_time: t_ns,
-                publish_time: t_ns,
-            },
-            data,
-        )?;
+        self.w.write(channel, seq, t_ns, data)?;
         Ok(())
     }
 }
@@ -237,7 +218,7 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
         ("summary.json", "application/json"),
     ] {
         let data = std::fs::read(dir.join(name)).unwrap_or_default();
-        out.w.attach(&mcap::Attachment {
+        out.w.writer().attach(&mcap::Attachment {
             log_time: 0,
             create_time: 0,
             name: name.into(),
@@ -245,7 +226,7 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
             data: data.into(),
         })?;
     }
-    out.w.write_metadata(&Metadata {
+    out.w.writer().write_metadata(&Metadata {
         name: "deltaloop".into(),
         metadata: BTreeMap::from([
             ("scenario".into(), cfg.name.clone()),
@@ -260,7 +241,7 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
             ),
         ]),
     })?;
-    out.w.finish()?;
+    out.w.writer().finish()?;
     drop(out.w);
     let bytes = std::fs::metadata(&path).map_or(0, |m| m.len());
     let messages = out
@@ -454,7 +435,7 @@ impl Live {
             metrics,
             self.ts_ns,
         )?;
-        self.out.w.finish()?;
+        self.out.w.writer().finish()?;
         Ok(())
     }
 }
