@@ -170,7 +170,11 @@ fn baselines_need_no_link_and_no_figures() {
 fn mcap_messages_need_no_supervisor() {
     assert_none_of(
         "deltaloop-mcap",
-        &["deltaloop-supervisor", "deltaloop-transport", "deltaloop-plot"],
+        &[
+            "deltaloop-supervisor",
+            "deltaloop-transport",
+            "deltaloop-plot",
+        ],
     );
 }
 
