@@ -31,6 +31,7 @@ from .wire import ControlMsg, RefSample, StateMsg, TorqueMsg
 
 from .peer import (  # noqa: F401 - re-exported: the constants were first defined here
     EXIT_FAULT,
+    EXIT_PEER_SILENT,
     EXIT_SETUP,
     EXIT_STOPPED,
     HANDSHAKE_TIMEOUT_NS,
@@ -170,7 +171,7 @@ class Controller(Peer):
                 return seen - 1, now_ns()
             t = now_ns()
             if t >= until:
-                raise End(EXIT_FAULT, f"plant silent for {self.silence_ms} ms")
+                raise End(EXIT_PEER_SILENT, f"plant silent for {self.silence_ms} ms")
             if t < spin_end:
                 continue
             # Blocks until the plant notifies (it wakes at once).

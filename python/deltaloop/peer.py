@@ -20,7 +20,7 @@ REF_CHUNK = 4096
 REF_RING = 16
 HANDSHAKE_TIMEOUT_NS = 30_000_000_000
 
-EXIT_SETUP, EXIT_FAULT, EXIT_STOPPED = 3, 4, 5
+EXIT_SETUP, EXIT_FAULT, EXIT_STOPPED, EXIT_PEER_SILENT = 3, 4, 5, 6
 
 _WAIT_SLICE_NS = 50_000_000  # longest block on an event before looking at STOP / SIGTERM (protocol §13: 50 ms)
 _LINGER_S = 0.02  # ports kept this long after the last message (ipc::LINGER)

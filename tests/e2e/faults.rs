@@ -26,7 +26,7 @@ fn config(dir: &Path, hold_s: f64, extra: &str) -> String {
         format!("{extra}{silence}")
     };
     let layout = "[loop.realtime]\nplant_cpu = -1\ncontroller_cpu = -1\nsupervisor_cpu = -1\nplant_priority = 0\ncontroller_priority = 0\nwake_early_us = 0\nlock_memory = false\n";
-    let layout = if faults.contains("[loop]") {
+    let layout = if faults.contains("[loop.realtime]") {
         String::new()
     } else {
         layout.to_string()
@@ -597,6 +597,103 @@ fn run_pausing_plant(
     std::thread::sleep(Duration::from_millis(after_ms));
     pause(plant, Duration::from_millis(stop_ms));
     finish(child)
+}
+
+/// Regression: a plant stopped 3 s (SIGSTOP), longer than `loop.silence_timeout_ms`, was filed
+/// `controller_failed` under every overrun policy, even `fault`, where the plant itself reports
+/// the overrun: the controller's exit on the plant's silence is an echo, not a cause. Here the
+/// silence timeout is 300 ms and the plant is stopped 1 s: the fault is the plant's (its overrun
+/// with `fault`, its stall otherwise), and the cause's first words are about the plant.
+#[test]
+fn regression_a_plant_stopped_past_the_silence_timeout_is_named_as_the_cause() {
+    for (policy, kind) in [
+        ("fault", FaultKind::PlantOverrun),
+        ("stretch", FaultKind::PlantStalled),
+    ] {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("run");
+        // An overrun bound of 100 ms: only the stop, not a slow debug build's wake-up, is one.
+        let cfg = config(
+            tmp.path(),
+            2.0,
+            "[loop]\nsilence_timeout_ms = 300\noverrun_after_us = 100000\n",
+        );
+        let (code, err) = run_pausing_plant(&cfg, &out, &["--overrun", policy], 300, 1000);
+        assert_eq!(code, Some(1), "{policy}: {err}");
+        let s = summary(&out);
+        assert_eq!(
+            outcome(&s, "tdc"),
+            (RunStatus::Fault, Some(kind)),
+            "{policy}: {s}"
+        );
+        let cause = s["laws"]["tdc"]["fault"].as_str().unwrap_or_default();
+        assert!(cause.starts_with("the plant"), "{policy}: {cause}");
+        if kind == FaultKind::PlantOverrun {
+            // "… the plant process woke X ms late …": the stop, not a slow wake-up.
+            let late_ms = cause
+                .split_once("woke ")
+                .and_then(|(_, r)| r.split_once(" ms late"))
+                .and_then(|(ms, _)| ms.parse::<f64>().ok());
+            assert!(late_ms.is_some_and(|ms| ms > 500.0), "{policy}: {cause}");
+        }
+        assert!(
+            children_mentioning(out.to_str().unwrap()).is_empty(),
+            "{policy}: a child outlived the run"
+        );
+    }
+}
+
+/// Regression: a controller that outlived the run (it kept running after the plant's final
+/// state) was filed `hung` with a cause naming the plant ("the supervisor saw the plant exit …").
+/// It is the controller's fault, and the cause says so first.
+#[test]
+fn regression_a_controller_that_outlives_the_run_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let cfg = tmp.path().join("cfg.toml");
+    let ctrl = env!("CARGO_BIN_EXE_deltaloop-controller");
+    // The built-in controller, then 60 s more of its process (sh runs it, then sleeps).
+    std::fs::write(
+        &cfg,
+        format!(
+            "name = \"outlives\"\n[scenario]\npath = \"s1\"\nhold_s = 0.0\n[controller]\nlaws = [\"tdc\"]\ncommand = [\"sh\", \"-c\", \"\\\"$0\\\" \\\"$@\\\"; sleep 60\", \"{ctrl}\"]\n"
+        ),
+    )
+    .unwrap();
+    let t0 = Instant::now();
+    let o = deltaloop(&[
+        "run",
+        cfg.to_str().unwrap(),
+        "--mode",
+        "lockstep",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(t0.elapsed() < Duration::from_secs(40), "{err}");
+    let s = summary(&out);
+    assert_eq!(
+        outcome(&s, "tdc"),
+        (RunStatus::Fault, Some(FaultKind::ControllerHung)),
+        "{err}"
+    );
+    let cause = s["laws"]["tdc"]["fault"].as_str().unwrap_or_default();
+    assert!(
+        cause.starts_with("the controller did not exit after the plant's final state"),
+        "{cause}"
+    );
+    assert!(!cause.contains("saw the plant exit"), "{cause}");
+    // Every tick ran: the trace has ticks 0..=N, N + 1 the final state's tick the fault names.
+    let rows = std::fs::read_to_string(out.join("trace.csv"))
+        .unwrap()
+        .lines()
+        .count()
+        - 1;
+    assert_eq!(
+        Some(rows as u64),
+        s["laws"]["tdc"]["fault_at_tick"].as_u64(),
+        "{s}"
+    );
 }
 
 /// Regression: a 5 ms SIGSTOP/SIGCONT of the controller killed it ("wait for state:

@@ -329,6 +329,7 @@ fn constants_and_enum_values_are_documented_exactly() {
         ("EXIT_SETUP", u64::from(exit::EXIT_SETUP)),
         ("EXIT_FAULT", u64::from(exit::EXIT_FAULT)),
         ("EXIT_STOPPED", u64::from(exit::EXIT_STOPPED)),
+        ("EXIT_PEER_SILENT", u64::from(exit::EXIT_PEER_SILENT)),
         ("LOOP_BUFFER", ipc::LOOP_BUFFER as u64),
         ("OBSERVER_BUFFER", ipc::OBSERVER_BUFFER as u64),
         ("REF_CHUNK", ipc::REF_CHUNK as u64),

@@ -274,7 +274,7 @@ fn answer_states(
         let (state, skipped, rx) = match waited {
             Waited::State(s, skipped, rx) => (s, skipped, rx),
             Waited::Silent => {
-                break ProcessEnd::Fault(format!(
+                break ProcessEnd::PeerSilent(format!(
                     "plant silent for {} ms",
                     cfg.loop_.silence_timeout_ms
                 ));

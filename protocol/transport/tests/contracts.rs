@@ -11,7 +11,17 @@ mod exit {
         assert_eq!(ProcessEnd::Completed.code(), 0);
         assert_eq!(ProcessEnd::Fault("x".into()).code(), EXIT_FAULT);
         assert_eq!(ProcessEnd::Stopped("x".into()).code(), EXIT_STOPPED);
-        assert_ne!(EXIT_FAULT, EXIT_STOPPED);
+        assert_eq!(ProcessEnd::PeerSilent("x".into()).code(), EXIT_PEER_SILENT);
+        let codes = [
+            EXIT_USAGE,
+            EXIT_SETUP,
+            EXIT_FAULT,
+            EXIT_STOPPED,
+            EXIT_PEER_SILENT,
+        ];
+        for (i, a) in codes.iter().enumerate() {
+            assert!(codes[i + 1..].iter().all(|b| a != b), "{codes:?}");
+        }
     }
 }
 

@@ -134,7 +134,12 @@ pub fn run_law(
     let cause = if ending.interrupted || ending.diverged_stop {
         None
     } else {
-        fault_cause(&ending, &pair, &streams)
+        fault_cause(
+            &ending,
+            &pair,
+            &streams,
+            study.config.loop_.silence_timeout_ms,
+        )
     };
     let (plant_rss, ctrl_rss) = (pair.plant.peak_rss_kib, pair.controller.peak_rss_kib);
     drop(pair);

@@ -155,7 +155,14 @@ deltaloop_law::text_enum! {
         Setup,
         /// A loop process stopped on request (its stopped code) that this supervisor never made.
         Stopped,
-        /// A loop process did not exit when the run ended: the supervisor stopped it.
+        /// The plant's process sent nothing for `loop.silence_timeout_ms` (stopped, or starved
+        /// by its host) and the controller gave up on it (it exited with `EXIT_PEER_SILENT`).
+        PlantStalled,
+        /// The controller did not exit after the plant's final state: the supervisor stopped it.
+        ControllerHung,
+        /// The plant did not exit after the controller had: the supervisor stopped it.
+        PlantHung,
+        /// Neither loop process exited when the run ended: the supervisor stopped both.
         Hung,
     }
 }
