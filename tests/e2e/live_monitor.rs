@@ -250,9 +250,16 @@ fn top_watches_a_lockstep_run_in_tmux_and_q_leaves_it_undisturbed() {
 
 /// A realtime soak stopped by SIGINT after a few seconds leaves every tick it ran on disk: the
 /// trace and timing rows of ticks 0..K (K = where it stopped), no tick or sample lost, the timing
-/// counting exactly those ticks, and a last (partial) minute summary that counts them too.
+/// counting exactly those ticks, and a last (partial) minute summary that counts them too. Every
+/// tick on disk holds whatever the host does; that the soak was still running when SIGINT came,
+/// with nothing lost, is judged by its record (a host that stalls the loop into a fault first says
+/// nothing about SIGINT: run again, inconclusive after three).
 #[test]
 fn soak_interrupted_by_sigint_keeps_every_tick() {
+    common::on_a_noisy_host("soak_interrupted_by_sigint", |_| soak_interrupted_once());
+}
+
+fn soak_interrupted_once() -> Result<(), String> {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("soak");
     let child = Command::new(BIN)
@@ -277,23 +284,34 @@ fn soak_interrupted_by_sigint_keeps_every_tick() {
         String::from_utf8_lossy(&o.stdout),
         String::from_utf8_lossy(&o.stderr),
     );
-    assert_eq!(o.status.code(), Some(130), "{stderr}");
+    let s = common::summary(&out);
+    let law = "tdc-is-sta";
+    let status = common::assert_every_tick_on_disk(&s, &out, law);
+    let (m, t) = (&s["laws"][law], &s["timing"][law]);
+    let lost: u64 = ["state", "torque", "telemetry"]
+        .iter()
+        .map(|k| t["supervisor_lost_samples"][k].as_u64().unwrap_or(0))
+        .sum::<u64>()
+        + m["lost_ticks"].as_u64().unwrap_or(0);
+    let check =
+        if status == common::RunStatus::Interrupted && o.status.code() == Some(130) && lost == 0 {
+            Ok(())
+        } else {
+            Err(format!(
+                "{status:?}, exit {:?}, {lost} lost: {stderr}",
+                o.status.code()
+            ))
+        };
+    common::judge(common::disturbance(&s, law), check)?;
     assert!(
         stderr.contains("interrupted") && stderr.contains("SIGINT"),
         "{stderr}"
     );
-
-    let s = common::summary(&out);
-    let (m, t) = (&s["laws"]["tdc-is-sta"], &s["timing"]["tdc-is-sta"]);
     let k = m["interrupted_at_tick"]
         .as_u64()
         .unwrap_or_else(|| panic!("{m}"));
     assert!(k > 3000 && k < 33_334, "stopped at tick {k}");
-    assert_eq!(m["lost_ticks"], 0, "{m}");
     assert_eq!(t["ticks"], k, "the timing counts the ticks that ran: {t}");
-    for stream in ["state", "torque", "telemetry"] {
-        assert_eq!(t["supervisor_lost_samples"][stream], 0, "{t}");
-    }
     let f = std::fs::File::open(out.join("trace.csv")).unwrap();
     let lines = std::io::BufRead::lines(std::io::BufReader::new(f)).count() as u64;
     assert_eq!(lines, k + 1, "header + ticks 0..{k}");
@@ -322,4 +340,5 @@ fn soak_interrupted_by_sigint_keeps_every_tick() {
         "{minute} (stopped at {k})"
     );
     assert!(minute.contains("round trip p50 ") && minute.contains("RSS MiB supervisor "));
+    Ok(())
 }

@@ -412,8 +412,10 @@ pub fn trace_ticks(out: &Path, law: &str) -> Vec<u64> {
         .collect()
 }
 
-/// What holds whatever the host did: `law` ended with a typed status (returned), and every tick
-/// it ran (0..=`ticks`) is on disk in order, but for those the summary counts as lost.
+/// What holds whatever the host did: `law` ended with a typed status (returned), every tick of
+/// its record is on disk in order (`ticks` counts the ticks after tick 0 the metrics cover, so
+/// the trace has `ticks` + 1 rows), and a tick missing between them is one the summary counts
+/// as lost (`lost_ticks` may also count ticks after the last row: a fault's own tick).
 pub fn assert_every_tick_on_disk(summary: &Value, out: &Path, law: &str) -> RunStatus {
     let (status, _) = outcome(summary, law);
     let m = &summary["laws"][law];
@@ -422,22 +424,39 @@ pub fn assert_every_tick_on_disk(summary: &Value, out: &Path, law: &str) -> RunS
         .unwrap_or_else(|| panic!("ticks of {law}: {m}"));
     let lost = m["lost_ticks"].as_u64().unwrap_or(0);
     let ks = trace_ticks(out, law);
+    assert_every_tick_counted(&ks, ticks, lost, &format!("{law}: {m}"));
+    status
+}
+
+/// The rule of [`assert_every_tick_on_disk`] over a law's trace ticks `ks`.
+fn assert_every_tick_counted(ks: &[u64], ticks: u64, lost: u64, what: &str) {
     assert_eq!(
-        ks.len() as u64 + lost,
+        ks.len() as u64,
         ticks + 1,
-        "{law}: trace rows + lost ticks vs ticks 0..={ticks}: {m}"
+        "trace rows vs ticks 0..={ticks}: {what}"
     );
     assert!(
         ks.windows(2).all(|w| w[0] < w[1]),
-        "{law}: ticks out of order"
+        "ticks out of order: {what}"
     );
-    if lost == 0 {
-        assert!(
-            ks.iter().copied().eq(0..=ticks),
-            "{law}: not ticks 0..={ticks}"
-        );
-    }
-    status
+    let holes = ks.last().map_or(0, |&last| last + 1 - ks.len() as u64);
+    assert!(
+        ks.first().is_none_or(|&k| k == 0) && holes <= lost,
+        "{holes} ticks missing from the trace, {lost} counted lost: {what}"
+    );
+}
+
+/// Regression: the rule read `ticks` (ticks after tick 0 the metrics cover, records − 1) as the
+/// last tick, so a run with ticks lost in the middle and counted as lost failed it.
+#[test]
+fn regression_every_tick_on_disk_accepts_ticks_counted_lost() {
+    assert_every_tick_counted(&[0, 1, 2, 3], 3, 0, "whole");
+    assert_every_tick_counted(&[0, 1, 5, 6], 3, 3, "ticks 2..=4 lost");
+    assert_every_tick_counted(&[0, 1, 2], 2, 7, "lost after the last row");
+    let uncounted = std::panic::catch_unwind(|| assert_every_tick_counted(&[0, 1, 5], 2, 1, "x"));
+    assert!(uncounted.is_err(), "three missing, one counted lost");
+    let short = std::panic::catch_unwind(|| assert_every_tick_counted(&[0, 1], 2, 0, "x"));
+    assert!(short.is_err(), "fewer rows than the metrics cover");
 }
 
 /// `deltaloop replay <out>` reproduces the run's trace.csv byte for byte.
