@@ -183,3 +183,146 @@ fn killed_mid_run(mode: &str) {
         "{mode}: the timing channel: {said}"
     );
 }
+
+/// An in-process run of one law in `tmp/run`, for the export's own rules.
+fn short_run(tmp: &std::path::Path) -> std::path::PathBuf {
+    let out = tmp.join("run");
+    let o = deltaloop(&[
+        "run",
+        "configs/s1-nominal.toml",
+        "--mode",
+        "inproc",
+        "--law",
+        "tdc",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "run: {}", text(&o.stderr));
+    out
+}
+
+/// `deltaloop export <run> --mcap --out <out> <extra…>`.
+fn export_to(run: &std::path::Path, out: &std::path::Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec![
+        "export",
+        run.to_str().unwrap(),
+        "--mcap",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    deltaloop(&args)
+}
+
+/// Every file of the run folder, by name, with its bytes.
+fn files_of(dir: &std::path::Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_type().unwrap().is_file())
+        .map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            (name, std::fs::read(e.path()).unwrap())
+        })
+        .collect()
+}
+
+/// The first bytes of every MCAP file.
+const MCAP_MAGIC: &[u8] = b"\x89MCAP0\r\n";
+
+/// Regression: `export --out RUN/trace.csv` replaced the trace with MCAP bytes, `--out
+/// RUN/config.toml` made the config an MCAP that embedded itself, a link was written through and
+/// any existing file replaced. An output that is one of the run's files (by name, through `..`,
+/// a symbolic link or a hard link) is refused, `--force` or not; a link is never written
+/// through; an existing file is replaced only with `--force`; each refusal is one line naming
+/// the path, and leaves every file as it was.
+#[test]
+fn regression_export_refuses_out_that_is_a_run_input() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = short_run(tmp.path());
+    let before = files_of(&run);
+    let refused = |out: &std::path::Path, extra: &[&str], says: &str| {
+        let o = export_to(&run, out, extra);
+        let err = common::one_line_error(&o);
+        assert!(
+            err.contains(&out.display().to_string()) && err.contains(says),
+            "{out:?} {extra:?}: {err}"
+        );
+        assert_eq!(files_of(&run), before, "{out:?} {extra:?} changed the run");
+    };
+    let dotdot = run.join("..").join("run").join("summary.json");
+    let hard = tmp.path().join("hard.csv");
+    std::fs::hard_link(run.join("trace.csv"), &hard).unwrap();
+    let soft = tmp.path().join("soft.mcap");
+    std::os::unix::fs::symlink(run.join("config.toml"), &soft).unwrap();
+    for force in [&[][..], &["--force"][..]] {
+        refused(&run.join("trace.csv"), force, "is the run's trace.csv");
+        refused(&run.join("config.toml"), force, "is the run's config.toml");
+        refused(&dotdot, force, "is the run's summary.json");
+        refused(&hard, force, "is a hard link to the run's trace.csv");
+        refused(&soft, force, "is the run's config.toml");
+    }
+    // A link elsewhere is not written through, even with --force.
+    let victim = tmp.path().join("victim.txt");
+    std::fs::write(&victim, "keep me").unwrap();
+    let link = tmp.path().join("link.mcap");
+    std::os::unix::fs::symlink(&victim, &link).unwrap();
+    for force in [&[][..], &["--force"][..]] {
+        refused(&link, force, "is a symbolic link");
+    }
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me");
+    // An existing file: refused without --force, replaced with it.
+    let old = tmp.path().join("old.mcap");
+    std::fs::write(&old, "an older file").unwrap();
+    refused(&old, &[], "--force");
+    assert_eq!(std::fs::read_to_string(&old).unwrap(), "an older file");
+    let o = export_to(&run, &old, &["--force"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(std::fs::read(&old).unwrap().starts_with(MCAP_MAGIC));
+    // The default output is no exception: a second export needs --force.
+    let o = deltaloop(&["export", run.to_str().unwrap(), "--mcap"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let o = deltaloop(&["export", run.to_str().unwrap(), "--mcap"]);
+    let err = common::one_line_error(&o);
+    assert!(
+        err.contains("run.mcap exists") && err.contains("--force"),
+        "{err}"
+    );
+    let o = deltaloop(&["export", run.to_str().unwrap(), "--mcap", "--force"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+}
+
+/// Regression: an export that failed half-way left a partial MCAP that readers opened without
+/// complaint, in place of the previous good one (`--force` too). The file is written under a
+/// temporary name and renamed only once whole: a failure exits 1, leaves the previous file byte
+/// for byte, and no temporary file.
+#[test]
+fn regression_failed_export_keeps_the_previous_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = short_run(tmp.path());
+    let o = deltaloop(&["export", run.to_str().unwrap(), "--mcap"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let good = std::fs::read(run.join("run.mcap")).unwrap();
+    // A bad cell far down the trace: the export fails after writing most of the rows.
+    let trace = std::fs::read_to_string(run.join("trace.csv")).unwrap();
+    let mut lines: Vec<&str> = trace.lines().collect();
+    let bad = lines[2500].replacen("tdc,2499,", "tdc,not-a-tick,", 1);
+    lines[2500] = &bad;
+    std::fs::write(run.join("trace.csv"), lines.join("\n") + "\n").unwrap();
+    for out in [run.join("run.mcap"), tmp.path().join("new.mcap")] {
+        let o = export_to(&run, &out, &["--force"]);
+        let err = common::one_line_error(&o);
+        assert!(err.contains("trace.csv line 2501"), "{err}");
+        let dir = out.parent().unwrap();
+        let names: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert!(!names.iter().any(|n| n.ends_with(".tmp")), "{names:?}");
+    }
+    assert!(
+        std::fs::read(run.join("run.mcap")).unwrap() == good,
+        "the previous run.mcap was replaced"
+    );
+    assert!(!tmp.path().join("new.mcap").exists());
+}
