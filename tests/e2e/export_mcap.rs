@@ -326,3 +326,62 @@ fn regression_failed_export_keeps_the_previous_file() {
     );
     assert!(!tmp.path().join("new.mcap").exists());
 }
+
+/// The same on a real full disk (a 4 MiB tmpfs in a private mount namespace, most of it taken):
+/// the export exits 1 naming its output, the previous file stays, and no temporary file is left.
+/// Needs root (CI runs as root).
+#[test]
+fn regression_failed_export_keeps_the_previous_file_on_a_full_disk() {
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!(
+            "SKIPPED regression_failed_export_keeps_the_previous_file_on_a_full_disk: needs root to mount a small tmpfs in a private mount namespace"
+        );
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let src = short_run(tmp.path());
+    let (disk, keep) = (tmp.path().join("disk"), tmp.path().join("keep"));
+    std::fs::create_dir(&disk).unwrap();
+    std::fs::create_dir(&keep).unwrap();
+    // The namespace goes with the shell: what the export left is listed before it ends.
+    let script = r#"
+mount -t tmpfs -o size=4m tmpfs "$DISK" || exit 90
+mkdir "$DISK/run"
+cp "$SRC/config.toml" "$SRC/summary.json" "$SRC/trace.csv" "$DISK/run/"
+printf 'the previous export' > "$DISK/run/run.mcap"
+dd if=/dev/zero of="$DISK/fill" bs=4k count=400 2>/dev/null
+"$BIN" export "$DISK/run" --mcap --force 2>"$KEEP/stderr"
+echo $? > "$KEEP/rc"
+ls -A "$DISK/run" > "$KEEP/names"
+cp "$DISK/run/run.mcap" "$KEEP/run.mcap"
+"#;
+    let o = Command::new("unshare")
+        .args(["--mount", "--propagation", "private", "sh", "-c", script])
+        .env("DISK", &disk)
+        .env("KEEP", &keep)
+        .env("SRC", &src)
+        .env("BIN", env!("CARGO_BIN_EXE_deltaloop"))
+        .output()
+        .expect("unshare runs");
+    assert!(
+        o.status.success(),
+        "cannot mount a tmpfs in a private mount namespace (unshare --mount, as root): {}",
+        text(&o.stderr)
+    );
+    let read = |name: &str| std::fs::read_to_string(keep.join(name)).unwrap();
+    let err = read("stderr");
+    assert_eq!(read("rc").trim(), "1", "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    let out = disk.join("run").join("run.mcap");
+    assert!(
+        err.contains(&format!("cannot write {}", out.display()))
+            && err.contains("No space left on device"),
+        "{err}"
+    );
+    assert_eq!(read("run.mcap"), "the previous export");
+    assert_eq!(
+        read("names").split_whitespace().collect::<Vec<_>>(),
+        ["config.toml", "run.mcap", "summary.json", "trace.csv"]
+    );
+}

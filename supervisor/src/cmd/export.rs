@@ -12,8 +12,8 @@ pub struct Args {
     /// Write MCAP (Foxglove, PlotJuggler, ros2 bag): the only format so far, and required.
     #[arg(long)]
     mcap: bool,
-    /// The file to write (default: RUN_DIR/run.mcap). Must not exist, and is never one of the
-    /// run's files.
+    /// The file to write (default: RUN_DIR/run.mcap): a new file unless --force, never one of
+    /// the run's files.
     #[arg(long)]
     out: Option<PathBuf>,
     /// Replace an existing --out file (never one of the run's files, never through a link).

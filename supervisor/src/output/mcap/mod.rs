@@ -116,6 +116,8 @@ pub trait Bus {
 /// The file being written: its channels, and a message counter per channel.
 pub struct Out {
     w: McapFile,
+    /// The file's name in errors (an export's output, not its temporary name).
+    path: PathBuf,
     counts: BTreeMap<u16, (String, u32)>,
     schemas: BTreeMap<&'static str, u16>,
 }
@@ -128,15 +130,22 @@ impl Out {
     fn create(path: &Path) -> Result<Self> {
         let w = McapFile::create(path, LIBRARY)
             .with_context(|| format!("cannot create {}", path.display()))?;
-        Ok(Self::over(w))
+        Ok(Self::over(w, path))
     }
 
-    fn over(w: McapFile) -> Self {
+    /// The file `w`, named `path` in errors.
+    fn over(w: McapFile, path: &Path) -> Self {
         Out {
             w,
+            path: path.to_path_buf(),
             counts: BTreeMap::new(),
             schemas: BTreeMap::new(),
         }
+    }
+
+    /// What a failed write says (a full disk names the file).
+    fn cannot(&self) -> String {
+        format!("cannot write {}", self.path.display())
     }
 }
 
@@ -145,13 +154,19 @@ impl Bus for Out {
         if let Some(&id) = self.schemas.get(name) {
             return Ok(id);
         }
-        let id = self.w.add_schema(name, encoding, data.as_bytes())?;
+        let id = self
+            .w
+            .add_schema(name, encoding, data.as_bytes())
+            .with_context(|| self.cannot())?;
         self.schemas.insert(name, id);
         Ok(id)
     }
 
     fn channel(&mut self, schema: u16, topic: &str, encoding: &str) -> Result<u16> {
-        let id = self.w.add_channel(schema, topic, encoding)?;
+        let id = self
+            .w
+            .add_channel(schema, topic, encoding)
+            .with_context(|| self.cannot())?;
         self.counts.insert(id, (topic.to_string(), 0));
         Ok(id)
     }
@@ -161,8 +176,9 @@ impl Bus for Out {
             c.1 += 1;
             c.1
         });
-        self.w.write(channel, seq, t_ns, data)?;
-        Ok(())
+        self.w
+            .write(channel, seq, t_ns, data)
+            .with_context(|| self.cannot())
     }
 }
 
@@ -231,7 +247,7 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
     let named = || format!("cannot write {}", path.display());
     let tmp = crate::output::temp_beside(&path).with_context(named)?;
     let file = tmp.as_file().try_clone().with_context(named)?;
-    let mut out = Out::over(McapFile::over(file, LIBRARY).with_context(named)?);
+    let mut out = Out::over(McapFile::over(file, LIBRARY).with_context(named)?, &path);
     write_export(&mut out, dir, &input)?;
     let Out { w, counts, .. } = out;
     w.close()
@@ -374,15 +390,18 @@ fn write_export(out: &mut Out, dir: &Path, input: &RunInput) -> Result<()> {
         ("config.toml", "application/toml", &input.config_text),
         ("summary.json", "application/json", &input.summary_text),
     ] {
-        out.w.writer().attach(&mcap::Attachment {
-            log_time: 0,
-            create_time: 0,
-            name: name.into(),
-            media_type: media.into(),
-            data: data.as_bytes().into(),
-        })?;
+        out.w
+            .writer()
+            .attach(&mcap::Attachment {
+                log_time: 0,
+                create_time: 0,
+                name: name.into(),
+                media_type: media.into(),
+                data: data.as_bytes().into(),
+            })
+            .with_context(|| out.cannot())?;
     }
-    out.w.writer().write_metadata(&Metadata {
+    let metadata = Metadata {
         name: "deltaloop".into(),
         metadata: BTreeMap::from([
             ("scenario".into(), cfg.name.clone()),
@@ -396,7 +415,11 @@ fn write_export(out: &mut Out, dir: &Path, input: &RunInput) -> Result<()> {
                 summary["command"].as_str().unwrap_or("").to_string(),
             ),
         ]),
-    })?;
+    };
+    out.w
+        .writer()
+        .write_metadata(&metadata)
+        .with_context(|| out.cannot())?;
     Ok(())
 }
 
@@ -600,7 +623,8 @@ impl Live {
             self.ts_ns,
         )?;
         // Closed, not dropped: a write the disk refuses is an error, not a silent loss.
-        self.out.w.close()?;
+        let cannot = self.out.cannot();
+        self.out.w.close().context(cannot)?;
         Ok(())
     }
 }
