@@ -278,6 +278,17 @@ pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
         .suffix(".tmp")
         .permissions(std::fs::Permissions::from_mode(0o666))
         .tempfile_in(parent_of(path))
+        .map_err(without_temp_name)
+}
+
+/// The OS's reason alone (tempfile appends `at path "<temporary name>"`): the caller names the
+/// file the user asked for.
+fn without_temp_name(e: std::io::Error) -> std::io::Error {
+    let said = e.to_string();
+    match said.rfind(" at path \"") {
+        Some(at) => std::io::Error::new(e.kind(), &said[..at]),
+        None => e,
+    }
 }
 
 /// The folder `path` is in ("." for a bare name).
@@ -362,6 +373,16 @@ mod tests {
             n
         };
         assert_eq!(names(), ["run"]);
+        let missing = d.join("no/summary.json");
+        let e = write_text(&missing, "{}").unwrap_err();
+        assert_eq!(
+            format!("{e:#}"),
+            format!(
+                "cannot write {}: No such file or directory (os error 2)",
+                missing.display()
+            ),
+            "the file asked for, not a temporary name"
+        );
         std::fs::write(d.join("target"), "keep").unwrap();
         std::os::unix::fs::symlink(d.join("target"), d.join("summary.json")).unwrap();
         write_text(&d.join("summary.json"), "{}").unwrap();
