@@ -19,6 +19,7 @@ ticks=$(($(wc -l < "$tmp/run/trace.csv") - 1))
 for i in $(seq "$n"); do
     for who in base this; do
         b=$bin; [[ $who == base ]] && b=$base
+        rm -f "$tmp/$who.mcap"  # an export never replaces a file unasked
         t0=$(date +%s%N)
         $b export "$tmp/run" --mcap --out "$tmp/$who.mcap" >/dev/null
         echo "$who $(( ($(date +%s%N) - t0) / 1000 ))" >> "$tmp/times"

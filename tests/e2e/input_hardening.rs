@@ -265,3 +265,79 @@ fn regression_interrupted_sweep_point_is_not_a_result() {
         "{report}"
     );
 }
+
+/// Regression: `export` read `summary.json` (and the trace and timing files) without the rule
+/// every other input keeps: a FIFO hung it, a link to `/dev/zero` exhausted memory, a 100 MB file
+/// was attached whole. Each of the run's files export reads is opened as a regular file only,
+/// size-capped, and a bad one is refused at once in one line naming it, with no output left.
+#[test]
+fn regression_export_reads_only_regular_capped_files() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = tmp.path().join("run");
+    let o = common::run_output("configs/s1-nominal.toml", "inproc", &run, &["--law", "tdc"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = run.to_str().unwrap();
+    let keep = tmp.path().join("keep");
+    std::fs::create_dir(&keep).unwrap();
+    for name in ["summary.json", "trace.csv"] {
+        std::fs::rename(run.join(name), keep.join(name)).unwrap();
+    }
+    let put_back = |name: &str| {
+        let _ = std::fs::remove_file(run.join(name));
+        std::fs::copy(keep.join(name), run.join(name)).unwrap();
+    };
+    let export = |case: &str| {
+        let out = finish_within(
+            spawn(&["export", r, "--mcap"]),
+            Duration::from_secs(20),
+            case,
+        );
+        assert!(!run.join("run.mcap").exists(), "{case}: an output was left");
+        one_line_error(&out)
+    };
+    put_back("trace.csv");
+    let summary = run.join("summary.json");
+    mkfifo(&summary);
+    let err = export("summary.json a FIFO");
+    assert!(
+        err.contains(&summary.display().to_string()) && err.contains("it is a FIFO"),
+        "{err}"
+    );
+    std::fs::remove_file(&summary).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", &summary).unwrap();
+    let err = export("summary.json a link to /dev/zero");
+    assert!(
+        err.contains("summary.json: it is a character device"),
+        "{err}"
+    );
+    std::fs::remove_file(&summary).unwrap();
+    let mut big = std::fs::read(keep.join("summary.json")).unwrap();
+    big.resize(5 << 20, b' ');
+    std::fs::write(&summary, big).unwrap();
+    let err = export("summary.json of 5 MiB");
+    assert!(
+        err.contains("summary.json: it is 5242880 bytes, larger than 4 MiB"),
+        "{err}"
+    );
+    put_back("summary.json");
+    let trace = run.join("trace.csv");
+    std::fs::remove_file(&trace).unwrap();
+    mkfifo(&trace);
+    let err = export("trace.csv a FIFO");
+    assert!(err.contains("trace.csv: it is a FIFO"), "{err}");
+    put_back("trace.csv");
+    let timing = run.join("tdc.timing.csv");
+    mkfifo(&timing);
+    let err = export("tdc.timing.csv a FIFO");
+    assert!(err.contains("tdc.timing.csv: it is a FIFO"), "{err}");
+    std::fs::remove_file(&timing).unwrap();
+    let out = deltaloop_in(
+        Path::new(env!("CARGO_MANIFEST_DIR")),
+        &["export", r, "--mcap"],
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

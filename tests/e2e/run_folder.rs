@@ -244,3 +244,103 @@ fn record_section_turns_off_the_per_tick_files_and_nothing_else() {
         "lockstep metrics do not depend on what is written"
     );
 }
+
+/// Regression: on a full disk the finished law's complete trace stayed `trace.tdc.part`,
+/// `summary.json` was left at 0 bytes, and the error named `summary.json` rather than the file
+/// the law could not write. A real full disk: a 32 MiB tmpfs in a private mount namespace, filled
+/// while the second law records. The error names the second law's file; the first law's trace is
+/// `trace.csv`, whole; the second law's rows are in `trace.tde-is.csv`; `summary.json` and
+/// `report.md` are whole or absent, and no temporary file is left. Needs root (CI runs as root).
+#[test]
+fn regression_a_full_disk_keeps_finished_laws_and_no_cut_files() {
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!(
+            "SKIPPED regression_a_full_disk_keeps_finished_laws_and_no_cut_files: needs root to mount a small tmpfs in a private mount namespace"
+        );
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let (disk, keep) = (tmp.path().join("disk"), tmp.path().join("keep"));
+    std::fs::create_dir(&disk).unwrap();
+    std::fs::create_dir(&keep).unwrap();
+    let cfg = tmp.path().join("two.toml");
+    std::fs::write(
+        &cfg,
+        "name = \"full\"\n[scenario]\npath = \"s1\"\nhold_s = 3.0\n[controller]\nlaws = [\"tdc\", \"tde-is\"]\n",
+    )
+    .unwrap();
+    // The namespace goes with the shell: what the run left is copied out before it ends.
+    let script = r#"
+mount -t tmpfs -o size=32m tmpfs "$DISK" || exit 90
+"$BIN" run "$CFG" --mode lockstep --out "$DISK/run" 2>"$KEEP/stderr" &
+pid=$!
+while [ ! -s "$DISK/run/trace.tde-is.part" ] && kill -0 $pid 2>/dev/null; do sleep 0.01; done
+dd if=/dev/zero of="$DISK/fill" bs=4k 2>/dev/null
+wait $pid
+echo $? > "$KEEP/rc"
+cp -a "$DISK/run" "$KEEP/run"
+"#;
+    let o = Command::new("unshare")
+        .args(["--mount", "--propagation", "private", "sh", "-c", script])
+        .env("DISK", &disk)
+        .env("KEEP", &keep)
+        .env("CFG", &cfg)
+        .env("BIN", env!("CARGO_BIN_EXE_deltaloop"))
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("unshare runs");
+    assert!(
+        o.status.success(),
+        "cannot mount a tmpfs in a private mount namespace (unshare --mount, as root): {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let err = std::fs::read_to_string(keep.join("stderr")).unwrap();
+    let rc = std::fs::read_to_string(keep.join("rc")).unwrap();
+    assert_eq!(rc.trim(), "1", "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    let run = disk.join("run").display().to_string();
+    assert!(
+        err.starts_with(&format!(
+            "deltaloop: error: lockstep run of `tde-is`: cannot write {run}/"
+        )) && err.contains("No space left on device"),
+        "names the law's file first: {err}"
+    );
+    let kept = keep.join("run");
+    let names: Vec<String> = std::fs::read_dir(&kept)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        !names
+            .iter()
+            .any(|n| n.ends_with(".tmp") || n == "trace.tdc.part"),
+        "{names:?}"
+    );
+    let trace = std::fs::read_to_string(kept.join("trace.csv")).unwrap();
+    let ticks: Vec<&str> = trace.lines().skip(1).collect();
+    assert!(
+        ticks.iter().all(|l| l.starts_with("tdc,")),
+        "only tdc's rows"
+    );
+    assert_eq!(ticks.len(), 12668, "every tick of tdc, 0..=N");
+    let theirs = std::fs::read_to_string(kept.join("trace.tde-is.csv")).unwrap();
+    assert_eq!(
+        trace.lines().next(),
+        theirs.lines().next(),
+        "the same header"
+    );
+    for (name, whole) in [("summary.json", "\"tdc\""), ("report.md", "tdc")] {
+        match std::fs::read_to_string(kept.join(name)) {
+            Ok(text) => assert!(text.contains(whole), "{name} is cut: {text:?}"),
+            Err(e) => assert_eq!(e.kind(), std::io::ErrorKind::NotFound, "{name}"),
+        }
+        if !kept.join(name).exists() {
+            assert!(err.contains(&format!("cannot write {run}/{name}")), "{err}");
+        }
+    }
+    if let Ok(text) = std::fs::read_to_string(kept.join("summary.json")) {
+        let s: serde_json::Value = serde_json::from_str(&text).expect("summary.json is whole");
+        assert_eq!(s["laws"]["tdc"]["status"], "ok");
+    }
+}

@@ -16,7 +16,12 @@ pub struct McapFile {
 impl McapFile {
     /// A new file at `path` (replacing one there), written by `library`.
     pub fn create(path: &Path, library: &str) -> Result<Self, mcap::McapError> {
-        let file = std::fs::File::create(path)?;
+        Self::over(std::fs::File::create(path)?, library)
+    }
+
+    /// The file written into `file` (new and empty: a temporary file that becomes the output
+    /// once [`McapFile::close`] succeeds), by `library`.
+    pub fn over(file: std::fs::File, library: &str) -> Result<Self, mcap::McapError> {
         // 4 MiB chunks: a day-long soak's chunk index (what the writer keeps in memory for the
         // summary) stays in the megabytes; a run killed outright loses the chunk being filled.
         let w = mcap::WriteOptions::new()
@@ -66,6 +71,16 @@ impl McapFile {
             },
             data,
         )
+    }
+
+    /// Ends the file (its summary and footer) and hands back the open file, every byte written
+    /// to it: an error here (a full disk) is returned, where dropping the writer would ignore it.
+    pub fn close(mut self) -> Result<std::fs::File, mcap::McapError> {
+        self.w.finish()?;
+        self.w
+            .into_inner()
+            .into_inner()
+            .map_err(|e| mcap::McapError::Io(e.into_error()))
     }
 
     /// The writer itself, for what a file gets once (attachments, metadata, the summary).

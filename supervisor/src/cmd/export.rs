@@ -12,9 +12,13 @@ pub struct Args {
     /// Write MCAP (Foxglove, PlotJuggler, ros2 bag): the only format so far, and required.
     #[arg(long)]
     mcap: bool,
-    /// The file to write (default: RUN_DIR/run.mcap).
+    /// The file to write (default: RUN_DIR/run.mcap): a new file unless --force, never one of
+    /// the run's files.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Replace an existing --out file (never one of the run's files, never through a link).
+    #[arg(long)]
+    force: bool,
 }
 
 pub fn exec(a: Args, _cx: &Context) -> Result<()> {
@@ -24,6 +28,7 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
     let e = export::export(&export::ExportRequest {
         run_dir: &a.run_dir,
         out: a.out,
+        force: a.force,
     })?;
     let total: u64 = e.messages.values().sum();
     println!(

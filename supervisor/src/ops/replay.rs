@@ -39,18 +39,6 @@ struct TraceRows {
     peeked: Option<Recorded>,
 }
 
-/// The longest `trace.csv` row, bytes: 30 numbers of at most 24 characters and three words make
-/// under 1 KiB.
-const MAX_ROW_BYTES: u64 = 4096;
-
-/// The largest `trace.csv` a run of `study` can have: a header and a row per law and tick
-/// 0..=N + 1. Reading stops there, whatever the file (a regular file only: see [`files`]).
-fn trace_cap(study: &Study) -> u64 {
-    let laws = study.config.controller.laws.len() as u64;
-    let rows = laws.saturating_mul(study.reference.n as u64 + 2);
-    rows.saturating_add(1).saturating_mul(MAX_ROW_BYTES)
-}
-
 /// What `arrival_ns` (A_k − t_k) of an applied reply may be in a run of `study`, ns: at least the
 /// transport delay D (the plant adds a latency ≥ 0 to it), and at most D plus the run's span
 /// (N + 1)·Ts. A command arriving after the run's end could not have acted in it, and the bound
@@ -65,7 +53,7 @@ fn arrivals(study: &Study) -> std::ops::RangeInclusive<u64> {
 
 impl TraceRows {
     fn open(path: &Path, study: &Study) -> Result<Self> {
-        let file = files::open_regular(path, trace_cap(study), "this run's trace")
+        let file = files::open_regular(path, output::trace::max_bytes(study), "this run's trace")
             .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
         let mut r = csv::ReaderBuilder::new().flexible(false).from_reader(file);
         let h = r
@@ -314,7 +302,7 @@ pub fn replay(run_dir: &Path, out: &Path) -> Result<(Verdict, Vec<LawRun>)> {
         while rows.next_of(first.law)?.is_some() {}
     }
     output::join_trace(out, &laws)?;
-    let cap = trace_cap(&study);
+    let cap = output::trace::max_bytes(&study);
     Ok((compare(&recorded, &out.join("trace.csv"), cap)?, runs))
 }
 

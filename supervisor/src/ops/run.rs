@@ -239,7 +239,8 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
         .next()
         .map(|t| t.peak_rss.clone());
     let metrics: Vec<LawMetrics> = laws.runs.iter().map(|r| r.metrics.clone()).collect();
-    let table = write_results(&study, mode, command, started, &dir, &laws, &metrics)?;
+    let table = write_results(&study, mode, command, started, &dir, &laws, &metrics)
+        .map_err(|w| incomplete(&mut laws, &dir, w))?;
     verdict(mode, &dir, &mut laws, &metrics)?;
     notes.extend(laws.freezes.into_iter().map(|(l, f)| format!("`{l}`: {f}")));
     Ok(RunOutput {
@@ -463,6 +464,21 @@ fn verdict(mode: LoopMode, dir: &Path, laws: &mut Laws, metrics: &[LawMetrics]) 
         }));
     }
     Ok(())
+}
+
+/// The error of a run whose folder could not be written whole (`w` names the files it lacks):
+/// a law that failed first (on a full disk, the files after it fail too) stays the cause, and
+/// what the folder keeps is said between the two.
+fn incomplete(laws: &mut Laws, dir: &Path, w: anyhow::Error) -> anyhow::Error {
+    let Some(e) = laws.failed.take() else {
+        return w;
+    };
+    let finished: Vec<Law> = laws.runs.iter().map(|r| r.metrics.law).collect();
+    if finished.is_empty() {
+        return anyhow::anyhow!("{e:#}; {w:#}");
+    }
+    let kept = kept_note(&finished, dir, &[]);
+    anyhow::anyhow!("{e:#}; {kept}, but {w:#}")
 }
 
 /// The children's stderr logs in a run folder (`<law>.plant.log`, …), sorted.

@@ -209,7 +209,7 @@ impl RunFolder {
 
 /// `p` absolute, with links and `..` resolved as far as it exists; the part that does not exist
 /// yet is appended as written, `..` folded (nothing in it can be a link).
-fn resolved(p: &Path) -> PathBuf {
+pub(crate) fn resolved(p: &Path) -> PathBuf {
     use std::path::Component;
     let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
     let mut base = abs.as_path();
@@ -243,15 +243,78 @@ pub fn now_utc() -> String {
     chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Secs, true)
 }
 
-/// Writes a text file, naming it on failure.
+/// Writes a text file whole or not at all (see [`write_whole`]), naming it on failure.
 pub fn write_text(path: &Path, text: &str) -> Result<()> {
-    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+    write_whole(path, text.as_bytes())
+}
+
+/// Writes `bytes` to `path` whole or not at all: into a temporary file beside it, synced, then
+/// renamed over `path`. A full disk leaves no empty or cut file (the temporary one is removed),
+/// and a link at `path` is replaced, never written through. Errors name `path`.
+pub fn write_whole(path: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write as _;
+    let named = || format!("cannot write {}", path.display());
+    let mut tmp = temp_beside(path).with_context(named)?;
+    // The file's own errors: the temporary name is no concern of the message.
+    tmp.as_file_mut()
+        .write_all(bytes)
+        .and_then(|()| tmp.as_file().sync_all())
+        .with_context(named)?;
+    tmp.persist(path).map_err(|e| e.error).with_context(named)?;
+    sync_parent(path);
+    Ok(())
+}
+
+/// A new temporary file in `path`'s folder, `.<name>.<random>.tmp`, removed when dropped unless
+/// persisted. Its mode is what `File::create` gives (0666 less the umask).
+pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
+    use std::os::unix::fs::PermissionsExt;
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    tempfile::Builder::new()
+        .prefix(&format!(".{name}."))
+        .suffix(".tmp")
+        .permissions(std::fs::Permissions::from_mode(0o666))
+        .tempfile_in(parent_of(path))
+        .map_err(without_temp_name)
+}
+
+/// The OS's reason alone (tempfile appends `at path "<temporary name>"`): the caller names the
+/// file the user asked for.
+fn without_temp_name(e: std::io::Error) -> std::io::Error {
+    let said = e.to_string();
+    match said.rfind(" at path \"") {
+        Some(at) => std::io::Error::new(e.kind(), &said[..at]),
+        None => e,
+    }
+}
+
+/// The folder `path` is in ("." for a bare name).
+fn parent_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    }
+}
+
+/// Syncs the folder of `path`, so a rename into it outlives a power cut (best effort: the file
+/// itself is already whole).
+pub fn sync_parent(path: &Path) {
+    if let Ok(d) = std::fs::File::open(parent_of(path)) {
+        let _ = d.sync_all();
+    }
 }
 
 /// Writes `summary.json` and `report.md` into `dir` and joins the trace parts of `laws` into
 /// `trace.csv` (None: the run wrote no trace, `record.trace = false`). The folder's
 /// `config.toml` is not written here: [`crate::ops::run::run`] writes it once, before the runs (the
 /// child processes read it, and it documents a run that fails).
+///
+/// Each file is attempted whatever became of the others (on a full disk the trace, which needs
+/// no free space for its first law, is kept though the summary cannot be written); each is whole
+/// or absent. The error names every file that could not be written.
 pub fn write_run_folder(
     dir: &Path,
     summary: &Summary<'_>,
@@ -260,12 +323,22 @@ pub fn write_run_folder(
 ) -> Result<()> {
     std::fs::create_dir_all(dir)
         .with_context(|| format!("cannot create run folder {}", dir.display()))?;
-    write_text(
-        &dir.join("summary.json"),
-        &serde_json::to_string_pretty(summary)?,
-    )?;
-    write_text(&dir.join("report.md"), report_md)?;
-    laws.map_or(Ok(()), |laws| join_trace(dir, laws))
+    let results = [
+        laws.map_or(Ok(()), |laws| join_trace(dir, laws)),
+        serde_json::to_string_pretty(summary)
+            .map_err(anyhow::Error::from)
+            .and_then(|json| write_text(&dir.join("summary.json"), &json)),
+        write_text(&dir.join("report.md"), report_md),
+    ];
+    let failed: Vec<String> = results
+        .into_iter()
+        .filter_map(|r| r.err().map(|e| format!("{e:#}")))
+        .collect();
+    if failed.is_empty() {
+        Ok(())
+    } else {
+        anyhow::bail!("{}", failed.join("; "))
+    }
 }
 
 #[cfg(test)]
@@ -277,6 +350,46 @@ mod tests {
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(d.join("run")).unwrap();
         d
+    }
+
+    /// A text file is written whole or not at all: a failed write (here the name is a folder)
+    /// names the file and leaves no temporary file; a link at the name is replaced, its target
+    /// untouched.
+    #[test]
+    fn a_file_is_written_whole_or_not_at_all() {
+        let d = tmp("whole");
+        let e = write_text(&d.join("run"), "x").unwrap_err();
+        let said = format!("{e:#}");
+        assert!(
+            said.starts_with(&format!("cannot write {}: ", d.join("run").display())),
+            "{said}"
+        );
+        let names = || -> Vec<String> {
+            let mut n: Vec<String> = std::fs::read_dir(&d)
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect();
+            n.sort();
+            n
+        };
+        assert_eq!(names(), ["run"]);
+        let missing = d.join("no/summary.json");
+        let e = write_text(&missing, "{}").unwrap_err();
+        assert_eq!(
+            format!("{e:#}"),
+            format!(
+                "cannot write {}: No such file or directory (os error 2)",
+                missing.display()
+            ),
+            "the file asked for, not a temporary name"
+        );
+        std::fs::write(d.join("target"), "keep").unwrap();
+        std::os::unix::fs::symlink(d.join("target"), d.join("summary.json")).unwrap();
+        write_text(&d.join("summary.json"), "{}").unwrap();
+        assert_eq!(std::fs::read_to_string(d.join("target")).unwrap(), "keep");
+        assert!(!d.join("summary.json").is_symlink());
+        assert_eq!(names(), ["run", "summary.json", "target"]);
+        let _ = std::fs::remove_dir_all(&d);
     }
 
     /// A path is compared resolved: links and `..` in the part that exists, `..` folded in the

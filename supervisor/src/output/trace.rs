@@ -6,6 +6,7 @@
 //! a reader gets the recorded double back bit for bit.
 
 use crate::record::TickRecord;
+use crate::study::Study;
 use crate::study::reference::RefRow;
 use anyhow::{Context, Result};
 use deltaloop_law::Law;
@@ -293,41 +294,97 @@ pub fn trace_part(dir: &Path, law: Law) -> PathBuf {
     dir.join(format!("trace.{law}.part"))
 }
 
+/// The longest `trace.csv` row, bytes: 30 numbers of at most 24 characters and three words make
+/// under 1 KiB.
+const MAX_ROW_BYTES: u64 = 4096;
+
+/// The largest `trace.csv` a run of `study` can have, bytes: a header and a row per law and tick
+/// 0..=N + 1. Its readers (replay, export) stop there, whatever the file.
+pub fn max_bytes(study: &Study) -> u64 {
+    let laws = study.config.controller.laws.len() as u64;
+    let rows = laws.saturating_mul(study.reference.n as u64 + 2);
+    rows.saturating_add(1).saturating_mul(MAX_ROW_BYTES)
+}
+
+/// Where `law`'s rows are kept when its part could not be joined into `trace.csv` (a full
+/// disk): a CSV with the same header.
+pub fn trace_of(dir: &Path, law: Law) -> PathBuf {
+    dir.join(format!("trace.{law}.csv"))
+}
+
 /// Writes `trace.csv` in `dir` from the part files of `laws`, in order: the first part becomes the
-/// file (renamed, not copied: an hour-long trace is gigabytes), the others are appended without
-/// their header lines, and each part is removed once it is in. A missing part (the law never ran)
-/// adds no rows; with no part at all the file is the header alone.
+/// file (renamed, not copied: an hour-long trace is gigabytes, and a rename needs no free space),
+/// the others are appended without their header lines, and each part is removed once it is in.
+/// A missing part (the law never ran) adds no rows; with no part at all the file is the header
+/// alone.
+///
+/// A part that cannot be appended (a full disk) is cut off `trace.csv` again, so the file keeps
+/// the laws before it whole, and is renamed [`trace_of`] its law; the error names `trace.csv`
+/// and where those rows are.
 pub fn join_trace(dir: &Path, laws: &[Law]) -> Result<()> {
-    use std::io::{BufRead, Write as _};
     let path = dir.join("trace.csv");
-    let named = || format!("cannot write {}", path.display());
-    let parts: Vec<PathBuf> = laws
+    let parts: Vec<(Law, PathBuf)> = laws
         .iter()
-        .map(|&l| trace_part(dir, l))
-        .filter(|p| p.is_file())
+        .map(|&l| (l, trace_part(dir, l)))
+        .filter(|(_, p)| p.is_file())
         .collect();
-    let Some((first, rest)) = parts.split_first() else {
-        let mut w = csv::Writer::from_path(&path)
-            .with_context(|| format!("cannot create {}", path.display()))?;
-        w.write_record(header()).with_context(named)?;
-        return w.flush().with_context(named);
+    let Some(((_, first), rest)) = parts.split_first() else {
+        let mut line = header().join(",");
+        line.push('\n');
+        return super::write_text(&path, &line);
     };
-    std::fs::rename(first, &path).with_context(named)?;
+    std::fs::rename(first, &path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut out = std::fs::OpenOptions::new()
         .append(true)
         .open(&path)
-        .with_context(named)?;
-    for part in rest {
-        let mut r = std::io::BufReader::new(
-            std::fs::File::open(part).with_context(|| format!("cannot read {}", part.display()))?,
-        );
-        let mut head = String::new();
-        r.read_line(&mut head)
-            .with_context(|| format!("cannot read {}", part.display()))?;
-        std::io::copy(&mut r, &mut out).with_context(named)?;
-        let _ = std::fs::remove_file(part);
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    let mut failed = Vec::new();
+    for (law, part) in rest {
+        if let Err(e) = append_part(&mut out, part) {
+            let kept = trace_of(dir, *law);
+            let at = match std::fs::rename(part, &kept) {
+                Ok(()) => kept,
+                Err(_) => part.clone(),
+            };
+            failed.push(format!(
+                "cannot append the rows of `{law}` to {} ({e:#}): they are in {}",
+                path.display(),
+                at.display()
+            ));
+        }
     }
-    out.flush().with_context(named)
+    out.sync_all()
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    if failed.is_empty() {
+        return Ok(());
+    }
+    anyhow::bail!("{}", failed.join("; "))
+}
+
+/// Appends the rows of `part` (its header line skipped) to `out` and removes `part`; on failure
+/// `out` is cut back to its length before, and `part` is left as it was.
+fn append_part(out: &mut std::fs::File, part: &Path) -> Result<()> {
+    use std::io::{BufRead, Seek, Write as _};
+    let before = out.seek(std::io::SeekFrom::End(0))?;
+    let mut r = std::io::BufReader::new(
+        std::fs::File::open(part).with_context(|| format!("cannot read {}", part.display()))?,
+    );
+    let mut head = String::new();
+    let copied = r
+        .read_line(&mut head)
+        .with_context(|| format!("cannot read {}", part.display()))
+        .and_then(|_| {
+            std::io::copy(&mut r, out)
+                .and_then(|_| out.flush())
+                .map_err(anyhow::Error::from)
+        });
+    if let Err(e) = copied {
+        // Cutting frees what was written: the rows before stay whole, nothing is half there.
+        let _ = out.set_len(before);
+        return Err(e);
+    }
+    let _ = std::fs::remove_file(part);
+    Ok(())
 }
 
 #[cfg(test)]

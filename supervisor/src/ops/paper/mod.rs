@@ -181,11 +181,11 @@ pub fn run(
         cases,
         robustness,
     };
-    std::fs::write(
-        out.join("summary.json"),
-        serde_json::to_string_pretty(&summary)?,
+    crate::output::write_text(
+        &out.join("summary.json"),
+        &serde_json::to_string_pretty(&summary)?,
     )?;
-    std::fs::write(out.join("report.md"), report(&summary))?;
+    crate::output::write_text(&out.join("report.md"), &report(&summary))?;
     Ok(summary)
 }
 

@@ -336,7 +336,7 @@ pub fn write(
             ),
         );
     }
-    std::fs::write(out.join("report.md"), md)?;
+    crate::output::write_text(&out.join("report.md"), &md)?;
     Ok(())
 }
 

@@ -28,6 +28,7 @@ use crate::study::Study;
 use crate::study::reference::RefRow;
 use crate::timing::TIMING_COLUMNS;
 use anyhow::{Context, Result, bail};
+use deltaloop_config::files;
 use deltaloop_config::{Law, RunConfig};
 use deltaloop_mcap::cdr;
 use deltaloop_mcap::file::McapFile;
@@ -44,7 +45,15 @@ use tick::{Columns, Control, Row, Timing};
 pub struct ExportRequest<'a> {
     pub run_dir: &'a Path,
     pub out: Option<PathBuf>,
+    /// Replace an existing output file (never one of the run's files, never through a link).
+    pub force: bool,
 }
+
+/// The name of the default output in the run folder.
+pub const EXPORT_NAME: &str = "run.mcap";
+
+/// Largest `summary.json` an export reads, bytes (4 MiB): a run's is tens of kB.
+pub const MAX_SUMMARY_BYTES: u64 = 4 << 20;
 
 /// What an export wrote.
 pub struct Exported {
@@ -107,20 +116,36 @@ pub trait Bus {
 /// The file being written: its channels, and a message counter per channel.
 pub struct Out {
     w: McapFile,
+    /// The file's name in errors (an export's output, not its temporary name).
+    path: PathBuf,
     counts: BTreeMap<u16, (String, u32)>,
     schemas: BTreeMap<&'static str, u16>,
 }
 
+/// The writer's name in the file.
+const LIBRARY: &str = concat!("deltaloop ", env!("CARGO_PKG_VERSION"));
+
 impl Out {
     /// A new file at `path`, chunked and LZ4-compressed.
     fn create(path: &Path) -> Result<Self> {
-        let w = McapFile::create(path, concat!("deltaloop ", env!("CARGO_PKG_VERSION")))
+        let w = McapFile::create(path, LIBRARY)
             .with_context(|| format!("cannot create {}", path.display()))?;
-        Ok(Out {
+        Ok(Self::over(w, path))
+    }
+
+    /// The file `w`, named `path` in errors.
+    fn over(w: McapFile, path: &Path) -> Self {
+        Out {
             w,
+            path: path.to_path_buf(),
             counts: BTreeMap::new(),
             schemas: BTreeMap::new(),
-        })
+        }
+    }
+
+    /// What a failed write says (a full disk names the file).
+    fn cannot(&self) -> String {
+        format!("cannot write {}", self.path.display())
     }
 }
 
@@ -129,13 +154,19 @@ impl Bus for Out {
         if let Some(&id) = self.schemas.get(name) {
             return Ok(id);
         }
-        let id = self.w.add_schema(name, encoding, data.as_bytes())?;
+        let id = self
+            .w
+            .add_schema(name, encoding, data.as_bytes())
+            .with_context(|| self.cannot())?;
         self.schemas.insert(name, id);
         Ok(id)
     }
 
     fn channel(&mut self, schema: u16, topic: &str, encoding: &str) -> Result<u16> {
-        let id = self.w.add_channel(schema, topic, encoding)?;
+        let id = self
+            .w
+            .add_channel(schema, topic, encoding)
+            .with_context(|| self.cannot())?;
         self.counts.insert(id, (topic.to_string(), 0));
         Ok(id)
     }
@@ -145,8 +176,9 @@ impl Bus for Out {
             c.1 += 1;
             c.1
         });
-        self.w.write(channel, seq, t_ns, data)?;
-        Ok(())
+        self.w
+            .write(channel, seq, t_ns, data)
+            .with_context(|| self.cannot())
     }
 }
 
@@ -159,31 +191,172 @@ struct Channels {
     scene: u16,
 }
 
-/// Writes the run in `req.run_dir` as one MCAP file.
+/// What an export reads of a run folder, read and checked before anything is written.
+struct RunInput {
+    cfg: RunConfig,
+    /// `config.toml` as read (the attachment is what was parsed).
+    config_text: String,
+    summary_text: String,
+    summary: Value,
+    study: Study,
+    trace_path: PathBuf,
+}
+
+impl RunInput {
+    /// Reads `dir`'s config and summary (regular files, capped: see [`files`]) and finds its
+    /// trace.
+    fn read(dir: &Path) -> Result<Self> {
+        let not_run = || format!("{} is not a run folder", dir.display());
+        let cfg_path = dir.join("config.toml");
+        let config_text = files::read_text_file(&cfg_path)
+            .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", cfg_path.display()))
+            .with_context(not_run)?;
+        let cfg = RunConfig::from_toml_str(&config_text, Some(&cfg_path)).with_context(not_run)?;
+        let summary_path = dir.join("summary.json");
+        let summary_text = files::read_text(&summary_path, MAX_SUMMARY_BYTES, "a summary.json")
+            .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", summary_path.display()))?;
+        let summary: Value = serde_json::from_str(&summary_text)
+            .with_context(|| format!("{}: not JSON", summary_path.display()))?;
+        let trace_path = dir.join("trace.csv");
+        if std::fs::symlink_metadata(&trace_path).is_err() {
+            bail!(
+                "{} has no trace.csv (a run with [record] trace = false cannot be exported)",
+                dir.display()
+            );
+        }
+        let study = Study::new(cfg.clone()).context("the run's reference")?;
+        Ok(Self {
+            cfg,
+            config_text,
+            summary_text,
+            summary,
+            study,
+            trace_path,
+        })
+    }
+}
+
+/// Writes the run in `req.run_dir` as one MCAP file: into a temporary file beside the output,
+/// synced, then renamed to it. A failed export leaves the output as it was (a previous export
+/// included) and no temporary file.
 pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
     let dir = req.run_dir;
-    let cfg = RunConfig::from_file(&dir.join("config.toml"))
-        .with_context(|| format!("{} is not a run folder", dir.display()))?;
-    let summary_text = std::fs::read_to_string(dir.join("summary.json"))
-        .with_context(|| format!("cannot read {}", dir.join("summary.json").display()))?;
-    let summary: Value = serde_json::from_str(&summary_text)
-        .with_context(|| format!("{}: not JSON", dir.join("summary.json").display()))?;
-    let trace_path = dir.join("trace.csv");
-    if !trace_path.is_file() {
+    let input = RunInput::read(dir)?;
+    let path = req.out.clone().unwrap_or_else(|| dir.join(EXPORT_NAME));
+    check_out(dir, &input.cfg, &path, req.force)?;
+    let named = || format!("cannot write {}", path.display());
+    let tmp = crate::output::temp_beside(&path).with_context(named)?;
+    let file = tmp.as_file().try_clone().with_context(named)?;
+    let mut out = Out::over(McapFile::over(file, LIBRARY).with_context(named)?, &path);
+    write_export(&mut out, dir, &input)?;
+    let Out { w, counts, .. } = out;
+    w.close()
+        .map_err(anyhow::Error::from)
+        .and_then(|f| Ok(f.sync_all()?))
+        .with_context(named)?;
+    let bytes = tmp.as_file().metadata().map_or(0, |m| m.len());
+    // Without --force, a file that appeared at the output meanwhile is not replaced either.
+    if req.force {
+        tmp.persist(&path).map_err(|e| e.error)
+    } else {
+        tmp.persist_noclobber(&path).map_err(|e| e.error)
+    }
+    .with_context(named)?;
+    crate::output::sync_parent(&path);
+    let messages = counts
+        .into_values()
+        .map(|(topic, n)| (topic, u64::from(n)))
+        .collect();
+    Ok(Exported {
+        path,
+        messages,
+        bytes,
+    })
+}
+
+/// Refuses an output that would destroy the run (always) or replace a file unasked (without
+/// `force`), and any output that is not a regular file or is a symbolic link.
+fn check_out(dir: &Path, cfg: &RunConfig, out: &Path, force: bool) -> Result<()> {
+    let shown = out.display();
+    if let Some(what) = run_file(dir, cfg, out) {
         bail!(
-            "{} has no trace.csv (a run with [record] trace = false cannot be exported)",
-            dir.display()
+            "--out {shown} {what}: writing there would destroy the run; choose another --out (--force does not change this)"
         );
     }
-    let path = req.out.clone().unwrap_or_else(|| dir.join("run.mcap"));
-    let mut out = Out::create(&path)?;
-    let study = Study::new(cfg.clone()).context("the run's reference")?;
-    reference_path(&mut out, &study)?;
+    let meta = match std::fs::symlink_metadata(out) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => bail!("cannot check --out {shown}: {e}"),
+    };
+    if meta.file_type().is_symlink() {
+        let to = std::fs::read_link(out)
+            .map(|t| format!(" (to {})", t.display()))
+            .unwrap_or_default();
+        bail!(
+            "--out {shown} is a symbolic link{to}: deltaloop never writes through a link; give a real file as --out"
+        );
+    }
+    if !meta.is_file() {
+        bail!(
+            "--out {shown} is {}, not a regular file: choose another --out",
+            files::kind_of(meta.file_type())
+        );
+    }
+    if !force {
+        bail!("--out {shown} exists: choose another --out, or pass --force to replace it");
+    }
+    Ok(())
+}
+
+/// How `out` is one of the run's files ("is the run's trace.csv", "is a hard link to …"), or
+/// None. The run's files are every file in `dir` but an earlier export's (`run.mcap`, or another
+/// `.mcap` not named after one of the run's laws), compared resolved (links, `..`) and by inode.
+fn run_file(dir: &Path, cfg: &RunConfig, out: &Path) -> Option<String> {
+    use std::os::unix::fs::MetadataExt;
+    let here = crate::output::resolved(out);
+    let inode = std::fs::metadata(out).ok().map(|m| (m.dev(), m.ino()));
+    let laws: Vec<String> = cfg
+        .controller
+        .laws
+        .iter()
+        .map(|l| format!("{l}.mcap"))
+        .collect();
+    let exported = |name: &str| {
+        name == EXPORT_NAME || (name.ends_with(".mcap") && !laws.iter().any(|l| l == name))
+    };
+    let entries = std::fs::read_dir(dir).ok()?;
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Ok(meta) = std::fs::symlink_metadata(entry.path()) else {
+            continue;
+        };
+        if meta.is_dir() || exported(&name) {
+            continue;
+        }
+        if crate::output::resolved(&entry.path()) == here {
+            return Some(format!("is the run's {name}"));
+        }
+        if inode == Some((meta.dev(), meta.ino())) {
+            return Some(format!("is a hard link to the run's {name}"));
+        }
+    }
+    None
+}
+
+/// The messages, attachments and metadata of the run `input` of `dir`, onto `out`.
+fn write_export(out: &mut Out, dir: &Path, input: &RunInput) -> Result<()> {
+    let (cfg, study, summary) = (&input.cfg, &input.study, &input.summary);
+    reference_path(out, study)?;
     let ts_ns = cfg.ts_ns();
-    let mut painter = painter(&study);
-    let mut rows = csv::Reader::from_path(&trace_path)
-        .with_context(|| format!("cannot read {}", trace_path.display()))?;
-    let header = rows.headers()?.clone();
+    let mut painter = painter(study);
+    let trace_path = &input.trace_path;
+    let file = files::open_regular(trace_path, trace::max_bytes(study), "this run's trace")
+        .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", trace_path.display()))?;
+    let mut rows = csv::Reader::from_reader(file);
+    let header = rows
+        .headers()
+        .with_context(|| format!("cannot read {}", trace_path.display()))?
+        .clone();
     let col = |name: &str| {
         header
             .iter()
@@ -199,34 +372,36 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
         let law = row.get(cols.law).unwrap_or("").to_string();
         if current.as_ref().is_none_or(|(l, _)| *l != law) {
             if let Some((done, ch)) = current.take() {
-                finish_law(&mut out, dir, &summary, &done, &ch, ts_ns)?;
+                finish_law(out, dir, study, summary, &done, &ch)?;
             }
-            let ch = law_channels(&mut out, &law)?;
+            let ch = law_channels(out, &law)?;
             current = Some((law.clone(), ch));
         }
         let Some((_, ch)) = current.as_ref() else {
             continue;
         };
         let r = Row::parse(&|i| row.get(i).unwrap_or(""), &cols).with_context(at)?;
-        write_row(&mut out, ch, &law, (&r, &cols), ts_ns, Some(&mut painter))?;
+        write_row(out, ch, &law, (&r, &cols), ts_ns, Some(&mut painter))?;
     }
     if let Some((done, ch)) = current.take() {
-        finish_law(&mut out, dir, &summary, &done, &ch, ts_ns)?;
+        finish_law(out, dir, study, summary, &done, &ch)?;
     }
-    for (name, media) in [
-        ("config.toml", "application/toml"),
-        ("summary.json", "application/json"),
+    for (name, media, data) in [
+        ("config.toml", "application/toml", &input.config_text),
+        ("summary.json", "application/json", &input.summary_text),
     ] {
-        let data = std::fs::read(dir.join(name)).unwrap_or_default();
-        out.w.writer().attach(&mcap::Attachment {
-            log_time: 0,
-            create_time: 0,
-            name: name.into(),
-            media_type: media.into(),
-            data: data.into(),
-        })?;
+        out.w
+            .writer()
+            .attach(&mcap::Attachment {
+                log_time: 0,
+                create_time: 0,
+                name: name.into(),
+                media_type: media.into(),
+                data: data.as_bytes().into(),
+            })
+            .with_context(|| out.cannot())?;
     }
-    out.w.writer().write_metadata(&Metadata {
+    let metadata = Metadata {
         name: "deltaloop".into(),
         metadata: BTreeMap::from([
             ("scenario".into(), cfg.name.clone()),
@@ -240,20 +415,12 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
                 summary["command"].as_str().unwrap_or("").to_string(),
             ),
         ]),
-    })?;
-    out.w.writer().finish()?;
-    drop(out.w);
-    let bytes = std::fs::metadata(&path).map_or(0, |m| m.len());
-    let messages = out
-        .counts
-        .into_values()
-        .map(|(topic, n)| (topic, u64::from(n)))
-        .collect();
-    Ok(Exported {
-        path,
-        messages,
-        bytes,
-    })
+    };
+    out.w
+        .writer()
+        .write_metadata(&metadata)
+        .with_context(|| out.cannot())?;
+    Ok(())
 }
 
 /// The reference path's channel, and the path (task space, every tick up to 2000 points) drawn
@@ -353,20 +520,26 @@ fn write_row(
     Ok(())
 }
 
-/// After a law's rows: its timing rows and how it ended.
+/// After a law's rows: its timing rows (`<law>.timing.csv`, a regular file of at most the
+/// size the run's rows can have) and how it ended.
 fn finish_law(
     out: &mut impl Bus,
     dir: &Path,
+    study: &Study,
     summary: &Value,
     law: &str,
     ch: &Channels,
-    ts_ns: u64,
 ) -> Result<()> {
+    let ts_ns = study.config.ts_ns();
     let timing = dir.join(format!("{law}.timing.csv"));
-    if timing.is_file() {
-        let mut rows = csv::Reader::from_path(&timing)
-            .with_context(|| format!("cannot read {}", timing.display()))?;
-        let header = rows.headers()?.clone();
+    if std::fs::symlink_metadata(&timing).is_ok() {
+        let file = files::open_regular(&timing, timing_max_bytes(study), "a timing.csv")
+            .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", timing.display()))?;
+        let mut rows = csv::Reader::from_reader(file);
+        let header = rows
+            .headers()
+            .with_context(|| format!("cannot read {}", timing.display()))?
+            .clone();
         let order = tick::timing_order(header.iter());
         for (i, row) in rows.records().enumerate() {
             let row = row.with_context(|| format!("{} line {}", timing.display(), i + 2))?;
@@ -379,6 +552,20 @@ fn finish_law(
         }
     }
     ending(out, ch, law, &summary["laws"][law], ts_ns)
+}
+
+/// The longest `<law>.timing.csv` row, bytes: 13 numbers of at most 20 digits make under 300.
+const MAX_TIMING_ROW_BYTES: u64 = 512;
+
+/// The largest `<law>.timing.csv` a run of `study` can have, bytes: a header and a row per tick
+/// 0..=N + 1 and per tick of a safe stop after it (`faults.safe_stop_ms`).
+fn timing_max_bytes(study: &Study) -> u64 {
+    let cfg = &study.config;
+    let brake = (f64::from(cfg.faults.safe_stop_ms) * 1e-3 / cfg.loop_.ts_s).ceil() as u64;
+    let rows = (study.reference.n as u64)
+        .saturating_add(brake)
+        .saturating_add(3);
+    rows.saturating_mul(MAX_TIMING_ROW_BYTES)
 }
 
 /// The last event of a law: how it ended, from its metrics (`summary.json`'s entry).
@@ -435,7 +622,9 @@ impl Live {
             metrics,
             self.ts_ns,
         )?;
-        self.out.w.writer().finish()?;
+        // Closed, not dropped: a write the disk refuses is an error, not a silent loss.
+        let cannot = self.out.cannot();
+        self.out.w.close().context(cannot)?;
         Ok(())
     }
 }
@@ -604,6 +793,7 @@ mod tests {
         let e = export(&ExportRequest {
             run_dir: d.path(),
             out: None,
+            force: false,
         })
         .err()
         .unwrap()
