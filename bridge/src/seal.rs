@@ -157,6 +157,18 @@ fn owner_may_hold_key(owner: u32, me: u32) -> bool {
 /// a run's files.
 pub const KEY_ENV: &str = "DELTALOOP_LINK_KEY";
 
+/// Every secret a bridge may hold in its environment: removed from the environment of every
+/// process a bridge or the supervisor starts that is not a bridge ([`scrub_secrets`]).
+pub const SECRET_ENV: &[&str] = &[KEY_ENV];
+
+/// Removes [`SECRET_ENV`] from what `cmd` inherits: the link authenticates the two hosts, and
+/// the processes they start (a controller or plant, maybe third-party code) get no key.
+pub fn scrub_secrets(cmd: &mut std::process::Command) {
+    for v in SECRET_ENV {
+        cmd.env_remove(v);
+    }
+}
+
 impl LinkKey {
     /// The key in [`KEY_ENV`]; one line if it is missing or malformed.
     pub fn from_env() -> Result<Self, String> {

@@ -678,3 +678,55 @@ fn regression_what_a_far_bridge_killed_outright_left_is_removed_by_the_next_join
     );
     assert!(after.is_empty(), "of {left:?}, left: {after:?}");
 }
+
+/// Regression: the far side's process (the controller or the plant `join` starts, and any
+/// `--controller-cmd`/`--plant-cmd`, third-party code) inherited `DELTALOOP_LINK_KEY`, the
+/// long-lived link key, from the far bridge. A controller command that writes its environment
+/// to a file, then runs the built-in controller, completes the run and was given no secret.
+#[test]
+fn regression_the_far_process_is_not_given_the_link_key() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, cfg, key, ep) = s1_with_key();
+    let seen = tmp.path().join("far-env.txt");
+    let script = tmp.path().join("env-controller.sh");
+    std::fs::write(
+        &script,
+        format!(
+            "#!/bin/sh\nenv > '{}'\nexec '{}' \"$@\"\n",
+            seen.display(),
+            env!("CARGO_BIN_EXE_deltaloop-controller")
+        ),
+    )
+    .unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o700)).unwrap();
+    let out = tmp.path().join("remote");
+    let run = common::spawn(&remote_lockstep(&cfg, &ep, &key, &out));
+    let far_root = tmp.path().join("far-root");
+    let join = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["join", &ep, "--role", "controller", "--wait-s", "60"])
+        .args(["--link-key", key.to_str().unwrap()])
+        .arg(format!("--controller-cmd={}", script.display()))
+        .env("DELTALOOP_IOX2_ROOT", &far_root)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
+    let j = common::finish_within(join, Duration::from_secs(30), "join");
+    deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(j.status.success(), "join: {}", text(&j.stderr));
+    let env = std::fs::read_to_string(&seen).expect("the far controller wrote its environment");
+    let hex = deltaloop_bridge::seal::LinkKey::read(&key)
+        .unwrap()
+        .to_hex();
+    assert!(
+        env.contains("DELTALOOP_IOX2_ROOT="),
+        "the environment it reports: {env}"
+    );
+    assert!(
+        !env.contains(deltaloop_bridge::seal::KEY_ENV) && !env.contains(&hex),
+        "the far controller was given the link key: {env}"
+    );
+}
