@@ -22,7 +22,7 @@ use ring::aead::{Aad, CHACHA20_POLY1305, LessSafeKey, Nonce, UnboundKey};
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::path::Path;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Bytes of a link key and of every session key.
 pub const KEY_LEN: usize = 32;
@@ -34,6 +34,10 @@ pub const NOISE: &str = "Noise_NNpsk0_25519_ChaChaPoly_BLAKE2s";
 pub const PROLOGUE: &[u8] = b"deltaloop link v2";
 /// Width of the UDP replay window, datagrams.
 pub const WINDOW: u64 = 1024;
+/// How long a connection has, all told, for the handshake's two messages (and, on the near
+/// side, the far side's first sealed frame): one deadline from the connection's start, never
+/// restarted by a byte, so a peer that trickles bytes holds a slot no longer than this.
+pub const HANDSHAKE_BUDGET: Duration = Duration::from_secs(2);
 
 /// The pre-shared key of a link: 32 random bytes. A key file holds them as 64 hex digits and a
 /// newline, readable by its owner only.
@@ -539,6 +543,9 @@ pub enum HandshakeError {
     Closed,
     /// The peer did not finish within the deadline.
     Timeout,
+    /// The near side was authenticating as many connections as it hears at once and dropped
+    /// this one unheard (a flood of connections without the key?): try again.
+    Busy,
     /// Anything else (I/O, a malformed message).
     Other(String),
 }
@@ -554,7 +561,15 @@ impl std::fmt::Display for HandshakeError {
                 f,
                 "closed the connection during the handshake (does it hold this link key?)"
             ),
-            HandshakeError::Timeout => write!(f, "did not complete the handshake in time"),
+            HandshakeError::Timeout => write!(
+                f,
+                "did not complete the handshake within {} s",
+                HANDSHAKE_BUDGET.as_secs()
+            ),
+            HandshakeError::Busy => write!(
+                f,
+                "is busy authenticating other connections (a flood of connections, perhaps) and dropped this one unheard"
+            ),
             HandshakeError::Other(e) => write!(f, "handshake failed: {e}"),
         }
     }
@@ -573,22 +588,80 @@ fn io_err(e: std::io::Error) -> HandshakeError {
     }
 }
 
-fn send_msg(s: &mut TcpStream, m: &[u8]) -> Result<(), HandshakeError> {
+/// The time left until `end` (at least 1 ms: a zero timeout means none to the socket), or
+/// [`HandshakeError::Timeout`] once it has passed.
+fn left(end: Instant) -> Result<Duration, HandshakeError> {
+    let now = Instant::now();
+    if now >= end {
+        return Err(HandshakeError::Timeout);
+    }
+    Ok((end - now).max(Duration::from_millis(1)))
+}
+
+/// Reads `buf` whole by `end`: each read waits only for what is left of the one deadline
+/// (regression: a per-read timeout that every byte restarted let a peer sending a byte every
+/// 4.5 s hold a connection for the whole wait).
+fn read_exact_by(
+    s: &mut TcpStream,
+    mut buf: &mut [u8],
+    end: Instant,
+) -> Result<(), HandshakeError> {
+    while !buf.is_empty() {
+        s.set_read_timeout(Some(left(end)?)).map_err(io_err)?;
+        match s.read(buf) {
+            Ok(0) => return Err(HandshakeError::Closed),
+            Ok(n) => buf = &mut buf[n..],
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(io_err(e)),
+        }
+    }
+    Ok(())
+}
+
+/// Writes `buf` whole by `end` (see [`read_exact_by`]).
+fn write_all_by(s: &mut TcpStream, mut buf: &[u8], end: Instant) -> Result<(), HandshakeError> {
+    while !buf.is_empty() {
+        s.set_write_timeout(Some(left(end)?)).map_err(io_err)?;
+        match s.write(buf) {
+            Ok(0) => return Err(HandshakeError::Closed),
+            Ok(n) => buf = &buf[n..],
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(io_err(e)),
+        }
+    }
+    Ok(())
+}
+
+fn send_msg(s: &mut TcpStream, m: &[u8], end: Instant) -> Result<(), HandshakeError> {
     let mut b = [0u8; 2 + MAX_HANDSHAKE];
     b[..2].copy_from_slice(&(m.len() as u16).to_le_bytes());
     b[2..2 + m.len()].copy_from_slice(m);
-    s.write_all(&b[..2 + m.len()]).map_err(io_err)
+    write_all_by(s, &b[..2 + m.len()], end)
 }
 
-fn recv_msg(s: &mut TcpStream, out: &mut [u8; MAX_HANDSHAKE]) -> Result<usize, HandshakeError> {
+/// One handshake message; an empty one is the near side's [`busy`] notice.
+fn recv_msg(
+    s: &mut TcpStream,
+    out: &mut [u8; MAX_HANDSHAKE],
+    end: Instant,
+) -> Result<usize, HandshakeError> {
     let mut l = [0u8; 2];
-    s.read_exact(&mut l).map_err(io_err)?;
+    read_exact_by(s, &mut l, end)?;
     let n = u16::from_le_bytes(l) as usize;
     if n > MAX_HANDSHAKE {
         return Err(HandshakeError::WrongKey);
     }
-    s.read_exact(&mut out[..n]).map_err(io_err)?;
+    read_exact_by(s, &mut out[..n], end)?;
     Ok(n)
+}
+
+/// The near side's notice to a connection it drops unheard because it is authenticating as
+/// many as it hears at once: an empty handshake message (no Noise message is empty). It proves
+/// nothing (anyone on the path could send it, as anyone could reset the connection); the far
+/// side only reads it as "try again", not as a wrong key. Best effort, never blocking.
+pub fn busy(s: &TcpStream) {
+    let _ = s.set_nonblocking(true);
+    let _ = (&*s).write(&[0, 0]);
 }
 
 fn builder(key: &LinkKey) -> Result<snow::Builder<'_>, HandshakeError> {
@@ -601,46 +674,44 @@ fn builder(key: &LinkKey) -> Result<snow::Builder<'_>, HandshakeError> {
         .map_err(|e| HandshakeError::Other(e.to_string()))
 }
 
-/// Sets a blocking stream's read and write deadline to `timeout`.
-fn deadline(s: &TcpStream, timeout: Duration) -> Result<(), HandshakeError> {
-    let t = Some(timeout.max(Duration::from_millis(1)));
-    s.set_nonblocking(false)
-        .and_then(|_| s.set_read_timeout(t))
-        .and_then(|_| s.set_write_timeout(t))
-        .map_err(io_err)
+/// Makes the stream blocking; the deadline `timeout` from now, for the whole handshake.
+fn deadline(s: &TcpStream, timeout: Duration) -> Result<Instant, HandshakeError> {
+    s.set_nonblocking(false).map_err(io_err)?;
+    Ok(Instant::now() + timeout)
 }
 
 /// The near side's handshake on an accepted connection: checks the far side's first message
 /// (the link key), answers with `session` sealed to it. The caller then waits for the far side's
-/// first sealed frame before it believes the connection.
+/// first sealed frame before it believes the connection. `timeout`: for the whole handshake.
 pub fn respond(
     s: &mut TcpStream,
     key: &LinkKey,
     session: &Session,
     timeout: Duration,
 ) -> Result<(), HandshakeError> {
-    deadline(s, timeout)?;
+    let end = deadline(s, timeout)?;
     let mut hs = builder(key)?
         .build_responder()
         .map_err(|e| HandshakeError::Other(e.to_string()))?;
     let (mut m, mut p) = ([0u8; MAX_HANDSHAKE], [0u8; MAX_HANDSHAKE]);
-    let n = recv_msg(s, &mut m)?;
+    let n = recv_msg(s, &mut m, end)?;
     hs.read_message(&m[..n], &mut p)
         .map_err(|_| HandshakeError::WrongKey)?;
     let n = hs
         .write_message(&session.encode(), &mut m)
         .map_err(|e| HandshakeError::Other(e.to_string()))?;
-    send_msg(s, &m[..n])
+    send_msg(s, &m[..n], end)
 }
 
 /// The far side's handshake on its connection: proves the link key, and takes the session the
-/// near side sealed to it (which only a near side holding the key can send).
+/// near side sealed to it (which only a near side holding the key can send). `timeout`: for the
+/// whole handshake.
 pub fn initiate(
     s: &mut TcpStream,
     key: &LinkKey,
     timeout: Duration,
 ) -> Result<Session, HandshakeError> {
-    deadline(s, timeout)?;
+    let end = deadline(s, timeout)?;
     let mut hs = builder(key)?
         .build_initiator()
         .map_err(|e| HandshakeError::Other(e.to_string()))?;
@@ -648,8 +719,11 @@ pub fn initiate(
     let n = hs
         .write_message(&[], &mut m)
         .map_err(|e| HandshakeError::Other(e.to_string()))?;
-    send_msg(s, &m[..n])?;
-    let n = recv_msg(s, &mut m)?;
+    send_msg(s, &m[..n], end)?;
+    let n = recv_msg(s, &mut m, end)?;
+    if n == 0 {
+        return Err(HandshakeError::Busy);
+    }
     let got = hs
         .read_message(&m[..n], &mut p)
         .map_err(|_| HandshakeError::WrongKey)?;
@@ -682,6 +756,66 @@ mod tests {
         });
         let f = initiate(&mut c, far, Duration::from_secs(2));
         (t.join().unwrap(), f)
+    }
+
+    /// Regression: the handshake's timeout was per read, and each byte restarted it: a peer
+    /// sending one byte every 4.5 s held a near side's slot for 29 s, and a fake near side
+    /// answering byte by byte held `join` for 27 s. One deadline covers the whole handshake, on
+    /// both sides, however the peer paces its bytes.
+    #[test]
+    fn regression_a_peer_trickling_bytes_meets_one_deadline_for_the_handshake() {
+        let key = LinkKey::generate().unwrap();
+        let budget = Duration::from_millis(600);
+        // Sends `bytes` one at a time, 150 ms apart, until the other side hangs up.
+        let trickle = |mut s: TcpStream, bytes: Vec<u8>| {
+            std::thread::spawn(move || {
+                for b in bytes {
+                    std::thread::sleep(Duration::from_millis(150));
+                    if s.write_all(&[b]).is_err() {
+                        return;
+                    }
+                }
+            })
+        };
+        // Against the near side: a first message that is all there, a byte at a time.
+        let (c, mut s) = pair();
+        let t = trickle(c, [&48u16.to_le_bytes()[..], &[7u8; 48]].concat());
+        let t0 = Instant::now();
+        let r = respond(&mut s, &key, &Session::generate().unwrap(), budget);
+        let took = t0.elapsed();
+        drop(s);
+        t.join().unwrap();
+        assert_eq!(r, Err(HandshakeError::Timeout));
+        assert!(took < budget + Duration::from_millis(300), "{took:?}");
+        // Against the far side: a fake near side answering a byte at a time.
+        let (mut c, s) = pair();
+        let t = trickle(s, [&200u16.to_le_bytes()[..], &[1u8; 200]].concat());
+        let t0 = Instant::now();
+        let r = initiate(&mut c, &key, budget);
+        let took = t0.elapsed();
+        drop(c);
+        t.join().unwrap();
+        assert_eq!(r.err(), Some(HandshakeError::Timeout));
+        assert!(took < budget + Duration::from_millis(300), "{took:?}");
+    }
+
+    /// A connection the near side drops for want of room hears the busy notice: the far side
+    /// says so, and does not blame the key.
+    #[test]
+    fn a_busy_near_side_is_not_taken_for_a_wrong_key() {
+        let (mut c, s) = pair();
+        busy(&s);
+        drop(s);
+        let r = initiate(
+            &mut c,
+            &LinkKey::generate().unwrap(),
+            Duration::from_secs(2),
+        );
+        let Err(e) = r else {
+            panic!("a busy notice opened a session")
+        };
+        assert_eq!(e, HandshakeError::Busy);
+        assert!(!e.to_string().contains("link key"), "{e}");
     }
 
     #[test]

@@ -494,7 +494,7 @@ fn strangers_and_wrong_keys_are_refused_and_the_honest_join_runs_byte_identical(
         sec["peer"].as_str().unwrap().starts_with("127.0.0.1:"),
         "{sec}"
     );
-    // The stranger and the wrong key at least (the silent one, if its 5 s ran out first).
+    // The stranger and the wrong key at least (the silent one, if its 2 s ran out first).
     assert!(sec["refused_connections"].as_u64().unwrap() >= 2, "{sec}");
     assert_eq!(sec["refused_datagrams"]["forged"], 0, "{sec}");
     let log = std::fs::read_to_string(remote.join("tdc.controller.log")).unwrap();
