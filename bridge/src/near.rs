@@ -19,7 +19,7 @@ use crate::bytes::{self, bytes_of, bytes_of_slice};
 use crate::emulation::Emulation;
 use crate::frame::{Hello, Kind};
 use crate::link::{self, Tcp, Udp};
-use crate::seal::{self, End, LinkKey, LinkReport, Session};
+use crate::seal::{self, End, LinkKey, LinkReport, RefusedCounts, Session, SideRefusals};
 use crate::sides::{ControllerHost, PlantHost};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
@@ -604,21 +604,48 @@ fn finish(
 ) -> Result<(u8, Option<String>)> {
     p.tcp.flush().ok();
     std::thread::sleep(ipc::LINGER);
-    p.report.refused_datagrams = p.udp.refused.into();
+    let near = RefusedCounts::from(p.udp.refused);
+    p.report.near = SideRefusals {
+        refused_datagrams: near,
+    };
+    let far = p.report.far.unwrap_or_default().refused_datagrams;
+    p.report.refused_datagrams = near.plus(far);
     if let Err(e) = p.report.write(report) {
         eprintln!("deltaloop-bridge: warning: {e}");
     }
     let end = r?;
     link_summary(emu, p.udp.emulated_lost, counts);
-    if p.udp.refused.total() > 0 {
+    if let Some(line) = refused_warning(&p.udp) {
+        eprintln!("{line}");
+    }
+    if far.total() > 0 {
         eprintln!(
-            "deltaloop-bridge: warning: refused {} datagram(s) on the link ({}; first: {})",
-            p.udp.refused.total(),
-            p.udp.refused.describe(),
-            p.udp.last_refusal.as_deref().unwrap_or("")
+            "deltaloop-bridge: warning: the far side refused {} datagram(s) on the link ({})",
+            far.total(),
+            far.describe()
         );
     }
     Ok(end)
+}
+
+/// The far side's refusals from its `Refused` frame.
+fn far_refusals(p: &[u8]) -> Option<SideRefusals> {
+    RefusedCounts::from_wire(p).map(|c| SideRefusals {
+        refused_datagrams: c,
+    })
+}
+
+/// The warning line for the datagrams this side refused, if it refused any.
+pub fn refused_warning(udp: &Udp) -> Option<String> {
+    let r = &udp.refused;
+    (r.total() > 0).then(|| {
+        format!(
+            "deltaloop-bridge: warning: refused {} datagram(s) on the link ({}; first: {})",
+            r.total(),
+            r.describe(),
+            udp.last_refusal.as_deref().unwrap_or("")
+        )
+    })
 }
 
 /// The link's statistics on stderr, if there is anything to say: the datagrams the emulation
@@ -800,6 +827,7 @@ impl Near {
             return Ok(());
         }
         let (ports, far_end, log) = (&self.ports, &mut p.far_end, &mut p.log);
+        let far_refused = &mut p.report.far;
         p.tcp.poll(|kind, p| {
             match kind {
                 Kind::Control => {
@@ -812,6 +840,7 @@ impl Near {
                     }
                 }
                 Kind::Log => log.line(p),
+                Kind::Refused => *far_refused = far_refusals(p),
                 Kind::Exit => *far_end = Some(FarEnd::of(p)),
                 _ => {}
             }

@@ -187,17 +187,31 @@ impl LinkKey {
 
 /// What the near bridge tells the supervisor about a run's link, in `link-<run id>.json` next to
 /// the run's config: who joined, with which key (its fingerprint, never the key), and what the
-/// link refused.
+/// link refused, on each host.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LinkReport {
     /// The far side's address (TCP), as this host saw it.
     pub peer: String,
     /// [`LinkKey::fingerprint`] of the link key.
     pub key_fingerprint: String,
-    /// Connections refused before the far side joined: wrong key, silence, or nothing sealed
-    /// after the handshake.
+    /// Connections refused before the far side joined: wrong key, silence or slowness, or no
+    /// room (the oldest dropped for a newer one).
     pub refused_connections: u64,
-    /// Datagrams refused during the run, by reason.
+    /// Datagrams refused during the run, by reason: both hosts together (`near` + `far`).
+    pub refused_datagrams: RefusedCounts,
+    /// What the near side (the supervisor's host) refused.
+    #[serde(default)]
+    pub near: SideRefusals,
+    /// What the far side (`join`'s host) refused, as it reported at the end of the run; None if
+    /// it did not report (the link went down first).
+    #[serde(default)]
+    pub far: Option<SideRefusals>,
+}
+
+/// What one side of the link refused during a run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct SideRefusals {
+    /// Datagrams refused, by reason.
     pub refused_datagrams: RefusedCounts,
 }
 
@@ -223,8 +237,66 @@ impl From<Refusals> for RefusedCounts {
 }
 
 impl RefusedCounts {
+    /// Bytes of the counts on the wire (a `Refused` frame).
+    pub const WIRE: usize = 32;
+
     pub fn total(&self) -> u64 {
         self.malformed + self.other_run + self.forged + self.replayed
+    }
+
+    /// Both sides' counts together.
+    pub fn plus(self, o: Self) -> Self {
+        Self {
+            malformed: self.malformed + o.malformed,
+            other_run: self.other_run + o.other_run,
+            forged: self.forged + o.forged,
+            replayed: self.replayed + o.replayed,
+        }
+    }
+
+    /// `forged 3, replayed 1`; empty when none.
+    pub fn describe(&self) -> String {
+        [
+            ("malformed", self.malformed),
+            ("other run", self.other_run),
+            ("forged", self.forged),
+            ("replayed", self.replayed),
+        ]
+        .iter()
+        .filter(|(_, n)| *n > 0)
+        .map(|(r, n)| format!("{r} {n}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+    }
+
+    /// The counts as a `Refused` frame carries them: four u64, little-endian.
+    pub fn to_wire(self) -> [u8; Self::WIRE] {
+        let mut b = [0u8; Self::WIRE];
+        for (i, n) in [self.malformed, self.other_run, self.forged, self.replayed]
+            .iter()
+            .enumerate()
+        {
+            b[8 * i..8 * i + 8].copy_from_slice(&n.to_le_bytes());
+        }
+        b
+    }
+
+    /// The counts of a `Refused` frame (None: not [`Self::WIRE`] bytes).
+    pub fn from_wire(b: &[u8]) -> Option<Self> {
+        if b.len() != Self::WIRE {
+            return None;
+        }
+        let n = |i: usize| {
+            let mut w = [0u8; 8];
+            w.copy_from_slice(&b[8 * i..8 * i + 8]);
+            u64::from_le_bytes(w)
+        };
+        Some(Self {
+            malformed: n(0),
+            other_run: n(1),
+            forged: n(2),
+            replayed: n(3),
+        })
     }
 }
 
