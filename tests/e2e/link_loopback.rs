@@ -836,3 +836,39 @@ fn regression_the_far_hosts_refused_datagrams_are_in_the_runs_record() {
         "{join_err}"
     );
 }
+
+/// Regression: a near side busy with a flood of connections without the key dropped an honest
+/// `join` unheard, and `join` (any `--runs` but 0) gave up, blaming the key ("does it hold this
+/// link key?"). The busy notice has `join --runs 1` say the near side is busy and connect again,
+/// and the handshake that follows succeeds.
+#[test]
+fn regression_join_tries_a_busy_near_side_again_and_does_not_blame_the_key() {
+    let tmp = tempfile::tempdir().unwrap();
+    let key = tmp.path().join("link.key");
+    let k = deltaloop_bridge::seal::LinkKey::write_new(&key).unwrap();
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = l.local_addr().unwrap().port();
+    let root = tmp.path().join("far-root");
+    let join = join_runs(port, &key, 1, &root);
+    let first = accept_within(&l);
+    deltaloop_bridge::seal::busy(&first);
+    first.shutdown(std::net::Shutdown::Write).unwrap();
+    let mut again = accept_within(&l);
+    let session = deltaloop_bridge::seal::Session::generate().unwrap();
+    let r = deltaloop_bridge::seal::respond(&mut again, &k, &session, Duration::from_secs(10));
+    std::thread::sleep(Duration::from_millis(300));
+    let (o, _) = terminate(join);
+    drop((first, again));
+    deltaloop_supervisor::ops::loopback::remove_root(&root, false);
+    let err = text(&o.stderr);
+    assert_eq!(r, Ok(()), "{err}");
+    assert!(
+        err.contains("is busy authenticating other connections"),
+        "{err}"
+    );
+    assert!(
+        err.contains("trying again") && err.contains("joined the run"),
+        "{err}"
+    );
+    assert!(!err.contains("link key?"), "{err}");
+}
