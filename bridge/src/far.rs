@@ -325,16 +325,21 @@ impl PlantSidePorts {
     }
 }
 
-/// Proves the link key to the near side ([`seal::initiate`]: a near side without it cannot
-/// answer) and says which role this side joined for, the first sealed frame. One line naming the
-/// near side otherwise.
-fn join(a: &Args, mut stream: TcpStream, term: &AtomicBool) -> Result<(Tcp, Session)> {
-    let key = LinkKey::from_env().map_err(anyhow::Error::msg)?;
-    // A SIGTERM during the handshake shuts the socket, so the blocking read ends at once
-    // (regression: a join waiting for a silent near side ignored SIGTERM for seconds).
+/// How long a far side waits before it connects again to a near side that said it was busy.
+const BUSY_RETRY: Duration = Duration::from_millis(200);
+
+/// One handshake on `stream` ([`seal::initiate`], within [`seal::HANDSHAKE_BUDGET`] all told,
+/// however the near side paces its answer). A SIGTERM during it shuts the socket, so the
+/// blocking read ends at once (regression: a join waiting for a silent near side ignored SIGTERM
+/// for seconds).
+fn handshake(
+    stream: &mut TcpStream,
+    key: &LinkKey,
+    term: &AtomicBool,
+) -> Result<std::result::Result<Session, seal::HandshakeError>> {
     let done = AtomicBool::new(false);
     let watch = stream.try_clone()?;
-    let session = std::thread::scope(|sc| {
+    Ok(std::thread::scope(|sc| {
         sc.spawn(|| {
             while !done.load(Ordering::Relaxed) {
                 if term.load(Ordering::Relaxed) {
@@ -344,11 +349,42 @@ fn join(a: &Args, mut stream: TcpStream, term: &AtomicBool) -> Result<(Tcp, Sess
                 std::thread::sleep(Duration::from_millis(10));
             }
         });
-        let r = seal::initiate(&mut stream, &key, Duration::from_secs(5));
+        let r = seal::initiate(stream, key, seal::HANDSHAKE_BUDGET);
         done.store(true, Ordering::Relaxed);
         r
-    })
-    .map_err(|e| anyhow::anyhow!("the near side at {} {e}", a.connect))?;
+    }))
+}
+
+/// Proves the link key to the near side ([`seal::initiate`]: a near side without it cannot
+/// answer) and says which role this side joined for, the first sealed frame. A near side busy
+/// with other connections (a flood) is tried again until `--wait-s` runs out, whatever
+/// `--runs` says. One line naming the near side otherwise.
+fn join(a: &Args, mut stream: TcpStream, term: &AtomicBool) -> Result<(Tcp, Session)> {
+    let key = LinkKey::from_env().map_err(anyhow::Error::msg)?;
+    let end = rt::now_ns().saturating_add(a.wait_s.saturating_mul(1_000_000_000));
+    let mut said = false;
+    let session = loop {
+        match handshake(&mut stream, &key, term)? {
+            Err(seal::HandshakeError::Busy)
+                if (a.wait_s == 0 || rt::now_ns() < end) && !term.load(Ordering::Relaxed) =>
+            {
+                if !said {
+                    eprintln!(
+                        "deltaloop-bridge: the near side at {} {}; trying again",
+                        a.connect,
+                        seal::HandshakeError::Busy
+                    );
+                    said = true;
+                }
+                std::thread::sleep(BUSY_RETRY);
+                let Some(s) = connect(a, term)? else {
+                    bail!("interrupted while joining the near side at {}", a.connect);
+                };
+                stream = s;
+            }
+            r => break r.map_err(|e| anyhow::anyhow!("the near side at {} {e}", a.connect))?,
+        }
+    };
     let mut tcp = Tcp::new(stream, &session, End::Far)?;
     tcp.send(Kind::Join, &[&a.role.to_wire().to_ne_bytes()])?;
     eprintln!(

@@ -58,6 +58,10 @@ pub enum Kind {
     /// joined for (u32: [`crate::Role`] as 1 controller, 2 plant). It proves the far side holds
     /// the session; the near side says nothing of the run before it.
     Join = 24,
+    /// TCP, far → near, at the end of a run before EXIT: the datagrams the far side refused,
+    /// by reason (four u64, little-endian: malformed, other run, forged, replayed), for the
+    /// run's record on the supervisor's host.
+    Refused = 25,
 }
 
 impl Kind {
@@ -65,7 +69,7 @@ impl Kind {
         use Kind::*;
         [
             State, Torque, Ping, Pong, Punch, Hello, Ack, Control, Reference, Final, Exit, Log,
-            Telemetry, Join,
+            Telemetry, Join, Refused,
         ]
         .into_iter()
         .find(|k| *k as u16 == v)
@@ -124,6 +128,7 @@ fn fixed_size(kind: Kind) -> Option<usize> {
         Kind::Ping | Kind::Pong => Some(size_of::<StateMsg>()),
         Kind::Punch => Some(0),
         Kind::Ack => Some(8),
+        Kind::Refused => Some(crate::seal::RefusedCounts::WIRE),
         Kind::Control => Some(size_of::<ControlMsg>()),
         Kind::Telemetry => Some(size_of::<TelemetryMsg>()),
         Kind::Hello | Kind::Join | Kind::Reference | Kind::Exit | Kind::Log | Kind::Torque => None,

@@ -19,7 +19,7 @@ use crate::bytes::{self, bytes_of, bytes_of_slice};
 use crate::emulation::Emulation;
 use crate::frame::{Hello, Kind};
 use crate::link::{self, Tcp, Udp};
-use crate::seal::{self, End, LinkKey, LinkReport, Session};
+use crate::seal::{self, End, LinkKey, LinkReport, RefusedCounts, Session, SideRefusals};
 use crate::sides::{ControllerHost, PlantHost};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
@@ -217,26 +217,35 @@ struct Peer {
     stop_sent_ns: Option<u64>,
 }
 
-/// Connections the near side authenticates at once at most; more wait in the kernel's backlog.
-const MAX_PENDING: usize = 8;
+/// Connections the near side authenticates at once at most: more than a flood of a few slow
+/// connections fills, few enough to bound the threads. When a new one comes and all are taken,
+/// the oldest is dropped (with the busy notice), so an honest far side always gets a slot
+/// (regression: with 8, eight slow connections without the key kept `join` out for 30 s).
+const MAX_PENDING: usize = 32;
 
-/// How long one connection may take to prove the link key and send its first sealed frame.
-const PER_CONNECTION: Duration = Duration::from_secs(5);
+/// How long one connection may take, all told from its accept, to prove the link key and send
+/// its first sealed frame.
+const PER_CONNECTION: Duration = seal::HANDSHAKE_BUDGET;
+
+/// Refused connections whose reason is logged one by one; more are counted, and said once.
+const LOGGED_REFUSALS: u64 = 32;
 
 /// An authenticated far side: its control plane, address and the role it joined for.
 type Joined = (Tcp, SocketAddr, Option<Role>);
 
 /// Proves an accepted connection holds the link key (Noise handshake, [`seal::respond`]) and
 /// waits for its first sealed frame (JOIN), which a replayed handshake cannot send; nothing of
-/// the run is said before. One line saying why otherwise.
+/// the run is said before. All by `accepted` + [`PER_CONNECTION`], however the peer paces its
+/// bytes. One line saying why otherwise.
 fn authenticate(
     mut stream: std::net::TcpStream,
     peer: SocketAddr,
-    key: &LinkKey,
-    session: &Session,
+    (key, session): (&LinkKey, &Session),
+    accepted: std::time::Instant,
 ) -> std::result::Result<Joined, String> {
-    let end = rt::now_ns() + PER_CONNECTION.as_nanos() as u64;
-    seal::respond(&mut stream, key, session, PER_CONNECTION).map_err(|e| e.to_string())?;
+    let end = accepted + PER_CONNECTION;
+    let left = end.saturating_duration_since(std::time::Instant::now());
+    seal::respond(&mut stream, key, session, left).map_err(|e| e.to_string())?;
     let mut tcp = Tcp::new(stream, session, End::Near).map_err(|e| format!("{e:#}"))?;
     loop {
         let mut joined = None;
@@ -253,8 +262,11 @@ fn authenticate(
         if tcp.closed {
             return Err("closed the connection after the handshake".into());
         }
-        if rt::now_ns() > end {
-            return Err("sent nothing sealed after the handshake".into());
+        if std::time::Instant::now() > end {
+            return Err(format!(
+                "sent nothing sealed within {} s of connecting",
+                PER_CONNECTION.as_secs()
+            ));
         }
         std::thread::sleep(Duration::from_millis(1));
     }
@@ -266,52 +278,162 @@ struct Listen {
     role: Role,
 }
 
+/// The connections refused while waiting for the far side: counted, and logged one by one up to
+/// [`LOGGED_REFUSALS`].
+#[derive(Default)]
+struct Refused {
+    count: u64,
+}
+
+impl Refused {
+    /// Counts a refusal of `who`; the line to log, if it is still logged.
+    fn note(&mut self, who: SocketAddr, why: &str) -> Option<String> {
+        self.count += 1;
+        match self.count {
+            n if n < LOGGED_REFUSALS => Some(format!(
+                "deltaloop-bridge: refused a connection from {who}: it {why}"
+            )),
+            LOGGED_REFUSALS => Some(format!(
+                "deltaloop-bridge: refused a connection from {who}: it {why}; further refused connections are counted, not logged one by one"
+            )),
+            _ => None,
+        }
+    }
+}
+
+/// A connection being authenticated in a thread of its own.
+struct Pending {
+    id: u64,
+    who: SocketAddr,
+    accepted: std::time::Instant,
+    /// A handle on its socket, to drop it if room is needed.
+    stream: std::net::TcpStream,
+}
+
+/// What a thread that authenticates a connection says: its id and how it went.
+type Outcome = (u64, std::result::Result<Joined, String>);
+
+/// The connections being authenticated, at most [`MAX_PENDING`], oldest first.
+struct Gate {
+    pending: std::collections::VecDeque<Pending>,
+    results: std::sync::mpsc::Receiver<Outcome>,
+    tell: std::sync::mpsc::Sender<Outcome>,
+    next_id: u64,
+    refused: Refused,
+}
+
+impl Gate {
+    fn new() -> Self {
+        let (tell, results) = std::sync::mpsc::channel();
+        Self {
+            pending: std::collections::VecDeque::with_capacity(MAX_PENDING),
+            results,
+            tell,
+            next_id: 0,
+            refused: Refused::default(),
+        }
+    }
+
+    /// Counts and logs a refusal.
+    fn refuse(&mut self, who: SocketAddr, why: &str) {
+        if let Some(line) = self.refused.note(who, why) {
+            eprintln!("{line}");
+        }
+    }
+
+    /// The threads' verdicts: the first connection that authenticated, if any. A dropped
+    /// connection's verdict is ignored (it was counted when it was dropped).
+    fn verdicts(&mut self) -> Option<Joined> {
+        while let Ok((id, r)) = self.results.try_recv() {
+            let Some(i) = self.pending.iter().position(|p| p.id == id) else {
+                continue;
+            };
+            let p = self.pending.remove(i)?;
+            match r {
+                Ok(joined) => return Some(joined),
+                Err(why) => self.refuse(p.who, &why),
+            }
+        }
+        None
+    }
+
+    /// Authenticates a new connection in a thread of its own, dropping the oldest pending one
+    /// if all [`MAX_PENDING`] slots are taken.
+    fn admit(
+        &mut self,
+        s: std::net::TcpStream,
+        who: SocketAddr,
+        (key, session): (&LinkKey, &Session),
+    ) -> Result<()> {
+        let accepted = std::time::Instant::now();
+        if self.pending.len() >= MAX_PENDING
+            && let Some(old) = self.pending.pop_front()
+        {
+            seal::busy(&old.stream);
+            let _ = old.stream.shutdown(std::net::Shutdown::Both);
+            let why = format!(
+                "was dropped unauthenticated after {} ms to make room for a new connection ({MAX_PENDING} were being authenticated at once)",
+                old.accepted.elapsed().as_millis()
+            );
+            self.refuse(old.who, &why);
+        }
+        let id = self.next_id;
+        self.next_id += 1;
+        self.pending.push_back(Pending {
+            id,
+            who,
+            accepted,
+            stream: s
+                .try_clone()
+                .context("a handle on an accepted connection")?,
+        });
+        let (tx, key, session) = (self.tell.clone(), key.clone(), session.clone());
+        std::thread::spawn(move || {
+            let r = authenticate(s, who, (&key, &session), accepted);
+            let _ = tx.send((id, r));
+        });
+        Ok(())
+    }
+}
+
 /// Accepts connections until one far side authenticates with the link key (each in a thread of
-/// its own, at most [`MAX_PENDING`] at once); the joined link and how many were refused. None:
-/// STOP or SIGTERM came first. `end`: the deadline, ns.
+/// its own, at most [`MAX_PENDING`] at once, each within [`PER_CONNECTION`] of its accept); the
+/// joined link and how many were refused. None: `stopped` said so (STOP or SIGTERM) first.
+/// `end`: the deadline, ns.
 fn accept_far(
     at: &Listen,
     listener: &TcpListener,
-    (key, session): (&LinkKey, &Session),
-    (control, term): (&ControlPorts, &AtomicBool),
+    auth: (&LinkKey, &Session),
+    stopped: &mut dyn FnMut() -> Result<bool>,
     end: u64,
 ) -> Result<Option<(Joined, u64)>> {
-    let (results, done) = std::sync::mpsc::channel();
-    let (mut pending, mut refused) = (0usize, 0u64);
+    let mut gate = Gate::new();
     let joined = 'wait: loop {
-        while let Ok(r) = done.try_recv() {
-            pending -= 1;
-            match r {
-                Ok(joined) => break 'wait joined,
-                Err((who, why)) => {
-                    refused += 1;
-                    eprintln!("deltaloop-bridge: refused a connection from {who}: it {why}");
-                }
+        if let Some(j) = gate.verdicts() {
+            break 'wait j;
+        }
+        // Every connection waiting in the backlog, each turn.
+        loop {
+            match listener.accept() {
+                Ok((s, who)) => gate.admit(s, who, auth)?,
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => break,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e).context("accept the far side"),
             }
         }
-        match listener.accept() {
-            Ok((s, who)) if pending < MAX_PENDING => {
-                pending += 1;
-                let (tx, key, session) = (results.clone(), key.clone(), session.clone());
-                std::thread::spawn(move || {
-                    let _ = tx.send(authenticate(s, who, &key, &session).map_err(|e| (who, e)));
-                });
-            }
-            // Too many at once: this one is closed unheard (the honest side connects again).
-            Ok((s, _)) => drop(s),
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
-            Err(e) => return Err(e).context("accept the far side"),
-        }
-        if stopped(control, term)? {
+        if stopped()? {
             return Ok(None);
         }
         if rt::now_ns() > end {
+            let refused = gate.refused.count;
             bail!(
                 "no far side joined at {} within {} s{} (run `deltaloop join {} --role {}` with this run's link key on the other host)",
                 at.addr,
                 ipc::HANDSHAKE_TIMEOUT_NS / 1_000_000_000,
                 if refused > 0 {
-                    format!("; {refused} connection(s) were refused for the wrong key or silence")
+                    format!(
+                        "; {refused} connection(s) were refused (a wrong key, silence or slowness, or no room)"
+                    )
                 } else {
                     String::new()
                 },
@@ -321,7 +443,11 @@ fn accept_far(
         }
         std::thread::sleep(Duration::from_millis(2));
     };
-    Ok(Some((joined, refused)))
+    // The others are dropped unheard; the far side that joined is all that is listened to now.
+    for p in gate.pending.drain(..) {
+        let _ = p.stream.shutdown(std::net::Shutdown::Both);
+    }
+    Ok(Some((joined, gate.refused.count)))
 }
 
 /// Waits for the far side's ACK with its UDP port (up to the ACK only: what it says after it,
@@ -362,7 +488,8 @@ fn await_ack(
 
 /// Waits for the far side: every connection must prove the link key before anything of the run
 /// is said, a stranger's is dropped (and counted) and the wait goes on; at most
-/// [`MAX_PENDING`] are authenticated at once, each within [`PER_CONNECTION`]. Then sends the
+/// [`MAX_PENDING`] are authenticated at once, each within [`PER_CONNECTION`] of its accept. Then
+/// sends the
 /// HELLO and connects the UDP socket to the port the far side answers with; the link report is
 /// written at once, so a far side that joined and then fell silent is named by the supervisor.
 /// None: stopped (STOP or SIGTERM) before it joined.
@@ -382,8 +509,9 @@ fn connect(
     listener.set_nonblocking(true)?;
     // The far side connects: wait for it as long as a handshake step may take.
     let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
+    let mut stop = || stopped(control, term);
     let Some(((mut tcp, peer, role), refused)) =
-        accept_far(at, &listener, (&key, &session), (control, term), end)?
+        accept_far(at, &listener, (&key, &session), &mut stop, end)?
     else {
         return Ok(None);
     };
@@ -476,21 +604,48 @@ fn finish(
 ) -> Result<(u8, Option<String>)> {
     p.tcp.flush().ok();
     std::thread::sleep(ipc::LINGER);
-    p.report.refused_datagrams = p.udp.refused.into();
+    let near = RefusedCounts::from(p.udp.refused);
+    p.report.near = SideRefusals {
+        refused_datagrams: near,
+    };
+    let far = p.report.far.unwrap_or_default().refused_datagrams;
+    p.report.refused_datagrams = near.plus(far);
     if let Err(e) = p.report.write(report) {
         eprintln!("deltaloop-bridge: warning: {e}");
     }
     let end = r?;
     link_summary(emu, p.udp.emulated_lost, counts);
-    if p.udp.refused.total() > 0 {
+    if let Some(line) = refused_warning(&p.udp) {
+        eprintln!("{line}");
+    }
+    if far.total() > 0 {
         eprintln!(
-            "deltaloop-bridge: warning: refused {} datagram(s) on the link ({}; first: {})",
-            p.udp.refused.total(),
-            p.udp.refused.describe(),
-            p.udp.last_refusal.as_deref().unwrap_or("")
+            "deltaloop-bridge: warning: the far side refused {} datagram(s) on the link ({})",
+            far.total(),
+            far.describe()
         );
     }
     Ok(end)
+}
+
+/// The far side's refusals from its `Refused` frame.
+fn far_refusals(p: &[u8]) -> Option<SideRefusals> {
+    RefusedCounts::from_wire(p).map(|c| SideRefusals {
+        refused_datagrams: c,
+    })
+}
+
+/// The warning line for the datagrams this side refused, if it refused any.
+pub fn refused_warning(udp: &Udp) -> Option<String> {
+    let r = &udp.refused;
+    (r.total() > 0).then(|| {
+        format!(
+            "deltaloop-bridge: warning: refused {} datagram(s) on the link ({}; first: {})",
+            r.total(),
+            r.describe(),
+            udp.last_refusal.as_deref().unwrap_or("")
+        )
+    })
 }
 
 /// The link's statistics on stderr, if there is anything to say: the datagrams the emulation
@@ -672,6 +827,7 @@ impl Near {
             return Ok(());
         }
         let (ports, far_end, log) = (&self.ports, &mut p.far_end, &mut p.log);
+        let far_refused = &mut p.report.far;
         p.tcp.poll(|kind, p| {
             match kind {
                 Kind::Control => {
@@ -684,6 +840,7 @@ impl Near {
                     }
                 }
                 Kind::Log => log.line(p),
+                Kind::Refused => *far_refused = far_refusals(p),
                 Kind::Exit => *far_end = Some(FarEnd::of(p)),
                 _ => {}
             }
@@ -712,6 +869,148 @@ pub fn describe(e: &Emulation) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::io::{Read, Write};
+    use std::net::TcpStream;
+    use std::sync::Arc;
+    use std::time::Instant;
+
+    /// What the honest far side of a test met: how long it took, its link and address once
+    /// admitted, and the errors before.
+    type Honest = (Duration, Option<(Tcp, SocketAddr)>, Vec<String>);
+
+    /// What `accept_far` of a test returns.
+    type Accepted = Result<Option<(Joined, u64)>>;
+
+    /// An honest far side: connects to `addr` and joins (handshake, JOIN) as `join` does, again
+    /// after any failure, for up to 15 s. How long it took, its address, and the errors it met.
+    fn honest(addr: SocketAddr, key: LinkKey) -> std::thread::JoinHandle<Honest> {
+        std::thread::spawn(move || {
+            let (t0, mut errors) = (Instant::now(), Vec::new());
+            while t0.elapsed() < Duration::from_secs(15) {
+                let Ok(mut s) = TcpStream::connect(addr) else {
+                    continue;
+                };
+                let me = s.local_addr().unwrap();
+                match seal::initiate(&mut s, &key, seal::HANDSHAKE_BUDGET) {
+                    Ok(session) => {
+                        let mut tcp = Tcp::new(s, &session, End::Far).unwrap();
+                        let role = Role::Controller.to_wire().to_ne_bytes();
+                        tcp.send(Kind::Join, &[&role]).unwrap();
+                        return (t0.elapsed(), Some((tcp, me)), errors);
+                    }
+                    Err(e) => errors.push(e.to_string()),
+                }
+                std::thread::sleep(Duration::from_millis(200));
+            }
+            (t0.elapsed(), None, errors)
+        })
+    }
+
+    /// A listener of this test and `accept_far` on it in a thread (30 s window, never stopped).
+    fn near_side(key: &LinkKey) -> (SocketAddr, std::thread::JoinHandle<Accepted>) {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        listener.set_nonblocking(true).unwrap();
+        let addr = listener.local_addr().unwrap();
+        let key = key.clone();
+        let near = std::thread::spawn(move || {
+            let session = Session::generate().unwrap();
+            let at = Listen {
+                addr,
+                role: Role::Controller,
+            };
+            let end = rt::now_ns() + 30_000_000_000;
+            accept_far(&at, &listener, (&key, &session), &mut || Ok(false), end)
+        });
+        (addr, near)
+    }
+
+    /// Regression: eight TCP connections without the key, each sending a byte every 4.5 s (or
+    /// silent and connecting again when dropped), kept an honest `join` out for the whole 30 s
+    /// window: the limit was a per-read timeout each byte restarted, and the 9th connection was
+    /// dropped unheard (neither logged nor counted). Here four trickle a byte every 500 ms and
+    /// four stay silent, all connecting again at once when dropped: each is dropped within
+    /// [`PER_CONNECTION`] of its accept and counted, and the honest side, coming once the
+    /// flood has held the slots for longer than that, is admitted at once, never told its key
+    /// is wrong.
+    #[test]
+    fn regression_eight_slow_connections_do_not_lock_the_honest_side_out() {
+        let key = LinkKey::generate().unwrap();
+        let (addr, near) = near_side(&key);
+        let stop = Arc::new(AtomicBool::new(false));
+        let flood: Vec<_> = (0..8)
+            .map(|i| {
+                let stop = stop.clone();
+                std::thread::spawn(move || {
+                    while !stop.load(Ordering::Relaxed) {
+                        let Ok(mut s) = TcpStream::connect(addr) else {
+                            std::thread::sleep(Duration::from_millis(10));
+                            continue;
+                        };
+                        s.set_read_timeout(Some(Duration::from_millis(100)))
+                            .unwrap();
+                        // A first message of 48 bytes announced, then its bytes one by one.
+                        let mut bytes = [48u8, 0].into_iter().chain(std::iter::repeat(7));
+                        let mut next = Instant::now();
+                        while !stop.load(Ordering::Relaxed) {
+                            if i % 2 == 0 && Instant::now() >= next {
+                                next += Duration::from_millis(500);
+                                if s.write_all(&[bytes.next().unwrap()]).is_err() {
+                                    break;
+                                }
+                            }
+                            match s.read(&mut [0u8; 16]) {
+                                Ok(_) => break,
+                                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+                                Err(_) => break,
+                            }
+                        }
+                    }
+                })
+            })
+            .collect();
+        // Past every first flood connection's deadline, while the flood goes on.
+        std::thread::sleep(PER_CONNECTION + Duration::from_millis(1000));
+        let (took, joined, errors) = honest(addr, key).join().unwrap();
+        let r = near.join().unwrap();
+        stop.store(true, Ordering::Relaxed);
+        for f in flood {
+            f.join().unwrap();
+        }
+        let ((_, peer, role), refused) = r.unwrap().expect("not stopped");
+        let (_tcp, me) = joined.unwrap_or_else(|| panic!("never admitted: {errors:?}"));
+        assert_eq!((peer, role), (me, Some(Role::Controller)));
+        assert!(took < Duration::from_secs(10), "{took:?}: {errors:?}");
+        assert!(
+            errors.iter().all(|e| !e.contains("link key")),
+            "the honest side was told its key is wrong: {errors:?}"
+        );
+        // Each of the flood's first eight was dropped at its deadline, and counted.
+        assert!(refused >= 8, "{refused}");
+    }
+
+    /// Every slot taken by a silent connection: the next one still gets in, the oldest is
+    /// dropped, counted, and hears the busy notice (not a verdict on its key).
+    #[test]
+    fn a_full_near_side_drops_its_oldest_connection_with_the_busy_notice() {
+        let key = LinkKey::generate().unwrap();
+        let (addr, near) = near_side(&key);
+        let silent: Vec<TcpStream> = (0..MAX_PENDING)
+            .map(|_| TcpStream::connect(addr).unwrap())
+            .collect();
+        std::thread::sleep(Duration::from_millis(300));
+        let (took, joined, errors) = honest(addr, key).join().unwrap();
+        let ((_, peer, _), refused) = near.join().unwrap().unwrap().unwrap();
+        assert_eq!(Some(peer), joined.map(|j| j.1), "{errors:?}");
+        assert!(took < Duration::from_secs(1), "{took:?}");
+        assert!(refused >= 1, "{refused}");
+        let mut first = &silent[0];
+        first
+            .set_read_timeout(Some(Duration::from_secs(5)))
+            .unwrap();
+        let mut heard = Vec::new();
+        let _ = first.read_to_end(&mut heard);
+        assert_eq!(heard, [0, 0]);
+    }
 
     /// Regression: a far side grew the near host's `<law>.controller.log` to 97 MB in 0.8 s; what
     /// it sends is kept up to [`FAR_LOG_CAP`], and the cut is said once.

@@ -95,6 +95,8 @@ pub(super) fn spawn(
     if let Some(law) = law {
         c.args(["--law", law]);
     }
+    // The link key is this bridge's, never the process's it starts.
+    crate::seal::scrub_secrets(&mut c);
     rt::die_with_parent(&mut c);
     let child = c
         .spawn()

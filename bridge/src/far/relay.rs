@@ -114,9 +114,15 @@ impl FarLink {
         Ok(())
     }
 
-    /// Tells the near side how the process ended, and waits (a little) for everything queued to
+    /// Tells the near side what this side refused on the link (for the run's record there, and
+    /// a warning here) and how the process ended, and waits (a little) for everything queued to
     /// go out.
     pub(super) fn report(&mut self, code: u8) -> Result<()> {
+        let refused = crate::seal::RefusedCounts::from(self.udp.refused);
+        self.tcp.send(Kind::Refused, &[&refused.to_wire()])?;
+        if let Some(line) = crate::near::refused_warning(&self.udp) {
+            eprintln!("{line}");
+        }
         let line = self.child.last_line.clone();
         self.tcp.send(
             Kind::Exit,

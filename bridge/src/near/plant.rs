@@ -104,6 +104,7 @@ impl NearPlant {
         }
         let (ports, far_end, copies, log) =
             (&self.ports, &mut p.far_end, &mut self.copies, &mut p.log);
+        let far_refused = &mut p.report.far;
         let host = &mut self.host;
         let (mut heard, mut finals) = (false, None);
         let now = rt::now_ns();
@@ -141,6 +142,7 @@ impl NearPlant {
                 }
                 Kind::Final => finals = bytes::read::<StateMsg>(b),
                 Kind::Log => log.line(b),
+                Kind::Refused => *far_refused = far_refusals(b),
                 Kind::Exit => *far_end = Some(FarEnd::of(b)),
                 _ => {}
             }

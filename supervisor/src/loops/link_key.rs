@@ -35,7 +35,7 @@ pub fn one_time_link_key() -> Result<&'static LinkKey> {
 /// Gives `cmd` this process's link key if it starts a bridge (`near`/`far`), and never any
 /// other program: a key in this process's own environment is not passed on.
 pub fn hand_key(cmd: &mut Command, program: &Path, first_arg: Option<&str>) {
-    cmd.env_remove(KEY_ENV);
+    deltaloop_bridge::seal::scrub_secrets(cmd);
     let bridge = program.file_name().is_some_and(|n| n == "deltaloop-bridge");
     if bridge
         && matches!(first_arg, Some("near" | "far"))

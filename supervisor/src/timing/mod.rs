@@ -219,29 +219,46 @@ pub struct TimingSummary {
     pub link_rtt: Option<Percentiles>,
     /// A run split over two hosts only: the far side's address, the link key's fingerprint (never
     /// the key), the connections refused before it joined and the datagrams refused by reason
-    /// (malformed, other_run, forged, replayed), none of which reached the loop.
+    /// (malformed, other_run, forged, replayed; `refused_datagrams` both hosts together, `near`
+    /// and `far` each host's own), none of which reached the loop.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub link_security: Option<LinkReport>,
 }
 
 /// One line if the link refused anything during a run (connections before the far side
-/// joined, datagrams during the run): what, and that none of it reached the loop.
+/// joined, datagrams during the run on either host): what, where, and that none of it reached
+/// the loop.
 pub fn link_refusals_note(r: Option<&LinkReport>) -> Option<String> {
     let r = r?;
-    let d = &r.refused_datagrams;
-    if r.refused_connections == 0 && d.total() == 0 {
+    if r.refused_connections == 0 && r.refused_datagrams.total() == 0 {
         return None;
     }
     Some(format!(
-        "the link refused {} connection(s) before {} joined and {} datagram(s) during the run (malformed {}, other run {}, forged {}, replayed {}); none reached the loop",
+        "the link refused {} connection(s) before {} joined and {} datagram(s) during the run ({}); none reached the loop",
         r.refused_connections,
         r.peer,
-        d.total(),
-        d.malformed,
-        d.other_run,
-        d.forged,
-        d.replayed
+        r.refused_datagrams.total(),
+        link_refusals_by_host(r)
     ))
+}
+
+/// The datagrams each host refused, by reason: `here: malformed 0, …; on the far host: …`.
+pub fn link_refusals_by_host(r: &LinkReport) -> String {
+    let by_reason = |d: &deltaloop_bridge::seal::RefusedCounts| {
+        format!(
+            "malformed {}, other run {}, forged {}, replayed {}",
+            d.malformed, d.other_run, d.forged, d.replayed
+        )
+    };
+    let far = r
+        .far
+        .map_or("did not report (the link went down first)".into(), |f| {
+            by_reason(&f.refused_datagrams)
+        });
+    format!(
+        "here: {}; on the far host: {far}",
+        by_reason(&r.near.refused_datagrams)
+    )
 }
 
 /// The share of missed ticks above which a realtime run counts as disturbed by the machine (see

@@ -142,19 +142,15 @@ pub(super) fn link_security(
 ) {
     for (m, t) in metrics.iter().zip(timing) {
         if let Some(r) = t.as_ref().and_then(|t| t.link_security.as_ref()) {
-            let d = &r.refused_datagrams;
             let _ = writeln!(
                 s,
-                "\nLink of `{}`: the far side {} joined with link key {}; refused {} connection(s) before it and {} datagram(s) during the run (malformed {}, other run {}, forged {}, replayed {}), none of which reached the loop.",
+                "\nLink of `{}`: the far side {} joined with link key {}; refused {} connection(s) before it and {} datagram(s) during the run ({}), none of which reached the loop.",
                 m.law,
                 r.peer,
                 r.key_fingerprint,
                 r.refused_connections,
-                d.total(),
-                d.malformed,
-                d.other_run,
-                d.forged,
-                d.replayed
+                r.refused_datagrams.total(),
+                crate::timing::link_refusals_by_host(r)
             );
         }
     }
