@@ -4,11 +4,10 @@ use std::ffi::{c_char, c_int, c_void};
 
 use deltaloop_controller::process::{Step, serve};
 use deltaloop_transport::args::LoopArgs;
-use deltaloop_transport::exit::{self, EXIT_USAGE};
 use deltaloop_transport::wire::{RefSample, StateMsg, TorqueMsg};
 
 use crate::error::refusal;
-use crate::process::{main_of, parse};
+use crate::process::{exit_code, main_of, parse, usage};
 use crate::run::DlRun;
 
 /// Called once before READY with the run: read the constants, allocate what the step needs.
@@ -105,8 +104,7 @@ fn controller_main(
         Err(code) => return code,
     };
     let Some(step) = step else {
-        eprintln!("{name}: dl_controller_main: the step function is null");
-        return EXIT_USAGE;
+        return usage(name, "dl_controller_main: the step function is null");
     };
     let term = deltaloop_transport::rt::child_signals();
     let end = serve(&args.run, &term, name, |cfg| {
@@ -121,5 +119,5 @@ fn controller_main(
         }
         Ok(CStep { step, user })
     });
-    exit::code(name, end)
+    exit_code(name, end)
 }

@@ -9,12 +9,11 @@ use deltaloop_model::{PlantSample, Vec3};
 use deltaloop_plant::process::serve;
 use deltaloop_plant::tick::{Drives, Physics};
 use deltaloop_transport::args::LoopArgs;
-use deltaloop_transport::exit::{self, EXIT_USAGE};
 
 use crate::controller::DlInitFn;
 use crate::error::refusal;
 use crate::model::{DlJoints, drives_of};
-use crate::process::{main_of, parse};
+use crate::process::{exit_code, main_of, parse, usage};
 use crate::run::DlRun;
 
 /// What a plant in C does; `user` is the pointer given to [`dl_plant_main`]. Each returns 0, or
@@ -151,8 +150,10 @@ fn plant_main(words: &[String], name: &str, fns: Option<&DlPlantFns>, user: *mut
     let Some((fns, truth, measure, advance)) =
         fns.and_then(|f| Some((f, f.truth?, f.measure?, f.advance?)))
     else {
-        eprintln!("{name}: dl_plant_main: fns, or its truth, measure or advance, is null");
-        return EXIT_USAGE;
+        return usage(
+            name,
+            "dl_plant_main: fns, or its truth, measure or advance, is null",
+        );
     };
     let term = deltaloop_transport::rt::child_signals();
     let end = serve(&args.run, &term, name, |cfg| {
@@ -184,5 +185,5 @@ fn plant_main(words: &[String], name: &str, fns: Option<&DlPlantFns>, user: *mut
             })
         })
     });
-    exit::code(name, end)
+    exit_code(name, end)
 }

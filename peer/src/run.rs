@@ -70,11 +70,15 @@ unsafe fn lookup<'a, T>(
     })
 }
 
-/// Writes `v` to `out` (DL_OK), or DL_BAD_ARGUMENT if `out` is null.
+/// Writes `v` to `out` (DL_OK), or DL_BAD_ARGUMENT if `out` is null (saying so in the last
+/// error, as every error return does).
 unsafe fn put<T>(out: *mut T, v: Result<T, c_int>) -> c_int {
     match v {
         Err(code) => code,
-        Ok(_) if out.is_null() => DL_BAD_ARGUMENT,
+        Ok(_) if out.is_null() => {
+            set_error("a null out pointer");
+            DL_BAD_ARGUMENT
+        }
         Ok(x) => {
             // SAFETY: non-null and writable (the caller's promise).
             unsafe { *out = x };
@@ -131,8 +135,22 @@ pub unsafe extern "C" fn dl_run_str(
         Ok(s) => s,
         Err(code) => return code,
     };
-    if buf.is_null() || s.len() >= len {
-        set_error("the buffer is too small");
+    if buf.is_null() {
+        set_error("a null buffer");
+        return DL_BAD_ARGUMENT;
+    }
+    let Ok(n) = c_int::try_from(s.len()) else {
+        set_error(&format!(
+            "the text is {} bytes, more than an int counts",
+            s.len()
+        ));
+        return DL_BAD_ARGUMENT;
+    };
+    if s.len() >= len {
+        set_error(&format!(
+            "the buffer is too small: {len} bytes for {} bytes and the NUL",
+            s.len()
+        ));
         return DL_BAD_ARGUMENT;
     }
     // SAFETY: buf holds len > s.len() bytes.
@@ -140,7 +158,7 @@ pub unsafe extern "C" fn dl_run_str(
         std::ptr::copy_nonoverlapping(s.as_ptr(), buf.cast(), s.len());
         *buf.add(s.len()) = 0;
     }
-    c_int::try_from(s.len()).unwrap_or(DL_BAD_ARGUMENT)
+    n
 }
 
 /// The law the run asks for (`--law`: "tdc", "tdc-is-sta", …; "" if none was given).
