@@ -18,7 +18,9 @@ pub type DlInitFn = Option<unsafe extern "C" fn(user: *mut c_void, run: *const D
 /// Called for each tick k with the plant's state k and tick k's reference row: fill `reply`'s
 /// `tau` (the command, N m), and `s`, `n_hat`, `u` (the law's internals, for the trace; zero if
 /// none). The library sets the tick and every time stamp. Return 0, or non-zero to end the run
-/// with a fault at this tick (exit 4), saying why with [`dl_set_error`](crate::dl_set_error).
+/// with a fault at this tick (exit 4), saying why with [`dl_set_error`](crate::dl_set_error):
+/// the library tells the plant at once (it stops the loop at its next tick, naming the error,
+/// and brakes), and the run is a controller fault quoting the message.
 pub type DlStepFn = Option<
     unsafe extern "C" fn(
         user: *mut c_void,
@@ -59,11 +61,7 @@ impl Step for CStep {
         // SAFETY: the caller of dl_controller_main promised a valid step and user pointer; the
         // three pointers are to live values of the types the header declares.
         let rc = unsafe { (self.step)(self.user, state, row, &mut reply) };
-        if rc == 0 {
-            Ok(reply)
-        } else {
-            Err(format!("the step failed: {}", refusal(rc)))
-        }
+        if rc == 0 { Ok(reply) } else { Err(refusal(rc)) }
     }
 }
 

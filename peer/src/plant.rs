@@ -28,10 +28,12 @@ pub struct DlPlantFns {
     pub start:
         Option<unsafe extern "C" fn(user: *mut c_void, run: *const DlRun, q0: *const f64) -> c_int>,
     /// The true state now (no sensor noise): q (rad), q̇ (rad/s), τᵃ (N m) applied over the last
-    /// interval (at tick 0 the holding torque). May be called more than once a tick.
+    /// interval (at tick 0 the holding torque). May be called more than once a tick. Non-zero:
+    /// the plant failed (a plant error, not the law's divergence: the run ends as a plant fault
+    /// quoting the message, after a safe stop, exit 4).
     pub truth: Option<unsafe extern "C" fn(user: *mut c_void, out: *mut DlJoints) -> c_int>,
     /// What the encoders report now: called once for each state published (after `truth`), it
-    /// may advance a noise stream.
+    /// may advance a noise stream. Non-zero: the plant failed, as for `truth`.
     pub measure: Option<unsafe extern "C" fn(user: *mut c_void, out: *mut DlJoints) -> c_int>,
     /// Runs one tick's interval [t_k, t_k + Ts): `tau` (3 torques, N m) is tick k's command,
     /// reaching the drives `latency_ns` after t_k plus the configured transport delay; null when
@@ -64,13 +66,16 @@ struct CPhysics {
 }
 
 impl CPhysics {
-    /// `f`'s joints now, as tick k's sample (a failure reads as zeros: it cannot fail the tick
-    /// here, and the next `advance` says what is wrong).
-    fn joints(&self, f: JointsFn) -> PlantSample {
+    /// `f`'s joints now, as tick k's sample, or the plant's error (its message and code): the
+    /// loop stops on it (a plant error), never taking zeros for the robot's state.
+    fn joints(&self, f: JointsFn) -> Result<PlantSample, String> {
         let mut j = DlJoints::default();
         // SAFETY: valid functions accepting `user` (the caller of dl_plant_main promised).
-        let _ = unsafe { f(self.user, &mut j) };
-        j.sample(self.tick)
+        let rc = unsafe { f(self.user, &mut j) };
+        if rc != 0 {
+            return Err(refusal(rc));
+        }
+        Ok(j.sample(self.tick))
     }
 }
 
@@ -78,10 +83,10 @@ impl Physics for CPhysics {
     fn tick(&self) -> u64 {
         self.tick
     }
-    fn sample(&self) -> PlantSample {
+    fn sample(&self) -> Result<PlantSample, String> {
         self.joints(self.truth)
     }
-    fn measure(&mut self) -> PlantSample {
+    fn measure(&mut self) -> Result<PlantSample, String> {
         self.joints(self.measure)
     }
     fn advance_after(&mut self, cmd: Option<Vec3>, latency_ns: u64) -> Result<Drives, String> {

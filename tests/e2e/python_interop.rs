@@ -74,6 +74,8 @@ fn python_wire_types_match_the_rust_layouts() {
         "DIVERGED": ControlKind::Diverged as u32,
         "STOPPED": ControlKind::Stopped as u32,
         "OVERRUN": ControlKind::Overrun as u32,
+        "PLANT_ERROR": ControlKind::PlantError as u32,
+        "CONTROLLER_ERROR": ControlKind::ControllerError as u32,
         "FROM_PLANT": Sender::Plant as u32,
         "FROM_CONTROLLER": Sender::Controller as u32,
         "FROM_SUPERVISOR": Sender::Supervisor as u32,

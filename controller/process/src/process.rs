@@ -320,6 +320,7 @@ fn answer_states(
         let mut msg = match side.step(&state, &r) {
             Ok(m) => m,
             Err(why) => {
+                tell_plant_the_step_failed(ports, state.tick, &why);
                 break ProcessEnd::Fault(format!("the step failed at tick {}: {why}", state.tick));
             }
         };
@@ -358,6 +359,20 @@ fn answer_states(
         );
     }
     Ok(end)
+}
+
+/// Says CONTROLLER_ERROR (tick `k`, the error `why`) on the controller's control service and
+/// wakes the plant, which then ends the loop at once instead of holding the last torque through
+/// its silence window. Best effort: the exit code says the same if this cannot be sent.
+fn tell_plant_the_step_failed(ports: &Ports, k: u64, why: &str) {
+    let m = ControlMsg::with_text(
+        ControlKind::ControllerError,
+        wire::Sender::Controller,
+        k,
+        why,
+    );
+    let _ = ports.control.0.send_copy(m);
+    let _ = ports.torque_ready.notify();
 }
 
 /// Tick `k`'s reference row: from the ring, where it normally already is. If it is not, the

@@ -7,7 +7,7 @@ use super::spawn::Pair;
 use super::status::status_text;
 use crate::loops::peer_text::{self, Tail};
 use crate::record::{Fault, FaultKind};
-use deltaloop_transport::wire::Sender;
+use deltaloop_transport::wire::{ControlKind, Sender};
 use std::path::Path;
 use std::process::ExitStatus;
 
@@ -108,7 +108,7 @@ pub(super) fn fault_cause(
             plant,
             ctrl,
             plant_quit,
-            streams.plant_fault.as_ref().map(|f| f.overrun),
+            streams.plant_fault.as_ref().map(|f| f.kind),
         ),
         cause: peer_text::sanitize(cause.as_bytes(), 4 * peer_text::MAX_CHARS),
     })
@@ -116,16 +116,16 @@ pub(super) fn fault_cause(
 
 /// What kind of fault ended the run, from how the children exited (None: still running when
 /// the supervisor stopped it), whether the plant quit early with status 0, and whether it sent
-/// FAULT or OVERRUN (`plant_fault`: Some(true) for OVERRUN). A child killed or panicking is the
-/// root cause whatever the other did next; then the controller's own failure (the plant's FAULT
-/// for its silence follows from it); then a stop of the plant on request nobody here made; then
-/// the plant's FAULT (the controller went silent while alive) or OVERRUN (its own process woke
-/// too late); then the plant's exit code.
+/// FAULT, OVERRUN or PLANT_ERROR (`plant_fault`). A child killed or panicking is the root cause
+/// whatever the other did next; then the controller's own failure (the plant's FAULT for its
+/// silence or its CONTROLLER_ERROR follows from it); then a stop of the plant on request nobody
+/// here made; then the plant's FAULT (the controller went silent while alive), OVERRUN (its own
+/// process woke too late) or PLANT_ERROR (its own physics failed); then the plant's exit code.
 fn fault_kind(
     plant: Option<ExitStatus>,
     ctrl: Option<ExitStatus>,
     plant_quit: bool,
-    plant_fault: Option<bool>,
+    plant_fault: Option<ControlKind>,
 ) -> FaultKind {
     let failed = |s: Option<ExitStatus>, who| s.filter(|s| !s.success()).map(|s| exit_kind(who, s));
     let (ctrl, plant) = (
@@ -146,12 +146,10 @@ fn fault_kind(
         .or(plant.filter(severe))
         .or(ctrl)
         .or(plant.filter(stopped))
-        .or(plant_fault.map(|overrun| {
-            if overrun {
-                FaultKind::PlantOverrun
-            } else {
-                FaultKind::ControllerSilent
-            }
+        .or(plant_fault.map(|said| match said {
+            ControlKind::Overrun => FaultKind::PlantOverrun,
+            ControlKind::PlantError => FaultKind::PlantError,
+            _ => FaultKind::ControllerSilent,
         }))
         .or(plant)
         .unwrap_or(if plant_quit {
@@ -194,7 +192,7 @@ mod tests {
         let code = |c: i32| Some(ExitStatus::from_raw(c << 8));
         let sig = |s: i32| Some(ExitStatus::from_raw(s));
         let (ok, fault, stopped, setup) = (code(0), code(4), code(5), code(3));
-        let k = |p, c, quit, said: bool| fault_kind(p, c, quit, said.then_some(false));
+        let k = |p, c, quit, said: bool| fault_kind(p, c, quit, said.then_some(ControlKind::Fault));
         assert_eq!(
             k(fault, sig(libc::SIGKILL), false, true),
             FaultKind::ControllerKilled
@@ -222,8 +220,19 @@ mod tests {
         assert_eq!(k(ok, None, false, false), FaultKind::Hung);
         // OVERRUN: the plant's own stall, not the controller's silence.
         assert_eq!(
-            fault_kind(fault, ok, false, Some(true)),
+            fault_kind(fault, ok, false, Some(ControlKind::Overrun)),
             FaultKind::PlantOverrun
+        );
+        // PLANT_ERROR: the plant's own physics failed (the controller exited 0 on the final
+        // state it was released with); a controller's own failure still ranks before it.
+        let plant_error = Some(ControlKind::PlantError);
+        assert_eq!(
+            fault_kind(fault, ok, false, plant_error),
+            FaultKind::PlantError
+        );
+        assert_eq!(
+            fault_kind(fault, fault, false, Some(ControlKind::Fault)),
+            FaultKind::ControllerFailed
         );
     }
 
