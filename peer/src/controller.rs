@@ -69,7 +69,19 @@ impl Step for CStep {
 /// lockstep|realtime --law NAME`, as the supervisor gives them): `init` once with the run, then
 /// `step` for every tick until the run ends. Returns the exit code for `main` to return (0 done,
 /// 2 bad arguments, 3 set-up failed, 4 fault, 5 stopped: docs/protocol.md §10), having printed
-/// one line on stderr for every code but 0. The process's name in its messages: argv[0].
+/// one line on stderr (and set it as [`dl_last_error`](crate::dl_last_error)) for every code but
+/// 0. The process's name in its messages: argv[0]. From C's `main`:
+/// `return dl_controller_main(argc, (const char *const *)argv, init, step, &law);`
+///
+/// On the caller's behalf, as the built-in controller: `controller.compute_delay_us` (a busy-wait
+/// after each `step`: do not add it again), the `[faults]` drills (`inject` stall, nan-torque,
+/// panic), the `[loop.<mode>]` layout (SCHED_FIFO at `controller_priority`, pinning to
+/// `controller_cpu`, `mlockall` with `lock_memory`, applied after `init`), and the signals
+/// (SIGINT, SIGHUP ignored; SIGTERM a clean stop; SIGTERM on the parent's death).
+///
+/// `init` and `step` run on the calling thread, one at a time. Before each `step` the reply is
+/// zeroed but for its tick. `step` runs under the layout's scheduling within the tick's deadline:
+/// no blocking, no allocation, no system call, no printing (docs/guide/own-process.md).
 ///
 /// # Safety
 /// `argv` holds `argc` valid C strings; `init` (may be null) and `step` are valid functions that

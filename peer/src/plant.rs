@@ -126,8 +126,16 @@ struct Args {
 /// lockstep|realtime`, as the supervisor gives them): `init` once with the run, `start` at
 /// START, then `truth`, `measure` and `advance` every tick until the run ends, and `brake` for
 /// the safe stop. Returns the exit code for `main` to return (0 done, 2 bad arguments, 3 set-up
-/// failed, 4 fault, 5 stopped: docs/protocol.md §10), having printed one line on stderr for
-/// every code but 0. The process's name in its messages: argv[0].
+/// failed, 4 fault, 5 stopped: docs/protocol.md §10), having printed one line on stderr (and set
+/// it as [`dl_last_error`](crate::dl_last_error)) for every code but 0. The process's name in its
+/// messages: argv[0]. From C's `main`:
+/// `return dl_plant_main(argc, (const char *const *)argv, &fns, &rig);`
+///
+/// On the caller's behalf, as the built-in plant: the `[loop.<mode>]` layout (SCHED_FIFO at
+/// `plant_priority`, pinning to `plant_cpu`, `mlockall` with `lock_memory`, applied after
+/// `init`), the clock, the silence rule, the safe stop and the signals. Every function runs on
+/// the calling thread, one at a time; those of the loop under its scheduling, within the tick's
+/// deadline: no blocking, no allocation, no system call, no printing.
 ///
 /// # Safety
 /// `argv` holds `argc` valid C strings; `fns` points to a `dl_plant_fns` whose non-null
