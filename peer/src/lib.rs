@@ -89,13 +89,14 @@ mod tests {
             c"sensor.velocity".as_ptr(),
             std::ptr::null_mut::<f64>(),
         );
-        let mut buf = [0 as std::ffi::c_char; 4];
+        let buf = [0 as std::ffi::c_char; 4];
         let q0 = [0.0f64; 3];
         let argv_bad: Vec<CString> = ["peer", "--no-such-flag"]
             .map(|a| CString::new(a).unwrap())
             .into();
         let argv_bad: Vec<*const std::ffi::c_char> = argv_bad.iter().map(|a| a.as_ptr()).collect();
-        let calls: Vec<(&str, Box<dyn Fn() -> c_int>)> = vec![
+        type Call<'a> = (&'a str, Box<dyn Fn() -> c_int + 'a>);
+        let calls: Vec<Call> = vec![
             // SAFETY (every call): live values or null where the test says so.
             (
                 "dl_run_f64 out",

@@ -69,6 +69,8 @@ pub struct Overrides {
     pub plant_cmd: Option<String>,
     /// Run this command in place of the built-in controller process (controller.command).
     pub controller_cmd: Option<String>,
+    /// What the run calls its controller (controller.label).
+    pub controller_label: Option<String>,
     pub remote: crate::ops::join::RemoteArgs,
 }
 
@@ -105,6 +107,9 @@ impl Overrides {
         }
         if let Some(c) = &self.controller_cmd {
             cfg.controller.command = words(c);
+        }
+        if let Some(l) = &self.controller_label {
+            cfg.controller.label = l.clone();
         }
         self.remote.apply(&mut cfg)?;
         cfg.validate()?;
@@ -370,9 +375,11 @@ fn write_results(
         .map(|t| t.as_ref().map(Timing::summary))
         .collect();
     let mm = mismatch(&study.robot, &study.reference, &study.params);
+    let label = report::controller_label(cfg, mode);
     let summary = Summary {
         scenario: &cfg.name,
         mode,
+        controller_label: label.as_deref(),
         preset: cfg.controller.preset,
         command,
         started_utc: started,
@@ -414,7 +421,7 @@ fn write_results(
     }
     let traced = &cfg.controller.laws[..];
     output::write_run_folder(dir, &summary, cfg.record.trace.then_some(traced), &md)?;
-    let mut table = report::terminal_table(cfg, metrics);
+    let mut table = report::terminal_table(cfg, label.as_deref(), metrics);
     if mode.is_process() {
         table.push_str(&report::timing_table(metrics, &timing_summaries));
     }

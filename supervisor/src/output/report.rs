@@ -76,9 +76,30 @@ fn status(m: &LawMetrics) -> String {
     }
 }
 
-/// The terminal table: one line per law.
-pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
+/// What a run in `mode` calls its controller when it is not the built-in one (see
+/// [`RunConfig::controller_label`]; the in-process modes run the built-in law).
+pub fn controller_label(cfg: &RunConfig, mode: LoopMode) -> Option<String> {
+    mode.is_process().then(|| cfg.controller_label()).flatten()
+}
+
+/// A law as the tables name it: with the controller's label when a foreign one answered as it
+/// (`tdc (c-tdc)`), so it is never taken for the built-in law.
+fn law_cell(law: Law, label: Option<&str>) -> String {
+    match label {
+        Some(l) => format!("{law} ({l})"),
+        None => law.to_string(),
+    }
+}
+
+/// The terminal table: one line per law (with `label`, the controller that ran, beside it).
+pub fn terminal_table(cfg: &RunConfig, label: Option<&str>, metrics: &[LawMetrics]) -> String {
     let mut s = String::new();
+    let width = metrics
+        .iter()
+        .map(|m| law_cell(m.law, label).chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(11);
     let _ = writeln!(
         s,
         "{} ({:?}, preset {}, {} ticks of {} ms)",
@@ -91,7 +112,7 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
     let twins = metrics.iter().any(|m| m.sensitivity.is_some());
     let _ = writeln!(
         s,
-        "{:<11} {:>10} {:>10} {:>10} {:>9} {:>9} {:>8} {:>7} {:>10}{}  status",
+        "{:<width$} {:>10} {:>10} {:>10} {:>9} {:>9} {:>8} {:>7} {:>10}{}  status",
         "law",
         "rms q1",
         "rms q2",
@@ -115,8 +136,8 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
         };
         let _ = writeln!(
             s,
-            "{:<11} {:>10} {:>10} {:>10} {:>9} {:>9.3} {:>8.4} {:>7} {:>10}{}  {}",
-            m.law,
+            "{:<width$} {:>10} {:>10} {:>10} {:>9} {:>9.3} {:>8.4} {:>7} {:>10}{}  {}",
+            law_cell(m.law, label),
             fig(m.rms_rad[0], rel),
             fig(m.rms_rad[1], rel),
             fig(m.rms_rad[2], rel),
@@ -217,6 +238,20 @@ fn header(s: &mut String, cfg: &RunConfig, p: &ControllerParams, mode: LoopMode,
         cfg.loop_.ts_s * 1e3,
         cfg.controller.tde_delay_samples,
     );
+    if let Some(l) = controller_label(cfg, mode) {
+        let _ = writeln!(
+            s,
+            "Controller: `{}`, its own process in place of the built-in one, answering as {}; \
+             every law's figures below are its.\n",
+            l.replace('`', "'"),
+            cfg.controller
+                .laws
+                .iter()
+                .map(|l| format!("`{l}`"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     let extras = injected(cfg);
     if !extras.is_empty() {
         let _ = writeln!(s, "Injected: {}.\n", extras.join("; "));
