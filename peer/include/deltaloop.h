@@ -428,6 +428,18 @@ int dl_run_i64(const struct dl_run *run, const char *key, int64_t *out);
 int dl_run_str(const struct dl_run *run, const char *key, char *buf, uintptr_t len);
 
 /**
+ * Names the controller (from `init`): the run shows `label` beside the law it answers as, in
+ * the terminal table, `summary.json` (`controller_label`) and `report.md`, unless the run was
+ * given one (`--controller-label`, `controller.label`); without either it shows the command's
+ * program name. One line of at most 64 printable characters. DL_OK, or DL_BAD_ARGUMENT (a null
+ * pointer, or a label that is not one such line).
+ *
+ * # Safety
+ * `run` is the one `init` got, `label` a C string.
+ */
+int dl_run_set_label(const struct dl_run *run, const char *label);
+
+/**
  * The law the run asks for (`--law`: "tdc", "tdc-is-sta", …; "" if none was given).
  *
  * # Safety

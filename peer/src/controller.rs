@@ -50,9 +50,15 @@ struct CStep {
         *mut TorqueMsg,
     ) -> c_int,
     user: *mut c_void,
+    /// What `init` named the controller ([`dl_run_set_label`](crate::run::dl_run_set_label)).
+    label: Option<String>,
 }
 
 impl Step for CStep {
+    fn label(&self) -> Option<&str> {
+        self.label.as_deref()
+    }
+
     fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<TorqueMsg, String> {
         let mut reply = TorqueMsg {
             tick: state.tick,
@@ -127,7 +133,11 @@ fn controller_main(
                 anyhow::bail!("the controller refused the run: {}", refusal(rc));
             }
         }
-        Ok(CStep { step, user })
+        Ok(CStep {
+            step,
+            user,
+            label: run.label(),
+        })
     });
     exit_code(name, end)
 }

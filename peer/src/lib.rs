@@ -131,6 +131,14 @@ mod tests {
                 }),
             ),
             (
+                "dl_run_set_label",
+                Box::new(|| unsafe { run::dl_run_set_label(&run, c"two\nlines".as_ptr()) }),
+            ),
+            (
+                "dl_run_set_label null",
+                Box::new(|| unsafe { run::dl_run_set_label(&run, std::ptr::null()) }),
+            ),
+            (
                 "dl_model_open",
                 Box::new(|| unsafe { model::dl_model_open(&run, q0.as_ptr(), null.cast()) }),
             ),

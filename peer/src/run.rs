@@ -18,6 +18,8 @@ pub struct DlRun {
     pub(crate) cfg: RunConfig,
     law: CString,
     mode: CString,
+    /// What `init` named the controller ([`dl_run_set_label`]).
+    label: std::cell::RefCell<Option<String>>,
 }
 
 impl DlRun {
@@ -28,7 +30,13 @@ impl DlRun {
             cfg: cfg.clone(),
             law: CString::new(law)?,
             mode: CString::new(args.mode.name())?,
+            label: std::cell::RefCell::new(None),
         })
+    }
+
+    /// What `init` named the controller, if it did.
+    pub(crate) fn label(&self) -> Option<String> {
+        self.label.borrow().clone()
     }
 
     /// The value at a dotted key (`controller.m_bar`).
@@ -159,6 +167,40 @@ pub unsafe extern "C" fn dl_run_str(
         *buf.add(s.len()) = 0;
     }
     n
+}
+
+/// The longest controller label, characters (what the run shows).
+const LABEL_CHARS: usize = 64;
+
+/// Names the controller (from `init`): the run shows `label` beside the law it answers as, in
+/// the terminal table, `summary.json` (`controller_label`) and `report.md`, unless the run was
+/// given one (`--controller-label`, `controller.label`); without either it shows the command's
+/// program name. One line of at most 64 printable characters. DL_OK, or DL_BAD_ARGUMENT (a null
+/// pointer, or a label that is not one such line).
+///
+/// # Safety
+/// `run` is the one `init` got, `label` a C string.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn dl_run_set_label(run: *const DlRun, label: *const c_char) -> c_int {
+    if run.is_null() || label.is_null() {
+        set_error("dl_run_set_label: a null run or label");
+        return DL_BAD_ARGUMENT;
+    }
+    // SAFETY: a run handed to init, and a C string (the caller's promise).
+    let (run, label) = unsafe { (&*run, CStr::from_ptr(label)) };
+    let Ok(label) = label.to_str() else {
+        set_error("dl_run_set_label: the label is not UTF-8");
+        return DL_BAD_ARGUMENT;
+    };
+    let n = label.chars().count();
+    if n == 0 || n > LABEL_CHARS || label.chars().any(char::is_control) {
+        set_error(&format!(
+            "dl_run_set_label: {label:?} is not one line of 1 to {LABEL_CHARS} printable characters"
+        ));
+        return DL_BAD_ARGUMENT;
+    }
+    *run.label.borrow_mut() = Some(label.to_string());
+    DL_OK
 }
 
 /// The law the run asks for (`--law`: "tdc", "tdc-is-sta", …; "" if none was given).

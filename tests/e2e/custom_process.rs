@@ -126,6 +126,22 @@ fn regression_a_foreign_controller_is_labelled_in_tables_summary_and_report() {
             }
         }
     }
+    // A C controller names itself (dl_run_set_label, said in its READY); --controller-label
+    // still wins. (This one fails at tick 200 on purpose: the run is a fault, its files written.)
+    if let Some(exe) = common::c_peer("c_controller_faults") {
+        let cmd = format!("{} fail@200", exe.display());
+        for (case, extra, want) in [
+            ("named", vec![], "qp-ctrl v1"),
+            ("overridden", vec!["--controller-label", "mine"], "mine"),
+        ] {
+            let out = tmp.path().join(case);
+            let mut args = vec!["--law", "tdc", "--controller-cmd", &cmd];
+            args.extend(extra);
+            let o = common::run_output("configs/s1-nominal.toml", "lockstep", &out, &args);
+            assert_eq!(o.status.code(), Some(1), "{case}");
+            assert_eq!(common::summary(&out)["controller_label"], want, "{case}");
+        }
+    }
     let o = deltaloop(&[
         "run",
         "configs/s2-fast.toml",

@@ -1,11 +1,17 @@
 /* A C controller that fails on purpose (tests/e2e/foreign_peers.rs): it holds the applied torque
  * (τ = τᵃ_k: the robot stays near rest for the few ticks it runs) and its step returns an error
- * from a given tick on. The first argument, before the library's, says when: `fail@K`. */
+ * from a given tick on. The first argument, before the library's, says when: `fail@K`. It names
+ * itself "qp-ctrl v1" (dl_run_set_label; tests/e2e/custom_process.rs). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "deltaloop.h"
+
+static int init(void *user, const dl_run *run) {
+    (void)user;
+    return dl_run_set_label(run, "qp-ctrl v1");
+}
 
 static int step(void *user, const dl_state *x, const dl_ref_sample *r, dl_torque *reply) {
     const uint64_t *fail_at = user;
@@ -28,5 +34,5 @@ int main(int argc, char **argv) {
     }
     fail_at = strtoull(argv[1] + 5, NULL, 10);
     argv[1] = argv[0];
-    return dl_controller_main(argc - 1, (const char *const *)(argv + 1), NULL, step, &fail_at);
+    return dl_controller_main(argc - 1, (const char *const *)(argv + 1), init, step, &fail_at);
 }

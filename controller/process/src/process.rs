@@ -64,6 +64,12 @@ pub trait Step {
     /// Tick k's reply to `state` with tick k's reference `row`: `tau`, `s`, `n_hat`, `u` (the
     /// transport sets the tick's stamps), or why the step failed (the run ends with a fault).
     fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<wire::TorqueMsg, String>;
+
+    /// What the controller calls itself, said in its READY (the run shows it beside the law);
+    /// None: nothing (the built-in law, or a peer that did not say).
+    fn label(&self) -> Option<&str> {
+        None
+    }
 }
 
 impl Step for ControllerSide {
@@ -99,7 +105,20 @@ pub fn serve<S: Step>(
             lock_memory: layout.lock_memory,
         },
         name,
-        || ports.send_control(ControlKind::Ready),
+        || {
+            let ready = ControlMsg::with_text(
+                ControlKind::Ready,
+                wire::Sender::Controller,
+                0,
+                side.label().unwrap_or(""),
+            );
+            ports
+                .control
+                .0
+                .send_copy(ready)
+                .ipc("send READY")
+                .map(|_| ())
+        },
     )?;
     let Some(start) = handshake(&ports, &mut ring, term)? else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));

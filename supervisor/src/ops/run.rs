@@ -170,6 +170,8 @@ struct Laws {
     /// Per run: its loop timing (None: inproc).
     timings: Vec<Option<Timing>>,
     run_ids: Vec<(Law, String)>,
+    /// What the controller called itself (its READY), the first that did.
+    controller_said: Option<String>,
     /// Each law whose plant once woke ten ticks late or more (realtime): see Timing::freeze_note.
     freezes: Vec<(Law, String)>,
     /// A fault or an interrupt ends the run after this law; the folder is still written.
@@ -345,6 +347,9 @@ fn run_processes(
             laws.freezes.push((law, n));
         }
         laws.run_ids.push((law, r.run_id));
+        if laws.controller_said.is_none() {
+            laws.controller_said = r.controller_label;
+        }
         if r.interrupted || r.fault.is_some() {
             laws.stopped = Some((law, r.fault.clone()));
         }
@@ -375,7 +380,7 @@ fn write_results(
         .map(|t| t.as_ref().map(Timing::summary))
         .collect();
     let mm = mismatch(&study.robot, &study.reference, &study.params);
-    let label = report::controller_label(cfg, mode);
+    let label = report::controller_label(cfg, mode, laws.controller_said.as_deref());
     let summary = Summary {
         scenario: &cfg.name,
         mode,
@@ -404,7 +409,7 @@ fn write_results(
             .filter_map(|(m, t)| t.as_ref().map(|t| (m.law, t)))
             .collect(),
     };
-    let mut md = report::markdown(cfg, mode, command, metrics, &mm);
+    let mut md = report::markdown(cfg, mode, label.as_deref(), command, metrics, &mm);
     if mode.is_process() {
         md.push_str(&report::timing_markdown(
             cfg,

@@ -76,10 +76,18 @@ fn status(m: &LawMetrics) -> String {
     }
 }
 
-/// What a run in `mode` calls its controller when it is not the built-in one (see
-/// [`RunConfig::controller_label`]; the in-process modes run the built-in law).
-pub fn controller_label(cfg: &RunConfig, mode: LoopMode) -> Option<String> {
-    mode.is_process().then(|| cfg.controller_label()).flatten()
+/// What a run in `mode` calls its controller when it is not the built-in one: the label of the
+/// config (`controller.label`, `--controller-label`), else the name the controller gave itself
+/// in its READY (`said`), else its command's program (see [`RunConfig::controller_label`]). The
+/// in-process modes run the built-in law: none.
+pub fn controller_label(cfg: &RunConfig, mode: LoopMode, said: Option<&str>) -> Option<String> {
+    if !mode.is_process() {
+        return None;
+    }
+    match said {
+        Some(s) if cfg.controller.label.is_empty() => Some(s.to_string()),
+        _ => cfg.controller_label(),
+    }
 }
 
 /// A law as the tables name it: with the controller's label when a foreign one answered as it
@@ -190,6 +198,7 @@ fn max3(v: [f64; 3]) -> f64 {
 pub fn markdown(
     cfg: &RunConfig,
     mode: LoopMode,
+    label: Option<&str>,
     command: &str,
     metrics: &[LawMetrics],
     mismatch: &Mismatch,
@@ -197,6 +206,7 @@ pub fn markdown(
     let p = cfg.controller_params();
     let mut s = String::new();
     header(&mut s, cfg, &p, mode, command);
+    controller_line(&mut s, cfg, label);
     rms_section(&mut s, cfg.scenario.path, metrics);
     accuracy_section(&mut s, metrics);
     tde_section(&mut s, &p, metrics);
@@ -238,7 +248,16 @@ fn header(s: &mut String, cfg: &RunConfig, p: &ControllerParams, mode: LoopMode,
         cfg.loop_.ts_s * 1e3,
         cfg.controller.tde_delay_samples,
     );
-    if let Some(l) = controller_label(cfg, mode) {
+    let extras = injected(cfg);
+    if !extras.is_empty() {
+        let _ = writeln!(s, "Injected: {}.\n", extras.join("; "));
+    }
+    let _ = writeln!(s, "Produced by: `{command}`\n");
+}
+
+/// Which controller ran, when it was not the built-in one (`label`).
+fn controller_line(s: &mut String, cfg: &RunConfig, label: Option<&str>) {
+    if let Some(l) = label {
         let _ = writeln!(
             s,
             "Controller: `{}`, its own process in place of the built-in one, answering as {}; \
@@ -252,11 +271,6 @@ fn header(s: &mut String, cfg: &RunConfig, p: &ControllerParams, mode: LoopMode,
                 .join(", ")
         );
     }
-    let extras = injected(cfg);
-    if !extras.is_empty() {
-        let _ = writeln!(s, "Injected: {}.\n", extras.join("; "));
-    }
-    let _ = writeln!(s, "Produced by: `{command}`\n");
 }
 
 /// What the config adds to the nominal loop: delays, a payload step, sensor realism.
