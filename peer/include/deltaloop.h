@@ -440,18 +440,19 @@ int dl_run_str(const struct dl_run *run, const char *key, char *buf, uintptr_t l
 int dl_run_set_label(const struct dl_run *run, const char *label);
 
 /**
- * The law the run asks for (`--law`: "tdc", "tdc-is-sta", …; "" if none was given).
+ * The law the run asks for (`--law`: "tdc", "tdc-is-sta", …; "" if none was given; "" and the
+ * last error set for a null run).
  *
  * # Safety
- * `run` is the one `init` got.
+ * `run` is null or the one `init` got.
  */
 const char *dl_run_law(const struct dl_run *run);
 
 /**
- * The loop mode: "lockstep" or "realtime".
+ * The loop mode: "lockstep" or "realtime" ("" and the last error set for a null run).
  *
  * # Safety
- * `run` is the one `init` got.
+ * `run` is null or the one `init` got.
  */
 const char *dl_run_mode(const struct dl_run *run);
 

@@ -185,6 +185,20 @@ mod tests {
                 }),
             ),
         ];
+        // The getters of text return "" for a null run, and say why.
+        for (what, get) in [
+            (
+                "dl_run_law",
+                run::dl_run_law as unsafe extern "C" fn(_) -> _,
+            ),
+            ("dl_run_mode", run::dl_run_mode),
+        ] {
+            error::set_error("the previous error");
+            // SAFETY: null is allowed.
+            let text = unsafe { CStr::from_ptr(get(std::ptr::null())) };
+            assert!(text.is_empty(), "{what}");
+            assert_eq!(last(), format!("{what}: a null run"));
+        }
         for (what, call) in calls {
             error::set_error("the previous error");
             let rc = call();

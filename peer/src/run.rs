@@ -203,24 +203,31 @@ pub unsafe extern "C" fn dl_run_set_label(run: *const DlRun, label: *const c_cha
     DL_OK
 }
 
-/// The law the run asks for (`--law`: "tdc", "tdc-is-sta", …; "" if none was given).
+/// The law the run asks for (`--law`: "tdc", "tdc-is-sta", …; "" if none was given; "" and the
+/// last error set for a null run).
 ///
 /// # Safety
-/// `run` is the one `init` got.
+/// `run` is null or the one `init` got.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn dl_run_law(run: *const DlRun) -> *const c_char {
     // SAFETY: the caller's promise.
-    unsafe { run.as_ref() }.map_or(c"".as_ptr(), |r| r.law.as_ptr())
+    unsafe { run.as_ref() }.map_or_else(|| null_run("dl_run_law"), |r| r.law.as_ptr())
 }
 
-/// The loop mode: "lockstep" or "realtime".
+/// The loop mode: "lockstep" or "realtime" ("" and the last error set for a null run).
 ///
 /// # Safety
-/// `run` is the one `init` got.
+/// `run` is null or the one `init` got.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn dl_run_mode(run: *const DlRun) -> *const c_char {
     // SAFETY: the caller's promise.
-    unsafe { run.as_ref() }.map_or(c"".as_ptr(), |r| r.mode.as_ptr())
+    unsafe { run.as_ref() }.map_or_else(|| null_run("dl_run_mode"), |r| r.mode.as_ptr())
+}
+
+/// The empty text a getter returns for a null run, having said so in the last error.
+fn null_run(function: &str) -> *const c_char {
+    set_error(&format!("{function}: a null run"));
+    c"".as_ptr()
 }
 
 #[cfg(test)]
