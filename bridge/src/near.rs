@@ -832,11 +832,19 @@ impl Near {
             match kind {
                 Kind::Control => {
                     // Only what a controller may say, as the controller (this process is its
-                    // stand-in).
+                    // stand-in), with its tick and text (CONTROLLER_ERROR's error).
                     if let Some(c) = bytes::read::<ControlMsg>(p)
-                        && let Some(kind) = c.kind().filter(|k| k.said_by_controller())
+                        && c.kind().is_some_and(|k| k.said_by_controller())
                     {
-                        ports.send_control(kind)?;
+                        let said = ControlMsg {
+                            from: Sender::Controller as u32,
+                            ..c
+                        };
+                        ports
+                            .control
+                            .0
+                            .send_copy(said)
+                            .ipc("send controller control")?;
                     }
                 }
                 Kind::Log => log.line(p),

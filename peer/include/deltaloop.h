@@ -7,277 +7,457 @@
 #include <stddef.h>
 #include <stdint.h>
 
-// Success.
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/**
+ * Success.
+ */
 #define DL_OK 0
 
-// The key is not in the run's config.
+/**
+ * The key is not in the run's config.
+ */
 #define DL_NOT_FOUND -1
 
-// The key holds another type (a table, text where a number was asked, …).
+/**
+ * The key holds another type (a table, text where a number was asked, …).
+ */
 #define DL_WRONG_TYPE -2
 
-// A null pointer, a key that is not UTF-8, a buffer too small, or a value out of range.
+/**
+ * A null pointer, a key that is not UTF-8, a buffer too small, or a value out of range.
+ */
 #define DL_BAD_ARGUMENT -3
 
-// The drives clamped the command to ±τ_max in this interval.
+/**
+ * The longest error message kept, in bytes (without the NUL): a longer one is cut at a character
+ * boundary and ends with " …[cut]".
+ */
+#define DL_ERROR_MAX_BYTES 512
+
+/**
+ * The drives clamped the command to ±τ_max in this interval.
+ */
 #define DL_DRIVES_CLAMPED 1
 
-// No command took effect in this interval: the drives held the last torque.
+/**
+ * No command took effect in this interval: the drives held the last torque.
+ */
 #define DL_DRIVES_HELD 2
 
-// The drives rejected a command beyond ±τ_max (`faults.torque_limit = "reject"`).
+/**
+ * The drives rejected a command beyond ±τ_max (`faults.torque_limit = "reject"`).
+ */
 #define DL_DRIVES_REJECTED 8
 
-// The project's plant model. Opaque: made by [`dl_model_open`], freed by [`dl_model_close`].
+/**
+ * The project's plant model. Opaque: made by [`dl_model_open`], freed by [`dl_model_close`].
+ */
 typedef struct dl_model dl_model;
 
-// The run as the process sees it before READY: its resolved config (every constant the built-in
-// processes use, from `[controller]`, `[plant]`, `[loop]`, `[sensor]`, …, defaults filled in),
-// the law and the mode. Opaque: read it with the `dl_run_*` functions, valid during `init` (and
-// a plant's `start`) only.
+/**
+ * The run as the process sees it before READY: its resolved config (every constant the built-in
+ * processes use, from `[controller]`, `[plant]`, `[loop]`, `[sensor]`, …, defaults filled in),
+ * the law and the mode. Opaque: read it with the `dl_run_*` functions, valid during `init` (and
+ * a plant's `start`) only.
+ */
 typedef struct dl_run dl_run;
 
-// Called once before READY with the run: read the constants, allocate what the step needs.
-// Return 0, or non-zero to refuse the run (set-up failed: exit 3), saying why with
-// [`dl_set_error`](crate::dl_set_error).
+/**
+ * Called once before READY with the run: read the constants, allocate what the step needs.
+ * Return 0, or non-zero to refuse the run (set-up failed: exit 3), saying why with
+ * [`dl_set_error`](crate::dl_set_error).
+ */
 typedef int (*dl_init_fn)(void *user, const struct dl_run *run);
 
-// Plant → controller (and supervisor), once per tick.
+/**
+ * Plant → controller (and supervisor), once per tick.
+ */
 typedef struct dl_state {
-  // Control tick k (t = k·Ts).
+  /**
+   * Control tick k (t = k·Ts).
+   */
   uint64_t tick;
-  // Bit set of `STATE_*`.
+  /**
+   * Bit set of `STATE_*`.
+   */
   uint32_t flags;
   uint32_t _pad;
-  // Measured joint angles q_k, rad.
+  /**
+   * Measured joint angles q_k, rad.
+   */
   double q[3];
-  // Measured joint rates q̇_k, rad/s.
+  /**
+   * Measured joint rates q̇_k, rad/s.
+   */
   double qd[3];
-  // Torque the drives applied over [t_{k−1}, t_k) (τᵃ_k), N m.
+  /**
+   * Torque the drives applied over [t_{k−1}, t_k) (τᵃ_k), N m.
+   */
   double tau_applied[3];
-  // Ground truth for evaluation (noise-free) joint angles, rad.
+  /**
+   * Ground truth for evaluation (noise-free) joint angles, rad.
+   */
   double q_true[3];
-  // Ground truth joint rates, rad/s.
+  /**
+   * Ground truth joint rates, rad/s.
+   */
   double qd_true[3];
-  // Absolute deadline of this tick, ns (lockstep: the wake time).
+  /**
+   * Absolute deadline of this tick, ns (lockstep: the wake time).
+   */
   uint64_t t_deadline_ns;
-  // When the plant woke for this tick, ns.
+  /**
+   * When the plant woke for this tick, ns.
+   */
   uint64_t t_wake_ns;
-  // When the plant published this message, ns.
+  /**
+   * When the plant published this message, ns.
+   */
   uint64_t t_publish_ns;
-  // The plant polls the torque queue until at least this time (ns, CLOCK_MONOTONIC) before it
-  // blocks on `torque-ready`; a reply published and visible before it, less
-  // [`POLL_MARGIN_NS`], needs no wake-up notification. 0: always notify.
+  /**
+   * The plant polls the torque queue until at least this time (ns, CLOCK_MONOTONIC) before it
+   * blocks on `torque-ready`; a reply published and visible before it, less
+   * [`POLL_MARGIN_NS`], needs no wake-up notification. 0: always notify.
+   */
   uint64_t t_poll_until_ns;
 } dl_state;
 
-// One tick of the joint reference, joint frame (supervisor → controller, up to
-// [`REF_CHUNK`](crate::ipc::REF_CHUNK) rows per slice sample; the chunking rule is in
-// [`crate::ipc`]). The row names its own tick, so the controller files it without knowing which
-// chunk it came in. Layout: 80 bytes, `tick` at 0, `q` at 8, `qd` at 32, `qdd` at 56.
+/**
+ * One tick of the joint reference, joint frame (supervisor → controller, up to
+ * [`REF_CHUNK`](crate::ipc::REF_CHUNK) rows per slice sample; the chunking rule is in
+ * [`crate::ipc`]). The row names its own tick, so the controller files it without knowing which
+ * chunk it came in. Layout: 80 bytes, `tick` at 0, `q` at 8, `qd` at 32, `qdd` at 56.
+ */
 typedef struct dl_ref_sample {
-  // The control tick k this row is for (t = k·Ts).
+  /**
+   * The control tick k this row is for (t = k·Ts).
+   */
   uint64_t tick;
-  // q_d,k, rad.
+  /**
+   * q_d,k, rad.
+   */
   double q[3];
-  // q̇_d,k, rad/s.
+  /**
+   * q̇_d,k, rad/s.
+   */
   double qd[3];
-  // q̈_d,k, rad/s².
+  /**
+   * q̈_d,k, rad/s².
+   */
   double qdd[3];
 } dl_ref_sample;
 
-// Controller → plant (and supervisor): the answer to one state.
+/**
+ * Controller → plant (and supervisor): the answer to one state.
+ */
 typedef struct dl_torque {
-  // The tick of the state this answers.
+  /**
+   * The tick of the state this answers.
+   */
   uint64_t tick;
-  // States the controller skipped to reach this one (it always answers the newest).
+  /**
+   * States the controller skipped to reach this one (it always answers the newest).
+   */
   uint64_t skipped;
-  // Commanded torque τ_k (unclamped), N m.
+  /**
+   * Commanded torque τ_k (unclamped), N m.
+   */
   double tau[3];
-  // Sliding variable s_k, rad/s.
+  /**
+   * Sliding variable s_k, rad/s.
+   */
   double s[3];
-  // TDE N̂_k, rad/s².
+  /**
+   * TDE N̂_k, rad/s².
+   */
   double n_hat[3];
-  // Robust term u_k, rad/s².
+  /**
+   * Robust term u_k, rad/s².
+   */
   double u[3];
-  // When the controller took the state, ns.
+  /**
+   * When the controller took the state, ns.
+   */
   uint64_t t_state_rx_ns;
-  // When the controller published this message, ns.
+  /**
+   * When the controller published this message, ns.
+   */
   uint64_t t_publish_ns;
-  // The controller polls the state queue until at least this time (ns, CLOCK_MONOTONIC)
-  // before it blocks on `state-ready`; a state published and visible before it, less
-  // [`POLL_MARGIN_NS`], needs no wake-up notification. 0: always notify.
+  /**
+   * The controller polls the state queue until at least this time (ns, CLOCK_MONOTONIC)
+   * before it blocks on `state-ready`; a state published and visible before it, less
+   * [`POLL_MARGIN_NS`], needs no wake-up notification. 0: always notify.
+   */
   uint64_t t_poll_until_ns;
 } dl_torque;
 
-// Called for each tick k with the plant's state k and tick k's reference row: fill `reply`'s
-// `tau` (the command, N m), and `s`, `n_hat`, `u` (the law's internals, for the trace; zero if
-// none). The library sets the tick and every time stamp. Return 0, or non-zero to end the run
-// with a fault at this tick (exit 4), saying why with [`dl_set_error`](crate::dl_set_error).
+/**
+ * Called for each tick k with the plant's state k and tick k's reference row: fill `reply`'s
+ * `tau` (the command, N m), and `s`, `n_hat`, `u` (the law's internals, for the trace; zero if
+ * none). The library sets the tick and every time stamp. Return 0, or non-zero to end the run
+ * with a fault at this tick (exit 4), saying why with [`dl_set_error`](crate::dl_set_error):
+ * the library tells the plant at once (it stops the loop at its next tick, naming the error,
+ * and brakes), and the run is a controller fault quoting the message.
+ */
 typedef int (*dl_step_fn)(void *user,
                           const struct dl_state *state,
                           const struct dl_ref_sample *reference,
                           struct dl_torque *reply);
 
-// A joint-space state: angles, rates, and the torque applied over the last interval.
+/**
+ * A joint-space state: angles, rates, and the torque applied over the last interval.
+ */
 typedef struct dl_joints {
-  // Joint angles q, rad.
+  /**
+   * Joint angles q, rad.
+   */
   double q[3];
-  // Joint rates q̇, rad/s.
+  /**
+   * Joint rates q̇, rad/s.
+   */
   double qd[3];
-  // Torque the drives applied over the last interval (τᵃ), N m.
+  /**
+   * Torque the drives applied over the last interval (τᵃ), N m.
+   */
   double tau_applied[3];
 } dl_joints;
 
-// What a plant in C does; `user` is the pointer given to [`dl_plant_main`]. Each returns 0, or
-// non-zero with a message in [`dl_set_error`](crate::dl_set_error).
+/**
+ * What a plant in C does; `user` is the pointer given to [`dl_plant_main`]. Each returns 0, or
+ * non-zero with a message in [`dl_set_error`](crate::dl_set_error).
+ */
 typedef struct dl_plant_fns {
-  // Once before READY with the run (may be null): open the drives, read the constants.
-  // Non-zero refuses the run (set-up failed: exit 3).
+  /**
+   * Once before READY with the run (may be null): open the drives, read the constants.
+   * Non-zero refuses the run (set-up failed: exit 3).
+   */
   dl_init_fn init;
-  // After START (may be null): the robot is at rest at `q0` (3 joint angles, rad), tick 0.
-  // Non-zero: set-up failed (exit 3).
+  /**
+   * After START (may be null): the robot is at rest at `q0` (3 joint angles, rad), tick 0.
+   * Non-zero: set-up failed (exit 3).
+   */
   int (*start)(void *user, const struct dl_run *run, const double *q0);
-  // The true state now (no sensor noise): q (rad), q̇ (rad/s), τᵃ (N m) applied over the last
-  // interval (at tick 0 the holding torque). May be called more than once a tick.
+  /**
+   * The true state now (no sensor noise): q (rad), q̇ (rad/s), τᵃ (N m) applied over the last
+   * interval (at tick 0 the holding torque). May be called more than once a tick. Non-zero:
+   * the plant failed (a plant error, not the law's divergence: the run ends as a plant fault
+   * quoting the message, after a safe stop, exit 4).
+   */
   int (*truth)(void *user, struct dl_joints *out);
-  // What the encoders report now: called once for each state published (after `truth`), it
-  // may advance a noise stream.
+  /**
+   * What the encoders report now: called once for each state published (after `truth`), it
+   * may advance a noise stream. Non-zero: the plant failed, as for `truth`.
+   */
   int (*measure)(void *user, struct dl_joints *out);
-  // Runs one tick's interval [t_k, t_k + Ts): `tau` (3 torques, N m) is tick k's command,
-  // reaching the drives `latency_ns` after t_k plus the configured transport delay; null when
-  // none arrived (the drives hold). Sets `*drives` to `DL_DRIVES_*` bits. Non-zero: the plant
-  // failed (diverged: the run ends with no safe stop, exit 4).
+  /**
+   * Runs one tick's interval [t_k, t_k + Ts): `tau` (3 torques, N m) is tick k's command,
+   * reaching the drives `latency_ns` after t_k plus the configured transport delay; null when
+   * none arrived (the drives hold). Sets `*drives` to `DL_DRIVES_*` bits. Non-zero: the plant
+   * failed (diverged: the run ends with no safe stop, exit 4).
+   */
   int (*advance)(void *user, const double *tau, uint64_t latency_ns, uint32_t *drives);
-  // One tick of safe stop after a fault or STOP: τ = G(q) − `damping` q̇ (N m s/rad), no
-  // controller. Null: no braking (the safe stop ends at once).
+  /**
+   * One tick of safe stop after a fault or STOP: τ = G(q) − `damping` q̇ (N m s/rad), no
+   * controller. Null: no braking (the safe stop ends at once).
+   */
   int (*brake)(void *user, double damping);
 } dl_plant_fns;
 
-#ifdef __cplusplus
-extern "C" {
-#endif // __cplusplus
-
-// The wire version this library speaks (docs/protocol.md §2).
+/**
+ * The wire version this library speaks (docs/protocol.md §2).
+ */
 uint32_t dl_wire_version(void);
 
-// The deltaloop version of this library, e.g. "0.1.0".
+/**
+ * The deltaloop version of this library, e.g. "0.1.0".
+ */
 const char *dl_version(void);
 
-// The controller process of the run the arguments name (`--run-id ID --config FILE --mode
-// lockstep|realtime --law NAME`, as the supervisor gives them): `init` once with the run, then
-// `step` for every tick until the run ends. Returns the exit code for `main` to return (0 done,
-// 2 bad arguments, 3 set-up failed, 4 fault, 5 stopped: docs/protocol.md §10), having printed
-// one line on stderr for every code but 0. The process's name in its messages: argv[0].
-//
-// # Safety
-// `argv` holds `argc` valid C strings; `init` (may be null) and `step` are valid functions that
-// accept `user` (passed through untouched).
+/**
+ * The controller process of the run the arguments name (`--run-id ID --config FILE --mode
+ * lockstep|realtime --law NAME`, as the supervisor gives them): `init` once with the run, then
+ * `step` for every tick until the run ends. Returns the exit code for `main` to return (0 done,
+ * 2 bad arguments, 3 set-up failed, 4 fault, 5 stopped, 6 the plant silent: docs/protocol.md
+ * §10), having printed one line on stderr (and set it as [`dl_last_error`](crate::dl_last_error))
+ * for every code but 0. The process's name in its messages: argv[0]. From C's `main`:
+ * `return dl_controller_main(argc, (const char *const *)argv, init, step, &law);`
+ *
+ * On the caller's behalf, as the built-in controller: `controller.compute_delay_us` (a busy-wait
+ * after each `step`: do not add it again), the `[faults]` drills (`inject` stall, nan-torque,
+ * panic), the `[loop.<mode>]` layout (SCHED_FIFO at `controller_priority`, pinning to
+ * `controller_cpu`, `mlockall` with `lock_memory`, applied after `init`), and the signals
+ * (SIGINT, SIGHUP ignored; SIGTERM a clean stop; SIGTERM on the parent's death).
+ *
+ * `init` and `step` run on the calling thread, one at a time. Before each `step` the reply is
+ * zeroed but for its tick. `step` runs under the layout's scheduling within the tick's deadline:
+ * no blocking, no allocation, no system call, no printing (docs/guide/own-process.md).
+ *
+ * # Safety
+ * `argv` holds `argc` valid C strings; `init` (may be null) and `step` are valid functions that
+ * accept `user` (passed through untouched).
+ */
 int dl_controller_main(int argc,
                        const char *const *argv,
                        dl_init_fn init,
                        dl_step_fn step,
                        void *user);
 
-// The message of the last failed call on this thread (empty if none); valid until the next call.
+/**
+ * The message of the last failed call on this thread (empty if none); valid until the next call.
+ * Every function of this library that returns an error code, or a non-zero exit code, sets it
+ * first. One line, at most [`DL_ERROR_MAX_BYTES`] bytes.
+ */
 const char *dl_last_error(void);
 
-// Sets this thread's error message: a callback that fails says why here, and the process's one
-// line on stderr quotes it. `msg` may be null (clears it).
-//
-// # Safety
-// `msg` is null or a C string.
+/**
+ * Sets this thread's error message: a callback that fails says why here, and the process's one
+ * line on stderr quotes it. `msg` may be null (clears it). Kept as one line of at most
+ * [`DL_ERROR_MAX_BYTES`] bytes: control characters (newlines, escape codes) are written as
+ * escapes (`\n`, `\u{1b}`), and a longer message is cut at a character boundary, ending in
+ * " …[cut]".
+ *
+ * # Safety
+ * `msg` is null or a C string.
+ */
 void dl_set_error(const char *msg);
 
-// Builds the run's plant (`[plant]`, `[sensor]`, `[faults]`, `[loop]`) at rest at `q0` (3 joint
-// angles, rad) into `*out`. DL_OK, or DL_BAD_ARGUMENT (a null pointer, or q0 outside the
-// workspace: the message says which).
-//
-// # Safety
-// `run` is the one `init` or `start` got, `q0` 3 readable doubles, `out` writable.
+/**
+ * Builds the run's plant (`[plant]`, `[sensor]`, `[faults]`, `[loop]`) at rest at `q0` (3 joint
+ * angles, rad) into `*out`. DL_OK, or DL_BAD_ARGUMENT (a null pointer, or q0 outside the
+ * workspace: the message says which).
+ *
+ * # Safety
+ * `run` is the one `init` or `start` got, `q0` 3 readable doubles, `out` writable.
+ */
 int dl_model_open(const struct dl_run *run, const double *q0, struct dl_model **out);
 
-// Frees a model (null: nothing).
-//
-// # Safety
-// `m` is null or from [`dl_model_open`], not used after.
+/**
+ * Frees a model (null: nothing).
+ *
+ * # Safety
+ * `m` is null or from [`dl_model_open`], not used after.
+ */
 void dl_model_close(struct dl_model *m);
 
-// The true state now (`dl_plant_fns.truth`).
-//
-// # Safety
-// `m` from [`dl_model_open`], `out` writable.
+/**
+ * The true state now (`dl_plant_fns.truth`).
+ *
+ * # Safety
+ * `m` from [`dl_model_open`], `out` writable.
+ */
 int dl_model_truth(struct dl_model *m, struct dl_joints *out);
 
-// What the sensors report now, advancing the noise stream (`dl_plant_fns.measure`).
-//
-// # Safety
-// As [`dl_model_truth`].
+/**
+ * What the sensors report now, advancing the noise stream (`dl_plant_fns.measure`).
+ *
+ * # Safety
+ * As [`dl_model_truth`].
+ */
 int dl_model_measure(struct dl_model *m, struct dl_joints *out);
 
-// Runs one interval (`dl_plant_fns.advance`): `tau` null or 3 torques (N m) reaching the drives
-// `latency_ns` after the tick plus the transport delay; `*drives` gets `DL_DRIVES_*` bits.
-// DL_OK, or DL_BAD_ARGUMENT with the model's failure (left the workspace, non-finite state).
-//
-// # Safety
-// `m` from [`dl_model_open`], `tau` null or 3 readable doubles, `drives` writable.
+/**
+ * Runs one interval (`dl_plant_fns.advance`): `tau` null or 3 torques (N m) reaching the drives
+ * `latency_ns` after the tick plus the transport delay; `*drives` gets `DL_DRIVES_*` bits.
+ * DL_OK, or DL_BAD_ARGUMENT with the model's failure (left the workspace, non-finite state).
+ *
+ * # Safety
+ * `m` from [`dl_model_open`], `tau` null or 3 readable doubles, `drives` writable.
+ */
 int dl_model_advance(struct dl_model *m, const double *tau, uint64_t latency_ns, uint32_t *drives);
 
-// One tick of safe stop (`dl_plant_fns.brake`): τ = G(q) − `damping` q̇, N m.
-//
-// # Safety
-// `m` from [`dl_model_open`].
+/**
+ * One tick of safe stop (`dl_plant_fns.brake`): τ = G(q) − `damping` q̇, N m.
+ *
+ * # Safety
+ * `m` from [`dl_model_open`].
+ */
 int dl_model_brake(struct dl_model *m, double damping);
 
-// The plant process of the run the arguments name (`--run-id ID --config FILE --mode
-// lockstep|realtime`, as the supervisor gives them): `init` once with the run, `start` at
-// START, then `truth`, `measure` and `advance` every tick until the run ends, and `brake` for
-// the safe stop. Returns the exit code for `main` to return (0 done, 2 bad arguments, 3 set-up
-// failed, 4 fault, 5 stopped: docs/protocol.md §10), having printed one line on stderr for
-// every code but 0. The process's name in its messages: argv[0].
-//
-// # Safety
-// `argv` holds `argc` valid C strings; `fns` points to a `dl_plant_fns` whose non-null
-// functions are valid and accept `user` (passed through untouched).
+/**
+ * The plant process of the run the arguments name (`--run-id ID --config FILE --mode
+ * lockstep|realtime`, as the supervisor gives them): `init` once with the run, `start` at
+ * START, then `truth`, `measure` and `advance` every tick until the run ends, and `brake` for
+ * the safe stop. Returns the exit code for `main` to return (0 done, 2 bad arguments, 3 set-up
+ * failed, 4 fault, 5 stopped: docs/protocol.md §10), having printed one line on stderr (and set
+ * it as [`dl_last_error`](crate::dl_last_error)) for every code but 0. The process's name in its
+ * messages: argv[0]. From C's `main`:
+ * `return dl_plant_main(argc, (const char *const *)argv, &fns, &rig);`
+ *
+ * On the caller's behalf, as the built-in plant: the `[loop.<mode>]` layout (SCHED_FIFO at
+ * `plant_priority`, pinning to `plant_cpu`, `mlockall` with `lock_memory`, applied after
+ * `init`), the clock, the silence rule, the safe stop and the signals. Every function runs on
+ * the calling thread, one at a time; those of the loop under its scheduling, within the tick's
+ * deadline: no blocking, no allocation, no system call, no printing.
+ *
+ * # Safety
+ * `argv` holds `argc` valid C strings; `fns` points to a `dl_plant_fns` whose non-null
+ * functions are valid and accept `user` (passed through untouched).
+ */
 int dl_plant_main(int argc, const char *const *argv, const struct dl_plant_fns *fns, void *user);
 
-// The number at dotted `key` of the run's resolved config (`"controller.m_bar"`,
-// `"loop.ts_s"`; an integer reads as its value) into `*out`. DL_OK, DL_NOT_FOUND,
-// DL_WRONG_TYPE or DL_BAD_ARGUMENT.
-//
-// # Safety
-// `run` is the one `init` got, `key` a C string, `out` writable.
+/**
+ * The number at dotted `key` of the run's resolved config (`"controller.m_bar"`,
+ * `"loop.ts_s"`; an integer reads as its value) into `*out`. DL_OK, DL_NOT_FOUND,
+ * DL_WRONG_TYPE or DL_BAD_ARGUMENT.
+ *
+ * # Safety
+ * `run` is the one `init` got, `key` a C string, `out` writable.
+ */
 int dl_run_f64(const struct dl_run *run, const char *key, double *out);
 
-// The integer at dotted `key` (`"controller.tde_delay_samples"`) into `*out`; as
-// [`dl_run_f64`].
-//
-// # Safety
-// As [`dl_run_f64`].
+/**
+ * The integer at dotted `key` (`"controller.tde_delay_samples"`) into `*out`; as
+ * [`dl_run_f64`].
+ *
+ * # Safety
+ * As [`dl_run_f64`].
+ */
 int dl_run_i64(const struct dl_run *run, const char *key, int64_t *out);
 
-// The text at dotted `key` (`"sensor.velocity"`), NUL-terminated, into `buf` of `len` bytes.
-// Returns its length without the NUL, or DL_NOT_FOUND, DL_WRONG_TYPE, DL_BAD_ARGUMENT (also
-// when it does not fit).
-//
-// # Safety
-// As [`dl_run_f64`]; `buf` holds `len` writable bytes.
+/**
+ * The text at dotted `key` (`"sensor.velocity"`), NUL-terminated, into `buf` of `len` bytes.
+ * Returns its length without the NUL, or DL_NOT_FOUND, DL_WRONG_TYPE, DL_BAD_ARGUMENT (also
+ * when it does not fit).
+ *
+ * # Safety
+ * As [`dl_run_f64`]; `buf` holds `len` writable bytes.
+ */
 int dl_run_str(const struct dl_run *run, const char *key, char *buf, uintptr_t len);
 
-// The law the run asks for (`--law`: "tdc", "tdc-is-sta", …; "" if none was given).
-//
-// # Safety
-// `run` is the one `init` got.
+/**
+ * Names the controller (from `init`): the run shows `label` beside the law it answers as, in
+ * the terminal table, `summary.json` (`controller_label`) and `report.md`, unless the run was
+ * given one (`--controller-label`, `controller.label`); without either it shows the command's
+ * program name. One line of at most 64 printable characters. DL_OK, or DL_BAD_ARGUMENT (a null
+ * pointer, or a label that is not one such line).
+ *
+ * # Safety
+ * `run` is the one `init` got, `label` a C string.
+ */
+int dl_run_set_label(const struct dl_run *run, const char *label);
+
+/**
+ * The law the run asks for (`--law`: "tdc", "tdc-is-sta", …; "" if none was given; "" and the
+ * last error set for a null run).
+ *
+ * # Safety
+ * `run` is null or the one `init` got.
+ */
 const char *dl_run_law(const struct dl_run *run);
 
-// The loop mode: "lockstep" or "realtime".
-//
-// # Safety
-// `run` is the one `init` got.
+/**
+ * The loop mode: "lockstep" or "realtime" ("" and the last error set for a null run).
+ *
+ * # Safety
+ * `run` is null or the one `init` got.
+ */
 const char *dl_run_mode(const struct dl_run *run);
 
 #ifdef __cplusplus
-}  // extern "C"
-#endif  // __cplusplus
+}
+#endif
 
-#endif  /* DELTALOOP_H */
+#endif /* DELTALOOP_H */

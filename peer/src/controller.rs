@@ -4,11 +4,10 @@ use std::ffi::{c_char, c_int, c_void};
 
 use deltaloop_controller::process::{Step, serve};
 use deltaloop_transport::args::LoopArgs;
-use deltaloop_transport::exit::{self, EXIT_USAGE};
 use deltaloop_transport::wire::{RefSample, StateMsg, TorqueMsg};
 
 use crate::error::refusal;
-use crate::process::{main_of, parse};
+use crate::process::{exit_code, main_of, parse, usage};
 use crate::run::DlRun;
 
 /// Called once before READY with the run: read the constants, allocate what the step needs.
@@ -19,7 +18,9 @@ pub type DlInitFn = Option<unsafe extern "C" fn(user: *mut c_void, run: *const D
 /// Called for each tick k with the plant's state k and tick k's reference row: fill `reply`'s
 /// `tau` (the command, N m), and `s`, `n_hat`, `u` (the law's internals, for the trace; zero if
 /// none). The library sets the tick and every time stamp. Return 0, or non-zero to end the run
-/// with a fault at this tick (exit 4), saying why with [`dl_set_error`](crate::dl_set_error).
+/// with a fault at this tick (exit 4), saying why with [`dl_set_error`](crate::dl_set_error):
+/// the library tells the plant at once (it stops the loop at its next tick, naming the error,
+/// and brakes), and the run is a controller fault quoting the message.
 pub type DlStepFn = Option<
     unsafe extern "C" fn(
         user: *mut c_void,
@@ -49,9 +50,15 @@ struct CStep {
         *mut TorqueMsg,
     ) -> c_int,
     user: *mut c_void,
+    /// What `init` named the controller ([`dl_run_set_label`](crate::run::dl_run_set_label)).
+    label: Option<String>,
 }
 
 impl Step for CStep {
+    fn label(&self) -> Option<&str> {
+        self.label.as_deref()
+    }
+
     fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<TorqueMsg, String> {
         let mut reply = TorqueMsg {
             tick: state.tick,
@@ -60,19 +67,27 @@ impl Step for CStep {
         // SAFETY: the caller of dl_controller_main promised a valid step and user pointer; the
         // three pointers are to live values of the types the header declares.
         let rc = unsafe { (self.step)(self.user, state, row, &mut reply) };
-        if rc == 0 {
-            Ok(reply)
-        } else {
-            Err(format!("the step failed: {}", refusal(rc)))
-        }
+        if rc == 0 { Ok(reply) } else { Err(refusal(rc)) }
     }
 }
 
 /// The controller process of the run the arguments name (`--run-id ID --config FILE --mode
 /// lockstep|realtime --law NAME`, as the supervisor gives them): `init` once with the run, then
 /// `step` for every tick until the run ends. Returns the exit code for `main` to return (0 done,
-/// 2 bad arguments, 3 set-up failed, 4 fault, 5 stopped: docs/protocol.md §10), having printed
-/// one line on stderr for every code but 0. The process's name in its messages: argv[0].
+/// 2 bad arguments, 3 set-up failed, 4 fault, 5 stopped, 6 the plant silent: docs/protocol.md
+/// §10), having printed one line on stderr (and set it as [`dl_last_error`](crate::dl_last_error))
+/// for every code but 0. The process's name in its messages: argv[0]. From C's `main`:
+/// `return dl_controller_main(argc, (const char *const *)argv, init, step, &law);`
+///
+/// On the caller's behalf, as the built-in controller: `controller.compute_delay_us` (a busy-wait
+/// after each `step`: do not add it again), the `[faults]` drills (`inject` stall, nan-torque,
+/// panic), the `[loop.<mode>]` layout (SCHED_FIFO at `controller_priority`, pinning to
+/// `controller_cpu`, `mlockall` with `lock_memory`, applied after `init`), and the signals
+/// (SIGINT, SIGHUP ignored; SIGTERM a clean stop; SIGTERM on the parent's death).
+///
+/// `init` and `step` run on the calling thread, one at a time. Before each `step` the reply is
+/// zeroed but for its tick. `step` runs under the layout's scheduling within the tick's deadline:
+/// no blocking, no allocation, no system call, no printing (docs/guide/own-process.md).
 ///
 /// # Safety
 /// `argv` holds `argc` valid C strings; `init` (may be null) and `step` are valid functions that
@@ -105,8 +120,7 @@ fn controller_main(
         Err(code) => return code,
     };
     let Some(step) = step else {
-        eprintln!("{name}: dl_controller_main: the step function is null");
-        return EXIT_USAGE;
+        return usage(name, "dl_controller_main: the step function is null");
     };
     let term = deltaloop_transport::rt::child_signals();
     let end = serve(&args.run, &term, name, |cfg| {
@@ -119,7 +133,11 @@ fn controller_main(
                 anyhow::bail!("the controller refused the run: {}", refusal(rc));
             }
         }
-        Ok(CStep { step, user })
+        Ok(CStep {
+            step,
+            user,
+            label: run.label(),
+        })
     });
-    exit::code(name, end)
+    exit_code(name, end)
 }

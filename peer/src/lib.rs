@@ -57,6 +57,160 @@ pub extern "C" fn dl_version() -> *const c_char {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+    use std::ffi::{CStr, CString, c_int};
+
+    fn last() -> String {
+        // SAFETY: dl_last_error always returns a C string.
+        unsafe { CStr::from_ptr(dl_last_error()) }
+            .to_string_lossy()
+            .into_owned()
+    }
+
+    /// Regression: `dl_run_f64(run, key, NULL)` returned DL_BAD_ARGUMENT and left the previous
+    /// call's message in `dl_last_error`, so a caller printed a wrong reason. Every error return
+    /// of every function (error codes, and the `*_main` functions' non-zero exit codes) now sets
+    /// the last error.
+    #[test]
+    fn regression_every_error_return_sets_the_last_error() {
+        let cfg = deltaloop_config::RunConfig::from_toml_str(
+            "name = \"t\"\n[scenario]\npath = \"s1\"\n",
+            None,
+        )
+        .unwrap();
+        let args = deltaloop_transport::args::LoopArgs {
+            run_id: "r".into(),
+            config: "c.toml".into(),
+            mode: deltaloop_config::LoopMode::Lockstep,
+        };
+        let run = DlRun::new(&cfg, &args, "tdc").unwrap();
+        let (key, text, null) = (
+            c"loop.ts_s".as_ptr(),
+            c"sensor.velocity".as_ptr(),
+            std::ptr::null_mut::<f64>(),
+        );
+        let buf = [0 as std::ffi::c_char; 4];
+        let q0 = [0.0f64; 3];
+        let argv_bad: Vec<CString> = ["peer", "--no-such-flag"]
+            .map(|a| CString::new(a).unwrap())
+            .into();
+        let argv_bad: Vec<*const std::ffi::c_char> = argv_bad.iter().map(|a| a.as_ptr()).collect();
+        type Call<'a> = (&'a str, Box<dyn Fn() -> c_int + 'a>);
+        let calls: Vec<Call> = vec![
+            // SAFETY (every call): live values or null where the test says so.
+            (
+                "dl_run_f64 out",
+                Box::new(|| unsafe { run::dl_run_f64(&run, key, null) }),
+            ),
+            (
+                "dl_run_f64 run",
+                Box::new(|| unsafe { run::dl_run_f64(std::ptr::null(), key, null) }),
+            ),
+            (
+                "dl_run_i64 out",
+                Box::new(|| unsafe {
+                    run::dl_run_i64(&run, c"controller.tde_delay_samples".as_ptr(), null.cast())
+                }),
+            ),
+            (
+                "dl_run_i64 type",
+                Box::new(|| unsafe { run::dl_run_i64(&run, key, &mut 0) }),
+            ),
+            (
+                "dl_run_str buf",
+                Box::new(|| unsafe { run::dl_run_str(&run, text, null.cast(), 8) }),
+            ),
+            (
+                "dl_run_str len",
+                Box::new(|| unsafe { run::dl_run_str(&run, text, buf.as_ptr().cast_mut(), 4) }),
+            ),
+            (
+                "dl_run_str key",
+                Box::new(|| unsafe {
+                    run::dl_run_str(&run, std::ptr::null(), buf.as_ptr().cast_mut(), 4)
+                }),
+            ),
+            (
+                "dl_run_set_label",
+                Box::new(|| unsafe { run::dl_run_set_label(&run, c"two\nlines".as_ptr()) }),
+            ),
+            (
+                "dl_run_set_label null",
+                Box::new(|| unsafe { run::dl_run_set_label(&run, std::ptr::null()) }),
+            ),
+            (
+                "dl_model_open",
+                Box::new(|| unsafe { model::dl_model_open(&run, q0.as_ptr(), null.cast()) }),
+            ),
+            (
+                "dl_model_open q0",
+                Box::new(|| unsafe {
+                    model::dl_model_open(&run, [9.0f64; 3].as_ptr(), &mut std::ptr::null_mut())
+                }),
+            ),
+            (
+                "dl_model_truth",
+                Box::new(|| unsafe { model::dl_model_truth(null.cast(), null.cast()) }),
+            ),
+            (
+                "dl_model_measure",
+                Box::new(|| unsafe { model::dl_model_measure(null.cast(), null.cast()) }),
+            ),
+            (
+                "dl_model_advance",
+                Box::new(|| unsafe {
+                    model::dl_model_advance(null.cast(), std::ptr::null(), 0, null.cast())
+                }),
+            ),
+            (
+                "dl_model_brake",
+                Box::new(|| unsafe { model::dl_model_brake(null.cast(), 1.0) }),
+            ),
+            (
+                "dl_controller_main args",
+                Box::new(|| unsafe {
+                    dl_controller_main(2, argv_bad.as_ptr(), None, None, null.cast())
+                }),
+            ),
+            (
+                "dl_controller_main step",
+                Box::new(|| unsafe {
+                    dl_controller_main(0, std::ptr::null(), None, None, null.cast())
+                }),
+            ),
+            (
+                "dl_plant_main fns",
+                Box::new(|| unsafe {
+                    dl_plant_main(0, std::ptr::null(), std::ptr::null(), null.cast())
+                }),
+            ),
+        ];
+        // The getters of text return "" for a null run, and say why.
+        for (what, get) in [
+            (
+                "dl_run_law",
+                run::dl_run_law as unsafe extern "C" fn(_) -> _,
+            ),
+            ("dl_run_mode", run::dl_run_mode),
+        ] {
+            error::set_error("the previous error");
+            // SAFETY: null is allowed.
+            let text = unsafe { CStr::from_ptr(get(std::ptr::null())) };
+            assert!(text.is_empty(), "{what}");
+            assert_eq!(last(), format!("{what}: a null run"));
+        }
+        for (what, call) in calls {
+            error::set_error("the previous error");
+            let rc = call();
+            assert_ne!(rc, DL_OK, "{what}");
+            let m = last();
+            assert!(
+                !m.is_empty() && m != "the previous error",
+                "{what} returned {rc} with {m:?}"
+            );
+        }
+    }
+
     /// The committed header is what cbindgen makes of this crate now (regenerate it with
     /// `DELTALOOP_UPDATE_HEADER=1 cargo test -p deltaloop-peer header`).
     #[test]

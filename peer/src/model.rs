@@ -144,7 +144,7 @@ unsafe fn with<T>(
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn dl_model_truth(m: *mut DlModel, out: *mut DlJoints) -> c_int {
     // SAFETY: forwarded promises.
-    unsafe { with(m, out, |p| Ok(DlJoints::of(&Physics::sample(p)))) }
+    unsafe { with(m, out, |p| Physics::sample(p).map(|s| DlJoints::of(&s))) }
 }
 
 /// What the sensors report now, advancing the noise stream (`dl_plant_fns.measure`).
@@ -154,7 +154,7 @@ pub unsafe extern "C" fn dl_model_truth(m: *mut DlModel, out: *mut DlJoints) -> 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn dl_model_measure(m: *mut DlModel, out: *mut DlJoints) -> c_int {
     // SAFETY: forwarded promises.
-    unsafe { with(m, out, |p| Ok(DlJoints::of(&Physics::measure(p)))) }
+    unsafe { with(m, out, |p| Physics::measure(p).map(|s| DlJoints::of(&s))) }
 }
 
 /// Runs one interval (`dl_plant_fns.advance`): `tau` null or 3 torques (N m) reaching the drives

@@ -9,12 +9,11 @@ use deltaloop_model::{PlantSample, Vec3};
 use deltaloop_plant::process::serve;
 use deltaloop_plant::tick::{Drives, Physics};
 use deltaloop_transport::args::LoopArgs;
-use deltaloop_transport::exit::{self, EXIT_USAGE};
 
 use crate::controller::DlInitFn;
 use crate::error::refusal;
 use crate::model::{DlJoints, drives_of};
-use crate::process::{main_of, parse};
+use crate::process::{exit_code, main_of, parse, usage};
 use crate::run::DlRun;
 
 /// What a plant in C does; `user` is the pointer given to [`dl_plant_main`]. Each returns 0, or
@@ -29,10 +28,12 @@ pub struct DlPlantFns {
     pub start:
         Option<unsafe extern "C" fn(user: *mut c_void, run: *const DlRun, q0: *const f64) -> c_int>,
     /// The true state now (no sensor noise): q (rad), q̇ (rad/s), τᵃ (N m) applied over the last
-    /// interval (at tick 0 the holding torque). May be called more than once a tick.
+    /// interval (at tick 0 the holding torque). May be called more than once a tick. Non-zero:
+    /// the plant failed (a plant error, not the law's divergence: the run ends as a plant fault
+    /// quoting the message, after a safe stop, exit 4).
     pub truth: Option<unsafe extern "C" fn(user: *mut c_void, out: *mut DlJoints) -> c_int>,
     /// What the encoders report now: called once for each state published (after `truth`), it
-    /// may advance a noise stream.
+    /// may advance a noise stream. Non-zero: the plant failed, as for `truth`.
     pub measure: Option<unsafe extern "C" fn(user: *mut c_void, out: *mut DlJoints) -> c_int>,
     /// Runs one tick's interval [t_k, t_k + Ts): `tau` (3 torques, N m) is tick k's command,
     /// reaching the drives `latency_ns` after t_k plus the configured transport delay; null when
@@ -65,13 +66,16 @@ struct CPhysics {
 }
 
 impl CPhysics {
-    /// `f`'s joints now, as tick k's sample (a failure reads as zeros: it cannot fail the tick
-    /// here, and the next `advance` says what is wrong).
-    fn joints(&self, f: JointsFn) -> PlantSample {
+    /// `f`'s joints now, as tick k's sample, or the plant's error (its message and code): the
+    /// loop stops on it (a plant error), never taking zeros for the robot's state.
+    fn joints(&self, f: JointsFn) -> Result<PlantSample, String> {
         let mut j = DlJoints::default();
         // SAFETY: valid functions accepting `user` (the caller of dl_plant_main promised).
-        let _ = unsafe { f(self.user, &mut j) };
-        j.sample(self.tick)
+        let rc = unsafe { f(self.user, &mut j) };
+        if rc != 0 {
+            return Err(refusal(rc));
+        }
+        Ok(j.sample(self.tick))
     }
 }
 
@@ -79,10 +83,10 @@ impl Physics for CPhysics {
     fn tick(&self) -> u64 {
         self.tick
     }
-    fn sample(&self) -> PlantSample {
+    fn sample(&self) -> Result<PlantSample, String> {
         self.joints(self.truth)
     }
-    fn measure(&mut self) -> PlantSample {
+    fn measure(&mut self) -> Result<PlantSample, String> {
         self.joints(self.measure)
     }
     fn advance_after(&mut self, cmd: Option<Vec3>, latency_ns: u64) -> Result<Drives, String> {
@@ -122,8 +126,16 @@ struct Args {
 /// lockstep|realtime`, as the supervisor gives them): `init` once with the run, `start` at
 /// START, then `truth`, `measure` and `advance` every tick until the run ends, and `brake` for
 /// the safe stop. Returns the exit code for `main` to return (0 done, 2 bad arguments, 3 set-up
-/// failed, 4 fault, 5 stopped: docs/protocol.md §10), having printed one line on stderr for
-/// every code but 0. The process's name in its messages: argv[0].
+/// failed, 4 fault, 5 stopped: docs/protocol.md §10), having printed one line on stderr (and set
+/// it as [`dl_last_error`](crate::dl_last_error)) for every code but 0. The process's name in its
+/// messages: argv[0]. From C's `main`:
+/// `return dl_plant_main(argc, (const char *const *)argv, &fns, &rig);`
+///
+/// On the caller's behalf, as the built-in plant: the `[loop.<mode>]` layout (SCHED_FIFO at
+/// `plant_priority`, pinning to `plant_cpu`, `mlockall` with `lock_memory`, applied after
+/// `init`), the clock, the silence rule, the safe stop and the signals. Every function runs on
+/// the calling thread, one at a time; those of the loop under its scheduling, within the tick's
+/// deadline: no blocking, no allocation, no system call, no printing.
 ///
 /// # Safety
 /// `argv` holds `argc` valid C strings; `fns` points to a `dl_plant_fns` whose non-null
@@ -151,8 +163,10 @@ fn plant_main(words: &[String], name: &str, fns: Option<&DlPlantFns>, user: *mut
     let Some((fns, truth, measure, advance)) =
         fns.and_then(|f| Some((f, f.truth?, f.measure?, f.advance?)))
     else {
-        eprintln!("{name}: dl_plant_main: fns, or its truth, measure or advance, is null");
-        return EXIT_USAGE;
+        return usage(
+            name,
+            "dl_plant_main: fns, or its truth, measure or advance, is null",
+        );
     };
     let term = deltaloop_transport::rt::child_signals();
     let end = serve(&args.run, &term, name, |cfg| {
@@ -184,5 +198,5 @@ fn plant_main(words: &[String], name: &str, fns: Option<&DlPlantFns>, user: *mut
             })
         })
     });
-    exit::code(name, end)
+    exit_code(name, end)
 }

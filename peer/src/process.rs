@@ -4,7 +4,9 @@
 use std::ffi::{CStr, c_char, c_int};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
-use deltaloop_transport::exit::{EXIT_FAULT, EXIT_USAGE};
+use deltaloop_transport::exit::{self, EXIT_FAULT, EXIT_USAGE, ProcessEnd};
+
+use crate::error::set_error;
 
 /// Runs `body` with the arguments as strings and the process's name (argv[0]'s file name), and
 /// returns its exit code; a panic is caught and reported as a fault.
@@ -26,7 +28,9 @@ pub(crate) unsafe fn main_of(
         body(&words, &name)
     }));
     c_int::from(r.unwrap_or_else(|_| {
-        eprintln!("deltaloop-peer: the library panicked (a bug: please report it)");
+        let why = "the library panicked (a bug: please report it)";
+        set_error(why);
+        eprintln!("deltaloop-peer: {why}");
         EXIT_FAULT
     }))
 }
@@ -35,8 +39,33 @@ pub(crate) unsafe fn main_of(
 pub(crate) fn parse<A: clap::Parser>(words: &[String]) -> Result<A, u8> {
     A::try_parse_from(words).map_err(|e| {
         let _ = e.print();
-        if e.use_stderr() { EXIT_USAGE } else { 0 }
+        if e.use_stderr() {
+            set_error(e.to_string().trim_end());
+            EXIT_USAGE
+        } else {
+            0
+        }
     })
+}
+
+/// A usage error of the caller (a null function): its line on stderr and in the last error.
+pub(crate) fn usage(name: &str, why: &str) -> u8 {
+    set_error(why);
+    eprintln!("{name}: {why}");
+    EXIT_USAGE
+}
+
+/// The exit code of how the process ended, having printed its one line on stderr and set it as
+/// the last error (every end but completed).
+pub(crate) fn exit_code(name: &str, end: anyhow::Result<ProcessEnd>) -> u8 {
+    match &end {
+        Ok(ProcessEnd::Completed) => {}
+        Ok(ProcessEnd::Stopped(why) | ProcessEnd::Fault(why) | ProcessEnd::PeerSilent(why)) => {
+            set_error(why)
+        }
+        Err(e) => set_error(&format!("{e:#}")),
+    }
+    exit::code(name, end)
 }
 
 /// The C arguments as strings (lossy UTF-8).

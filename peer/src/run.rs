@@ -18,6 +18,8 @@ pub struct DlRun {
     pub(crate) cfg: RunConfig,
     law: CString,
     mode: CString,
+    /// What `init` named the controller ([`dl_run_set_label`]).
+    label: std::cell::RefCell<Option<String>>,
 }
 
 impl DlRun {
@@ -28,7 +30,13 @@ impl DlRun {
             cfg: cfg.clone(),
             law: CString::new(law)?,
             mode: CString::new(args.mode.name())?,
+            label: std::cell::RefCell::new(None),
         })
+    }
+
+    /// What `init` named the controller, if it did.
+    pub(crate) fn label(&self) -> Option<String> {
+        self.label.borrow().clone()
     }
 
     /// The value at a dotted key (`controller.m_bar`).
@@ -70,11 +78,15 @@ unsafe fn lookup<'a, T>(
     })
 }
 
-/// Writes `v` to `out` (DL_OK), or DL_BAD_ARGUMENT if `out` is null.
+/// Writes `v` to `out` (DL_OK), or DL_BAD_ARGUMENT if `out` is null (saying so in the last
+/// error, as every error return does).
 unsafe fn put<T>(out: *mut T, v: Result<T, c_int>) -> c_int {
     match v {
         Err(code) => code,
-        Ok(_) if out.is_null() => DL_BAD_ARGUMENT,
+        Ok(_) if out.is_null() => {
+            set_error("a null out pointer");
+            DL_BAD_ARGUMENT
+        }
         Ok(x) => {
             // SAFETY: non-null and writable (the caller's promise).
             unsafe { *out = x };
@@ -131,8 +143,22 @@ pub unsafe extern "C" fn dl_run_str(
         Ok(s) => s,
         Err(code) => return code,
     };
-    if buf.is_null() || s.len() >= len {
-        set_error("the buffer is too small");
+    if buf.is_null() {
+        set_error("a null buffer");
+        return DL_BAD_ARGUMENT;
+    }
+    let Ok(n) = c_int::try_from(s.len()) else {
+        set_error(&format!(
+            "the text is {} bytes, more than an int counts",
+            s.len()
+        ));
+        return DL_BAD_ARGUMENT;
+    };
+    if s.len() >= len {
+        set_error(&format!(
+            "the buffer is too small: {len} bytes for {} bytes and the NUL",
+            s.len()
+        ));
         return DL_BAD_ARGUMENT;
     }
     // SAFETY: buf holds len > s.len() bytes.
@@ -140,27 +166,68 @@ pub unsafe extern "C" fn dl_run_str(
         std::ptr::copy_nonoverlapping(s.as_ptr(), buf.cast(), s.len());
         *buf.add(s.len()) = 0;
     }
-    c_int::try_from(s.len()).unwrap_or(DL_BAD_ARGUMENT)
+    n
 }
 
-/// The law the run asks for (`--law`: "tdc", "tdc-is-sta", …; "" if none was given).
+/// The longest controller label, characters (what the run shows).
+const LABEL_CHARS: usize = 64;
+
+/// Names the controller (from `init`): the run shows `label` beside the law it answers as, in
+/// the terminal table, `summary.json` (`controller_label`) and `report.md`, unless the run was
+/// given one (`--controller-label`, `controller.label`); without either it shows the command's
+/// program name. One line of at most 64 printable characters. DL_OK, or DL_BAD_ARGUMENT (a null
+/// pointer, or a label that is not one such line).
 ///
 /// # Safety
-/// `run` is the one `init` got.
+/// `run` is the one `init` got, `label` a C string.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn dl_run_set_label(run: *const DlRun, label: *const c_char) -> c_int {
+    if run.is_null() || label.is_null() {
+        set_error("dl_run_set_label: a null run or label");
+        return DL_BAD_ARGUMENT;
+    }
+    // SAFETY: a run handed to init, and a C string (the caller's promise).
+    let (run, label) = unsafe { (&*run, CStr::from_ptr(label)) };
+    let Ok(label) = label.to_str() else {
+        set_error("dl_run_set_label: the label is not UTF-8");
+        return DL_BAD_ARGUMENT;
+    };
+    let n = label.chars().count();
+    if n == 0 || n > LABEL_CHARS || label.chars().any(char::is_control) {
+        set_error(&format!(
+            "dl_run_set_label: {label:?} is not one line of 1 to {LABEL_CHARS} printable characters"
+        ));
+        return DL_BAD_ARGUMENT;
+    }
+    *run.label.borrow_mut() = Some(label.to_string());
+    DL_OK
+}
+
+/// The law the run asks for (`--law`: "tdc", "tdc-is-sta", …; "" if none was given; "" and the
+/// last error set for a null run).
+///
+/// # Safety
+/// `run` is null or the one `init` got.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn dl_run_law(run: *const DlRun) -> *const c_char {
     // SAFETY: the caller's promise.
-    unsafe { run.as_ref() }.map_or(c"".as_ptr(), |r| r.law.as_ptr())
+    unsafe { run.as_ref() }.map_or_else(|| null_run("dl_run_law"), |r| r.law.as_ptr())
 }
 
-/// The loop mode: "lockstep" or "realtime".
+/// The loop mode: "lockstep" or "realtime" ("" and the last error set for a null run).
 ///
 /// # Safety
-/// `run` is the one `init` got.
+/// `run` is null or the one `init` got.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn dl_run_mode(run: *const DlRun) -> *const c_char {
     // SAFETY: the caller's promise.
-    unsafe { run.as_ref() }.map_or(c"".as_ptr(), |r| r.mode.as_ptr())
+    unsafe { run.as_ref() }.map_or_else(|| null_run("dl_run_mode"), |r| r.mode.as_ptr())
+}
+
+/// The empty text a getter returns for a null run, having said so in the last error.
+fn null_run(function: &str) -> *const c_char {
+    set_error(&format!("{function}: a null run"));
+    c"".as_ptr()
 }
 
 #[cfg(test)]

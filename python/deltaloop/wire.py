@@ -34,6 +34,8 @@ ARMED = 6
 DIVERGED = 7
 STOPPED = 8
 OVERRUN = 9
+PLANT_ERROR = 10  # the plant's own physics failed at `tick`; `text` quotes the error
+CONTROLLER_ERROR = 11  # the controller's step failed at `tick`; the plant stops at once
 
 # ControlMsg.from
 FROM_PLANT = 1

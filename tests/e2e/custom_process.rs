@@ -66,3 +66,95 @@ fn a_command_that_cannot_start_or_a_bad_one_is_named() {
         "{err}"
     );
 }
+
+/// Regression: a foreign controller showed as the built-in law's name in every table, so a run
+/// of `--law tdc --controller-cmd my-ctrl` and one of the built-in `tdc` looked the same. The run
+/// now carries a label for the controller that ran (`--controller-label`, or the command's
+/// program or script name), shown in the terminal table, summary.json and report.md; the built-in
+/// controller has none; a label that is not one printable line is refused naming the key.
+#[test]
+fn regression_a_foreign_controller_is_labelled_in_tables_summary_and_report() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ctrl = env!("CARGO_BIN_EXE_deltaloop-controller");
+    let cases: [(&str, &[&str], Option<&str>); 3] = [
+        ("builtin", &[], None),
+        (
+            "command",
+            &["--controller-cmd", ctrl],
+            Some("deltaloop-controller"),
+        ),
+        (
+            "flag",
+            &[
+                "--controller-cmd",
+                ctrl,
+                "--controller-label",
+                "rig-42 ctrl",
+            ],
+            Some("rig-42 ctrl"),
+        ),
+    ];
+    for (case, extra, label) in cases {
+        let out = tmp.path().join(case);
+        let mut args = vec!["--law", "tde-is"];
+        args.extend_from_slice(extra);
+        let o = common::run_output("configs/s2-fast.toml", "lockstep", &out, &args);
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            o.status.success(),
+            "{case}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let s = common::summary(&out);
+        let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+        match label {
+            Some(l) => {
+                assert_eq!(s["controller_label"], l, "{case}");
+                assert!(
+                    stdout.contains(&format!("tde-is ({l})")),
+                    "{case}: {stdout}"
+                );
+                assert!(
+                    report.contains(&format!("Controller: `{l}`")),
+                    "{case}: {report}"
+                );
+            }
+            None => {
+                assert!(s.get("controller_label").is_none(), "{case}: {s}");
+                assert!(!stdout.contains("tde-is ("), "{case}: {stdout}");
+                assert!(!report.contains("Controller: `"), "{case}");
+            }
+        }
+    }
+    // A C controller names itself (dl_run_set_label, said in its READY); --controller-label
+    // still wins. (This one fails at tick 200 on purpose: the run is a fault, its files written.)
+    if let Some(exe) = common::c_peer("c_controller_faults") {
+        let cmd = format!("{} fail@200", exe.display());
+        for (case, extra, want) in [
+            ("named", vec![], "qp-ctrl v1"),
+            ("overridden", vec!["--controller-label", "mine"], "mine"),
+        ] {
+            let out = tmp.path().join(case);
+            let mut args = vec!["--law", "tdc", "--controller-cmd", &cmd];
+            args.extend(extra);
+            let o = common::run_output("configs/s1-nominal.toml", "lockstep", &out, &args);
+            assert_eq!(o.status.code(), Some(1), "{case}");
+            assert_eq!(common::summary(&out)["controller_label"], want, "{case}");
+        }
+    }
+    let o = deltaloop(&[
+        "run",
+        "configs/s2-fast.toml",
+        "--mode",
+        "lockstep",
+        "--controller-label",
+        "two\nlines",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("controller.label") && err.contains("at most 64 printable characters"),
+        "{err}"
+    );
+}

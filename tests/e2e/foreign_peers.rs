@@ -636,3 +636,88 @@ fn a_c_controller_in_realtime_answers_as_fast_as_the_builtin() {
         },
     );
 }
+
+/// Regression: a C plant whose `truth` or `measure` returned an error was read as zeros: the run
+/// ended `ok` with a wrong RMS, or the sensor's failure was filed as the law's divergence. Now a
+/// non-zero return stops the loop at that tick as the plant's own fault (PLANT_ERROR, then the
+/// safe stop), quoting the message (escaped: one line), and the run is a plant fault.
+#[test]
+fn regression_c_plant_truth_or_measure_error_is_a_plant_fault() {
+    let Some(exe) = common::c_peer("c_plant_faults") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    for which in ["truth", "measure"] {
+        let cmd = format!("{} {which}@200", exe.display());
+        let (o, out) = run(
+            &tmp.path().join(which),
+            "configs/s1-nominal.toml",
+            "lockstep",
+            &["--plant-cmd", &cmd],
+        );
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{which}: {err}");
+        let s = summary(&out);
+        let m = &s["laws"]["tdc"];
+        assert_eq!(
+            outcome(&s, "tdc"),
+            (RunStatus::Fault, Some(FaultKind::PlantError)),
+            "{which}: {m}"
+        );
+        assert_eq!(m["status_tick"], 200, "{which}: {m}");
+        assert!(m["diverged_at_tick"].is_null(), "{which}: {m}");
+        let said = format!(
+            "the plant's {which} failed at tick 200: encoder 2: no answer on the CAN bus\\u{{1b}}[0m\\nretry 3 failed (it returned 7)"
+        );
+        let fault = m["fault"].as_str().unwrap_or_default();
+        assert!(fault.contains(&said), "{which}: {fault}");
+        assert!(err.contains(&said), "{which}: {err}");
+        for f in ["summary.json", "report.md"] {
+            let t = read(&out.join(f));
+            assert!(!t.contains('\u{1b}'), "{which}: {f}: {t}");
+        }
+    }
+}
+
+/// Regression: a C controller whose step returned an error exited at once, but the plant held
+/// the last torque for its whole silence window (2 s in lockstep, 100 ticks in realtime) before
+/// the safe stop. The controller now says CONTROLLER_ERROR on its control service and wakes
+/// the plant, which stops the loop at that tick naming the error; the run is a controller fault
+/// quoting the message.
+#[test]
+fn regression_a_controller_step_error_stops_the_loop_at_once() {
+    let Some(exe) = common::c_peer("c_controller_faults") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let cmd = format!("{} fail@200", exe.display());
+    let t0 = Instant::now();
+    let (o, out) = run(
+        tmp.path(),
+        "configs/s1-nominal.toml",
+        "lockstep",
+        &["--controller-cmd", &cmd],
+    );
+    let took = t0.elapsed();
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    let s = summary(&out);
+    let m = &s["laws"]["tdc"];
+    assert_eq!(
+        outcome(&s, "tdc"),
+        (RunStatus::Fault, Some(FaultKind::ControllerFailed)),
+        "{m}"
+    );
+    assert_eq!(m["status_tick"], 200, "{m}");
+    let fault = m["fault"].as_str().unwrap_or_default();
+    let said = "the controller reported an error at tick 200: the solver did not converge (QP infeasible) (it returned 3)";
+    assert!(fault.contains(said), "{fault}");
+    assert!(!fault.contains("controller silent"), "{fault}");
+    let plant = read(&out.join("tdc.plant.log"));
+    assert!(
+        plant.contains(said) && plant.contains("safe stop"),
+        "{plant}"
+    );
+    // No silence window (2 s in lockstep) before the safe stop.
+    assert!(took < Duration::from_millis(1900), "the run took {took:?}");
+}

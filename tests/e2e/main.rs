@@ -5,6 +5,7 @@
 mod common;
 
 mod bridge_netns;
+mod c_abi;
 mod cli_run;
 mod crate_graph;
 mod custom_process;

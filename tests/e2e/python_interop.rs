@@ -74,6 +74,8 @@ fn python_wire_types_match_the_rust_layouts() {
         "DIVERGED": ControlKind::Diverged as u32,
         "STOPPED": ControlKind::Stopped as u32,
         "OVERRUN": ControlKind::Overrun as u32,
+        "PLANT_ERROR": ControlKind::PlantError as u32,
+        "CONTROLLER_ERROR": ControlKind::ControllerError as u32,
         "FROM_PLANT": Sender::Plant as u32,
         "FROM_CONTROLLER": Sender::Controller as u32,
         "FROM_SUPERVISOR": Sender::Supervisor as u32,
@@ -102,7 +104,7 @@ types = {
     for name, t in wire.TYPES.items()
 }
 names = ["WIRE_VERSION", "WIRE_ATTRIBUTE", "STATE_FINAL", "TEL_CLAMPED", "TEL_HELD", "TEL_MISSED", "TEL_REJECTED", "TEL_SAFE_STOP", "TEL_STAMP_REPLACED",
-         "READY", "START", "STOP", "FAULT", "ARMED", "DIVERGED", "STOPPED", "OVERRUN", "FROM_PLANT", "FROM_CONTROLLER", "FROM_SUPERVISOR"]
+         "READY", "START", "STOP", "FAULT", "ARMED", "DIVERGED", "STOPPED", "OVERRUN", "PLANT_ERROR", "CONTROLLER_ERROR", "FROM_PLANT", "FROM_CONTROLLER", "FROM_SUPERVISOR"]
 consts = {n: getattr(wire, n) for n in names}
 consts.update({n: getattr(controller, n) for n in ["REF_CHUNK", "REF_RING", "LOOP_BUFFER", "OBSERVER_BUFFER", "HANDSHAKE_TIMEOUT_NS"]})
 print(json.dumps({"types": types, "constants": consts}))

@@ -268,9 +268,13 @@ impl FarPlant {
             if kind == Kind::Control {
                 FarLink::run_control(&ports.control, p)?;
                 if let Some(c) = bytes::read::<ControlMsg>(p)
-                    && let Some(k) = c.kind().filter(|k| k.said_by_controller())
+                    && c.kind().is_some_and(|k| k.said_by_controller())
                 {
-                    let said = ControlMsg::new(k, Sender::Controller);
+                    // As the controller, with its tick and text (CONTROLLER_ERROR's error).
+                    let said = ControlMsg {
+                        from: Sender::Controller as u32,
+                        ..c
+                    };
                     ports
                         .as_controller
                         .send_copy(said)

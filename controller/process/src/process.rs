@@ -64,6 +64,12 @@ pub trait Step {
     /// Tick k's reply to `state` with tick k's reference `row`: `tau`, `s`, `n_hat`, `u` (the
     /// transport sets the tick's stamps), or why the step failed (the run ends with a fault).
     fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<wire::TorqueMsg, String>;
+
+    /// What the controller calls itself, said in its READY (the run shows it beside the law);
+    /// None: nothing (the built-in law, or a peer that did not say).
+    fn label(&self) -> Option<&str> {
+        None
+    }
 }
 
 impl Step for ControllerSide {
@@ -99,7 +105,20 @@ pub fn serve<S: Step>(
             lock_memory: layout.lock_memory,
         },
         name,
-        || ports.send_control(ControlKind::Ready),
+        || {
+            let ready = ControlMsg::with_text(
+                ControlKind::Ready,
+                wire::Sender::Controller,
+                0,
+                side.label().unwrap_or(""),
+            );
+            ports
+                .control
+                .0
+                .send_copy(ready)
+                .ipc("send READY")
+                .map(|_| ())
+        },
     )?;
     let Some(start) = handshake(&ports, &mut ring, term)? else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
@@ -320,6 +339,7 @@ fn answer_states(
         let mut msg = match side.step(&state, &r) {
             Ok(m) => m,
             Err(why) => {
+                tell_plant_the_step_failed(ports, state.tick, &why);
                 break ProcessEnd::Fault(format!("the step failed at tick {}: {why}", state.tick));
             }
         };
@@ -358,6 +378,20 @@ fn answer_states(
         );
     }
     Ok(end)
+}
+
+/// Says CONTROLLER_ERROR (tick `k`, the error `why`) on the controller's control service and
+/// wakes the plant, which then ends the loop at once instead of holding the last torque through
+/// its silence window. Best effort: the exit code says the same if this cannot be sent.
+fn tell_plant_the_step_failed(ports: &Ports, k: u64, why: &str) {
+    let m = ControlMsg::with_text(
+        ControlKind::ControllerError,
+        wire::Sender::Controller,
+        k,
+        why,
+    );
+    let _ = ports.control.0.send_copy(m);
+    let _ = ports.torque_ready.notify();
 }
 
 /// Tick `k`'s reference row: from the ring, where it normally already is. If it is not, the

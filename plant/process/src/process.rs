@@ -65,6 +65,9 @@ struct Ports {
     state_ready: Notifier<Svc>,
     torque_ready: Listener<Svc>,
     control: ControlPorts,
+    /// The controller's own control service: its CONTROLLER_ERROR (its step failed) ends the
+    /// loop at once instead of after the silence window.
+    from_controller: Subscriber<Svc, ControlMsg, ()>,
     _node: Node<Svc>,
 }
 
@@ -80,6 +83,10 @@ impl Ports {
             state_ready,
             torque_ready,
             control: ipc::control_ports(&node, run_id, Sender::Plant)?,
+            from_controller: ipc::control(&node, run_id, Sender::Controller)?
+                .subscriber_builder()
+                .create()
+                .ipc("control-controller subscriber")?,
             _node: node,
         })
     }
@@ -176,8 +183,8 @@ impl Clock {
 struct LoopStop {
     tick: u64,
     cause: String,
-    /// What the plant tells the supervisor: STOPPED (on request), FAULT, OVERRUN (it can brake)
-    /// or DIVERGED (the model failed: it cannot).
+    /// What the plant tells the supervisor: STOPPED (on request), FAULT, OVERRUN, PLANT_ERROR
+    /// (it can brake) or DIVERGED (the model failed: it cannot).
     kind: ControlKind,
     /// The last deadline the loop kept, ns (the safe stop keeps the clock from there).
     last_deadline_ns: u64,
@@ -232,6 +239,7 @@ where
         &ports.telemetry,
         &ports.torque,
         &ports.state_ready,
+        &ports.from_controller,
     ])?;
     let physics = start_at(Vec3::from(start.q0)).context("initial configuration")?;
     let mut side = PlantSide::new(physics, &cfg, start.ticks);
@@ -300,7 +308,10 @@ fn run_loop<P: Physics>(
                 last_deadline_ns: deadline,
             }));
         }
-        let mut msg = side.state();
+        let mut msg = match side.try_state() {
+            Ok(msg) => msg,
+            Err(stop) => return Ok(Some(loop_stop(stop, deadline))),
+        };
         msg.t_deadline_ns = deadline;
         msg.t_wake_ns = wake;
         msg.t_publish_ns = rt::now_ns();
@@ -316,14 +327,24 @@ fn run_loop<P: Physics>(
         if msg.flags & wire::STATE_FINAL != 0 {
             return Ok(None);
         }
-        let reply = wait_torque(
-            &ports.torque,
-            &ports.torque_ready,
+        let reply = match wait_torque(
+            ports,
             k,
             (msg.t_publish_ns, msg.t_poll_until_ns, until),
             clock.poll,
             side,
-        )?;
+        )? {
+            Awaited::Reply(r) => Some(r),
+            Awaited::Nothing => None,
+            Awaited::ControllerError(cause) => {
+                return Ok(Some(LoopStop {
+                    tick: k,
+                    cause,
+                    kind: ControlKind::Fault,
+                    last_deadline_ns: deadline,
+                }));
+            }
+        };
         ctrl_poll_until = reply.map_or(0, |r| r.msg.t_poll_until_ns);
         let arrival = match reply {
             // The reply acts on the physics when it became visible: its (trusted) publish time,
@@ -364,15 +385,7 @@ fn run_loop<P: Physics>(
                     t.t_torque_rx_ns = reply.map_or(0, |r| r.rx_ns);
                     ports.telemetry.send_copy(t).ipc("publish telemetry")?;
                 }
-                return Ok(Some(LoopStop {
-                    tick: stop.tick(),
-                    cause: stop.cause().to_string(),
-                    kind: match stop {
-                        PlantStop::ControllerSilent { .. } => ControlKind::Fault,
-                        PlantStop::Diverged { .. } => ControlKind::Diverged,
-                    },
-                    last_deadline_ns: deadline,
-                }));
+                return Ok(Some(loop_stop(stop, deadline)));
             }
         };
         tel.t_deadline_ns = deadline;
@@ -383,6 +396,20 @@ fn run_loop<P: Physics>(
             tel.flags |= wire::TEL_STAMP_REPLACED;
         }
         ports.telemetry.send_copy(tel).ipc("publish telemetry")?;
+    }
+}
+
+/// How the plant side's stop ends the loop, and what the plant tells the supervisor.
+fn loop_stop(stop: PlantStop, last_deadline_ns: u64) -> LoopStop {
+    LoopStop {
+        tick: stop.tick(),
+        cause: stop.cause().to_string(),
+        kind: match stop {
+            PlantStop::ControllerSilent { .. } => ControlKind::Fault,
+            PlantStop::Diverged { .. } => ControlKind::Diverged,
+            PlantStop::PlantError { .. } => ControlKind::PlantError,
+        },
+        last_deadline_ns,
     }
 }
 
@@ -425,14 +452,19 @@ fn end_run<P: Physics>(
     let damping = cfg.faults.brake_damping_nm_s;
     match safe_stop(ports, side, clock, cfg, tick, last_deadline_ns) {
         Ok(speed) => end(format!(
-            "t = {t:.4} s: {cause}; then braked for {} ms (τ = G(q) − {damping} q̇): safe stop, max |q̇| = {speed:.3} rad/s",
-            cfg.faults.safe_stop_ms
+            "t = {t:.4} s: {cause}; then braked for {} ms (τ = G(q) − {damping} q̇): safe stop, {}",
+            cfg.faults.safe_stop_ms,
+            match speed {
+                Ok(v) => format!("max |q̇| = {v:.3} rad/s"),
+                Err(e) => format!("the speed after it unknown ({e})"),
+            }
         )),
         Err(e) => end(format!("t = {t:.4} s: {cause}; the safe stop failed: {e}")),
     }
 }
 
-/// The drives brake (τ = G(q) − D q̇) for `safe_stop_ms`; returns the final max |q̇|, rad/s.
+/// The drives brake (τ = G(q) − D q̇) for `safe_stop_ms`; returns the final max |q̇| (rad/s), or
+/// why the plant cannot say it (its truth failed).
 fn safe_stop<P: Physics>(
     ports: &Ports,
     side: &mut PlantSide<P>,
@@ -440,7 +472,7 @@ fn safe_stop<P: Physics>(
     cfg: &RunConfig,
     tick: u64,
     last_deadline_ns: u64,
-) -> Result<f64, String> {
+) -> Result<Result<f64, String>, String> {
     let stop_ticks = (f64::from(cfg.faults.safe_stop_ms) * 1e-3 / cfg.loop_.ts_s).round() as u64;
     for i in 1..=stop_ticks {
         if clock.mode == LoopMode::Realtime {
@@ -450,7 +482,7 @@ fn safe_stop<P: Physics>(
         tel.t_wake_ns = rt::now_ns();
         let _ = ports.telemetry.send_copy(tel);
     }
-    Ok(side.plant().sample().qd.amax())
+    Ok(side.plant().sample().map(|s| s.qd.amax()))
 }
 
 /// What the plant does with a torque reply while it waits for tick `tick`'s.
@@ -502,20 +534,30 @@ struct Received {
     stamp_replaced: bool,
 }
 
+/// How the wait for a reply ended.
+enum Awaited {
+    Reply(Received),
+    /// No reply by the end of the wait.
+    Nothing,
+    /// The controller said its step failed (CONTROLLER_ERROR): no reply will come. One line.
+    ControllerError(String),
+}
+
 /// Waits for τ_k until `until_ns`: polls (spinning or yielding, `poll`) until `poll_until_ns`
 /// (what the state declared), then blocks on the wake-up event. The clock is read before each
 /// look, so the look that precedes blocking happens at or after `poll_until_ns`
 /// (docs/protocol.md §6.1). Replies judged late are
 /// dropped and counted on `side`; replies for later ticks are ignored. `state_pub_ns` is when
-/// state `tick` was published.
+/// state `tick` was published. Before each block, and when the wait ends empty, it looks for the
+/// controller's CONTROLLER_ERROR (the controller wakes the plant after sending it).
 fn wait_torque<P: Physics>(
-    sub: &Subscriber<Svc, TorqueMsg, ()>,
-    listener: &Listener<Svc>,
+    ports: &Ports,
     tick: u64,
     (state_pub_ns, poll_until_ns, until_ns): (u64, u64, u64),
     poll: Poll,
     side: &mut PlantSide<P>,
-) -> Result<Option<Received>> {
+) -> Result<Awaited> {
+    let (sub, listener) = (&ports.torque, &ports.torque_ready);
     loop {
         let now = rt::now_ns();
         while let Some(sample) = sub.receive().ipc("receive torque")? {
@@ -524,7 +566,7 @@ fn wait_torque<P: Physics>(
             let (stamp_ns, stamp_replaced) = trusted_stamp(m.t_publish_ns, state_pub_ns, rx_ns);
             match reply_verdict(&m, stamp_ns, tick, until_ns) {
                 Reply::Apply => {
-                    return Ok(Some(Received {
+                    return Ok(Awaited::Reply(Received {
                         msg: m,
                         rx_ns,
                         stamp_ns,
@@ -536,7 +578,8 @@ fn wait_torque<P: Physics>(
             }
         }
         if now >= until_ns {
-            return Ok(None);
+            return Ok(controller_error(&ports.from_controller)
+                .map_or(Awaited::Nothing, Awaited::ControllerError));
         }
         if now < poll_until_ns {
             rt::poll_pause(poll);
@@ -546,6 +589,9 @@ fn wait_torque<P: Physics>(
         listener.try_wait(|_| {}).ipc("drain torque events")?;
         if sub.has_samples().unwrap_or(true) {
             continue;
+        }
+        if let Some(why) = controller_error(&ports.from_controller) {
+            return Ok(Awaited::ControllerError(why));
         }
         ipc::wait_event(listener, until_ns - now)?;
     }
@@ -563,6 +609,24 @@ fn stop_requested(sub: &Subscriber<Svc, ControlMsg, ()>) -> bool {
         }
     }
     false
+}
+
+/// The controller's CONTROLLER_ERROR, if it sent one, as the plant's cause: which tick, and the
+/// error it quoted. Only the controller can publish on its service (one publisher slot, checked
+/// by the supervisor); its other kinds are not for the plant.
+fn controller_error(sub: &Subscriber<Svc, ControlMsg, ()>) -> Option<String> {
+    while let Ok(Some(m)) = sub.receive() {
+        let m = m.payload();
+        if m.kind() == Some(ControlKind::ControllerError) && m.sender() == Some(Sender::Controller)
+        {
+            return Some(format!(
+                "the controller reported an error at tick {}: {}",
+                m.tick,
+                m.text()
+            ));
+        }
+    }
+    None
 }
 
 /// Polls the control channel for START (1 ms steps) up to `timeout_ms`; None on STOP or SIGTERM.

@@ -66,11 +66,12 @@ pub struct Drives {
 pub trait Physics {
     /// The current tick k (the state is at t_k = k·Ts).
     fn tick(&self) -> u64;
-    /// The true state at tick k: q (rad), q̇ (rad/s), τᵃ_k (N m), joint space.
-    fn sample(&self) -> PlantSample;
-    /// What the encoders report at tick k ([`Physics::sample`] through the sensors). Called once
-    /// per published state: it may advance a noise stream.
-    fn measure(&mut self) -> PlantSample;
+    /// The true state at tick k: q (rad), q̇ (rad/s), τᵃ_k (N m), joint space; or why the plant
+    /// cannot say (a foreign plant's error: the loop stops with a plant error).
+    fn sample(&self) -> Result<PlantSample, String>;
+    /// What the encoders report at tick k ([`Physics::sample`] through the sensors), or why they
+    /// cannot. Called once per published state: it may advance a noise stream.
+    fn measure(&mut self) -> Result<PlantSample, String>;
     /// Takes tick k's command (None: none arrived) reaching the drives `latency_ns` after t_k
     /// (plus the configured transport delay), and runs [t_k, t_{k+1}).
     fn advance_after(&mut self, cmd: Option<Vec3>, latency_ns: u64) -> Result<Drives, String>;
@@ -82,11 +83,11 @@ impl Physics for Plant {
     fn tick(&self) -> u64 {
         self.sim().tick()
     }
-    fn sample(&self) -> PlantSample {
-        Plant::sample(self)
+    fn sample(&self) -> Result<PlantSample, String> {
+        Ok(Plant::sample(self))
     }
-    fn measure(&mut self) -> PlantSample {
-        Plant::measure(self)
+    fn measure(&mut self) -> Result<PlantSample, String> {
+        Ok(Plant::measure(self))
     }
     fn advance_after(&mut self, cmd: Option<Vec3>, latency_ns: u64) -> Result<Drives, String> {
         let a = Plant::advance_after(self, cmd, latency_ns).map_err(|e| e.to_string())?;
@@ -129,13 +130,18 @@ pub enum PlantStop {
         cause: String,
         tel: Box<TelemetryMsg>,
     },
+    /// The plant itself reported an error at `tick` (a foreign plant's truth or sensors failed):
+    /// not the law's divergence; the loop stops there and a safe stop is tried.
+    PlantError { tick: u64, cause: String },
 }
 
 impl PlantStop {
     /// The tick at which the loop stopped.
     pub fn tick(&self) -> u64 {
         match self {
-            PlantStop::ControllerSilent { tick, .. } | PlantStop::Diverged { tick, .. } => *tick,
+            PlantStop::ControllerSilent { tick, .. }
+            | PlantStop::Diverged { tick, .. }
+            | PlantStop::PlantError { tick, .. } => *tick,
         }
     }
 
@@ -143,14 +149,16 @@ impl PlantStop {
     pub fn failed_interval(&self) -> Option<&TelemetryMsg> {
         match self {
             PlantStop::Diverged { tel, .. } => Some(tel),
-            PlantStop::ControllerSilent { .. } => None,
+            PlantStop::ControllerSilent { .. } | PlantStop::PlantError { .. } => None,
         }
     }
 
     /// One line saying why.
     pub fn cause(&self) -> &str {
         match self {
-            PlantStop::ControllerSilent { cause, .. } | PlantStop::Diverged { cause, .. } => cause,
+            PlantStop::ControllerSilent { cause, .. }
+            | PlantStop::Diverged { cause, .. }
+            | PlantStop::PlantError { cause, .. } => cause,
         }
     }
 }
@@ -175,6 +183,13 @@ impl PlantSide {
     /// The plant of `cfg` at rest at `q0` (rad), for a run of ticks 0..=`last_tick`.
     pub fn from_config(cfg: &RunConfig, q0: Vec3, last_tick: u64) -> Result<Self, KinematicsError> {
         Ok(PlantSide::new(plant_from_config(cfg, q0)?, cfg, last_tick))
+    }
+
+    /// State k of the project's model, which always has one (see [`PlantSide::try_state`]).
+    pub fn state(&mut self) -> StateMsg {
+        let truth = self.plant.sample();
+        let s = self.plant.measure();
+        self.state_of(&truth, &s)
     }
 }
 
@@ -206,9 +221,21 @@ impl<P: Physics> PlantSide<P> {
     /// State k as the plant publishes it: measured q (rad) and q̇ (rad/s) through the sensor
     /// model, τᵃ_k (N m), and the noise-free truth; `STATE_FINAL` at k = N + 1. Times are left
     /// zero for the transport to stamp. Call once per tick: it advances the sensor's noise stream.
-    pub fn state(&mut self) -> StateMsg {
-        let truth = self.plant.sample();
-        let s = self.plant.measure();
+    /// A plant that cannot say its truth or measure stops the loop at k ([`PlantStop::PlantError`]):
+    /// zeros in its place would be taken for the robot's state.
+    pub fn try_state(&mut self) -> Result<StateMsg, PlantStop> {
+        let k = self.tick();
+        let stop = |what: &str, e: String| PlantStop::PlantError {
+            tick: k,
+            cause: format!("the plant's {what} failed at tick {k}: {e}"),
+        };
+        let truth = self.plant.sample().map_err(|e| stop("truth", e))?;
+        let s = self.plant.measure().map_err(|e| stop("measure", e))?;
+        Ok(self.state_of(&truth, &s))
+    }
+
+    /// The state message of measurement `s` and truth `truth`.
+    fn state_of(&self, truth: &PlantSample, s: &PlantSample) -> StateMsg {
         StateMsg {
             tick: s.k,
             flags: if s.k > self.last_tick {
@@ -226,9 +253,15 @@ impl<P: Physics> PlantSide<P> {
     }
 
     /// The state that ends a run early, numbered `tick`: the plant's true state (no sensor noise,
-    /// and the noise stream is not advanced) with `STATE_FINAL`, which releases the controller.
+    /// and the noise stream is not advanced; zeros if the plant cannot say it) with
+    /// `STATE_FINAL`, which releases the controller.
     pub fn final_state(&self, tick: u64) -> StateMsg {
-        let s = self.plant.sample();
+        let s = self.plant.sample().unwrap_or(PlantSample {
+            k: tick,
+            q: Vec3::zeros(),
+            qd: Vec3::zeros(),
+            tau_applied: Vec3::zeros(),
+        });
         StateMsg {
             tick,
             flags: wire::STATE_FINAL,

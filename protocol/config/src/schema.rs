@@ -368,6 +368,12 @@ macro_rules! controller_section {
             #[serde(default, skip_serializing_if = "Vec::is_empty")]
             pub command: Vec<String>,
 
+            /// What the run calls the controller that ran (the tables, `summary.json`,
+            /// `report.md`), beside the law it answered as. Empty: the file name of `command`'s
+            /// program (its script's, for an interpreter), or none for the built-in controller.
+            #[serde(default, skip_serializing_if = "String::is_empty")]
+            pub label: String,
+
             $($(#[$doc])* pub $name: Option<f64>,)*
         }
 
@@ -618,6 +624,27 @@ impl RunConfig {
     /// The controller constants: the preset with the file's overrides applied.
     pub fn controller_params(&self) -> ControllerParams {
         self.controller.params()
+    }
+
+    /// What the run calls its controller (see [`ControllerSection::label`]): the label, or the
+    /// file name of the command's program (of its script, for an interpreter: `python3 x.py` is
+    /// `x.py`); None for the built-in controller.
+    pub fn controller_label(&self) -> Option<String> {
+        let c = &self.controller;
+        if !c.label.is_empty() {
+            return Some(c.label.clone());
+        }
+        // One line, bounded: a command's words are only checked for NUL.
+        let file = |w: &String| show_path(Path::new(w.rsplit('/').next().unwrap_or(w)));
+        let program = c.command.first()?;
+        let interpreter = ["python", "sh", "bash", "node", "ruby", "perl", "env"]
+            .iter()
+            .any(|i| file(program).starts_with(i));
+        let script = c.command[1..].iter().find(|w| !w.starts_with('-'));
+        Some(match script {
+            Some(s) if interpreter => file(s),
+            _ => file(program),
+        })
     }
 
     /// The plant's wake lateness beyond which the overrun policy acts, ns (see

@@ -55,6 +55,19 @@ fn check_command(key: &str, cmd: &[String]) -> Result<(), ConfigError> {
     }
 }
 
+/// A name shown in tables and files: at most 64 characters, printable, one line.
+fn check_label(key: &str, label: &str) -> Result<(), ConfigError> {
+    if label.chars().count() <= 64 && !label.chars().any(char::is_control) {
+        Ok(())
+    } else {
+        Err(range(
+            key,
+            show_str(label),
+            "at most 64 printable characters on one line",
+        ))
+    }
+}
+
 /// `v` is finite and `ok`, or the range error for `key`.
 fn check(key: &str, v: f64, ok: bool, allowed: &str) -> Result<(), ConfigError> {
     if v.is_finite() && ok {
@@ -328,6 +341,7 @@ impl ControllerSection {
             }
         }
         check_command("controller.command", &self.command)?;
+        check_label("controller.label", &self.label)?;
         if !(1..=MAX_TDE_DELAY).contains(&self.tde_delay_samples) {
             return Err(range(
                 "controller.tde_delay_samples",

@@ -162,18 +162,32 @@ pub enum ControlKind {
     /// The plant's own process woke for `tick` later than its overrun bound with
     /// `overrun = "fault"`: it stopped the loop and brakes; `text` says how late.
     Overrun = 9,
+    /// The plant's own physics reported an error at `tick` (a foreign plant's `truth` or
+    /// `measure` failed): it stopped the loop there and brakes; `text` quotes the error.
+    PlantError = 10,
+    /// The controller's step reported an error answering `tick` (it returned one instead of a
+    /// torque): the controller sends no reply to it and exits with its fault code; `text` quotes
+    /// the error. The plant reads it on `control-controller` and stops the loop at once (FAULT
+    /// naming it) instead of holding through the silence window.
+    ControllerError = 11,
 }
 
 impl ControlKind {
     /// Whether a plant may send this kind (what the supervisor and a bridge believe from one).
     pub fn said_by_plant(self) -> bool {
         use ControlKind::*;
-        matches!(self, Ready | Fault | Diverged | Stopped | Overrun)
+        matches!(
+            self,
+            Ready | Fault | Diverged | Stopped | Overrun | PlantError
+        )
     }
 
     /// Whether a controller may send this kind.
     pub fn said_by_controller(self) -> bool {
-        matches!(self, ControlKind::Ready | ControlKind::Armed)
+        matches!(
+            self,
+            ControlKind::Ready | ControlKind::Armed | ControlKind::ControllerError
+        )
     }
 
     /// The kind of a wire value, None for a value this version does not know.
@@ -187,6 +201,8 @@ impl ControlKind {
             Self::Diverged,
             Self::Stopped,
             Self::Overrun,
+            Self::PlantError,
+            Self::ControllerError,
         ]
         .into_iter()
         .find(|k| *k as u32 == v)
@@ -227,7 +243,8 @@ pub struct ControlMsg {
     pub q0: [f64; 3],
     /// START: the monotonic time of tick 0's deadline, ns.
     pub t0_ns: u64,
-    /// FAULT / DIVERGED / STOPPED: UTF-8 text, NUL-padded; read it with [`ControlMsg::text`].
+    /// FAULT, DIVERGED, STOPPED, OVERRUN, PLANT_ERROR, CONTROLLER_ERROR: UTF-8 text, NUL-padded;
+    /// read it with [`ControlMsg::text`].
     pub text: [u8; 160],
 }
 

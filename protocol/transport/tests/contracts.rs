@@ -93,6 +93,8 @@ mod wire {
             ControlKind::Diverged,
             ControlKind::Stopped,
             ControlKind::Overrun,
+            ControlKind::PlantError,
+            ControlKind::ControllerError,
         ] {
             assert_eq!(ControlKind::from_wire(k as u32), Some(k));
         }

@@ -43,6 +43,10 @@ pub struct OverrideArgs {
     /// Run this command in place of the built-in controller process (controller.command).
     #[arg(long, value_name = "CMD")]
     pub controller_cmd: Option<String>,
+    /// What the tables, summary.json and report.md call the controller that ran, beside the law
+    /// it answered as (controller.label; default: --controller-cmd's program or script name).
+    #[arg(long, value_name = "LABEL")]
+    pub controller_label: Option<String>,
     #[command(flatten)]
     pub remote: RemoteFlags,
 }
@@ -79,6 +83,7 @@ impl From<OverrideArgs> for Overrides {
             hold_s: a.hold_s,
             plant_cmd: a.plant_cmd,
             controller_cmd: a.controller_cmd,
+            controller_label: a.controller_label,
             remote: a.remote.into(),
         }
     }

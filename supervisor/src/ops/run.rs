@@ -69,6 +69,8 @@ pub struct Overrides {
     pub plant_cmd: Option<String>,
     /// Run this command in place of the built-in controller process (controller.command).
     pub controller_cmd: Option<String>,
+    /// What the run calls its controller (controller.label).
+    pub controller_label: Option<String>,
     pub remote: crate::ops::join::RemoteArgs,
 }
 
@@ -105,6 +107,9 @@ impl Overrides {
         }
         if let Some(c) = &self.controller_cmd {
             cfg.controller.command = words(c);
+        }
+        if let Some(l) = &self.controller_label {
+            cfg.controller.label = l.clone();
         }
         self.remote.apply(&mut cfg)?;
         cfg.validate()?;
@@ -165,6 +170,8 @@ struct Laws {
     /// Per run: its loop timing (None: inproc).
     timings: Vec<Option<Timing>>,
     run_ids: Vec<(Law, String)>,
+    /// What the controller called itself (its READY), the first that did.
+    controller_said: Option<String>,
     /// Each law whose plant once woke ten ticks late or more (realtime): see Timing::freeze_note.
     freezes: Vec<(Law, String)>,
     /// A fault or an interrupt ends the run after this law; the folder is still written.
@@ -341,6 +348,9 @@ fn run_processes(
             laws.freezes.push((law, n));
         }
         laws.run_ids.push((law, r.run_id));
+        if laws.controller_said.is_none() {
+            laws.controller_said = r.controller_label;
+        }
         if r.interrupted || r.fault.is_some() {
             laws.stopped = Some((law, r.fault.clone()));
         }
@@ -371,9 +381,11 @@ fn write_results(
         .map(|t| t.as_ref().map(Timing::summary))
         .collect();
     let mm = mismatch(&study.robot, &study.reference, &study.params);
+    let label = report::controller_label(cfg, mode, laws.controller_said.as_deref());
     let summary = Summary {
         scenario: &cfg.name,
         mode,
+        controller_label: label.as_deref(),
         preset: cfg.controller.preset,
         command,
         started_utc: started,
@@ -398,7 +410,7 @@ fn write_results(
             .filter_map(|(m, t)| t.as_ref().map(|t| (m.law, t)))
             .collect(),
     };
-    let mut md = report::markdown(cfg, mode, command, metrics, &mm);
+    let mut md = report::markdown(cfg, mode, label.as_deref(), command, metrics, &mm);
     if mode.is_process() {
         md.push_str(&report::timing_markdown(
             cfg,
@@ -415,7 +427,7 @@ fn write_results(
     }
     let traced = &cfg.controller.laws[..];
     output::write_run_folder(dir, &summary, cfg.record.trace.then_some(traced), &md)?;
-    let mut table = report::terminal_table(cfg, metrics);
+    let mut table = report::terminal_table(cfg, label.as_deref(), metrics);
     if mode.is_process() {
         table.push_str(&report::timing_table(metrics, &timing_summaries));
     }

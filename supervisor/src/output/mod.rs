@@ -25,6 +25,10 @@ pub struct Summary<'a> {
     /// The scenario's name (`name` in its file).
     pub scenario: &'a str,
     pub mode: LoopMode,
+    /// The controller that ran, when it is not the built-in one (`controller.label`, or its
+    /// command's program): each law's figures are that process's, answering as the law.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub controller_label: Option<&'a str>,
     pub preset: Preset,
     pub command: &'a str,
     pub started_utc: String,

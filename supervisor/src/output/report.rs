@@ -76,9 +76,38 @@ fn status(m: &LawMetrics) -> String {
     }
 }
 
-/// The terminal table: one line per law.
-pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
+/// What a run in `mode` calls its controller when it is not the built-in one: the label of the
+/// config (`controller.label`, `--controller-label`), else the name the controller gave itself
+/// in its READY (`said`), else its command's program (see [`RunConfig::controller_label`]). The
+/// in-process modes run the built-in law: none.
+pub fn controller_label(cfg: &RunConfig, mode: LoopMode, said: Option<&str>) -> Option<String> {
+    if !mode.is_process() {
+        return None;
+    }
+    match said {
+        Some(s) if cfg.controller.label.is_empty() => Some(s.to_string()),
+        _ => cfg.controller_label(),
+    }
+}
+
+/// A law as the tables name it: with the controller's label when a foreign one answered as it
+/// (`tdc (c-tdc)`), so it is never taken for the built-in law.
+fn law_cell(law: Law, label: Option<&str>) -> String {
+    match label {
+        Some(l) => format!("{law} ({l})"),
+        None => law.to_string(),
+    }
+}
+
+/// The terminal table: one line per law (with `label`, the controller that ran, beside it).
+pub fn terminal_table(cfg: &RunConfig, label: Option<&str>, metrics: &[LawMetrics]) -> String {
     let mut s = String::new();
+    let width = metrics
+        .iter()
+        .map(|m| law_cell(m.law, label).chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(11);
     let _ = writeln!(
         s,
         "{} ({:?}, preset {}, {} ticks of {} ms)",
@@ -91,7 +120,7 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
     let twins = metrics.iter().any(|m| m.sensitivity.is_some());
     let _ = writeln!(
         s,
-        "{:<11} {:>10} {:>10} {:>10} {:>9} {:>9} {:>8} {:>7} {:>10}{}  status",
+        "{:<width$} {:>10} {:>10} {:>10} {:>9} {:>9} {:>8} {:>7} {:>10}{}  status",
         "law",
         "rms q1",
         "rms q2",
@@ -115,8 +144,8 @@ pub fn terminal_table(cfg: &RunConfig, metrics: &[LawMetrics]) -> String {
         };
         let _ = writeln!(
             s,
-            "{:<11} {:>10} {:>10} {:>10} {:>9} {:>9.3} {:>8.4} {:>7} {:>10}{}  {}",
-            m.law,
+            "{:<width$} {:>10} {:>10} {:>10} {:>9} {:>9.3} {:>8.4} {:>7} {:>10}{}  {}",
+            law_cell(m.law, label),
             fig(m.rms_rad[0], rel),
             fig(m.rms_rad[1], rel),
             fig(m.rms_rad[2], rel),
@@ -169,6 +198,7 @@ fn max3(v: [f64; 3]) -> f64 {
 pub fn markdown(
     cfg: &RunConfig,
     mode: LoopMode,
+    label: Option<&str>,
     command: &str,
     metrics: &[LawMetrics],
     mismatch: &Mismatch,
@@ -176,6 +206,7 @@ pub fn markdown(
     let p = cfg.controller_params();
     let mut s = String::new();
     header(&mut s, cfg, &p, mode, command);
+    controller_line(&mut s, cfg, label);
     rms_section(&mut s, cfg.scenario.path, metrics);
     accuracy_section(&mut s, metrics);
     tde_section(&mut s, &p, metrics);
@@ -222,6 +253,24 @@ fn header(s: &mut String, cfg: &RunConfig, p: &ControllerParams, mode: LoopMode,
         let _ = writeln!(s, "Injected: {}.\n", extras.join("; "));
     }
     let _ = writeln!(s, "Produced by: `{command}`\n");
+}
+
+/// Which controller ran, when it was not the built-in one (`label`).
+fn controller_line(s: &mut String, cfg: &RunConfig, label: Option<&str>) {
+    if let Some(l) = label {
+        let _ = writeln!(
+            s,
+            "Controller: `{}`, its own process in place of the built-in one, answering as {}; \
+             every law's figures below are its.\n",
+            l.replace('`', "'"),
+            cfg.controller
+                .laws
+                .iter()
+                .map(|l| format!("`{l}`"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
 }
 
 /// What the config adds to the nominal loop: delays, a payload step, sensor realism.

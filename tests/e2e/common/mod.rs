@@ -528,6 +528,48 @@ pub fn built(example: &'static str, exe: &str, compiler: &str) -> Option<PathBuf
         .clone()
 }
 
+/// `tests/peers/<name>.c` built against this build's library (C99, every warning an error), once;
+/// None (and one line saying so) without `cc`.
+pub fn c_peer(name: &'static str) -> Option<PathBuf> {
+    static BUILT: std::sync::Mutex<std::collections::BTreeMap<&'static str, Option<PathBuf>>> =
+        std::sync::Mutex::new(std::collections::BTreeMap::new());
+    let mut built = BUILT.lock().unwrap_or_else(|e| e.into_inner());
+    built
+        .entry(name)
+        .or_insert_with(|| {
+            if std::process::Command::new("cc")
+                .arg("--version")
+                .output()
+                .is_err()
+            {
+                eprintln!("SKIPPED: no `cc` on this machine (apt-get install build-essential)");
+                return None;
+            }
+            let (lib, root) = (peer_lib_dir(), python::root());
+            let exe = lib.join(name);
+            let o = std::process::Command::new("cc")
+                .args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-I"])
+                .arg(root.join("peer/include"))
+                .arg(root.join("tests/peers").join(format!("{name}.c")))
+                .arg("-o")
+                .arg(&exe)
+                .arg(format!("-L{}", lib.display()))
+                // DT_RPATH, not DT_RUNPATH: the library built with these tests, even when cargo's
+                // LD_LIBRARY_PATH names another build's (target/debug after a `cargo build`).
+                .arg(format!("-Wl,--disable-new-dtags,-rpath,{}", lib.display()))
+                .arg("-ldeltaloop_peer")
+                .output()
+                .unwrap();
+            assert!(
+                o.status.success(),
+                "cc {name}.c: {}",
+                python::text(&o.stderr)
+            );
+            Some(exe)
+        })
+        .clone()
+}
+
 /// The C `tdc` controller (examples/c-controller).
 pub fn c_tdc() -> Option<PathBuf> {
     built("c-controller", "c-tdc", "cc")

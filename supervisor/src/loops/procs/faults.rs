@@ -7,7 +7,7 @@ use super::spawn::Pair;
 use super::status::status_text;
 use crate::loops::peer_text::{self, Tail};
 use crate::record::{Fault, FaultKind};
-use deltaloop_transport::wire::Sender;
+use deltaloop_transport::wire::{ControlKind, Sender};
 use std::path::Path;
 use std::process::ExitStatus;
 
@@ -30,7 +30,7 @@ fn culprit(kind: FaultKind) -> About {
     use FaultKind::*;
     match kind {
         PlantFailed | PlantPanicked | PlantKilled | PlantExited | PlantQuit | PlantOverrun
-        | PlantStalled | PlantHung => About::Plant,
+        | PlantStalled | PlantHung | PlantError => About::Plant,
         ControllerSilent | ControllerFailed | ControllerPanicked | ControllerKilled
         | ControllerExited | ControllerHung => About::Controller,
         Setup | Stopped | Hung => About::Observer,
@@ -62,7 +62,7 @@ pub(super) fn fault_cause(
         plant,
         ctrl,
         plant_quit,
-        streams.plant_fault.as_ref().map(|f| f.overrun),
+        streams.plant_fault.as_ref().map(|f| f.kind),
     );
     let tick = streams
         .plant_fault
@@ -138,7 +138,8 @@ pub(super) fn fault_cause(
     if let Some(f) = &streams.plant_fault
         && !line.contains(&f.cause)
     {
-        let about = if f.overrun {
+        // Its OVERRUN and PLANT_ERROR are about itself, its FAULT about the controller.
+        let about = if matches!(f.kind, ControlKind::Overrun | ControlKind::PlantError) {
             About::Plant
         } else {
             About::Controller
@@ -191,19 +192,21 @@ pub(super) fn fault_cause(
 
 /// What kind of fault ended the run, from how the children exited (None: still running when
 /// the supervisor stopped it), whether the plant quit early with status 0, and whether it sent
-/// FAULT or OVERRUN (`plant_fault`: Some(true) for OVERRUN). The root cause, not its echo:
+/// FAULT, OVERRUN or PLANT_ERROR (`plant_fault`). The root cause, not its echo:
 /// 1. a child killed or panicking, whatever the other did next;
-/// 2. the controller's own failure (the plant's FAULT for its silence follows from it), but not
-///    its exit on the plant's silence (`EXIT_PEER_SILENT`), which is the plant's stall's echo;
+/// 2. the controller's own failure (the plant's FAULT for its silence, or for its
+///    CONTROLLER_ERROR, follows from it), but not its exit on the plant's silence
+///    (`EXIT_PEER_SILENT`), which is the plant's stall's echo;
 /// 3. a stop of the plant on request nobody here made;
-/// 4. the plant's OVERRUN (its own process woke too late), then its stall (the controller gave
-///    up on it), then its FAULT for a controller that went silent while alive;
+/// 4. the plant's OVERRUN (its own process woke too late) or PLANT_ERROR (its own physics
+///    failed), then its stall (the controller gave up on it), then its FAULT for a controller
+///    that went silent while alive;
 /// 5. the plant's exit code; then who did not exit when the other had finished.
 fn fault_kind(
     plant: Option<ExitStatus>,
     ctrl: Option<ExitStatus>,
     plant_quit: bool,
-    plant_fault: Option<bool>,
+    plant_fault: Option<ControlKind>,
 ) -> FaultKind {
     let failed = |s: Option<ExitStatus>, who| s.filter(|s| !s.success()).map(|s| exit_kind(who, s));
     let (ctrl_kind, plant_kind) = (
@@ -222,14 +225,17 @@ fn fault_kind(
     let echo = |k: &FaultKind| *k == FaultKind::PlantStalled;
     let stopped = |k: &FaultKind| *k == FaultKind::Stopped;
     let ok = |s: Option<ExitStatus>| s.is_some_and(|s| s.success());
+    let plants_own = |said: ControlKind| match said {
+        ControlKind::Overrun => Some(FaultKind::PlantOverrun),
+        ControlKind::PlantError => Some(FaultKind::PlantError),
+        _ => None,
+    };
     ctrl_kind
         .filter(severe)
         .or(plant_kind.filter(severe))
         .or(ctrl_kind.filter(|k| !echo(k)))
         .or(plant_kind.filter(stopped))
-        .or(plant_fault
-            .filter(|&overrun| overrun)
-            .map(|_| FaultKind::PlantOverrun))
+        .or(plant_fault.and_then(plants_own))
         .or(ctrl_kind)
         .or(plant_fault.map(|_| FaultKind::ControllerSilent))
         .or(plant_kind)
@@ -280,7 +286,7 @@ mod tests {
         let code = |c: i32| Some(ExitStatus::from_raw(c << 8));
         let sig = |s: i32| Some(ExitStatus::from_raw(s));
         let (ok, fault, stopped, setup) = (code(0), code(4), code(5), code(3));
-        let k = |p, c, quit, said: bool| fault_kind(p, c, quit, said.then_some(false));
+        let k = |p, c, quit, said: bool| fault_kind(p, c, quit, said.then_some(ControlKind::Fault));
         assert_eq!(
             k(fault, sig(libc::SIGKILL), false, true),
             FaultKind::ControllerKilled
@@ -310,8 +316,19 @@ mod tests {
         assert_eq!(k(None, None, false, false), FaultKind::Hung);
         // OVERRUN: the plant's own stall, not the controller's silence.
         assert_eq!(
-            fault_kind(fault, ok, false, Some(true)),
+            fault_kind(fault, ok, false, Some(ControlKind::Overrun)),
             FaultKind::PlantOverrun
+        );
+        // PLANT_ERROR: the plant's own physics failed (the controller exited 0 on the final
+        // state it was released with); a controller's own failure still ranks before it.
+        let plant_error = Some(ControlKind::PlantError);
+        assert_eq!(
+            fault_kind(fault, ok, false, plant_error),
+            FaultKind::PlantError
+        );
+        assert_eq!(
+            fault_kind(fault, fault, false, Some(ControlKind::Fault)),
+            FaultKind::ControllerFailed
         );
     }
 
@@ -324,11 +341,11 @@ mod tests {
         let code = |c: i32| Some(ExitStatus::from_raw(c << 8));
         let (ok, fault, silent) = (code(0), code(4), code(6));
         assert_eq!(
-            fault_kind(fault, silent, false, Some(true)),
+            fault_kind(fault, silent, false, Some(ControlKind::Overrun)),
             FaultKind::PlantOverrun
         );
         assert_eq!(
-            fault_kind(fault, silent, false, Some(false)),
+            fault_kind(fault, silent, false, Some(ControlKind::Fault)),
             FaultKind::PlantStalled
         );
         assert_eq!(

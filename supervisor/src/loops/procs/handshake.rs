@@ -229,6 +229,7 @@ pub(super) fn handshake(
 ) -> Result<bool> {
     let pair_shown = pair.shown.clone();
     let ready_from = [std::cell::Cell::new(false), std::cell::Cell::new(false)];
+    let mut label = None;
     let silent = || {
         let who: Vec<String> = [
             (Sender::Plant, &pair_shown.0),
@@ -244,7 +245,13 @@ pub(super) fn handshake(
     let ready = await_control(obs, pair, &silent, &mut |m| {
         match (m.kind(), m.sender()) {
             (Some(ControlKind::Ready), Some(Sender::Plant)) => ready_from[0].set(true),
-            (Some(ControlKind::Ready), Some(Sender::Controller)) => ready_from[1].set(true),
+            (Some(ControlKind::Ready), Some(Sender::Controller)) => {
+                ready_from[1].set(true);
+                // A controller may name itself in its READY (the C ABI's dl_run_set_label).
+                let t = m.text();
+                label = (!t.is_empty())
+                    .then(|| crate::loops::peer_text::sanitize(t.as_bytes(), LABEL_CHARS));
+            }
             _ => {}
         }
         ready_from.iter().all(std::cell::Cell::get)
@@ -252,6 +259,7 @@ pub(super) fn handshake(
     if !ready {
         return Ok(false);
     }
+    pair.controller_label = label;
     feed.send_initial(&study.reference)?;
     let unarmed = || {
         format!(
@@ -263,6 +271,9 @@ pub(super) fn handshake(
         m.kind() == Some(ControlKind::Armed)
     })
 }
+
+/// The longest name a controller gives itself that the run shows, characters.
+const LABEL_CHARS: usize = 64;
 
 /// Ctrl-C (or SIGTERM, SIGHUP) during the handshake: no START is sent; STOP releases both
 /// children, which exit at once; the run holds no tick.
@@ -284,11 +295,13 @@ pub(super) fn stopped_before_start(
     }
     // Read the logs after the children are gone, so their last lines are in.
     let logs = pair.logs.clone();
+    let controller_label = pair.controller_label.take();
     drop(pair);
     let child_messages = logs.messages();
     let mut rec = lawrun::recorder(study, law, keep)?;
     rec.interrupt();
     Ok(ProcessRun {
+        controller_label,
         fault: None,
         interrupted: true,
         run_id,

@@ -43,6 +43,8 @@ pub struct ProcessRun {
     pub timing: Timing,
     /// Warnings and errors the children printed (one line each).
     pub child_messages: Vec<String>,
+    /// What the controller called itself in its READY, if anything.
+    pub controller_label: Option<String>,
 }
 
 /// How messages name a process.
@@ -142,6 +144,7 @@ pub fn run_law(
         )
     };
     let (plant_rss, ctrl_rss) = (pair.plant.peak_rss_kib, pair.controller.peak_rss_kib);
+    let controller_label = pair.controller_label.take();
     drop(pair);
     // A child killed by a signal leaves its iceoryx2 node behind: the surviving supervisor
     // removes it now (and says so) rather than leaving it to the next run.
@@ -171,6 +174,7 @@ pub fn run_law(
         }
     }
     Ok(ProcessRun {
+        controller_label,
         fault: cause,
         interrupted: ending.interrupted,
         run_id: rid,

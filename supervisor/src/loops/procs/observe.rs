@@ -115,12 +115,14 @@ pub(super) struct Observation<'a> {
     pub(super) on_tick: Option<OnTick<'a>>,
 }
 
-/// A tick and a line from the plant's control channel (FAULT, OVERRUN, DIVERGED).
+/// A tick and a line from the plant's control channel (FAULT, OVERRUN, PLANT_ERROR, DIVERGED).
 pub(super) struct PlantSaid {
     pub(super) tick: u64,
     pub(super) cause: String,
-    /// OVERRUN: the plant stopped because its own process woke too late (`overrun = "fault"`).
-    pub(super) overrun: bool,
+    /// What it said: FAULT (the controller went silent, or reported an error), OVERRUN (its own
+    /// process woke too late, `overrun = "fault"`), PLANT_ERROR (its own physics failed) or
+    /// DIVERGED.
+    pub(super) kind: ControlKind,
 }
 
 pub(super) fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
@@ -203,17 +205,19 @@ impl<'a> Observation<'a> {
         }
         while let Some(m) = obs.from_plant.receive()? {
             let m = &m;
-            let fault = || PlantSaid {
+            let fault = |kind| PlantSaid {
                 tick: m.tick,
                 cause: m.text(),
-                overrun: m.kind() == Some(ControlKind::Overrun),
+                kind,
             };
             match m.kind() {
-                Some(ControlKind::Diverged) if self.diverged.is_none() => {
-                    self.diverged = Some(fault())
+                Some(k @ ControlKind::Diverged) if self.diverged.is_none() => {
+                    self.diverged = Some(fault(k))
                 }
-                Some(ControlKind::Fault | ControlKind::Overrun) if self.plant_fault.is_none() => {
-                    self.plant_fault = Some(fault())
+                Some(k @ (ControlKind::Fault | ControlKind::Overrun | ControlKind::PlantError))
+                    if self.plant_fault.is_none() =>
+                {
+                    self.plant_fault = Some(fault(k))
                 }
                 _ => {}
             }
@@ -514,7 +518,7 @@ mod tests {
         obs.plant_fault = Some(PlantSaid {
             tick: 100,
             cause: "no torque within the budget".into(),
-            overrun: false,
+            kind: ControlKind::Fault,
         });
         let fault = Fault {
             tick: 100,

@@ -192,6 +192,8 @@ pub(super) struct Pair {
     /// Where a near bridge (one side across the link) writes the link's report: present once a
     /// far side joined. None when both children are on this host.
     pub(super) link_report: Option<PathBuf>,
+    /// What the controller called itself in its READY (its text; escaped, bounded), if anything.
+    pub(super) controller_label: Option<String>,
 }
 
 /// The children's stderr logs.
@@ -265,6 +267,7 @@ impl Pair {
             link_report: cfg.link.is_some().then(|| {
                 deltaloop_bridge::seal::LinkReport::path(&run_dir.join("config.toml"), run_id)
             }),
+            controller_label: None,
         })
     }
 

@@ -171,7 +171,7 @@ impl Watched {
                 )
             };
             let why = match m.kind() {
-                Some(ControlKind::Fault | ControlKind::Overrun) => {
+                Some(ControlKind::Fault | ControlKind::Overrun | ControlKind::PlantError) => {
                     format!("fault at tick {}: {}", m.tick, text())
                 }
                 Some(ControlKind::Diverged) => format!("diverged at tick {}: {}", m.tick, text()),

@@ -151,6 +151,9 @@ deltaloop_law::text_enum! {
         /// The plant stopped the loop (OVERRUN) because its own process woke later than
         /// `loop.overrun_after_us` with `loop.overrun = "fault"` (the host stalled it), and braked.
         PlantOverrun,
+        /// The plant stopped the loop (PLANT_ERROR) because its own physics reported an error (a
+        /// foreign plant's `truth` or `measure` failed): not the law's divergence; it braked.
+        PlantError,
         /// A loop process exited with its set-up failure code.
         Setup,
         /// A loop process stopped on request (its stopped code) that this supervisor never made.
