@@ -650,7 +650,8 @@ pub fn refused_warning(udp: &Udp) -> Option<String> {
 
 /// The link's statistics on stderr, if there is anything to say: the datagrams the emulation
 /// dropped here and, on the plant's host (`counts`), the states sent again (lockstep), the
-/// replies recovered from a later datagram and (a warning) those for a state not yet sent.
+/// replies recovered from a later datagram, the states of a backlog not sent (realtime) and (a
+/// warning) the replies for a state not yet sent.
 pub fn link_summary(emu: &Emulation, dropped: u64, counts: Option<crate::sides::PlantHostCounts>) {
     let c = counts.unwrap_or_default();
     if c.future > 0 {
@@ -660,8 +661,8 @@ pub fn link_summary(emu: &Emulation, dropped: u64, counts: Option<crate::sides::
             c.future
         );
     }
-    let (resent, recovered) = (c.resent, c.recovered);
-    if emu.is_off() && resent == 0 && recovered == 0 {
+    let (resent, recovered, stale) = (c.resent, c.recovered, c.stale);
+    if emu.is_off() && resent == 0 && recovered == 0 && stale == 0 {
         return;
     }
     let mut line = format!(
@@ -670,7 +671,7 @@ pub fn link_summary(emu: &Emulation, dropped: u64, counts: Option<crate::sides::
     );
     if counts.is_some() {
         line += &format!(
-            ", {resent} state(s) sent again, {recovered} repl(ies) recovered from a later datagram"
+            ", {resent} state(s) sent again, {recovered} repl(ies) recovered from a later datagram, {stale} state(s) of a backlog not sent (a newer one went instead)"
         );
     }
     eprintln!("{line}");

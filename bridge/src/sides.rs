@@ -43,6 +43,8 @@ pub struct PlantHost {
     resend: Option<Resend>,
     /// States sent again (lockstep).
     pub resent: u64,
+    /// States of a backlog not sent: a newer one went instead (realtime).
+    pub stale: u64,
     /// Every state also goes over TCP, for the record on the other host (`--plant-remote`: the
     /// supervisor there records every state, including one lost on the link).
     record: bool,
@@ -55,6 +57,8 @@ pub struct PlantHost {
 pub struct PlantHostCounts {
     /// States sent again (lockstep).
     pub resent: u64,
+    /// States of a backlog not sent: a newer one went instead (realtime).
+    pub stale: u64,
     /// Replies taken from a later datagram.
     pub recovered: u64,
     /// Replies for a state not yet sent, left out.
@@ -79,6 +83,7 @@ impl PlantHost {
                 due_ns: None,
             }),
             resent: 0,
+            stale: 0,
             record: false,
             inbox: Inbox::default(),
         }
@@ -88,6 +93,7 @@ impl PlantHost {
     pub fn counts(&self) -> PlantHostCounts {
         PlantHostCounts {
             resent: self.resent,
+            stale: self.stale,
             recovered: self.inbox.recovered,
             future: self.inbox.future,
         }
@@ -111,7 +117,12 @@ impl PlantHost {
         link::timeout_ns(udp, now).min(resend_due.map_or(u64::MAX, |d| d.saturating_sub(now)))
     }
 
-    /// The plant's states: each out as a datagram; the final one over TCP.
+    /// The plant's states out as datagrams (the final one over TCP). In realtime only the newest
+    /// of a wake-up goes out: the older ones of a backlog (this bridge was held up) are past their
+    /// budget, and sent together they made the far controller answer each in a burst whose
+    /// replies overflowed this side's socket, so states it had answered were recorded as
+    /// unanswered and the run did not replay. A state not sent is not answered: the record's
+    /// "missed" is then what happened. Lockstep sends each (each awaits its reply).
     pub fn states(
         &mut self,
         (state, state_ready): (&Subscriber<Svc, StateMsg, ()>, &Listener<Svc>),
@@ -119,24 +130,41 @@ impl PlantHost {
         tcp: &mut Tcp,
     ) -> Result<()> {
         state_ready.try_wait(|_| {}).ipc("drain state-ready")?;
+        let mut newest: Option<StateMsg> = None;
         while let Some(s) = state.receive().ipc("receive state")? {
-            let st: &StateMsg = s.payload();
+            let st: StateMsg = *s.payload();
             if st.flags & wire::STATE_FINAL != 0 {
-                tcp.send(Kind::Final, &[bytes_of(st)])?;
+                if let Some(n) = newest.take() {
+                    self.send_state(&n, udp)?;
+                }
+                tcp.send(Kind::Final, &[bytes_of(&st)])?;
                 self.final_sent_ns.get_or_insert(rt::now_ns());
-            } else {
-                self.last_state = (st.tick, st.t_poll_until_ns);
-                let now = rt::now_ns();
-                udp.send(Kind::State, &[bytes_of(st)], now)?;
-                if self.record {
-                    tcp.queue(Kind::State, &[bytes_of(st)])?;
-                }
-                self.poll_until = now + self.spin_ns;
-                if let Some(r) = &mut self.resend {
-                    r.state = *st;
-                    r.due_ns = Some(now + RESEND_NS);
-                }
+                continue;
             }
+            if self.record {
+                tcp.queue(Kind::State, &[bytes_of(&st)])?;
+            }
+            if self.resend.is_some() {
+                self.send_state(&st, udp)?;
+            } else if newest.replace(st).is_some() {
+                self.stale += 1;
+            }
+        }
+        if let Some(n) = newest {
+            self.send_state(&n, udp)?;
+        }
+        Ok(())
+    }
+
+    /// One state out as a datagram.
+    fn send_state(&mut self, st: &StateMsg, udp: &mut Udp) -> Result<()> {
+        self.last_state = (st.tick, st.t_poll_until_ns);
+        let now = rt::now_ns();
+        udp.send(Kind::State, &[bytes_of(st)], now)?;
+        self.poll_until = now + self.spin_ns;
+        if let Some(r) = &mut self.resend {
+            r.state = *st;
+            r.due_ns = Some(now + RESEND_NS);
         }
         Ok(())
     }
@@ -360,8 +388,13 @@ impl ControllerHost {
     }
 
     /// The plant's states from the link, published here. Returns whether any datagram came.
+    /// Where nothing records them here (`--controller-remote`), only the newest of those that
+    /// came together is published: the others (a backlog, after this bridge or its host was
+    /// held up) are past their budget, and the controller answering each sent a burst of replies
+    /// that overflowed the other side's socket (see [`PlantHost::states`]).
     pub fn states(&mut self, ports: StatePorts<'_>, udp: &mut Udp) -> Result<bool> {
         let mut any = false;
+        let mut newest: Option<StateMsg> = None;
         while let Some((kind, p)) = udp.recv()? {
             any = true;
             if kind != Kind::State {
@@ -377,11 +410,16 @@ impl ControllerHost {
             } else if self.started && self.published(s.tick) {
                 // Sent again while the controller is still on it (it answers once), or published
                 // already (its copy over TCP came first).
-            } else if self.started {
-                self.publish_state(ports, s)?;
-            } else {
+            } else if !self.started {
                 self.stash = Some(s);
+            } else if self.local_stamps {
+                self.publish_state(ports, s)?;
+            } else if newest.is_none_or(|n| n.tick < s.tick) {
+                newest = Some(s);
             }
+        }
+        if let Some(s) = newest {
+            self.publish_state(ports, s)?;
         }
         Ok(any)
     }
@@ -456,3 +494,79 @@ pub type PlantEnds<'a> = (
     &'a Notifier<Svc>,
     &'a Listener<Svc>,
 );
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::emulation::Emulation;
+    use crate::seal::{End, Session};
+    use std::net::{TcpListener, TcpStream, UdpSocket};
+
+    /// The near side's link to a stand-in far side: (near UDP, near TCP, far UDP, far's TCP end).
+    fn link() -> (Udp, Tcp, Udp, TcpStream) {
+        let session = Session::generate().unwrap();
+        let (a, b) = (
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+        );
+        a.connect(b.local_addr().unwrap()).unwrap();
+        b.connect(a.local_addr().unwrap()).unwrap();
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        let far_tcp = TcpStream::connect(l.local_addr().unwrap()).unwrap();
+        let near_tcp = l.accept().unwrap().0;
+        (
+            Udp::sealed(a, &session, End::Near, Emulation::default()).unwrap(),
+            Tcp::new(near_tcp, &session, End::Near).unwrap(),
+            Udp::sealed(b, &session, End::Far, Emulation::default()).unwrap(),
+            far_tcp,
+        )
+    }
+
+    /// The ticks of the state datagrams `far` receives.
+    fn states_heard(far: &mut Udp) -> Vec<u64> {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        let mut got = Vec::new();
+        while let Some((kind, p)) = far.recv().unwrap() {
+            assert_eq!(kind, Kind::State);
+            got.push(bytes::read::<StateMsg>(p).unwrap().tick);
+        }
+        got
+    }
+
+    /// Regression: a near bridge held up for 100 ms found 330 of the plant's states waiting and
+    /// sent them all at once; the far controller answered each, the burst of replies overflowed
+    /// this side's socket, and states the controller had answered were recorded as unanswered
+    /// (the run did not replay). In realtime only the newest of a backlog goes out (the others
+    /// are counted); in lockstep each state awaits its reply, and each goes out.
+    #[test]
+    fn regression_a_backlog_of_states_is_not_sent_on_in_a_burst() {
+        let run_id = format!("sides-test-{}", std::process::id());
+        let node = ipc::node("plant", &run_id).unwrap();
+        let plant = ipc::plant_loop(&node, &run_id, 16).unwrap();
+        let near = ipc::controller_loop(&node, &run_id, ipc::RELAY_BUFFER).unwrap();
+        let ends = (&near.0, &near.1, &near.2, &near.3);
+        for lockstep in [false, true] {
+            let (mut udp, mut tcp, mut far, _far_tcp) = link();
+            let mut host = PlantHost::new(0, lockstep);
+            // Fewer than a socket takes at once (it dropped 134 of a burst of 300 here).
+            for tick in 0..100 {
+                plant
+                    .0
+                    .send_copy(StateMsg {
+                        tick,
+                        ..StateMsg::default()
+                    })
+                    .unwrap();
+            }
+            host.turn(&ends, (true, false), &mut udp, &mut tcp).unwrap();
+            let heard = states_heard(&mut far);
+            if lockstep {
+                assert_eq!(heard, (0..100).collect::<Vec<_>>());
+                assert_eq!(host.counts().stale, 0);
+            } else {
+                assert_eq!(heard, [99]);
+                assert_eq!(host.counts().stale, 99);
+            }
+        }
+    }
+}

@@ -872,3 +872,143 @@ fn regression_join_tries_a_busy_near_side_again_and_does_not_blame_the_key() {
     );
     assert!(!err.contains("link key?"), "{err}");
 }
+
+/// `deltaloop join EP --role ROLE --link-key KEY` with its own iceoryx2 root, output captured.
+fn join_as(ep: &str, role: &str, key: &Path, root: &Path) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["join", ep, "--role", role, "--wait-s", "60"])
+        .args(["--link-key", key.to_str().unwrap()])
+        .env("DELTALOOP_IOX2_ROOT", root)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// The pid of `parent`'s child whose command line says `deltaloop-bridge near`, within 30 s.
+fn near_bridge_of(parent: u32) -> i32 {
+    let t0 = std::time::Instant::now();
+    loop {
+        for e in std::fs::read_dir("/proc").unwrap().flatten() {
+            let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
+                continue;
+            };
+            let stat = std::fs::read_to_string(e.path().join("stat")).unwrap_or_default();
+            // The parent is the second field after the command's closing parenthesis.
+            let ppid = stat
+                .rsplit_once(") ")
+                .and_then(|(_, rest)| rest.split(' ').nth(1))
+                .and_then(|p| p.parse::<u32>().ok());
+            let cmd = std::fs::read(e.path().join("cmdline")).unwrap_or_default();
+            if ppid == Some(parent) && text(&cmd).contains("deltaloop-bridge\0near") {
+                return pid;
+            }
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "no near bridge under {parent}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Regression: a bridge held up for 30–300 ms mid-run (SIGSTOP: its host did not run it) left
+/// a record that `replay` could not reproduce. The near side sent the plant's backlog of states
+/// on at once, the far controller answered each, and the burst of replies overflowed the near
+/// side's socket: states the controller had answered were recorded as unanswered ("ok, lost 0",
+/// then "trace.csv differs"). And a late reply to the tick the plant stopped at (the controller
+/// silence that followed) made a row with `reply` unknown, which the replay refused as a lost
+/// tick. Each bridge of each role in turn is stalled five times for 200 ms: the run replays byte for byte,
+/// or the replay refuses exactly the ticks the summary counts as lost.
+#[test]
+fn regression_a_stalled_bridge_run_replays_or_says_what_it_lost() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    for role in ["controller", "plant"] {
+        for stalled in ["near", "far"] {
+            let (tmp, cfg, key, ep) = s1_with_key();
+            let out = tmp.path().join("run");
+            let remote = format!("--{role}-remote");
+            let s = |p: &Path| p.to_str().unwrap().to_string();
+            let args = [
+                "run",
+                &s(&cfg),
+                "--mode",
+                "realtime",
+                &remote,
+                &ep,
+                "--link-key",
+                &s(&key),
+                "--hold-s",
+                "4",
+                "--out",
+                &s(&out),
+            ];
+            let run = common::spawn(&args);
+            let near = near_bridge_of(run.id());
+            let far_root = tmp.path().join("far-root");
+            let join = join_as(&ep, role, &key, &far_root);
+            // `join` exec'd the far bridge: its pid is the far bridge's.
+            let pid = if stalled == "near" {
+                near
+            } else {
+                join.id() as i32
+            };
+            let log = out.join(format!("tdc.{role}.log"));
+            let t0 = std::time::Instant::now();
+            while !std::fs::read_to_string(&log).is_ok_and(|l| l.contains("joined")) {
+                assert!(t0.elapsed() < Duration::from_secs(60), "nobody joined");
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            // START, and some of the loop; then, five times, the bridge's host does not run it
+            // for 200 ms (one stall lost replies in about a third of the runs before the fix).
+            std::thread::sleep(Duration::from_millis(600));
+            for _ in 0..5 {
+                std::thread::sleep(Duration::from_millis(500));
+                // SAFETY: a process of this test's (the run's child, or join's exec).
+                unsafe { libc::kill(pid, libc::SIGSTOP) };
+                std::thread::sleep(Duration::from_millis(200));
+                unsafe { libc::kill(pid, libc::SIGCONT) };
+            }
+            let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
+            let _ = common::finish_within(join, Duration::from_secs(30), "join");
+            deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+            let case = format!("{role} remote, {stalled} bridge stalled");
+            let trace = rows(&out.join("trace.csv"));
+            assert!(!trace.is_empty(), "{case}: no trace: {}", text(&o.stderr));
+            // The stall hit the loop: a stretch of ticks the plant got no reply for in time.
+            let longest = trace
+                .split(|r| r["reply"] == "applied")
+                .map(<[_]>::len)
+                .max()
+                .unwrap_or(0);
+            assert!(longest >= 300, "{case}: no stall in the trace ({longest})");
+            let replay = tmp.path().join("replay");
+            let r = common::deltaloop(&["replay", &s(&out), "--out", &s(&replay)]);
+            let said = text(&r.stdout) + &text(&r.stderr);
+            eprintln!("{case}: {}", said.trim_end());
+            if r.status.success() {
+                assert!(said.contains("reproduced byte for byte"), "{case}: {said}");
+                continue;
+            }
+            // Refused: only for ticks the record says it lost, and names.
+            let lost = said
+                .split_once("the run lost ticks ")
+                .and_then(|(_, t)| t.split_once(' '))
+                .and_then(|(range, _)| range.split_once(".."))
+                .and_then(|(a, b)| Some((a.parse::<u64>().ok()?, b.parse::<u64>().ok()?)));
+            let Some((first, last)) = lost else {
+                panic!("{case}: the replay differs from the record: {said}");
+            };
+            let law = &summary(&out)["laws"]["tdc"];
+            let counted =
+                law["lost_ticks"].as_u64().unwrap() + law["telemetry_missing"].as_u64().unwrap();
+            assert!(
+                law["status"] != "ok" && counted > last - first,
+                "{case}: replay refused ticks {first}..{last}, the summary: {law}"
+            );
+            let named = law["lost_data"].as_str().unwrap_or("").to_string()
+                + law["reason"].as_str().unwrap_or("");
+            assert!(named.contains(&format!("tick {first}")), "{case}: {law}");
+        }
+    }
+}

@@ -273,7 +273,11 @@ impl<'a> Observation<'a> {
         let in_loop = seen.tel.filter(|m| m.flags & wire::TEL_SAFE_STOP == 0);
         // A tick without telemetry never ran to its end (or the sample was lost), unless the
         // plant's telemetry says it held through a missing reply.
-        let ran = in_loop.is_some() || seen.torque.is_some();
+        // The tick the plant stopped the loop at (its FAULT or OVERRUN) never ran, whatever
+        // reply came for it late (regression: a late reply to the tick of a silence fault made
+        // a row with `reply` unknown, counted as missing telemetry, which the replay refused).
+        let stopped_here = self.plant_fault.as_ref().is_some_and(|f| f.tick == seen.k);
+        let ran = in_loop.is_some() || (seen.torque.is_some() && !stopped_here);
         let Some(state) = seen.state.filter(|_| ran) else {
             self.gap.get_or_insert(seen.k);
             return Ok(());
@@ -546,5 +550,44 @@ mod tests {
         let (run, _) = obs.finish(false, Some(&fault)).unwrap();
         assert_eq!(run.end.lost_ticks, 90, "ticks 10..100");
         assert_eq!(run.end.first_lost, Some(10));
+    }
+
+    /// Regression: the plant stopped the loop at tick 10 (controller silent) and the reply to
+    /// state 10 came after, late; the record got a row 10 with `reply` unknown (its telemetry
+    /// "missing"), which `replay` refused as a lost tick. The tick the plant stopped at never
+    /// ran: the record ends before it, as it does when no reply comes at all.
+    #[test]
+    fn regression_a_late_reply_to_the_tick_the_plant_stopped_at_makes_no_row() {
+        let study = s2();
+        let mut obs = seen_up_to_tick_9(&study);
+        let row = study.reference.row(10).joint;
+        let slot = obs.window.slot(10);
+        slot.state = Some(StateMsg {
+            tick: 10,
+            q: row.q.into(),
+            q_true: row.q.into(),
+            ..StateMsg::default()
+        });
+        slot.torque = Some(TorqueMsg {
+            tick: 10,
+            ..TorqueMsg::default()
+        });
+        obs.last_seen = Some(10);
+        let cause = "no torque within the budget for 1000 consecutive ticks";
+        obs.plant_fault = Some(PlantSaid {
+            tick: 10,
+            cause: cause.into(),
+            kind: ControlKind::Fault,
+        });
+        let fault = Fault {
+            tick: 10,
+            kind: FaultKind::ControllerSilent,
+            cause: cause.into(),
+        };
+        let (run, _) = obs.finish(false, Some(&fault)).unwrap();
+        assert_eq!(run.end.records, 10, "ticks 0..=9");
+        assert_eq!(run.end.no_telemetry, 0);
+        assert_eq!(run.end.lost_ticks, 0);
+        assert_eq!(run.end.status_tick(), Some(10));
     }
 }
