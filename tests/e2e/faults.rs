@@ -907,6 +907,44 @@ fn stopped_supervisor_run(cfg: &str, out: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// A supervisor stopped (SIGSTOP) while the plant and the controller finish and exit keeps every
+/// tick: what they published stays in its queues after they are gone (iceoryx2 keeps a gone
+/// publisher's samples for a subscriber that has not taken them), so no drain step is needed
+/// before a loop process exits. The stop is shorter than the queues (8192 ticks), so nothing
+/// can overflow: any loss would be the exit's.
+#[test]
+fn a_supervisor_stopped_while_the_pair_exits_loses_no_tick() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    // 0.8 s of motion and 1 s of hold: 6000 ticks, stopped from 1.4 s to 3.4 s.
+    let cfg = config(tmp.path(), 1.0, "");
+    let child = spawn(&["run", &cfg, "--out", out.to_str().unwrap()]);
+    signal_child(&out, "deltaloop-plant", 0, 1400);
+    let sup = child.id() as i32;
+    // SAFETY: stopping and resuming our own child.
+    unsafe { libc::kill(sup, libc::SIGSTOP) };
+    let t0 = Instant::now();
+    // Until both loop processes have exited (at most 5 s), then 200 ms more.
+    while !pids_of(&out, "deltaloop-plant").is_empty()
+        || !pids_of(&out, "deltaloop-controller").is_empty()
+    {
+        assert!(
+            t0.elapsed() < Duration::from_secs(5),
+            "the pair never exited"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(200));
+    unsafe { libc::kill(sup, libc::SIGCONT) };
+    let (code, err) = finish(child);
+    let s = summary(&out);
+    assert_eq!(code, Some(0), "{err}");
+    assert_eq!(outcome(&s, "tdc"), (RunStatus::Ok, None), "{s}");
+    assert_eq!(s["laws"]["tdc"]["lost_ticks"], 0, "{s}");
+    assert_eq!(s["laws"]["tdc"]["telemetry_missing"], 0, "{s}");
+    common::assert_every_tick_on_disk(&s, &out, "tdc");
+}
+
 /// Regression: a realtime soak whose robot diverged (tracking error above 0.5 rad) after two
 /// minutes ran on for the rest of its hour, recording nothing. Now the supervisor stops the loop
 /// at the divergence: the plant brakes, the run says where it diverged, as inproc does.
