@@ -1012,3 +1012,50 @@ fn regression_a_stalled_bridge_run_replays_or_says_what_it_lost() {
         }
     }
 }
+
+/// Regression: a far controller whose step reported an error (it said CONTROLLER_ERROR) stopped
+/// a lockstep loop only after the plant's silence timeout (2 s): the near bridge passed the
+/// message on but did not wake the plant, which reads it when it wakes. The plant stops at the
+/// failing tick at once, naming the error, as on one host.
+#[test]
+fn regression_a_far_controller_step_error_stops_the_lockstep_loop_at_once() {
+    let Some(exe) = common::c_peer("c_controller_faults") else {
+        return;
+    };
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, cfg, key, ep) = s1_with_key();
+    let out = tmp.path().join("remote");
+    let run = common::spawn(&remote_lockstep(&cfg, &ep, &key, &out));
+    let far_root = tmp.path().join("far-root");
+    let join = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["join", &ep, "--role", "controller", "--wait-s", "60"])
+        .args(["--link-key", key.to_str().unwrap()])
+        .arg(format!("--controller-cmd={} fail@200", exe.display()))
+        .env("DELTALOOP_IOX2_ROOT", &far_root)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
+    let _ = common::finish_within(join, Duration::from_secs(30), "join");
+    deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    let s = summary(&out);
+    let m = &s["laws"]["tdc"];
+    assert_eq!(m["status_tick"], 200, "{m}");
+    let fault = m["fault"].as_str().unwrap_or_default();
+    assert!(
+        fault.contains("the controller reported an error at tick 200"),
+        "{fault}"
+    );
+    // The plant's record of tick 200 (its state, then the stop) follows tick 199's at once, not
+    // a 2 s silence window later.
+    let rows = rows(&out.join("tdc.timing.csv"));
+    let published = |k: &str| -> u64 {
+        let r = rows.iter().find(|r| r["k"] == k).expect("the tick's row");
+        r["state_pub_ns"].parse().unwrap()
+    };
+    let gap_ms = published("200").saturating_sub(published("199")) as f64 * 1e-6;
+    assert!(gap_ms < 1000.0, "tick 200 came {gap_ms} ms after tick 199");
+}
