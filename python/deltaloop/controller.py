@@ -82,6 +82,17 @@ class Controller(Peer):
         m.kind, m.from_ = kind, wire.FROM_CONTROLLER
         self.control_pub.send_copy(m)
 
+    def _tell_plant_the_step_failed(self, k, why):
+        """CONTROLLER_ERROR at tick `k` (protocol §3), and the plant woken: it stops the loop at
+        once, naming `why`, instead of holding the last torque through its silence window."""
+        m = ControlMsg()
+        m.kind, m.from_, m.tick = wire.CONTROLLER_ERROR, wire.FROM_CONTROLLER, k
+        # Cut to the field, never in the middle of a character.
+        text = why.encode()[: len(m.text)].decode("utf-8", "ignore").encode()
+        ctypes.memmove(m.text, text, len(text))
+        self.control_pub.send_copy(m)
+        self.torque_ready.notify()
+
     def _drain_control(self):
         """START's N if START came (else None); raises End on STOP or SIGTERM."""
         start = None
@@ -205,7 +216,9 @@ class Controller(Peer):
                 tau, s, n_hat, u = step(state, ref)
             except Exception as e:
                 traceback.print_exc()
-                raise End(EXIT_FAULT, f"step failed at tick {k}: {type(e).__name__}: {e}")
+                why = f"step failed at tick {k}: {type(e).__name__}: {e}"
+                self._tell_plant_the_step_failed(k, why)
+                raise End(EXIT_FAULT, why)
             msg.tick, msg.skipped = k, skipped
             msg.tau, msg.s, msg.n_hat, msg.u = tuple(tau), tuple(s), tuple(n_hat), tuple(u)
             msg.t_state_rx_ns = rx

@@ -8,6 +8,7 @@ first argument (the supervisor's own arguments follow it):
     speak-for-plant   before READY, publish READY and DIVERGED on the plant's control service
     stamp-zero        stamp every reply's t_publish_ns with 0
     twice             send every reply twice, the second with another torque
+    raise-at-200      raise an exception in `step` at tick 200
 
 Each attempt prints one line on stderr saying whether it was refused.
 """
@@ -112,6 +113,8 @@ def main():
     def step(state, ref):
         if MODE == "forge" and state.tick == 10:
             ctl.forge()
+        if MODE == "raise-at-200" and state.tick == 200:
+            raise ArithmeticError("the solver did not converge")
         out = law.step(state, ref)
         if MODE == "stamp-zero":
             forge["next"] = True
