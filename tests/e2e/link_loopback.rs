@@ -429,6 +429,20 @@ fn join_with(ep: &str, key: &Path, root: &Path) -> std::process::Child {
         .unwrap()
 }
 
+/// `deltaloop join EP --role controller --link-key KEY --controller-cmd=CMD` with its own
+/// iceoryx2 root, stderr captured.
+fn join_with_cmd(ep: &str, key: &Path, root: &Path, cmd: &str) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["join", ep, "--role", "controller", "--wait-s", "60"])
+        .args(["--link-key", key.to_str().unwrap()])
+        .arg(format!("--controller-cmd={cmd}"))
+        .env("DELTALOOP_IOX2_ROOT", root)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
 /// The link's mutual authentication, from the outside: a stranger who connects first to a
 /// waiting `run --controller-remote --link-key` (and one who connects and stays silent) learns
 /// nothing of the run and cannot be its controller; a `join` with another key is refused in one
@@ -703,15 +717,7 @@ fn regression_the_far_process_is_not_given_the_link_key() {
     let out = tmp.path().join("remote");
     let run = common::spawn(&remote_lockstep(&cfg, &ep, &key, &out));
     let far_root = tmp.path().join("far-root");
-    let join = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(["join", &ep, "--role", "controller", "--wait-s", "60"])
-        .args(["--link-key", key.to_str().unwrap()])
-        .arg(format!("--controller-cmd={}", script.display()))
-        .env("DELTALOOP_IOX2_ROOT", &far_root)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let join = join_with_cmd(&ep, &key, &far_root, &script.display().to_string());
     let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
     let j = common::finish_within(join, Duration::from_secs(30), "join");
     deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
@@ -1027,35 +1033,13 @@ fn regression_a_far_controller_step_error_stops_the_lockstep_loop_at_once() {
     let out = tmp.path().join("remote");
     let run = common::spawn(&remote_lockstep(&cfg, &ep, &key, &out));
     let far_root = tmp.path().join("far-root");
-    let join = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(["join", &ep, "--role", "controller", "--wait-s", "60"])
-        .args(["--link-key", key.to_str().unwrap()])
-        .arg(format!("--controller-cmd={} fail@200", exe.display()))
-        .env("DELTALOOP_IOX2_ROOT", &far_root)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let join = join_with_cmd(&ep, &key, &far_root, &format!("{} fail@200", exe.display()));
     let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
     let _ = common::finish_within(join, Duration::from_secs(30), "join");
     deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
-    let err = text(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    let s = summary(&out);
-    let m = &s["laws"]["tdc"];
-    assert_eq!(m["status_tick"], 200, "{m}");
-    let fault = m["fault"].as_str().unwrap_or_default();
-    assert!(
-        fault.contains("the controller reported an error at tick 200"),
-        "{fault}"
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
+    common::assert_step_error_stopped_the_loop_at_once(
+        &out,
+        "the controller reported an error at tick 200",
     );
-    // The plant's record of tick 200 (its state, then the stop) follows tick 199's at once, not
-    // a 2 s silence window later.
-    let rows = rows(&out.join("tdc.timing.csv"));
-    let published = |k: &str| -> u64 {
-        let r = rows.iter().find(|r| r["k"] == k).expect("the tick's row");
-        r["state_pub_ns"].parse().unwrap()
-    };
-    let gap_ms = published("200").saturating_sub(published("199")) as f64 * 1e-6;
-    assert!(gap_ms < 1000.0, "tick 200 came {gap_ms} ms after tick 199");
 }

@@ -597,3 +597,28 @@ pub fn run_id_of(out: &Path, run: &mut std::process::Child) -> String {
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
 }
+
+/// A controller that reported an error answering tick 200 (`said`, quoted in the fault) ended
+/// the run in `out` as its own fault at that tick, and at once: the plant's record of tick 200
+/// (its state, then the stop) follows tick 199's, not a silence window (2 s in lockstep) later.
+pub fn assert_step_error_stopped_the_loop_at_once(out: &Path, said: &str) {
+    let s = summary(out);
+    let m = &s["laws"]["tdc"];
+    assert_eq!(
+        outcome(&s, "tdc"),
+        (RunStatus::Fault, Some(FaultKind::ControllerFailed)),
+        "{m}"
+    );
+    assert_eq!(m["status_tick"], 200, "{m}");
+    let fault = m["fault"].as_str().unwrap_or_default();
+    assert!(fault.contains(said), "{fault}");
+    assert!(!fault.contains("controller silent"), "{fault}");
+    let mut rd = csv::Reader::from_path(out.join("tdc.timing.csv")).unwrap();
+    let published: std::collections::BTreeMap<u64, u64> = rd
+        .records()
+        .map(|r| r.unwrap())
+        .filter_map(|r| Some((r[0].parse().ok()?, r[3].parse().ok()?)))
+        .collect();
+    let gap_ms = (published[&200] - published[&199]) as f64 * 1e-6;
+    assert!(gap_ms < 1000.0, "tick 200 came {gap_ms} ms after tick 199");
+}
