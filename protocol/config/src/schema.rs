@@ -635,14 +635,24 @@ impl RunConfig {
             return Some(c.label.clone());
         }
         // One line, bounded: a command's words are only checked for NUL.
-        let file = |w: &String| show_path(Path::new(w.rsplit('/').next().unwrap_or(w)));
-        let program = c.command.first()?;
-        let interpreter = ["python", "sh", "bash", "node", "ruby", "perl", "env"]
-            .iter()
-            .any(|i| file(program).starts_with(i));
-        let script = c.command[1..].iter().find(|w| !w.starts_with('-'));
+        let base = |w: &str| w.rsplit('/').next().unwrap_or(w).to_string();
+        let file = |w: &str| show_path(Path::new(&base(w)));
+        // `env [-…] [K=V…] prog …` runs `prog`.
+        let words: Vec<&str> = c.command.iter().map(String::as_str).collect();
+        let words = match words.split_first() {
+            Some((env, rest)) if base(env) == "env" => {
+                let at = rest
+                    .iter()
+                    .position(|w| !w.starts_with('-') && !w.contains('='))
+                    .unwrap_or(rest.len());
+                &rest[at..]
+            }
+            _ => &words[..],
+        };
+        let (program, args) = words.split_first()?;
+        let script = args.iter().find(|w| !w.starts_with('-'));
         Some(match script {
-            Some(s) if interpreter => file(s),
+            Some(s) if is_interpreter(&base(program)) => file(s),
             _ => file(program),
         })
     }
@@ -704,11 +714,45 @@ pub(crate) fn step_tick(t: f64, ts: f64) -> u64 {
     }
 }
 
+/// Whether a program's file name is a script interpreter, whose first non-option argument
+/// names what runs: `python3`, `python3.11`, `sh`, `bash`, `node`, `ruby`, `perl`, exactly.
+fn is_interpreter(name: &str) -> bool {
+    let versioned = |stem: &str| {
+        name.strip_prefix(stem)
+            .is_some_and(|v| v.chars().all(|c| c.is_ascii_digit() || c == '.'))
+    };
+    ["sh", "bash", "dash", "zsh", "node", "ruby", "perl"].contains(&name)
+        || versioned("python")
+        || versioned("pypy")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::files::MAX_FILE_BYTES;
     use crate::test_util::{MIN, err};
+
+    /// Regression: the label was guessed by prefix (`shaper` and `envoy-ctl` taken for the
+    /// interpreters `sh` and `env`), and `env K=V prog` was labelled `K=V`.
+    #[test]
+    fn regression_a_controller_label_is_its_program_or_script() {
+        let label = |cmd: &[&str]| {
+            let mut c = RunConfig::from_toml_str(MIN, None).unwrap();
+            c.controller.command = cmd.iter().map(|w| w.to_string()).collect();
+            c.controller_label()
+        };
+        let some = |s: &str| Some(s.to_string());
+        assert_eq!(label(&[]), None);
+        assert_eq!(label(&["/opt/x/c-tdc", "--fast"]), some("c-tdc"));
+        assert_eq!(label(&["python3", "-u", "ctl/law.py", "a"]), some("law.py"));
+        assert_eq!(label(&["/usr/bin/python3.11", "law.py"]), some("law.py"));
+        assert_eq!(label(&["shaper", "cfg.toml"]), some("shaper"));
+        assert_eq!(label(&["envoy-ctl", "x"]), some("envoy-ctl"));
+        assert_eq!(label(&["perlin-ctrl", "x"]), some("perlin-ctrl"));
+        assert_eq!(label(&["env", "FOO=1", "-i", "ctrl", "a"]), some("ctrl"));
+        assert_eq!(label(&["env", "python3", "law.py"]), some("law.py"));
+        assert_eq!(label(&["sh", "-c", "run.sh"]), some("run.sh"));
+    }
 
     #[test]
     fn minimal_file_gets_matched_preset_and_all_laws() {

@@ -361,10 +361,10 @@ pub fn join_trace(dir: &Path, laws: &[Law]) -> Result<()> {
     anyhow::bail!("{}", failed.join("; "))
 }
 
-/// Appends the rows of `part` (its header line skipped) to `out` and removes `part`; on failure
-/// `out` is cut back to its length before, and `part` is left as it was.
+/// Appends the rows of `part` (its header line skipped) to `out`, syncs them, and removes
+/// `part`; on failure `out` is cut back to its length before, and `part` is left as it was.
 fn append_part(out: &mut std::fs::File, part: &Path) -> Result<()> {
-    use std::io::{BufRead, Seek, Write as _};
+    use std::io::{BufRead, Seek};
     let before = out.seek(std::io::SeekFrom::End(0))?;
     let mut r = std::io::BufReader::new(
         std::fs::File::open(part).with_context(|| format!("cannot read {}", part.display()))?,
@@ -374,8 +374,10 @@ fn append_part(out: &mut std::fs::File, part: &Path) -> Result<()> {
         .read_line(&mut head)
         .with_context(|| format!("cannot read {}", part.display()))
         .and_then(|_| {
+            // On disk before the part is removed: a write error that only the sync reports
+            // (NFS, EIO) must leave the part in place.
             std::io::copy(&mut r, out)
-                .and_then(|_| out.flush())
+                .and_then(|_| out.sync_data())
                 .map_err(anyhow::Error::from)
         });
     if let Err(e) = copied {

@@ -25,15 +25,23 @@ enum About {
     Observer,
 }
 
-/// Which process a fault of this kind is the fault of (its parts of the cause come first).
-fn culprit(kind: FaultKind) -> About {
+/// Which process a fault of this kind is the fault of (its parts of the cause come first). A
+/// set-up failure or a stop on request is the fault of the process whose exit says so (the
+/// controller's first, as [`fault_kind`] ranks them).
+fn culprit(kind: FaultKind, ctrl: Option<ExitStatus>) -> About {
     use FaultKind::*;
     match kind {
         PlantFailed | PlantPanicked | PlantKilled | PlantExited | PlantQuit | PlantOverrun
         | PlantStalled | PlantHung | PlantError => About::Plant,
         ControllerSilent | ControllerFailed | ControllerPanicked | ControllerKilled
         | ControllerExited | ControllerHung => About::Controller,
-        Setup | Stopped | Hung => About::Observer,
+        Setup | Stopped => match ctrl {
+            Some(s) if !s.success() && exit_kind(Sender::Controller, s) == kind => {
+                About::Controller
+            }
+            _ => About::Plant,
+        },
+        Hung => About::Observer,
     }
 }
 
@@ -175,8 +183,8 @@ pub(super) fn fault_cause(
         }
     }
     // The root cause's parts first, the rest in the order above (a stable sort).
-    let first = culprit(kind);
-    parts.sort_by_key(|(about, _)| (*about != first, *about == About::Observer));
+    let first = culprit(kind, ctrl);
+    parts.sort_by_key(|(about, _)| (*about == About::Observer, *about != first));
     let cause = parts
         .into_iter()
         .map(|(_, p)| p)
@@ -368,7 +376,11 @@ mod tests {
             fault_kind(silent, ok, false, None),
             FaultKind::ControllerSilent
         );
-        assert_eq!(culprit(FaultKind::PlantStalled), About::Plant);
+        assert_eq!(culprit(FaultKind::PlantStalled, silent), About::Plant);
+        // A stop nobody here asked for is the fault of the process that says so.
+        let stopped = code(5);
+        assert_eq!(culprit(FaultKind::Stopped, stopped), About::Controller);
+        assert_eq!(culprit(FaultKind::Stopped, ok), About::Plant);
     }
 
     /// Regression: a full /dev/shm mid-run killed the plant with a bare "signal 7".
