@@ -453,7 +453,14 @@ fn relay(
                 ports,
                 host: ControllerHost::new(spin_ns, false),
             };
-            f.forward(link, term)?
+            let code = f.forward(link, term)?;
+            if f.host.refused_recalls() > 0 {
+                eprintln!(
+                    "deltaloop-bridge: warning: refused {} recall(s) of replies from the near side (malformed, beyond the ring, or too many at once)",
+                    f.host.refused_recalls()
+                );
+            }
+            code
         }
         Either::Plant(ports) => {
             let mut f = FarPlant {

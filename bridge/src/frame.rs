@@ -19,7 +19,7 @@ pub const HEADER: usize = 24;
 pub const TAG: usize = crate::seal::TAG_LEN;
 /// The largest TCP frame (after its u32 length): the HELLO's config text or a reference chunk.
 pub const MAX_FRAME: usize = 1 << 20;
-/// The largest datagram the loop sends, bytes (three replies: header + 3 × 144 + tag; a state
+/// The largest datagram the loop sends, bytes (three replies: header + 3 × 152 + tag; a state
 /// is header + 168 + tag).
 pub const MAX_DATAGRAM: usize = HEADER + crate::replies::COPIES * crate::replies::ENTRY + TAG;
 
@@ -62,6 +62,12 @@ pub enum Kind {
     /// by reason (four u64, little-endian: malformed, other run, forged, replayed), for the
     /// run's record on the supervisor's host.
     Refused = 25,
+    /// TCP, near → far: replies lost beyond the copies, wanted again (two u64: the first
+    /// sequence number and how many, 1..=[`crate::replies::RING`]; [`crate::replies`]).
+    Recall = 26,
+    /// TCP, far → near: the answer to a RECALL (its two u64, then the entries of those replies
+    /// still in the far side's ring, oldest first).
+    Recalled = 27,
 }
 
 impl Kind {
@@ -69,7 +75,7 @@ impl Kind {
         use Kind::*;
         [
             State, Torque, Ping, Pong, Punch, Hello, Ack, Control, Reference, Final, Exit, Log,
-            Telemetry, Join, Refused,
+            Telemetry, Join, Refused, Recall, Recalled,
         ]
         .into_iter()
         .find(|k| *k as u16 == v)
@@ -131,7 +137,16 @@ fn fixed_size(kind: Kind) -> Option<usize> {
         Kind::Refused => Some(crate::seal::RefusedCounts::WIRE),
         Kind::Control => Some(size_of::<ControlMsg>()),
         Kind::Telemetry => Some(size_of::<TelemetryMsg>()),
-        Kind::Hello | Kind::Join | Kind::Reference | Kind::Exit | Kind::Log | Kind::Torque => None,
+        // A recall and its answer are checked by their reader, which refuses and counts a malformed
+        // one instead of ending the link.
+        Kind::Hello
+        | Kind::Join
+        | Kind::Reference
+        | Kind::Exit
+        | Kind::Log
+        | Kind::Torque
+        | Kind::Recall
+        | Kind::Recalled => None,
     }
 }
 

@@ -189,7 +189,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         let mut n = Near {
             ports,
             peer,
-            host: PlantHost::new(spin_ns, lockstep),
+            host: PlantHost::new(spin_ns, lockstep).with_recall(),
         };
         let r = n.forward(term);
         let counts = n.host.counts();
@@ -661,8 +661,14 @@ pub fn link_summary(emu: &Emulation, dropped: u64, counts: Option<crate::sides::
             c.future
         );
     }
+    if c.unknown > 0 || c.refused_recalls > 0 {
+        eprintln!(
+            "deltaloop-bridge: warning: {} repl(ies) lost on the link could not be recalled (their ticks are recorded with `reply` unknown); {} recall answer(s) refused",
+            c.unknown, c.refused_recalls
+        );
+    }
     let (resent, recovered, stale) = (c.resent, c.recovered, c.stale);
-    if emu.is_off() && resent == 0 && recovered == 0 && stale == 0 {
+    if emu.is_off() && resent == 0 && recovered == 0 && stale == 0 && c.lost == 0 {
         return;
     }
     let mut line = format!(
@@ -671,7 +677,8 @@ pub fn link_summary(emu: &Emulation, dropped: u64, counts: Option<crate::sides::
     );
     if counts.is_some() {
         line += &format!(
-            ", {resent} state(s) sent again, {recovered} repl(ies) recovered from a later datagram, {stale} state(s) of a backlog not sent (a newer one went instead)"
+            ", {resent} state(s) sent again, {recovered} repl(ies) recovered from a later datagram, {} lost beyond its copies ({} recalled), {stale} state(s) of a backlog not sent (a newer one went instead)",
+            c.lost, c.recalled
         );
     }
     eprintln!("{line}");
@@ -785,12 +792,16 @@ impl Near {
             let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
             let ready = (state_in, udp_in);
             self.host.turn(&ports, ready, &mut p.udp, &mut p.tcp)?;
+            self.host.recall_out(&mut p.tcp)?;
             self.control_plane(tcp_in)?;
             if let Some(end) = self.peer.ended(term)? {
+                self.give_up(true)?;
                 return Ok(end);
             }
+            self.give_up(false)?;
             let now = rt::now_ns();
             if let Some(end) = self.peer.stop_overdue(now) {
+                self.give_up(true)?;
                 return Ok(end);
             }
             if self
@@ -798,6 +809,7 @@ impl Near {
                 .final_sent_ns
                 .is_some_and(|t| now > t + FAR_END_WAIT_NS)
             {
+                self.give_up(true)?;
                 // The plant has ended the run and released its controller, which is this
                 // process: what became of the far one is unknown (the plant's own verdict, e.g.
                 // a silent controller, says what happened to the loop).
@@ -828,9 +840,19 @@ impl Near {
             return Ok(());
         }
         let (ports, far_end, log) = (&self.ports, &mut p.far_end, &mut p.log);
-        let far_refused = &mut p.report.far;
+        let (far_refused, host) = (&mut p.report.far, &mut self.host);
         p.tcp.poll(|kind, p| {
             match kind {
+                Kind::Recalled => {
+                    let mut said = Ok(());
+                    let torque = (&ports.torque, &ports.torque_ready);
+                    host.recalled(p, torque, |first, last| {
+                        if said.is_ok() {
+                            said = replies_lost(&ports.control.0, first, last);
+                        }
+                    })?;
+                    said?;
+                }
                 Kind::Control => {
                     // Only what a controller may say, as the controller (this process is its
                     // stand-in), with its tick and text (CONTROLLER_ERROR's error).
@@ -861,6 +883,38 @@ impl Near {
             Ok(())
         })
     }
+}
+
+impl Near {
+    /// Tells the supervisor, as the controller, the ticks of the holes that will not be
+    /// recovered: those whose recall is overdue, or all of them (`all`: the link is gone).
+    fn give_up(&mut self, all: bool) -> Result<()> {
+        if !self.host.recalls.busy() {
+            return Ok(());
+        }
+        let mut said = Ok(());
+        let control = &self.ports.control.0;
+        self.host.recalls.give_up(rt::now_ns(), all, |first, last| {
+            if said.is_ok() {
+                said = replies_lost(control, first, last);
+            }
+        });
+        said
+    }
+}
+
+/// REPLIES_LOST, as the controller: its replies to ticks `first..=last` may have been lost on
+/// the link, and could not be recovered.
+fn replies_lost(control: &Publisher<Svc, ControlMsg, ()>, first: u64, last: u64) -> Result<()> {
+    let mut m = ControlMsg::with_text(
+        ControlKind::RepliesLost,
+        Sender::Controller,
+        first,
+        "replies lost on the link between the hosts and not recovered",
+    );
+    m.ticks = last;
+    control.send_copy(m).ipc("send REPLIES_LOST")?;
+    Ok(())
 }
 
 /// Exposed for the far side's START: tick 0's deadline on this host's clock, from the relative

@@ -13,7 +13,7 @@
 use crate::bytes::{self, bytes_of};
 use crate::frame::Kind;
 use crate::link::{self, Tcp, Udp};
-use crate::replies::{Inbox, Outbox};
+use crate::replies::{Inbox, Outbox, Recalls};
 use anyhow::Result;
 use deltaloop_transport::ipc::{self, IpcContext, Svc};
 use deltaloop_transport::rt;
@@ -50,6 +50,11 @@ pub struct PlantHost {
     record: bool,
     /// The replies republished, each once (a datagram carries the two before it too).
     pub inbox: Inbox,
+    /// Replies lost beyond the copies are recalled over TCP (`--controller-remote`: the record
+    /// is on this host and must learn every reply the far controller sent).
+    recall: bool,
+    /// The holes being recalled.
+    pub recalls: Recalls,
 }
 
 /// What a [`PlantHost`] counted on the link, for its closing line.
@@ -63,6 +68,13 @@ pub struct PlantHostCounts {
     pub recovered: u64,
     /// Replies for a state not yet sent, left out.
     pub future: u64,
+    /// Replies lost beyond the copies (holes in the far side's numbers).
+    pub lost: u64,
+    /// Of those, brought back by a recall, and not.
+    pub recalled: u64,
+    pub unknown: u64,
+    /// Recall answers refused (malformed, or for no hole asked).
+    pub refused_recalls: u64,
 }
 
 struct Resend {
@@ -86,6 +98,8 @@ impl PlantHost {
             stale: 0,
             record: false,
             inbox: Inbox::default(),
+            recall: false,
+            recalls: Recalls::default(),
         }
     }
 
@@ -96,6 +110,18 @@ impl PlantHost {
             stale: self.stale,
             recovered: self.inbox.recovered,
             future: self.inbox.future,
+            lost: self.inbox.lost,
+            recalled: self.recalls.recalled,
+            unknown: self.recalls.unknown,
+            refused_recalls: self.recalls.refused,
+        }
+    }
+
+    /// Replies lost beyond the copies are recalled (see the field).
+    pub fn with_recall(self) -> Self {
+        Self {
+            recall: true,
+            ..self
         }
     }
 
@@ -186,12 +212,15 @@ impl PlantHost {
             let mut res = Ok(());
             let (last_state, resend) = (self.last_state, &mut self.resend);
             let newest_sent = (last_state.0 != u64::MAX).then_some(last_state.0);
-            self.inbox.take(p, newest_sent, |t, residence| {
+            let gap = self.inbox.take(p, newest_sent, |t, residence| {
                 if res.is_ok() {
                     res = republish((torque, torque_ready), t, residence, last_state, resend);
                 }
             });
             res?;
+            if let Some(g) = gap.filter(|_| self.recall) {
+                self.recalls.hole(g);
+            }
             self.poll_until = 0;
         }
         Ok(any)
@@ -228,6 +257,41 @@ impl PlantHost {
             self.resent += 1;
         }
         Ok(())
+    }
+
+    /// A RECALL for each new hole, queued on the control connection (off the tick path: a hole
+    /// is rare, and its frame is 16 bytes).
+    pub fn recall_out(&mut self, tcp: &mut Tcp) -> Result<()> {
+        if !self.recalls.busy() {
+            return Ok(());
+        }
+        self.recalls
+            .ask(rt::now_ns(), |p| tcp.queue(Kind::Recall, &[p]))
+    }
+
+    /// A RECALLED frame: its replies republished as any late reply (the plant drops a reply to
+    /// an earlier tick as late, the supervisor files it with its tick), the ticks of those it
+    /// lacks to `unknown` (first, last).
+    pub fn recalled(
+        &mut self,
+        p: &[u8],
+        (torque, torque_ready): (&Publisher<Svc, TorqueMsg, ()>, &Notifier<Svc>),
+        unknown: impl FnMut(u64, u64),
+    ) -> Result<()> {
+        let (last_state, resend) = (self.last_state, &mut self.resend);
+        let newest_sent = (last_state.0 != u64::MAX).then_some(last_state.0);
+        let mut res = Ok(());
+        self.recalls.answered(
+            p,
+            (&mut self.inbox, newest_sent),
+            |t, residence| {
+                if res.is_ok() {
+                    res = republish((torque, torque_ready), t, residence, last_state, resend);
+                }
+            },
+            unknown,
+        );
+        res
     }
 }
 
@@ -291,6 +355,9 @@ pub struct ControllerHost {
     /// The ticks of the last [`RECENT`] states published here (slot: tick % RECENT).
     recent: [u64; RECENT],
 }
+
+/// Bytes queued on the control connection above which a recall waits for the next turn.
+const RECALL_ROOM: usize = 1 << 20;
 
 /// States whose arrival time a [`ControllerHost`] keeps.
 const ARRIVALS: usize = 64;
@@ -356,6 +423,26 @@ impl ControllerHost {
         let heard = udp_in && self.states((ports.0, ports.2), udp)?;
         udp.flush(rt::now_ns())?;
         Ok(heard)
+    }
+
+    /// A RECALL from the other side, answered by [`ControllerHost::answer_recalls`].
+    pub fn recall(&mut self, p: &[u8]) {
+        self.replies.recall(p);
+    }
+
+    /// Answers the oldest recall held from the ring of replies, if the control connection has
+    /// room (one per turn: a recall copies at most the ring, 600 KiB).
+    pub fn answer_recalls(&mut self, tcp: &mut Tcp) -> Result<()> {
+        if tcp.pending() > RECALL_ROOM {
+            return Ok(());
+        }
+        self.replies
+            .answer(|parts| tcp.queue(Kind::Recalled, parts))
+    }
+
+    /// Recalls refused (malformed, beyond the ring, too many at once).
+    pub fn refused_recalls(&self) -> u64 {
+        self.replies.refused_recalls
     }
 
     /// Whether a state is out to the controller and not yet answered.
@@ -568,5 +655,120 @@ mod tests {
                 assert_eq!(host.counts().stale, 99);
             }
         }
+    }
+
+    /// A burst of six reply datagrams lost between the far side and a tap on the way (more than
+    /// the copies bring back): the near side sees the hole from the numbers, recalls it over
+    /// the sealed control connection, the far side answers from its ring, and the plant's host
+    /// gets every reply the far controller sent, once each, the recalled ones after the reply
+    /// that revealed the hole (as late replies).
+    #[test]
+    fn a_burst_of_lost_replies_is_recalled_over_the_control_connection() {
+        let session = Session::generate().unwrap();
+        let tap = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let (n, f) = (
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+        );
+        n.connect(tap.local_addr().unwrap()).unwrap();
+        f.connect(tap.local_addr().unwrap()).unwrap();
+        let to_near = n.local_addr().unwrap();
+        let mut near_udp = Udp::sealed(n, &session, End::Near, Emulation::default()).unwrap();
+        let mut far_udp = Udp::sealed(f, &session, End::Far, Emulation::default()).unwrap();
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        let far_stream = TcpStream::connect(l.local_addr().unwrap()).unwrap();
+        let mut near_tcp = Tcp::new(l.accept().unwrap().0, &session, End::Near).unwrap();
+        let mut far_tcp = Tcp::new(far_stream, &session, End::Far).unwrap();
+
+        // Each host's iceoryx2 ports (two runs: the hosts share nothing but the link).
+        let pid = std::process::id();
+        let (far_run, near_run) = (format!("recall-far-{pid}"), format!("recall-near-{pid}"));
+        let far_node = ipc::node("plant", &far_run).unwrap();
+        let far_plant_ends = ipc::plant_loop(&far_node, &far_run, ipc::RELAY_BUFFER).unwrap();
+        let controller = ipc::controller_loop(&far_node, &far_run, 16).unwrap();
+        let near_node = ipc::node("controller", &near_run).unwrap();
+        let near_ends = ipc::controller_loop(&near_node, &near_run, ipc::RELAY_BUFFER).unwrap();
+        let plant = ipc::plant_loop(&near_node, &near_run, 64).unwrap();
+        let fe = &far_plant_ends;
+        let (far_ends, ne) = ((&fe.0, &fe.1, &fe.2, &fe.3), &near_ends);
+        let ends = (&ne.0, &ne.1, &ne.2, &ne.3);
+        let mut near = PlantHost::new(0, false).with_recall();
+        let mut far = ControllerHost::new(0, false);
+
+        // The plant's state 19 went out (the replies below answer states sent).
+        plant
+            .0
+            .send_copy(StateMsg {
+                tick: 19,
+                ..StateMsg::default()
+            })
+            .unwrap();
+        near.turn(&ends, (true, false), &mut near_udp, &mut near_tcp)
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        let mut buf = [0u8; 2048];
+        while tap.set_nonblocking(true).is_ok() && tap.recv(&mut buf).is_ok() {}
+        // Replies 0..20 from the far controller; datagrams 5..=10 lost on the way: 9 and 10 come
+        // back as copies in 11's, 5..=8 are beyond the copies.
+        for tick in 0..20u64 {
+            controller
+                .1
+                .send_copy(TorqueMsg {
+                    tick,
+                    tau: [tick as f64; 3],
+                    ..TorqueMsg::default()
+                })
+                .unwrap();
+            far.torques((far_ends.1, far_ends.3), &mut far_udp).unwrap();
+            std::thread::sleep(std::time::Duration::from_millis(2));
+            let n = tap.recv(&mut buf).unwrap();
+            if !(5..=10).contains(&tick) {
+                tap.send_to(&buf[..n], to_near).unwrap();
+            }
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        near.torques((ends.1, ends.3), &mut near_udp).unwrap();
+        let heard = |plant: &ipc::PlantLoop| {
+            let mut got = Vec::new();
+            while let Some(s) = plant.1.receive().unwrap() {
+                assert_eq!(s.payload().tau[0], s.payload().tick as f64);
+                got.push(s.payload().tick);
+            }
+            got
+        };
+        let before: Vec<u64> = heard(&plant);
+        assert_eq!(
+            before,
+            [0, 1, 2, 3, 4, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19]
+        );
+        assert_eq!(near.counts().lost, 4);
+
+        // The recall, its answer from the ring, the replies published.
+        near.recall_out(&mut near_tcp).unwrap();
+        near_tcp.flush().unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        far_tcp
+            .poll(|k, p| {
+                assert_eq!(k, Kind::Recall);
+                far.recall(p);
+                Ok(())
+            })
+            .unwrap();
+        far.answer_recalls(&mut far_tcp).unwrap();
+        far_tcp.flush().unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        let mut unknown = Vec::new();
+        near_tcp
+            .poll(|k, p| {
+                assert_eq!(k, Kind::Recalled);
+                near.recalled(p, (ends.1, ends.3), |a, b| unknown.push((a, b)))
+            })
+            .unwrap();
+        assert_eq!(heard(&plant), [5, 6, 7, 8]);
+        assert!(unknown.is_empty(), "{unknown:?}");
+        let c = near.counts();
+        assert_eq!((c.recalled, c.unknown, c.refused_recalls), (4, 0, 0));
+        assert!(!near.recalls.busy());
+        assert_eq!(far.refused_recalls(), 0);
     }
 }

@@ -357,6 +357,26 @@ fn constants_and_enum_values_are_documented_exactly() {
             "docs/protocol.md: the table row of `{key}`"
         );
     }
+    // The Python helper's constants say the same (`ControllerError` is `CONTROLLER_ERROR`).
+    let py = read("python/deltaloop/wire.py");
+    for v in 0..=u32::from(u8::MAX) {
+        let Some(k) = ControlKind::from_wire(v) else {
+            continue;
+        };
+        let mut name = String::new();
+        for (i, c) in format!("{k:?}").chars().enumerate() {
+            if c.is_uppercase() && i > 0 {
+                name.push('_');
+            }
+            name.push(c.to_ascii_uppercase());
+        }
+        let line = format!("{name} = {v}");
+        assert!(
+            py.lines()
+                .any(|l| l == line || l.starts_with(&format!("{line} "))),
+            "python/deltaloop/wire.py: no `{line}`"
+        );
+    }
     // And no kind or sender the code does not know.
     for c in doc.lines().filter_map(cells) {
         if let Some(k) = c.first().and_then(|f| backticked(f).first().copied())

@@ -187,16 +187,19 @@ impl Far {
                 l.tcp.send(Kind::Control, &[bytes_of(&c)])?;
             }
         }
+        // A recall held for want of room goes out once the connection has taken the last.
+        self.host.answer_recalls(&mut l.tcp)?;
         if l.tcp.pending() > 0 {
             l.tcp.flush()?;
         }
         if !tcp_in {
             return Ok(());
         }
-        let ports = &self.ports;
+        let (ports, host) = (&self.ports, &mut self.host);
         let (mut started, mut finals) = (false, None);
         l.tcp.poll(|kind, p| {
             match kind {
+                Kind::Recall => host.recall(p),
                 Kind::Control => started |= FarLink::run_control(&ports.control, p)?,
                 Kind::Reference => {
                     let rows = p.len() / size_of::<RefSample>();
@@ -217,6 +220,7 @@ impl Far {
             }
             Ok(())
         })?;
+        self.host.answer_recalls(&mut l.tcp)?;
         let ports = (&self.ports.state, &self.ports.state_ready);
         if started {
             self.host.start(ports)?;

@@ -170,6 +170,11 @@ pub enum ControlKind {
     /// the error. The plant reads it on `control-controller` and stops the loop at once (FAULT
     /// naming it) instead of holding through the silence window.
     ControllerError = 11,
+    /// The controller's replies to ticks `tick..=ticks` may have been lost on the way to the
+    /// plant's host and could not be recovered (the near bridge of a remote controller says it,
+    /// as the controller): the supervisor records those ticks' `reply` as unknown, rather than
+    /// as unanswered, and counts them. `text` says why.
+    RepliesLost = 12,
 }
 
 impl ControlKind {
@@ -186,7 +191,10 @@ impl ControlKind {
     pub fn said_by_controller(self) -> bool {
         matches!(
             self,
-            ControlKind::Ready | ControlKind::Armed | ControlKind::ControllerError
+            ControlKind::Ready
+                | ControlKind::Armed
+                | ControlKind::ControllerError
+                | ControlKind::RepliesLost
         )
     }
 
@@ -203,6 +211,7 @@ impl ControlKind {
             Self::Overrun,
             Self::PlantError,
             Self::ControllerError,
+            Self::RepliesLost,
         ]
         .into_iter()
         .find(|k| *k as u32 == v)
@@ -237,13 +246,15 @@ pub struct ControlMsg {
     /// A [`Sender`] value.
     pub from: u32,
     pub tick: u64,
-    /// START: N, the last tick that gets a command (the plant then publishes tick N + 1 as final).
+    /// START: N, the last tick that gets a command (the plant then publishes tick N + 1 as final);
+    /// REPLIES_LOST: the last tick of the range.
     pub ticks: u64,
     /// START: initial joint angles q_d(0), rad.
     pub q0: [f64; 3],
     /// START: the monotonic time of tick 0's deadline, ns.
     pub t0_ns: u64,
-    /// FAULT, DIVERGED, STOPPED, OVERRUN, PLANT_ERROR, CONTROLLER_ERROR: UTF-8 text, NUL-padded;
+    /// FAULT, DIVERGED, STOPPED, OVERRUN, PLANT_ERROR, CONTROLLER_ERROR, REPLIES_LOST: UTF-8
+    /// text, NUL-padded;
     /// read it with [`ControlMsg::text`].
     pub text: [u8; 160],
 }

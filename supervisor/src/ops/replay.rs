@@ -107,8 +107,9 @@ impl TraceRows {
         })?;
         let fate = match ReplyFate::parse(reply).ok() {
             Some(fate) => fate,
-            // The supervisor recorded the tick without the plant's telemetry: what the plant did
-            // is not known, so the run cannot be re-run from it. Name the whole stretch.
+            // The supervisor recorded the tick without knowing what the plant did with it (its
+            // telemetry never came, or its reply was lost on the link): the run cannot be re-run
+            // from it. Name the whole stretch.
             None if reply == "unknown" => {
                 let (first, mut last) = (k, k);
                 while let Some(Ok(row)) = self.rows.next() {
@@ -119,7 +120,7 @@ impl TraceRows {
                     }
                 }
                 bail!(
-                    "{}: the run lost ticks {first}..{last} (the plant's telemetry of those ticks never reached the supervisor, so their `reply` is unknown); only a run with every tick can be replayed",
+                    "{}: the run lost ticks {first}..{last} (their `reply` is unknown: the plant's telemetry of those ticks never reached the supervisor, or the replies of a controller on another host were lost on the link); only a run with every tick can be replayed",
                     at()
                 )
             }

@@ -70,7 +70,10 @@ fn status(m: &LawMetrics) -> String {
         RunStatus::Fault => format!("FAULT at tick {k}"),
         RunStatus::Stopped => format!("STOPPED at tick {k}"),
         RunStatus::LostData => {
-            format!("LOST DATA ({} ticks)", m.lost_ticks + m.telemetry_missing)
+            format!(
+                "LOST DATA ({} ticks)",
+                m.lost_ticks + m.telemetry_missing + m.replies_lost
+            )
         }
         RunStatus::Error => "error".into(),
     }

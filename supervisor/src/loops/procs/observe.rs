@@ -113,7 +113,14 @@ pub(super) struct Observation<'a> {
     pub(super) after: Option<StateMsg>,
     /// Called with every finished tick, in tick order (see [`super::OnTick`]).
     pub(super) on_tick: Option<OnTick<'a>>,
+    /// Ticks whose replies the near bridge of a remote controller said may have been lost on
+    /// the link (REPLIES_LOST: first..=last), not yet finished; at most [`LOST_RANGES`].
+    pub(super) replies_lost: std::collections::VecDeque<(u64, u64)>,
 }
+
+/// Ranges of REPLIES_LOST held at once; more are merged into the last (it only widens what is
+/// recorded as unknown).
+const LOST_RANGES: usize = 64;
 
 /// A tick and a line from the plant's control channel (FAULT, OVERRUN, PLANT_ERROR, DIVERGED).
 pub(super) struct PlantSaid {
@@ -153,6 +160,7 @@ impl<'a> Observation<'a> {
             final_tick: None,
             after: None,
             on_tick,
+            replies_lost: std::collections::VecDeque::with_capacity(LOST_RANGES),
         }
     }
 
@@ -222,6 +230,11 @@ impl<'a> Observation<'a> {
                 _ => {}
             }
         }
+        while let Some(m) = obs.from_controller.receive()? {
+            if m.kind() == Some(ControlKind::RepliesLost) {
+                self.replies_lost(m.tick, m.ticks);
+            }
+        }
         while let Some(seen) = self.last_seen
             && self.window.next + LAG <= seen
         {
@@ -242,6 +255,37 @@ impl<'a> Observation<'a> {
             self.finish_tick(t)?;
         }
         Ok(true)
+    }
+
+    /// REPLIES_LOST for ticks `first..=last`: those not yet finished are recorded with their
+    /// reply unknown; those finished already (the message came too late for their rows) are
+    /// counted all the same, so the run is not called whole.
+    pub(super) fn replies_lost(&mut self, first: u64, last: u64) {
+        let last = last.min(self.window.last.saturating_sub(1));
+        if first > last {
+            return;
+        }
+        if first < self.window.next {
+            let done = last.min(self.window.next - 1);
+            self.rec.replies_lost_at(first, done - first + 1);
+        }
+        let first = first.max(self.window.next);
+        if first > last {
+            return;
+        }
+        let full = self.replies_lost.len() == LOST_RANGES;
+        match self.replies_lost.back_mut() {
+            Some(r) if full => *r = (r.0.min(first), r.1.max(last)),
+            _ => self.replies_lost.push_back((first, last)),
+        }
+    }
+
+    /// Whether tick k's reply was said lost on the link (ranges behind k are let go).
+    fn reply_lost(&mut self, k: u64) -> bool {
+        self.replies_lost.retain(|&(_, last)| last >= k);
+        self.replies_lost
+            .iter()
+            .any(|&(first, last)| (first..=last).contains(&k))
     }
 
     /// The ticks the controller has answered (the reference it no longer needs).
@@ -293,11 +337,15 @@ impl<'a> Observation<'a> {
             return Ok(());
         }
         // The plant's model failed integrating this tick: it sent no telemetry, as in-process.
-        let failed = self.diverged.as_ref().filter(|d| d.tick == seen.k + 1);
-        if in_loop.is_some() || failed.is_none() {
+        let failed = self.diverged.as_ref().is_some_and(|d| d.tick == seen.k + 1);
+        if self.reply_lost(seen.k) {
+            // The controller may have answered it, and its reply been lost on the link: the
+            // replay cannot know whether its controller steps here, so neither does the record.
+            self.rec.reply_lost();
+        } else if in_loop.is_some() || !failed {
             self.rec.applied(in_loop.as_ref());
         }
-        if let Some(d) = failed {
+        if let Some(d) = self.diverged.as_ref().filter(|_| failed) {
             self.rec.plant_failed(d.cause.clone());
             self.stopped = true;
         }
@@ -589,5 +637,33 @@ mod tests {
         assert_eq!(run.end.no_telemetry, 0);
         assert_eq!(run.end.lost_ticks, 0);
         assert_eq!(run.end.status_tick(), Some(10));
+    }
+
+    /// REPLIES_LOST from the near bridge of a remote controller: the ticks it names are
+    /// recorded with their reply unknown and counted (the run lost data, the first such tick
+    /// named), however the recorded reply looked; ticks it names after they were finished are
+    /// counted all the same.
+    #[test]
+    fn ticks_whose_replies_were_lost_on_the_link_are_recorded_unknown_and_counted() {
+        let study = s2();
+        let mut obs = seen_up_to_tick_9(&study);
+        obs.replies_lost(3, 5);
+        obs.replies_lost(40, 30); // an empty range: nothing
+        for _ in 0..2 {
+            let t = obs.window.take();
+            obs.finish_tick(t).unwrap();
+        }
+        obs.replies_lost(0, 0); // finished already
+        let fault = Fault {
+            tick: 10,
+            kind: FaultKind::ControllerSilent,
+            cause: "no torque within the budget".into(),
+        };
+        let (run, _) = obs.finish(false, Some(&fault)).unwrap();
+        assert_eq!(run.end.records, 10);
+        assert_eq!(run.end.replies_lost, 4, "ticks 3..=5 and 0");
+        assert_eq!(run.end.first_reply_lost, Some(0));
+        assert_eq!(run.end.no_telemetry, 0);
+        assert!(run.end.lost_data_text().contains("lost on the link"));
     }
 }

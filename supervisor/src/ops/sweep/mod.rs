@@ -518,6 +518,8 @@ mod tests {
             first_lost: None,
             no_telemetry: u64::from(outcome == Outcome::LostData),
             first_no_telemetry: (outcome == Outcome::LostData).then_some(5),
+            replies_lost: 0,
+            first_reply_lost: None,
             duplicate_replies: 0,
             stamps_replaced: 0,
             outcome,

@@ -34,6 +34,9 @@ pub struct LawMetrics {
     pub lost_data: Option<String>,
     /// Ticks recorded without the plant's telemetry (their `reply` and `drives` are `unknown`).
     pub telemetry_missing: u64,
+    /// Ticks whose reply from a controller on another host may have been lost on the link and
+    /// could not be recovered (their `reply` and `drives` are `unknown`).
+    pub replies_lost: u64,
     /// Second (and later) replies for a tick that already had one: the first is recorded.
     pub duplicate_replies: u64,
     /// Ticks whose applied reply carried a publish stamp outside [state published, reply
@@ -467,6 +470,7 @@ impl<'a> MetricsAcc<'a> {
             lost_ticks: end.lost_ticks,
             lost_data,
             telemetry_missing: end.no_telemetry,
+            replies_lost: end.replies_lost,
             duplicate_replies: end.duplicate_replies,
             stamps_replaced: end.stamps_replaced,
             completed,

@@ -212,6 +212,11 @@ pub struct RunEnd {
     /// supervisor's queue lost it), and the first of them.
     pub no_telemetry: u64,
     pub first_no_telemetry: Option<u64>,
+    /// Ticks recorded with their reply unknown because the near bridge of a remote controller
+    /// said the reply may have been lost on the link and could not be recovered
+    /// (`REPLIES_LOST`), and the first of them.
+    pub replies_lost: u64,
+    pub first_reply_lost: Option<u64>,
     /// Replies for a tick that already had one: the first is recorded (the plant applies the
     /// first), the others counted here.
     pub duplicate_replies: u64,
@@ -248,10 +253,14 @@ impl RunEnd {
             (Outcome::Interrupted { tick }, _) => Some(*tick),
             (_, Some(f)) => Some(f.tick),
             (Outcome::Diverged { tick, .. }, None) => Some(*tick),
-            (Outcome::LostData, None) => match (self.first_lost, self.first_no_telemetry) {
-                (Some(a), Some(b)) => Some(a.min(b)),
-                (a, b) => a.or(b),
-            },
+            (Outcome::LostData, None) => [
+                self.first_lost,
+                self.first_no_telemetry,
+                self.first_reply_lost,
+            ]
+            .into_iter()
+            .flatten()
+            .min(),
             (Outcome::Completed | Outcome::Faulted, None) => None,
         }
     }
@@ -301,6 +310,12 @@ impl RunEnd {
             parts.push(format!(
                 "{} ticks came without the plant's telemetry, the first at tick {first} (the plant did not send it, or the supervisor's queue lost it): their `reply` and `drives` are `unknown` and they are missing from the timing",
                 self.no_telemetry
+            ));
+        }
+        if let Some(first) = self.first_reply_lost {
+            parts.push(format!(
+                "{} ticks' replies from the controller on the other host may have been lost on the link and could not be recovered, the first at tick {first}: their `reply` and `drives` are `unknown`",
+                self.replies_lost
             ));
         }
         parts.push("every tick the supervisor saw is recorded".into());
@@ -380,6 +395,21 @@ impl<'a, S: TickSink> Recorder<'a, S> {
         self.ticks.applied(tel);
     }
 
+    /// The last recorded tick's reply may have been lost on the link (`REPLIES_LOST`): whether
+    /// the controller answered it is unknown, so its `reply` and `drives` are `unknown`, and it
+    /// is counted.
+    pub fn reply_lost(&mut self) {
+        self.ticks.reply_lost();
+    }
+
+    /// `n` ticks from `first` whose replies may have been lost on the link were recorded before
+    /// the supervisor heard so (their rows say what was seen): counted all the same.
+    pub fn replies_lost_at(&mut self, first: u64, n: u64) {
+        let end = &mut self.ticks.end;
+        end.replies_lost += n;
+        end.first_reply_lost = Some(end.first_reply_lost.map_or(first, |f| f.min(first)));
+    }
+
     /// The plant failed while integrating the last recorded tick (e.g. left the workspace).
     pub fn plant_failed(&mut self, reason: String) {
         self.ticks.plant_failed(reason);
@@ -419,6 +449,8 @@ impl<'a> OpenTicks<'a> {
                 first_lost: None,
                 no_telemetry: 0,
                 first_no_telemetry: None,
+                replies_lost: 0,
+                first_reply_lost: None,
                 duplicate_replies: 0,
                 stamps_replaced: 0,
                 outcome: Outcome::Completed,
@@ -571,6 +603,16 @@ impl<'a> OpenTicks<'a> {
         }
     }
 
+    /// See [`Recorder::reply_lost`]: as a tick without telemetry, counted apart.
+    fn reply_lost(&mut self) {
+        if let Some((r, _)) = self.open.back_mut() {
+            (r.telemetry, r.arrival_ns) = (false, None);
+            (r.clamped, r.held, r.rejected) = (false, false, false);
+            self.end.replies_lost += 1;
+            self.end.first_reply_lost.get_or_insert(r.sample.k);
+        }
+    }
+
     /// The tick after the last recorded one (0 before any).
     fn next_tick(&self) -> u64 {
         self.last_k.map_or(0, |k| k + 1)
@@ -610,7 +652,9 @@ impl<'a> OpenTicks<'a> {
             self.close_oldest(after.as_ref(), sink);
         }
         if self.end.outcome == Outcome::Completed
-            && (self.end.first_lost.is_some() || self.end.no_telemetry > 0)
+            && (self.end.first_lost.is_some()
+                || self.end.no_telemetry > 0
+                || self.end.replies_lost > 0)
         {
             self.end.outcome = Outcome::LostData;
         }
