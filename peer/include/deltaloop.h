@@ -431,8 +431,8 @@ int dl_run_str(const struct dl_run *run, const char *key, char *buf, uintptr_t l
  * Names the controller (from `init`): the run shows `label` beside the law it answers as, in
  * the terminal table, `summary.json` (`controller_label`) and `report.md`, unless the run was
  * given one (`--controller-label`, `controller.label`); without either it shows the command's
- * program name. One line of at most 64 printable characters. DL_OK, or DL_BAD_ARGUMENT (a null
- * pointer, or a label that is not one such line).
+ * program name. One line of at most 64 printable characters and 160 bytes of UTF-8. DL_OK, or
+ * DL_BAD_ARGUMENT (a null pointer, or a label that is not one such line).
  *
  * # Safety
  * `run` is the one `init` got, `label` a C string.

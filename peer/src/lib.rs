@@ -95,6 +95,24 @@ mod tests {
             .map(|a| CString::new(a).unwrap())
             .into();
         let argv_bad: Vec<*const std::ffi::c_char> = argv_bad.iter().map(|a| a.as_ptr()).collect();
+        // Arguments that parse, so that a null function is what is refused (the plant takes
+        // all but `--law NAME`).
+        let argv_ok: Vec<CString> = [
+            "peer",
+            "--run-id",
+            "r",
+            "--config",
+            "/nonexistent.toml",
+            "--mode",
+            "lockstep",
+            "--law",
+            "tdc",
+        ]
+        .iter()
+        .map(|a| CString::new(*a).unwrap())
+        .collect();
+        let argv_ok: Vec<*const std::ffi::c_char> = argv_ok.iter().map(|a| a.as_ptr()).collect();
+        let argc_ok = argv_ok.len() as std::ffi::c_int;
         type Call<'a> = (&'a str, Box<dyn Fn() -> c_int + 'a>);
         let calls: Vec<Call> = vec![
             // SAFETY (every call): live values or null where the test says so.
@@ -175,13 +193,13 @@ mod tests {
             (
                 "dl_controller_main step",
                 Box::new(|| unsafe {
-                    dl_controller_main(0, std::ptr::null(), None, None, null.cast())
+                    dl_controller_main(argc_ok, argv_ok.as_ptr(), None, None, null.cast())
                 }),
             ),
             (
                 "dl_plant_main fns",
                 Box::new(|| unsafe {
-                    dl_plant_main(0, std::ptr::null(), std::ptr::null(), null.cast())
+                    dl_plant_main(argc_ok - 2, argv_ok.as_ptr(), std::ptr::null(), null.cast())
                 }),
             ),
         ];
@@ -208,6 +226,10 @@ mod tests {
                 !m.is_empty() && m != "the previous error",
                 "{what} returned {rc} with {m:?}"
             );
+            // The null-function cases get past the arguments to the function they lack.
+            if what == "dl_controller_main step" || what == "dl_plant_main fns" {
+                assert!(m.contains("null"), "{what}: {m}");
+            }
         }
     }
 

@@ -171,12 +171,14 @@ pub unsafe extern "C" fn dl_run_str(
 
 /// The longest controller label, characters (what the run shows).
 const LABEL_CHARS: usize = 64;
+/// The longest controller label, bytes of UTF-8: what the READY message's text carries.
+const LABEL_BYTES: usize = 160;
 
 /// Names the controller (from `init`): the run shows `label` beside the law it answers as, in
 /// the terminal table, `summary.json` (`controller_label`) and `report.md`, unless the run was
 /// given one (`--controller-label`, `controller.label`); without either it shows the command's
-/// program name. One line of at most 64 printable characters. DL_OK, or DL_BAD_ARGUMENT (a null
-/// pointer, or a label that is not one such line).
+/// program name. One line of at most 64 printable characters and 160 bytes of UTF-8. DL_OK, or
+/// DL_BAD_ARGUMENT (a null pointer, or a label that is not one such line).
 ///
 /// # Safety
 /// `run` is the one `init` got, `label` a C string.
@@ -193,9 +195,10 @@ pub unsafe extern "C" fn dl_run_set_label(run: *const DlRun, label: *const c_cha
         return DL_BAD_ARGUMENT;
     };
     let n = label.chars().count();
-    if n == 0 || n > LABEL_CHARS || label.chars().any(char::is_control) {
+    if n == 0 || n > LABEL_CHARS || label.len() > LABEL_BYTES || label.chars().any(char::is_control)
+    {
         set_error(&format!(
-            "dl_run_set_label: {label:?} is not one line of 1 to {LABEL_CHARS} printable characters"
+            "dl_run_set_label: {label:?} is not one line of 1 to {LABEL_CHARS} printable characters and at most {LABEL_BYTES} bytes"
         ));
         return DL_BAD_ARGUMENT;
     }
@@ -234,6 +237,38 @@ fn null_run(function: &str) -> *const c_char {
 mod tests {
     use super::*;
     use crate::dl_last_error;
+
+    /// Regression: a label of 64 characters could take 256 bytes of UTF-8, and the READY text
+    /// that carries it holds 160: the run showed it cut. Such a label is refused, whole.
+    #[test]
+    fn regression_a_label_longer_than_the_ready_text_is_refused() {
+        let cfg =
+            RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s1\"\n", None).unwrap();
+        let args = LoopArgs {
+            run_id: "r".into(),
+            config: "c.toml".into(),
+            mode: deltaloop_config::LoopMode::Lockstep,
+        };
+        let run = DlRun::new(&cfg, &args, "tdc").unwrap();
+        let set = |label: &str| {
+            let c = std::ffi::CString::new(label).unwrap();
+            // SAFETY: a live run and C string.
+            unsafe { dl_run_set_label(&run, c.as_ptr()) }
+        };
+        assert_eq!(set(&"é".repeat(64)), DL_OK, "64 characters, 128 bytes");
+        assert_eq!(run.label().as_deref(), Some("é".repeat(64).as_str()));
+        assert_eq!(
+            set(&"€".repeat(60)),
+            DL_BAD_ARGUMENT,
+            "60 characters, 180 bytes"
+        );
+        assert_eq!(set(&"x".repeat(65)), DL_BAD_ARGUMENT);
+        assert_eq!(
+            run.label().as_deref(),
+            Some("é".repeat(64).as_str()),
+            "kept"
+        );
+    }
 
     /// A run's constants read back by key and type, and each error code where it belongs.
     #[test]

@@ -285,8 +285,10 @@ fn regression_export_refuses_out_that_is_a_run_input() {
     let o = deltaloop(&["export", run.to_str().unwrap(), "--mcap"]);
     let err = common::one_line_error(&o);
     assert!(
-        err.contains("run.mcap exists") && err.contains("--force"),
-        "{err}"
+        err.contains("run.mcap exists (an earlier export)")
+            && err.contains("--force")
+            && !err.contains("--out /"),
+        "the user gave no --out: {err}"
     );
     let o = deltaloop(&["export", run.to_str().unwrap(), "--mcap", "--force"]);
     assert!(o.status.success(), "{}", text(&o.stderr));

@@ -273,10 +273,17 @@ pub fn write_whole(path: &Path, bytes: &[u8]) -> Result<()> {
 /// persisted. Its mode is what `File::create` gives (0666 less the umask).
 pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
     use std::os::unix::fs::PermissionsExt;
-    let name = path
+    // The temporary name is `.<name>.XXXXXX.tmp`: cut <name> so that it stays within the 255
+    // bytes a file name may have, whatever the output's own name.
+    let mut name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
+    let mut end = name.len().min(200);
+    while !name.is_char_boundary(end) {
+        end -= 1;
+    }
+    name.truncate(end);
     tempfile::Builder::new()
         .prefix(&format!(".{name}."))
         .suffix(".tmp")
@@ -354,6 +361,18 @@ mod tests {
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(d.join("run")).unwrap();
         d
+    }
+
+    /// Regression: the temporary file beside an output of a 250-byte name (a valid name) had a
+    /// name past the 255 bytes a file system allows, so the write failed.
+    #[test]
+    fn regression_an_output_with_a_long_name_is_written() {
+        let d = tmp("long");
+        let path = d.join(format!("{}.mcap", "é".repeat(122)));
+        assert_eq!(path.file_name().unwrap().len(), 249);
+        write_text(&path, "whole").unwrap();
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), "whole");
+        let _ = std::fs::remove_dir_all(&d);
     }
 
     /// A text file is written whole or not at all: a failed write (here the name is a folder)

@@ -132,7 +132,7 @@ fn inproc_sample(text: &str, name: &str, seed: u64) -> Result<Sample> {
 fn realtime_sample(text: &str, name: &str, seed: u64, dir: &Path) -> Result<Sample> {
     let study = Study::new(config(text, name, seed)?).context("reference")?;
     std::fs::create_dir_all(dir)?;
-    std::fs::write(dir.join("config.toml"), study.config.to_toml_string())?;
+    crate::output::write_text(&dir.join("config.toml"), &study.config.to_toml_string())?;
     LAWS.iter()
         .map(|&law| {
             let ran = loops::run_law(&study, law, LoopMode::Realtime, dir, &Keep::default(), None)?;

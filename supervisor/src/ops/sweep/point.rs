@@ -467,7 +467,7 @@ fn run_one(
             .transpose()?;
         let study = Study::new(cfg).context("reference")?;
         if mode.is_process() {
-            std::fs::write(pdir.join("config.toml"), study.config.to_toml_string())?;
+            crate::output::write_text(&pdir.join("config.toml"), &study.config.to_toml_string())?;
         }
         let mut link = LinkResult::default();
         // A link point keeps its trace: its replay re-runs it from the recorded arrivals.

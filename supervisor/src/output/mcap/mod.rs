@@ -243,7 +243,7 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
     let dir = req.run_dir;
     let input = RunInput::read(dir)?;
     let path = req.out.clone().unwrap_or_else(|| dir.join(EXPORT_NAME));
-    check_out(dir, &input.cfg, &path, req.force)?;
+    check_out(dir, &input.cfg, &path, req.force, req.out.is_some())?;
     let named = || format!("cannot write {}", path.display());
     let tmp = crate::output::temp_beside(&path).with_context(named)?;
     let file = tmp.as_file().try_clone().with_context(named)?;
@@ -276,7 +276,7 @@ pub fn export(req: &ExportRequest<'_>) -> Result<Exported> {
 
 /// Refuses an output that would destroy the run (always) or replace a file unasked (without
 /// `force`), and any output that is not a regular file or is a symbolic link.
-fn check_out(dir: &Path, cfg: &RunConfig, out: &Path, force: bool) -> Result<()> {
+fn check_out(dir: &Path, cfg: &RunConfig, out: &Path, force: bool, given: bool) -> Result<()> {
     let shown = out.display();
     if let Some(what) = run_file(dir, cfg, out) {
         bail!(
@@ -303,6 +303,11 @@ fn check_out(dir: &Path, cfg: &RunConfig, out: &Path, force: bool) -> Result<()>
         );
     }
     if !force {
+        if !given {
+            bail!(
+                "{shown} exists (an earlier export): pass --force to replace it, or write elsewhere with --out FILE"
+            );
+        }
         bail!("--out {shown} exists: choose another --out, or pass --force to replace it");
     }
     Ok(())
