@@ -1120,3 +1120,43 @@ fn regression_a_far_controller_step_error_stops_the_lockstep_loop_at_once() {
         "the controller reported an error at tick 200",
     );
 }
+
+/// Regression: with the plant remote, a controller whose step reported an error (it said
+/// CONTROLLER_ERROR) stopped the far lockstep plant only after its silence timeout (2 s): the
+/// far bridge republished the message there but did not wake the plant, which reads it when it
+/// wakes. The far plant stops at the failing tick at once, naming the error, as on one host.
+#[test]
+fn regression_a_controller_step_error_stops_a_far_lockstep_plant_at_once() {
+    let Some(exe) = common::c_peer("c_controller_faults") else {
+        return;
+    };
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, cfg, key, ep) = s1_with_key();
+    let out = tmp.path().join("remote");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let controller = format!("--controller-cmd={} fail@200", exe.display());
+    let args = [
+        "run",
+        &s(&cfg),
+        "--mode",
+        "lockstep",
+        "--plant-remote",
+        &ep,
+        "--link-key",
+        &s(&key),
+        &controller,
+        "--out",
+        &s(&out),
+    ];
+    let run = common::spawn(&args);
+    let far_root = tmp.path().join("far-root");
+    let join = join_as(&ep, "plant", &key, &far_root);
+    let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
+    let _ = common::finish_within(join, Duration::from_secs(30), "join");
+    deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
+    common::assert_step_error_stopped_the_loop_at_once(
+        &out,
+        "the controller reported an error at tick 200",
+    );
+}

@@ -283,6 +283,11 @@ impl FarPlant {
                         .as_controller
                         .send_copy(said)
                         .ipc("send controller control")?;
+                    // The plant reads CONTROLLER_ERROR when it wakes: wake it now, as the
+                    // controller itself does, or a lockstep plant waits out its silence.
+                    if c.kind() == Some(ControlKind::ControllerError) {
+                        ports.torque_ready.notify().ipc("notify torque")?;
+                    }
                 }
             }
             Ok(())
