@@ -195,7 +195,7 @@ pub struct LinkReport {
     /// [`LinkKey::fingerprint`] of the link key.
     pub key_fingerprint: String,
     /// Connections refused before the far side joined: wrong key, silence or slowness, or no
-    /// room (the oldest dropped for a newer one).
+    /// room (one not yet proven dropped for a newer one).
     pub refused_connections: u64,
     /// Datagrams refused during the run, by reason: both hosts together (`near` + `far`).
     pub refused_datagrams: RefusedCounts,
