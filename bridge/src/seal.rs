@@ -611,7 +611,8 @@ impl Opener {
 pub enum HandshakeError {
     /// The peer does not hold this link key (or speaks another protocol).
     WrongKey,
-    /// The peer closed the connection.
+    /// The peer closed the connection: a near side drops one whose key fails, but also one it
+    /// had no time for (loaded, or flooded past its deadline), so this says nothing of the key.
     Closed,
     /// The peer did not finish within the deadline.
     Timeout,
@@ -629,10 +630,7 @@ impl std::fmt::Display for HandshakeError {
                 f,
                 "failed authentication: it does not hold this link key (or is not a deltaloop link)"
             ),
-            HandshakeError::Closed => write!(
-                f,
-                "closed the connection during the handshake (does it hold this link key?)"
-            ),
+            HandshakeError::Closed => write!(f, "closed the connection during the handshake"),
             HandshakeError::Timeout => write!(
                 f,
                 "did not complete the handshake within {} s",
