@@ -250,17 +250,21 @@ impl RefusedCounts {
     /// Bytes of the counts on the wire (a `Refused` frame).
     pub const WIRE: usize = 32;
 
+    /// All reasons together. Saturating, as [`Self::plus`]: the far side's counts are what it
+    /// sent, any u64.
     pub fn total(&self) -> u64 {
-        self.malformed + self.other_run + self.forged + self.replayed
+        [self.other_run, self.forged, self.replayed]
+            .iter()
+            .fold(self.malformed, |t, n| t.saturating_add(*n))
     }
 
-    /// Both sides' counts together.
+    /// Both sides' counts together (saturating: the far side's are what it sent).
     pub fn plus(self, o: Self) -> Self {
         Self {
-            malformed: self.malformed + o.malformed,
-            other_run: self.other_run + o.other_run,
-            forged: self.forged + o.forged,
-            replayed: self.replayed + o.replayed,
+            malformed: self.malformed.saturating_add(o.malformed),
+            other_run: self.other_run.saturating_add(o.other_run),
+            forged: self.forged.saturating_add(o.forged),
+            replayed: self.replayed.saturating_add(o.replayed),
         }
     }
 
@@ -514,7 +518,7 @@ impl Refusals {
     }
 
     pub fn total(&self) -> u64 {
-        self.counts.iter().sum()
+        self.counts.iter().fold(0, |t, n| t.saturating_add(*n))
     }
 
     /// `forged 3, replayed 1`; empty when none.
@@ -994,6 +998,26 @@ mod tests {
         );
         assert_eq!(r, Err(HandshakeError::OtherVersion(None)));
         drop((c, s));
+    }
+
+    /// Regression: the counts of a REFUSED frame are whatever the far side sent, and adding them
+    /// (both hosts' together, the total) overflowed and panicked the near bridge. They saturate.
+    #[test]
+    fn regression_refused_counts_from_the_far_side_cannot_overflow() {
+        let max = RefusedCounts::from_wire(&[0xff; RefusedCounts::WIRE]).unwrap();
+        assert_eq!(max.total(), u64::MAX);
+        let near = RefusedCounts {
+            forged: 3,
+            ..RefusedCounts::default()
+        };
+        let both = near.plus(max);
+        assert_eq!((both.forged, both.malformed), (u64::MAX, u64::MAX));
+        assert_eq!(both.total(), u64::MAX);
+        assert!(both.describe().contains(&format!("forged {}", u64::MAX)));
+        let r = Refusals {
+            counts: [u64::MAX; 4],
+        };
+        assert_eq!(r.total(), u64::MAX);
     }
 
     /// A connection the near side drops for want of room hears the busy notice: the far side
