@@ -478,6 +478,12 @@ fn relay(
                 host: ControllerHost::new(spin_ns, false),
             };
             let code = f.forward(link, term)?;
+            if f.host.stale > 0 {
+                eprintln!(
+                    "deltaloop-bridge: {} state(s) of a backlog not passed on to the controller (a newer one went instead)",
+                    f.host.stale
+                );
+            }
             if f.host.refused_recalls() > 0 {
                 eprintln!(
                     "deltaloop-bridge: warning: refused {} recall(s) of replies from the near side (malformed, beyond the ring, or too many at once)",
