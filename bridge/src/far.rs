@@ -465,10 +465,12 @@ fn refuse(tcp: &mut Tcp, why: String) -> Result<(u8, Option<String>)> {
 
 /// Relays the run between the local process's ports and the link until it ends; its exit code.
 /// `(spin_ns, mode, far_emu)`: how this side polls, the loop mode, and its emulated link.
+/// `named`: the READY text naming a controller of the user's ([`ready_naming`]).
 fn relay(
     ports: Either,
     link: &mut FarLink,
     (spin_ns, mode, far_emu): (u64, LoopMode, crate::emulation::Emulation),
+    named: Option<[u8; 160]>,
     term: &AtomicBool,
 ) -> Result<u8> {
     Ok(match ports {
@@ -476,6 +478,7 @@ fn relay(
             let mut f = Far {
                 ports,
                 host: ControllerHost::new(spin_ns, false),
+                named,
             };
             let code = f.forward(link, term)?;
             if f.host.stale > 0 {
@@ -582,7 +585,8 @@ fn serve(
         near_gone_ns: None,
         next_check: 0,
     };
-    let code = relay(ports, &mut link, (spin_ns, mode, far_emu), term)?;
+    let named = a.controller_cmd.as_ref().and_then(|_| ready_naming(cmd));
+    let code = relay(ports, &mut link, (spin_ns, mode, far_emu), named, term)?;
     link.report(code)?;
     std::thread::sleep(ipc::LINGER);
     let line = (!link.child.last_line.is_empty()).then(|| link.child.last_line.clone());

@@ -509,6 +509,8 @@ fn strangers_and_wrong_keys_are_refused_and_the_honest_join_runs_byte_identical(
         "trace.csv across the sealed link differs from inproc"
     );
     let s = summary(&remote);
+    // The built-in controller on the far host, not a foreign one (nor the near bridge).
+    assert!(s.get("controller_label").is_none(), "{s}");
     let sec = &s["timing"]["tdc"]["link_security"];
     let fp = deltaloop_bridge::seal::LinkKey::read(&key)
         .unwrap()
@@ -1229,4 +1231,32 @@ fn regression_a_controller_step_error_stops_a_far_lockstep_plant_at_once() {
         &out,
         "the controller reported an error at tick 200",
     );
+}
+
+/// Regression: a foreign controller on the far host was not labelled on the supervisor's host:
+/// the label falls back to the run's `controller.command`, which with `--controller-remote` is
+/// empty (the command is `join --controller-cmd`'s). The far bridge names a controller that
+/// does not name itself in its READY after its command, as a local one is named: the terminal
+/// table, summary.json and report.md show it.
+#[test]
+fn regression_a_far_controller_of_the_users_is_labelled_on_the_supervisors_host() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, cfg, key, ep) = s1_with_key();
+    // The built-in controller under a name of this test's (it says nothing in its READY).
+    let named = tmp.path().join("rig-law-7");
+    std::os::unix::fs::symlink(env!("CARGO_BIN_EXE_deltaloop-controller"), &named).unwrap();
+    let out = tmp.path().join("remote");
+    let run = common::spawn(&remote_lockstep(&cfg, &ep, &key, &out));
+    let far_root = tmp.path().join("far-root");
+    let join = join_with_cmd(&ep, &key, &far_root, named.to_str().unwrap());
+    let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
+    let j = common::finish_within(join, Duration::from_secs(30), "join");
+    deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(j.status.success(), "join: {}", text(&j.stderr));
+    assert_eq!(summary(&out)["controller_label"], "rig-law-7");
+    let stdout = text(&o.stdout);
+    assert!(stdout.contains("tdc (rig-law-7)"), "{stdout}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("Controller: `rig-law-7`"), "{report}");
 }
