@@ -905,7 +905,11 @@ fn joins(mut s: std::net::TcpStream, key: &deltaloop_bridge::seal::LinkKey) -> b
     let t0 = std::time::Instant::now();
     while t0.elapsed() < Duration::from_secs(30) && !tcp.closed {
         let mut join = false;
-        if tcp.poll(|k, _| Ok(join |= k == Kind::Join)).is_err() {
+        let heard = tcp.poll(|k, _| {
+            join |= k == Kind::Join;
+            Ok(())
+        });
+        if heard.is_err() {
             return false;
         }
         if join {
