@@ -166,10 +166,10 @@ pub(super) struct Far {
     pub(super) named: Option<[u8; 160]>,
 }
 
-/// The READY text that names a controller started with `cmd` (None: the built-in one), as
+/// The READY text that names a controller of the user's started with `cmd`, as
 /// `RunConfig::controller_label` names a local one: the supervisor on the other host labels a
 /// foreign controller by its READY text, else by its own config's command, which for a remote
-/// controller is empty (it is `join`'s).
+/// controller is the near bridge and names nothing.
 pub(super) fn ready_naming(cmd: &[String]) -> Option<[u8; 160]> {
     let label = deltaloop_config::ControllerSection::command_label(cmd)?;
     Some(ControlMsg::with_text(ControlKind::Ready, Sender::Controller, 0, &label).text)
