@@ -325,8 +325,18 @@ impl PlantSidePorts {
     }
 }
 
-/// How long a far side waits before it connects again to a near side that said it was busy.
-const BUSY_RETRY: Duration = Duration::from_millis(200);
+/// How long a far side waits before it connects again to a near side that said it was busy,
+/// closed the connection or did not answer in time.
+const RETRY: Duration = Duration::from_millis(200);
+
+/// Whether a failed handshake is worth another connection: the near side was busy, closed the
+/// connection or did not answer in time, which a flood of connections or a loaded host causes
+/// as well as a wrong key would (the near side's log says which). An answer that does not
+/// authenticate is the key's fault, and final.
+fn retried(e: &seal::HandshakeError) -> bool {
+    use seal::HandshakeError::*;
+    matches!(e, Busy | Closed | Timeout)
+}
 
 /// One handshake on `stream` ([`seal::initiate`], within [`seal::HANDSHAKE_BUDGET`] all told,
 /// however the near side paces its answer). A SIGTERM during it shuts the socket, so the
@@ -356,33 +366,47 @@ fn handshake(
 }
 
 /// Proves the link key to the near side ([`seal::initiate`]: a near side without it cannot
-/// answer) and says which role this side joined for, the first sealed frame. A near side busy
-/// with other connections (a flood) is tried again until `--wait-s` runs out, whatever
-/// `--runs` says. One line naming the near side otherwise.
+/// answer) and says which role this side joined for, the first sealed frame. A handshake that
+/// failed for want of the near side's attention ([`retried`]) is tried again until `--wait-s`
+/// runs out, whatever `--runs` says. One line naming the near side otherwise.
 fn join(a: &Args, mut stream: TcpStream, term: &AtomicBool) -> Result<(Tcp, Session)> {
     let key = LinkKey::from_env().map_err(anyhow::Error::msg)?;
     let end = rt::now_ns().saturating_add(a.wait_s.saturating_mul(1_000_000_000));
-    let mut said = false;
+    // The last failure said, so each kind is said once, not at every try.
+    let mut said = None;
     let session = loop {
         match handshake(&mut stream, &key, term)? {
-            Err(seal::HandshakeError::Busy)
-                if (a.wait_s == 0 || rt::now_ns() < end) && !term.load(Ordering::Relaxed) =>
+            Ok(s) => break s,
+            Err(e)
+                if retried(&e)
+                    && (a.wait_s == 0 || rt::now_ns() < end)
+                    && !term.load(Ordering::Relaxed) =>
             {
-                if !said {
+                if said.as_ref() != Some(&e) {
+                    let until = match a.wait_s {
+                        0 => String::new(),
+                        s => format!(" for up to {s} s"),
+                    };
                     eprintln!(
-                        "deltaloop-bridge: the near side at {} {}; trying again",
+                        "deltaloop-bridge: the near side at {} {e}; trying again{until} (this side's link key: {})",
                         a.connect,
-                        seal::HandshakeError::Busy
+                        key.fingerprint()
                     );
-                    said = true;
+                    said = Some(e);
                 }
-                std::thread::sleep(BUSY_RETRY);
+                std::thread::sleep(RETRY);
                 let Some(s) = connect(a, term)? else {
                     bail!("interrupted while joining the near side at {}", a.connect);
                 };
                 stream = s;
             }
-            r => break r.map_err(|e| anyhow::anyhow!("the near side at {} {e}", a.connect))?,
+            Err(e) if retried(&e) && !term.load(Ordering::Relaxed) => bail!(
+                "the near side at {} {e}, every try until --wait-s {} ran out (this side's link key: {}; the near side's log says why it turned this side away)",
+                a.connect,
+                a.wait_s,
+                key.fingerprint()
+            ),
+            Err(e) => bail!("the near side at {} {e}", a.connect),
         }
     };
     let mut tcp = Tcp::new(stream, &session, End::Far)?;
@@ -441,10 +465,12 @@ fn refuse(tcp: &mut Tcp, why: String) -> Result<(u8, Option<String>)> {
 
 /// Relays the run between the local process's ports and the link until it ends; its exit code.
 /// `(spin_ns, mode, far_emu)`: how this side polls, the loop mode, and its emulated link.
+/// `named`: the READY text naming a controller of the user's ([`ready_naming`]).
 fn relay(
     ports: Either,
     link: &mut FarLink,
     (spin_ns, mode, far_emu): (u64, LoopMode, crate::emulation::Emulation),
+    named: Option<[u8; 160]>,
     term: &AtomicBool,
 ) -> Result<u8> {
     Ok(match ports {
@@ -452,8 +478,15 @@ fn relay(
             let mut f = Far {
                 ports,
                 host: ControllerHost::new(spin_ns, false),
+                named,
             };
             let code = f.forward(link, term)?;
+            if f.host.stale > 0 {
+                eprintln!(
+                    "deltaloop-bridge: {} state(s) of a backlog not passed on to the controller (a newer one went instead)",
+                    f.host.stale
+                );
+            }
             if f.host.refused_recalls() > 0 {
                 eprintln!(
                     "deltaloop-bridge: warning: refused {} recall(s) of replies from the near side (malformed, beyond the ring, or too many at once)",
@@ -552,7 +585,8 @@ fn serve(
         near_gone_ns: None,
         next_check: 0,
     };
-    let code = relay(ports, &mut link, (spin_ns, mode, far_emu), term)?;
+    let named = a.controller_cmd.as_ref().and_then(|_| ready_naming(cmd));
+    let code = relay(ports, &mut link, (spin_ns, mode, far_emu), named, term)?;
     link.report(code)?;
     std::thread::sleep(ipc::LINGER);
     let line = (!link.child.last_line.is_empty()).then(|| link.child.last_line.clone());

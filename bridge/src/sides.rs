@@ -354,6 +354,8 @@ pub struct ControllerHost {
     pub last_state: Option<StateMsg>,
     /// The ticks of the last [`RECENT`] states published here (slot: tick % RECENT).
     recent: [u64; RECENT],
+    /// States of a backlog not published: a newer one that came with them went instead.
+    pub stale: u64,
 }
 
 /// Bytes queued on the control connection above which a recall waits for the next turn.
@@ -381,6 +383,7 @@ impl ControllerHost {
             local_stamps,
             last_state: None,
             recent: [u64::MAX; RECENT],
+            stale: 0,
         }
     }
 
@@ -501,8 +504,11 @@ impl ControllerHost {
                 self.stash = Some(s);
             } else if self.local_stamps {
                 self.publish_state(ports, s)?;
-            } else if newest.is_none_or(|n| n.tick < s.tick) {
-                newest = Some(s);
+            } else if let Some(n) = newest.filter(|n| n.tick >= s.tick) {
+                // Older than one that came with it (the same state twice is no backlog).
+                self.stale += u64::from(n.tick > s.tick);
+            } else if newest.replace(s).is_some() {
+                self.stale += 1;
             }
         }
         if let Some(s) = newest {
@@ -655,6 +661,38 @@ mod tests {
                 assert_eq!(host.counts().stale, 99);
             }
         }
+    }
+
+    /// Regression: the far bridge of a remote controller published only the newest of the
+    /// states that came together, and dropped the others uncounted, while the protocol says
+    /// they are counted in its closing line (as the plant's host counts its own). Ten states in
+    /// one wake-up, one of them twice: the newest is published, the nine older ones counted,
+    /// the repeat not.
+    #[test]
+    fn regression_the_controllers_host_counts_the_states_of_a_backlog_it_drops() {
+        let run_id = format!("sides-stale-{}", std::process::id());
+        let node = ipc::node("plant", &run_id).unwrap();
+        let ends = ipc::plant_loop(&node, &run_id, ipc::RELAY_BUFFER).unwrap();
+        let controller = ipc::controller_loop(&node, &run_id, 16).unwrap();
+        let (mut near, _tcp, mut far, _far_tcp) = link();
+        let mut host = ControllerHost::new(0, false);
+        host.start((&ends.0, &ends.2)).unwrap();
+        for tick in (0..10).chain([9]) {
+            let s = StateMsg {
+                tick,
+                ..StateMsg::default()
+            };
+            near.send(Kind::State, &[bytes_of(&s)], rt::now_ns())
+                .unwrap();
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        assert!(host.states((&ends.0, &ends.2), &mut far).unwrap());
+        let mut published = Vec::new();
+        while let Some(s) = controller.0.receive().unwrap() {
+            published.push(s.payload().tick);
+        }
+        assert_eq!(published, [9]);
+        assert_eq!(host.stale, 9);
     }
 
     /// A burst of six reply datagrams lost between the far side and a tap on the way (more than

@@ -161,6 +161,18 @@ impl FarLink {
 pub(super) struct Far {
     pub(super) ports: Ports,
     pub(super) host: ControllerHost,
+    /// The READY text of `--controller-cmd`'s label, for a controller that does not name itself
+    /// (see [`ready_naming`]).
+    pub(super) named: Option<[u8; 160]>,
+}
+
+/// The READY text that names a controller of the user's started with `cmd`, as
+/// `RunConfig::controller_label` names a local one: the supervisor on the other host labels a
+/// foreign controller by its READY text, else by its own config's command, which for a remote
+/// controller is the near bridge and names nothing.
+pub(super) fn ready_naming(cmd: &[String]) -> Option<[u8; 160]> {
+    let label = deltaloop_config::ControllerSection::command_label(cmd)?;
+    Some(ControlMsg::with_text(ControlKind::Ready, Sender::Controller, 0, &label).text)
 }
 
 impl Far {
@@ -182,7 +194,13 @@ impl Far {
 
     pub(super) fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
         while let Some(s) = self.ports.control_in.receive().ipc("receive control")? {
-            let c = *s.payload();
+            let mut c = *s.payload();
+            if let Some(text) = self.named
+                && c.kind() == Some(ControlKind::Ready)
+                && c.text[0] == 0
+            {
+                c.text = text;
+            }
             if c.kind().is_some_and(ControlKind::said_by_controller) {
                 l.tcp.send(Kind::Control, &[bytes_of(&c)])?;
             }
@@ -283,6 +301,11 @@ impl FarPlant {
                         .as_controller
                         .send_copy(said)
                         .ipc("send controller control")?;
+                    // The plant reads CONTROLLER_ERROR when it wakes: wake it now, as the
+                    // controller itself does, or a lockstep plant waits out its silence.
+                    if c.kind() == Some(ControlKind::ControllerError) {
+                        ports.torque_ready.notify().ipc("notify torque")?;
+                    }
                 }
             }
             Ok(())

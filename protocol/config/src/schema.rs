@@ -410,6 +410,35 @@ impl Default for ControllerSection {
     }
 }
 
+impl ControllerSection {
+    /// What a run calls a controller started with `command` (program, then arguments): the file
+    /// name of its program, or of its script for an interpreter (`python3 x.py` is `x.py`);
+    /// `env [-…] [K=V…] prog …` is `prog`'s. None for no command (the built-in controller).
+    pub fn command_label(command: &[String]) -> Option<String> {
+        // One line, bounded: a command's words are only checked for NUL.
+        let base = |w: &str| w.rsplit('/').next().unwrap_or(w).to_string();
+        let file = |w: &str| show_path(Path::new(&base(w)));
+        // `env [-…] [K=V…] prog …` runs `prog`.
+        let words: Vec<&str> = command.iter().map(String::as_str).collect();
+        let words = match words.split_first() {
+            Some((env, rest)) if base(env) == "env" => {
+                let at = rest
+                    .iter()
+                    .position(|w| !w.starts_with('-') && !w.contains('='))
+                    .unwrap_or(rest.len());
+                &rest[at..]
+            }
+            _ => &words[..],
+        };
+        let (program, args) = words.split_first()?;
+        let script = args.iter().find(|w| !w.starts_with('-'));
+        Some(match script {
+            Some(s) if is_interpreter(&base(program)) => file(s),
+            _ => file(program),
+        })
+    }
+}
+
 /// `[loop]`: timing of the control loop and the process layout per mode.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -628,33 +657,23 @@ impl RunConfig {
 
     /// What the run calls its controller (see [`ControllerSection::label`]): the label, or the
     /// file name of the command's program (of its script, for an interpreter: `python3 x.py` is
-    /// `x.py`); None for the built-in controller.
+    /// `x.py`); None for the built-in controller. With the controller on another host
+    /// (`[link] remote = "controller"`) the command is the near bridge that stands in for it,
+    /// not the controller: only the label counts (the far side names a controller of the
+    /// user's in its READY).
     pub fn controller_label(&self) -> Option<String> {
         let c = &self.controller;
         if !c.label.is_empty() {
             return Some(c.label.clone());
         }
-        // One line, bounded: a command's words are only checked for NUL.
-        let base = |w: &str| w.rsplit('/').next().unwrap_or(w).to_string();
-        let file = |w: &str| show_path(Path::new(&base(w)));
-        // `env [-…] [K=V…] prog …` runs `prog`.
-        let words: Vec<&str> = c.command.iter().map(String::as_str).collect();
-        let words = match words.split_first() {
-            Some((env, rest)) if base(env) == "env" => {
-                let at = rest
-                    .iter()
-                    .position(|w| !w.starts_with('-') && !w.contains('='))
-                    .unwrap_or(rest.len());
-                &rest[at..]
-            }
-            _ => &words[..],
-        };
-        let (program, args) = words.split_first()?;
-        let script = args.iter().find(|w| !w.starts_with('-'));
-        Some(match script {
-            Some(s) if is_interpreter(&base(program)) => file(s),
-            _ => file(program),
-        })
+        if self
+            .link
+            .as_ref()
+            .is_some_and(|l| l.remote == RemoteSide::Controller)
+        {
+            return None;
+        }
+        ControllerSection::command_label(&c.command)
     }
 
     /// The plant's wake lateness beyond which the overrun policy acts, ns (see
@@ -752,6 +771,27 @@ mod tests {
         assert_eq!(label(&["env", "FOO=1", "-i", "ctrl", "a"]), some("ctrl"));
         assert_eq!(label(&["env", "python3", "law.py"]), some("law.py"));
         assert_eq!(label(&["sh", "-c", "run.sh"]), some("run.sh"));
+    }
+
+    /// Regression: with the controller on another host the run's controller command is the
+    /// near bridge, and a built-in far controller was labelled `deltaloop-bridge` as a foreign
+    /// one. The near bridge is nobody's label; an explicit label still is.
+    #[test]
+    fn regression_a_remote_controller_is_not_labelled_after_the_near_bridge() {
+        let mut c = RunConfig::from_toml_str(
+            &format!(
+                "{MIN}[link]
+remote = \"controller\"
+listen = \"127.0.0.1:7447\"
+"
+            ),
+            None,
+        )
+        .unwrap();
+        c.controller.command = vec!["/opt/dl/deltaloop-bridge".into(), "near".into()];
+        assert_eq!(c.controller_label(), None);
+        c.controller.label = "rig".into();
+        assert_eq!(c.controller_label(), Some("rig".into()));
     }
 
     #[test]

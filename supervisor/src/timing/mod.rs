@@ -590,6 +590,28 @@ pub fn hgrm(h: &Histogram<u64>, what: &str) -> String {
 mod tests {
     use super::*;
 
+    /// Regression: the near bridge's link report carries counts the far side sent (any u64);
+    /// adding them for the note and the report overflowed and panicked the supervisor. A report
+    /// of u64::MAX counts reads, and is said, saturated.
+    #[test]
+    fn regression_a_link_report_of_huge_counts_does_not_overflow() {
+        let max = u64::MAX;
+        let counts = format!(
+            r#"{{"malformed": {max}, "other_run": {max}, "forged": {max}, "replayed": 1}}"#
+        );
+        let json = format!(
+            r#"{{"peer": "10.0.0.2:4000", "key_fingerprint": "sha256:00", "refused_connections": {max},
+                "refused_datagrams": {counts}, "near": {{"refused_datagrams": {counts}}},
+                "far": {{"refused_datagrams": {counts}}}}}"#
+        );
+        let d = tempfile::tempdir().unwrap();
+        let path = d.path().join("link-r1.json");
+        std::fs::write(&path, json).unwrap();
+        let r = LinkReport::read(&path).expect("a link report");
+        let note = link_refusals_note(Some(&r)).unwrap();
+        assert!(note.contains(&format!("and {max} datagram(s)")), "{note}");
+    }
+
     /// Tick k of a realtime loop at Ts = 0.3 ms with made-up stamps (a few µs to a few hundred
     /// µs, varying from tick to tick); every 997th tick is missed.
     /// The link's round trip subtracts the time on the controller's host: with the controller
