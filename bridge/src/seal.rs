@@ -42,6 +42,12 @@ pub const VERSION_MAGIC: [u8; 4] = *b"DLLK";
 /// The length a near side of another version answers with in place of a handshake message,
 /// followed by its own [`LINK_VERSION`] (`u16`, LE).
 const OTHER_VERSION: u16 = u16::MAX;
+/// The length a near side answers with in place of its handshake message when the far side's
+/// first message did not authenticate (another link key): the far side stops trying at once
+/// instead of taking the closed connection for a busy or flooded near side. Like the busy
+/// notice it proves nothing (anyone on the path could send it, as anyone could reset the
+/// connection).
+const REFUSED: u16 = u16::MAX - 1;
 /// Width of the UDP replay window, datagrams.
 pub const WINDOW: u64 = 1024;
 /// How long a connection has, all told, for the handshake's two messages (and, on the near
@@ -743,9 +749,13 @@ fn recv_msg(
 ) -> Result<usize, HandshakeError> {
     let mut l = [0u8; 2];
     read_exact_by(s, &mut l, end)?;
-    if u16::from_le_bytes(l) == OTHER_VERSION {
-        read_exact_by(s, &mut l, end)?;
-        return Err(HandshakeError::OtherVersion(Some(u16::from_le_bytes(l))));
+    match u16::from_le_bytes(l) {
+        OTHER_VERSION => {
+            read_exact_by(s, &mut l, end)?;
+            return Err(HandshakeError::OtherVersion(Some(u16::from_le_bytes(l))));
+        }
+        REFUSED => return Err(HandshakeError::WrongKey),
+        _ => {}
     }
     let n = u16::from_le_bytes(l) as usize;
     if n > MAX_HANDSHAKE {
@@ -815,8 +825,11 @@ pub fn respond(
     }
     let (mut m, mut p) = ([0u8; MAX_HANDSHAKE], [0u8; MAX_HANDSHAKE]);
     let n = recv_msg(s, &mut m, end)?;
-    hs.read_message(&m[..n], &mut p)
-        .map_err(|_| HandshakeError::WrongKey)?;
+    if hs.read_message(&m[..n], &mut p).is_err() {
+        // Says so, best effort: the far side then names the key at once (see [`REFUSED`]).
+        let _ = write_all_by(s, &REFUSED.to_le_bytes(), end);
+        return Err(HandshakeError::WrongKey);
+    }
     let n = hs
         .write_message(&session.encode(), &mut m)
         .map_err(|e| HandshakeError::Other(e.to_string()))?;
@@ -1050,6 +1063,23 @@ mod tests {
         let (n, f) = handshake(&k, &other);
         assert_eq!(n, Err(HandshakeError::WrongKey));
         assert!(f.is_err());
+    }
+
+    /// Regression: a far side with another link key heard only a closed connection, which it
+    /// takes for a busy or flooded near side and tries again until `--wait-s` (120 s) runs out.
+    /// The near side says it refused the key, and the far side names the key at once.
+    #[test]
+    fn regression_a_far_side_with_another_key_is_told_so_at_once() {
+        let (near, far) = (LinkKey::generate().unwrap(), LinkKey::generate().unwrap());
+        let t0 = Instant::now();
+        let (n, f) = handshake(&near, &far);
+        assert_eq!(n, Err(HandshakeError::WrongKey));
+        let Err(e) = f else {
+            panic!("another key opened a session")
+        };
+        assert_eq!(e, HandshakeError::WrongKey);
+        assert!(e.to_string().contains("link key"), "{e}");
+        assert!(t0.elapsed() < Duration::from_secs(1), "{:?}", t0.elapsed());
     }
 
     /// Header, counter, and ciphertext followed by its tag.

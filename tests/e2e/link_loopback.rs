@@ -471,25 +471,23 @@ fn strangers_and_wrong_keys_are_refused_and_the_honest_join_runs_byte_identical(
         "the stranger was told {} bytes",
         heard.len()
     );
-    // A join with another key: refused at every try (as a flood or a loaded near side could
-    // turn it away: it tries again, and blames no key) until its --wait-s runs out.
+    // A join with another key: the near side says it refused the key, and the join names the
+    // key at once (it does not take the refusal for a busy near side and wait out --wait-s).
     let t0 = std::time::Instant::now();
     let wrong = Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(["join", &ep, "--role", "controller", "--wait-s", "3"])
+        .args(["join", &ep, "--role", "controller", "--wait-s", "60"])
         .args(["--link-key", other.to_str().unwrap()])
         .env("DELTALOOP_IOX2_ROOT", tmp.path().join("root-wrong"))
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let w = common::finish_within(wrong, Duration::from_secs(15), "join with another key");
+    let w = common::finish_within(wrong, Duration::from_secs(30), "join with another key");
     assert!(t0.elapsed() < Duration::from_secs(10), "{:?}", t0.elapsed());
     assert_eq!(w.status.code(), Some(3));
     let said = text(&w.stderr);
     assert!(
-        said.contains("closed the connection during the handshake; trying again")
-            && said.contains("until --wait-s 3 ran out")
-            && !said.contains("link key?"),
+        said.contains("does not hold this link key") && !said.contains("trying again"),
         "{said}"
     );
     // The honest side, last: the run completes as if the others had never been there.
