@@ -347,9 +347,11 @@ pub struct ControllerHost {
     /// When each of the last [`ARRIVALS`] states arrived: (tick, ns) at slot tick % ARRIVALS, so
     /// a reply to an older state still gets its residence here.
     arrivals: [(u64, u64); ARRIVALS],
-    /// Move the states' time stamps onto this host's clock (their publication = their arrival
-    /// here): where the supervisor observes them on this host (`--plant-remote`).
+    /// Move the states' time stamps onto this host's clock: where the supervisor observes them
+    /// on this host (`--plant-remote`).
     local_stamps: bool,
+    /// The offset that moves them (see [`Offset`]).
+    offset: Offset,
     /// The last state published here (the one to release the controller with if the link dies).
     pub last_state: Option<StateMsg>,
     /// The ticks of the last [`RECENT`] states published here (slot: tick % RECENT).
@@ -360,6 +362,45 @@ pub struct ControllerHost {
 
 /// Bytes queued on the control connection above which a recall waits for the next turn.
 const RECALL_ROOM: usize = 1 << 20;
+
+/// The offset from the far host's clock to this one, ns: the smallest of (arrival here −
+/// publication there) over the last one to two blocks of [`OFFSET_BLOCK`] states, that is the
+/// clocks' offset plus the quickest recent trip. A windowed minimum, so that it follows the two
+/// clocks' drift over a long run; O(1) per state, no allocation.
+#[derive(Clone, Copy, Debug)]
+struct Offset {
+    /// The minimum of the block being filled, and of the one before it.
+    current: i64,
+    previous: i64,
+    /// States in the current block.
+    n: u32,
+}
+
+/// States per block of the [`Offset`] window (0.3–0.6 s at 3.3 kHz).
+const OFFSET_BLOCK: u32 = 1024;
+
+impl Default for Offset {
+    fn default() -> Self {
+        Self {
+            current: i64::MAX,
+            previous: i64::MAX,
+            n: 0,
+        }
+    }
+}
+
+impl Offset {
+    /// Takes one state's (arrival − publication) and returns the offset in force.
+    fn add(&mut self, seen: i64) -> i64 {
+        self.current = self.current.min(seen);
+        self.n += 1;
+        let offset = self.current.min(self.previous);
+        if self.n == OFFSET_BLOCK {
+            (self.previous, self.current, self.n) = (self.current, i64::MAX, 0);
+        }
+        offset
+    }
+}
 
 /// States whose arrival time a [`ControllerHost`] keeps.
 const ARRIVALS: usize = 64;
@@ -381,6 +422,7 @@ impl ControllerHost {
             replies: Outbox::default(),
             arrivals: [(u64::MAX, 0); ARRIVALS],
             local_stamps,
+            offset: Offset::default(),
             last_state: None,
             recent: [u64::MAX; RECENT],
             stale: 0,
@@ -538,15 +580,19 @@ impl ControllerHost {
         self.poll_until = now + self.spin_ns;
         s.t_poll_until_ns = self.poll_until;
         if self.local_stamps {
-            let at = s.t_publish_ns;
+            // The far clock's stamps move by the offset seen on the quickest recent states, not by
+            // this state's own: a state held up on the way (a stalled bridge, a queue) keeps its
+            // deadline, and is late, instead of moving every later deadline by its delay.
+            let offset = self.offset.add(now.wrapping_sub(s.t_publish_ns) as i64);
             let shift = |t: u64| {
                 if t == 0 {
                     0
                 } else {
-                    t.saturating_add(now).saturating_sub(at)
+                    t.wrapping_add(offset as u64)
                 }
             };
             (s.t_deadline_ns, s.t_wake_ns) = (shift(s.t_deadline_ns), shift(s.t_wake_ns));
+            // Its publication here is its arrival: what the controller's latency counts from.
             s.t_publish_ns = now;
         }
         // A reply is owed for the newest state only (not the final one, nor an older one
@@ -591,6 +637,30 @@ pub type PlantEnds<'a> = (
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression (`--plant-remote`): each state's stamps moved by its own delay, so the states a
+    /// stalled near bridge published late moved every later deadline by the stall, the
+    /// controller's schedule followed, and the run ended in a silence fault. The offset is the
+    /// smallest of the recent delays: a late state does not move it; a lasting change of the
+    /// clocks' offset (drift) is followed within two blocks.
+    #[test]
+    fn regression_a_late_state_does_not_move_the_clock_offset() {
+        let mut o = Offset::default();
+        for _ in 0..100 {
+            assert_eq!(o.add(1_000_000), 1_000_000);
+        }
+        // A 100 ms stall: the backlog arrives up to 100 ms late.
+        for late in (0..330).rev() {
+            assert_eq!(o.add(1_000_000 + late * 300_000), 1_000_000);
+        }
+        assert_eq!(o.add(1_000_000), 1_000_000);
+        // The clocks drift 1 µs apart: followed once the older blocks are out of the window.
+        let mut now = 0;
+        for _ in 0..(2 * OFFSET_BLOCK + 1) {
+            now = o.add(1_001_000);
+        }
+        assert_eq!(now, 1_001_000);
+    }
     use crate::emulation::Emulation;
     use crate::seal::{End, Session};
     use std::net::{TcpListener, TcpStream, UdpSocket};

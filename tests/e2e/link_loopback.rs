@@ -1262,3 +1262,84 @@ fn regression_a_far_controller_of_the_users_is_labelled_on_the_supervisors_host(
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("Controller: `rig-law-7`"), "{report}");
 }
+
+/// Regression (`--plant-remote`): the near bridge moved each state's stamps onto this host's
+/// clock by that state's own delay, so after a 200 ms stall of the near bridge every later
+/// deadline moved by the stall, the controller's schedule followed, and no reply was applied
+/// again (300 missed, 3 skipped, 1 late, repeating) until the silence fault. The stamps move by
+/// the clocks' offset: the loop applies replies again after the stall. Judged against the same
+/// run before the stall, so a host that disturbs the whole run says nothing (run again).
+#[test]
+fn regression_a_remote_plant_loop_recovers_after_a_near_bridge_stall() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    common::on_a_noisy_host(
+        "a_remote_plant_loop_recovers_after_a_near_bridge_stall",
+        |_| {
+            let (tmp, cfg, key, ep) = s1_with_key();
+            let out = tmp.path().join("run");
+            let s = |p: &Path| p.to_str().unwrap().to_string();
+            let args = [
+                "run",
+                &s(&cfg),
+                "--mode",
+                "realtime",
+                "--plant-remote",
+                &ep,
+                "--link-key",
+                &s(&key),
+                "--hold-s",
+                "4",
+                "--out",
+                &s(&out),
+            ];
+            let run = common::spawn(&args);
+            let near = near_bridge_of(run.id());
+            let far_root = tmp.path().join("far-root");
+            let join = join_as(&ep, "plant", &key, &far_root);
+            let log = out.join("tdc.plant.log");
+            let t0 = std::time::Instant::now();
+            while !std::fs::read_to_string(&log).is_ok_and(|l| l.contains("joined")) {
+                assert!(t0.elapsed() < Duration::from_secs(60), "nobody joined");
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            // Three stalls of 200 ms, 0.8 s apart (one left the loop unrecovered in about half
+            // the runs before the fix).
+            std::thread::sleep(Duration::from_millis(1000));
+            for _ in 0..3 {
+                // SAFETY: the run's child, the near bridge.
+                unsafe { libc::kill(near, libc::SIGSTOP) };
+                std::thread::sleep(Duration::from_millis(200));
+                unsafe { libc::kill(near, libc::SIGCONT) };
+                std::thread::sleep(Duration::from_millis(600));
+            }
+            let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
+            let _ = common::finish_within(join, Duration::from_secs(30), "join");
+            deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+            let trace = rows(&out.join("trace.csv"));
+            assert!(!trace.is_empty(), "no trace: {}", text(&o.stderr));
+            let applied: Vec<bool> = trace.iter().map(|r| r["reply"] == "applied").collect();
+            let share =
+                |r: &[bool]| r.iter().filter(|a| **a).count() as f64 / r.len().max(1) as f64;
+            // Before the first stall (the first 0.9 s of the loop), and the last second of the run,
+            // which must have come (S1 + 4 s hold: 16,001 ticks).
+            let before = share(&applied[..3000.min(applied.len())]);
+            let last = share(&applied[applied.len().saturating_sub(3333)..]);
+            eprintln!(
+                "{} ticks; {before:.2} applied before the stalls, {last:.2} in the last second",
+                applied.len()
+            );
+            if before < 0.5 {
+                return Err(format!(
+                    "the loop was already disturbed: {before:.2} applied before"
+                ));
+            }
+            assert!(
+                applied.len() == 16_001 && last > 0.5,
+                "{before:.2} of the replies applied before the stalls, {last:.2} in the last second of {} ticks: {}",
+                applied.len(),
+                text(&o.stderr)
+            );
+            Ok(())
+        },
+    );
+}
