@@ -345,12 +345,11 @@ enum Room {
     Proven,
 }
 
-/// A random index below `n` (> 0), from xorshift64* state `x`.
-fn below(x: &mut u64, n: usize) -> usize {
-    *x ^= *x >> 12;
-    *x ^= *x << 25;
-    *x ^= *x >> 27;
-    (x.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 32) as usize % n
+/// A random index below `n` (> 0), from the system's randomness: which unproven connection
+/// makes room, so that neither the oldest nor the newest can be pushed out by a flood timed
+/// against the rule (only when one must be dropped, off every loop); 0 if the system has none.
+fn below(n: usize) -> usize {
+    seal::random_bytes().map_or(0, |b| (u64::from_ne_bytes(b) % n as u64) as usize)
 }
 
 /// The connections being authenticated, at most [`MAX_PENDING`] ([`MAX_PER_SOURCE`] from one
@@ -361,9 +360,6 @@ struct Gate {
     tell: std::sync::mpsc::Sender<Outcome>,
     next_id: u64,
     refused: Refused,
-    /// Picks which unproven connection makes room (xorshift64*): random, so that neither the
-    /// oldest nor the newest can be pushed out by a flood timed against the rule.
-    rng: u64,
 }
 
 impl Gate {
@@ -375,8 +371,6 @@ impl Gate {
             tell,
             next_id: 0,
             refused: Refused::default(),
-            // Never 0 (xorshift's fixed point); a fixed seed if the system has no randomness.
-            rng: u64::from_ne_bytes(seal::random_bytes().unwrap_or([7; 8])) | 1,
         }
     }
 
@@ -407,7 +401,7 @@ impl Gate {
         if n == 0 {
             return Room::Proven;
         }
-        let k = below(&mut self.rng, n);
+        let k = below(n);
         unproven(source).nth(k).map_or(Room::Proven, Room::Drop)
     }
 
@@ -952,27 +946,9 @@ impl Near {
                     })?;
                     said?;
                 }
+                // This process is the controller's stand-in.
                 Kind::Control => {
-                    // Only what a controller may say, as the controller (this process is its
-                    // stand-in), with its tick and text (CONTROLLER_ERROR's error).
-                    if let Some(c) = bytes::read::<ControlMsg>(p)
-                        && c.kind().is_some_and(|k| k.said_by_controller())
-                    {
-                        let said = ControlMsg {
-                            from: Sender::Controller as u32,
-                            ..c
-                        };
-                        ports
-                            .control
-                            .0
-                            .send_copy(said)
-                            .ipc("send controller control")?;
-                        // The plant reads CONTROLLER_ERROR when it wakes: wake it now, as the
-                        // controller itself does, or a lockstep plant waits out its silence.
-                        if c.kind() == Some(ControlKind::ControllerError) {
-                            ports.torque_ready.notify().ipc("notify torque")?;
-                        }
-                    }
+                    crate::sides::say_as_controller(p, &ports.control.0, &ports.torque_ready)?
                 }
                 Kind::Log => log.line(p),
                 Kind::Refused => *far_refused = far_refusals(p),

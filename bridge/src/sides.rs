@@ -17,7 +17,7 @@ use crate::replies::{Inbox, Outbox, Recalls};
 use anyhow::Result;
 use deltaloop_transport::ipc::{self, IpcContext, Svc};
 use deltaloop_transport::rt;
-use deltaloop_transport::wire::{self, StateMsg, TorqueMsg};
+use deltaloop_transport::wire::{self, ControlKind, ControlMsg, Sender, StateMsg, TorqueMsg};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -611,6 +611,33 @@ impl ControllerHost {
         }
         Ok(())
     }
+}
+
+/// Republishes what the controller on the other host said (frame payload `p`), as the
+/// controller, with its tick and text, if it is something a controller may say; on
+/// CONTROLLER_ERROR it wakes the plant, which reads it when it wakes (as the controller itself
+/// does), or a lockstep plant would wait out its silence. Both stand-ins of a far controller's
+/// words call this: the near side, and the far side of a remote plant.
+pub fn say_as_controller(
+    p: &[u8],
+    control: &Publisher<Svc, ControlMsg, ()>,
+    torque_ready: &Notifier<Svc>,
+) -> Result<()> {
+    let Some(c) = bytes::read::<ControlMsg>(p) else {
+        return Ok(());
+    };
+    if !c.kind().is_some_and(|k| k.said_by_controller()) {
+        return Ok(());
+    }
+    let said = ControlMsg {
+        from: Sender::Controller as u32,
+        ..c
+    };
+    control.send_copy(said).ipc("send controller control")?;
+    if c.kind() == Some(ControlKind::ControllerError) {
+        torque_ready.notify().ipc("notify torque")?;
+    }
+    Ok(())
 }
 
 /// The ports a [`ControllerHost`] publishes states on: `state` and `state-ready`.

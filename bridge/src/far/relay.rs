@@ -289,24 +289,7 @@ impl FarPlant {
         l.tcp.poll(|kind, p| {
             if kind == Kind::Control {
                 FarLink::run_control(&ports.control, p)?;
-                if let Some(c) = bytes::read::<ControlMsg>(p)
-                    && c.kind().is_some_and(|k| k.said_by_controller())
-                {
-                    // As the controller, with its tick and text (CONTROLLER_ERROR's error).
-                    let said = ControlMsg {
-                        from: Sender::Controller as u32,
-                        ..c
-                    };
-                    ports
-                        .as_controller
-                        .send_copy(said)
-                        .ipc("send controller control")?;
-                    // The plant reads CONTROLLER_ERROR when it wakes: wake it now, as the
-                    // controller itself does, or a lockstep plant waits out its silence.
-                    if c.kind() == Some(ControlKind::ControllerError) {
-                        ports.torque_ready.notify().ipc("notify torque")?;
-                    }
-                }
+                crate::sides::say_as_controller(p, &ports.as_controller, &ports.torque_ready)?;
             }
             Ok(())
         })
