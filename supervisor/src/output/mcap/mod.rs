@@ -348,6 +348,23 @@ fn run_file(dir: &Path, cfg: &RunConfig, out: &Path) -> Option<String> {
     None
 }
 
+/// A CSV file of the run, opened by the input rule (a regular file of at most `max_bytes`;
+/// `what` names it in that rule's errors), and its header row. Errors name the file.
+fn capped_csv(
+    path: &Path,
+    max_bytes: u64,
+    what: &str,
+) -> Result<(csv::Reader<files::Capped>, csv::StringRecord)> {
+    let file = files::open_regular(path, max_bytes, what)
+        .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
+    let mut rows = csv::Reader::from_reader(file);
+    let header = rows
+        .headers()
+        .with_context(|| format!("cannot read {}", path.display()))?
+        .clone();
+    Ok((rows, header))
+}
+
 /// The messages, attachments and metadata of the run `input` of `dir`, onto `out`.
 fn write_export(out: &mut Out, dir: &Path, input: &RunInput) -> Result<()> {
     let (cfg, study, summary) = (&input.cfg, &input.study, &input.summary);
@@ -355,13 +372,7 @@ fn write_export(out: &mut Out, dir: &Path, input: &RunInput) -> Result<()> {
     let ts_ns = cfg.ts_ns();
     let mut painter = painter(study);
     let trace_path = &input.trace_path;
-    let file = files::open_regular(trace_path, trace::max_bytes(study), "this run's trace")
-        .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", trace_path.display()))?;
-    let mut rows = csv::Reader::from_reader(file);
-    let header = rows
-        .headers()
-        .with_context(|| format!("cannot read {}", trace_path.display()))?
-        .clone();
+    let (mut rows, header) = capped_csv(trace_path, trace::max_bytes(study), "this run's trace")?;
     let col = |name: &str| {
         header
             .iter()
@@ -538,13 +549,7 @@ fn finish_law(
     let ts_ns = study.config.ts_ns();
     let timing = dir.join(format!("{law}.timing.csv"));
     if std::fs::symlink_metadata(&timing).is_ok() {
-        let file = files::open_regular(&timing, timing_max_bytes(study), "a timing.csv")
-            .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", timing.display()))?;
-        let mut rows = csv::Reader::from_reader(file);
-        let header = rows
-            .headers()
-            .with_context(|| format!("cannot read {}", timing.display()))?
-            .clone();
+        let (mut rows, header) = capped_csv(&timing, timing_max_bytes(study), "a timing.csv")?;
         let order = tick::timing_order(header.iter());
         for (i, row) in rows.records().enumerate() {
             let row = row.with_context(|| format!("{} line {}", timing.display(), i + 2))?;
