@@ -429,6 +429,19 @@ fn join_with(ep: &str, key: &Path, root: &Path) -> std::process::Child {
         .unwrap()
 }
 
+/// Waits for a run (120 s at most) and its `join` (30 s), then removes the far side's iceoryx2
+/// root: their outputs.
+fn finish_pair(
+    run: std::process::Child,
+    join: std::process::Child,
+    far_root: &Path,
+) -> (std::process::Output, std::process::Output) {
+    let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
+    let j = common::finish_within(join, Duration::from_secs(30), "join");
+    deltaloop_supervisor::ops::loopback::remove_root(far_root, false);
+    (o, j)
+}
+
 /// `deltaloop join EP --role controller --link-key KEY --controller-cmd=CMD` with its own
 /// iceoryx2 root, stderr captured.
 fn join_with_cmd(ep: &str, key: &Path, root: &Path, cmd: &str) -> std::process::Child {
@@ -732,9 +745,7 @@ fn regression_the_far_process_is_not_given_the_link_key() {
     let run = common::spawn(&remote_lockstep(&cfg, &ep, &key, &out));
     let far_root = tmp.path().join("far-root");
     let join = join_with_cmd(&ep, &key, &far_root, &script.display().to_string());
-    let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
-    let j = common::finish_within(join, Duration::from_secs(30), "join");
-    deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+    let (o, j) = finish_pair(run, join, &far_root);
     assert!(o.status.success(), "{}", text(&o.stderr));
     assert!(j.status.success(), "join: {}", text(&j.stderr));
     let env = std::fs::read_to_string(&seen).expect("the far controller wrote its environment");
@@ -1049,9 +1060,7 @@ fn regression_a_stalled_bridge_run_replays_or_says_what_it_lost() {
                 std::thread::sleep(Duration::from_millis(200));
                 unsafe { libc::kill(pid, libc::SIGCONT) };
             }
-            let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
-            let _ = common::finish_within(join, Duration::from_secs(30), "join");
-            deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+            let (o, _) = finish_pair(run, join, &far_root);
             let case = format!("{role} remote, {stalled} bridge stalled");
             let trace = rows(&out.join("trace.csv"));
             assert!(!trace.is_empty(), "{case}: no trace: {}", text(&o.stderr));
@@ -1137,9 +1146,7 @@ fn regression_a_burst_of_lost_replies_is_recovered_or_recorded_as_lost() {
     let run = common::spawn(&args);
     let far_root = tmp.path().join("far-root");
     let join = join_as(&ep, "controller", &key, &far_root);
-    let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
-    let j = common::finish_within(join, Duration::from_secs(30), "join");
-    deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+    let (o, j) = finish_pair(run, join, &far_root);
     let case = "30 % of the link's datagrams lost";
     assert!(
         out.join("trace.csv").is_file(),
@@ -1185,9 +1192,7 @@ fn regression_a_far_controller_step_error_stops_the_lockstep_loop_at_once() {
     let run = common::spawn(&remote_lockstep(&cfg, &ep, &key, &out));
     let far_root = tmp.path().join("far-root");
     let join = join_with_cmd(&ep, &key, &far_root, &format!("{} fail@200", exe.display()));
-    let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
-    let _ = common::finish_within(join, Duration::from_secs(30), "join");
-    deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+    let (o, _) = finish_pair(run, join, &far_root);
     assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
     common::assert_step_error_stopped_the_loop_at_once(
         &out,
@@ -1225,9 +1230,7 @@ fn regression_a_controller_step_error_stops_a_far_lockstep_plant_at_once() {
     let run = common::spawn(&args);
     let far_root = tmp.path().join("far-root");
     let join = join_as(&ep, "plant", &key, &far_root);
-    let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
-    let _ = common::finish_within(join, Duration::from_secs(30), "join");
-    deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+    let (o, _) = finish_pair(run, join, &far_root);
     assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
     common::assert_step_error_stopped_the_loop_at_once(
         &out,
@@ -1251,9 +1254,7 @@ fn regression_a_far_controller_of_the_users_is_labelled_on_the_supervisors_host(
     let run = common::spawn(&remote_lockstep(&cfg, &ep, &key, &out));
     let far_root = tmp.path().join("far-root");
     let join = join_with_cmd(&ep, &key, &far_root, named.to_str().unwrap());
-    let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
-    let j = common::finish_within(join, Duration::from_secs(30), "join");
-    deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+    let (o, j) = finish_pair(run, join, &far_root);
     assert!(o.status.success(), "{}", text(&o.stderr));
     assert!(j.status.success(), "join: {}", text(&j.stderr));
     assert_eq!(summary(&out)["controller_label"], "rig-law-7");
@@ -1312,9 +1313,7 @@ fn regression_a_remote_plant_loop_recovers_after_a_near_bridge_stall() {
                 unsafe { libc::kill(near, libc::SIGCONT) };
                 std::thread::sleep(Duration::from_millis(600));
             }
-            let o = common::finish_within(run, Duration::from_secs(120), "deltaloop run");
-            let _ = common::finish_within(join, Duration::from_secs(30), "join");
-            deltaloop_supervisor::ops::loopback::remove_root(&far_root, false);
+            let (o, _) = finish_pair(run, join, &far_root);
             let trace = rows(&out.join("trace.csv"));
             assert!(!trace.is_empty(), "no trace: {}", text(&o.stderr));
             let applied: Vec<bool> = trace.iter().map(|r| r["reply"] == "applied").collect();
