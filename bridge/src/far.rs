@@ -479,6 +479,9 @@ fn relay(
                 ports,
                 host: ControllerHost::new(spin_ns, false),
                 named,
+                seq: 0,
+                copies: vec![0; crate::frame::MAX_REPLIES * crate::replies::ENTRY]
+                    .into_boxed_slice(),
             };
             let code = f.forward(link, term)?;
             if f.host.stale > 0 {
@@ -571,12 +574,18 @@ fn serve(
         Err(e) => return refuse(&mut tcp, format!("{e:#}")),
     };
     let law = hello.law.filter(|_| !plant).map(Law::name);
-    let child = match spawn(cmd, &hello.run_id, mode, &config, law) {
+    let (mine, theirs) = deltaloop_transport::handoff::pair()?;
+    let child = match spawn(cmd, &hello.run_id, mode, &config, law, &theirs) {
         Ok(c) => c,
         Err(e) => return refuse(&mut tcp, format!("{e:#}")),
     };
+    drop(theirs);
     tcp.send(Kind::Ack, &[&port.to_ne_bytes()])?;
     udp.send(Kind::Punch, &[], rt::now_ns())?;
+    let wants_relay = cfg
+        .link
+        .as_ref()
+        .is_some_and(|l| l.path == deltaloop_config::LinkPath::Relay);
     let mut link = FarLink {
         udp,
         tcp,
@@ -584,6 +593,10 @@ fn serve(
         stop_sent: false,
         near_gone_ns: None,
         next_check: 0,
+        session,
+        handoff: Some(mine),
+        relay: wants_relay,
+        direct: false,
     };
     let named = a.controller_cmd.as_ref().and_then(|_| ready_naming(cmd));
     let code = relay(ports, &mut link, (spin_ns, mode, far_emu), named, term)?;

@@ -68,14 +68,21 @@ pub enum Kind {
     /// TCP, far → near: the answer to a RECALL (its two u64, then the entries of those replies
     /// still in the far side's ring, oldest first).
     Recalled = 27,
+    /// TCP, far → near (remote controller on the direct path): the far controller's replies
+    /// for the record on the supervisor's host, every one, oldest first, each an entry as in a
+    /// Torque datagram (`TorqueMsg`, residence, sequence number), 1..=[`MAX_REPLIES`] a frame.
+    Replies = 28,
 }
+
+/// Replies in one [`Kind::Replies`] frame at most.
+pub const MAX_REPLIES: usize = 1024;
 
 impl Kind {
     fn from_wire(v: u16) -> Option<Self> {
         use Kind::*;
         [
             State, Torque, Ping, Pong, Punch, Hello, Ack, Control, Reference, Final, Exit, Log,
-            Telemetry, Join, Refused, Recall, Recalled,
+            Telemetry, Join, Refused, Recall, Recalled, Replies,
         ]
         .into_iter()
         .find(|k| *k as u16 == v)
@@ -146,7 +153,8 @@ fn fixed_size(kind: Kind) -> Option<usize> {
         | Kind::Log
         | Kind::Torque
         | Kind::Recall
-        | Kind::Recalled => None,
+        | Kind::Recalled
+        | Kind::Replies => None,
     }
 }
 
@@ -194,6 +202,12 @@ pub fn check_size(kind: Kind, payload: &[u8]) -> Result<(), Refused> {
         }
         Kind::Exit => payload.len() >= 4,
         Kind::Torque => crate::replies::valid_len(payload.len()),
+        Kind::Replies => {
+            let e = crate::replies::ENTRY;
+            !payload.is_empty()
+                && payload.len().is_multiple_of(e)
+                && payload.len() <= MAX_REPLIES * e
+        }
         _ => fixed_size(kind).is_none_or(|n| n == payload.len()),
     };
     if ok {

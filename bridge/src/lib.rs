@@ -17,6 +17,7 @@
 //! `recv`/`send` of one datagram, iceoryx2's publish and notify, the clock.
 
 pub mod bytes;
+pub mod direct;
 pub mod emulation;
 pub mod far;
 pub mod files;
@@ -86,6 +87,20 @@ pub struct EmuArgs {
     /// (0: it blocks at once; at most loop.torque_budget_us in realtime).
     #[arg(long, default_value_t = 0)]
     pub link_spin_us: u32,
+    /// How the loop's messages cross: `direct` (plant and controller socket to socket; the
+    /// default) or `relay` (through both bridges).
+    #[arg(long, value_parser = parse_link_path)]
+    pub link_path: Option<deltaloop_config::LinkPath>,
+}
+
+/// `--link-path`: `direct` or `relay`.
+fn parse_link_path(s: &str) -> Result<deltaloop_config::LinkPath, String> {
+    use deltaloop_config::LinkPath;
+    match s {
+        "direct" => Ok(LinkPath::Direct),
+        "relay" => Ok(LinkPath::Relay),
+        _ => Err(format!("{s:?}: allowed direct, relay")),
+    }
 }
 
 impl EmuArgs {

@@ -60,6 +60,29 @@ impl Udp {
         Self::new(sock, session.id, Some(seal), emu)
     }
 
+    /// The socket a bridge handed on ([`crate::direct::Offer`]): sealing goes on from its
+    /// counters.
+    pub fn resumed(sock: UdpSocket, o: &crate::direct::Offer) -> Result<Self> {
+        let (seal_key, open_key, next, top) = o.sealing();
+        let seal = (
+            Sealer::resume(&seal_key, next),
+            Opener::resume(&open_key, top),
+        );
+        Self::new(sock, o.session, Some(seal), o.emu)
+    }
+
+    /// The counter of the next datagram sealed, and the highest opened.
+    pub fn counters(&self) -> (u64, Option<u64>) {
+        self.seal
+            .as_ref()
+            .map_or((0, None), |(s, o)| (s.next_counter(), o.top()))
+    }
+
+    /// The emulation this socket applies.
+    pub fn emulation(&self) -> Emulation {
+        self.emu
+    }
+
     /// A socket whose datagrams carry `key` in the clear (the bench's ping-pong, never a run).
     pub fn plain(sock: UdpSocket, key: u64) -> Result<Self> {
         Self::new(sock, key, None, Emulation::default())

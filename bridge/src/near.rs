@@ -22,7 +22,7 @@ use crate::link::{self, Tcp, Udp};
 use crate::seal::{self, End, LinkKey, LinkReport, RefusedCounts, Session, SideRefusals};
 use crate::sides::{ControllerHost, PlantHost};
 use anyhow::{Context, Result, bail};
-use deltaloop_config::{Law, LoopMode, RunConfig};
+use deltaloop_config::{Law, LinkPath, LoopMode, RunConfig};
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{EXIT_FAULT, EXIT_STOPPED};
 use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, Svc};
@@ -125,6 +125,8 @@ impl PlantPorts {
 
 /// Runs the near side; returns the exit code and its one line (None: completed).
 pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
+    // The hand-off to the loop process beside this side, before anything reads the environment.
+    let handoff = deltaloop_transport::handoff::End::inherited();
     let cfg = RunConfig::from_file(&a.run.config)?;
     let Some(link) = &cfg.link else {
         bail!(
@@ -164,9 +166,10 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
     if plant {
         let silence_ms = u64::from(cfg.loop_.silence_timeout_ms);
         let ports = PlantPorts::open(run_id)?;
-        let Some(peer) = connect(&at, &hello, &ports.control, term, &report)? else {
+        let Some(mut peer) = connect(&at, &hello, &ports.control, term, &report)? else {
             return Ok(stopped_early());
         };
+        (peer.handoff, peer.relay) = (handoff, link.path == LinkPath::Relay);
         let mut n = NearPlant {
             ports,
             peer,
@@ -183,9 +186,10 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         finish(&mut n.peer, &report, &emu, None, r)
     } else {
         let ports = Ports::open(run_id, ipc::RELAY_BUFFER)?;
-        let Some(peer) = connect(&at, &hello, &ports.control, term, &report)? else {
+        let Some(mut peer) = connect(&at, &hello, &ports.control, term, &report)? else {
             return Ok(stopped_early());
         };
+        (peer.handoff, peer.relay) = (handoff, link.path == LinkPath::Relay);
         let mut n = Near {
             ports,
             peer,
@@ -215,6 +219,16 @@ struct Peer {
     far_end: Option<FarEnd>,
     /// When a STOP (SIGTERM) went to the far side.
     stop_sent_ns: Option<u64>,
+    /// The run's session (what the loop process beside this side gets of it: its datagrams'
+    /// two keys, [`crate::direct::Offer`]).
+    session: Session,
+    /// The hand-off to the loop process beside this side, if the supervisor gave one.
+    handoff: Option<deltaloop_transport::handoff::End>,
+    /// The run asks for the relay (`[link] path = "relay"`).
+    relay: bool,
+    /// The loop process beside this side took the link's socket at START: this side relays no
+    /// datagram and never reads the socket again.
+    direct: bool,
 }
 
 /// Connections the near side authenticates at once at most: more than a flood of a few slow
@@ -646,6 +660,10 @@ fn connect(
         stop_sent_ns: None,
         log: FarLog::default(),
         report,
+        session,
+        handoff: None,
+        relay: false,
+        direct: false,
     }))
 }
 
@@ -697,6 +715,7 @@ fn finish(
 ) -> Result<(u8, Option<String>)> {
     p.tcp.flush().ok();
     std::thread::sleep(ipc::LINGER);
+    take_process_counts(p);
     let near = RefusedCounts::from(p.udp.refused);
     p.report.near = SideRefusals {
         refused_datagrams: near,
@@ -719,6 +738,29 @@ fn finish(
         );
     }
     Ok(end)
+}
+
+/// What the loop process that took the link's socket refused and dropped, added to this side's
+/// counts (it says them as it exits, before this side writes the report).
+fn take_process_counts(p: &mut Peer) {
+    if !p.direct {
+        return;
+    }
+    let Some(h) = &p.handoff else { return };
+    let until = rt::now_ns() + 500_000_000;
+    loop {
+        if let Some((refused, lost)) = crate::direct::read_counts(h) {
+            for (a, b) in p.udp.refused.counts.iter_mut().zip(refused) {
+                *a = a.saturating_add(b);
+            }
+            p.udp.emulated_lost = p.udp.emulated_lost.saturating_add(lost);
+            return;
+        }
+        if rt::now_ns() > until {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
 }
 
 /// The far side's refusals from its `Refused` frame.
@@ -786,6 +828,10 @@ fn stopped(control: &ControlPorts, term: &AtomicBool) -> Result<bool> {
     Ok(stop)
 }
 
+/// A bridge's turn on the direct path, when nothing wakes it, ns: the pace of the record's
+/// copies and of run control (the loop's messages do not pass here).
+pub const DIRECT_TURN_NS: u64 = 1_000_000;
+
 /// How long the far side has to report its end after the final state or a STOP, ns: the
 /// supervisor gives a controller 1 s after the plant exits.
 const FAR_END_WAIT_NS: u64 = 700_000_000;
@@ -798,6 +844,10 @@ impl Peer {
             link::readable(&self.tcp.stream),
             link::event(event),
         ];
+        if self.direct {
+            // The socket is the loop process's now (ppoll skips a negative descriptor).
+            fds[0].fd = -1;
+        }
         if self.tcp.pending() > 0 {
             fds[1].events |= libc::POLLOUT;
         }
@@ -814,6 +864,15 @@ impl Peer {
             let mut c = *s.payload();
             match (c.kind(), c.sender()) {
                 (Some(ControlKind::Start), Some(Sender::Supervisor)) => {
+                    if let Some(h) = &self.handoff {
+                        self.direct = crate::direct::offer(
+                            h,
+                            &mut self.udp,
+                            &self.session,
+                            End::Near,
+                            self.relay,
+                        )?;
+                    }
                     c.t0_ns = c.t0_ns.saturating_sub(rt::now_ns());
                     self.tcp.send(Kind::Control, &[bytes_of(&c)])?;
                     started = true;
@@ -878,9 +937,14 @@ struct Near {
 impl Near {
     fn forward(&mut self, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         loop {
-            let timeout = self.host.timeout_ns(&self.peer.udp, rt::now_ns());
+            let timeout = if self.peer.direct {
+                DIRECT_TURN_NS
+            } else {
+                self.host.timeout_ns(&self.peer.udp, rt::now_ns())
+            };
             let [udp_in, tcp_in, state_in] = self.peer.wait(&self.ports.state_ready, timeout)?;
             self.peer.forward_control(&self.ports.control)?;
+            self.host.direct = self.peer.direct;
             let (p, c) = (&mut self.peer, &self.ports);
             let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
             let ready = (state_in, udp_in);
@@ -936,6 +1000,7 @@ impl Near {
         let (far_refused, host) = (&mut p.report.far, &mut self.host);
         p.tcp.poll(|kind, p| {
             match kind {
+                Kind::Replies => crate::sides::file_replies(p, &ports.torque)?,
                 Kind::Recalled => {
                     let mut said = Ok(());
                     let torque = (&ports.torque, &ports.torque_ready);

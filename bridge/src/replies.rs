@@ -157,7 +157,7 @@ pub struct Entry {
 }
 
 /// Entry `i` of a payload (0: the newest).
-fn entry(p: &[u8], i: usize) -> Option<Entry> {
+pub fn entry(p: &[u8], i: usize) -> Option<Entry> {
     let e = p.get(i * ENTRY..(i + 1) * ENTRY)?;
     Some(Entry {
         msg: bytes::read::<TorqueMsg>(&e[..ENTRY - 16])?,

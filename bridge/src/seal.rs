@@ -414,6 +414,15 @@ impl Session {
         &self.keys[i]
     }
 
+    /// The two keys of `me`'s datagrams: (what it seals with, what it opens with).
+    pub fn udp_keys(&self, me: End) -> ([u8; KEY_LEN], [u8; KEY_LEN]) {
+        let other = match me {
+            End::Near => End::Far,
+            End::Far => End::Near,
+        };
+        (*self.key(Channel::Udp, me), *self.key(Channel::Udp, other))
+    }
+
     /// What `me` seals with on `channel`.
     pub fn sealer(&self, me: End, channel: Channel) -> Sealer {
         Sealer {
@@ -457,6 +466,15 @@ pub struct Sealer {
 }
 
 impl Sealer {
+    /// A sealer of `key` whose next message gets counter `next` (a socket handed on: the
+    /// counters go on where its last owner stopped, so no nonce repeats).
+    pub fn resume(key: &[u8; KEY_LEN], next: u64) -> Self {
+        Self {
+            aead: aead(key),
+            next,
+        }
+    }
+
     /// The counter the next message gets (its nonce): put it in the header first.
     pub fn next_counter(&self) -> u64 {
         self.next
@@ -597,6 +615,29 @@ pub struct Opener {
 }
 
 impl Opener {
+    /// A datagram opener of `key` that has seen counters up to `top` (None: none yet): a socket
+    /// handed on refuses what its last owner took.
+    pub fn resume(key: &[u8; KEY_LEN], top: Option<u64>) -> Self {
+        // Every counter up to `top` counts as seen, whether or not the last owner took it.
+        let window = match top {
+            Some(t) => Window {
+                top: Some(t),
+                bits: [u64::MAX; WORDS as usize],
+            },
+            None => Window::default(),
+        };
+        Self {
+            aead: aead(key),
+            window,
+            strict: false,
+        }
+    }
+
+    /// The highest counter taken (None: none yet).
+    pub fn top(&self) -> Option<u64> {
+        self.window.top
+    }
+
     /// Checks `counter` (from `header`), verifies the tag at the end of `sealed` (ciphertext,
     /// then tag) and decrypts it in place: the plaintext's length, at the start of `sealed`.
     pub fn open(

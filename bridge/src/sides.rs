@@ -55,6 +55,9 @@ pub struct PlantHost {
     recall: bool,
     /// The holes being recalled.
     pub recalls: Recalls,
+    /// The plant took the link's socket (the direct path): no datagram goes through here; the
+    /// final state, and with `record` a copy of every state, still go over TCP.
+    pub direct: bool,
 }
 
 /// What a [`PlantHost`] counted on the link, for its closing line.
@@ -100,6 +103,7 @@ impl PlantHost {
             inbox: Inbox::default(),
             recall: false,
             recalls: Recalls::default(),
+            direct: false,
         }
     }
 
@@ -170,6 +174,9 @@ impl PlantHost {
             if self.record {
                 tcp.queue(Kind::State, &[bytes_of(&st)])?;
             }
+            if self.direct {
+                continue;
+            }
             if self.resend.is_some() {
                 self.send_state(&st, udp)?;
             } else if newest.replace(st).is_some() {
@@ -235,6 +242,10 @@ impl PlantHost {
         udp: &mut Udp,
         tcp: &mut Tcp,
     ) -> Result<()> {
+        if self.direct {
+            // The plant does not wake this side for each state: look every turn.
+            return self.states((ports.0, ports.2), udp, tcp);
+        }
         if state_in {
             self.states((ports.0, ports.2), udp, tcp)?;
         }
@@ -358,6 +369,9 @@ pub struct ControllerHost {
     recent: [u64; RECENT],
     /// States of a backlog not published: a newer one that came with them went instead.
     pub stale: u64,
+    /// The controller took the link's socket (the direct path): the states published here are
+    /// the record's, and only the final one wakes the controller.
+    pub quiet: bool,
 }
 
 /// Bytes queued on the control connection above which a recall waits for the next turn.
@@ -368,7 +382,7 @@ const RECALL_ROOM: usize = 1 << 20;
 /// clocks' offset plus the quickest recent trip. A windowed minimum, so that it follows the two
 /// clocks' drift over a long run; O(1) per state, no allocation.
 #[derive(Clone, Copy, Debug)]
-struct Offset {
+pub struct Offset {
     /// The minimum of the block being filled, and of the one before it.
     current: i64,
     previous: i64,
@@ -391,7 +405,7 @@ impl Default for Offset {
 
 impl Offset {
     /// Takes one state's (arrival − publication) and returns the offset in force.
-    fn add(&mut self, seen: i64) -> i64 {
+    pub fn add(&mut self, seen: i64) -> i64 {
         self.current = self.current.min(seen);
         self.n += 1;
         let offset = self.current.min(self.previous);
@@ -426,6 +440,7 @@ impl ControllerHost {
             last_state: None,
             recent: [u64::MAX; RECENT],
             stale: 0,
+            quiet: false,
         }
     }
 
@@ -606,11 +621,64 @@ impl ControllerHost {
             self.last_state = Some(s);
         }
         state.send_copy(s).ipc("publish state")?;
-        if ipc::published_needs_notify(self.controller_poll_until) {
+        let last = s.flags & wire::STATE_FINAL != 0;
+        if (self.quiet && last)
+            || (!self.quiet && ipc::published_needs_notify(self.controller_poll_until))
+        {
             state_ready.notify().ipc("notify state")?;
         }
         Ok(())
     }
+}
+
+/// The far controller's replies for the record (the direct path, `--controller-remote`): each
+/// reply it published on this host since the last call, numbered, with its residence (its
+/// state's take to its publication, both the controller's stamps), out in REPLIES frames.
+/// `buf` is pre-allocated ([`crate::frame::MAX_REPLIES`] entries).
+pub fn copy_replies(
+    torque: &Subscriber<Svc, TorqueMsg, ()>,
+    tcp: &mut Tcp,
+    seq: &mut u64,
+    buf: &mut [u8],
+) -> Result<()> {
+    let e = crate::replies::ENTRY;
+    let mut n = 0;
+    while let Some(s) = torque.receive().ipc("receive torque")? {
+        let t: &TorqueMsg = s.payload();
+        let at = n * e;
+        buf[at..at + e - 16].copy_from_slice(bytes_of(t));
+        let residence = t.t_publish_ns.saturating_sub(t.t_state_rx_ns);
+        buf[at + e - 16..at + e - 8].copy_from_slice(&residence.to_ne_bytes());
+        buf[at + e - 8..at + e].copy_from_slice(&seq.to_ne_bytes());
+        *seq += 1;
+        n += 1;
+        if n == crate::frame::MAX_REPLIES {
+            tcp.queue(Kind::Replies, &[&buf[..n * e]])?;
+            n = 0;
+        }
+    }
+    if n > 0 {
+        tcp.queue(Kind::Replies, &[&buf[..n * e]])?;
+    }
+    Ok(())
+}
+
+/// A REPLIES frame's replies filed for the record here (the direct path, `--controller-remote`),
+/// on this host's clock as the relay republished them, waking no one: the plant took each from
+/// its own socket. Malformed entries are skipped.
+pub fn file_replies(p: &[u8], torque: &Publisher<Svc, TorqueMsg, ()>) -> Result<()> {
+    for i in 0..p.len() / crate::replies::ENTRY {
+        let Some(e) = crate::replies::entry(p, i) else {
+            continue;
+        };
+        let mut t = e.msg;
+        let now = rt::now_ns();
+        t.t_publish_ns = now;
+        t.t_state_rx_ns = now.saturating_sub(e.residence_ns);
+        t.t_poll_until_ns = 0;
+        torque.send_copy(t).ipc("publish torque")?;
+    }
+    Ok(())
 }
 
 /// Republishes what the controller on the other host said (frame payload `p`), as the

@@ -82,6 +82,7 @@ pub(super) fn spawn(
     mode: LoopMode,
     config: &std::path::Path,
     law: Option<&str>,
+    handoff: &deltaloop_transport::handoff::End,
 ) -> Result<FarChild> {
     let what = if law.is_some() { "controller" } else { "plant" };
     let mut c = Command::new(&cmd[0]);
@@ -98,6 +99,8 @@ pub(super) fn spawn(
     // The link key is this bridge's, never the process's it starts.
     crate::seal::scrub_secrets(&mut c);
     rt::die_with_parent(&mut c);
+    // The process may take the link's socket at START (the direct path).
+    deltaloop_transport::handoff::inherit(&mut c, handoff);
     let child = c
         .spawn()
         .with_context(|| format!("cannot start the {what} `{}`", cmd.join(" ")))?;

@@ -12,6 +12,12 @@ pub(super) struct FarLink {
     pub(super) near_gone_ns: Option<u64>,
     /// When to look whether the process has exited next.
     pub(super) next_check: u64,
+    /// The run's session, the hand-off to the process and whether it took the link's socket
+    /// at START (the direct path: this side then relays no datagram and never reads the socket).
+    pub(super) session: Session,
+    pub(super) handoff: Option<deltaloop_transport::handoff::End>,
+    pub(super) relay: bool,
+    pub(super) direct: bool,
 }
 
 impl FarLink {
@@ -34,6 +40,9 @@ impl FarLink {
                 revents: 0,
             },
         ];
+        if self.direct {
+            fds[0].fd = -1;
+        }
         if self.tcp.pending() > 0 {
             fds[1].events |= libc::POLLOUT;
         }
@@ -118,6 +127,15 @@ impl FarLink {
     /// a warning here) and how the process ended, and waits (a little) for everything queued to
     /// go out.
     pub(super) fn report(&mut self, code: u8) -> Result<()> {
+        if self.direct
+            && let Some(h) = &self.handoff
+            && let Some((refused, lost)) = crate::direct::read_counts(h)
+        {
+            for (a, b) in self.udp.refused.counts.iter_mut().zip(refused) {
+                *a = a.saturating_add(b);
+            }
+            self.udp.emulated_lost = self.udp.emulated_lost.saturating_add(lost);
+        }
         let refused = crate::seal::RefusedCounts::from(self.udp.refused);
         self.tcp.send(Kind::Refused, &[&refused.to_wire()])?;
         if let Some(line) = crate::near::refused_warning(&self.udp) {
@@ -138,12 +156,23 @@ impl FarLink {
 
     /// A START or STOP from the near side, published here (START's deadline made absolute on
     /// this host's clock). Returns whether it was START.
-    pub(super) fn run_control(control: &Publisher<Svc, ControlMsg, ()>, p: &[u8]) -> Result<bool> {
+    pub(super) fn run_control(
+        control: &Publisher<Svc, ControlMsg, ()>,
+        p: &[u8],
+        hand: &mut Hand<'_>,
+    ) -> Result<bool> {
         let Some(mut c) = bytes::read::<ControlMsg>(p) else {
             return Ok(false);
         };
         match c.kind() {
             Some(ControlKind::Start) => {
+                // The process takes the link's socket before it sees START.
+                if let Some(h) = hand.handoff
+                    && !*hand.direct
+                {
+                    *hand.direct =
+                        crate::direct::offer(h, hand.udp, hand.session, End::Far, hand.relay)?;
+                }
                 c.t0_ns = crate::near::absolute_t0(c.t0_ns);
                 control.send_copy(c).ipc("publish START")?;
                 Ok(true)
@@ -157,6 +186,32 @@ impl FarLink {
     }
 }
 
+/// What START needs to hand the link's socket on: the hand-off, the socket, the session, whether
+/// the run asks for the relay, and where to say the process took it.
+pub(super) struct Hand<'a> {
+    handoff: Option<&'a deltaloop_transport::handoff::End>,
+    udp: &'a mut Udp,
+    session: &'a Session,
+    relay: bool,
+    direct: &'a mut bool,
+}
+
+impl FarLink {
+    /// The parts of this link START needs ([`Hand`]), beside its TCP stream.
+    pub(super) fn hand(&mut self) -> (&mut Tcp, Hand<'_>) {
+        (
+            &mut self.tcp,
+            Hand {
+                handoff: self.handoff.as_ref(),
+                udp: &mut self.udp,
+                session: &self.session,
+                relay: self.relay,
+                direct: &mut self.direct,
+            },
+        )
+    }
+}
+
 /// `--role controller`: the supervisor and the plant on the controller's host.
 pub(super) struct Far {
     pub(super) ports: Ports,
@@ -164,6 +219,9 @@ pub(super) struct Far {
     /// The READY text of `--controller-cmd`'s label, for a controller that does not name itself
     /// (see [`ready_naming`]).
     pub(super) named: Option<[u8; 160]>,
+    /// The direct path: the next reply's number, and the REPLIES frame's buffer.
+    pub(super) seq: u64,
+    pub(super) copies: Box<[u8]>,
 }
 
 /// The READY text that names a controller of the user's started with `cmd`, as
@@ -180,11 +238,21 @@ impl Far {
     pub(super) fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
         loop {
             let now = rt::now_ns();
-            let timeout = self.host.timeout_ns(&l.udp, now);
+            let timeout = if l.direct {
+                crate::near::DIRECT_TURN_NS
+            } else {
+                self.host.timeout_ns(&l.udp, now)
+            };
             let [udp_in, tcp_in, torque_in, err_in] = l.wait(&self.ports.torque_ready, timeout)?;
             let c = &self.ports;
-            let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
-            self.host.turn(&ports, (torque_in, udp_in), &mut l.udp)?;
+            if l.direct {
+                // The replies went to the plant from the controller's socket: a copy of each
+                // goes over TCP for the record there.
+                crate::sides::copy_replies(&c.torque, &mut l.tcp, &mut self.seq, &mut self.copies)?;
+            } else {
+                let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
+                self.host.turn(&ports, (torque_in, udp_in), &mut l.udp)?;
+            }
             self.control_plane(l, tcp_in)?;
             if let Some(code) = l.ended(&self.ports.control, err_in, term)? {
                 return Ok(code);
@@ -215,10 +283,11 @@ impl Far {
         }
         let (ports, host) = (&self.ports, &mut self.host);
         let (mut started, mut finals) = (false, None);
-        l.tcp.poll(|kind, p| {
+        let (tcp, mut hand) = l.hand();
+        tcp.poll(|kind, p| {
             match kind {
                 Kind::Recall => host.recall(p),
-                Kind::Control => started |= FarLink::run_control(&ports.control, p)?,
+                Kind::Control => started |= FarLink::run_control(&ports.control, p, &mut hand)?,
                 Kind::Reference => {
                     let rows = p.len() / size_of::<RefSample>();
                     let chunk = ports
@@ -260,10 +329,15 @@ impl FarPlant {
     /// Carries the run until the plant exits; its exit code.
     pub(super) fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
         loop {
-            let timeout = self.host.timeout_ns(&l.udp, rt::now_ns());
+            let timeout = if l.direct {
+                crate::near::DIRECT_TURN_NS
+            } else {
+                self.host.timeout_ns(&l.udp, rt::now_ns())
+            };
             let [udp_in, tcp_in, state_in, err_in] = l.wait(&self.ports.state_ready, timeout)?;
             // Run control first: a STOP must reach the plant before anything it answers.
             self.control_plane(l, tcp_in)?;
+            self.host.direct = l.direct;
             let c = &self.ports;
             let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
             let ready = (state_in, udp_in);
@@ -286,9 +360,10 @@ impl FarPlant {
             return Ok(());
         }
         let ports = &self.ports;
-        l.tcp.poll(|kind, p| {
+        let (tcp, mut hand) = l.hand();
+        tcp.poll(|kind, p| {
             if kind == Kind::Control {
-                FarLink::run_control(&ports.control, p)?;
+                FarLink::run_control(&ports.control, p, &mut hand)?;
                 crate::sides::say_as_controller(p, &ports.as_controller, &ports.torque_ready)?;
             }
             Ok(())

@@ -32,13 +32,20 @@ impl NearPlant {
     pub(super) fn forward(&mut self, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         loop {
             let now = rt::now_ns();
-            let timeout = self.host.timeout_ns(&self.peer.udp, now);
+            let timeout = if self.peer.direct {
+                DIRECT_TURN_NS
+            } else {
+                self.host.timeout_ns(&self.peer.udp, now)
+            };
             let [udp_in, tcp_in, torque_in] = self.peer.wait(&self.ports.torque_ready, timeout)?;
             let c = &self.ports;
             let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
-            if self
-                .host
-                .turn(&ports, (torque_in, udp_in), &mut self.peer.udp)?
+            // On the direct path the loop's messages do not pass here: the states arrive as
+            // the record's copies over TCP, and the controller's replies go to the plant.
+            if !self.peer.direct
+                && self
+                    .host
+                    .turn(&ports, (torque_in, udp_in), &mut self.peer.udp)?
             {
                 self.heard_ns = rt::now_ns();
             }
@@ -63,7 +70,7 @@ impl NearPlant {
                 }
                 continue;
             }
-            if self.host.awaiting_reply() {
+            if !self.peer.direct && self.host.awaiting_reply() {
                 self.heard_ns = now;
             }
             if self.started_ns.is_some() && now > self.heard_ns + self.silence_ns {
@@ -82,6 +89,7 @@ impl NearPlant {
             let now = rt::now_ns();
             self.started_ns = Some(now);
             self.heard_ns = now;
+            self.host.quiet = p.direct;
             self.host
                 .start((&self.ports.state, &self.ports.state_ready))?;
         }

@@ -16,8 +16,9 @@ use crate::ControllerSide;
 use crate::ring::RefRing;
 use anyhow::{Result, bail};
 use clap::Parser;
+use deltaloop_bridge::direct::{self, ControllerEnd};
 use deltaloop_config::config::{FaultInjection, Poll};
-use deltaloop_config::{Law, LoopMode, RunConfig};
+use deltaloop_config::{Law, LoopMode, RemoteSide, RunConfig};
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
 use deltaloop_transport::ipc::{self, IpcContext, Svc};
@@ -96,6 +97,11 @@ pub fn serve<S: Step>(
     };
     let mut side = make(&cfg)?;
     let ports = Ports::open(&args.run_id, ipc::LOOP_BUFFER)?;
+    // Across two hosts: ask the bridge beside us for the link's socket (before READY).
+    let handoff = match cfg.link {
+        Some(_) => direct::hello()?,
+        None => None,
+    };
     // Allocated and touched before READY: the loop files rows without allocating or faulting.
     let mut ring = RefRing::new();
     rt::schedule_and_report_ready(
@@ -123,6 +129,14 @@ pub fn serve<S: Step>(
     let Some(start) = handshake(&ports, &mut ring, term)? else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
+    let local_stamps = cfg
+        .link
+        .as_ref()
+        .is_some_and(|l| l.remote == RemoteSide::Plant);
+    let mut link = match &handoff {
+        Some(h) => direct::answer(h)?.map(|udp| ControllerEnd::new(udp, local_stamps)),
+        None => None,
+    };
     ipc::connect_now(&[&ports.state, &ports.torque, &ports.torque_ready])?;
     let spin_ns = layout.spin_ns();
     let mut lp = Loop {
@@ -142,7 +156,10 @@ pub fn serve<S: Step>(
             _ => None,
         },
     };
-    let end = answer_states(&ports, &mut lp, &mut side, &mut ring, term);
+    let end = answer_states(&ports, &mut link, &mut lp, &mut side, &mut ring, term);
+    if let (Some(h), Some(l)) = (&handoff, &link) {
+        direct::counts(h, &l.udp);
+    }
     std::thread::sleep(ipc::LINGER);
     end
 }
@@ -269,6 +286,7 @@ impl Loop<'_> {
 /// The loop: answer every state until the final one, the plant's silence, or a stop.
 fn answer_states(
     ports: &Ports,
+    link: &mut Option<ControllerEnd>,
     lp: &mut Loop,
     side: &mut impl Step,
     ring: &mut RefRing,
@@ -289,7 +307,10 @@ fn answer_states(
     let mut stalled = false;
     let end = loop {
         let silence_ns = if stalled { u64::MAX } else { silence_ns };
-        let waited = wait_state(ports, silence_ns, lp.spin_ns, lp.poll, &wait, term)?;
+        let waited = match link {
+            Some(l) => wait_state_direct(ports, l, silence_ns, lp, &wait, term)?,
+            None => wait_state(ports, silence_ns, lp.spin_ns, lp.poll, &wait, term)?,
+        };
         let (state, skipped, rx) = match waited {
             Waited::State(s, skipped, rx) => (s, skipped, rx),
             Waited::Silent => {
@@ -357,11 +378,18 @@ fn answer_states(
         lp.follow(&state, rx);
         wait = lp.wait_for(state.tick + 1, msg.t_publish_ns, wait.poll_until_ns);
         msg.t_poll_until_ns = wait.poll_until_ns;
-        ports.torque.send_copy(msg).ipc("publish torque")?;
-        answered = Some(state.tick);
-        if ipc::published_needs_notify(state.t_poll_until_ns) {
-            ports.torque_ready.notify().ipc("notify torque")?;
+        if let Some(l) = link {
+            // The plant is across the link: the reply goes to its socket; the copy here is the
+            // record's (no one here waits for it).
+            l.send_reply(&msg)?;
+            ports.torque.send_copy(msg).ipc("publish torque")?;
+        } else {
+            ports.torque.send_copy(msg).ipc("publish torque")?;
+            if ipc::published_needs_notify(state.t_poll_until_ns) {
+                ports.torque_ready.notify().ipc("notify torque")?;
+            }
         }
+        answered = Some(state.tick);
         // On the plant's CPU, hand it the CPU now: the reply is taken before our bookkeeping.
         if lp.poll == Poll::Yield {
             std::thread::yield_now();
@@ -522,6 +550,61 @@ fn wait_state(
             Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
             Err(e) => return Err(e).ipc("wait for state").map_err(Into::into),
         }
+    }
+}
+
+/// [`wait_state`] on the direct path: the states come on the link's socket (`link`); on
+/// iceoryx2 only the final one (the bridge passes it on from its control connection) and the
+/// record's copies, which are not for answering. Blocks on the socket and the wake-up event
+/// together.
+fn wait_state_direct(
+    ports: &Ports,
+    link: &mut ControllerEnd,
+    silence_ns: u64,
+    lp: &Loop,
+    wait: &Wait,
+    term: &AtomicBool,
+) -> Result<Waited> {
+    let (sub, listener) = (&ports.state, &ports.state_ready);
+    let mut poll_until_ns = wait.poll_until_ns;
+    if let Some(t) = wait.wake_ns {
+        rt::sleep_until_ns(t);
+        poll_until_ns = poll_after_wake(poll_until_ns, rt::now_ns(), lp.spin_ns);
+    }
+    let until = rt::now_ns().saturating_add(silence_ns);
+    let mut blocked = false;
+    loop {
+        if term.load(Ordering::Relaxed) {
+            return Ok(Waited::Stopped("stopped by SIGTERM"));
+        }
+        let now = rt::now_ns();
+        if let Some((s, older)) = link.poll()? {
+            return Ok(Waited::State(s, older, rt::now_ns()));
+        }
+        while let Some(sample) = sub.receive().ipc("receive state")? {
+            let s = *sample.payload();
+            if s.flags & wire::STATE_FINAL != 0 {
+                return Ok(Waited::State(s, 0, rt::now_ns()));
+            }
+        }
+        if now >= until {
+            return Ok(Waited::Silent);
+        }
+        if now < poll_until_ns {
+            rt::poll_pause(lp.poll);
+            continue;
+        }
+        if blocked && drain_control(&ports.control.1)?.stop {
+            return Ok(Waited::Stopped("stopped by the supervisor (STOP)"));
+        }
+        blocked = true;
+        listener.try_wait(|_| {}).ipc("drain state events")?;
+        let slice = (until - now).min(BLOCK_SLICE_NS).min(link.timeout_ns(now));
+        let mut fds = [
+            direct::readable(&link.udp),
+            deltaloop_bridge::link::event(listener),
+        ];
+        deltaloop_bridge::link::wait(&mut fds, slice)?;
     }
 }
 

@@ -16,6 +16,7 @@
 use crate::{Arrival, Physics, PlantSide, PlantStop, plant_from_config};
 use anyhow::{Context, Result, bail};
 use clap::Parser;
+use deltaloop_bridge::direct::{self, PlantEnd};
 use deltaloop_config::config::{ApplyTorque, Overrun, Poll};
 use deltaloop_config::{LoopMode, RunConfig};
 use deltaloop_model::Vec3;
@@ -68,6 +69,9 @@ struct Ports {
     /// The controller's own control service: its CONTROLLER_ERROR (its step failed) ends the
     /// loop at once instead of after the silence window.
     from_controller: Subscriber<Svc, ControlMsg, ()>,
+    /// Across two hosts, the link's socket its bridge handed on: states out and replies in go
+    /// there, not through the bridge (None: iceoryx2, on one host or relayed).
+    link: Option<PlantEnd>,
     _node: Node<Svc>,
 }
 
@@ -87,13 +91,27 @@ impl Ports {
                 .subscriber_builder()
                 .create()
                 .ipc("control-controller subscriber")?,
+            link: None,
             _node: node,
         })
     }
 
     /// Publishes a state and wakes the controller unless it declared it is polling
-    /// (`ctrl_poll_until_ns`, from its last reply; 0: always wake it).
-    fn publish_state(&self, msg: StateMsg, ctrl_poll_until_ns: u64) -> Result<()> {
+    /// (`ctrl_poll_until_ns`, from its last reply; 0: always wake it). On the direct path the
+    /// state goes to the link's socket, and the copy here is the record's: only the final state
+    /// wakes the bridge, which passes it on over its control connection.
+    fn publish_state(&mut self, msg: StateMsg, ctrl_poll_until_ns: u64) -> Result<()> {
+        let last = msg.flags & wire::STATE_FINAL != 0;
+        if let Some(l) = &mut self.link {
+            if !last {
+                l.send_state(&msg)?;
+            }
+            self.state.send_copy(msg).ipc("publish state")?;
+            if last {
+                self.state_ready.notify().ipc("notify state")?;
+            }
+            return Ok(());
+        }
         self.state.send_copy(msg).ipc("publish state")?;
         if ipc::published_needs_notify(ctrl_poll_until_ns) {
             self.state_ready.notify().ipc("notify state")?;
@@ -208,7 +226,12 @@ where
         bail!("mode {} has no processes", args.mode);
     };
     let start_at = open(&cfg)?;
-    let ports = Ports::open(&args.run_id)?;
+    let mut ports = Ports::open(&args.run_id)?;
+    // Across two hosts: ask the bridge beside us for the link's socket (before READY).
+    let handoff = match cfg.link {
+        Some(_) => direct::hello()?,
+        None => None,
+    };
     rt::schedule_and_report_ready(
         &rt::Sched {
             core: layout.plant_cpu,
@@ -234,6 +257,10 @@ where
     else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
+    if let Some(h) = &handoff {
+        let lockstep = args.mode == LoopMode::Lockstep;
+        ports.link = direct::answer(h)?.map(|udp| PlantEnd::new(udp, lockstep));
+    }
     ipc::connect_now(&[
         &ports.state,
         &ports.telemetry,
@@ -258,19 +285,22 @@ where
         overrun_after_ns: cfg.overrun_after_ns(),
         paused_ns: 0,
     };
-    let end = match run_loop(&ports, &mut side, &mut clock, &cfg, term)? {
-        Some(stop) => end_run(&ports, &mut side, &clock, &cfg, stop),
+    let end = match run_loop(&mut ports, &mut side, &mut clock, &cfg, term)? {
+        Some(stop) => end_run(&mut ports, &mut side, &clock, &cfg, stop),
         // No DONE message: the final state and the exit status say it, and the controller's ports
         // are already going away (a send now would race their teardown).
         None => ProcessEnd::Completed,
     };
+    if let (Some(h), Some(l)) = (&handoff, &ports.link) {
+        direct::counts(h, &l.udp);
+    }
     std::thread::sleep(ipc::LINGER);
     Ok(end)
 }
 
 /// Ticks 0..=N, then the final state N + 1. Some(stop) if the loop ended early.
 fn run_loop<P: Physics>(
-    ports: &Ports,
+    ports: &mut Ports,
     side: &mut PlantSide<P>,
     clock: &mut Clock,
     cfg: &RunConfig,
@@ -328,7 +358,7 @@ fn run_loop<P: Physics>(
             return Ok(None);
         }
         let reply = match wait_torque(
-            ports,
+            &mut *ports,
             k,
             (msg.t_publish_ns, msg.t_poll_until_ns, until),
             clock.poll,
@@ -416,7 +446,7 @@ fn loop_stop(stop: PlantStop, last_deadline_ns: u64) -> LoopStop {
 /// After an early stop: tell the supervisor, release the controller, and brake if the model
 /// still works (keeping the clock in realtime).
 fn end_run<P: Physics>(
-    ports: &Ports,
+    ports: &mut Ports,
     side: &mut PlantSide<P>,
     clock: &Clock,
     cfg: &RunConfig,
@@ -551,12 +581,17 @@ enum Awaited {
 /// state `tick` was published. Before each block, and when the wait ends empty, it looks for the
 /// controller's CONTROLLER_ERROR (the controller wakes the plant after sending it).
 fn wait_torque<P: Physics>(
-    ports: &Ports,
+    ports: &mut Ports,
     tick: u64,
-    (state_pub_ns, poll_until_ns, until_ns): (u64, u64, u64),
+    times: (u64, u64, u64),
     poll: Poll,
     side: &mut PlantSide<P>,
 ) -> Result<Awaited> {
+    if let Some(link) = &mut ports.link {
+        let events = (&ports.torque_ready, &ports.from_controller);
+        return wait_torque_direct(link, events, tick, times, poll, side);
+    }
+    let (state_pub_ns, poll_until_ns, until_ns) = times;
     let (sub, listener) = (&ports.torque, &ports.torque_ready);
     loop {
         let now = rt::now_ns();
@@ -594,6 +629,64 @@ fn wait_torque<P: Physics>(
             return Ok(Awaited::ControllerError(why));
         }
         ipc::wait_event(listener, until_ns - now)?;
+    }
+}
+
+/// [`wait_torque`] on the direct path: the replies come on the link's socket, already stamped
+/// with their arrival here; the wait blocks on the socket and the wake-up event together (the
+/// bridge wakes the plant for a CONTROLLER_ERROR). Replies for earlier ticks (copies that came
+/// late) are counted late, as on iceoryx2; the record's copies on iceoryx2 are not for the loop.
+fn wait_torque_direct<P: Physics>(
+    link: &mut PlantEnd,
+    (listener, from_controller): (&Listener<Svc>, &Subscriber<Svc, ControlMsg, ()>),
+    tick: u64,
+    (state_pub_ns, poll_until_ns, until_ns): (u64, u64, u64),
+    poll: Poll,
+    side: &mut PlantSide<P>,
+) -> Result<Awaited> {
+    loop {
+        let now = rt::now_ns();
+        let (mut got, mut late) = (None, 0u64);
+        link.poll(|m| {
+            let rx_ns = m.t_publish_ns;
+            let (stamp_ns, stamp_replaced) = trusted_stamp(m.t_publish_ns, state_pub_ns, rx_ns);
+            match reply_verdict(&m, stamp_ns, tick, until_ns) {
+                Reply::Apply if got.is_none() => {
+                    got = Some(Received {
+                        msg: m,
+                        rx_ns,
+                        stamp_ns,
+                        stamp_replaced,
+                    })
+                }
+                Reply::Apply | Reply::Ignore => {}
+                Reply::Late => late += 1,
+            }
+        })?;
+        for _ in 0..late {
+            side.late_reply();
+        }
+        if let Some(r) = got {
+            return Ok(Awaited::Reply(r));
+        }
+        if now >= until_ns {
+            return Ok(controller_error(from_controller)
+                .map_or(Awaited::Nothing, Awaited::ControllerError));
+        }
+        if now < poll_until_ns {
+            rt::poll_pause(poll);
+            continue;
+        }
+        listener.try_wait(|_| {}).ipc("drain torque events")?;
+        if let Some(why) = controller_error(from_controller) {
+            return Ok(Awaited::ControllerError(why));
+        }
+        let slice = (until_ns - now).min(link.timeout_ns(now));
+        let mut fds = [
+            direct::readable(&link.udp),
+            deltaloop_bridge::link::event(listener),
+        ];
+        deltaloop_bridge::link::wait(&mut fds, slice)?;
     }
 }
 

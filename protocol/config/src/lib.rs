@@ -34,9 +34,9 @@ pub use files::{MAX_FILE_BYTES, read_text_file};
 pub use layout::{Layout, Poll, Priority, ResolvedLayout};
 pub use mode::LoopMode;
 pub use schema::{
-    ApplyTorque, ControllerSection, FaultInjection, FaultSection, LinkSection, LoopSection,
-    Overrun, PathKind, PlantSection, RecordSection, RemoteSide, RunConfig, ScenarioSection,
-    Segment, SensorSection, TorqueLimit,
+    ApplyTorque, ControllerSection, FaultInjection, FaultSection, LinkPath, LinkSection,
+    LoopSection, Overrun, PathKind, PlantSection, RecordSection, RemoteSide, RunConfig,
+    ScenarioSection, Segment, SensorSection, TorqueLimit,
 };
 pub use text::{
     MAX_ECHO_CHARS, clean_message, show_num, show_path, show_str, toml_error_line,

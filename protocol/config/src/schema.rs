@@ -549,9 +549,40 @@ pub struct LinkSection {
     /// Seed of the emulated jitter and loss (the far side draws with seed + 1).
     #[serde(default = "default_link_seed")]
     pub seed: u64,
-    /// How long the near bridge polls for a reply after sending a state before it blocks, µs.
+    /// How long the near bridge polls for a reply after sending a state before it blocks, µs
+    /// (the relay path's).
     #[serde(default)]
     pub spin_us: u32,
+    /// How the loop's messages cross: `direct` (plant and controller socket to socket, each
+    /// bridge handing its socket to the loop process beside it) or `relay` (through both
+    /// bridges, as a process that speaks only iceoryx2 always is).
+    #[serde(default, skip_serializing_if = "LinkPath::is_direct")]
+    pub path: LinkPath,
+}
+
+/// How the loop's messages cross the link (`[link] path`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LinkPath {
+    /// Socket to socket between the loop processes (a process that cannot take the socket is
+    /// relayed by its bridge).
+    #[default]
+    Direct,
+    /// Through both bridges.
+    Relay,
+}
+
+impl LinkPath {
+    pub fn is_direct(&self) -> bool {
+        *self == LinkPath::Direct
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            LinkPath::Direct => "direct",
+            LinkPath::Relay => "relay",
+        }
+    }
 }
 
 fn default_link_seed() -> u64 {

@@ -7,6 +7,7 @@
 #[cfg(feature = "args")]
 pub mod args;
 pub mod exit;
+pub mod handoff;
 pub mod ipc;
 pub mod observe;
 pub mod rt;

@@ -64,9 +64,13 @@ impl RemoteArgs {
                     loss: e.link_loss,
                     seed: e.link_seed,
                     spin_us: e.link_spin_us,
+                    path: e.link_path.unwrap_or_default(),
                 }
             }
-            (None, Some(link)) if emu.is_off() => link.clone(),
+            (None, Some(link)) if emu.is_off() => LinkSection {
+                path: self.emu.link_path.unwrap_or(link.path),
+                ..link.clone()
+            },
             (None, _) => {
                 if !emu.is_off() {
                     bail!(

@@ -351,9 +351,12 @@ pub fn link_rtt_ns(
     s: Option<&StateMsg>,
     q: &TorqueMsg,
 ) -> Option<u64> {
+    // With the plant across, the state's arrival here: its publication by the near bridge, or
+    // (the direct path, where the controller takes it from the socket and the bridge files the
+    // record's copy later) the controller's take, whichever came first.
     let from = match across {
         Across::Controller => q.t_state_rx_ns,
-        Across::Plant => s?.t_publish_ns,
+        Across::Plant => s?.t_publish_ns.min(q.t_state_rx_ns.max(1)),
     };
     let residence = q.t_publish_ns.saturating_sub(from);
     round_trip_ns(m).map(|rt| rt.saturating_sub(residence))

@@ -5,7 +5,7 @@ use super::status::status_text;
 use super::{exe_dir, role};
 use crate::loops::peer_text::{self, Tail};
 use anyhow::{Context, Result, bail};
-use deltaloop_config::{Law, LoopMode, RunConfig};
+use deltaloop_config::{Law, LoopMode, RemoteSide, RunConfig};
 use deltaloop_transport::ipc;
 use deltaloop_transport::wire::Sender;
 use std::path::{Path, PathBuf};
@@ -121,7 +121,13 @@ impl Launch {
     }
 }
 
-pub(super) fn spawn(launch: &Launch, args: &[String], log: &Path, who: Sender) -> Result<Reaped> {
+pub(super) fn spawn(
+    launch: &Launch,
+    args: &[String],
+    log: &Path,
+    who: Sender,
+    handoff: Option<&deltaloop_transport::handoff::End>,
+) -> Result<Reaped> {
     let err =
         std::fs::File::create(log).with_context(|| format!("cannot create {}", log.display()))?;
     let mut cmd = Command::new(&launch.program);
@@ -139,6 +145,11 @@ pub(super) fn spawn(launch: &Launch, args: &[String], log: &Path, who: Sender) -
     // Stopped in order by the supervisor, and by the kernel if the supervisor is killed
     // outright (regression: a SIGKILLed supervisor left its plant running, a soak's up to 24 h).
     deltaloop_transport::rt::die_with_parent(&mut cmd);
+    // Across two hosts: the near bridge and the loop process beside it share a private socket
+    // pair, over which the bridge may hand the link's socket on at START (the direct path).
+    if let Some(end) = handoff {
+        deltaloop_transport::handoff::inherit(&mut cmd, end);
+    }
     let child = cmd.spawn().with_context(|| {
         if launch.custom {
             format!(
@@ -252,10 +263,29 @@ impl Pair {
             Launch::of(&cfg.plant.command, &exe, "deltaloop-plant"),
             Launch::of(&cfg.controller.command, &exe, "deltaloop-controller"),
         );
-        let plant = spawn(&pl, &common, &plant_log, Sender::Plant)?;
+        // One end for the near bridge (in the remote process's place), one for the process here.
+        let pair = match &cfg.link {
+            Some(_) => Some(deltaloop_transport::handoff::pair().context("a socket pair")?),
+            None => None,
+        };
+        let (for_plant, for_controller) = match (&cfg.link, &pair) {
+            (Some(l), Some((bridge, local))) if l.remote == RemoteSide::Controller => {
+                (Some(local), Some(bridge))
+            }
+            (Some(_), Some((bridge, local))) => (Some(bridge), Some(local)),
+            _ => (None, None),
+        };
+        let plant = spawn(&pl, &common, &plant_log, Sender::Plant, for_plant)?;
         let mut ctrl_args = common;
         ctrl_args.extend(["--law".to_string(), law.name().to_string()]);
-        let controller = spawn(&cl, &ctrl_args, &ctrl_log, Sender::Controller)?;
+        let controller = spawn(
+            &cl,
+            &ctrl_args,
+            &ctrl_log,
+            Sender::Controller,
+            for_controller,
+        )?;
+        drop(pair);
         Ok(Self {
             plant,
             controller,

@@ -618,6 +618,7 @@ fn link_far(
             link_loss: l.loss,
             link_seed: seed,
             link_spin_us: 0,
+            link_path: cfg.link.as_ref().map(|l| l.path),
         },
         link_key: None,
         quiet: true,
