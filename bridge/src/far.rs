@@ -13,7 +13,8 @@
 
 use crate::Role;
 use crate::bytes::{self, bytes_of};
-use crate::frame::{Hello, Kind};
+use crate::frame::Kind;
+use crate::hello::Hello;
 use crate::link::{self, Tcp, Udp};
 use crate::seal::{self, End, LinkKey, Session};
 use crate::sides::{ControllerHost, PlantHost};
@@ -479,9 +480,6 @@ fn relay(
                 ports,
                 host: ControllerHost::new(spin_ns, false),
                 named,
-                seq: 0,
-                copies: vec![0; crate::frame::MAX_REPLIES * crate::replies::ENTRY]
-                    .into_boxed_slice(),
             };
             let code = f.forward(link, term)?;
             if f.host.stale > 0 {

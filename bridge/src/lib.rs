@@ -16,20 +16,18 @@
 //! The per-tick path allocates nothing and takes no lock: `ppoll` on the socket and the event,
 //! `recv`/`send` of one datagram, iceoryx2's publish and notify, the clock.
 
-pub mod bytes;
-pub mod direct;
-pub mod emulation;
 pub mod far;
 pub mod files;
-pub mod frame;
+pub mod hello;
 pub mod link;
 pub mod near;
 pub mod ping;
-pub mod replies;
 pub mod seal;
 pub mod sides;
 #[cfg(feature = "zenoh")]
 pub mod zping;
+
+pub use deltaloop_link::{bytes, direct, emulation, frame, replies};
 
 use anyhow::{Result, bail};
 use clap::{Parser, Subcommand};

@@ -17,7 +17,8 @@
 use crate::Role;
 use crate::bytes::{self, bytes_of, bytes_of_slice};
 use crate::emulation::Emulation;
-use crate::frame::{Hello, Kind};
+use crate::frame::Kind;
+use crate::hello::Hello;
 use crate::link::{self, Tcp, Udp};
 use crate::seal::{self, End, LinkKey, LinkReport, RefusedCounts, Session, SideRefusals};
 use crate::sides::{ControllerHost, PlantHost};
@@ -229,6 +230,8 @@ struct Peer {
     /// The loop process beside this side took the link's socket at START: this side relays no
     /// datagram and never reads the socket again.
     direct: bool,
+    /// The process on the other host.
+    role: Role,
 }
 
 /// Connections the near side authenticates at once at most: more than a flood of a few slow
@@ -664,6 +667,7 @@ fn connect(
         handoff: None,
         relay: false,
         direct: false,
+        role: at.role,
     }))
 }
 
@@ -872,6 +876,9 @@ impl Peer {
                             End::Near,
                             self.relay,
                         )?;
+                        if self.direct && self.role == Role::Controller {
+                            self.tcp.send(Kind::NearDirect, &[])?;
+                        }
                     }
                     c.t0_ns = c.t0_ns.saturating_sub(rt::now_ns());
                     self.tcp.send(Kind::Control, &[bytes_of(&c)])?;

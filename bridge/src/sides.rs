@@ -23,8 +23,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 
-/// Lockstep: how long to wait for a reply before sending its state again, ns.
-pub const RESEND_NS: u64 = 5_000_000;
+pub use deltaloop_link::direct::RESEND_NS;
 
 /// The plant's host: states out, replies in (see the module).
 pub struct PlantHost {
@@ -372,49 +371,15 @@ pub struct ControllerHost {
     /// The controller took the link's socket (the direct path): the states published here are
     /// the record's, and only the final one wakes the controller.
     pub quiet: bool,
+    /// The plant on the other host took its socket while this side relays the controller (one
+    /// that speaks only iceoryx2): a copy of each reply for the record there.
+    pub copies: Option<Copies>,
 }
 
 /// Bytes queued on the control connection above which a recall waits for the next turn.
 const RECALL_ROOM: usize = 1 << 20;
 
-/// The offset from the far host's clock to this one, ns: the smallest of (arrival here −
-/// publication there) over the last one to two blocks of [`OFFSET_BLOCK`] states, that is the
-/// clocks' offset plus the quickest recent trip. A windowed minimum, so that it follows the two
-/// clocks' drift over a long run; O(1) per state, no allocation.
-#[derive(Clone, Copy, Debug)]
-pub struct Offset {
-    /// The minimum of the block being filled, and of the one before it.
-    current: i64,
-    previous: i64,
-    /// States in the current block.
-    n: u32,
-}
-
-/// States per block of the [`Offset`] window (0.3–0.6 s at 3.3 kHz).
-const OFFSET_BLOCK: u32 = 1024;
-
-impl Default for Offset {
-    fn default() -> Self {
-        Self {
-            current: i64::MAX,
-            previous: i64::MAX,
-            n: 0,
-        }
-    }
-}
-
-impl Offset {
-    /// Takes one state's (arrival − publication) and returns the offset in force.
-    pub fn add(&mut self, seen: i64) -> i64 {
-        self.current = self.current.min(seen);
-        self.n += 1;
-        let offset = self.current.min(self.previous);
-        if self.n == OFFSET_BLOCK {
-            (self.previous, self.current, self.n) = (self.current, i64::MAX, 0);
-        }
-        offset
-    }
-}
+pub use deltaloop_link::offset::Offset;
 
 /// States whose arrival time a [`ControllerHost`] keeps.
 const ARRIVALS: usize = 64;
@@ -441,6 +406,7 @@ impl ControllerHost {
             recent: [u64::MAX; RECENT],
             stale: 0,
             quiet: false,
+            copies: None,
         }
     }
 
@@ -476,9 +442,13 @@ impl ControllerHost {
         ports: &PlantEnds<'_>,
         (torque_in, udp_in): (bool, bool),
         udp: &mut Udp,
+        tcp: &mut Tcp,
     ) -> Result<bool> {
         if torque_in || self.polling(rt::now_ns()) {
-            self.torques((ports.1, ports.3), udp)?;
+            self.torques((ports.1, ports.3), udp, tcp)?;
+        }
+        if let Some(c) = &mut self.copies {
+            c.flush(tcp)?;
         }
         let heard = udp_in && self.states((ports.0, ports.2), udp)?;
         udp.flush(rt::now_ns())?;
@@ -515,6 +485,7 @@ impl ControllerHost {
         &mut self,
         (torque, torque_ready): (&Subscriber<Svc, TorqueMsg, ()>, &Listener<Svc>),
         udp: &mut Udp,
+        tcp: &mut Tcp,
     ) -> Result<()> {
         torque_ready.try_wait(|_| {}).ipc("drain torque-ready")?;
         while let Some(s) = torque.receive().ipc("receive torque")? {
@@ -530,6 +501,9 @@ impl ControllerHost {
             };
             let payload = self.replies.push(t, residence);
             udp.send(Kind::Torque, &[payload], now)?;
+            if let Some(c) = &mut self.copies {
+                c.push(t, residence, tcp)?;
+            }
         }
         Ok(())
     }
@@ -631,36 +605,60 @@ impl ControllerHost {
     }
 }
 
-/// The far controller's replies for the record (the direct path, `--controller-remote`): each
-/// reply it published on this host since the last call, numbered, with its residence (its
-/// state's take to its publication, both the controller's stamps), out in REPLIES frames.
-/// `buf` is pre-allocated ([`crate::frame::MAX_REPLIES`] entries).
-pub fn copy_replies(
-    torque: &Subscriber<Svc, TorqueMsg, ()>,
-    tcp: &mut Tcp,
-    seq: &mut u64,
-    buf: &mut [u8],
-) -> Result<()> {
-    let e = crate::replies::ENTRY;
-    let mut n = 0;
-    while let Some(s) = torque.receive().ipc("receive torque")? {
-        let t: &TorqueMsg = s.payload();
-        let at = n * e;
-        buf[at..at + e - 16].copy_from_slice(bytes_of(t));
-        let residence = t.t_publish_ns.saturating_sub(t.t_state_rx_ns);
-        buf[at + e - 16..at + e - 8].copy_from_slice(&residence.to_ne_bytes());
-        buf[at + e - 8..at + e].copy_from_slice(&seq.to_ne_bytes());
-        *seq += 1;
-        n += 1;
-        if n == crate::frame::MAX_REPLIES {
-            tcp.queue(Kind::Replies, &[&buf[..n * e]])?;
-            n = 0;
+/// The far controller's replies for the record on the plant's host, when the plant there took
+/// the link's socket (the direct path, `--controller-remote`): each reply numbered, with its
+/// residence here, gathered into REPLIES frames ([`Kind::Replies`]). Pre-allocated.
+pub struct Copies {
+    seq: u64,
+    buf: Box<[u8]>,
+    n: usize,
+}
+
+impl Default for Copies {
+    fn default() -> Self {
+        Self {
+            seq: 0,
+            buf: vec![0; crate::frame::MAX_REPLIES * crate::replies::ENTRY].into_boxed_slice(),
+            n: 0,
         }
     }
-    if n > 0 {
-        tcp.queue(Kind::Replies, &[&buf[..n * e]])?;
+}
+
+impl Copies {
+    /// Reply `t` with its `residence` (ns) into the next frame (the full frame goes out first).
+    pub fn push(&mut self, t: &TorqueMsg, residence: u64, tcp: &mut Tcp) -> Result<()> {
+        if self.n == crate::frame::MAX_REPLIES {
+            self.flush(tcp)?;
+        }
+        let e = crate::replies::ENTRY;
+        let at = self.n * e;
+        self.buf[at..at + e - 16].copy_from_slice(bytes_of(t));
+        self.buf[at + e - 16..at + e - 8].copy_from_slice(&residence.to_ne_bytes());
+        self.buf[at + e - 8..at + e].copy_from_slice(&self.seq.to_ne_bytes());
+        self.seq += 1;
+        self.n += 1;
+        Ok(())
     }
-    Ok(())
+
+    /// The replies gathered, out in one frame (queued on the control connection).
+    pub fn flush(&mut self, tcp: &mut Tcp) -> Result<()> {
+        if self.n > 0 {
+            let e = crate::replies::ENTRY;
+            tcp.queue(Kind::Replies, &[&self.buf[..self.n * e]])?;
+            self.n = 0;
+        }
+        Ok(())
+    }
+
+    /// Every reply the controller published on this host since the last call (the direct path:
+    /// its residence from the controller's own stamps), out.
+    pub fn take(&mut self, torque: &Subscriber<Svc, TorqueMsg, ()>, tcp: &mut Tcp) -> Result<()> {
+        while let Some(s) = torque.receive().ipc("receive torque")? {
+            let t: &TorqueMsg = s.payload();
+            self.push(t, t.t_publish_ns.saturating_sub(t.t_state_rx_ns), tcp)?;
+        }
+        self.flush(tcp)
+    }
 }
 
 /// A REPLIES frame's replies filed for the record here (the direct path, `--controller-remote`),
@@ -751,7 +749,7 @@ mod tests {
         assert_eq!(o.add(1_000_000), 1_000_000);
         // The clocks drift 1 µs apart: followed once the older blocks are out of the window.
         let mut now = 0;
-        for _ in 0..(2 * OFFSET_BLOCK + 1) {
+        for _ in 0..(2 * deltaloop_link::offset::OFFSET_BLOCK + 1) {
             now = o.add(1_001_000);
         }
         assert_eq!(now, 1_001_000);
@@ -922,7 +920,8 @@ mod tests {
                     ..TorqueMsg::default()
                 })
                 .unwrap();
-            far.torques((far_ends.1, far_ends.3), &mut far_udp).unwrap();
+            far.torques((far_ends.1, far_ends.3), &mut far_udp, &mut far_tcp)
+                .unwrap();
             std::thread::sleep(std::time::Duration::from_millis(2));
             let n = tap.recv(&mut buf).unwrap();
             if !(5..=10).contains(&tick) {

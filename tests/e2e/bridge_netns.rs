@@ -775,8 +775,8 @@ fn bench_net_prints_its_three_rows_and_a_last_line() {
     let out = text(&o.stdout);
     assert!(o.status.success(), "{}{out}", text(&o.stderr));
     // Each row's p50 is finite and positive.
-    let mut bridge_answered = true;
-    for path in ["UDP ping-pong", "bridge", "one host"] {
+    let (mut bridge_answered, mut direct_answered) = (true, true);
+    for path in ["UDP ping-pong", "direct", "relay", "one host"] {
         let row = out
             .lines()
             .find(|l| l.starts_with(&format!("| {path}")))
@@ -808,8 +808,11 @@ fn bench_net_prints_its_three_rows_and_a_last_line() {
         };
         assert!(p50.is_finite() && p50 >= 0.0, "{row}");
         assert!(p50 > 0.0 || !answered, "{row}");
-        if path == "bridge" {
+        if path == "relay" {
             bridge_answered = answered;
+        }
+        if path == "direct" {
+            direct_answered = answered;
         }
     }
     let last = out.lines().last().unwrap();
@@ -822,14 +825,20 @@ fn bench_net_prints_its_three_rows_and_a_last_line() {
         .collect();
     for k in [
         "udp_p50_us",
+        "direct_p50_us",
         "bridge_p50_us",
         "one_host_p50_us",
         "bridge_over_udp",
+        "direct_over_udp",
     ] {
-        // The bridge's figures are 0 when its run faulted before any reply (see above).
-        let measured = !k.starts_with("bridge") || bridge_answered;
+        // A run's figures are 0 when it faulted before any reply (see above).
+        let measured = (bridge_answered || !k.starts_with("bridge"))
+            && (direct_answered || !k.starts_with("direct"));
         assert!(kv[k].is_finite() && kv[k] >= 0.0, "{k}: {last}");
         assert!(kv[k] > 0.0 || !measured, "{k}: {last}");
+    }
+    for k in ["direct_miss_ratio", "one_host_miss_ratio"] {
+        assert!((0.0..=1.0).contains(&kv[k]), "{k}: {last}");
     }
     // Nothing left: neither namespace of the command (named by its pid).
     let ns = text(

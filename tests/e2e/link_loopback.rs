@@ -1010,12 +1010,21 @@ fn near_bridge_of(parent: u32) -> i32 {
 /// then "trace.csv differs"). And a late reply to the tick the plant stopped at (the controller
 /// silence that followed) made a row with `reply` unknown, which the replay refused as a lost
 /// tick. Each bridge of each role in turn is stalled five times for 200 ms: the run replays byte for byte,
-/// or the replay refuses exactly the ticks the summary counts as lost.
+/// or the replay refuses exactly the ticks the summary counts as lost. On the relay path the stall
+/// reaches the loop; on the direct path (the loop's messages do not pass a bridge) it must not:
+/// only the record's copies wait.
 #[test]
 fn regression_a_stalled_bridge_run_replays_or_says_what_it_lost() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    for role in ["controller", "plant"] {
-        for stalled in ["near", "far"] {
+    for (role, stalled, path) in [
+        ("controller", "near", "relay"),
+        ("controller", "far", "relay"),
+        ("plant", "near", "relay"),
+        ("plant", "far", "relay"),
+        ("controller", "near", "direct"),
+        ("plant", "far", "direct"),
+    ] {
+        {
             let (tmp, cfg, key, ep) = s1_with_key();
             let out = tmp.path().join("run");
             let remote = format!("--{role}-remote");
@@ -1031,6 +1040,8 @@ fn regression_a_stalled_bridge_run_replays_or_says_what_it_lost() {
                 &s(&key),
                 "--hold-s",
                 "4",
+                "--link-path",
+                path,
                 "--out",
                 &s(&out),
             ];
@@ -1061,17 +1072,26 @@ fn regression_a_stalled_bridge_run_replays_or_says_what_it_lost() {
                 unsafe { libc::kill(pid, libc::SIGCONT) };
             }
             let (o, _) = finish_pair(run, join, &far_root);
-            let case = format!("{role} remote, {stalled} bridge stalled");
+            let case = format!("{role} remote, {stalled} bridge stalled, {path} path");
             let trace = rows(&out.join("trace.csv"));
             assert!(!trace.is_empty(), "{case}: no trace: {}", text(&o.stderr));
-            // The stall hit the loop: a stretch of ticks the plant got no reply for in time.
+            // On the relay path the stall hit the loop: a stretch of ticks the plant got no reply
+            // for in time (each stall is ≈ 667 ticks). On the direct path it did not.
             let longest = trace
                 .split(|r| r["reply"] == "applied")
                 .map(<[_]>::len)
                 .max()
                 .unwrap_or(0);
-            assert!(longest >= 300, "{case}: no stall in the trace ({longest})");
-            replays_or_names_what_it_lost(&case, &out, &tmp.path().join("replay"));
+            if path == "relay" {
+                assert!(longest >= 300, "{case}: no stall in the trace ({longest})");
+            } else {
+                assert!(
+                    longest < 300,
+                    "{case}: the bridge's stall reached the loop ({longest})"
+                );
+            }
+            let whole = replays_or_names_what_it_lost(&case, &out, &tmp.path().join("replay"));
+            assert!(whole || path == "relay", "{case}: the record lost ticks");
         }
     }
 }
@@ -1140,6 +1160,8 @@ fn regression_a_burst_of_lost_replies_is_recovered_or_recorded_as_lost() {
         "7",
         "--hold-s",
         "1",
+        "--link-path",
+        "relay",
         "--out",
         &s(&out),
     ];
@@ -1174,6 +1196,27 @@ fn regression_a_burst_of_lost_replies_is_recovered_or_recorded_as_lost() {
     eprintln!(
         "{case}: {lost} repl(ies) lost beyond the copies, {recalled} recalled; join: {}",
         text(&j.stderr).trim_end()
+    );
+    // The direct path: the same loss on the plant's and the controller's own sockets; the record
+    // takes every reply from the far side over the control connection, so the run replays whole.
+    let out = tmp.path().join("direct");
+    let mut args = args.map(str::to_string);
+    let n = args.len();
+    (args[n - 3], args[n - 1]) = ("direct".into(), s(&out));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let run = common::spawn(&args);
+    let join = join_as(&ep, "controller", &key, &far_root);
+    let (o, _) = finish_pair(run, join, &far_root);
+    let case = "30 % lost, direct path";
+    assert!(
+        out.join("trace.csv").is_file(),
+        "{case}: {}",
+        text(&o.stderr)
+    );
+    let plant_log = std::fs::read_to_string(out.join("tdc.plant.log")).unwrap_or_default();
+    assert!(
+        replays_or_names_what_it_lost(case, &out, &tmp.path().join("replay-direct")),
+        "{case}: the record lost replies: {plant_log}"
     );
 }
 
@@ -1290,6 +1333,8 @@ fn regression_a_remote_plant_loop_recovers_after_a_near_bridge_stall() {
                 &s(&key),
                 "--hold-s",
                 "4",
+                "--link-path",
+                "relay",
                 "--out",
                 &s(&out),
             ];

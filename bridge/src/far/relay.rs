@@ -219,9 +219,6 @@ pub(super) struct Far {
     /// The READY text of `--controller-cmd`'s label, for a controller that does not name itself
     /// (see [`ready_naming`]).
     pub(super) named: Option<[u8; 160]>,
-    /// The direct path: the next reply's number, and the REPLIES frame's buffer.
-    pub(super) seq: u64,
-    pub(super) copies: Box<[u8]>,
 }
 
 /// The READY text that names a controller of the user's started with `cmd`, as
@@ -247,11 +244,16 @@ impl Far {
             let c = &self.ports;
             if l.direct {
                 // The replies went to the plant from the controller's socket: a copy of each
-                // goes over TCP for the record there.
-                crate::sides::copy_replies(&c.torque, &mut l.tcp, &mut self.seq, &mut self.copies)?;
+                // goes over TCP for the record there, if the plant there took its socket too
+                // (else that side's bridge relays, and files, them).
+                match &mut self.host.copies {
+                    Some(copies) => copies.take(&c.torque, &mut l.tcp)?,
+                    None => while c.torque.receive().ipc("receive torque")?.is_some() {},
+                }
             } else {
                 let ports = (&c.state, &c.torque, &c.state_ready, &c.torque_ready);
-                self.host.turn(&ports, (torque_in, udp_in), &mut l.udp)?;
+                self.host
+                    .turn(&ports, (torque_in, udp_in), &mut l.udp, &mut l.tcp)?;
             }
             self.control_plane(l, tcp_in)?;
             if let Some(code) = l.ended(&self.ports.control, err_in, term)? {
@@ -303,6 +305,11 @@ impl Far {
                     chunk.send().ipc("send a reference chunk")?;
                 }
                 Kind::Final => finals = bytes::read::<StateMsg>(p),
+                // The plant there took its socket: the record there needs a copy of each reply
+                // (when this side relays; on the direct path it sends them anyway).
+                Kind::NearDirect => {
+                    host.copies.get_or_insert_with(Default::default);
+                }
                 _ => {}
             }
             Ok(())

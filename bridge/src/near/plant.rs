@@ -43,9 +43,12 @@ impl NearPlant {
             // On the direct path the loop's messages do not pass here: the states arrive as
             // the record's copies over TCP, and the controller's replies go to the plant.
             if !self.peer.direct
-                && self
-                    .host
-                    .turn(&ports, (torque_in, udp_in), &mut self.peer.udp)?
+                && self.host.turn(
+                    &ports,
+                    (torque_in, udp_in),
+                    &mut self.peer.udp,
+                    &mut self.peer.tcp,
+                )?
             {
                 self.heard_ns = rt::now_ns();
             }

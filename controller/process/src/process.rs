@@ -16,9 +16,9 @@ use crate::ControllerSide;
 use crate::ring::RefRing;
 use anyhow::{Result, bail};
 use clap::Parser;
-use deltaloop_bridge::direct::{self, ControllerEnd};
 use deltaloop_config::config::{FaultInjection, Poll};
 use deltaloop_config::{Law, LoopMode, RemoteSide, RunConfig};
+use deltaloop_link::direct::{self, ControllerEnd};
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
 use deltaloop_transport::ipc::{self, IpcContext, Svc};
@@ -602,9 +602,9 @@ fn wait_state_direct(
         let slice = (until - now).min(BLOCK_SLICE_NS).min(link.timeout_ns(now));
         let mut fds = [
             direct::readable(&link.udp),
-            deltaloop_bridge::link::event(listener),
+            deltaloop_link::udp::event(listener),
         ];
-        deltaloop_bridge::link::wait(&mut fds, slice)?;
+        deltaloop_link::udp::wait(&mut fds, slice)?;
     }
 }
 

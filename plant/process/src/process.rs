@@ -16,9 +16,9 @@
 use crate::{Arrival, Physics, PlantSide, PlantStop, plant_from_config};
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use deltaloop_bridge::direct::{self, PlantEnd};
 use deltaloop_config::config::{ApplyTorque, Overrun, Poll};
 use deltaloop_config::{LoopMode, RunConfig};
+use deltaloop_link::direct::{self, PlantEnd};
 use deltaloop_model::Vec3;
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
@@ -684,9 +684,9 @@ fn wait_torque_direct<P: Physics>(
         let slice = (until_ns - now).min(link.timeout_ns(now));
         let mut fds = [
             direct::readable(&link.udp),
-            deltaloop_bridge::link::event(listener),
+            deltaloop_link::udp::event(listener),
         ];
-        deltaloop_bridge::link::wait(&mut fds, slice)?;
+        deltaloop_link::udp::wait(&mut fds, slice)?;
     }
 }
 

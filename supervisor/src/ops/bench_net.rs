@@ -160,6 +160,8 @@ pub struct Row {
     pub p99: f64,
     pub p999: f64,
     pub misses: String,
+    /// Misses ÷ ticks of a run's row (None: a ping-pong).
+    pub miss_ratio: Option<f64>,
 }
 
 /// The percentiles of a `deltaloop-bridge ping` / `zping` line (`…: N round trips, p50 X µs,
@@ -179,6 +181,7 @@ pub fn parse_ping(path: &str, text: &str) -> Option<Row> {
         p99: num("p99 ")?,
         p999: num("p99.9 ")?,
         misses: format!("{} lost of {n}", field("lost ")?),
+        miss_ratio: None,
     })
 }
 
@@ -206,6 +209,10 @@ fn run_row(path: &str, out: &Path) -> Result<Row> {
             "{} of {} ticks ({status})",
             t["deadline_misses"], t["ticks"]
         ),
+        miss_ratio: match (t["deadline_misses"].as_f64(), t["ticks"].as_f64()) {
+            (Some(m), Some(n)) if n > 0.0 => Some(m / n),
+            _ => None,
+        },
     })
 }
 
@@ -217,7 +224,7 @@ fn tail(log: &Path) -> String {
 }
 
 /// Runs the benchmark (see the module) and prints the table; the last line is
-/// `udp_p50_us=<u> bridge_p50_us=<b> one_host_p50_us=<h> bridge_over_udp=<b/u>`.
+/// [`summary_line`].
 /// `out`: where the runs' folders go (None: a temporary folder, removed at the end).
 /// How long a polling bridge polls for the reply, µs (the 150 µs budget: a reply later than that
 /// is late anyway).
@@ -266,33 +273,62 @@ pub fn run(
             rows.push(b.ping(z, "zpong", "zping", &ep, label)?);
         }
     }
-    // 2: across the bridge, both sides blocking; with `polling`, also each side polling.
-    let blocking = rows.len();
-    rows.push(b.across("bridge", "bridge (both sides blocking)", &[], &[])?);
+    // 2: across the link: the direct path (plant and controller socket to socket), then the
+    // relay through both bridges (blocking; with `polling`, also each bridge polling).
+    let direct = rows.len();
+    rows.push(b.across(
+        "direct",
+        "direct (plant and controller socket to socket)",
+        &[],
+        &["--link-path=direct"],
+    )?);
+    let relay = rows.len();
+    rows.push(b.across(
+        "bridge",
+        "relay (both bridges blocking)",
+        &[],
+        &["--link-path=relay"],
+    )?);
     if polling {
         let spin = format!("{POLL_US}");
         rows.push(b.across(
             "bridge-far-polling",
-            &format!("bridge, far side polling (join --spin-us {POLL_US})"),
+            &format!("relay, far bridge polling (join --spin-us {POLL_US})"),
             &["--spin-us", &spin],
-            &[],
+            &["--link-path=relay"],
         )?);
         rows.push(b.across(
             "bridge-near-polling",
-            &format!("bridge, near side polling (--link-spin-us {POLL_US})"),
+            &format!("relay, near bridge polling (--link-spin-us {POLL_US})"),
             &[],
-            &[&format!("--link-spin-us={POLL_US}")],
+            &["--link-path=relay", &format!("--link-spin-us={POLL_US}")],
         )?);
     }
     // 3: one host.
     rows.push(b.one_host()?);
     println!("{}", table(&rows));
-    let (udp, bridge_p50, one) = (rows[0].p50, rows[blocking].p50, rows[rows.len() - 1].p50);
-    println!(
-        "udp_p50_us={udp:.1} bridge_p50_us={bridge_p50:.1} one_host_p50_us={one:.1} bridge_over_udp={:.2}",
-        bridge_p50 / udp
-    );
+    println!("{}", summary_line(&rows, direct, relay));
     Ok(())
+}
+
+/// The last line: `udp_p50_us=… direct_p50_us=… bridge_p50_us=… one_host_p50_us=…
+/// bridge_over_udp=… direct_over_udp=… direct_miss_ratio=… one_host_miss_ratio=…` (the ratios
+/// misses ÷ ticks; `bridge` is the relay path).
+pub fn summary_line(rows: &[Row], direct: usize, relay: usize) -> String {
+    let (udp, one) = (&rows[0], &rows[rows.len() - 1]);
+    let (d, r) = (&rows[direct], &rows[relay]);
+    let ratio = |r: &Row| r.miss_ratio.map_or("na".into(), |x| format!("{x:.1e}"));
+    format!(
+        "udp_p50_us={:.1} direct_p50_us={:.1} bridge_p50_us={:.1} one_host_p50_us={:.1} bridge_over_udp={:.2} direct_over_udp={:.2} direct_miss_ratio={} one_host_miss_ratio={}",
+        udp.p50,
+        d.p50,
+        r.p50,
+        one.p50,
+        r.p50 / udp.p50,
+        d.p50 / udp.p50,
+        ratio(d),
+        ratio(one)
+    )
 }
 
 /// One `bench net`: the two hosts, the programs, the S1 config and the link key every row uses.

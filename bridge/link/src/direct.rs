@@ -3,7 +3,7 @@
 //! ping-pong has). The bridge on each host keeps the TCP control connection (set-up, START and
 //! STOP, the reference, logs, telemetry and a copy of each message for the record) and, at START,
 //! hands its UDP socket and the sealing state to the loop process beside it
-//! ([`deltaloop_transport::handoff`]): the counters go on where the bridge stopped, so no nonce
+//! (`deltaloop_transport::handoff`): the counters go on where the bridge stopped, so no nonce
 //! repeats under a key, and the far side cannot tell which process answers.
 //!
 //! The datagrams are those of the relay ([`crate::frame`], [`crate::replies`]), so each host
@@ -11,7 +11,7 @@
 //! other host still goes direct.
 //!
 //! - [`PlantEnd`]: the plant's socket. States out (lockstep: sent again every
-//!   [`RESEND_NS`](crate::sides::RESEND_NS) until answered), replies in, each with the residence
+//!   [`RESEND_NS`] until answered), replies in, each with the residence
 //!   on the controller's host, restamped on arrival here as the relay did.
 //! - [`ControllerEnd`]: the controller's socket. States in (a repeat of the state last answered
 //!   gets the last reply again), replies out with the two before them and their residence.
@@ -21,16 +21,19 @@
 use crate::bytes::{self, bytes_of};
 use crate::emulation::Emulation;
 use crate::frame::Kind;
-use crate::link::{self, Udp};
+use crate::offset::Offset;
 use crate::replies::{Inbox, Outbox};
-use crate::seal::{End, KEY_LEN, Session};
-use crate::sides::{Offset, RESEND_NS};
+use crate::seal::{End, KEY_LEN, Opener, Sealer, Session};
+use crate::udp::{self as link, Udp};
 use anyhow::{Context, Result, bail};
 use deltaloop_transport::handoff::{self, Tag};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{self, StateMsg, TorqueMsg};
 use std::net::UdpSocket;
 use std::os::fd::AsRawFd;
+
+/// Lockstep: how long to wait for a reply before sending its state again, ns.
+pub const RESEND_NS: u64 = 5_000_000;
 
 /// What a bridge hands on with its socket: the session, the sealing state, the emulation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -61,11 +64,6 @@ impl Offer {
             top,
             emu: udp.emulation(),
         }
-    }
-
-    /// (seal key, open key, next counter, highest opened).
-    pub fn sealing(&self) -> ([u8; KEY_LEN], [u8; KEY_LEN], u64, Option<u64>) {
-        (self.seal_key, self.open_key, self.next, self.top)
     }
 
     pub fn encode(&self) -> [u8; OFFER_LEN] {
@@ -181,7 +179,11 @@ pub fn answer(end: &handoff::End) -> Result<Option<Udp>> {
                     bail!("the bridge's offer of the link is malformed ({n} bytes)");
                 };
                 let sock = UdpSocket::from(fd);
-                return Ok(Some(Udp::resumed(sock, &o)?));
+                let sealing = (
+                    Sealer::resume(&o.seal_key, o.next),
+                    Opener::resume(&o.open_key, o.top),
+                );
+                return Ok(Some(Udp::resumed(sock, o.session, sealing, o.emu)?));
             }
             _ => {}
         }
@@ -422,5 +424,75 @@ mod tests {
         assert_eq!(Offer::decode(&o.encode()), Some(o));
         assert_eq!(o.emu, emu);
         assert_eq!(Offer::decode(&o.encode()[1..]), None);
+    }
+
+    /// The hand-off at START: the loop process gets the bridge's socket through the pair, and
+    /// its datagrams go on from the bridge's counters (none repeats a nonce: the far side opens
+    /// every one, refusing none as replayed), while a datagram the bridge had taken is refused
+    /// when it comes again. A process that never said HELLO is not offered the socket.
+    #[test]
+    fn the_socket_handed_on_goes_on_from_the_bridges_counters() {
+        let s = Session::generate().unwrap();
+        let (a, b) = (
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+        );
+        a.connect(b.local_addr().unwrap()).unwrap();
+        b.connect(a.local_addr().unwrap()).unwrap();
+        let raw_far = b.try_clone().unwrap();
+        let mut near = Udp::sealed(a, &s, End::Near, Emulation::default()).unwrap();
+        let mut far = Udp::sealed(b, &s, End::Far, Emulation::default()).unwrap();
+        let st = |tick| StateMsg {
+            tick,
+            ..StateMsg::default()
+        };
+        let heard = |far: &mut Udp| {
+            std::thread::sleep(std::time::Duration::from_millis(10));
+            let mut got = Vec::new();
+            while let Some((_, p)) = far.recv().unwrap() {
+                got.push(bytes::read::<StateMsg>(p).unwrap().tick);
+            }
+            got
+        };
+        // The far side's first datagram, taken by the bridge, and a copy of its bytes.
+        far.send(Kind::Punch, &[], 0).unwrap();
+        let mut punch = [0u8; 128];
+        std::thread::sleep(std::time::Duration::from_millis(10));
+        let n = near.sock.peek(&mut punch).unwrap();
+        assert!(near.recv().unwrap().is_some());
+        for k in 0..3 {
+            near.send(Kind::State, &[bytes_of(&st(k))], 0).unwrap();
+        }
+        assert_eq!(heard(&mut far), [0, 1, 2]);
+
+        let (bridge, process) = handoff::pair().unwrap();
+        assert!(
+            !offer(&bridge, &mut near, &s, End::Near, false).unwrap(),
+            "no HELLO"
+        );
+        process
+            .send(Tag::Hello, &handoff::VERSION.to_le_bytes(), None)
+            .unwrap();
+        assert!(offer(&bridge, &mut near, &s, End::Near, false).unwrap());
+        let mut taken = answer(&process).unwrap().expect("the socket");
+        for k in 3..6 {
+            taken.send(Kind::State, &[bytes_of(&st(k))], 0).unwrap();
+        }
+        assert_eq!(heard(&mut far), [3, 4, 5]);
+        assert_eq!(far.refused.total(), 0, "{:?}", far.refused);
+        raw_far.send(&punch[..n]).unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(10));
+        assert!(taken.recv().unwrap().is_none());
+        assert_eq!(
+            taken.refused.counts[crate::seal::Refusal::Replayed as usize],
+            1
+        );
+        // The run that asks for the relay answers RELAY.
+        let (bridge, process) = handoff::pair().unwrap();
+        process
+            .send(Tag::Hello, &handoff::VERSION.to_le_bytes(), None)
+            .unwrap();
+        assert!(!offer(&bridge, &mut near, &s, End::Near, true).unwrap());
+        assert!(answer(&process).unwrap().is_none());
     }
 }

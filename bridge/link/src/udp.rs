@@ -1,0 +1,463 @@
+//! The loop's datagram socket of a run's link: one sealed datagram per state or reply, with the
+//! optional emulated delay, jitter and loss applied where it is sent.
+
+use crate::frame::{self, HEADER, Kind, MAX_DATAGRAM, TAG};
+use crate::seal::{Channel, End, Opener, Refusals, Sealer, Session};
+use anyhow::{Context, Result};
+use std::io::ErrorKind;
+use std::net::UdpSocket;
+use std::os::fd::AsRawFd;
+
+pub use crate::emulation::Emulation;
+
+/// SplitMix64: small, seeded, allocation-free.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+}
+
+/// Datagrams held back by the emulated delay at most; more are dropped (and counted).
+const QUEUE: usize = 1024;
+
+/// The loop's datagram socket, connected to the peer (the kernel drops datagrams from anyone
+/// else), with its pre-allocated buffers and, on a run's link, the session's sealing.
+pub struct Udp {
+    pub sock: UdpSocket,
+    session: u64,
+    /// Sealing and opening (None: the bench's plain ping-pong, never a run).
+    seal: Option<(Sealer, Opener)>,
+    buf: [u8; MAX_DATAGRAM],
+    emu: Emulation,
+    rng: Rng,
+    /// Ring of held datagrams: (due, length, bytes).
+    queue: Box<[(u64, usize, [u8; MAX_DATAGRAM])]>,
+    head: usize,
+    len: usize,
+    last_due: u64,
+    /// Datagrams refused on receipt, by reason, and the first reason in words.
+    pub refused: Refusals,
+    pub last_refusal: Option<String>,
+    /// Datagrams the emulation dropped.
+    pub emulated_lost: u64,
+}
+
+impl Udp {
+    /// The loop's socket of a run's link: every datagram sealed under `session` as end `me`.
+    pub fn sealed(sock: UdpSocket, session: &Session, me: End, emu: Emulation) -> Result<Self> {
+        let seal = (
+            session.sealer(me, Channel::Udp),
+            session.opener(me, Channel::Udp),
+        );
+        Self::new(sock, session.id, Some(seal), emu)
+    }
+
+    /// A socket handed on by a bridge: its sealing goes on from the bridge's counters.
+    pub fn resumed(
+        sock: UdpSocket,
+        session: u64,
+        (seal, open): (Sealer, Opener),
+        emu: Emulation,
+    ) -> Result<Self> {
+        Self::new(sock, session, Some((seal, open)), emu)
+    }
+
+    /// The counter of the next datagram sealed, and the highest opened.
+    pub fn counters(&self) -> (u64, Option<u64>) {
+        self.seal
+            .as_ref()
+            .map_or((0, None), |(s, o)| (s.next_counter(), o.top()))
+    }
+
+    /// The emulation this socket applies.
+    pub fn emulation(&self) -> Emulation {
+        self.emu
+    }
+
+    /// A socket whose datagrams carry `key` in the clear (the bench's ping-pong, never a run).
+    pub fn plain(sock: UdpSocket, key: u64) -> Result<Self> {
+        Self::new(sock, key, None, Emulation::default())
+    }
+
+    fn new(
+        sock: UdpSocket,
+        session: u64,
+        seal: Option<(Sealer, Opener)>,
+        emu: Emulation,
+    ) -> Result<Self> {
+        sock.set_nonblocking(true)?;
+        Ok(Self {
+            sock,
+            session,
+            seal,
+            buf: [0; MAX_DATAGRAM],
+            emu,
+            rng: Rng(emu.seed),
+            queue: vec![(0, 0, [0u8; MAX_DATAGRAM]); if emu.is_off() { 0 } else { QUEUE }]
+                .into_boxed_slice(),
+            head: 0,
+            len: 0,
+            last_due: 0,
+            refused: Refusals::default(),
+            last_refusal: None,
+            emulated_lost: 0,
+        })
+    }
+
+    /// Sends `kind` with `parts` as payload (now, or when the emulated delay says), sealed.
+    pub fn send(&mut self, kind: Kind, parts: &[&[u8]], now_ns: u64) -> Result<()> {
+        let counter = self.seal.as_ref().map_or(0, |s| s.0.next_counter());
+        frame::put_header(&mut self.buf, kind, self.session, counter);
+        let mut n = HEADER;
+        for p in parts {
+            self.buf[n..n + p.len()].copy_from_slice(p);
+            n += p.len();
+        }
+        if let Some((sealer, _)) = &mut self.seal {
+            let (head, body) = self.buf.split_at_mut(HEADER);
+            let tag = sealer.seal(head, &mut body[..n - HEADER]);
+            self.buf[n..n + TAG].copy_from_slice(&tag);
+            n += TAG;
+        }
+        if self.emu.is_off() {
+            return self.send_raw(n);
+        }
+        if self.emu.loss_ppm > 0 && self.rng.next() % 1_000_000 < u64::from(self.emu.loss_ppm) {
+            self.emulated_lost += 1;
+            return Ok(());
+        }
+        let jitter = match self.emu.jitter_ns {
+            0 => 0,
+            j => self.rng.next() % j.saturating_add(1),
+        };
+        if self.len == self.queue.len() {
+            self.emulated_lost += 1;
+            return Ok(());
+        }
+        let due = (now_ns + self.emu.delay_ns + jitter).max(self.last_due);
+        self.last_due = due;
+        let slot = (self.head + self.len) % self.queue.len();
+        self.queue[slot].0 = due;
+        self.queue[slot].1 = n;
+        self.queue[slot].2[..n].copy_from_slice(&self.buf[..n]);
+        self.len += 1;
+        self.flush(now_ns)
+    }
+
+    fn send_raw(&self, n: usize) -> Result<()> {
+        self.send_bytes(&self.buf[..n])
+    }
+
+    fn send_bytes(&self, b: &[u8]) -> Result<()> {
+        match self.sock.send(b) {
+            Ok(_) => Ok(()),
+            // The link is down or the peer's port closed: a lost datagram, as on a wire; the
+            // loop's own rules (misses, silence) decide what that means.
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    ErrorKind::WouldBlock
+                        | ErrorKind::ConnectionRefused
+                        | ErrorKind::HostUnreachable
+                        | ErrorKind::NetworkUnreachable
+                        | ErrorKind::NetworkDown
+                ) || e.raw_os_error() == Some(libc::EHOSTUNREACH) =>
+            {
+                Ok(())
+            }
+            Err(e) => Err(e).context("send on the link's UDP socket"),
+        }
+    }
+
+    /// Sends the held datagrams that are due.
+    pub fn flush(&mut self, now_ns: u64) -> Result<()> {
+        while self.len > 0 && self.queue[self.head].0 <= now_ns {
+            let (_, n, b) = &self.queue[self.head];
+            self.send_bytes(&b[..*n])?;
+            self.head = (self.head + 1) % self.queue.len();
+            self.len -= 1;
+        }
+        Ok(())
+    }
+
+    /// When the next held datagram is due, if any.
+    pub fn next_due(&self) -> Option<u64> {
+        (self.len > 0).then(|| self.queue[self.head].0)
+    }
+
+    /// Receives one datagram of this run: its kind and payload (opened), None when there is
+    /// none. Refused datagrams (malformed, of another run, forged, replayed) are counted by
+    /// reason and skipped: never applied.
+    pub fn recv(&mut self) -> Result<Option<(Kind, &[u8])>> {
+        loop {
+            let n = match self.sock.recv(&mut self.buf) {
+                Ok(n) => n,
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        ErrorKind::WouldBlock | ErrorKind::ConnectionRefused
+                    ) =>
+                {
+                    return Ok(None);
+                }
+                Err(e) => return Err(e).context("receive on the link's UDP socket"),
+            };
+            match open(
+                &mut self.buf[..n],
+                self.session,
+                self.seal.as_mut().map(|s| &mut s.1),
+            ) {
+                Ok((kind, len)) => return Ok(Some((kind, &self.buf[HEADER..HEADER + len]))),
+                Err((reason, why)) => {
+                    self.refused.add(reason);
+                    if self.last_refusal.is_none() {
+                        self.last_refusal = Some(why);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Opens message `b` (header, sealed payload, tag) of `session` in place with `opener` (None:
+/// unsealed): its kind and the payload's length at `b[HEADER..]`, or the reason and a line.
+pub fn open(
+    b: &mut [u8],
+    session: u64,
+    opener: Option<&mut Opener>,
+) -> std::result::Result<(Kind, usize), (crate::seal::Refusal, String)> {
+    let refused = |e: frame::Refused| (e.reason(), e.to_string());
+    let h = frame::head(b, Some(session)).map_err(refused)?;
+    let mut len = b.len() - HEADER;
+    if let Some(o) = opener {
+        if len < TAG {
+            return Err((
+                crate::seal::Refusal::Malformed,
+                format!("{} bytes, shorter than a sealed message", b.len()),
+            ));
+        }
+        let (head, sealed) = b.split_at_mut(HEADER);
+        len = o.open(head, h.counter, sealed).map_err(|r| {
+            (
+                r,
+                format!("{:?} counter {}: {}", h.kind, h.counter, r.name()),
+            )
+        })?;
+    }
+    frame::check_size(h.kind, &b[HEADER..HEADER + len]).map_err(refused)?;
+    Ok((h.kind, len))
+}
+
+/// Waits until one of `fds` is readable (or writable, for those that ask) or `timeout_ns` passes;
+/// an interrupted wait returns early. The caller looks at everything afterwards.
+pub fn wait(fds: &mut [libc::pollfd], timeout_ns: u64) -> Result<()> {
+    let ts = libc::timespec {
+        tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
+    };
+    // SAFETY: fds is a valid slice of pollfd we own, ts a valid timespec, no signal mask change.
+    let r = unsafe {
+        libc::ppoll(
+            fds.as_mut_ptr(),
+            fds.len() as libc::nfds_t,
+            &ts,
+            std::ptr::null(),
+        )
+    };
+    if r < 0 {
+        let e = std::io::Error::last_os_error();
+        if e.kind() != ErrorKind::Interrupted {
+            return Err(e).context("ppoll");
+        }
+    }
+    Ok(())
+}
+
+/// A pollfd for a wake-up event's listener (readable when an event is pending).
+pub fn event(
+    listener: &iceoryx2::port::listener::Listener<deltaloop_transport::ipc::Svc>,
+) -> libc::pollfd {
+    use iceoryx2::prelude::FileDescriptorBased;
+    // SAFETY: the descriptor belongs to `listener`, which outlives the poll; we only poll it.
+    let fd = unsafe { listener.file_descriptor().native_handle() };
+    libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    }
+}
+
+/// The wait's timeout: 1 ms (the control plane's pace), or less when an emulated datagram is
+/// due; 0 (poll) when it is due within [`EMULATION_SPIN_NS`], since a timed wake-up on a VM comes
+/// tens of µs late and would add that to every emulated delay.
+pub fn timeout_ns(udp: &Udp, now_ns: u64) -> u64 {
+    match udp.next_due().map(|d| d.saturating_sub(now_ns)) {
+        Some(left) if left <= EMULATION_SPIN_NS => 0,
+        Some(left) => (left - EMULATION_SPIN_NS).min(1_000_000),
+        None => 1_000_000,
+    }
+}
+
+/// How close to an emulated datagram's due time the bridge stops sleeping and polls, ns.
+pub const EMULATION_SPIN_NS: u64 = 100_000;
+
+/// A pollfd for reading `fd`.
+pub fn readable(fd: &impl AsRawFd) -> libc::pollfd {
+    libc::pollfd {
+        fd: fd.as_raw_fd(),
+        events: libc::POLLIN,
+        revents: 0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bytes;
+    use crate::seal::{End, Session};
+    use std::net::UdpSocket;
+
+    fn pair(emu: Emulation) -> (Udp, Udp) {
+        let a = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let b = UdpSocket::bind("127.0.0.1:0").unwrap();
+        a.connect(b.local_addr().unwrap()).unwrap();
+        b.connect(a.local_addr().unwrap()).unwrap();
+        (
+            Udp::new(a, 3, None, emu).unwrap(),
+            Udp::new(b, 3, None, Emulation::default()).unwrap(),
+        )
+    }
+
+    #[test]
+    fn emulated_loss_is_seeded_and_near_its_rate() {
+        let emu = Emulation {
+            loss_ppm: 100_000,
+            seed: 42,
+            ..Default::default()
+        };
+        let lost = |seed| {
+            let (mut a, _b) = pair(Emulation { seed, ..emu });
+            for i in 0..10_000u64 {
+                a.send(Kind::Ping, &[&i.to_ne_bytes(), &[0u8; 160]], 0)
+                    .unwrap();
+            }
+            a.emulated_lost
+        };
+        assert_eq!(lost(42), lost(42));
+        assert!((800..1200).contains(&lost(42)), "{}", lost(42));
+        assert_ne!(lost(42), lost(43));
+    }
+
+    #[test]
+    fn emulated_delay_holds_a_datagram_until_due_and_keeps_order() {
+        let (mut a, mut b) = pair(Emulation {
+            delay_ns: 1_000,
+            jitter_ns: 500,
+            seed: 1,
+            ..Default::default()
+        });
+        for i in 0..5u64 {
+            a.send(Kind::Ping, &[&i.to_ne_bytes(), &[0u8; 160]], 10)
+                .unwrap();
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        assert!(b.recv().unwrap().is_none());
+        let due = a.next_due().unwrap();
+        assert!((1_010..=1_510).contains(&due), "{due}");
+        a.flush(10_000).unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        for i in 0..5u64 {
+            let (k, p) = b.recv().unwrap().unwrap();
+            assert_eq!((k, bytes::read::<u64>(&p[..8])), (Kind::Ping, Some(i)));
+        }
+    }
+
+    /// An attacker on the path (a forwarder between the two ends, which reads every datagram):
+    /// what it forwards as is opens; a copy it sends again, one with a byte flipped, one with
+    /// another session id, one of another run sealed under other keys, and junk are refused,
+    /// each counted under its reason, and never handed to the loop.
+    #[test]
+    fn forged_replayed_and_other_run_datagrams_are_refused_and_counted() {
+        let session = Session::generate().unwrap();
+        let far = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let tap = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let near = UdpSocket::bind("127.0.0.1:0").unwrap();
+        far.connect(tap.local_addr().unwrap()).unwrap();
+        near.connect(tap.local_addr().unwrap()).unwrap();
+        let mut tx = Udp::sealed(far, &session, End::Far, Emulation::default()).unwrap();
+        let mut rx = Udp::sealed(near, &session, End::Near, Emulation::default()).unwrap();
+        let to_near = rx.sock.local_addr().unwrap();
+        let relay = |tx: &mut Udp, i: u64| -> Vec<u8> {
+            let mut buf = [0u8; MAX_DATAGRAM];
+            tx.send(Kind::Ping, &[&i.to_ne_bytes(), &[0u8; 160]], 0)
+                .unwrap();
+            let n = tap.recv(&mut buf).unwrap();
+            buf[..n].to_vec()
+        };
+        let recv_all = |rx: &mut Udp| {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+            let mut got = Vec::new();
+            while let Some((k, p)) = rx.recv().unwrap() {
+                got.push((k, bytes::read::<u64>(&p[..8]).unwrap()));
+            }
+            got
+        };
+        let first = relay(&mut tx, 1);
+        assert_eq!(first.len(), HEADER + 168 + TAG);
+        assert_ne!(
+            &first[HEADER..HEADER + 8],
+            &1u64.to_ne_bytes(),
+            "sealed on the wire"
+        );
+        tap.send_to(&first, to_near).unwrap();
+        assert_eq!(recv_all(&mut rx), [(Kind::Ping, 1)]);
+        // Replayed, forged, another session, another run's keys, junk.
+        tap.send_to(&first, to_near).unwrap();
+        let mut forged = relay(&mut tx, 2);
+        forged[HEADER] ^= 0x40;
+        tap.send_to(&forged, to_near).unwrap();
+        let mut moved = relay(&mut tx, 3);
+        moved[8] ^= 1;
+        tap.send_to(&moved, to_near).unwrap();
+        let other = Session {
+            id: session.id,
+            ..Session::generate().unwrap()
+        };
+        let (a, b) = (
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+        );
+        a.connect(b.local_addr().unwrap()).unwrap();
+        let mut stranger = Udp::sealed(a, &other, End::Far, Emulation::default()).unwrap();
+        stranger
+            .send(Kind::Ping, &[&9u64.to_ne_bytes(), &[0u8; 160]], 0)
+            .unwrap();
+        let mut buf = [0u8; MAX_DATAGRAM];
+        let n = b.recv(&mut buf).unwrap();
+        tap.send_to(&buf[..n], to_near).unwrap();
+        tap.send_to(b"junk", to_near).unwrap();
+        // And the honest next one still opens.
+        let next = relay(&mut tx, 4);
+        tap.send_to(&next, to_near).unwrap();
+        assert_eq!(recv_all(&mut rx), [(Kind::Ping, 4)]);
+        use crate::seal::Refusal::*;
+        let count = |r: crate::seal::Refusal| rx.refused.counts[r as usize];
+        assert_eq!(
+            (
+                count(Replayed),
+                count(Forged),
+                count(OtherRun),
+                count(Malformed)
+            ),
+            (1, 2, 1, 1),
+            "{}",
+            rx.refused.describe()
+        );
+    }
+}
