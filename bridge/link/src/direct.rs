@@ -314,8 +314,7 @@ fn due_timeout(udp: &Udp, now: u64) -> u64 {
 pub struct ControllerEnd {
     pub udp: Udp,
     replies: Outbox,
-    /// The states' stamps move onto this host's clock (the plant is on the other host and the
-    /// supervisor here: `--plant-remote`).
+    /// The states' stamps move onto this host's clock (the plant's is another host's).
     local_stamps: bool,
     offset: Offset,
 }

@@ -17,7 +17,7 @@ use crate::ring::RefRing;
 use anyhow::{Result, bail};
 use clap::Parser;
 use deltaloop_config::config::{FaultInjection, Poll};
-use deltaloop_config::{Law, LoopMode, RemoteSide, RunConfig};
+use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_link::direct::{self, ControllerEnd};
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
@@ -129,12 +129,12 @@ pub fn serve<S: Step>(
     let Some(start) = handshake(&ports, &mut ring, term)? else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
-    let local_stamps = cfg
-        .link
-        .as_ref()
-        .is_some_and(|l| l.remote == RemoteSide::Plant);
+    // The states' stamps move onto this host's clock on the direct path whichever side the
+    // plant is on: the record here needs them with the plant across, and the schedule below
+    // (sleep to just before each deadline) needs them with the controller across, where the
+    // plant's clock is another host's.
     let mut link = match &handoff {
-        Some(h) => direct::answer(h)?.map(|udp| ControllerEnd::new(udp, local_stamps)),
+        Some(h) => direct::answer(h)?.map(|udp| ControllerEnd::new(udp, true)),
         None => None,
     };
     ipc::connect_now(&[&ports.state, &ports.torque, &ports.torque_ready])?;
@@ -244,17 +244,24 @@ impl Schedule {
 impl Loop<'_> {
     /// Follows the plant's clock: its epoch moves later when simulated time pauses for a stall of
     /// the plant's own process (`overrun = "stretch"`), and a state's deadline says where it is.
-    /// Only a deadline already past when the state was taken (`rx_ns`) moves it, and only later:
-    /// a plant's stamp cannot make the controller sleep past the states it publishes.
+    /// Only a deadline already past when the state was taken (`rx_ns`) moves it: a plant's stamp
+    /// cannot make the controller sleep past the states it publishes. Later only once [`EPOCHS`]
+    /// states in a row say so (one late state does not move it); earlier at once, since waking
+    /// sooner costs only a wait: across the link START's t0 arrives late by the control
+    /// connection's latency (regression: a far controller whose t0 was 180–290 µs late slept past
+    /// every other state and answered only the next, half the ticks missed).
     fn follow(&mut self, state: &StateMsg, rx_ns: u64) {
         if let Some(s) = &mut self.schedule
             && state.t_deadline_ns <= rx_ns
         {
-            s.epochs[s.seen % EPOCHS] = state
+            let epoch = state
                 .t_deadline_ns
                 .saturating_sub(state.tick.saturating_mul(s.ts_ns));
+            s.epochs[s.seen % EPOCHS] = epoch;
             s.seen += 1;
-            if s.seen >= EPOCHS {
+            if epoch < s.t0_ns {
+                s.t0_ns = epoch;
+            } else if s.seen >= EPOCHS {
                 let moved = s.epochs.iter().copied().min().unwrap_or(0);
                 s.t0_ns = s.t0_ns.max(moved);
             }
@@ -567,7 +574,12 @@ fn wait_state_direct(
 ) -> Result<Waited> {
     let (sub, listener) = (&ports.state, &ports.state_ready);
     let mut poll_until_ns = wait.poll_until_ns;
-    if let Some(t) = wait.wake_ns {
+    // Not before the first state: START's t0 came over the control connection, behind the
+    // reference chunks, and is late by as much as they took (regression: 4 ms, and the first
+    // 14 states were taken at once). The first state wakes the controller on its socket and puts
+    // the schedule on the plant's clock ([`Loop::follow`]).
+    let on_schedule = lp.schedule.as_ref().is_some_and(|s| s.seen > 0);
+    if let Some(t) = wait.wake_ns.filter(|_| on_schedule) {
         rt::sleep_until_ns(t);
         poll_until_ns = poll_after_wake(poll_until_ns, rt::now_ns(), lp.spin_ns);
     }
@@ -744,16 +756,42 @@ mod tests {
             lp.wait_for(28, d(27), 0).wake_ns,
             Some(d(28) + pause - 100 * US)
         );
-        // A stamp from the future, or an earlier epoch: ignored.
+        // A stamp from the future: ignored.
         for k in 28..40 {
             lp.follow(&state(k, d(k) + 3 * pause), d(k) + pause + 20 * US);
         }
-        for k in 40..50 {
-            lp.follow(&state(k, d(k)), d(k) + pause + 20 * US);
-        }
         assert_eq!(
-            lp.wait_for(50, d(49), 0).wake_ns,
-            Some(d(50) + pause - 100 * US)
+            lp.wait_for(40, d(39), 0).wake_ns,
+            Some(d(40) + pause - 100 * US)
+        );
+        // An earlier epoch: followed at once (the controller only wakes sooner).
+        lp.follow(&state(40, d(40)), d(40) + 20 * US);
+        assert_eq!(lp.wait_for(41, d(40), 0).wake_ns, Some(d(41) - 100 * US));
+    }
+
+    /// Regression: across the link START's t0 reached the far controller late by the control
+    /// connection's latency (180–290 µs here), so it slept past every other state (its own
+    /// deadline was later than the plant's) and only moved later, never back: half the ticks were
+    /// missed until the plant's first stall moved its epoch. The first state taken after its
+    /// deadline brings the schedule back to the plant's clock.
+    #[test]
+    fn regression_a_start_that_came_late_does_not_hold_the_schedule_behind_the_plant() {
+        let cfg = cfg();
+        let mut lp = realtime_loop(&cfg);
+        let late = 285 * US;
+        if let Some(s) = &mut lp.schedule {
+            s.t0_ns = T0 + late;
+        }
+        let d = |k: u64| T0 + k * 300 * US;
+        let state = StateMsg {
+            tick: 1,
+            t_deadline_ns: d(1),
+            ..StateMsg::default()
+        };
+        lp.follow(&state, d(1) + 40 * US);
+        assert_eq!(
+            lp.wait_for(2, d(1) + 41 * US, 0).wake_ns,
+            Some(d(2) - 100 * US)
         );
     }
 

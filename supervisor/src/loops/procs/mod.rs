@@ -121,8 +121,15 @@ pub fn run_law(
     let mut start = ControlMsg::new(ControlKind::Start, Sender::Supervisor);
     start.ticks = n;
     start.q0 = study.reference.q0().into();
-    // Both children poll for START every ≤ 1 ms: tick 0 comes 10 ms after it.
-    start.t0_ns = rt::now_ns() + 10_000_000;
+    // Both children poll for START every ≤ 1 ms: tick 0 comes 10 ms after it. Across the link
+    // START also crosses both bridges and the control connection (behind the reference chunks),
+    // and each loop process takes the link's socket on it: 100 ms there.
+    start.t0_ns = rt::now_ns()
+        + if link.is_some() {
+            100_000_000
+        } else {
+            10_000_000
+        };
     let steal_before = crate::timing::steal_jiffies();
     obs.control.send_copy(start).ipc("send START")?;
 
