@@ -595,6 +595,10 @@ fn serve(
         handoff: Some(mine),
         relay: wants_relay,
         direct: false,
+        loop_cpu: mode.layout(&cfg).and_then(|l| match a.role {
+            Role::Controller => l.controller_cpu,
+            Role::Plant => l.plant_cpu,
+        }),
     };
     let named = a.controller_cmd.as_ref().and_then(|_| ready_naming(cmd));
     let code = relay(ports, &mut link, (spin_ns, mode, far_emu), named, term)?;

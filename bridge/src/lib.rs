@@ -210,6 +210,28 @@ pub fn parse_endpoint(s: &str) -> Result<SocketAddr, String> {
         .ok_or_else(|| bad("the host has no address"))
 }
 
+/// On the direct path a bridge is control plane only: it moves itself off the CPU of the loop
+/// process beside it (`cpu`, from the run's layout; None: not pinned, nothing to do), onto every
+/// other CPU this process may use, so its wake-ups (the record's copies every millisecond, its
+/// TCP traffic and that traffic's kernel work) never delay the loop's. Best effort: a host with
+/// one CPU keeps it. Returns the CPU it left, for its log.
+pub fn keep_off(cpu: Option<usize>) -> Option<usize> {
+    let cpu = cpu?;
+    // SAFETY: cpu_set_t is plain data; sched_getaffinity/setaffinity write/read the set we own.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        if libc::sched_getaffinity(0, size_of::<libc::cpu_set_t>(), &mut set) != 0
+            || cpu >= libc::CPU_SETSIZE as usize
+            || !libc::CPU_ISSET(cpu, &set)
+            || libc::CPU_COUNT(&set) < 2
+        {
+            return None;
+        }
+        libc::CPU_CLR(cpu, &mut set);
+        (libc::sched_setaffinity(0, size_of::<libc::cpu_set_t>(), &set) == 0).then_some(cpu)
+    }
+}
+
 /// How long a bridge polls for the reply after passing a state on, ns (`--spin-us`, at most the
 /// torque budget in realtime: a reply later than that is late anyway). Polling saves the wake-up
 /// of a blocked bridge (tens of µs on a VM) but takes a CPU: on one machine hosting both sides,

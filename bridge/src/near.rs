@@ -171,6 +171,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
             return Ok(stopped_early());
         };
         (peer.handoff, peer.relay) = (handoff, link.path == LinkPath::Relay);
+        peer.loop_cpu = a.run.mode.layout(&cfg).and_then(|l| l.controller_cpu);
         let mut n = NearPlant {
             ports,
             peer,
@@ -191,6 +192,7 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
             return Ok(stopped_early());
         };
         (peer.handoff, peer.relay) = (handoff, link.path == LinkPath::Relay);
+        peer.loop_cpu = a.run.mode.layout(&cfg).and_then(|l| l.plant_cpu);
         let mut n = Near {
             ports,
             peer,
@@ -232,6 +234,9 @@ struct Peer {
     direct: bool,
     /// The process on the other host.
     role: Role,
+    /// The CPU of the loop process beside this side (from the run's layout), which this side
+    /// leaves on the direct path ([`crate::keep_off`]).
+    loop_cpu: Option<usize>,
 }
 
 /// Connections the near side authenticates at once at most: more than a flood of a few slow
@@ -668,6 +673,7 @@ fn connect(
         relay: false,
         direct: false,
         role: at.role,
+        loop_cpu: None,
     }))
 }
 
@@ -878,6 +884,9 @@ impl Peer {
                         )?;
                         if self.direct && self.role == Role::Controller {
                             self.tcp.send(Kind::NearDirect, &[])?;
+                        }
+                        if self.direct {
+                            crate::keep_off(self.loop_cpu);
                         }
                     }
                     c.t0_ns = c.t0_ns.saturating_sub(rt::now_ns());

@@ -18,6 +18,8 @@ pub(super) struct FarLink {
     pub(super) handoff: Option<deltaloop_transport::handoff::End>,
     pub(super) relay: bool,
     pub(super) direct: bool,
+    /// The CPU of the process started here, which this side leaves on the direct path.
+    pub(super) loop_cpu: Option<usize>,
 }
 
 impl FarLink {
@@ -173,6 +175,10 @@ impl FarLink {
                     *hand.direct =
                         crate::direct::offer(h, hand.udp, hand.session, End::Far, hand.relay)?;
                 }
+                if *hand.direct {
+                    crate::keep_off(hand.loop_cpu);
+                }
+
                 c.t0_ns = crate::near::absolute_t0(c.t0_ns);
                 control.send_copy(c).ipc("publish START")?;
                 Ok(true)
@@ -194,6 +200,7 @@ pub(super) struct Hand<'a> {
     session: &'a Session,
     relay: bool,
     direct: &'a mut bool,
+    loop_cpu: Option<usize>,
 }
 
 impl FarLink {
@@ -207,6 +214,7 @@ impl FarLink {
                 session: &self.session,
                 relay: self.relay,
                 direct: &mut self.direct,
+                loop_cpu: self.loop_cpu,
             },
         )
     }
