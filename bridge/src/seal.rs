@@ -687,16 +687,16 @@ mod tests {
             heard,
             [&u16::MAX.to_le_bytes()[..], &LINK_VERSION.to_le_bytes()].concat()
         );
-        // This far side at a near side of version 4: told so, one line naming both.
+        // This far side at a near side of version 5: told so, one line naming both.
         let (mut c, mut s) = pair();
-        s.write_all(&[0xff, 0xff, 4, 0]).unwrap();
+        s.write_all(&[0xff, 0xff, 5, 0]).unwrap();
         let e = initiate(&mut c, &key, Duration::from_secs(2))
             .err()
             .unwrap();
-        assert_eq!(e, HandshakeError::OtherVersion(Some(4)));
+        assert_eq!(e, HandshakeError::OtherVersion(Some(5)));
         let line = e.to_string();
         assert!(
-            line.contains("link version 4 and this side 3")
+            line.contains(&format!("link version 5 and this side {LINK_VERSION}"))
                 && line.contains("another version of deltaloop")
                 && !line.contains('\n'),
             "{line}"

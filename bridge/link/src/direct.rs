@@ -394,6 +394,27 @@ impl ControllerEnd {
     pub fn timeout_ns(&self, now: u64) -> u64 {
         due_timeout(&self.udp, now)
     }
+
+    /// Sleeps until `t_ns` (the controller's schedule), sending each held datagram when it is
+    /// due on the way (regression: with an emulated delay the reply waited in the queue while
+    /// the controller slept to the next deadline, and every reply came late).
+    pub fn sleep_until(&mut self, t_ns: u64) -> Result<()> {
+        while let Some(due) = self.udp.next_due().filter(|d| *d < t_ns) {
+            hold_until(due);
+            self.udp.flush(rt::now_ns())?;
+        }
+        rt::sleep_until_ns(t_ns);
+        Ok(())
+    }
+}
+
+/// Waits until `t_ns`: sleeps to [`link::EMULATION_SPIN_NS`] before it, then polls the clock (a
+/// timed wake-up on a VM comes tens of µs late, which an emulated delay would gain).
+fn hold_until(t_ns: u64) {
+    rt::sleep_until_ns(t_ns.saturating_sub(link::EMULATION_SPIN_NS));
+    while rt::now_ns() < t_ns {
+        std::hint::spin_loop();
+    }
 }
 
 /// A pollfd for the socket of `udp`.

@@ -580,7 +580,7 @@ fn wait_state_direct(
     // the schedule on the plant's clock ([`Loop::follow`]).
     let on_schedule = lp.schedule.as_ref().is_some_and(|s| s.seen > 0);
     if let Some(t) = wait.wake_ns.filter(|_| on_schedule) {
-        rt::sleep_until_ns(t);
+        link.sleep_until(t)?;
         poll_until_ns = poll_after_wake(poll_until_ns, rt::now_ns(), lp.spin_ns);
     }
     let until = rt::now_ns().saturating_add(silence_ns);
