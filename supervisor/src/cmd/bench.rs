@@ -56,8 +56,10 @@ enum What {
         /// endpoints).
         #[arg(long, value_name = "PATH")]
         zenoh_bridge: Option<PathBuf>,
-        /// Also run with the far, then the near bridge polling for the reply (`join --spin-us
-        /// 150`, `--link-spin-us 150`): two more rows.
+        /// Also the direct path with the controller on CPU 0 (`join --cpu 0`), blocking and with
+        /// both loop processes polling 150 µs (`[loop.realtime] spin_us`), and the relay with
+        /// the far, then the near bridge polling (`join --spin-us 150`, `--link-spin-us 150`):
+        /// four more rows.
         #[arg(long)]
         polling: bool,
     },

@@ -3,8 +3,11 @@
 //! (`DELTALOOP_IOX2_ROOT`), and in the same invocation
 //!   1. a plain UDP ping-pong of state-sized datagrams, one per 300 µs (`deltaloop-bridge ping` /
 //!      `pong`), as many round trips as the runs have ticks,
-//!   2. realtime S1 + hold (`tdc`) across `deltaloop-bridge` (`deltaloop run … --controller-remote`
-//!      in one namespace, `deltaloop join` in the other), both bridges blocking,
+//!   2. realtime S1 + hold (`tdc`) across two hosts (`deltaloop run … --controller-remote` in one
+//!      namespace, `deltaloop join` in the other): on the direct path (plant and controller
+//!      socket to socket), then on the relay (both bridges blocking); with `--polling` also the
+//!      direct path with the controller on the other CPU, blocking and polling, and the relay
+//!      with each bridge polling,
 //!   3. the same run on one host (no bridge), for reference,
 //!   4. with `--zenoh-bridge`: the same ping-pong over Zenoh, TCP and UDP endpoints.
 //!
@@ -226,6 +229,9 @@ fn tail(log: &Path) -> String {
 /// Runs the benchmark (see the module) and prints the table; the last line is
 /// [`summary_line`].
 /// `out`: where the runs' folders go (None: a temporary folder, removed at the end).
+/// A run argument of the bench's own: this row's config has both loop processes polling.
+const POLLING: &str = "<polling>";
+
 /// How long a polling bridge polls for the reply, µs (the 150 µs budget: a reply later than that
 /// is late anyway).
 const POLL_US: u32 = 150;
@@ -291,6 +297,22 @@ pub fn run(
     )?);
     if polling {
         let spin = format!("{POLL_US}");
+        // The direct path with the controller on the other CPU (as on two hosts, where each
+        // has its own), blocking, then both processes polling before they block.
+        rows.push(b.across(
+            "direct-split",
+            "direct, controller on CPU 0 (join --cpu 0), blocking",
+            &["--cpu", "0"],
+            &["--link-path=direct"],
+        )?);
+        rows.push(b.across(
+            "direct-polling",
+            &format!(
+                "direct, controller on CPU 0, both polling {POLL_US} µs ([loop.realtime] spin_us)"
+            ),
+            &["--cpu", "0"],
+            &["--link-path=direct", POLLING],
+        )?);
         rows.push(b.across(
             "bridge-far-polling",
             &format!("relay, far bridge polling (join --spin-us {POLL_US})"),
@@ -337,6 +359,8 @@ struct Bench {
     deltaloop: PathBuf,
     bridge: PathBuf,
     config: String,
+    /// The same, both loop processes polling [`POLL_US`] before they block (`--polling`).
+    config_polling: String,
     hold: String,
     /// UDP round trips of a ping-pong.
     count: u32,
@@ -359,6 +383,13 @@ impl Bench {
             &config,
             format!("{S1}\n[faults]\ncontroller_silence_ticks = 1000\n"),
         )?;
+        let polling = dir.join("s1-polling.toml");
+        std::fs::write(
+            &polling,
+            format!(
+                "{S1}\n[faults]\ncontroller_silence_ticks = 1000\n[loop.realtime]\nspin_us = {POLL_US}\n"
+            ),
+        )?;
         // Both sides of every run across the link hold this key (the link has no
         // unauthenticated mode: the bench measures it sealed).
         let key_file = dir.join("link.key");
@@ -368,6 +399,7 @@ impl Bench {
             deltaloop: bin.join("deltaloop"),
             bridge: bin.join("deltaloop-bridge"),
             config: config.display().to_string(),
+            config_polling: polling.display().to_string(),
             hold: format!("{hold_s}"),
             count: ((MOTION_S + hold_s) * 1e6 / PERIOD_US).round().max(1000.0) as u32,
             wait: Duration::from_secs_f64(120.0 + 3.0 * hold_s),
@@ -408,9 +440,15 @@ impl Bench {
 
     /// `deltaloop run …` of S1 in realtime into `out`, and `extra`.
     fn run_args(&self, out: &Path, extra: &[String]) -> Vec<String> {
+        let polling = extra.iter().any(|a| a == POLLING);
+        let extra: Vec<String> = extra.iter().filter(|a| *a != POLLING).cloned().collect();
         let mut args: Vec<String> = [
             "run",
-            &self.config,
+            if polling {
+                &self.config_polling
+            } else {
+                &self.config
+            },
             "--law",
             "tdc",
             "--mode",
@@ -422,7 +460,7 @@ impl Bench {
         ]
         .map(String::from)
         .to_vec();
-        args.extend_from_slice(extra);
+        args.extend(extra);
         args
     }
 
