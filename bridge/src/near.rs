@@ -888,6 +888,20 @@ impl Peer {
                         if self.direct {
                             crate::keep_off(self.loop_cpu);
                         }
+                        let here = match self.role {
+                            Role::Controller => "plant",
+                            Role::Plant => "controller",
+                        };
+                        eprintln!(
+                            "deltaloop-bridge: {}",
+                            if self.direct {
+                                format!(
+                                    "the {here} here took the link's socket: state and torque go socket to socket (the direct path)"
+                                )
+                            } else {
+                                format!("this side relays the {here} here (the relay path)")
+                            }
+                        );
                     }
                     c.t0_ns = c.t0_ns.saturating_sub(rt::now_ns());
                     self.tcp.send(Kind::Control, &[bytes_of(&c)])?;

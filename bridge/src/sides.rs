@@ -569,20 +569,8 @@ impl ControllerHost {
         self.poll_until = now + self.spin_ns;
         s.t_poll_until_ns = self.poll_until;
         if self.local_stamps {
-            // The far clock's stamps move by the offset seen on the quickest recent states, not by
-            // this state's own: a state held up on the way (a stalled bridge, a queue) keeps its
-            // deadline, and is late, instead of moving every later deadline by its delay.
-            let offset = self.offset.add(now.wrapping_sub(s.t_publish_ns) as i64);
-            let shift = |t: u64| {
-                if t == 0 {
-                    0
-                } else {
-                    t.wrapping_add(offset as u64)
-                }
-            };
-            (s.t_deadline_ns, s.t_wake_ns) = (shift(s.t_deadline_ns), shift(s.t_wake_ns));
             // Its publication here is its arrival: what the controller's latency counts from.
-            s.t_publish_ns = now;
+            self.offset.restamp(&mut s, now);
         }
         // A reply is owed for the newest state only (not the final one, nor an older one
         // published late for the record).

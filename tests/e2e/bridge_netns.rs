@@ -272,14 +272,23 @@ fn both(run: Child, join: Child, limit: Duration) -> (Output, Output) {
 
 fn inproc_trace(tmp: &Path) -> Vec<u8> {
     let out = tmp.join("inproc");
-    common::run("configs/s1-nominal.toml", "inproc", &out, &["--law", "tdc"]);
+    if !out.join("trace.csv").is_file() {
+        common::run("configs/s1-nominal.toml", "inproc", &out, &["--law", "tdc"]);
+    }
     std::fs::read(out.join("trace.csv")).unwrap()
 }
 
 /// A lockstep run across the link (`run_extra` on the plant's side, `join_extra` on the
 /// controller's) writes the trace.csv of the inproc run, and leaves nothing in either root.
-fn assert_lockstep_identical(h: &Hosts, run_extra: &[&str], join_extra: &[&str]) {
-    assert_lockstep_identical_with(h, Remote::Controller, run_extra, join_extra);
+fn assert_lockstep_identical(h: &Hosts, run_extra: &[&str], join_extra: &[&str]) -> String {
+    assert_lockstep_identical_with(h, Remote::Controller, run_extra, join_extra)
+}
+
+/// What the far side said of the path: whether the far process took the link's socket (the
+/// direct path), from the run's log of the far process (`log`).
+fn far_went_direct(log: &str) -> bool {
+    log.contains("far side: the controller here took the link's socket")
+        || log.contains("far side: the plant here took the link's socket")
 }
 
 /// [`assert_lockstep_identical`] with `remote` in `b`.
@@ -288,8 +297,10 @@ fn assert_lockstep_identical_with(
     remote: Remote,
     run_extra: &[&str],
     join_extra: &[&str],
-) {
+) -> String {
     let out = h.tmp.path().join("remote");
+    // A second run of one test goes where the first went (its checks are done).
+    let _ = std::fs::remove_dir_all(&out);
     let mut join_args = remote.join_args().to_vec();
     join_args.extend_from_slice(join_extra);
     let join = h.join(&join_args);
@@ -310,6 +321,11 @@ fn assert_lockstep_identical_with(
         "trace.csv across the link ({remote:?} remote, {run_extra:?}, {join_extra:?}) differs from inproc"
     );
     h.assert_roots_empty();
+    // The log of the process on the other host, with both bridges' lines.
+    ["tdc.controller.log", "tdc.plant.log"]
+        .iter()
+        .map(|f| std::fs::read_to_string(out.join(f)).unwrap_or_default())
+        .collect()
 }
 
 #[test]
@@ -317,8 +333,20 @@ fn lockstep_across_the_link_is_byte_identical_to_inproc() {
     let Some((h, _one)) = Hosts::new("lockstep_across_the_link_is_byte_identical_to_inproc") else {
         return;
     };
-    // A lossy, slow, jittery link too: lockstep sends a state again until its reply comes.
-    assert_lockstep_identical(&h, LOSSY, &[]);
+    // A lossy, slow, jittery link too: lockstep sends a state again until its reply comes, on
+    // the direct path (the plant's and the controller's own sockets), then on the relay.
+    let log = assert_lockstep_identical(&h, LOSSY, &[]);
+    assert!(far_went_direct(&log), "{log}");
+    let relay: Vec<&str> = LOSSY
+        .iter()
+        .copied()
+        .chain(["--link-path", "relay"])
+        .collect();
+    let log = assert_lockstep_identical(&h, &relay, &[]);
+    assert!(
+        !far_went_direct(&log) && log.contains("the relay path"),
+        "{log}"
+    );
 }
 
 /// The done-when: a realtime run across the link completes, its report shows the link's
@@ -647,7 +675,14 @@ fn a_python_controller_joins_from_the_other_host() {
         return;
     };
     let cmd = format!("{py} examples/python-controller/controller.py");
-    assert_lockstep_identical(&h, &[], &["--controller-cmd", &cmd]);
+    let log = assert_lockstep_identical(&h, &[], &["--controller-cmd", &cmd]);
+    // It speaks only iceoryx2: its bridge relays it, while the plant's side goes direct (the
+    // far bridge then copies each reply for the record there).
+    assert!(!far_went_direct(&log), "{log}");
+    assert!(
+        log.contains("the plant here took the link's socket"),
+        "{log}"
+    );
 }
 
 /// The C `tdc` controller (the C ABI, examples/c-controller) joins from the other host: lockstep
@@ -659,7 +694,13 @@ fn a_c_controller_joins_from_the_other_host() {
     let Some((h, _one)) = Hosts::new("a_c_controller_joins_from_the_other_host") else {
         return;
     };
-    assert_lockstep_identical(&h, &[], &["--controller-cmd", exe.to_str().unwrap()]);
+    let log = assert_lockstep_identical(&h, &[], &["--controller-cmd", exe.to_str().unwrap()]);
+    // Through the C ABI it takes the link's socket like the built-in one: no relay on its path.
+    assert!(far_went_direct(&log), "{log}");
+    assert!(
+        log.contains("the plant here took the link's socket"),
+        "{log}"
+    );
 }
 
 #[test]

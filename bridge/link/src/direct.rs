@@ -368,17 +368,7 @@ impl ControllerEnd {
         if !self.local_stamps || s.flags & wire::STATE_FINAL != 0 {
             return s;
         }
-        let now = rt::now_ns();
-        let offset = self.offset.add(now.wrapping_sub(s.t_publish_ns) as i64);
-        let shift = |t: u64| {
-            if t == 0 {
-                0
-            } else {
-                t.wrapping_add(offset as u64)
-            }
-        };
-        (s.t_deadline_ns, s.t_wake_ns) = (shift(s.t_deadline_ns), shift(s.t_wake_ns));
-        s.t_publish_ns = now;
+        self.offset.restamp(&mut s, rt::now_ns());
         s
     }
 

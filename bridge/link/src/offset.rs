@@ -1,5 +1,7 @@
 //! How the far host's clock maps onto this one.
 
+use deltaloop_transport::wire::StateMsg;
+
 /// The offset from the far host's clock to this one, ns: the smallest of (arrival here −
 /// publication there) over the last one to two blocks of [`OFFSET_BLOCK`] states, that is the
 /// clocks' offset plus the quickest recent trip. A windowed minimum, so that it follows the two
@@ -36,5 +38,24 @@ impl Offset {
             (self.previous, self.current, self.n) = (self.current, i64::MAX, 0);
         }
         offset
+    }
+}
+
+impl Offset {
+    /// State `s`, arrived `now` (ns, this host's clock), with its stamps moved onto this clock:
+    /// its deadline and wake by the offset in force (the quickest recent states', not its own: a
+    /// state held up on the way keeps its deadline, and is late, instead of moving every later
+    /// deadline by its delay), its publication as its arrival here.
+    pub fn restamp(&mut self, s: &mut StateMsg, now: u64) {
+        let offset = self.add(now.wrapping_sub(s.t_publish_ns) as i64);
+        let shift = |t: u64| {
+            if t == 0 {
+                0
+            } else {
+                t.wrapping_add(offset as u64)
+            }
+        };
+        (s.t_deadline_ns, s.t_wake_ns) = (shift(s.t_deadline_ns), shift(s.t_wake_ns));
+        s.t_publish_ns = now;
     }
 }

@@ -156,6 +156,18 @@ impl FarLink {
         Ok(())
     }
 
+    /// Says, here and in the run's log on the other host, that the process took the link's
+    /// socket: its datagrams go to and from it directly.
+    pub(super) fn say_direct(&mut self) -> Result<()> {
+        let line = format!(
+            "the {} here took the link's socket: state and torque go socket to socket (the direct path)",
+            self.child.what
+        );
+        eprintln!("deltaloop-bridge: {line}");
+        self.tcp
+            .send(Kind::Log, &[format!("far side: {line}").as_bytes()])
+    }
+
     /// A START or STOP from the near side, published here (START's deadline made absolute on
     /// this host's clock). Returns whether it was START.
     pub(super) fn run_control(
@@ -293,6 +305,7 @@ impl Far {
         }
         let (ports, host) = (&self.ports, &mut self.host);
         let (mut started, mut finals) = (false, None);
+        let was_direct = l.direct;
         let (tcp, mut hand) = l.hand();
         tcp.poll(|kind, p| {
             match kind {
@@ -322,6 +335,9 @@ impl Far {
             }
             Ok(())
         })?;
+        if l.direct && !was_direct {
+            l.say_direct()?;
+        }
         self.host.answer_recalls(&mut l.tcp)?;
         let ports = (&self.ports.state, &self.ports.state_ready);
         if started {
@@ -375,6 +391,7 @@ impl FarPlant {
             return Ok(());
         }
         let ports = &self.ports;
+        let was_direct = l.direct;
         let (tcp, mut hand) = l.hand();
         tcp.poll(|kind, p| {
             if kind == Kind::Control {
@@ -382,7 +399,11 @@ impl FarPlant {
                 crate::sides::say_as_controller(p, &ports.as_controller, &ports.torque_ready)?;
             }
             Ok(())
-        })
+        })?;
+        if l.direct && !was_direct {
+            l.say_direct()?;
+        }
+        Ok(())
     }
 
     /// The plant's control messages and telemetry out over TCP (reliable, in order).
