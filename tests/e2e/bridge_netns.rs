@@ -364,12 +364,14 @@ fn realtime_across_the_link_completes_measures_the_round_trip_and_replays() {
 /// its torque queue held ([`LOOP_BUFFER`](deltaloop_transport::ipc::LOOP_BUFFER), 4) and lost the
 /// oldest; the plant's host recorded as unanswered states the far controller had answered, and
 /// about half the realtime runs across the link did not replay. The far bridge is stopped for
-/// 8 ms every 60 ms here (SIGSTOP/SIGCONT), so each stop queues dozens of states behind it.
+/// 8 ms every 60 ms here (SIGSTOP/SIGCONT), so each stop queues dozens of states behind it. The
+/// relay path's: on the direct path the far bridge is not on the loop's path, and holding it up
+/// costs no tick (`link_loopback::regression_a_stalled_bridge_run_replays_or_says_what_it_lost`).
 #[test]
 fn regression_a_far_bridge_held_up_loses_no_reply_and_the_run_replays() {
     realtime_across_the_link(
         "regression_a_far_bridge_held_up_loses_no_reply_and_the_run_replays",
-        &[],
+        &["--link-path", "relay"],
         true,
     );
 }

@@ -156,13 +156,17 @@ impl FarLink {
         Ok(())
     }
 
-    /// Says, here and in the run's log on the other host, that the process took the link's
-    /// socket: its datagrams go to and from it directly.
-    pub(super) fn say_direct(&mut self) -> Result<()> {
-        let line = format!(
-            "the {} here took the link's socket: state and torque go socket to socket (the direct path)",
-            self.child.what
-        );
+    /// Says, here and in the run's log on the other host, at START, which path the process took:
+    /// the link's socket (its datagrams go to and from it directly), or this side's relay.
+    pub(super) fn say_path(&mut self) -> Result<()> {
+        let what = self.child.what;
+        let line = if self.direct {
+            format!(
+                "the {what} here took the link's socket: state and torque go socket to socket (the direct path)"
+            )
+        } else {
+            format!("this side relays the {what} here (the relay path)")
+        };
         eprintln!("deltaloop-bridge: {line}");
         self.tcp
             .send(Kind::Log, &[format!("far side: {line}").as_bytes()])
@@ -305,7 +309,6 @@ impl Far {
         }
         let (ports, host) = (&self.ports, &mut self.host);
         let (mut started, mut finals) = (false, None);
-        let was_direct = l.direct;
         let (tcp, mut hand) = l.hand();
         tcp.poll(|kind, p| {
             match kind {
@@ -335,8 +338,8 @@ impl Far {
             }
             Ok(())
         })?;
-        if l.direct && !was_direct {
-            l.say_direct()?;
+        if started {
+            l.say_path()?;
         }
         self.host.answer_recalls(&mut l.tcp)?;
         let ports = (&self.ports.state, &self.ports.state_ready);
@@ -391,17 +394,17 @@ impl FarPlant {
             return Ok(());
         }
         let ports = &self.ports;
-        let was_direct = l.direct;
+        let mut started = false;
         let (tcp, mut hand) = l.hand();
         tcp.poll(|kind, p| {
             if kind == Kind::Control {
-                FarLink::run_control(&ports.control, p, &mut hand)?;
+                started |= FarLink::run_control(&ports.control, p, &mut hand)?;
                 crate::sides::say_as_controller(p, &ports.as_controller, &ports.torque_ready)?;
             }
             Ok(())
         })?;
-        if l.direct && !was_direct {
-            l.say_direct()?;
+        if started {
+            l.say_path()?;
         }
         Ok(())
     }
