@@ -682,6 +682,10 @@ fn a_python_controller_joins_from_the_other_host() {
     // far bridge then copies each reply for the record there).
     assert!(!far_went_direct(&log), "{log}");
     assert!(
+        log.contains("far side: this side relays the controller here"),
+        "{log}"
+    );
+    assert!(
         log.contains("the plant here took the link's socket"),
         "{log}"
     );
