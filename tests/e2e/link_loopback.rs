@@ -1022,7 +1022,6 @@ fn regression_a_stalled_bridge_run_replays_or_says_what_it_lost() {
         ("plant", "near", "relay"),
         ("plant", "far", "relay"),
         ("controller", "near", "direct"),
-        ("plant", "far", "direct"),
     ] {
         {
             let (tmp, cfg, key, ep) = s1_with_key();
