@@ -10,6 +10,7 @@ mod cli_run;
 mod crate_graph;
 mod custom_process;
 mod delay_injection;
+mod doc_paths;
 mod export_mcap;
 mod faults;
 mod foreign_peers;
