@@ -105,8 +105,9 @@ impl EmuArgs {
     /// The emulation; one line naming the field otherwise.
     pub fn emulation(&self) -> Result<emulation::Emulation> {
         let us = |what: &str, v: f64| -> Result<u64> {
-            if !(v.is_finite() && (0.0..=1e6).contains(&v)) {
-                bail!("--{what} {v}: allowed 0..=1000000 µs");
+            let max = deltaloop_config::MAX_LINK_DELAY_US;
+            if !(v.is_finite() && (0.0..=max).contains(&v)) {
+                bail!("--{what} {v}: allowed 0..={max} µs");
             }
             Ok((v * 1000.0).round() as u64)
         };

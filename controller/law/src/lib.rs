@@ -1,5 +1,6 @@
 //! Model-free control laws for trajectory tracking (docs/controllers.md): `tdc`, `tde-is`,
-//! `tdc-is-sta` and the `pid` baseline, per joint with a diagonal nominal inertia M̄.
+//! `tdc-is-sta`, `tdc-is-ista` and the `pid` baseline ([`Law::ALL`]), per joint with a diagonal
+//! nominal inertia M̄.
 //!
 //! Pure: no I/O, no clock, no allocation per step (the TDE history is allocated at construction).
 //! The controller only sees measured joint data and the applied torque reported by the drives; it

@@ -43,8 +43,8 @@ pub use text::{
     toml_error_position,
 };
 pub use validate::{
-    MAX_HOLD_S, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TRANSPORT_DELAY, MAX_TRANSPORT_DELAY_US,
-    NAME_RULE, name_is_valid,
+    MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TRANSPORT_DELAY,
+    MAX_TRANSPORT_DELAY_US, NAME_RULE, name_is_valid,
 };
 
 /// Every item of the scenario file under the path the workspace has always used

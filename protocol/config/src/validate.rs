@@ -248,7 +248,9 @@ impl SensorSection {
     }
 }
 
-/// Largest accepted emulated link delay or jitter (`link.delay_us`, `link.jitter_us`), µs.
+/// Largest accepted emulated link delay or jitter (`link.delay_us`, `link.jitter_us`, the flags
+/// `--link-delay-us`/`--link-jitter-us` and the sweep's `link_delay_us`/`link_jitter_us`), µs:
+/// the one bound all of them check.
 pub const MAX_LINK_DELAY_US: f64 = 1e6;
 
 impl LinkSection {
@@ -270,7 +272,7 @@ impl LinkSection {
                 key,
                 v,
                 (0.0..=MAX_LINK_DELAY_US).contains(&v),
-                "0 <= value <= 1000000 us",
+                &format!("0 <= value <= {MAX_LINK_DELAY_US} us"),
             )?;
         }
         if self.spin_us > 1_000_000 {

@@ -116,11 +116,12 @@ impl PointKind {
         }
     }
 
-    /// `plant.transport_delay_us` of the point, µs.
+    /// `plant.transport_delay_us` of the point, µs. Each axis is named in each of these three
+    /// (no catch-all arm): a new axis is a compile error here until it says what it sets.
     pub fn transport_us(self) -> f64 {
         match self {
             PointKind::SubTick { us } => us,
-            _ => 0.0,
+            PointKind::Grid | PointKind::Compute { .. } | PointKind::Link(_) => 0.0,
         }
     }
 
@@ -128,7 +129,7 @@ impl PointKind {
     pub fn compute_us(self) -> u32 {
         match self {
             PointKind::Compute { us } => us,
-            _ => 0,
+            PointKind::Grid | PointKind::SubTick { .. } | PointKind::Link(_) => 0,
         }
     }
 
@@ -136,7 +137,7 @@ impl PointKind {
     pub fn link(self) -> Option<Link> {
         match self {
             PointKind::Link(l) => Some(l),
-            _ => None,
+            PointKind::Grid | PointKind::SubTick { .. } | PointKind::Compute { .. } => None,
         }
     }
 }
@@ -301,8 +302,8 @@ pub(super) fn check(sw: &SweepFile) -> Result<()> {
     Ok(())
 }
 
-/// Most emulated delay or jitter a link point may ask for, µs (what `deltaloop-bridge` takes).
-pub const MAX_LINK_US: f64 = 1e6;
+/// Most emulated delay or jitter a link point may ask for, µs: the `[link]` bound.
+pub use deltaloop_config::MAX_LINK_DELAY_US as MAX_LINK_US;
 
 /// The link axis's keys: delays and jitter 0..=[`MAX_LINK_US`] µs, loss a fraction, and jitter
 /// or loss only with delays to apply them to.
