@@ -16,7 +16,7 @@ use crate::ControllerSide;
 use crate::ring::RefRing;
 use anyhow::{Result, bail};
 use clap::Parser;
-use deltaloop_config::config::{FaultInjection, Poll};
+use deltaloop_config::{FaultInjection, Poll};
 use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_link::direct::{self, ControllerEnd};
 use deltaloop_transport::args::LoopArgs;

@@ -16,7 +16,7 @@
 use crate::{Arrival, Physics, PlantSide, PlantStop, plant_from_config};
 use anyhow::{Context, Result, bail};
 use clap::Parser;
-use deltaloop_config::config::{ApplyTorque, Overrun, Poll};
+use deltaloop_config::{ApplyTorque, Overrun, Poll};
 use deltaloop_config::{LoopMode, RunConfig};
 use deltaloop_link::direct::{self, PlantEnd};
 use deltaloop_model::Vec3;

@@ -4,7 +4,7 @@
 //! happened in the tick's telemetry. Transport code only moves these messages and stamps times.
 
 use deltaloop_config::RunConfig;
-use deltaloop_config::config::TorqueLimit;
+use deltaloop_config::TorqueLimit;
 use deltaloop_model::sensor::{Sensor, SensorConfig};
 use deltaloop_model::{
     DeltaRobot, KinematicsError, PayloadStep, Plant, PlantSample, SimConfig, Vec3,

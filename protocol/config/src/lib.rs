@@ -47,20 +47,6 @@ pub use validate::{
     MAX_TRANSPORT_DELAY_US, NAME_RULE, name_is_valid,
 };
 
-/// Every item of the scenario file under the path the workspace has always used
-/// (`deltaloop_config::config::PathKind`); the same items as the crate root.
-pub mod config {
-    pub use crate::{
-        ApplyTorque, ConfigError, ControllerParams, ControllerSection, FaultInjection,
-        FaultSection, Law, Layout, LoopMode, LoopSection, MAX_ECHO_CHARS, MAX_FILE_BYTES,
-        MAX_HOLD_S, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TRANSPORT_DELAY, MAX_TRANSPORT_DELAY_US,
-        NAME_RULE, Overrun, PathKind, PlantSection, Poll, Preset, Priority, RecordSection,
-        ResolvedLayout, RunConfig, ScenarioSection, Segment, SensorSection, TorqueLimit,
-        VelocitySource, clean_message, name_is_valid, read_text_file, show_num, show_path,
-        show_str, toml_error_line, toml_error_position,
-    };
-}
-
 /// What the unit tests of several modules share.
 #[cfg(test)]
 mod test_util {

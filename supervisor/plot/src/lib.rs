@@ -1,5 +1,5 @@
 //! Line charts with plotters, written as SVG and PNG. The PNG text uses a bundled font
-//! (DejaVu Sans, see `supervisor/assets/DejaVuSans.LICENSE`), so it renders on machines without
+//! (DejaVu Sans, see `supervisor/plot/assets/DejaVuSans.LICENSE`), so it renders on machines without
 //! fonts.
 //!
 //! A crate of its own, under plain-data calls (series of points, histograms, bins), so that
@@ -24,7 +24,7 @@ static FONT: Once = Once::new();
 
 fn register_font() {
     FONT.call_once(|| {
-        let bytes: &'static [u8] = include_bytes!("../../assets/DejaVuSans.ttf");
+        let bytes: &'static [u8] = include_bytes!("../assets/DejaVuSans.ttf");
         // The bundled font is valid; if registration ever failed, plotters would report it when drawing.
         let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, bytes);
     });

@@ -102,7 +102,7 @@ impl TraceRows {
             anyhow::anyhow!(
                 "{}: column k = {} is not a tick number",
                 at(),
-                deltaloop_config::config::show_str(k)
+                deltaloop_config::show_str(k)
             )
         })?;
         let fate = match ReplyFate::parse(reply).ok() {
@@ -127,7 +127,7 @@ impl TraceRows {
             None => bail!(
                 "{}: column reply = {}: expected {}",
                 at(),
-                deltaloop_config::config::show_str(reply),
+                deltaloop_config::show_str(reply),
                 deltaloop_law::names::one_of::<ReplyFate>()
             ),
         };
@@ -140,7 +140,7 @@ impl TraceRows {
                     anyhow::anyhow!(
                         "{}: column arrival_ns = {}: an applied reply needs its arrival in ns",
                         at(),
-                        deltaloop_config::config::show_str(a)
+                        deltaloop_config::show_str(a)
                     )
                 })?;
                 if !self.arrival.contains(&ns) {
@@ -377,7 +377,7 @@ fn first_difference(
     x: Option<&Vec<u8>>,
     y: Option<&Vec<u8>>,
 ) -> Verdict {
-    use deltaloop_config::config::show_str;
+    use deltaloop_config::show_str;
     let (xs, ys) = (
         x.map_or_else(Vec::new, |x| fields(x)),
         y.map_or_else(Vec::new, |y| fields(y)),

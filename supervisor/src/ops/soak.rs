@@ -19,7 +19,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// The longest soak: the longest hold the config allows (a day).
-pub const MAX_DURATION: Duration = Duration::from_secs(deltaloop_config::config::MAX_HOLD_S as u64);
+pub const MAX_DURATION: Duration = Duration::from_secs(deltaloop_config::MAX_HOLD_S as u64);
 
 /// Parses a duration such as `90s`, `10m`, `2h`, `1h30m` (humantime); 1 s ..= 24 h.
 pub fn parse_duration(s: &str) -> Result<Duration, String> {

@@ -5,8 +5,8 @@ use crate::record::metrics::LawMetrics;
 use crate::record::sensitivity;
 use crate::study::analysis::Mismatch;
 use crate::timing::TimingSummary;
-use deltaloop_config::config::{PathKind, VelocitySource};
 use deltaloop_config::{ControllerParams, Law, LoopMode, Overrun, Preset, RunConfig};
+use deltaloop_config::{PathKind, VelocitySource};
 use std::fmt::Write;
 
 mod timing;

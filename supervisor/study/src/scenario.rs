@@ -1,7 +1,7 @@
 //! Task-space reference paths (docs/delta-robot.md §6): semi-elliptic segments traversed with the
 //! rest-to-rest quintic time law, and the paper's scenarios S1, S2, S3.
 
-use deltaloop_config::config::{PathKind, ScenarioSection, Segment};
+use deltaloop_config::{PathKind, ScenarioSection, Segment};
 use deltaloop_model::Vec3;
 
 /// P0 = (0.25, 0, −0.43) m, the start of every paper scenario.

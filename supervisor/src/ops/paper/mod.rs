@@ -14,7 +14,7 @@ use crate::study::Study;
 use crate::study::analysis::{Mismatch, mismatch};
 use anyhow::{Context, Result};
 use deltaloop_config::LoopMode;
-use deltaloop_config::config::PathKind;
+use deltaloop_config::PathKind;
 use deltaloop_config::{ControllerParams, Law, Preset, RunConfig};
 use serde::Serialize;
 use std::collections::BTreeMap;

@@ -11,16 +11,16 @@ use crate::record::RunStatus;
 use crate::record::stats::{self, Interval, RatioInterval};
 use crate::study::Study;
 use anyhow::{Context, Result};
-use deltaloop_config::config::PathKind;
+use deltaloop_config::PathKind;
 use deltaloop_config::{Law, LoopMode, Preset, RunConfig, SensorSection};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// The laws compared: `tde-is` (the denominator), the paper's explicit super-twisting law and
-/// the implicit one.
-pub const LAWS: [Law; 3] = [Law::TdeIs, Law::TdcIsSta, Law::TdcIsIsta];
+/// The laws the robustness table compares: `tde-is` (the denominator), the paper's explicit
+/// super-twisting law and the implicit one (the paper's own tables run [`super::LAWS`]).
+pub const ROBUST_LAWS: [Law; 3] = [Law::TdeIs, Law::TdcIsSta, Law::TdcIsIsta];
 
 /// Sensor-noise seeds by default (`deltaloop paper --seeds`).
 pub const SEEDS: u32 = 20;
@@ -94,7 +94,7 @@ struct Got {
     misses: Option<u64>,
 }
 
-/// One run of every law of [`LAWS`].
+/// One run of every law of [`ROBUST_LAWS`].
 type Sample = Vec<Got>;
 
 fn maxj(v: [f64; 3]) -> f64 {
@@ -106,7 +106,7 @@ fn maxj(v: [f64; 3]) -> f64 {
 fn config(text: &str, name: &str, seed: u64) -> Result<RunConfig> {
     let mut cfg = RunConfig::from_toml_str(text, Some(Path::new(&format!("{name}.toml"))))?;
     cfg.sensor = sensor(seed);
-    cfg.controller.laws = LAWS.to_vec();
+    cfg.controller.laws = ROBUST_LAWS.to_vec();
     cfg.record.trace = false;
     cfg.validate()?;
     Ok(cfg)
@@ -115,7 +115,8 @@ fn config(text: &str, name: &str, seed: u64) -> Result<RunConfig> {
 /// Every law in-process with sensor seed `seed`.
 fn inproc_sample(text: &str, name: &str, seed: u64) -> Result<Sample> {
     let study = Study::new(config(text, name, seed)?).context("reference")?;
-    LAWS.iter()
+    ROBUST_LAWS
+        .iter()
         .map(|&law| {
             let r = inproc::run_law(&study, law, &Keep::default())?;
             Ok(Got {
@@ -133,7 +134,8 @@ fn realtime_sample(text: &str, name: &str, seed: u64, dir: &Path) -> Result<Samp
     let study = Study::new(config(text, name, seed)?).context("reference")?;
     std::fs::create_dir_all(dir)?;
     crate::output::write_text(&dir.join("config.toml"), &study.config.to_toml_string())?;
-    LAWS.iter()
+    ROBUST_LAWS
+        .iter()
         .map(|&law| {
             let ran = loops::run_law(&study, law, LoopMode::Realtime, dir, &Keep::default(), None)?;
             let Ran::Process(p) = ran else {
@@ -174,7 +176,7 @@ fn row(scenario: PathKind, preset: Preset, mode: LoopMode, samples: &[Sample]) -
         mode,
         runs: complete.len(),
         left_out: samples.len() - complete.len(),
-        rms_rad: LAWS
+        rms_rad: ROBUST_LAWS
             .iter()
             .enumerate()
             .filter_map(|(i, &l)| Some((l, Interval::of(&col(i))?)))

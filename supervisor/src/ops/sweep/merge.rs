@@ -39,7 +39,7 @@ pub struct Merged {
 /// checked against its manifest's hash.
 fn plan_of(dir: &Path, m: &Manifest) -> Result<Plan> {
     let shown = dir.display();
-    let text = deltaloop_config::config::read_text_file(&dir.join("sweep.toml"))
+    let text = deltaloop_config::read_text_file(&dir.join("sweep.toml"))
         .map_err(|e| anyhow::anyhow!("shard {shown}: cannot read sweep.toml: {e}"))?;
     let sweep: SweepFile = toml::from_str(&text)
         .map_err(|e| anyhow::anyhow!("shard {shown}: sweep.toml is not a sweep file: {e}"))?;

@@ -75,8 +75,8 @@ mod tests {
     use crate::record::metrics::LawMetrics;
     use crate::record::{Fault, FaultKind, Outcome, RunEnd, RunStatus};
     use crate::study::Study;
-    use deltaloop_config::config as cfgfile;
-    use deltaloop_config::config::PathKind;
+    use deltaloop_config as cfgfile;
+    use deltaloop_config::PathKind;
     use deltaloop_config::{Law, LoopMode, Preset};
     use std::path::PathBuf;
 

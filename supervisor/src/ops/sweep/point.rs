@@ -10,7 +10,7 @@ use crate::record::metrics::LawMetrics;
 use crate::record::stats;
 use crate::study::Study;
 use anyhow::{Context, Result};
-use deltaloop_config::config::PathKind;
+use deltaloop_config::PathKind;
 use deltaloop_config::{Law, LoopMode, Preset, RunConfig};
 use serde::{Deserialize, Serialize};
 use std::path::Path;

@@ -5,7 +5,7 @@ use super::point::{LINK_MAX_MISS_SHARE, Metric, Row};
 use super::schema::SweepFile;
 use crate::record::RunStatus;
 use crate::record::{sensitivity, stats};
-use deltaloop_config::config::PathKind;
+use deltaloop_config::PathKind;
 use deltaloop_config::{Law, LoopMode, Preset};
 use std::fmt::Write as _;
 use std::path::Path;

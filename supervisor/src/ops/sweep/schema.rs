@@ -2,7 +2,7 @@
 //! values, a safe name), loading it with its base config, and the grid of points it spans.
 
 use anyhow::{Result, bail};
-use deltaloop_config::config::{self as cfgfile, PathKind};
+use deltaloop_config::{self as cfgfile, PathKind};
 use deltaloop_config::{ConfigError, Law, LoopMode, Preset, RunConfig};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};

@@ -808,7 +808,7 @@ mod tests {
     /// `name`/`parse`/"allowed" (strum).
     #[test]
     fn every_text_enum_has_one_word_per_variant() {
-        use deltaloop_config::config::PathKind;
+        use deltaloop_config::PathKind;
         use deltaloop_config::{LoopMode, Preset};
         use strum::VariantArray;
         fn check<T>()
