@@ -10,8 +10,8 @@ use std::path::PathBuf;
 /// `--law`, `--seed`, `--plant-cmd`, … : overrides of a scenario file (None: keep the file's value).
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct OverrideArgs {
-    /// Run only this law (repeatable): tdc, tde-is, tdc-is-sta, tdc-is-ista, pid.
-    #[arg(long = "law", value_parser = Law::parse)]
+    /// Run only this law (repeatable).
+    #[arg(long = "law", value_parser = LawParser)]
     pub laws: Vec<Law>,
     /// TDE delay ℓ in ticks (controller.tde_delay_samples).
     #[arg(long)]
@@ -98,5 +98,63 @@ impl From<RemoteFlags> for RemoteArgs {
             emu: a.emu,
             quiet: false,
         }
+    }
+}
+
+/// `--law`: parsed by the law crate's own names (its error lists them), and its help's possible
+/// values taken from [`Law::ALL`], so a new law appears in the help without a word written.
+#[derive(Clone, Copy, Debug)]
+pub struct LawParser;
+
+impl clap::builder::TypedValueParser for LawParser {
+    type Value = Law;
+
+    fn parse_ref(
+        &self,
+        cmd: &clap::Command,
+        arg: Option<&clap::Arg>,
+        value: &std::ffi::OsStr,
+    ) -> Result<Law, clap::Error> {
+        let parse: fn(&str) -> Result<Law, String> = Law::parse;
+        parse.parse_ref(cmd, arg, value)
+    }
+
+    fn possible_values(
+        &self,
+    ) -> Option<Box<dyn Iterator<Item = clap::builder::PossibleValue> + '_>> {
+        Some(Box::new(
+            Law::ALL
+                .iter()
+                .map(|l| clap::builder::PossibleValue::new(l.name())),
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::builder::TypedValueParser;
+
+    /// Every law is in `--law`'s help and parses by its name; another name is refused, naming
+    /// the allowed ones.
+    #[test]
+    fn law_flag_offers_every_law_and_refuses_others() {
+        let names: Vec<String> = LawParser
+            .possible_values()
+            .unwrap()
+            .map(|v| v.get_name().to_string())
+            .collect();
+        assert_eq!(names, Law::ALL.iter().map(|l| l.name()).collect::<Vec<_>>());
+        let cmd = clap::Command::new("t");
+        for l in Law::ALL {
+            assert_eq!(
+                LawParser.parse_ref(&cmd, None, l.name().as_ref()).unwrap(),
+                *l
+            );
+        }
+        let e = LawParser
+            .parse_ref(&cmd, None, "nope".as_ref())
+            .unwrap_err();
+        assert!(e.to_string().contains("allowed: tdc"), "{e}");
     }
 }
