@@ -4,7 +4,7 @@ use std::ffi::{c_char, c_int, c_void};
 
 use deltaloop_controller::process::{Step, serve};
 use deltaloop_transport::args::LoopArgs;
-use deltaloop_transport::wire::{RefSample, StateMsg, TorqueMsg};
+use deltaloop_wire::{RefSample, StateMsg, TorqueMsg};
 
 use crate::error::refusal;
 use crate::process::{exit_code, main_of, parse, usage};

@@ -39,7 +39,7 @@ fn one_line(msg: &str) -> String {
     let mut fits = 0;
     let mut buf = [0u8; 4];
     for c in msg.chars() {
-        let piece = deltaloop_transport::wire::escape_peer_text(c.encode_utf8(&mut buf));
+        let piece = deltaloop_wire::escape_peer_text(c.encode_utf8(&mut buf));
         if out.len() + piece.len() > DL_ERROR_MAX_BYTES {
             out.truncate(fits);
             out.push_str(CUT_MARK);

@@ -35,7 +35,7 @@ mod process;
 pub mod run;
 
 pub use controller::{DlInitFn, DlStepFn, dl_controller_main};
-pub use deltaloop_transport::wire::{RefSample, StateMsg, TorqueMsg};
+pub use deltaloop_wire::{RefSample, StateMsg, TorqueMsg};
 pub use error::{DL_BAD_ARGUMENT, DL_NOT_FOUND, DL_OK, DL_WRONG_TYPE, dl_last_error, dl_set_error};
 pub use model::{DlJoints, DlModel};
 pub use plant::{DlPlantFns, dl_plant_main};
@@ -46,7 +46,7 @@ use std::ffi::c_char;
 /// The wire version this library speaks (docs/protocol.md §2).
 #[unsafe(no_mangle)]
 pub extern "C" fn dl_wire_version() -> u32 {
-    deltaloop_transport::wire::WIRE_VERSION
+    deltaloop_wire::WIRE_VERSION
 }
 
 /// The deltaloop version of this library, e.g. "0.1.0".

@@ -194,7 +194,7 @@ pub unsafe extern "C" fn dl_model_brake(m: *mut DlModel, damping: f64) -> c_int 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use deltaloop_transport::wire;
+    use deltaloop_wire as wire;
 
     /// The drive bits are the telemetry's (a C plant's bits reach the trace unchanged).
     #[test]

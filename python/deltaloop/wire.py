@@ -1,4 +1,4 @@
-"""ctypes mirrors of deltaloop's wire types (protocol/transport/src/wire.rs).
+"""ctypes mirrors of deltaloop's wire types (protocol/wire/src/lib.rs).
 
 Field order, sizes and alignments are those of the Rust `#[repr(C)]` structs; each type's
 `type_name()` is its iceoryx2 type name, which iceoryx2 compares (with size and alignment) when a

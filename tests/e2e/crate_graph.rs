@@ -1,7 +1,9 @@
 //! The crate graph keeps its promises: the model and the laws are pure math (no transport, CLI,
 //! error-reporting, signal or libc crate anywhere below them), the config schema carries no
-//! transport, the transport's default build carries no command-line parser, and nothing on the
-//! controller side depends on the plant (model-free by construction). Read from `cargo tree`, so a new dependency that breaks a rule fails here.
+//! transport and no law, both sides' ticks, the wire and the study are pure, the transport's
+//! default build carries no command-line parser, and nothing on the controller side depends on
+//! the plant (model-free by construction). Read from `cargo tree`, so a new dependency that
+//! breaks a rule fails here.
 
 use std::process::Command;
 
@@ -87,8 +89,10 @@ fn law_crate_is_pure_and_model_free() {
     assert_none_of("deltaloop-law", &forbidden);
 }
 
+/// The config schema carries no transport, and stands beside the laws, not on them: both take
+/// the laws' names and constants from `deltaloop-names`.
 #[test]
-fn config_schema_carries_no_transport() {
+fn config_schema_carries_no_transport_and_no_law() {
     assert_none_of(
         "deltaloop-config",
         &[
@@ -97,7 +101,44 @@ fn config_schema_carries_no_transport() {
             "signal-hook",
             "libc",
             "deltaloop-transport",
+            "deltaloop-law",
+            "nalgebra",
         ],
+    );
+    assert_none_of("deltaloop-names", IMPURE);
+}
+
+/// What a run computes is pure, whichever loop carries it: both sides' ticks, the wire layout
+/// they exchange (iceoryx2's `ZeroCopySend` only with its feature) and the study (reference,
+/// recorder, metrics) have no transport, no command line and no process code below them.
+#[test]
+fn ticks_wire_and_study_are_pure() {
+    let process = [
+        "deltaloop-plant",
+        "deltaloop-controller",
+        "deltaloop-link",
+        "deltaloop-bridge",
+    ];
+    for pkg in [
+        "deltaloop-wire",
+        "deltaloop-plant-tick",
+        "deltaloop-controller-tick",
+        "deltaloop-study",
+    ] {
+        let mut forbidden = IMPURE.to_vec();
+        forbidden.retain(|c| *c != "deltaloop-config");
+        forbidden.extend(process);
+        assert_none_of(pkg, &forbidden);
+    }
+    assert_none_of("deltaloop-wire", &["deltaloop-config"]);
+    assert_none_of(
+        "deltaloop-controller-tick",
+        &["deltaloop-model", "deltaloop-plant-tick"],
+    );
+    let shared = graph_with("deltaloop-wire", &["--features", "iceoryx2"]);
+    assert!(
+        shared.iter().any(|n| n == "iceoryx2"),
+        "the feature `iceoryx2` brings iceoryx2: {shared:?}"
     );
 }
 

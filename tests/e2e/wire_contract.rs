@@ -202,7 +202,7 @@ fn documented(doc: &str, rust: &str) -> Documented {
 
 #[test]
 fn every_wire_type_is_documented_exactly() {
-    let (doc, src) = (doc(), read("protocol/transport/src/wire.rs"));
+    let (doc, src) = (doc(), read("protocol/wire/src/lib.rs"));
     for a in wire_types() {
         let t = a.rust;
         let d = documented(&doc, t);

@@ -7,13 +7,12 @@
 //! knows nothing of the robot model. This crate does not depend on the plant crate.
 
 pub mod law;
-pub mod names;
-pub mod params;
 pub mod sta;
 pub mod tde;
 
 pub use law::{Controller, Measurement, Output, Reference};
-pub use params::{ControllerParams, Law, Preset, VelocitySource};
+// The laws' names and constants are `deltaloop-names`, below the config schema too.
+pub use deltaloop_names::{ControllerParams, Law, Preset, VelocitySource};
 pub use tde::TdeHistory;
 
 /// Joint-space 3-vector (rad, rad/s, rad/s² or N m, as each field says).

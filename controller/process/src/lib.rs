@@ -1,10 +1,11 @@
-//! The controller side of deltaloop: the controller's tick ([`tick`]), which every loop mode
-//! calls, and the controller process (`deltaloop-controller`, [`process`]), which runs that tick
-//! over iceoryx2 with the joint reference in a fixed ring ([`ring`]). The laws themselves are
+//! The controller process (`deltaloop-controller`, [`process`]): the controller's tick, which
+//! every loop mode calls (`deltaloop-controller-tick`, pure, re-exported as [`tick`]), served over
+//! iceoryx2 or the direct link, with the joint reference in a fixed ring ([`ring`]). The laws themselves are
 //! `deltaloop-law` (pure math). Model-free: this crate never depends on the plant.
 
 pub mod process;
 pub mod ring;
-pub mod tick;
+/// The controller's tick: `deltaloop-controller-tick`.
+pub use deltaloop_controller_tick as tick;
 
 pub use tick::{ControllerSide, measurement, reference};

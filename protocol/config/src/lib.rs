@@ -1,6 +1,6 @@
 //! The scenario configuration (TOML): schema, presets and validation, with errors that name the
 //! key, the value and what is allowed. No transport and no physics: the processes and the
-//! supervisor read a [`RunConfig`]; the law's constants come from `deltaloop-law`.
+//! supervisor read a [`RunConfig`]; the laws' names and constants come from `deltaloop-names`.
 //!
 //! A file names a scenario, the plant options, the controller laws and a preset of controller
 //! constants (`matched` or `paper`, see docs/controllers.md), and may override any constant key by
@@ -28,7 +28,7 @@ pub mod schema;
 pub mod text;
 mod validate;
 
-pub use deltaloop_law::{ControllerParams, Law, Preset, VelocitySource};
+pub use deltaloop_names::{ControllerParams, Law, Preset, VelocitySource};
 pub use error::ConfigError;
 pub use files::{MAX_FILE_BYTES, read_text_file};
 pub use layout::{Layout, Poll, Priority, ResolvedLayout};

@@ -3,7 +3,7 @@
 use crate::layout::ResolvedLayout;
 use crate::schema::RunConfig;
 
-deltaloop_law::text_enum! {
+deltaloop_names::text_enum! {
     "kebab-case", "mode";
     /// How plant and controller are connected: one enum for the CLI, the sweep and the processes.
     #[derive(Default)]

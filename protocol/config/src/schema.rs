@@ -6,11 +6,11 @@ use crate::files::read_text_file;
 use crate::layout::Layout;
 use crate::text::name_from_stem;
 use crate::text::{clean_message, show_path, toml_error_position};
-use deltaloop_law::{ControllerParams, Law, Preset, VelocitySource};
+use deltaloop_names::{ControllerParams, Law, Preset, VelocitySource};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-deltaloop_law::text_enum! {
+deltaloop_names::text_enum! {
     "kebab-case", "path";
     /// Which reference path to follow (docs/delta-robot.md §6).
     #[derive(PartialOrd, Ord)]
@@ -142,7 +142,7 @@ impl Default for PlantSection {
     }
 }
 
-deltaloop_law::text_enum! {
+deltaloop_names::text_enum! {
     "kebab-case", "overrun policy";
     /// What the realtime plant does when its own process wakes for a tick later than the bound
     /// (`[loop] overrun`, `--overrun`): the host stalled the simulator, not the robot.
@@ -395,7 +395,7 @@ macro_rules! controller_section {
     };
 }
 
-deltaloop_law::with_controller_gains!(controller_section);
+deltaloop_names::with_controller_gains!(controller_section);
 
 fn default_laws() -> Vec<Law> {
     Law::STUDY.to_vec()

@@ -333,7 +333,7 @@ impl ControllerSection {
                 "[]",
                 &format!(
                     "at least one of {}",
-                    deltaloop_law::names::allowed::<deltaloop_law::Law>()
+                    deltaloop_names::allowed::<deltaloop_names::Law>()
                 ),
             ));
         }

@@ -1,4 +1,4 @@
-//! How the deltaloop processes talk: the wire types ([`wire`]), the iceoryx2 services of a run
+//! How the deltaloop processes talk: the wire types ([`wire`], `deltaloop-wire`), the iceoryx2 services of a run
 //! ([`ipc`]) and an observer's ports on them ([`observe`]), the real-time helpers both loop
 //! processes use ([`rt`]), their exit codes
 //! ([`exit`]) and, with the cargo feature `args`, their command line (`args`). The config schema lives
@@ -11,4 +11,5 @@ pub mod handoff;
 pub mod ipc;
 pub mod observe;
 pub mod rt;
-pub mod wire;
+/// The wire types, with iceoryx2's `ZeroCopySend`: `deltaloop-wire`.
+pub use deltaloop_wire as wire;

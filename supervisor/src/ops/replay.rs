@@ -128,7 +128,7 @@ impl TraceRows {
                 "{}: column reply = {}: expected {}",
                 at(),
                 deltaloop_config::show_str(reply),
-                deltaloop_law::names::one_of::<ReplyFate>()
+                deltaloop_names::one_of::<ReplyFate>()
             ),
         };
         let arrival_ns = match (fate, arrival) {

@@ -2,10 +2,10 @@
 //! controller constants). Built once, read by every law and every loop mode. And the recorder
 //! every loop mode feeds, with the one-pass metrics ([`record`]). No I/O.
 //!
-//! The supervisor re-exports this crate as its bottom layers (`study`, `record`). It is a crate of
-//! its own because this is the code every tick of every run goes through (the reference row, the
-//! recorder, the metrics): here it is optimised in test and release builds, while the rest of the
-//! supervisor, which runs once per command, is not (`Cargo.toml`, the dev and release profiles).
+//! Pure: it stands on the model, the laws and both sides' ticks, and on no transport, no command
+//! line and no process code (tests/e2e/crate_graph.rs), so what a run computes is the same
+//! whichever loop carries it. The supervisor re-exports it as its bottom layers (`study`,
+//! `record`).
 
 pub mod analysis;
 pub mod record;
@@ -21,10 +21,10 @@ pub fn latency_histogram() -> hdrhistogram::Histogram<u64> {
 use crate::reference::JointReference;
 use crate::scenario::TaskPath;
 use deltaloop_config::{Law, RunConfig};
-use deltaloop_controller::ControllerSide;
+use deltaloop_controller_tick::ControllerSide;
 use deltaloop_law::ControllerParams;
 use deltaloop_model::{DeltaRobot, KinematicsError, Vec3};
-use deltaloop_plant::PlantSide;
+use deltaloop_plant_tick::PlantSide;
 
 /// The resolved inputs of a run.
 #[derive(Clone, Debug)]

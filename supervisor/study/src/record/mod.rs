@@ -12,13 +12,13 @@ use crate::reference::{JointReference, RefRow};
 use deltaloop_config::Law;
 use deltaloop_law::Output;
 use deltaloop_model::{PlantSample, Vec3};
-use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
+use deltaloop_wire::{self as wire, StateMsg, TelemetryMsg, TorqueMsg};
 use std::collections::VecDeque;
 
 /// Error bound of the divergence rule, rad (docs/controllers.md: |e_i| > 0.5 rad).
 pub const DIVERGENCE_ERR_RAD: f64 = 0.5;
 
-deltaloop_law::text_enum! {
+deltaloop_names::text_enum! {
     "snake_case", "reply";
     /// What became of the controller's reply to tick k (`trace.csv` column `reply`).
     pub enum ReplyFate {
@@ -81,7 +81,7 @@ pub struct Fault {
     pub cause: String,
 }
 
-deltaloop_law::text_enum! {
+deltaloop_names::text_enum! {
     "snake_case", "status";
     /// How a run ended, as `summary.json` (`status`), `sweep.csv` (`status`) and the exit code of
     /// `deltaloop run` say it. One value per law, derived from its [`RunEnd`] by
@@ -122,7 +122,7 @@ impl RunStatus {
     }
 }
 
-deltaloop_law::text_enum! {
+deltaloop_names::text_enum! {
     "snake_case", "fault kind";
     /// What kind of loop fault ended a run (`summary.json` `fault_kind`). The cause text says the
     /// rest (exit status, the process's last log line, timings).
@@ -829,7 +829,7 @@ mod tests {
             assert_eq!(ReplyFate::parse(f.name()), Ok(f));
         }
         assert_eq!(
-            deltaloop_law::names::one_of::<ReplyFate>(),
+            deltaloop_names::one_of::<ReplyFate>(),
             "applied, late, skipped or missed"
         );
     }

@@ -1,7 +1,7 @@
 //! The words of the text enums (laws, presets, modes, paths, statuses): each enum's variants are
 //! its one definition. `strum` derives its word (`IntoStaticStr`), its parser (`EnumString`)
-//! and its list (`VariantArray`), with the same case rule as its serde derive; [`allowed`]
-//! builds the "allowed: …" list of an error from that list, and [`parse`] the one-line error.
+//! and its list (`VariantArray`), with the same case rule as its serde derive; [`allowed`](crate::allowed)
+//! builds the "allowed: …" list of an error from that list, and [`parse`](crate::parse) the one-line error.
 
 use strum::VariantArray;
 
@@ -11,7 +11,7 @@ use strum::VariantArray;
 /// padded). The crate using it depends on `serde` and `strum`.
 ///
 /// ```
-/// deltaloop_law::text_enum! {
+/// deltaloop_names::text_enum! {
 ///     "kebab-case", "colour";
 ///     /// A colour.
 ///     #[derive(Default)]
@@ -24,7 +24,7 @@ use strum::VariantArray;
 /// assert_eq!(Colour::DarkRed.name(), "dark-red");
 /// assert_eq!(Colour::parse("blue"), Ok(Colour::Blue));
 /// assert_eq!(format!("{:>5}", Colour::Blue), " blue");
-/// assert_eq!(deltaloop_law::names::allowed::<Colour>(), "dark-red, blue");
+/// assert_eq!(deltaloop_names::allowed::<Colour>(), "dark-red, blue");
 /// ```
 #[macro_export]
 macro_rules! text_enum {
@@ -54,7 +54,7 @@ macro_rules! text_enum {
 
             /// Parses a word; the error lists the allowed ones.
             pub fn parse(s: &str) -> Result<Self, String> {
-                $crate::names::parse($what, s)
+                $crate::parse($what, s)
             }
         }
 

@@ -1,6 +1,6 @@
-//! The law's names and constants: which law runs ([`Law`]), its constants ([`ControllerParams`]) and
+//! The laws' names and constants: which law runs ([`Law`]), its constants ([`ControllerParams`]) and
 //! their presets ([`Preset`]), and where the rates come from ([`VelocitySource`]). Plain data with
-//! serde derives, so the config schema can hold them without this crate knowing of any file.
+//! serde derives, so the config schema can hold them and the laws run them, neither knowing of the other.
 
 use serde::{Deserialize, Serialize};
 

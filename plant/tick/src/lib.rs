@@ -9,7 +9,7 @@ use deltaloop_model::sensor::{Sensor, SensorConfig};
 use deltaloop_model::{
     DeltaRobot, KinematicsError, PayloadStep, Plant, PlantSample, SimConfig, Vec3,
 };
-use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
+use deltaloop_wire::{self as wire, StateMsg, TelemetryMsg, TorqueMsg};
 
 /// The plant's simulation settings for a config (one mapping for every mode).
 pub fn sim_config(cfg: &RunConfig) -> SimConfig {

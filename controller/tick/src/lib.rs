@@ -4,7 +4,7 @@
 
 use deltaloop_config::{Law, RunConfig};
 use deltaloop_law::{Controller, Measurement, Output, Reference, Vec3};
-use deltaloop_transport::wire::{RefSample, StateMsg, TorqueMsg};
+use deltaloop_wire::{RefSample, StateMsg, TorqueMsg};
 
 /// The controller side of the loop: one law with its state.
 #[derive(Clone, Debug)]

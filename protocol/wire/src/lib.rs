@@ -1,7 +1,10 @@
-//! Messages exchanged over iceoryx2 shared memory. Plain `#[repr(C)]` data with explicit type
-//! names, so every binary (and any other language) agrees on the layout. Times are
+//! The messages of a run, as the loop processes exchange them (over iceoryx2 shared memory on one
+//! host, in sealed datagrams across two). Plain `#[repr(C)]` data with explicit type names, so
+//! every binary (and any other language) agrees on the layout; with the feature `iceoryx2` each
+//! also derives iceoryx2's `ZeroCopySend`. Times are
 //! CLOCK_MONOTONIC nanoseconds; physical fields are SI, joint space.
 
+#[cfg(feature = "iceoryx2")]
 use iceoryx2::prelude::ZeroCopySend;
 
 /// The version of the run's wire as a whole (the services, who publishes where, what each kind
@@ -16,9 +19,13 @@ pub const WIRE_ATTRIBUTE: &str = "deltaloop-wire";
 pub const STATE_FINAL: u32 = 1;
 
 /// Plant → controller (and supervisor), once per tick.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("deltaloop::StateMsg/v2")
+)]
 #[repr(C)]
-#[type_name("deltaloop::StateMsg/v2")]
 pub struct StateMsg {
     /// Control tick k (t = k·Ts).
     pub tick: u64,
@@ -48,9 +55,13 @@ pub struct StateMsg {
 }
 
 /// Controller → plant (and supervisor): the answer to one state.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("deltaloop::TorqueMsg/v2")
+)]
 #[repr(C)]
-#[type_name("deltaloop::TorqueMsg/v2")]
 pub struct TorqueMsg {
     /// The tick of the state this answers.
     pub tick: u64,
@@ -100,9 +111,13 @@ pub const TEL_SAFE_STOP: u32 = 16;
 pub const TEL_STAMP_REPLACED: u32 = 32;
 
 /// Plant → supervisor after each tick: what happened to the command, and the timing.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("deltaloop::TelemetryMsg/v2")
+)]
 #[repr(C)]
-#[type_name("deltaloop::TelemetryMsg/v2")]
 pub struct TelemetryMsg {
     pub tick: u64,
     /// Bit set of `TEL_*`.
@@ -237,9 +252,13 @@ impl Sender {
 }
 
 /// Run control: handshake, start, stop, faults.
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("deltaloop::ControlMsg/v1")
+)]
 #[repr(C)]
-#[type_name("deltaloop::ControlMsg/v1")]
 pub struct ControlMsg {
     /// A [`ControlKind`] value.
     pub kind: u32,
@@ -325,12 +344,16 @@ pub fn escape_peer_text(s: &str) -> String {
 }
 
 /// One tick of the joint reference, joint frame (supervisor → controller, up to
-/// [`REF_CHUNK`](crate::ipc::REF_CHUNK) rows per slice sample; the chunking rule is in
-/// [`crate::ipc`]). The row names its own tick, so the controller files it without knowing which
+/// `REF_CHUNK` rows per slice sample; the chunking rule is in
+/// `deltaloop_transport::ipc`). The row names its own tick, so the controller files it without knowing which
 /// chunk it came in. Layout: 80 bytes, `tick` at 0, `q` at 8, `qd` at 32, `qdd` at 56.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("deltaloop::RefSample/v2")
+)]
 #[repr(C)]
-#[type_name("deltaloop::RefSample/v2")]
 pub struct RefSample {
     /// The control tick k this row is for (t = k·Ts).
     pub tick: u64,
