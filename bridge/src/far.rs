@@ -11,14 +11,15 @@
 //!
 //! The process cannot tell it is not on the supervisor's host.
 
-use crate::Role;
 use crate::bytes::{self, bytes_of};
+use crate::cli::{FarArgs as Args, Placement};
 use crate::frame::Kind;
 use crate::hello::Hello;
 use crate::link::{self, Tcp, Udp};
 use crate::seal::{self, End, LinkKey, Session};
 use crate::sides::{ControllerHost, PlantHost};
 use anyhow::{Context, Result, bail};
+use deltaloop_config::RemoteSide;
 use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::exit::{EXIT_FAULT, EXIT_SETUP, EXIT_STOPPED};
 use deltaloop_transport::ipc::{self, IpcContext, Svc};
@@ -44,56 +45,13 @@ mod relay;
 use child::*;
 use relay::*;
 
-/// `deltaloop-bridge far`.
-#[derive(clap::Args, Debug)]
-pub struct Args {
-    /// The near side: HOST:PORT given to `deltaloop run --controller-remote` or `--plant-remote`.
-    #[arg(long, value_parser = crate::parse_endpoint)]
-    pub connect: SocketAddr,
-    /// What runs here: `controller` (the plant and the supervisor are there) or `plant` (the
-    /// controller and the supervisor are there).
-    #[arg(long, value_enum, default_value_t = Role::Controller)]
-    pub role: Role,
-    /// Run this controller command instead of the built-in `deltaloop-controller` (split at
-    /// whitespace); the run's arguments are appended as for `--controller-cmd`.
-    #[arg(long, value_name = "CMD")]
-    pub controller_cmd: Option<String>,
-    /// Run this plant command instead of the built-in `deltaloop-plant` (`--role plant`; split
-    /// at whitespace); the run's arguments are appended as for `--plant-cmd`.
-    #[arg(long, value_name = "CMD")]
-    pub plant_cmd: Option<String>,
-    /// Runs to serve, one after the other (0: until interrupted).
-    #[arg(long, default_value_t = 1)]
-    pub runs: u32,
-    /// How long to keep trying to reach the near side for each run, s (0: forever).
-    #[arg(long, default_value_t = 120)]
-    pub wait_s: u64,
-    /// Poll this long for the reply after passing a state on before blocking, µs (0: block at
-    /// once; at most loop.torque_budget_us in realtime).
-    #[arg(long, default_value_t = 0)]
-    pub spin_us: u32,
-    #[command(flatten)]
-    pub placement: Placement,
-}
-
-/// Where and how the process runs on this host: this host's choice, never the near side's.
-#[derive(clap::Args, Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Placement {
-    /// CPU of the process started here (−1: not pinned; default: the mode's default layout).
-    #[arg(long, allow_hyphen_values = true, value_parser = clap::value_parser!(i32).range(-1..=1023))]
-    pub cpu: Option<i32>,
-    /// Its SCHED_FIFO priority, 1..=99 (0: SCHED_OTHER; default: the mode's default layout).
-    #[arg(long, value_parser = clap::value_parser!(i32).range(0..=99))]
-    pub priority: Option<i32>,
-}
-
 /// The run's config with the placement of the process that runs here (`role`) taken from this
 /// host (`join --cpu/--priority`, else the mode's default layout), whatever the near side's
 /// config asked (regression: a fake near side set the far controller's SCHED_FIFO priority and
 /// CPU). A line saying what was replaced, if anything was.
 fn this_hosts_placement(
     mut cfg: RunConfig,
-    role: Role,
+    role: RemoteSide,
     p: Placement,
 ) -> (RunConfig, Option<String>) {
     use deltaloop_config::Layout;
@@ -111,13 +69,13 @@ fn this_hosts_placement(
         ),
     ] {
         let (cpu, prio, dcpu, dprio) = match role {
-            Role::Controller => (
+            RemoteSide::Controller => (
                 &mut layout.controller_cpu,
                 &mut layout.controller_priority,
                 default.controller_cpu,
                 default.controller_priority,
             ),
-            Role::Plant => (
+            RemoteSide::Plant => (
                 &mut layout.plant_cpu,
                 &mut layout.plant_priority,
                 default.plant_cpu,
@@ -150,28 +108,19 @@ fn show(v: Option<i32>) -> String {
 /// The command to start here for `role` (`cmd`: the user's, or None for the built-in one); one
 /// line naming the flag otherwise.
 pub fn command(
-    role: Role,
+    role: RemoteSide,
     controller_cmd: Option<&str>,
     plant_cmd: Option<&str>,
 ) -> Result<Vec<String>> {
-    let (mine, name, flag) = match (role, controller_cmd, plant_cmd) {
-        (Role::Plant, Some(_), _) => bail!(
-            "--controller-cmd with --role plant: the controller runs on the other host (give it to `deltaloop run --controller-cmd` there); allowed here: --plant-cmd"
-        ),
-        (Role::Controller, _, Some(_)) => bail!(
-            "--plant-cmd with --role controller: the plant runs on the other host (give it to `deltaloop run --plant-cmd` there); allowed here: --controller-cmd"
-        ),
-        (Role::Plant, None, c) => (c, "deltaloop-plant", "--plant-cmd"),
-        (Role::Controller, c, None) => (c, "deltaloop-controller", "--controller-cmd"),
-    };
-    let cmd: Vec<String> = match mine {
-        Some(c) => c.split_whitespace().map(str::to_string).collect(),
-        None => vec![crate::exe_dir()?.join(name).display().to_string()],
-    };
-    if cmd.is_empty() {
-        bail!("{flag} is empty: give a program and its arguments");
-    }
-    Ok(cmd)
+    let users = deltaloop_link_setup::far_command(role, controller_cmd, plant_cmd)
+        .map_err(anyhow::Error::msg)?;
+    Ok(match users {
+        Some(cmd) => cmd,
+        None => {
+            let program = deltaloop_link_setup::far_program(role);
+            vec![crate::exe_dir()?.join(program).display().to_string()]
+        }
+    })
 }
 
 /// Serves `a.runs` runs; the exit code is the last far process's (or why the bridge failed).
@@ -411,7 +360,7 @@ fn join(a: &Args, mut stream: TcpStream, term: &AtomicBool) -> Result<(Tcp, Sess
         }
     };
     let mut tcp = Tcp::new(stream, &session, End::Far)?;
-    tcp.send(Kind::Join, &[&a.role.to_wire().to_ne_bytes()])?;
+    tcp.send(Kind::Join, &[&crate::side_to_wire(a.role).to_ne_bytes()])?;
     eprintln!(
         "deltaloop-bridge: joined the run at {} (link key {})",
         a.connect,
@@ -532,7 +481,7 @@ fn serve(
             ),
         );
     }
-    let plant = a.role == Role::Plant;
+    let plant = a.role == RemoteSide::Plant;
     let mode = hello.mode;
     let dir = match private_dir(&hello.run_id) {
         Ok(d) => d,
@@ -549,7 +498,7 @@ fn serve(
         eprintln!("deltaloop-bridge: {line}");
         tcp.send(Kind::Log, &[format!("far side: {line}").as_bytes()])?;
     }
-    crate::files::create_private(&config, cfg.to_toml_string().as_bytes())
+    deltaloop_link_setup::files::create_private(&config, cfg.to_toml_string().as_bytes())
         .with_context(|| format!("cannot write {}", config.display()))?;
     let ports = if plant {
         PlantSidePorts::open(&hello.run_id).map(Either::Plant)
@@ -596,8 +545,8 @@ fn serve(
         relay: wants_relay,
         direct: false,
         loop_cpu: mode.layout(&cfg).and_then(|l| match a.role {
-            Role::Controller => l.controller_cpu,
-            Role::Plant => l.plant_cpu,
+            RemoteSide::Controller => l.controller_cpu,
+            RemoteSide::Plant => l.plant_cpu,
         }),
     };
     let named = a.controller_cmd.as_ref().and_then(|_| ready_naming(cmd));
@@ -622,7 +571,8 @@ mod tests {
     fn regression_the_near_side_cannot_place_the_far_process() {
         let text = "[scenario]\npath = \"s1\"\n[loop.realtime]\ncontroller_cpu = 0\ncontroller_priority = 99\n";
         let cfg = RunConfig::from_toml_str(text, None).unwrap();
-        let (c, said) = this_hosts_placement(cfg.clone(), Role::Controller, Placement::default());
+        let (c, said) =
+            this_hosts_placement(cfg.clone(), RemoteSide::Controller, Placement::default());
         let d = deltaloop_config::Layout::realtime_default();
         assert_eq!(
             (
@@ -640,7 +590,7 @@ mod tests {
             cpu: Some(-1),
             priority: Some(0),
         };
-        let (c, _) = this_hosts_placement(cfg.clone(), Role::Controller, mine);
+        let (c, _) = this_hosts_placement(cfg.clone(), RemoteSide::Controller, mine);
         assert_eq!(
             (
                 c.loop_.realtime.controller_cpu,
@@ -655,7 +605,7 @@ mod tests {
         // A config that asks nothing of it says nothing.
         let plain = RunConfig::from_toml_str("[scenario]\npath = \"s1\"\n", None).unwrap();
         assert_eq!(
-            this_hosts_placement(plain, Role::Plant, Placement::default()).1,
+            this_hosts_placement(plain, RemoteSide::Plant, Placement::default()).1,
             None
         );
     }
@@ -676,7 +626,7 @@ mod tests {
         // A config written there never follows a link planted at its name.
         let target = a.join("elsewhere");
         std::os::unix::fs::symlink(&target, b.join("config.toml")).unwrap();
-        assert!(crate::files::create_private(&b.join("config.toml"), b"x").is_err());
+        assert!(deltaloop_link_setup::files::create_private(&b.join("config.toml"), b"x").is_err());
         assert!(!target.exists());
         for d in [a, b] {
             std::fs::remove_dir_all(d).unwrap();

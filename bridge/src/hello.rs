@@ -8,7 +8,7 @@ use deltaloop_config::{Law, LoopMode};
 pub struct Hello {
     pub run_id: String,
     /// What runs on the far host.
-    pub role: crate::Role,
+    pub role: deltaloop_config::RemoteSide,
     /// Lockstep or realtime (never inproc: it has no processes).
     pub mode: LoopMode,
     /// The controller's law (None: the far side runs the plant, which takes none).
@@ -42,7 +42,7 @@ impl Hello {
         let mut h = Hello {
             run_id: String::new(),
             // A HELLO without a role is of a version that knew only the remote controller.
-            role: crate::Role::Controller,
+            role: deltaloop_config::RemoteSide::Controller,
             mode: LoopMode::Lockstep,
             law: None,
             emulation: Default::default(),
@@ -59,9 +59,8 @@ impl Hello {
             match k {
                 "run_id" => h.run_id = v.to_string(),
                 "role" => {
-                    h.role = crate::Role::parse(v).ok_or_else(|| {
-                        format!("HELLO role = `{}`: expected controller or plant", escape(v))
-                    })?
+                    h.role = deltaloop_config::RemoteSide::parse(v)
+                        .map_err(|e| format!("HELLO role: {}", escape(&e)))?
                 }
                 "mode" => {
                     h.mode = LoopMode::parse_process(v)
@@ -93,7 +92,7 @@ impl Hello {
         if !head.lines().any(|l| l.starts_with("mode=")) {
             return Err("HELLO has no mode".into());
         }
-        if (h.role == crate::Role::Controller) != h.law.is_some() {
+        if (h.role == deltaloop_config::RemoteSide::Controller) != h.law.is_some() {
             return Err(format!(
                 "HELLO law = {}: a remote controller needs a law, a remote plant takes none",
                 h.law.map_or("none", Law::name)
@@ -155,7 +154,7 @@ mod tests {
     fn hello_round_trips_and_refuses_odd_names() {
         let h = Hello {
             run_id: "41cc-0-2cdf".into(),
-            role: crate::Role::Plant,
+            role: deltaloop_config::RemoteSide::Plant,
             mode: LoopMode::Lockstep,
             law: None,
             emulation: crate::emulation::Emulation {
@@ -178,7 +177,7 @@ mod tests {
         let old = "run_id=r\nmode=lockstep\nlaw=tdc\n\nname = \"x\"\n";
         assert_eq!(
             Hello::decode(old.as_bytes()).unwrap().role,
-            crate::Role::Controller
+            deltaloop_config::RemoteSide::Controller
         );
     }
 }

@@ -14,8 +14,8 @@
 //! states' stamps onto this host's clock (their publication = their arrival here) for the
 //! supervisor and the controller here (docs/protocol.md §14).
 
-use crate::Role;
 use crate::bytes::{self, bytes_of, bytes_of_slice};
+use crate::cli::NearArgs as Args;
 use crate::emulation::Emulation;
 use crate::frame::Kind;
 use crate::hello::Hello;
@@ -23,8 +23,8 @@ use crate::link::{self, Tcp, Udp};
 use crate::seal::{self, End, LinkKey, LinkReport, RefusedCounts, Session, SideRefusals};
 use crate::sides::{ControllerHost, PlantHost};
 use anyhow::{Context, Result, bail};
-use deltaloop_config::{Law, LinkPath, LoopMode, RunConfig};
-use deltaloop_transport::args::LoopArgs;
+use deltaloop_config::RemoteSide;
+use deltaloop_config::{LinkPath, LoopMode, RunConfig};
 use deltaloop_transport::exit::{EXIT_FAULT, EXIT_STOPPED};
 use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, Svc};
 use deltaloop_transport::rt;
@@ -44,17 +44,6 @@ use std::time::Duration;
 mod plant;
 
 use plant::*;
-
-/// `deltaloop-bridge near`: the loop process's arguments; what the link is (the far role, where
-/// to listen, the emulation) is the run config's `[link]`.
-#[derive(clap::Args, Debug)]
-pub struct Args {
-    #[command(flatten)]
-    pub run: LoopArgs,
-    /// The control law (passed on to the far controller; `--role controller` only).
-    #[arg(long, value_parser = Law::parse)]
-    pub law: Option<Law>,
-}
 
 /// How the far side ended: its exit code and last line.
 struct FarEnd {
@@ -140,9 +129,9 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
             .listen
             .parse()
             .with_context(|| format!("link.listen {}", link.listen))?,
-        role: Role::of(link.remote),
+        role: link.remote,
     };
-    let plant = at.role == Role::Plant;
+    let plant = at.role == RemoteSide::Plant;
     let law = match (plant, a.law) {
         (false, None) => bail!("--law is needed with --role controller"),
         (false, l) => l,
@@ -233,7 +222,7 @@ struct Peer {
     /// datagram and never reads the socket again.
     direct: bool,
     /// The process on the other host.
-    role: Role,
+    role: RemoteSide,
     /// The CPU of the loop process beside this side (from the run's layout), which this side
     /// leaves on the direct path ([`crate::keep_off`]).
     loop_cpu: Option<usize>,
@@ -263,7 +252,7 @@ const PER_CONNECTION: Duration = seal::HANDSHAKE_BUDGET;
 const LOGGED_REFUSALS: u64 = 32;
 
 /// An authenticated far side: its control plane, address and the role it joined for.
-type Joined = (Tcp, SocketAddr, Option<Role>);
+type Joined = (Tcp, SocketAddr, Option<RemoteSide>);
 
 /// Proves an accepted connection holds the link key (Noise handshake, [`seal::respond`]) and
 /// waits for its first sealed frame (JOIN), which a replayed handshake cannot send; nothing of
@@ -286,7 +275,7 @@ fn authenticate(
         let mut joined = None;
         tcp.poll(|k, p| {
             if k == Kind::Join {
-                joined = Some(bytes::read::<u32>(p).and_then(Role::from_wire));
+                joined = Some(bytes::read::<u32>(p).and_then(crate::side_from_wire));
             }
             Ok(())
         })
@@ -310,7 +299,7 @@ fn authenticate(
 /// Where the near side waits, and for which far process.
 struct Listen {
     addr: SocketAddr,
-    role: Role,
+    role: RemoteSide,
 }
 
 /// The connections refused while waiting for the far side: counted, and logged one by one up to
@@ -882,15 +871,15 @@ impl Peer {
                             End::Near,
                             self.relay,
                         )?;
-                        if self.direct && self.role == Role::Controller {
+                        if self.direct && self.role == RemoteSide::Controller {
                             self.tcp.send(Kind::NearDirect, &[])?;
                         }
                         if self.direct {
                             crate::keep_off(self.loop_cpu);
                         }
                         let here = match self.role {
-                            Role::Controller => "plant",
-                            Role::Plant => "controller",
+                            RemoteSide::Controller => "plant",
+                            RemoteSide::Plant => "controller",
                         };
                         eprintln!(
                             "deltaloop-bridge: {}",
@@ -1132,7 +1121,7 @@ mod tests {
                 match seal::initiate(&mut s, &key, seal::HANDSHAKE_BUDGET) {
                     Ok(session) => {
                         let mut tcp = Tcp::new(s, &session, End::Far).unwrap();
-                        let role = Role::Controller.to_wire().to_ne_bytes();
+                        let role = crate::side_to_wire(RemoteSide::Controller).to_ne_bytes();
                         tcp.send(Kind::Join, &[&role]).unwrap();
                         return (t0.elapsed(), Some((tcp, me)), errors);
                     }
@@ -1154,7 +1143,7 @@ mod tests {
             let session = Session::generate().unwrap();
             let at = Listen {
                 addr,
-                role: Role::Controller,
+                role: RemoteSide::Controller,
             };
             let end = rt::now_ns() + 30_000_000_000;
             accept_far(&at, &listener, (&key, &session), &mut || Ok(false), end)
@@ -1216,7 +1205,7 @@ mod tests {
         }
         let ((_, peer, role), refused) = r.unwrap().expect("not stopped");
         let (_tcp, me) = joined.unwrap_or_else(|| panic!("never admitted: {errors:?}"));
-        assert_eq!((peer, role), (me, Some(Role::Controller)));
+        assert_eq!((peer, role), (me, Some(RemoteSide::Controller)));
         assert!(took < Duration::from_secs(10), "{took:?}: {errors:?}");
         assert!(
             errors.iter().all(|e| !e.contains("link key")),
@@ -1314,13 +1303,13 @@ mod tests {
             .collect();
         std::thread::sleep(Duration::from_millis(300));
         let mut tcp = Tcp::new(s, &session, End::Far).unwrap();
-        let role = Role::Controller.to_wire().to_ne_bytes();
+        let role = crate::side_to_wire(RemoteSide::Controller).to_ne_bytes();
         let sent = tcp.send(Kind::Join, &[&role]);
         let r = near.join().unwrap();
         drop(flood);
         sent.unwrap();
         let ((_, peer, role), refused) = r.unwrap().expect("not stopped");
-        assert_eq!((peer, role), (me, Some(Role::Controller)));
+        assert_eq!((peer, role), (me, Some(RemoteSide::Controller)));
         assert!(refused >= 2 * MAX_PENDING as u64, "{refused}");
     }
 
@@ -1342,7 +1331,7 @@ mod tests {
         let r = seal::initiate(&mut s, &key, seal::HANDSHAKE_BUDGET);
         let joined = r.map(|session| {
             let mut tcp = Tcp::new(s, &session, End::Far).unwrap();
-            let role = Role::Controller.to_wire().to_ne_bytes();
+            let role = crate::side_to_wire(RemoteSide::Controller).to_ne_bytes();
             tcp.send(Kind::Join, &[&role]).map(|_| tcp)
         });
         let Ok(Ok(_tcp)) = joined else {
@@ -1372,7 +1361,7 @@ mod tests {
         let session = Session::generate().unwrap();
         let at = Listen {
             addr,
-            role: Role::Controller,
+            role: RemoteSide::Controller,
         };
         let end = rt::now_ns() + 30_000_000_000;
         let r = accept_far(&at, &listener, (&key, &session), &mut || Ok(true), end);

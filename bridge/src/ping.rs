@@ -3,32 +3,13 @@
 //! round trip, µs.
 
 use crate::bytes;
+use crate::cli::{PingArgs, PongArgs};
 use crate::frame::{self, Kind};
 use crate::link::{self, Udp};
 use anyhow::{Context, Result};
 use deltaloop_transport::rt;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
-
-#[derive(clap::Args, Debug)]
-pub struct PingArgs {
-    /// The echo side (`deltaloop-bridge pong --listen`).
-    #[arg(long, value_parser = crate::parse_endpoint)]
-    pub connect: SocketAddr,
-    /// Round trips to time (after 1000 untimed ones).
-    #[arg(long, default_value_t = 100_000)]
-    pub count: u32,
-    /// Pause between round trips, µs (300: the loop's period).
-    #[arg(long, default_value_t = 300)]
-    pub period_us: u64,
-}
-
-#[derive(clap::Args, Debug)]
-pub struct PongArgs {
-    /// HOST:PORT to answer on.
-    #[arg(long, value_parser = crate::parse_endpoint)]
-    pub listen: SocketAddr,
-}
 
 const KEY: u64 = 0x7069_6e67;
 

@@ -2,31 +2,12 @@
 //! Zenoh peers with explicit endpoints (no scouting), an express publisher each way, state-sized
 //! payloads, one per 300 µs. It measures what a Zenoh link would add to the loop's round trip.
 
+use crate::cli::{ZPingArgs, ZPongArgs};
 use anyhow::{Result, anyhow};
 use deltaloop_transport::rt;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 use zenoh::Wait;
-
-#[derive(clap::Args, Debug)]
-pub struct ZPingArgs {
-    /// The echo side's Zenoh endpoint, e.g. tcp/10.77.0.2:7600 or udp/10.77.0.2:7600.
-    #[arg(long)]
-    pub connect: String,
-    /// Round trips to time (after 1000 untimed ones).
-    #[arg(long, default_value_t = 100_000)]
-    pub count: u32,
-    /// Pause between round trips, µs.
-    #[arg(long, default_value_t = 300)]
-    pub period_us: u64,
-}
-
-#[derive(clap::Args, Debug)]
-pub struct ZPongArgs {
-    /// The Zenoh endpoint to listen on, e.g. tcp/10.77.0.2:7600.
-    #[arg(long)]
-    pub listen: String,
-}
 
 fn session(key: &str, endpoint: &str) -> Result<zenoh::Session> {
     let mut c = zenoh::Config::default();

@@ -194,6 +194,45 @@ fn bridge_is_lean_and_zenoh_is_opt_in() {
     assert_none_of("deltaloop", &["zenoh"]);
 }
 
+/// The supervisor starts `deltaloop-bridge` as a program and shares only the link's set-up with
+/// it (endpoint, key, report: `deltaloop-link-setup`); it does not link the bridge, its handshake
+/// or its command line.
+#[test]
+fn supervisor_spawns_the_bridge_without_linking_it() {
+    assert_none_of("deltaloop-supervisor", &["deltaloop-bridge", "snow"]);
+    assert_none_of(
+        "deltaloop-link-setup",
+        &["clap", "iceoryx2", "deltaloop-transport", "deltaloop-link"],
+    );
+}
+
+/// clap is the command line's, in one module each: `bridge/src/cli.rs` and
+/// `supervisor/src/cmd/`. The rest of both crates takes its arguments as plain values.
+#[test]
+fn clap_only_in_the_command_line_modules() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut offenders = Vec::new();
+    for (dir, allowed) in [
+        ("bridge/src", "bridge/src/cli.rs"),
+        ("supervisor/src", "supervisor/src/cmd/"),
+    ] {
+        for f in walk(&root.join(dir)) {
+            if f.extension().is_none_or(|x| x != "rs") {
+                continue;
+            }
+            let rel = f.strip_prefix(root).unwrap().to_string_lossy().into_owned();
+            let text = std::fs::read_to_string(&f).unwrap();
+            if !rel.starts_with(allowed) && text.contains("clap") {
+                offenders.push(rel);
+            }
+        }
+    }
+    assert!(
+        offenders.is_empty(),
+        "clap outside the CLI modules: {offenders:?}"
+    );
+}
+
 /// The transport baselines of `bench loop` step the two ticks over bare transports: they need
 /// neither the link nor the figures, which would put those crates on their build path.
 #[test]

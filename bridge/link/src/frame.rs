@@ -54,7 +54,7 @@ pub enum Kind {
     /// TCP, far → near (remote plant): one `TelemetryMsg`.
     Telemetry = 23,
     /// TCP, far → near, the first sealed frame after the handshake: which role the far side
-    /// joined for (u32: the bridge's `Role` as 1 controller, 2 plant). It proves the far side holds
+    /// joined for (u32: the `RemoteSide` as 1 controller, 2 plant). It proves the far side holds
     /// the session; the near side says nothing of the run before it.
     Join = 24,
     /// TCP, far → near, at the end of a run before EXIT: the datagrams the far side refused,

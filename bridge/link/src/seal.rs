@@ -10,18 +10,13 @@
 use ring::aead::{Aad, CHACHA20_POLY1305, LessSafeKey, Nonce, UnboundKey};
 
 /// Bytes of a link key and of every session key.
-pub const KEY_LEN: usize = 32;
+pub use deltaloop_link_setup::KEY_LEN;
 /// Bytes of the AEAD tag after every sealed message.
 pub const TAG_LEN: usize = 16;
 /// Width of the UDP replay window, datagrams.
 pub const WINDOW: u64 = 1024;
 
-/// Random bytes from the operating system.
-pub fn random_bytes<const N: usize>() -> Result<[u8; N], String> {
-    let mut b = [0u8; N];
-    getrandom::fill(&mut b).map_err(|e| format!("no random bytes from the system: {e}"))?;
-    Ok(b)
-}
+pub use deltaloop_link_setup::random_bytes;
 
 /// A run's session: its id (in every message's header) and one key per channel and direction,
 /// all chosen at random by the near side for this run alone.
@@ -216,6 +211,19 @@ impl Refusal {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Refusals {
     pub counts: [u64; 4],
+}
+
+/// The counts by name, as the link report holds them.
+impl From<Refusals> for deltaloop_link_setup::RefusedCounts {
+    fn from(r: Refusals) -> Self {
+        let [malformed, other_run, forged, replayed] = r.counts;
+        Self {
+            malformed,
+            other_run,
+            forged,
+            replayed,
+        }
+    }
 }
 
 impl Refusals {

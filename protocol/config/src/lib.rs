@@ -34,17 +34,17 @@ pub use files::{MAX_FILE_BYTES, read_text_file};
 pub use layout::{Layout, Poll, Priority, ResolvedLayout};
 pub use mode::LoopMode;
 pub use schema::{
-    ApplyTorque, ControllerSection, FaultInjection, FaultSection, LinkPath, LinkSection,
-    LoopSection, Overrun, PathKind, PlantSection, RecordSection, RemoteSide, RunConfig,
-    ScenarioSection, Segment, SensorSection, TorqueLimit,
+    ApplyTorque, ControllerSection, FaultInjection, FaultSection, LinkEmulation, LinkPath,
+    LinkSection, LoopSection, Overrun, PathKind, PlantSection, RecordSection, RemoteSide,
+    RunConfig, ScenarioSection, Segment, SensorSection, TorqueLimit,
 };
 pub use text::{
     MAX_ECHO_CHARS, clean_message, show_num, show_path, show_str, toml_error_line,
     toml_error_position,
 };
 pub use validate::{
-    MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TRANSPORT_DELAY,
-    MAX_TRANSPORT_DELAY_US, NAME_RULE, name_is_valid,
+    EmulationOutOfRange, MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY,
+    MAX_TRANSPORT_DELAY, MAX_TRANSPORT_DELAY_US, NAME_RULE, name_is_valid,
 };
 
 /// What the unit tests of several modules share.

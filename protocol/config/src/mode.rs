@@ -19,9 +19,6 @@ deltaloop_names::text_enum! {
 }
 
 impl LoopMode {
-    /// Every mode, in documentation order.
-    pub const ALL: &'static [LoopMode] = <LoopMode as strum::VariantArray>::VARIANTS;
-
     /// Parses the mode of a loop process: `lockstep` or `realtime` (a process is never inproc).
     pub fn parse_process(s: &str) -> Result<LoopMode, String> {
         match LoopMode::parse(s)? {

@@ -560,28 +560,23 @@ pub struct LinkSection {
     pub path: LinkPath,
 }
 
-/// How the loop's messages cross the link (`[link] path`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum LinkPath {
-    /// Socket to socket between the loop processes (a process that cannot take the socket is
-    /// relayed by its bridge).
-    #[default]
-    Direct,
-    /// Through both bridges.
-    Relay,
+deltaloop_names::text_enum! {
+    "lowercase", "link path";
+    /// How the loop's messages cross the link (`[link] path`, `--link-path`).
+    #[derive(Default)]
+    pub enum LinkPath {
+        /// Socket to socket between the loop processes (a process that cannot take the socket is
+        /// relayed by its bridge).
+        #[default]
+        Direct,
+        /// Through both bridges.
+        Relay,
+    }
 }
 
 impl LinkPath {
     pub fn is_direct(&self) -> bool {
         *self == LinkPath::Direct
-    }
-
-    pub fn name(self) -> &'static str {
-        match self {
-            LinkPath::Direct => "direct",
-            LinkPath::Relay => "relay",
-        }
     }
 }
 
@@ -589,27 +584,65 @@ fn default_link_seed() -> u64 {
     1
 }
 
-/// The process of a run that is on the other host.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum RemoteSide {
-    Controller,
-    Plant,
+deltaloop_names::text_enum! {
+    "lowercase", "remote side";
+    /// The process of a run that is on the other host: `[link] remote`, `join --role`, the
+    /// `--controller-remote`/`--plant-remote` flags, and the side a bridge stands in for.
+    pub enum RemoteSide {
+        /// The controller there; the plant and the supervisor here.
+        Controller,
+        /// The plant there; the controller and the supervisor here.
+        Plant,
+    }
 }
 
-impl RemoteSide {
-    pub fn name(self) -> &'static str {
-        match self {
-            RemoteSide::Controller => "controller",
-            RemoteSide::Plant => "plant",
+/// The emulated network of a link, each direction on each side's sends (this kernel has no
+/// `netem`): `[link]`'s `delay_us`, `jitter_us`, `loss` and `seed`, and `run`'s `--link-*` flags.
+/// Checked by [`LinkEmulation::check`], the one place of its bounds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LinkEmulation {
+    /// One-way delay, µs.
+    pub delay_us: f64,
+    /// One-way jitter, µs: uniform in [0, this] on top of the delay.
+    pub jitter_us: f64,
+    /// The fraction of datagrams dropped, 0..=1.
+    pub loss: f64,
+    /// Seed of the jitter and loss draws (the far side draws with seed + 1).
+    pub seed: u64,
+}
+
+impl Default for LinkEmulation {
+    fn default() -> Self {
+        Self {
+            delay_us: 0.0,
+            jitter_us: 0.0,
+            loss: 0.0,
+            seed: default_link_seed(),
         }
+    }
+}
+
+impl LinkEmulation {
+    /// Whether it emulates nothing (no delay, jitter or loss).
+    pub fn is_off(&self) -> bool {
+        self.delay_us == 0.0 && self.jitter_us == 0.0 && self.loss == 0.0
     }
 }
 
 impl LinkSection {
     /// Whether any emulation (delay, jitter or loss) is on.
     pub fn emulated(&self) -> bool {
-        self.delay_us > 0.0 || self.jitter_us > 0.0 || self.loss > 0.0
+        !self.emulation().is_off()
+    }
+
+    /// Its emulated network.
+    pub fn emulation(&self) -> LinkEmulation {
+        LinkEmulation {
+            delay_us: self.delay_us,
+            jitter_us: self.jitter_us,
+            loss: self.loss,
+            seed: self.seed,
+        }
     }
 }
 

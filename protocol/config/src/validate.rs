@@ -4,8 +4,8 @@
 use crate::error::{ConfigError, range};
 use crate::layout::{Layout, Poll};
 use crate::schema::{
-    ControllerSection, FaultSection, LinkSection, LoopSection, PathKind, PlantSection, RunConfig,
-    ScenarioSection, SensorSection, step_tick,
+    ControllerSection, FaultSection, LinkEmulation, LinkSection, LoopSection, PathKind,
+    PlantSection, RunConfig, ScenarioSection, SensorSection, step_tick,
 };
 use crate::text::{show_num, show_str};
 
@@ -253,6 +253,63 @@ impl SensorSection {
 /// the one bound all of them check.
 pub const MAX_LINK_DELAY_US: f64 = 1e6;
 
+/// A field of a [`LinkEmulation`] outside its range: the field (`delay_us`, `jitter_us` or
+/// `loss`), its value and what is allowed. The config names it `link.<field>`, the command line
+/// `--link-<field>` ([`Self::flag`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EmulationOutOfRange {
+    pub field: &'static str,
+    pub value: f64,
+    pub allowed: String,
+}
+
+impl EmulationOutOfRange {
+    /// The flag that sets the field: `--link-delay-us`, `--link-jitter-us`, `--link-loss`.
+    pub fn flag(&self) -> String {
+        format!("--link-{}", self.field.replace('_', "-"))
+    }
+}
+
+impl std::fmt::Display for EmulationOutOfRange {
+    /// As a command-line error: `--link-loss 2: allowed 0 <= loss <= 1 (…)`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} {}: allowed {}",
+            self.flag(),
+            show_num(self.value),
+            self.allowed
+        )
+    }
+}
+
+impl LinkEmulation {
+    /// The bounds of an emulation, wherever it comes from: delay and jitter 0..=
+    /// [`MAX_LINK_DELAY_US`] µs, loss a fraction.
+    pub fn check(&self) -> Result<(), EmulationOutOfRange> {
+        let delay = || format!("0 <= value <= {MAX_LINK_DELAY_US} us");
+        let ok = |v: f64, hi: f64| v.is_finite() && (0.0..=hi).contains(&v);
+        for (field, value, hi) in [
+            ("delay_us", self.delay_us, MAX_LINK_DELAY_US),
+            ("jitter_us", self.jitter_us, MAX_LINK_DELAY_US),
+            ("loss", self.loss, 1.0),
+        ] {
+            if !ok(value, hi) {
+                let allowed = match field {
+                    "loss" => "0 <= loss <= 1 (a fraction of the datagrams)".into(),
+                    _ => delay(),
+                };
+                return Err(EmulationOutOfRange {
+                    field,
+                    value,
+                    allowed,
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
 impl LinkSection {
     /// `[link]`: the address this host listens on, the emulation's and the spin's bounds (in
     /// realtime the spin is bounded by the torque budget too, where the mode is known).
@@ -264,17 +321,9 @@ impl LinkSection {
                 "IP:PORT of this host, e.g. 10.0.0.1:7447",
             ));
         }
-        for (key, v) in [
-            ("link.delay_us", self.delay_us),
-            ("link.jitter_us", self.jitter_us),
-        ] {
-            check(
-                key,
-                v,
-                (0.0..=MAX_LINK_DELAY_US).contains(&v),
-                &format!("0 <= value <= {MAX_LINK_DELAY_US} us"),
-            )?;
-        }
+        self.emulation()
+            .check()
+            .map_err(|e| range(&format!("link.{}", e.field), show_num(e.value), &e.allowed))?;
         if self.spin_us > 1_000_000 {
             return Err(range(
                 "link.spin_us",
@@ -282,12 +331,7 @@ impl LinkSection {
                 "0 <= spin_us <= 1000000 us",
             ));
         }
-        check(
-            "link.loss",
-            self.loss,
-            (0.0..=1.0).contains(&self.loss),
-            "0 <= loss <= 1 (a fraction of the datagrams)",
-        )
+        Ok(())
     }
 }
 

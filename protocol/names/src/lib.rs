@@ -8,4 +8,4 @@ mod params;
 mod text;
 
 pub use params::{ControllerParams, Law, Preset, VelocitySource};
-pub use text::{allowed, one_of, parse};
+pub use text::{TextEnum, allowed, one_of, parse};

@@ -24,9 +24,6 @@ crate::text_enum! {
 }
 
 impl Law {
-    /// Every law, in report order.
-    pub const ALL: &'static [Law] = <Law as strum::VariantArray>::VARIANTS;
-
     /// The study's four laws: what a scenario file runs when it names none.
     pub const STUDY: [Law; 4] = [Law::Tdc, Law::TdeIs, Law::TdcIsSta, Law::Pid];
 

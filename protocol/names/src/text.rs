@@ -7,7 +7,7 @@ use strum::VariantArray;
 
 /// Declares a text enum: its variants are its words, in one case rule for serde (config files,
 /// JSON, CSV) and strum (`name`, `parse`, the "allowed" lists), and `what` names it in a parse
-/// error. Adds `name()`, `parse()` (`unknown <what> `x` (allowed: …)`) and `Display` (the word,
+/// error. Adds `ALL`, `name()`, `parse()` (`unknown <what> `x` (allowed: …)`) and `Display` (the word,
 /// padded). The crate using it depends on `serde` and `strum`.
 ///
 /// ```
@@ -47,6 +47,9 @@ macro_rules! text_enum {
         $vis enum $name { $($body)* }
 
         impl $name {
+            /// Every variant, in declaration order.
+            pub const ALL: &'static [Self] = <Self as strum::VariantArray>::VARIANTS;
+
             /// The word: in config files, on the command line, in JSON and CSV.
             pub fn name(self) -> &'static str {
                 self.into()
@@ -58,12 +61,33 @@ macro_rules! text_enum {
             }
         }
 
+        impl $crate::TextEnum for $name {
+            const ALL: &'static [Self] = Self::ALL;
+            fn name(self) -> &'static str {
+                Self::name(self)
+            }
+            fn parse(s: &str) -> Result<Self, String> {
+                Self::parse(s)
+            }
+        }
+
         impl std::fmt::Display for $name {
             fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
                 f.pad(self.name())
             }
         }
     };
+}
+
+/// What [`text_enum!`](crate::text_enum) gives an enum, for code generic over them (a
+/// command-line parser that lists the words, a sweep axis).
+pub trait TextEnum: Copy + 'static {
+    /// Every variant, in declaration order.
+    const ALL: &'static [Self];
+    /// The word of a variant.
+    fn name(self) -> &'static str;
+    /// The variant of a word; else `unknown <what> `s` (allowed: …)`.
+    fn parse(s: &str) -> Result<Self, String>;
 }
 
 /// The words of every variant of `T`, in declaration order, joined by ", ".

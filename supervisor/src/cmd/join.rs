@@ -3,9 +3,10 @@
 //! `--plant-remote HOST:PORT`).
 
 use super::Context;
+use super::words::Words;
 use crate::ops::join::{self, Join};
 use anyhow::Result;
-use deltaloop_bridge::Role;
+use deltaloop_config::RemoteSide;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -14,8 +15,8 @@ pub struct Args {
     endpoint: String,
     /// What runs on this host: the controller (`--controller-remote` there) or the plant
     /// (`--plant-remote` there).
-    #[arg(long, value_enum, default_value_t = Role::Controller)]
-    role: Role,
+    #[arg(long, value_parser = Words::<RemoteSide>::new(), default_value = "controller")]
+    role: RemoteSide,
     /// Run this command instead of the built-in controller (split at whitespace); it gets the
     /// usual --run-id, --config, --mode and --law.
     #[arg(long, value_name = "CMD")]
@@ -40,9 +41,13 @@ pub struct Args {
     /// The run's one-time link key, as `deltaloop run` printed it (64 hex digits).
     #[arg(long, value_name = "HEX")]
     link_token: Option<String>,
-    /// Where the process runs on this host (this host's choice; the run's config cannot set it).
-    #[command(flatten)]
-    placement: deltaloop_bridge::far::Placement,
+    /// CPU of the process started here (−1: not pinned; default: the mode's default layout).
+    /// This host's choice: the run's config cannot set it.
+    #[arg(long, allow_hyphen_values = true, value_parser = clap::value_parser!(i32).range(-1..=1023))]
+    cpu: Option<i32>,
+    /// Its SCHED_FIFO priority, 1..=99 (0: SCHED_OTHER; default: the mode's default layout).
+    #[arg(long, value_parser = clap::value_parser!(i32).range(0..=99))]
+    priority: Option<i32>,
 }
 
 pub fn exec(a: Args, _cx: &Context) -> Result<()> {
@@ -56,6 +61,7 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
         spin_us: a.spin_us,
         link_key: a.link_key.as_deref(),
         link_token: a.link_token.as_deref(),
-        placement: a.placement,
+        cpu: a.cpu,
+        priority: a.priority,
     })
 }

@@ -2,7 +2,7 @@
 
 use super::Context;
 use anyhow::Result;
-use deltaloop_bridge::seal::LinkKey;
+use deltaloop_link_setup::LinkKey;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

@@ -14,6 +14,7 @@ mod run;
 mod soak;
 mod sweep;
 mod top;
+mod words;
 
 use crate::record::RunStatus;
 use clap::{Parser, Subcommand};

@@ -1,17 +1,17 @@
 //! The flags `run` and `soak` share: overrides of the scenario file and the remote process, as
 //! clap reads them; [`crate::ops`] takes them as plain [`Overrides`] and [`RemoteArgs`].
 
+use super::words::Words;
 use crate::ops::join::RemoteArgs;
 use crate::ops::run::Overrides;
-use deltaloop_bridge::EmuArgs;
-use deltaloop_config::{Law, Overrun};
+use deltaloop_config::{Law, LinkEmulation, LinkPath, Overrun};
 use std::path::PathBuf;
 
 /// `--law`, `--seed`, `--plant-cmd`, … : overrides of a scenario file (None: keep the file's value).
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct OverrideArgs {
     /// Run only this law (repeatable).
-    #[arg(long = "law", value_parser = LawParser)]
+    #[arg(long = "law", value_parser = Words::<Law>::new())]
     pub laws: Vec<Law>,
     /// TDE delay ℓ in ticks (controller.tde_delay_samples).
     #[arg(long)]
@@ -66,8 +66,26 @@ pub struct RemoteFlags {
     /// copy). Without it a one-time key is made and the `join` command that carries it printed.
     #[arg(long, value_name = "FILE")]
     pub link_key: Option<PathBuf>,
-    #[command(flatten)]
-    pub emu: EmuArgs,
+    /// Emulated one-way link delay, µs (each direction; the round trip grows by twice this).
+    #[arg(long, default_value_t = 0.0)]
+    pub link_delay_us: f64,
+    /// Emulated one-way jitter, µs: uniform in [0, this] on top of the delay.
+    #[arg(long, default_value_t = 0.0)]
+    pub link_jitter_us: f64,
+    /// Emulated loss: the fraction of datagrams dropped, 0..=1.
+    #[arg(long, default_value_t = 0.0)]
+    pub link_loss: f64,
+    /// Seed of the emulated jitter and loss.
+    #[arg(long, default_value_t = 1)]
+    pub link_seed: u64,
+    /// The near bridge polls this long for the reply after sending a state before it blocks, µs
+    /// (0: it blocks at once; at most loop.torque_budget_us in realtime).
+    #[arg(long, default_value_t = 0)]
+    pub link_spin_us: u32,
+    /// How the loop's messages cross: `direct` (plant and controller socket to socket; the
+    /// default) or `relay` (through both bridges).
+    #[arg(long, value_parser = Words::<LinkPath>::new())]
+    pub link_path: Option<LinkPath>,
 }
 
 impl From<OverrideArgs> for Overrides {
@@ -95,38 +113,16 @@ impl From<RemoteFlags> for RemoteArgs {
             controller_remote: a.controller_remote,
             plant_remote: a.plant_remote,
             link_key: a.link_key,
-            emu: a.emu,
+            emulation: LinkEmulation {
+                delay_us: a.link_delay_us,
+                jitter_us: a.link_jitter_us,
+                loss: a.link_loss,
+                seed: a.link_seed,
+            },
+            spin_us: a.link_spin_us,
+            path: a.link_path,
             quiet: false,
         }
-    }
-}
-
-/// `--law`: parsed by the law crate's own names (its error lists them), and its help's possible
-/// values taken from [`Law::ALL`], so a new law appears in the help without a word written.
-#[derive(Clone, Copy, Debug)]
-pub struct LawParser;
-
-impl clap::builder::TypedValueParser for LawParser {
-    type Value = Law;
-
-    fn parse_ref(
-        &self,
-        cmd: &clap::Command,
-        arg: Option<&clap::Arg>,
-        value: &std::ffi::OsStr,
-    ) -> Result<Law, clap::Error> {
-        let parse: fn(&str) -> Result<Law, String> = Law::parse;
-        parse.parse_ref(cmd, arg, value)
-    }
-
-    fn possible_values(
-        &self,
-    ) -> Option<Box<dyn Iterator<Item = clap::builder::PossibleValue> + '_>> {
-        Some(Box::new(
-            Law::ALL
-                .iter()
-                .map(|l| clap::builder::PossibleValue::new(l.name())),
-        ))
     }
 }
 
@@ -139,7 +135,7 @@ mod tests {
     /// the allowed ones.
     #[test]
     fn law_flag_offers_every_law_and_refuses_others() {
-        let names: Vec<String> = LawParser
+        let names: Vec<String> = Words::<Law>::new()
             .possible_values()
             .unwrap()
             .map(|v| v.get_name().to_string())
@@ -148,11 +144,13 @@ mod tests {
         let cmd = clap::Command::new("t");
         for l in Law::ALL {
             assert_eq!(
-                LawParser.parse_ref(&cmd, None, l.name().as_ref()).unwrap(),
+                Words::<Law>::new()
+                    .parse_ref(&cmd, None, l.name().as_ref())
+                    .unwrap(),
                 *l
             );
         }
-        let e = LawParser
+        let e = Words::<Law>::new()
             .parse_ref(&cmd, None, "nope".as_ref())
             .unwrap_err();
         assert!(e.to_string().contains("allowed: tdc"), "{e}");

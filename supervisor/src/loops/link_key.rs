@@ -2,7 +2,7 @@
 //! sweep's loopback): held here and handed to each bridge it starts, in its environment only.
 
 use anyhow::Result;
-use deltaloop_bridge::seal::{KEY_ENV, LinkKey};
+use deltaloop_link_setup::{KEY_ENV, LinkKey};
 use std::path::Path;
 use std::process::Command;
 use std::sync::OnceLock;
@@ -35,7 +35,7 @@ pub fn one_time_link_key() -> Result<&'static LinkKey> {
 /// Gives `cmd` this process's link key if it starts a bridge (`near`/`far`), and never any
 /// other program: a key in this process's own environment is not passed on.
 pub fn hand_key(cmd: &mut Command, program: &Path, first_arg: Option<&str>) {
-    deltaloop_bridge::seal::scrub_secrets(cmd);
+    deltaloop_link_setup::scrub_secrets(cmd);
     let bridge = program.file_name().is_some_and(|n| n == "deltaloop-bridge");
     if bridge
         && matches!(first_arg, Some("near" | "far"))

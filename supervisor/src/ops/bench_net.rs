@@ -393,7 +393,7 @@ impl Bench {
         // Both sides of every run across the link hold this key (the link has no
         // unauthenticated mode: the bench measures it sealed).
         let key_file = dir.join("link.key");
-        deltaloop_bridge::seal::LinkKey::write_new(&key_file).map_err(anyhow::Error::msg)?;
+        deltaloop_link_setup::LinkKey::write_new(&key_file).map_err(anyhow::Error::msg)?;
         Ok(Self {
             h,
             deltaloop: bin.join("deltaloop"),

@@ -8,9 +8,8 @@
 use crate::loops::link_key::{install_link_key, one_time_link_key};
 use crate::loops::procs::exe_dir;
 use anyhow::{Context, Result, bail};
-use deltaloop_bridge::seal::{KEY_ENV, LinkKey};
-use deltaloop_bridge::{EmuArgs, Role};
-use deltaloop_config::{LinkSection, LoopMode, RunConfig};
+use deltaloop_config::{LinkEmulation, LinkPath, LinkSection, LoopMode, RemoteSide, RunConfig};
+use deltaloop_link_setup::{KEY_ENV, LinkKey, far_command, parse_endpoint};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -27,7 +26,13 @@ pub struct RemoteArgs {
     /// The link's key file (`deltaloop link-key FILE` makes one; the other host's `join` needs a
     /// copy). Without it a one-time key is made and the `join` command that carries it printed.
     pub link_key: Option<PathBuf>,
-    pub emu: EmuArgs,
+    /// The emulated network (`--link-delay-us`, `--link-jitter-us`, `--link-loss`,
+    /// `--link-seed`).
+    pub emulation: LinkEmulation,
+    /// How long the near bridge polls for a reply before it blocks, µs (`--link-spin-us`).
+    pub spin_us: u32,
+    /// How the loop's messages cross (`--link-path`; None: the config's, else direct).
+    pub path: Option<LinkPath>,
     /// Say nothing of how to join (a sweep's loopback joins by itself).
     pub quiet: bool,
 }
@@ -35,13 +40,13 @@ pub struct RemoteArgs {
 impl RemoteArgs {
     /// The remote process's flag, its role and endpoint, if one is remote; one line naming the
     /// flags if both are.
-    fn remote(&self) -> Result<Option<(&'static str, Role, &str)>> {
+    fn remote(&self) -> Result<Option<(&'static str, RemoteSide, &str)>> {
         match (&self.controller_remote, &self.plant_remote) {
             (Some(_), Some(_)) => bail!(
                 "--plant-remote with --controller-remote: one process runs on another host, the other here with the supervisor (give one of the two)"
             ),
-            (Some(ep), None) => Ok(Some(("--controller-remote", Role::Controller, ep))),
-            (None, Some(ep)) => Ok(Some(("--plant-remote", Role::Plant, ep))),
+            (Some(ep), None) => Ok(Some(("--controller-remote", RemoteSide::Controller, ep))),
+            (None, Some(ep)) => Ok(Some(("--plant-remote", RemoteSide::Plant, ep))),
             (None, None) => Ok(None),
         }
     }
@@ -50,25 +55,24 @@ impl RemoteArgs {
     /// `[link]`, from the flags or, without them, from a `[link]` the config already has (a run
     /// folder's config run again); one line naming the flag or key otherwise.
     pub fn apply(&self, cfg: &mut RunConfig) -> Result<()> {
-        let emu = self.emu.emulation()?;
+        let emu = self.emulation;
+        emu.check().map_err(|e| anyhow::anyhow!("{e}"))?;
         let link = match (self.remote()?, &cfg.link) {
             (Some((flag, role, ep)), _) => {
-                let addr = deltaloop_bridge::parse_endpoint(ep)
-                    .map_err(|e| anyhow::anyhow!("{flag}: {e}"))?;
-                let e = &self.emu;
+                let addr = parse_endpoint(ep).map_err(|e| anyhow::anyhow!("{flag}: {e}"))?;
                 LinkSection {
-                    remote: role.side(),
+                    remote: role,
                     listen: addr.to_string(),
-                    delay_us: e.link_delay_us,
-                    jitter_us: e.link_jitter_us,
-                    loss: e.link_loss,
-                    seed: e.link_seed,
-                    spin_us: e.link_spin_us,
-                    path: e.link_path.unwrap_or_default(),
+                    delay_us: emu.delay_us,
+                    jitter_us: emu.jitter_us,
+                    loss: emu.loss,
+                    seed: emu.seed,
+                    spin_us: self.spin_us,
+                    path: self.path.unwrap_or_default(),
                 }
             }
             (None, Some(link)) if emu.is_off() => LinkSection {
-                path: self.emu.link_path.unwrap_or(link.path),
+                path: self.path.unwrap_or(link.path),
                 ..link.clone()
             },
             (None, _) => {
@@ -83,13 +87,13 @@ impl RemoteArgs {
                 return Ok(());
             }
         };
-        let role = Role::of(link.remote);
+        let role = link.remote;
         let flag = format!("--{role}-remote");
         let bridge = exe_dir()?.join("deltaloop-bridge");
         let near = vec![bridge.display().to_string(), "near".into()];
         let command = match role {
-            Role::Plant => &mut cfg.plant.command,
-            Role::Controller => &mut cfg.controller.command,
+            RemoteSide::Plant => &mut cfg.plant.command,
+            RemoteSide::Controller => &mut cfg.controller.command,
         };
         // A run folder's config holds the near bridge already: it is replaced by this one's.
         let ours = command
@@ -115,7 +119,7 @@ impl RemoteArgs {
 
     /// How the other host joins: the exact `deltaloop join` command, with the key file's name or
     /// the one-time key.
-    fn join_hint(&self, role: Role, endpoint: &str, key: &LinkKey) -> String {
+    fn join_hint(&self, role: RemoteSide, endpoint: &str, key: &LinkKey) -> String {
         match &self.link_key {
             Some(p) => format!(
                 "deltaloop: the {role} joins from the other host with: deltaloop join {endpoint} --role {role} --link-key {} (a copy of this key file there; key {})",
@@ -172,7 +176,7 @@ impl RemoteArgs {
 pub struct Join<'a> {
     pub endpoint: &'a str,
     /// `controller` or `plant`.
-    pub role: Role,
+    pub role: RemoteSide,
     pub controller_cmd: Option<&'a str>,
     pub plant_cmd: Option<&'a str>,
     pub runs: u32,
@@ -181,8 +185,10 @@ pub struct Join<'a> {
     /// The link key: a key file, or the token `deltaloop run` printed.
     pub link_key: Option<&'a Path>,
     pub link_token: Option<&'a str>,
-    /// The far process's CPU and priority (this host's, not the run config's).
-    pub placement: deltaloop_bridge::far::Placement,
+    /// The far process's CPU (−1: not pinned) and SCHED_FIFO priority (0: SCHED_OTHER), this
+    /// host's, not the run config's (None: the mode's default layout).
+    pub cpu: Option<i32>,
+    pub priority: Option<i32>,
 }
 
 /// The key `join` was given; one line if it was given none, both, or a bad one.
@@ -200,9 +206,8 @@ fn join_key(j: &Join<'_>) -> Result<LinkKey> {
 /// Replaces this process with `deltaloop-bridge far` (its exit code is the far process's);
 /// returns only if that cannot start.
 pub fn join(j: &Join<'_>) -> Result<()> {
-    let addr = deltaloop_bridge::parse_endpoint(j.endpoint)
-        .map_err(|e| anyhow::anyhow!("deltaloop join: {e}"))?;
-    deltaloop_bridge::far::command(j.role, j.controller_cmd, j.plant_cmd)?;
+    let addr = parse_endpoint(j.endpoint).map_err(|e| anyhow::anyhow!("deltaloop join: {e}"))?;
+    far_command(j.role, j.controller_cmd, j.plant_cmd).map_err(anyhow::Error::msg)?;
     let key = join_key(j)?;
     let bridge = exe_dir()?.join("deltaloop-bridge");
     let mut c = Command::new(&bridge);
@@ -223,10 +228,10 @@ pub fn join(j: &Join<'_>) -> Result<()> {
     if let Some(cmd) = j.plant_cmd {
         c.arg(format!("--plant-cmd={cmd}"));
     }
-    if let Some(cpu) = j.placement.cpu {
+    if let Some(cpu) = j.cpu {
         c.arg(format!("--cpu={cpu}"));
     }
-    if let Some(p) = j.placement.priority {
+    if let Some(p) = j.priority {
         c.arg(format!("--priority={p}"));
     }
     use std::os::unix::process::CommandExt;
@@ -282,8 +287,8 @@ mod tests {
             .to_string();
         assert!(e.contains("exclude each other"), "{e}");
         let lossy = RemoteArgs {
-            emu: EmuArgs {
-                link_loss: 0.1,
+            emulation: LinkEmulation {
+                loss: 0.1,
                 ..Default::default()
             },
             ..Default::default()
@@ -292,6 +297,20 @@ mod tests {
         assert!(
             e.contains("need --controller-remote or --plant-remote"),
             "{e}"
+        );
+        // The flags' emulation is checked by the config's one check, named as flags.
+        let too_lossy = RemoteArgs {
+            controller_remote: Some("127.0.0.1:7447".into()),
+            emulation: LinkEmulation {
+                loss: 2.0,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let e = too_lossy.apply(&mut cfg()).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "--link-loss 2: allowed 0 <= loss <= 1 (a fraction of the datagrams)"
         );
         let e = remote("127.0.0.1:7447")
             .check_mode(LoopMode::Inproc)
@@ -370,22 +389,23 @@ mod tests {
             spin_us: 0,
             link_key: None,
             link_token: None,
-            placement: Default::default(),
+            cpu: None,
+            priority: None,
         };
         for (role, c, p, says) in [
             (
-                Role::Plant,
+                RemoteSide::Plant,
                 Some("ctl"),
                 None,
                 "--controller-cmd with --role plant",
             ),
             (
-                Role::Controller,
+                RemoteSide::Controller,
                 None,
                 Some("pl"),
                 "--plant-cmd with --role controller",
             ),
-            (Role::Plant, None, Some("  "), "--plant-cmd is empty"),
+            (RemoteSide::Plant, None, Some("  "), "--plant-cmd is empty"),
         ] {
             let e = join(&j(role, c, p)).unwrap_err().to_string();
             assert!(e.contains(says) && !e.contains('\n'), "{e}");
@@ -396,10 +416,7 @@ mod tests {
     fn regression_remote_run_flags_are_checked_before_the_run_folder_exists() {
         let remote = RemoteArgs {
             controller_remote: Some("127.0.0.1:7447".into()),
-            emu: EmuArgs {
-                link_spin_us: 151,
-                ..Default::default()
-            },
+            spin_us: 151,
             quiet: true,
             ..Default::default()
         };
@@ -431,10 +448,10 @@ mod tests {
     fn regression_remote_placement_is_typed_in_the_config() {
         let remote = RemoteArgs {
             plant_remote: Some("127.0.0.1:7447".into()),
-            emu: EmuArgs {
-                link_delay_us: 40.0,
-                link_loss: 0.01,
-                link_seed: 7,
+            emulation: LinkEmulation {
+                delay_us: 40.0,
+                loss: 0.01,
+                seed: 7,
                 ..Default::default()
             },
             quiet: true,
@@ -483,7 +500,7 @@ mod tests {
     fn join_and_run_need_a_good_link_key() {
         let j = |link_key, link_token| Join {
             endpoint: "127.0.0.1:7447",
-            role: Role::Controller,
+            role: RemoteSide::Controller,
             controller_cmd: None,
             plant_cmd: None,
             runs: 1,
@@ -491,7 +508,8 @@ mod tests {
             spin_us: 0,
             link_key,
             link_token,
-            placement: Default::default(),
+            cpu: None,
+            priority: None,
         };
         let one_line = |e: anyhow::Error, says: &str| {
             let e = e.to_string();

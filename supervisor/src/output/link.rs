@@ -1,15 +1,11 @@
 //! What the report says about a run whose controller or plant was on another host.
 
-pub use crate::timing::Across;
 use deltaloop_config::{RemoteSide, RunConfig};
 
 /// Which process of the run is on another host: the config's `[link] remote`, which
 /// `--controller-remote`, `--plant-remote` and a sweep's link axis set. None for a one-host run.
-pub fn across(cfg: &RunConfig) -> Option<Across> {
-    cfg.link.as_ref().map(|l| match l.remote {
-        RemoteSide::Controller => Across::Controller,
-        RemoteSide::Plant => Across::Plant,
-    })
+pub fn across(cfg: &RunConfig) -> Option<RemoteSide> {
+    cfg.link.as_ref().map(|l| l.remote)
 }
 
 /// For a run split over two hosts: one line naming the endpoint and the emulated link, and how

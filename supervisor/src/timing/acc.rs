@@ -1,6 +1,7 @@
 //! The timing accumulator: what the supervisor saw of each tick ([`Seen`]) into histograms,\nlogs and the per-tick record ([`TimingAcc`]).
 
 use super::*;
+use deltaloop_config::RemoteSide;
 
 /// Ticks held back by [`TimingAcc`] at most while it cannot yet tell whether they belong to the
 /// loop (after the last telemetry so far) or to its end.
@@ -77,13 +78,13 @@ pub struct TimingAcc {
 
 impl TimingAcc {
     /// Which process of the run is across the link, if one is.
-    pub fn across(&self) -> Option<Across> {
+    pub fn across(&self) -> Option<RemoteSide> {
         self.t.link
     }
 
     /// For ticks 0..=`ticks` at period `ts_ns` (ns); wake lateness and jitter only in realtime.
     /// `link`: which process is across the link, if one is (`link_rtt` is measured).
-    pub fn new(ticks: u64, ts_ns: u64, realtime: bool, link: Option<Across>) -> Self {
+    pub fn new(ticks: u64, ts_ns: u64, realtime: bool, link: Option<RemoteSide>) -> Self {
         Self {
             t: Timing {
                 timeline: Timeline::new(ticks, ts_ns),

@@ -15,7 +15,8 @@ pub use tick_csv::{TIMING_COLUMNS, TimingCsv, timing_cells};
 
 use crate::timing::timeline::Timeline;
 use anyhow::{Context, Result};
-use deltaloop_bridge::seal::LinkReport;
+use deltaloop_config::RemoteSide;
+use deltaloop_link_setup::LinkReport;
 pub use deltaloop_study::latency_histogram;
 use deltaloop_transport::wire::{self, StateMsg, TelemetryMsg, TorqueMsg};
 use hdrhistogram::Histogram;
@@ -80,7 +81,7 @@ pub struct Timing {
     pub link_rtt: Dist,
     /// Which process of the run was across the link, if one was: `link_rtt` is measured and
     /// written.
-    pub link: Option<Across>,
+    pub link: Option<RemoteSide>,
     /// Across the link: who joined, with which key (its fingerprint), what the link refused.
     pub link_report: Option<LinkReport>,
     /// A_k − t_k of every applied command (when it took effect after its tick), ns; not written
@@ -244,7 +245,7 @@ pub fn link_refusals_note(r: Option<&LinkReport>) -> Option<String> {
 
 /// The datagrams each host refused, by reason: `here: malformed 0, …; on the far host: …`.
 pub fn link_refusals_by_host(r: &LinkReport) -> String {
-    let by_reason = |d: &deltaloop_bridge::seal::RefusedCounts| {
+    let by_reason = |d: &deltaloop_link_setup::RefusedCounts| {
         format!(
             "malformed {}, other run {}, forged {}, replayed {}",
             d.malformed, d.other_run, d.forged, d.replayed
@@ -335,10 +336,6 @@ pub fn round_trip_ns(m: &TelemetryMsg) -> Option<u64> {
         .then(|| m.t_torque_rx_ns.saturating_sub(m.t_state_pub_ns))
 }
 
-/// The process of a run that is on another host, across `deltaloop-bridge` (docs/protocol.md
-/// §14): the bridge's own [`Role`](deltaloop_bridge::Role).
-pub use deltaloop_bridge::Role as Across;
-
 /// The link's round trip of one tick of a run split over two hosts, ns: the round trip
 /// ([`round_trip_ns`], on the plant's clock) less the time the state spent on the controller's
 /// host. With the controller across, that residence is what the near bridge puts in the reply
@@ -346,7 +343,7 @@ pub use deltaloop_bridge::Role as Across;
 /// state's arrival (its `t_publish_ns` on this host's clock) to the reply. None where the round
 /// trip is.
 pub fn link_rtt_ns(
-    across: Across,
+    across: RemoteSide,
     m: &TelemetryMsg,
     s: Option<&StateMsg>,
     q: &TorqueMsg,
@@ -355,8 +352,8 @@ pub fn link_rtt_ns(
     // (the direct path, where the controller takes it from the socket and the bridge files the
     // record's copy later) the controller's take, whichever came first.
     let from = match across {
-        Across::Controller => q.t_state_rx_ns,
-        Across::Plant => s?.t_publish_ns.min(q.t_state_rx_ns.max(1)),
+        RemoteSide::Controller => q.t_state_rx_ns,
+        RemoteSide::Plant => s?.t_publish_ns.min(q.t_state_rx_ns.max(1)),
     };
     let residence = q.t_publish_ns.saturating_sub(from);
     round_trip_ns(m).map(|rt| rt.saturating_sub(residence))
@@ -638,14 +635,14 @@ mod tests {
         };
         // Round trip 100 µs; the far residence 10 µs; the time here 20 µs.
         assert_eq!(
-            link_rtt_ns(Across::Controller, &tel, Some(&state), &reply),
+            link_rtt_ns(RemoteSide::Controller, &tel, Some(&state), &reply),
             Some(90_000)
         );
         assert_eq!(
-            link_rtt_ns(Across::Plant, &tel, Some(&state), &reply),
+            link_rtt_ns(RemoteSide::Plant, &tel, Some(&state), &reply),
             Some(80_000)
         );
-        assert_eq!(link_rtt_ns(Across::Plant, &tel, None, &reply), None);
+        assert_eq!(link_rtt_ns(RemoteSide::Plant, &tel, None, &reply), None);
     }
 
     fn tick(k: u64, ts: u64) -> Seen {
@@ -723,7 +720,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let ts = 300_000;
         let n = 11_666; // 3.5 s
-        let across = link.then_some(Across::Controller);
+        let across = link.then_some(RemoteSide::Controller);
         let mut acc = TimingAcc::new(n, ts, true, across).with_hlogs(dir.path(), "tdc.");
         for k in 0..=n {
             acc.push(tick(k, ts)).unwrap();

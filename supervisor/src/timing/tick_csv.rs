@@ -1,6 +1,7 @@
 //! `<law>.timing.csv`: one row per tick of what the supervisor saw, written as the run goes.
 
 use super::*;
+use deltaloop_config::RemoteSide;
 
 /// The columns of `<law>.timing.csv` (and of the MCAP file's timing channel).
 pub const TIMING_COLUMNS: [&str; 13] = [
@@ -22,7 +23,7 @@ pub const TIMING_COLUMNS: [&str; 13] = [
 /// Tick k's timing row in [`TIMING_COLUMNS`] order (None: that message was not seen), or None
 /// if the supervisor saw nothing of the tick. `link`: which process is across the link, if one
 /// is (the `link_rtt_ns` column is filled).
-pub fn timing_cells(seen: &Seen, link: Option<Across>) -> Option<[Option<u64>; 13]> {
+pub fn timing_cells(seen: &Seen, link: Option<RemoteSide>) -> Option<[Option<u64>; 13]> {
     let (s, t, m) = (seen.state, seen.torque, seen.tel);
     if s.is_none() && t.is_none() && m.is_none() {
         return None;
@@ -55,12 +56,12 @@ pub struct TimingCsv {
     pub(super) path: std::path::PathBuf,
     pub(super) w: csv::Writer<std::fs::File>,
     pub(super) fields: [String; 13],
-    pub(super) link: Option<Across>,
+    pub(super) link: Option<RemoteSide>,
 }
 
 impl TimingCsv {
     /// `link`: which process is across the link, if one is (the `link_rtt_ns` column is filled).
-    pub fn create(path: &Path, link: Option<Across>) -> Result<Self> {
+    pub fn create(path: &Path, link: Option<RemoteSide>) -> Result<Self> {
         let mut w = csv::Writer::from_path(path)
             .with_context(|| format!("cannot create {}", path.display()))?;
         w.write_record(TIMING_COLUMNS)

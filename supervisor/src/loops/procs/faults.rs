@@ -7,6 +7,7 @@ use super::spawn::Pair;
 use super::status::status_text;
 use crate::loops::peer_text::{self, Tail};
 use crate::record::{Fault, FaultKind};
+use deltaloop_config::RemoteSide;
 use deltaloop_transport::wire::{ControlKind, Sender};
 use std::path::Path;
 use std::process::ExitStatus;
@@ -160,7 +161,7 @@ pub(super) fn fault_cause(
     // How long after the dead peer's last message the supervisor saw it exit; not for a plant
     // on another host, whose stamps are on its own clock (docs/protocol.md §14), nor for a
     // child that exited because it had finished.
-    let far_plant = streams.timing.across() == Some(crate::timing::Across::Plant);
+    let far_plant = streams.timing.across() == Some(RemoteSide::Plant);
     if let Some((noticed, who)) = ending.first_exit
         && !(far_plant && who == Sender::Plant)
         && !(who == Sender::Plant && ok(plant) && !plant_quit)

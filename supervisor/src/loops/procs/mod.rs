@@ -20,7 +20,7 @@ use crate::record::Fault;
 use crate::study::Study;
 use crate::timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
 use anyhow::{Context, Result, anyhow, bail};
-use deltaloop_config::{Law, LoopMode};
+use deltaloop_config::{Law, LoopMode, RemoteSide};
 use deltaloop_config::{Priority, ResolvedLayout};
 use deltaloop_transport::ipc::{self, IpcContext};
 use deltaloop_transport::rt;
@@ -105,7 +105,7 @@ pub fn run_law(
     let mut timing = TimingAcc::new(n, ts_ns, mode == LoopMode::Realtime, link)
         .with_hlogs(run_dir, &format!("{law}."));
     // The steal at each pause of the plant's clock, when the plant runs on this host.
-    if mode == LoopMode::Realtime && link != Some(crate::timing::Across::Plant) {
+    if mode == LoopMode::Realtime && link != Some(RemoteSide::Plant) {
         timing = timing.with_steal();
     }
     let mut streams = Observation::new(
@@ -172,8 +172,8 @@ pub fn run_law(
     timing.steal = crate::timing::steal_ms_between(&steal_before, &crate::timing::steal_jiffies());
     timing.peak_rss = PeakRss::from_kib(own_peak_rss_kib(), plant_rss, ctrl_rss);
     if timing.link.is_some() {
-        let path = deltaloop_bridge::seal::LinkReport::path(&run_dir.join("config.toml"), &rid);
-        timing.link_report = deltaloop_bridge::seal::LinkReport::read(&path);
+        let path = deltaloop_link_setup::LinkReport::path(&run_dir.join("config.toml"), &rid);
+        timing.link_report = deltaloop_link_setup::LinkReport::read(&path);
         // The supervisor's copy is in summary.json; the file was only the way here.
         let _ = std::fs::remove_file(&path);
         if let Some(n) = crate::timing::link_refusals_note(timing.link_report.as_ref()) {

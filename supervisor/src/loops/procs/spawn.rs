@@ -295,7 +295,7 @@ impl Pair {
             },
             shown: (pl.shown(), cl.shown()),
             link_report: cfg.link.is_some().then(|| {
-                deltaloop_bridge::seal::LinkReport::path(&run_dir.join("config.toml"), run_id)
+                deltaloop_link_setup::LinkReport::path(&run_dir.join("config.toml"), run_id)
             }),
             controller_label: None,
         })
@@ -358,7 +358,7 @@ fn far_side_note(link_report: Option<&Path>) -> String {
     let Some(path) = link_report else {
         return String::new();
     };
-    match deltaloop_bridge::seal::LinkReport::read(path) {
+    match deltaloop_link_setup::LinkReport::read(path) {
         Some(r) => format!(
             " (the far side {} had joined, link key {}: see its host's `join` output)",
             r.peer, r.key_fingerprint
@@ -376,10 +376,10 @@ mod tests {
     #[test]
     fn regression_a_far_side_that_joined_and_fell_silent_is_named() {
         let tmp = tempfile::tempdir().unwrap();
-        let path = deltaloop_bridge::seal::LinkReport::path(&tmp.path().join("config.toml"), "r1");
+        let path = deltaloop_link_setup::LinkReport::path(&tmp.path().join("config.toml"), "r1");
         assert_eq!(far_side_note(None), "");
         assert_eq!(far_side_note(Some(&path)), " (no far side had joined)");
-        let r = deltaloop_bridge::seal::LinkReport {
+        let r = deltaloop_link_setup::LinkReport {
             peer: "10.0.0.2:40512".into(),
             key_fingerprint: "ab12cd34".into(),
             ..Default::default()

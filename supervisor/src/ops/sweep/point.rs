@@ -612,14 +612,14 @@ fn link_far(
     crate::ops::join::RemoteArgs {
         controller_remote: Some(far.endpoint.clone()),
         plant_remote: None,
-        emu: deltaloop_bridge::EmuArgs {
-            link_delay_us: l.delay_us,
-            link_jitter_us: l.jitter_us,
-            link_loss: l.loss,
-            link_seed: seed,
-            link_spin_us: 0,
-            link_path: cfg.link.as_ref().map(|l| l.path),
+        emulation: deltaloop_config::LinkEmulation {
+            delay_us: l.delay_us,
+            jitter_us: l.jitter_us,
+            loss: l.loss,
+            seed,
         },
+        spin_us: 0,
+        path: cfg.link.as_ref().map(|l| l.path),
         link_key: None,
         quiet: true,
     }

@@ -10,9 +10,10 @@ use crate::output::mcap::{Bus, ERROR, INFO, Live};
 use crate::record::{Recorder, TickRecord, TickSink};
 use crate::study::Study;
 use crate::study::reference::RefRow;
-use crate::timing::{Across, Seen, timing_cells};
+use crate::timing::{Seen, timing_cells};
 use anyhow::Result;
 use deltaloop_config::Law;
+use deltaloop_config::RemoteSide;
 use deltaloop_model::Vec3;
 use deltaloop_transport::wire::{StateMsg, TelemetryMsg, TorqueMsg};
 use std::collections::BTreeMap;
@@ -44,7 +45,7 @@ pub struct Relay<'a, B: Bus> {
     study: &'a Study,
     rec: Recorder<'a, Feed<B>>,
     pending: BTreeMap<u64, Seen>,
-    link: Option<Across>,
+    link: Option<RemoteSide>,
     newest_state: Option<u64>,
     /// The next tick to join (None before the first state).
     next: Option<u64>,

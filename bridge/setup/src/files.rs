@@ -1,4 +1,4 @@
-//! Files the bridge reads and writes where another user may have planted a link: opened without
+//! Files a bridge or the supervisor reads and writes where another user may have planted a link: opened without
 //! following one, created only new and private.
 
 use std::io::{Read, Write};
