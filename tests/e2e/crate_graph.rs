@@ -194,6 +194,43 @@ fn bridge_is_lean_and_zenoh_is_opt_in() {
     assert_none_of("deltaloop", &["zenoh"]);
 }
 
+/// The supervisor's layers are crates, each standing only on those below it: timing, then the
+/// report, then the runner, then the studies; the supervisor (the commands and the thin
+/// operations) on top, and nothing but the executables on the supervisor. The study crate (the
+/// pure bottom) stands on none of them.
+#[test]
+fn supervisor_layers_are_crates_each_on_those_below() {
+    let layers = [
+        "deltaloop-study",
+        "deltaloop-timing",
+        "deltaloop-report",
+        "deltaloop-runner",
+        "deltaloop-studies",
+        "deltaloop-supervisor",
+    ];
+    for (i, layer) in layers.iter().enumerate() {
+        assert_none_of(layer, &layers[i + 1..]);
+    }
+    // The edges are real: each layer does stand on the one below.
+    for pair in layers.windows(2) {
+        assert!(
+            graph(pair[1]).iter().any(|n| n == pair[0]),
+            "{} does not depend on {}",
+            pair[1],
+            pair[0]
+        );
+    }
+    for pkg in [
+        "deltaloop-baseline",
+        "deltaloop-mcap",
+        "deltaloop-plot",
+        "deltaloop-bridge",
+        "deltaloop-peer",
+    ] {
+        assert_none_of(pkg, &layers[1..]);
+    }
+}
+
 /// The supervisor starts `deltaloop-bridge` as a program and shares only the link's set-up with
 /// it (endpoint, key, report: `deltaloop-link-setup`); it does not link the bridge, its handshake
 /// or its command line.

@@ -129,7 +129,7 @@ fn every_path_the_readme_and_the_architecture_name_exists() {
 #[test]
 fn a_renamed_file_is_caught() {
     let found = named_paths(
-        "see `supervisor/src/timing/csv.rs`, `csv.rs`, `tick_csv.rs`, `ops/sweep/mod.rs`, \
+        "see `supervisor/src/timing/csv.rs`, `csv.rs`, `tick_csv.rs`, `studies/src/sweep/mod.rs`, \
          `runs/x/` and [x](guide/nowhere.md)",
         Path::new("docs"),
     );

@@ -8,7 +8,7 @@
 //! the product's loops with the supervisor recording every tick: (c) inproc and (a) the real
 //! process pair. Realtime: (d) the default, the split-CPU and the one-CPU yielding layouts at
 //! 3.3 kHz, each with the CPU time the host took from its CPUs, and (e) the machine's own
-//! wake-up limit ([`machine`]).
+//! wake-up limit (`machine`).
 //! All of them step the same plant and controller tick on the same scenario.
 
 mod machine;

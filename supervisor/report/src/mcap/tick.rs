@@ -1,0 +1,208 @@
+//! One tick's messages from its trace row: where the columns are, the row parsed, and the JSON
+//! of its `control` and `timing` messages. Both are written as the run records, one each a tick,
+//! so they are serialised straight from the row (a `serde_json::Value` map per message cost a
+//! few dozen allocations a tick), with their keys in the order serde_json's maps sort them.
+
+use crate::trace;
+use anyhow::Result;
+use serde::Serialize;
+use serde::ser::{SerializeMap, Serializer};
+
+/// The per-joint groups a `JointState` carries (not repeated in the control message).
+pub(super) const JOINT_STATE: [&str; 3] = ["q", "qdot", "tau_applied"];
+
+/// A field of the control message.
+#[derive(Clone, Copy)]
+enum Field {
+    K,
+    Ts,
+    /// The per-joint group at this index of [`Row::joints`].
+    Group(usize),
+    Reply,
+    Drives,
+    Arrival,
+}
+
+impl Field {
+    fn name(self, joints: &[(&'static str, usize)]) -> &'static str {
+        match self {
+            Field::K => "k",
+            Field::Ts => "t_s",
+            Field::Group(i) => joints[i].0,
+            Field::Reply => "reply",
+            Field::Drives => "drives",
+            Field::Arrival => "arrival_ns",
+        }
+    }
+}
+
+/// Where each trace column is.
+pub(super) struct Columns {
+    pub(super) law: usize,
+    k: usize,
+    /// `(name, first column)` of every per-joint group, in trace order.
+    joints: Vec<(&'static str, usize)>,
+    reply: usize,
+    drives: usize,
+    arrival: usize,
+    /// The control message's fields in the order they are written (by name, as JSON maps of
+    /// serde_json write them).
+    control: Vec<Field>,
+}
+
+impl Columns {
+    pub(super) fn find(col: &dyn Fn(&str) -> Result<usize>) -> Result<Self> {
+        let joints: Vec<_> = trace::COLUMNS
+            .iter()
+            .filter(|c| c.per_joint)
+            .map(|c| Ok((c.name, col(&format!("{}_1", c.name))?)))
+            .collect::<Result<_>>()?;
+        let mut control = vec![
+            Field::K,
+            Field::Ts,
+            Field::Reply,
+            Field::Drives,
+            Field::Arrival,
+        ];
+        control.extend(
+            (0..joints.len())
+                .filter(|&i| !JOINT_STATE.contains(&joints[i].0))
+                .map(Field::Group),
+        );
+        control.sort_by_key(|f| f.name(&joints));
+        Ok(Self {
+            control,
+            law: col(trace::LAW.name)?,
+            k: col(trace::K.name)?,
+            joints,
+            reply: col(trace::REPLY.name)?,
+            drives: col(trace::DRIVES.name)?,
+            arrival: col(trace::ARRIVAL.name)?,
+        })
+    }
+}
+
+/// One trace row, parsed.
+pub(super) struct Row {
+    pub(super) k: u64,
+    /// Every per-joint group: its name and three values (None: an empty cell).
+    joints: Vec<(&'static str, [Option<f64>; 3])>,
+    pub(super) reply: String,
+    pub(super) drives: String,
+    arrival_ns: Option<u64>,
+}
+
+impl Row {
+    /// The row whose field `i` is `cell(i)`.
+    pub(super) fn parse<'a>(cell: &dyn Fn(usize) -> &'a str, c: &Columns) -> Result<Self> {
+        let num = |i: usize| -> Result<Option<f64>> {
+            match cell(i) {
+                "" => Ok(None),
+                s => s
+                    .parse()
+                    .map(Some)
+                    .map_err(|_| anyhow::anyhow!("column {} = `{s}` is not a number", i + 1)),
+            }
+        };
+        let k = cell(c.k)
+            .parse()
+            .map_err(|_| anyhow::anyhow!("column k = `{}` is not a tick", cell(c.k)))?;
+        let joints = c
+            .joints
+            .iter()
+            .map(|&(name, at)| Ok((name, [num(at)?, num(at + 1)?, num(at + 2)?])))
+            .collect::<Result<_>>()?;
+        let arrival_ns = match cell(c.arrival) {
+            "" => None,
+            s => Some(
+                s.parse()
+                    .map_err(|_| anyhow::anyhow!("column arrival_ns = `{s}` is not ns"))?,
+            ),
+        };
+        Ok(Self {
+            k,
+            joints,
+            reply: cell(c.reply).into(),
+            drives: cell(c.drives).into(),
+            arrival_ns,
+        })
+    }
+
+    pub(super) fn group(&self, name: &str) -> [Option<f64>; 3] {
+        self.joints
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map_or([None; 3], |(_, v)| *v)
+    }
+}
+
+/// Tick `row`'s control message: the trace row but for the joint state, with the time `t_s`.
+pub(super) struct Control<'a> {
+    pub(super) row: &'a Row,
+    pub(super) cols: &'a Columns,
+    /// t = k·Ts, s.
+    pub(super) t_s: f64,
+}
+
+impl Serialize for Control<'_> {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let (r, cols) = (self.row, self.cols);
+        let mut m = s.serialize_map(Some(cols.control.len()))?;
+        for &f in &cols.control {
+            let key = f.name(&cols.joints);
+            match f {
+                Field::K => m.serialize_entry(key, &r.k)?,
+                Field::Ts => m.serialize_entry(key, &self.t_s)?,
+                Field::Group(i) => m.serialize_entry(key, &r.joints[i].1)?,
+                Field::Reply => m.serialize_entry(key, &r.reply)?,
+                Field::Drives => m.serialize_entry(key, &r.drives)?,
+                Field::Arrival => m.serialize_entry(key, &r.arrival_ns)?,
+            }
+        }
+        m.end()
+    }
+}
+
+/// A timing row's message: its cells by column name (null: not seen) and the round trip
+/// `round_trip_ns` (torque received − state published, ns).
+pub(super) struct Timing<'a> {
+    cells: &'a [(&'a str, Option<u64>)],
+    /// The cells' indices by name, `cells.len()` standing for the round trip.
+    order: &'a [usize],
+}
+
+/// The order [`Timing`] writes `names` (and the round trip) in.
+pub(super) fn timing_order<'a>(names: impl Iterator<Item = &'a str>) -> Vec<usize> {
+    let names: Vec<&str> = names.chain(["round_trip_ns"]).collect();
+    let mut order: Vec<usize> = (0..names.len()).collect();
+    order.sort_by_key(|&i| names[i]);
+    order
+}
+
+impl<'a> Timing<'a> {
+    /// The message of `cells`, keys in `order` ([`timing_order`] of their names); with its tick.
+    pub(super) fn new(cells: &'a [(&'a str, Option<u64>)], order: &'a [usize]) -> (u64, Self) {
+        let k = Self::cell(cells, "k").unwrap_or(0);
+        (k, Timing { cells, order })
+    }
+
+    fn cell(cells: &[(&str, Option<u64>)], name: &str) -> Option<u64> {
+        cells.iter().find(|c| c.0 == name).and_then(|c| c.1)
+    }
+}
+
+impl Serialize for Timing<'_> {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let rtt = Self::cell(self.cells, "torque_rx_ns")
+            .zip(Self::cell(self.cells, "state_pub_ns"))
+            .map(|(a, b)| a.saturating_sub(b));
+        let mut m = s.serialize_map(Some(self.order.len()))?;
+        for &i in self.order {
+            match self.cells.get(i) {
+                Some((name, v)) => m.serialize_entry(name, v)?,
+                None => m.serialize_entry("round_trip_ns", &rtt)?,
+            }
+        }
+        m.end()
+    }
+}

@@ -1,0 +1,435 @@
+//! `trace.csv`: one row per tick per law. Its columns are one table, [`COLUMNS`]: the writer, the
+//! replay reader and the docs' column list (checked by a test) all follow it, so a column is
+//! added in one place.
+//!
+//! Every float is written in shortest round-trip exponent form (e.g. `-7.776579935558914e-10`):
+//! a reader gets the recorded double back bit for bit.
+
+use anyhow::{Context, Result};
+use deltaloop_law::Law;
+use deltaloop_model::Vec3;
+use deltaloop_study::Study;
+use deltaloop_study::record::TickRecord;
+use deltaloop_study::reference::RefRow;
+use std::fmt::Arguments;
+use std::path::{Path, PathBuf};
+
+/// What one row is written from.
+pub struct Row<'a> {
+    pub law: Law,
+    pub rec: &'a TickRecord,
+    pub reference: &'a RefRow,
+    /// N_k, the true lumped dynamics (None where the next state is unknown), rad/s².
+    pub n_true: Option<Vec3>,
+}
+
+/// Puts one field of a row (the writer's sink; no allocation).
+type Put<'p> = dyn FnMut(Arguments<'_>) + 'p;
+
+/// One column of `trace.csv`, or one per joint (`name_1`, `name_2`, `name_3`).
+pub struct Column {
+    pub name: &'static str,
+    pub per_joint: bool,
+    /// The unit ("" for words and counts).
+    pub unit: &'static str,
+    /// What it holds, and when it is empty.
+    pub what: &'static str,
+    /// Puts the column's one or three fields.
+    write: fn(&Row<'_>, &mut Put<'_>),
+}
+
+/// Puts a vector's three components, or three empty fields.
+fn joints(v: Option<Vec3>, put: &mut Put<'_>) {
+    match v {
+        Some(v) => v.iter().for_each(|x| put(format_args!("{x:e}"))),
+        None => (0..3).for_each(|_| put(format_args!(""))),
+    }
+}
+
+pub const LAW: Column = Column {
+    name: "law",
+    per_joint: false,
+    unit: "",
+    what: "the law's name",
+    write: |r, put| put(format_args!("{}", r.law.name())),
+};
+pub const K: Column = Column {
+    name: "k",
+    per_joint: false,
+    unit: "",
+    what: "the tick",
+    write: |r, put| put(format_args!("{}", r.rec.sample.k)),
+};
+pub const T: Column = Column {
+    name: "t_s",
+    per_joint: false,
+    unit: "s",
+    what: "t_k = k·Ts",
+    write: |r, put| put(format_args!("{:e}", r.reference.t)),
+};
+pub const Q_DES: Column = Column {
+    name: "q_des",
+    per_joint: true,
+    unit: "rad",
+    what: "the reference q_d,k",
+    write: |r, put| joints(Some(r.reference.joint.q), put),
+};
+pub const Q: Column = Column {
+    name: "q",
+    per_joint: true,
+    unit: "rad",
+    what: "the true joint angle q_k",
+    write: |r, put| joints(Some(r.rec.q_true), put),
+};
+pub const QDOT: Column = Column {
+    name: "qdot",
+    per_joint: true,
+    unit: "rad/s",
+    what: "the true joint rate q̇_k",
+    write: |r, put| joints(Some(r.rec.qd_true), put),
+};
+pub const E: Column = Column {
+    name: "e",
+    per_joint: true,
+    unit: "rad",
+    what: "the tracking error e_k = q_des − q",
+    write: |r, put| joints(Some(r.reference.joint.q - r.rec.q_true), put),
+};
+pub const TAU: Column = Column {
+    name: "tau",
+    per_joint: true,
+    unit: "N m",
+    what: "the commanded torque τ_k (empty: the controller never answered)",
+    write: |r, put| joints(r.rec.out.as_ref().map(|o| o.tau), put),
+};
+pub const TAU_APPLIED: Column = Column {
+    name: "tau_applied",
+    per_joint: true,
+    unit: "N m",
+    what: "τᵃ_k, the torque the drives applied over [t_{k−1}, t_k)",
+    write: |r, put| joints(Some(r.rec.sample.tau_applied), put),
+};
+pub const S: Column = Column {
+    name: "s",
+    per_joint: true,
+    unit: "rad/s",
+    what: "the sliding variable s_k (empty: never answered)",
+    write: |r, put| joints(r.rec.out.as_ref().map(|o| o.s), put),
+};
+pub const N_HAT: Column = Column {
+    name: "n_hat",
+    per_joint: true,
+    unit: "rad/s²",
+    what: "the TDE N̂_k (empty: never answered)",
+    write: |r, put| joints(r.rec.out.as_ref().map(|o| o.n_hat), put),
+};
+pub const N_TRUE: Column = Column {
+    name: "n_true",
+    per_joint: true,
+    unit: "rad/s²",
+    what: "the true N_k (empty where the next state is unknown)",
+    write: |r, put| joints(r.n_true, put),
+};
+pub const REPLY: Column = Column {
+    name: "reply",
+    per_joint: false,
+    unit: "",
+    what: "what became of the controller's reply to tick k: applied, late, skipped, missed \
+           (unknown: the plant's telemetry of the tick never reached the supervisor)",
+    write: |r, put| put(format_args!("{}", fate_and_drives(r.rec).0)),
+};
+pub const DRIVES: Column = Column {
+    name: "drives",
+    per_joint: false,
+    unit: "",
+    what: "what the drives did over [t_k, t_{k+1}): commanded, clamped, held, rejected (or unknown)",
+    write: |r, put| put(format_args!("{}", fate_and_drives(r.rec).1)),
+};
+pub const ARRIVAL: Column = Column {
+    name: "arrival_ns",
+    per_joint: false,
+    unit: "ns",
+    what: "A_k − t_k, when tick k's command reached the drives: the transport delay plus, in \
+           realtime, its measured latency (empty: no command was applied)",
+    write: |r, put| match r.rec.arrival_ns {
+        Some(a) => put(format_args!("{a}")),
+        None => put(format_args!("")),
+    },
+};
+
+/// The columns of `trace.csv`, in order.
+pub const COLUMNS: [Column; 15] = [
+    LAW,
+    K,
+    T,
+    Q_DES,
+    Q,
+    QDOT,
+    E,
+    TAU,
+    TAU_APPLIED,
+    S,
+    N_HAT,
+    N_TRUE,
+    REPLY,
+    DRIVES,
+    ARRIVAL,
+];
+
+/// The reply's fate and what the drives did; both `unknown` without the plant's telemetry
+/// (nothing then says what it did with the reply).
+fn fate_and_drives(r: &TickRecord) -> (&'static str, &'static str) {
+    if !r.telemetry {
+        return ("unknown", "unknown");
+    }
+    let drives = match (r.rejected, r.held, r.clamped) {
+        (true, _, _) => "rejected",
+        (_, true, _) => "held",
+        (_, _, true) => "clamped",
+        _ => "commanded",
+    };
+    (r.fate.name(), drives)
+}
+
+/// The header line's fields.
+pub fn header() -> Vec<String> {
+    COLUMNS
+        .iter()
+        .flat_map(|c| {
+            if c.per_joint {
+                (1..=3).map(|j| format!("{}_{j}", c.name)).collect()
+            } else {
+                vec![c.name.to_string()]
+            }
+        })
+        .collect()
+}
+
+/// Renders tick k's row of `law` into `fields` (one per header field, reused: no allocation once
+/// they have grown).
+pub fn render(
+    law: Law,
+    rec: &TickRecord,
+    reference: &RefRow,
+    n_true: Option<Vec3>,
+    fields: &mut [String],
+) {
+    use std::fmt::Write as _;
+    let row = Row {
+        law,
+        rec,
+        reference,
+        n_true,
+    };
+    let mut f = fields.iter_mut();
+    let mut put = |v: Arguments<'_>| {
+        if let Some(s) = f.next() {
+            s.clear();
+            let _ = s.write_fmt(v);
+        }
+    };
+    for c in &COLUMNS {
+        (c.write)(&row, &mut put);
+    }
+}
+
+/// `trace.csv` rows of one law ([`COLUMNS`]), written as the ticks are recorded (the file's
+/// part for that law; [`join_trace`] puts the parts behind the header).
+///
+/// A write error is kept (the first one, naming the file) and returned by [`TraceWriter::finish`].
+pub struct TraceWriter {
+    path: PathBuf,
+    law: Law,
+    w: csv::Writer<std::fs::File>,
+    fields: Vec<String>,
+    error: Option<anyhow::Error>,
+}
+
+impl TraceWriter {
+    /// Creates the part file `path` for `law`'s rows, starting with the header (a part is a valid
+    /// CSV on its own: what a killed run leaves is readable).
+    pub fn create(path: &Path, law: Law) -> Result<Self> {
+        let mut w = csv::WriterBuilder::new()
+            .has_headers(false)
+            .from_path(path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        let header = header();
+        w.write_record(&header)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            law,
+            w,
+            fields: vec![String::new(); header.len()],
+            error: None,
+        })
+    }
+
+    /// Writes tick k's row (into the fields allocated at creation: no allocation per row).
+    pub fn write(&mut self, rec: &TickRecord, reference: &RefRow, n_true: Option<Vec3>) {
+        if self.error.is_some() {
+            return;
+        }
+        render(self.law, rec, reference, n_true, &mut self.fields);
+        if let Err(e) = self.w.write_record(&self.fields) {
+            self.error = Some(
+                anyhow::Error::new(e).context(format!("cannot write {}", self.path.display())),
+            );
+        }
+    }
+
+    /// Flushes the part file; the first write error, if any.
+    pub fn finish(mut self) -> Result<()> {
+        if let Some(e) = self.error.take() {
+            return Err(e);
+        }
+        self.w
+            .flush()
+            .with_context(|| format!("cannot write {}", self.path.display()))
+    }
+}
+
+/// The part file of `law`'s rows in run folder `dir`.
+pub fn trace_part(dir: &Path, law: Law) -> PathBuf {
+    dir.join(format!("trace.{law}.part"))
+}
+
+/// The longest `trace.csv` row, bytes: 30 numbers of at most 24 characters and three words make
+/// under 1 KiB.
+const MAX_ROW_BYTES: u64 = 4096;
+
+/// The largest `trace.csv` a run of `study` can have, bytes: a header and a row per law and tick
+/// 0..=N + 1. Its readers (replay, export) stop there, whatever the file.
+pub fn max_bytes(study: &Study) -> u64 {
+    let laws = study.config.controller.laws.len() as u64;
+    let rows = laws.saturating_mul(study.reference.n as u64 + 2);
+    rows.saturating_add(1).saturating_mul(MAX_ROW_BYTES)
+}
+
+/// Where `law`'s rows are kept when its part could not be joined into `trace.csv` (a full
+/// disk): a CSV with the same header.
+pub fn trace_of(dir: &Path, law: Law) -> PathBuf {
+    dir.join(format!("trace.{law}.csv"))
+}
+
+/// Writes `trace.csv` in `dir` from the part files of `laws`, in order: the first part becomes the
+/// file (renamed, not copied: an hour-long trace is gigabytes, and a rename needs no free space),
+/// the others are appended without their header lines, and each part is removed once it is in.
+/// A missing part (the law never ran) adds no rows; with no part at all the file is the header
+/// alone.
+///
+/// A part that cannot be appended (a full disk) is cut off `trace.csv` again, so the file keeps
+/// the laws before it whole, and is renamed [`trace_of`] its law; the error names `trace.csv`
+/// and where those rows are.
+pub fn join_trace(dir: &Path, laws: &[Law]) -> Result<()> {
+    let path = dir.join("trace.csv");
+    let parts: Vec<(Law, PathBuf)> = laws
+        .iter()
+        .map(|&l| (l, trace_part(dir, l)))
+        .filter(|(_, p)| p.is_file())
+        .collect();
+    let Some(((_, first), rest)) = parts.split_first() else {
+        let mut line = header().join(",");
+        line.push('\n');
+        return super::write_text(&path, &line);
+    };
+    std::fs::rename(first, &path).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut out = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&path)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    let mut failed = Vec::new();
+    for (law, part) in rest {
+        if let Err(e) = append_part(&mut out, part) {
+            let kept = trace_of(dir, *law);
+            let at = match std::fs::rename(part, &kept) {
+                Ok(()) => kept,
+                Err(_) => part.clone(),
+            };
+            failed.push(format!(
+                "cannot append the rows of `{law}` to {} ({e:#}): they are in {}",
+                path.display(),
+                at.display()
+            ));
+        }
+    }
+    out.sync_all()
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    if failed.is_empty() {
+        return Ok(());
+    }
+    anyhow::bail!("{}", failed.join("; "))
+}
+
+/// Appends the rows of `part` (its header line skipped) to `out`, syncs them, and removes
+/// `part`; on failure `out` is cut back to its length before, and `part` is left as it was.
+fn append_part(out: &mut std::fs::File, part: &Path) -> Result<()> {
+    use std::io::{BufRead, Seek};
+    let before = out.seek(std::io::SeekFrom::End(0))?;
+    let mut r = std::io::BufReader::new(
+        std::fs::File::open(part).with_context(|| format!("cannot read {}", part.display()))?,
+    );
+    let mut head = String::new();
+    let copied = r
+        .read_line(&mut head)
+        .with_context(|| format!("cannot read {}", part.display()))
+        .and_then(|_| {
+            // On disk before the part is removed: a write error that only the sync reports
+            // (NFS, EIO) must leave the part in place.
+            std::io::copy(&mut r, out)
+                .and_then(|_| out.sync_data())
+                .map_err(anyhow::Error::from)
+        });
+    if let Err(e) = copied {
+        // Cutting frees what was written: the rows before stay whole, nothing is half there.
+        let _ = out.set_len(before);
+        return Err(e);
+    }
+    let _ = std::fs::remove_file(part);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// docs/guide/run-folder.md names every column, in the table's order, with its unit.
+    #[test]
+    fn the_docs_list_every_trace_column_in_order_with_its_unit() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/guide/run-folder.md");
+        let doc = std::fs::read_to_string(&path).unwrap();
+        let start = doc.find("- `trace.csv`").expect("the trace.csv entry");
+        let entry = &doc[start..start + doc[start..].find("\n- ").unwrap()];
+        let mut at = 0;
+        for c in &COLUMNS {
+            let token = if c.per_joint {
+                format!("`{}_j", c.name)
+            } else {
+                format!("`{}`", c.name)
+            };
+            let found = entry[at..]
+                .find(&token)
+                .unwrap_or_else(|| panic!("run-folder.md does not list {token} after byte {at}"));
+            at += found + token.len();
+            if c.per_joint {
+                at += entry[at..].find('`').map_or(0, |n| n + 1); // past the closing backtick
+            }
+            if !c.unit.is_empty() {
+                let next = entry[at..].find('`').map_or(entry.len(), |n| at + n);
+                assert!(
+                    entry[at..next].contains(c.unit),
+                    "run-folder.md: no unit {} by {token}",
+                    c.unit
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_header_has_one_field_per_column_and_joint() {
+        let h = header();
+        assert_eq!(h.len(), 3 + 9 * 3 + 3);
+        assert_eq!(&h[..4], ["law", "k", "t_s", "q_des_1"]);
+        assert_eq!(h.last().map(String::as_str), Some("arrival_ns"));
+    }
+}

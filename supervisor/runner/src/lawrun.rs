@@ -1,0 +1,127 @@
+//! One law's run as it is recorded: where its finished ticks go (the streaming metrics, its part
+//! of `trace.csv`, and, for figures of short runs, the records themselves) and what is left once
+//! it ends ([`LawRun`]). Every loop mode records through [`LawRecorder`].
+
+use anyhow::Result;
+use deltaloop_config::Law;
+use deltaloop_model::Vec3;
+use deltaloop_report::TraceWriter;
+use deltaloop_report::mcap::Live;
+use deltaloop_study::Study;
+use deltaloop_study::record::metrics::{LawMetrics, MetricsAcc};
+use deltaloop_study::record::{Recorder, RunEnd, TickRecord, TickSink};
+use deltaloop_study::reference::RefRow;
+use deltaloop_transport::wire::StateMsg;
+use std::path::PathBuf;
+
+/// What to keep of a law's ticks besides the metrics.
+#[derive(Clone, Debug, Default)]
+pub struct Keep {
+    /// Stream the rows to this part file of `trace.csv`.
+    pub trace: Option<PathBuf>,
+    /// Keep every record in memory (for figures; only for runs known to be short).
+    pub records: bool,
+    /// Write this MCAP file of the law while it records.
+    pub mcap: Option<PathBuf>,
+}
+
+/// The sinks of one law's ticks.
+pub struct RunSinks<'a> {
+    metrics: MetricsAcc<'a>,
+    trace: Option<TraceWriter>,
+    records: Option<Vec<TickRecord>>,
+    mcap: Option<Live>,
+    /// The first MCAP write error (the file then stops; the run and its trace go on).
+    mcap_error: Option<anyhow::Error>,
+}
+
+impl TickSink for RunSinks<'_> {
+    fn take(&mut self, r: &TickRecord, row: &RefRow, n_true: Option<Vec3>) {
+        self.metrics.push(r, row, n_true);
+        if let Some(t) = &mut self.trace {
+            t.write(r, row, n_true);
+        }
+        if let Some(v) = &mut self.records {
+            v.push(*r);
+        }
+        if let Some(m) = &mut self.mcap
+            && let Err(e) = m.take(r, row, n_true)
+        {
+            self.mcap_error = Some(e);
+            self.mcap = None;
+        }
+    }
+}
+
+impl RunSinks<'_> {
+    /// Whether [`Self::timing`] has anywhere to write.
+    pub fn wants_timing(&self) -> bool {
+        self.mcap.is_some()
+    }
+
+    /// Tick k's timing row (process modes), for the MCAP file.
+    pub fn timing(&mut self, cells: &[Option<u64>; 13]) {
+        if let Some(m) = &mut self.mcap
+            && let Err(e) = m.timing(cells)
+        {
+            self.mcap_error = Some(e);
+            self.mcap = None;
+        }
+    }
+}
+
+/// The recorder every loop mode fills for one law.
+pub type LawRecorder<'a> = Recorder<'a, RunSinks<'a>>;
+
+/// A recorder for `law` over the study, streaming to what `keep` asks for.
+pub fn recorder<'a>(study: &'a Study, law: Law, keep: &Keep) -> Result<LawRecorder<'a>> {
+    let reference = &study.reference;
+    let sinks = RunSinks {
+        metrics: MetricsAcc::new(law, reference.n, reference.ts, &study.robot, &study.params),
+        trace: keep
+            .trace
+            .as_deref()
+            .map(|p| TraceWriter::create(p, law))
+            .transpose()?,
+        records: keep.records.then(|| Vec::with_capacity(reference.n + 1)),
+        mcap: keep
+            .mcap
+            .as_deref()
+            .map(|p| Live::create(p, study, law))
+            .transpose()?,
+        mcap_error: None,
+    };
+    Ok(Recorder::new(law, reference, study.params.m_bar, sinks))
+}
+
+/// A finished run of one law.
+#[derive(Clone, Debug)]
+pub struct LawRun {
+    pub law: Law,
+    pub metrics: LawMetrics,
+    /// How the run ended.
+    pub end: RunEnd,
+    /// Every recorded tick, if [`Keep::records`] asked for them (else empty).
+    pub records: Vec<TickRecord>,
+}
+
+/// Ends the recording: closes the open ticks, flushes the trace part, computes the metrics.
+pub fn finish(rec: LawRecorder<'_>, after: Option<&StateMsg>) -> Result<LawRun> {
+    let (end, sinks) = rec.finish(after);
+    if let Some(t) = sinks.trace {
+        t.finish()?;
+    }
+    let metrics = sinks.metrics.finish(&end);
+    if let Some(e) = sinks.mcap_error {
+        return Err(e.context("the run's MCAP file"));
+    }
+    if let Some(m) = sinks.mcap {
+        m.finish(&serde_json::to_value(&metrics)?)?;
+    }
+    Ok(LawRun {
+        law: end.law,
+        metrics,
+        records: sinks.records.unwrap_or_default(),
+        end,
+    })
+}

@@ -1,0 +1,408 @@
+//! Spawning the pair: the children's commands and logs, each child reaped with its resource
+//! usage and killed on drop, and the process-tree check the control services rely on.
+
+use super::status::status_text;
+use super::{exe_dir, role};
+use crate::peer_text::{self, Tail};
+use anyhow::{Context, Result, bail};
+use deltaloop_config::{Law, LoopMode, RemoteSide, RunConfig};
+use deltaloop_transport::ipc;
+use deltaloop_transport::wire::Sender;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::Duration;
+
+/// A child process, reaped with its resource usage (wait4), and killed and reaped on drop, so
+/// no process outlives the run, whatever happens.
+pub(super) struct Reaped {
+    pub(super) child: Option<Child>,
+    pub(super) who: Sender,
+    pub(super) status: Option<ExitStatus>,
+    /// Its peak resident set size, KiB, once it has exited.
+    pub(super) peak_rss_kib: Option<u64>,
+}
+
+impl Reaped {
+    pub(super) fn new(child: Child, who: Sender) -> Self {
+        Self {
+            child: Some(child),
+            who,
+            status: None,
+            peak_rss_kib: None,
+        }
+    }
+
+    /// Its exit status, if it has exited (reaps it then).
+    pub(super) fn exited(&mut self) -> Option<ExitStatus> {
+        use std::os::unix::process::ExitStatusExt;
+        if self.status.is_none()
+            && let Some(c) = &self.child
+        {
+            let (mut st, mut ru) = (0i32, std::mem::MaybeUninit::<libc::rusage>::zeroed());
+            // SAFETY: waiting for our own child, without blocking; both pointers are valid.
+            let r = unsafe { libc::wait4(c.id() as i32, &mut st, libc::WNOHANG, ru.as_mut_ptr()) };
+            if r == c.id() as i32 {
+                self.status = Some(ExitStatus::from_raw(st));
+                // SAFETY: wait4 filled it (it returned the pid).
+                self.peak_rss_kib = Some(unsafe { ru.assume_init() }.ru_maxrss as u64);
+            }
+        }
+        self.status
+    }
+}
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        if self.exited().is_some() {
+            return;
+        }
+        let Some(pid) = self.child.as_ref().map(|c| c.id() as i32) else {
+            return;
+        };
+        // Ask politely first; then make sure.
+        // SAFETY: sending SIGTERM to our own child, which has not been reaped.
+        unsafe { libc::kill(pid, libc::SIGTERM) };
+        for _ in 0..200 {
+            if self.exited().is_some() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+/// The supervisor's own peak resident set size so far, KiB.
+pub(super) fn own_peak_rss_kib() -> u64 {
+    let mut ru = std::mem::MaybeUninit::<libc::rusage>::zeroed();
+    // SAFETY: getrusage fills the struct we own.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, ru.as_mut_ptr()) } != 0 {
+        return 0;
+    }
+    // SAFETY: filled by the successful call.
+    unsafe { ru.assume_init() }.ru_maxrss as u64
+}
+
+/// What to execute for one child: a program and the arguments that come before the standard
+/// ones.
+pub(super) struct Launch {
+    pub(super) program: PathBuf,
+    pub(super) args: Vec<String>,
+    /// The user's own command (not the built-in executable).
+    pub(super) custom: bool,
+}
+
+impl Launch {
+    /// The config's `command` if it has one, else the built-in `name` in `dir`.
+    pub(super) fn of(command: &[String], dir: &Path, name: &str) -> Self {
+        match command.split_first() {
+            Some((program, args)) => Self {
+                program: PathBuf::from(program),
+                args: args.to_vec(),
+                custom: true,
+            },
+            None => Self {
+                program: dir.join(name),
+                args: Vec::new(),
+                custom: false,
+            },
+        }
+    }
+
+    /// The command line as the user would type it.
+    pub(super) fn shown(&self) -> String {
+        std::iter::once(self.program.display().to_string())
+            .chain(self.args.iter().cloned())
+            .collect::<Vec<_>>()
+            .join(" ")
+    }
+}
+
+pub(super) fn spawn(
+    launch: &Launch,
+    args: &[String],
+    log: &Path,
+    who: Sender,
+    handoff: Option<&deltaloop_transport::handoff::End>,
+) -> Result<Reaped> {
+    let err =
+        std::fs::File::create(log).with_context(|| format!("cannot create {}", log.display()))?;
+    let mut cmd = Command::new(&launch.program);
+    // A near bridge (a remote run) gets the link key; no other child ever does.
+    crate::link_key::hand_key(
+        &mut cmd,
+        &launch.program,
+        launch.args.first().map(String::as_str),
+    );
+    cmd.args(&launch.args)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(err);
+    // Stopped in order by the supervisor, and by the kernel if the supervisor is killed
+    // outright (regression: a SIGKILLed supervisor left its plant running, a soak's up to 24 h).
+    deltaloop_transport::rt::die_with_parent(&mut cmd);
+    // Across two hosts: the near bridge and the loop process beside it share a private socket
+    // pair, over which the bridge may hand the link's socket on at START (the direct path).
+    if let Some(end) = handoff {
+        deltaloop_transport::handoff::inherit(&mut cmd, end);
+    }
+    let child = cmd.spawn().with_context(|| {
+        if launch.custom {
+            format!(
+                "cannot start the {} command `{}` ({}.command)",
+                role(who),
+                launch.shown(),
+                role(who)
+            )
+        } else {
+            format!(
+                "cannot start {} (expected next to deltaloop: build all binaries with `cargo build --release`)",
+                launch.program.display()
+            )
+        }
+    })?;
+    Ok(Reaped::new(child, who))
+}
+
+/// Whether process `pid` is `root` or one of its descendants (a child started through a wrapper
+/// script publishes from a grandchild of the supervisor), from `/proc/<pid>/stat`.
+pub(super) fn in_process_tree(pid: u32, root: u32) -> bool {
+    let mut p = pid;
+    // A process tree deeper than this is no wrapper of ours.
+    for _ in 0..32 {
+        if p == root {
+            return true;
+        }
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) else {
+            return false;
+        };
+        // `pid (comm) state ppid …`: comm may hold spaces and parentheses; ppid follows the last ')'.
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|v| v.parse::<u32>().ok());
+        match ppid {
+            Some(pp) if pp > 1 => p = pp,
+            _ => return false,
+        }
+    }
+    false
+}
+
+/// The two children of one run and their stderr logs.
+pub(super) struct Pair {
+    pub(super) plant: Reaped,
+    pub(super) controller: Reaped,
+    pub(super) logs: Logs,
+    /// The plant's and the controller's command lines, for messages.
+    pub(super) shown: (String, String),
+    /// Where a near bridge (one side across the link) writes the link's report: present once a
+    /// far side joined. None when both children are on this host.
+    pub(super) link_report: Option<PathBuf>,
+    /// What the controller called itself in its READY (its text; escaped, bounded), if anything.
+    pub(super) controller_label: Option<String>,
+}
+
+/// The children's stderr logs.
+#[derive(Clone)]
+pub(super) struct Logs {
+    pub(super) plant: PathBuf,
+    pub(super) controller: PathBuf,
+}
+
+impl Logs {
+    /// The last lines both children printed (at most [`peer_text::MAX_LINES`] each, read from
+    /// the end of their logs, sanitized; a first line says where earlier ones are).
+    pub(super) fn messages(&self) -> Vec<String> {
+        let mut m = Tail::read(&self.plant).last_lines(peer_text::MAX_LINES, &self.plant);
+        m.extend(Tail::read(&self.controller).last_lines(peer_text::MAX_LINES, &self.controller));
+        m
+    }
+
+    /// What each child said last, for a one-line error: `the plant: …; the controller: …`
+    /// (children that said nothing are left out).
+    pub(super) fn said(&self) -> String {
+        [("plant", &self.plant), ("controller", &self.controller)]
+            .iter()
+            .filter_map(|(who, p)| {
+                let r = Tail::read(p).reason();
+                (!r.is_empty())
+                    .then(|| format!("the {who}: {r} (log: {}){}", p.display(), slot_hint(&r)))
+            })
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+}
+
+impl Pair {
+    /// Starts both children with the run id, the resolved config and the mode: the built-in
+    /// executables next to `deltaloop`, or the config's `command`s in their place.
+    pub(super) fn spawn(
+        run_id: &str,
+        law: Law,
+        mode: LoopMode,
+        run_dir: &Path,
+        cfg: &RunConfig,
+    ) -> Result<Self> {
+        let exe = exe_dir()?;
+        let common = vec![
+            "--run-id".to_string(),
+            run_id.to_string(),
+            "--config".into(),
+            run_dir.join("config.toml").display().to_string(),
+            "--mode".into(),
+            mode.name().into(),
+        ];
+        let plant_log = run_dir.join(format!("{law}.plant.log"));
+        let ctrl_log = run_dir.join(format!("{law}.controller.log"));
+        let (pl, cl) = (
+            Launch::of(&cfg.plant.command, &exe, "deltaloop-plant"),
+            Launch::of(&cfg.controller.command, &exe, "deltaloop-controller"),
+        );
+        // One end for the near bridge (in the remote process's place), one for the process here.
+        let pair = match &cfg.link {
+            Some(_) => Some(deltaloop_transport::handoff::pair().context("a socket pair")?),
+            None => None,
+        };
+        let (for_plant, for_controller) = match (&cfg.link, &pair) {
+            (Some(l), Some((bridge, local))) if l.remote == RemoteSide::Controller => {
+                (Some(local), Some(bridge))
+            }
+            (Some(_), Some((bridge, local))) => (Some(bridge), Some(local)),
+            _ => (None, None),
+        };
+        let plant = spawn(&pl, &common, &plant_log, Sender::Plant, for_plant)?;
+        let mut ctrl_args = common;
+        ctrl_args.extend(["--law".to_string(), law.name().to_string()]);
+        let controller = spawn(
+            &cl,
+            &ctrl_args,
+            &ctrl_log,
+            Sender::Controller,
+            for_controller,
+        )?;
+        drop(pair);
+        Ok(Self {
+            plant,
+            controller,
+            logs: Logs {
+                plant: plant_log,
+                controller: ctrl_log,
+            },
+            shown: (pl.shown(), cl.shown()),
+            link_report: cfg.link.is_some().then(|| {
+                deltaloop_link_setup::LinkReport::path(&run_dir.join("config.toml"), run_id)
+            }),
+            controller_label: None,
+        })
+    }
+
+    /// How long the handshake may take: a run across the link waits for the far side to join
+    /// (the near bridge's own deadline, whose message is the more precise one) and then for it.
+    pub(super) fn handshake_timeout_ns(&self) -> u64 {
+        if self.link_report.is_some() {
+            ipc::START_TIMEOUT_NS
+        } else {
+            ipc::HANDSHAKE_TIMEOUT_NS
+        }
+    }
+
+    /// Fails, with the children's stderr, if either child has exited.
+    pub(super) fn check_alive(&mut self) -> Result<()> {
+        for child in [&mut self.plant, &mut self.controller] {
+            if let Some(status) = child.exited() {
+                let who = role(child.who);
+                let said = self.logs.said();
+                bail!(
+                    "{who} {} before the run started{}{said}",
+                    status_text(status),
+                    if said.is_empty() { "" } else { ": " }
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// For a run across the link, who had joined when a step timed out.
+    pub(super) fn far_side_note(&self) -> String {
+        far_side_note(self.link_report.as_deref())
+    }
+}
+
+/// What a peer's iceoryx2 error about publisher slots means here: the control services are one
+/// per sender (wire version 3), so a peer written for one shared `control` cannot open it.
+fn slot_hint(reason: &str) -> String {
+    if [
+        "DoesNotSupportRequestedAmountOfPublishers",
+        "ExceedsMaxSupportedPublishers",
+    ]
+    .iter()
+    .any(|e| reason.contains(e))
+    {
+        format!(
+            " — this run speaks deltaloop wire version {}: its control services are one per sender, each with one publisher (the plant publishes on `control-plant`, the controller on `control-controller`, both read `control`); a peer written for one shared `control` service must be updated (docs/protocol.md §2, §3)",
+            deltaloop_transport::wire::WIRE_VERSION
+        )
+    } else {
+        String::new()
+    }
+}
+
+/// Who had joined across the link, from the near bridge's report at `link_report` (empty when the
+/// run is not across a link).
+fn far_side_note(link_report: Option<&Path>) -> String {
+    let Some(path) = link_report else {
+        return String::new();
+    };
+    match deltaloop_link_setup::LinkReport::read(path) {
+        Some(r) => format!(
+            " (the far side {} had joined, link key {}: see its host's `join` output)",
+            r.peer, r.key_fingerprint
+        ),
+        None => " (no far side had joined)".into(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Regression: "never said READY within 30 s" when a far side had joined across the link
+    /// and then said nothing: the message now names it (and says so when none had joined).
+    #[test]
+    fn regression_a_far_side_that_joined_and_fell_silent_is_named() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = deltaloop_link_setup::LinkReport::path(&tmp.path().join("config.toml"), "r1");
+        assert_eq!(far_side_note(None), "");
+        assert_eq!(far_side_note(Some(&path)), " (no far side had joined)");
+        let r = deltaloop_link_setup::LinkReport {
+            peer: "10.0.0.2:40512".into(),
+            key_fingerprint: "ab12cd34".into(),
+            ..Default::default()
+        };
+        r.write(&path).unwrap();
+        let note = far_side_note(Some(&path));
+        assert!(
+            note.contains("far side 10.0.0.2:40512 had joined") && note.contains("ab12cd34"),
+            "{note}"
+        );
+    }
+
+    /// A child's control service is believed from the child or a process it started (a wrapper
+    /// script's child), never from another branch of the tree.
+    #[test]
+    fn a_process_belongs_to_its_own_tree_and_its_ancestors_not_to_others() {
+        let me = std::process::id();
+        // SAFETY: getppid has no preconditions.
+        let parent = unsafe { libc::getppid() } as u32;
+        assert!(in_process_tree(me, me));
+        assert!(in_process_tree(me, parent));
+        assert!(!in_process_tree(parent, me));
+        assert!(!in_process_tree(1, me));
+        assert!(!in_process_tree(u32::MAX, me), "no such process");
+    }
+}
