@@ -295,44 +295,83 @@ fn mcap_messages_need_no_supervisor() {
     );
 }
 
-/// Regression: the supervisor at opt-level 0 in release (9bb8da4) took the MCAP scene with it,
-/// and writing a tick's messages went from about 30 to 140 µs of the recording supervisor's CPU.
-/// The crates whose code runs every tick keep cargo's release opt-level (3): neither the release
-/// profile itself, nor its `"*"` section, nor a section of theirs (any iceoryx2 crate's) sets one.
+/// The build profiles, as a reader can hold them: fewer than 15 `[profile.*]` sections in
+/// Cargo.toml and `.cargo/config.toml` together; nothing at opt-level 0 in release (regression:
+/// the supervisor at opt-level 0 in release, 9bb8da4, took the MCAP scene with it, and writing a
+/// tick's messages went from about 30 to 140 µs of the recording supervisor's CPU; a cold
+/// dependency may sit at 1); and a per-package section names only a workspace crate or a
+/// dependency a workspace crate names itself, so an update of a dependency cannot orphan it.
 #[test]
-fn per_tick_crates_stay_optimised_in_release() {
-    let manifest = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/Cargo.toml"))
-        .expect("the workspace manifest");
-    let per_tick = |section: &str| {
-        let Some(name) = section.strip_prefix("[profile.release.package.") else {
-            return section == "[profile.release]";
-        };
-        let name = name.trim_end_matches(']').trim_matches('"');
-        name == "*"
-            || name.starts_with("iceoryx2")
-            || [
-                "deltaloop-mcap",
-                "deltaloop-study",
-                "deltaloop-baseline",
-                "deltaloop-model",
-                "deltaloop-law",
-                "deltaloop-plant",
-                "deltaloop-controller",
-                "deltaloop-peer",
-            ]
-            .contains(&name)
-    };
-    let mut section = String::new();
-    for line in manifest.lines().map(str::trim) {
-        if line.starts_with('[') {
-            section = line.to_string();
-        } else if line.starts_with("opt-level") {
-            assert!(
-                !per_tick(&section),
-                "`{line}` under {section} in Cargo.toml: the per-tick crates keep opt-level 3"
-            );
+fn profiles_are_few_optimised_in_release_and_name_direct_dependencies() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let manifest =
+        std::fs::read_to_string(root.join("Cargo.toml")).expect("the workspace manifest");
+    let config = std::fs::read_to_string(root.join(".cargo/config.toml")).unwrap_or_default();
+    let mut sections = Vec::new();
+    let mut release_zero = Vec::new();
+    for text in [&manifest, &config] {
+        let mut section = String::new();
+        for line in text.lines().map(str::trim) {
+            if line.starts_with("[profile.") {
+                section = line.to_string();
+                sections.push(section.clone());
+            } else if line.starts_with('[') {
+                section.clear();
+            } else if section.starts_with("[profile.release")
+                && line.replace(' ', "").starts_with("opt-level=0")
+            {
+                release_zero.push(section.clone());
+            }
         }
     }
+    assert!(
+        sections.len() < 15,
+        "{} profile sections: {sections:#?}",
+        sections.len()
+    );
+    assert!(
+        release_zero.is_empty(),
+        "opt-level 0 in release: {release_zero:?}"
+    );
+    // What the workspace names: its members and their direct dependencies.
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = Command::new(cargo)
+        .args([
+            "metadata",
+            "--offline",
+            "--locked",
+            "--no-deps",
+            "--format-version",
+            "1",
+        ])
+        .current_dir(root)
+        .output()
+        .expect("cargo metadata");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let mut named: Vec<String> = Vec::new();
+    for p in meta["packages"].as_array().unwrap() {
+        named.push(p["name"].as_str().unwrap().to_string());
+        for d in p["dependencies"].as_array().unwrap() {
+            named.push(d["name"].as_str().unwrap().to_string());
+        }
+    }
+    let orphans: Vec<&String> = sections
+        .iter()
+        .filter_map(|s| {
+            let name = s.split(".package.").nth(1)?;
+            let name = name.trim_end_matches(']').trim_matches('"');
+            (name != "*" && !named.iter().any(|n| n == name)).then_some(s)
+        })
+        .collect();
+    assert!(
+        orphans.is_empty(),
+        "sections naming crates the workspace does not depend on directly: {orphans:?}"
+    );
 }
 
 /// The module a source file is (`a::b::c` from `src/a/b/c.rs` or `src/a/b/c/mod.rs`), and the

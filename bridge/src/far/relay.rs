@@ -158,7 +158,7 @@ impl FarLink {
 
     /// Says, here and in the run's log on the other host, at START, which path the process took:
     /// the link's socket (its datagrams go to and from it directly), or this side's relay.
-    pub(super) fn say_path(&mut self) -> Result<()> {
+    fn say_path(&mut self) -> Result<()> {
         let what = self.child.what;
         let line = if self.direct {
             format!(
@@ -410,7 +410,7 @@ impl FarPlant {
     }
 
     /// The plant's control messages and telemetry out over TCP (reliable, in order).
-    pub(super) fn plant_out(&mut self, l: &mut FarLink) -> Result<()> {
+    fn plant_out(&mut self, l: &mut FarLink) -> Result<()> {
         while let Some(s) = self
             .ports
             .control_in

@@ -172,12 +172,12 @@ impl NearPlant {
     }
 
     /// Publishes the states' copies whose datagram is lost (see `copies`); drops the others.
-    pub(super) fn settle_copies(&mut self) -> Result<()> {
+    fn settle_copies(&mut self) -> Result<()> {
         self.settle_copies_until(rt::now_ns().saturating_sub(self.hold_ns))
     }
 
     /// [`Self::settle_copies`], taking a copy that arrived before `due` (ns) for lost.
-    pub(super) fn settle_copies_until(&mut self, due: u64) -> Result<()> {
+    fn settle_copies_until(&mut self, due: u64) -> Result<()> {
         let ports = (&self.ports.state, &self.ports.state_ready);
         while let Some(&(at, s)) = self.copies.front() {
             if self.host.published(s.tick) {
@@ -197,7 +197,7 @@ impl NearPlant {
     /// The far side went silent while the loop ran: the far plant's own rules stop it there
     /// (it brakes to a safe stop). Releases the controller here with a final state (as the plant
     /// would) and ends with a fault saying what is known.
-    pub(super) fn link_lost(&mut self) -> Result<(u8, Option<String>)> {
+    fn link_lost(&mut self) -> Result<(u8, Option<String>)> {
         let last = self.host.last_state;
         self.release()?;
         let after = last.map_or("before tick 0".into(), |s| format!("after tick {}", s.tick));

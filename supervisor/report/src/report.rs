@@ -235,17 +235,11 @@ fn header(s: &mut String, cfg: &RunConfig, p: &ControllerParams, mode: LoopMode,
     );
     let _ = writeln!(
         s,
-        "Scenario `{:?}`, preset `{}` (M̄ = {} kg m², K_p = {}, K_d = {}, K_s = {}, φ = {} rad/s, k1 = {}, k2 = {}), \
+        "Scenario `{:?}`, preset `{}` ({}; SI units, docs/controllers.md), \
          friction {}, τ_max = {} N m, Ts = {} ms, TDE delay ℓ = {}, mode `{mode}`.\n",
         cfg.scenario.path,
         cfg.controller.preset.name(),
-        p.m_bar,
-        p.kp,
-        p.kd,
-        p.ks,
-        p.phi,
-        p.k1,
-        p.k2,
+        gains_text(p),
         if cfg.plant.friction { "on" } else { "off" },
         cfg.plant.tau_max_nm,
         cfg.loop_.ts_s * 1e3,
@@ -632,9 +626,38 @@ fn limit_cycles(s: &mut String, metrics: &[LawMetrics]) {
     }
 }
 
+/// Every controller constant by its config key (`m_bar = 0.03, kp = 1800, …`), from the one list
+/// of gains, so a new gain is in every report without a word written here.
+fn gains_text(p: &ControllerParams) -> String {
+    p.named()
+        .iter()
+        .map(|(k, v)| format!("{k} = {v}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression: the header named seven of the ten constants and left the PID gains out. It
+    /// lists every one, by its config key, with the value the run used.
+    #[test]
+    fn regression_the_header_names_every_controller_constant() {
+        let cfg = RunConfig::from_file(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../configs/s1-nominal.toml"
+        )))
+        .unwrap();
+        let mut p = cfg.controller_params();
+        p.pid_i = 12345.5;
+        let mut s = String::new();
+        header(&mut s, &cfg, &p, LoopMode::Inproc, "deltaloop run");
+        for (k, v) in p.named() {
+            assert!(s.contains(&format!("{k} = {v}")), "{k} missing: {s}");
+        }
+        assert!(s.contains("pid_i = 12345.5"), "{s}");
+    }
 
     /// The plant's torque budget runs from the state's publication (`until = t_publish + budget`
     /// in the plant's run loop), not from the tick's deadline; the report must say so.

@@ -2,12 +2,11 @@
 //! for sweeps split over machines.
 
 use super::{Context, OutArgs};
-use crate::ops::sweep::plan::{self, Plan, Selection};
-use crate::ops::sweep::{self as ops, Row, merge, shard};
-use crate::record::RunStatus;
+use crate::ops::sweep::plan::Selection;
+use crate::ops::sweep::tasks;
 use anyhow::Result;
 use clap::Subcommand;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
@@ -67,80 +66,14 @@ enum Action {
     },
 }
 
-/// `N points in T s: … ok, … diverged, …` (and the runs, when points repeat).
-fn counts(rows: &[Row], secs: f64) -> String {
-    let n = |st: RunStatus| rows.iter().filter(|r| r.status == st).count();
-    // An interrupted point is not a run that finished: counted apart, when there is one.
-    let interrupted = n(RunStatus::Interrupted);
-    let runs: u64 = rows
-        .iter()
-        .filter(|r| r.status != RunStatus::Interrupted)
-        .map(|r| u64::from(r.repeats))
-        .sum();
-    let points = rows.len() - interrupted;
-    format!(
-        "{points} points{} in {secs:.1} s: {} ok, {} diverged, {} stopped, {} errors{}{}",
-        if runs as usize == points {
-            String::new()
-        } else {
-            format!(" ({runs} runs)")
-        },
-        n(RunStatus::Ok),
-        n(RunStatus::Diverged),
-        n(RunStatus::Fault) + n(RunStatus::Stopped),
-        n(RunStatus::Error),
-        match n(RunStatus::LostData) {
-            0 => String::new(),
-            l => format!(", {l} lost data"),
-        },
-        if interrupted > 0 {
-            format!(" ({interrupted} interrupted, not counted)")
-        } else {
-            String::new()
-        },
-    )
-}
-
 /// `deltaloop sweep …`.
 pub fn exec(a: Args, cx: &Context) -> Result<()> {
-    let t0 = std::time::Instant::now();
-    match a.action {
+    let said = match a.action {
         None => {
             let sweep = a.sweep.expect("clap requires the sweep file");
-            let (sw, base) = ops::load(&sweep)?;
-            let out = a
-                .out
-                .out
-                .unwrap_or_else(|| crate::output::default_run_dir(&format!("sweep-{}", sw.name)));
-            let _folder = crate::output::RunFolder::claim_apart(
-                &out,
-                a.out.force,
-                &[(&sweep, "the sweep file")],
-            )?;
-            let rows = ops::run_loaded(&sw, &base, &sweep, &out, cx.tty)?;
-            println!(
-                "{}\nsweep folder: {}",
-                counts(&rows, t0.elapsed().as_secs_f64()),
-                out.display()
-            );
-            Ok(())
+            tasks::run_here(&sweep, a.out.out, a.out.force, cx.tty)?
         }
-        Some(Action::Plan { sweep, json }) => {
-            let (sw, base) = ops::load(&sweep)?;
-            let plan = Plan::new(sw, base)?;
-            // Every point is checked here, once, before a cluster runs any.
-            plan.check_points(&(0..plan.points.len()).collect::<Vec<_>>())?;
-            let shown = sweep.display().to_string();
-            use std::io::Write;
-            let text = if json {
-                plan.to_json(&shown)? + "\n"
-            } else {
-                plan.to_text(&shown)
-            };
-            // A closed pipe (`| head`) is not an error worth a panic.
-            let _ = std::io::stdout().lock().write_all(text.as_bytes());
-            Ok(())
-        }
+        Some(Action::Plan { sweep, json }) => tasks::plan_text(&sweep, json)?,
         Some(Action::Run {
             sweep,
             points,
@@ -148,91 +81,31 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
             base,
             jobs,
             out: OutArgs { out, force },
-        }) => {
-            let (sw, base) = ops::load_with_base(&sweep, base.as_deref())?;
-            let plan = Plan::new(sw, base)?;
-            let sel = points.or(shard).unwrap_or(Selection::All);
-            let idx = sel.indices(plan.points.len())?;
-            plan.check_points(&idx)?;
-            let out = out.unwrap_or_else(|| {
-                crate::output::default_run_dir(&format!("sweep-{}-shard", plan.sweep.name))
-            });
-            let _folder =
-                crate::output::RunFolder::claim_apart(&out, force, &[(&sweep, "the sweep file")])?;
-            let jobs = jobs.map_or_else(
-                || std::thread::available_parallelism().map_or(1, |n| n.get()),
-                |j| j as usize,
-            );
-            let rows = shard::run(
-                &plan,
-                &idx,
-                &sweep.display().to_string(),
-                &out,
-                jobs,
-                cx.tty,
-            )?;
-            if crate::loops::signals::interrupted() {
-                return Err(anyhow::Error::new(crate::ops::run::Interrupted(out)));
-            }
-            println!(
-                "{} of {} points of plan {}: {}\nshard folder: {}",
-                idx.len(),
-                plan.points.len(),
-                plan.short_hash(),
-                counts(&rows, t0.elapsed().as_secs_f64()),
-                out.display()
-            );
-            Ok(())
-        }
+        }) => tasks::run_shard(tasks::ShardRun {
+            sweep: &sweep,
+            selection: points.or(shard),
+            base: base.as_deref(),
+            jobs,
+            out,
+            force,
+            progress: cx.tty,
+        })?,
         Some(Action::Merge {
             dirs,
             out: OutArgs { out, force },
             allow_missing,
         }) => {
             let out = out.expect("clap requires --out");
-            merge_cmd(&dirs, &out, force, allow_missing, t0)
+            tasks::merge_shards(&dirs, &out, force, allow_missing)?
         }
-    }
-}
-
-fn merge_cmd(
-    dirs: &[PathBuf],
-    out: &Path,
-    force: bool,
-    allow_missing: bool,
-    t0: std::time::Instant,
-) -> Result<()> {
-    let opts = merge::Options {
-        allow_missing,
-        interrupted: false,
     };
-    // Everything is read and checked before the output folder is made.
-    let m = merge::gather(dirs, opts)?;
-    // Not a shard, nor a folder holding one or inside one: a merge never empties its input.
-    let shards: Vec<(&Path, &str)> = dirs.iter().map(|d| (d.as_path(), "shard folder")).collect();
-    let _folder = crate::output::RunFolder::claim_apart(out, force, &shards)?;
-    merge::write(&m.plan, &m.rows, &m.missing, &m.sweep_file, out, opts)?;
-    for d in dirs {
-        merge::copy_points(d, out)?;
-    }
-    println!(
-        "merged {} shard folder(s), {} of {} points of plan {}: {}\nsweep folder: {}",
-        dirs.len(),
-        m.rows.len(),
-        m.plan.points.len(),
-        m.plan.short_hash(),
-        counts(&m.rows, t0.elapsed().as_secs_f64()),
-        out.display()
-    );
-    if !m.missing.is_empty() {
-        anyhow::bail!(
-            "{} of {} points missing (listed in {}): re-run them with `deltaloop sweep run {} --points {}`",
-            m.missing.len(),
-            m.plan.points.len(),
-            out.join("report.md").display(),
-            m.sweep_file,
-            plan::ranges_text(&m.missing)
-        );
-    }
+    // A closed pipe (`sweep plan | head`) is not an error worth a panic.
+    use std::io::Write;
+    let said = if said.ends_with('\n') {
+        said
+    } else {
+        said + "\n"
+    };
+    let _ = std::io::stdout().lock().write_all(said.as_bytes());
     Ok(())
 }

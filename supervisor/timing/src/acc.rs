@@ -5,7 +5,7 @@ use deltaloop_config::RemoteSide;
 
 /// Ticks held back by [`TimingAcc`] at most while it cannot yet tell whether they belong to the
 /// loop (after the last telemetry so far) or to its end.
-pub(super) const PENDING_MAX: usize = 4096;
+const PENDING_MAX: usize = 4096;
 
 /// One tick as the supervisor saw it: each message, if it saw it.
 #[derive(Clone, Copy, Debug, Default)]
@@ -18,17 +18,17 @@ pub struct Seen {
 
 /// The interval logs of a run's distributions, `<prefix><name>.hlog`: one interval per second of
 /// run time (tick k is at k·Ts), created at the first tick (their base time is tick 0's).
-pub(super) struct Hlogs {
+struct Hlogs {
     pub(super) dir: PathBuf,
     pub(super) prefix: String,
     /// In the order of [`Timing::dists`].
-    pub(super) writers: Option<Vec<HlogWriter>>,
+    writers: Option<Vec<HlogWriter>>,
 }
 
 impl Hlogs {
     /// The writers, created at the first call: tick `k`, whose deadline (CLOCK_MONOTONIC, ns) is
     /// `deadline_ns` if known, dates the base time.
-    pub(super) fn writers(
+    fn writers(
         &mut self,
         t: &Timing,
         k: u64,
@@ -64,14 +64,14 @@ pub struct TimingAcc {
     pub(super) n: u64,
     pub(super) ts_ns: u64,
     pub(super) realtime: bool,
-    pub(super) prev_wake: Option<u64>,
+    prev_wake: Option<u64>,
     /// Ticks after the last loop telemetry so far.
-    pub(super) pending: Vec<Seen>,
+    pending: Vec<Seen>,
     /// One past the last tick with loop telemetry.
     pub(super) reached: u64,
     /// The last tick counted.
     pub(super) last: Option<u64>,
-    pub(super) hlogs: Option<Hlogs>,
+    hlogs: Option<Hlogs>,
     /// The host's steal, sampled while the loop runs (realtime process runs).
     pub(super) steal: Option<StealLog>,
 }
@@ -161,7 +161,7 @@ impl TimingAcc {
     }
 
     /// Counts tick k as part of the loop: its histograms, timeline bin and interval logs.
-    pub(super) fn commit(&mut self, seen: &Seen) -> Result<()> {
+    fn commit(&mut self, seen: &Seen) -> Result<()> {
         let lat = self.tally(seen);
         let v = lat.in_order();
         let t = &mut self.t;
@@ -214,7 +214,7 @@ impl TimingAcc {
     }
 
     /// Counts tick k in the counters and returns its latencies (see [`TimingAcc::commit`]).
-    pub(super) fn tally(&mut self, seen: &Seen) -> TickLatencies {
+    fn tally(&mut self, seen: &Seen) -> TickLatencies {
         let mut v = TickLatencies::default();
         let t = &mut self.t;
         let (s, q, m) = (seen.state, seen.torque, seen.tel);

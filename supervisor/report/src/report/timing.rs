@@ -135,11 +135,7 @@ pub(super) fn counts(s: &mut String, metrics: &[LawMetrics], timing: &[Option<Ti
 }
 
 /// Who joined each law's link, and what it refused.
-pub(super) fn link_security(
-    s: &mut String,
-    metrics: &[LawMetrics],
-    timing: &[Option<TimingSummary>],
-) {
+fn link_security(s: &mut String, metrics: &[LawMetrics], timing: &[Option<TimingSummary>]) {
     for (m, t) in metrics.iter().zip(timing) {
         if let Some(r) = t.as_ref().and_then(|t| t.link_security.as_ref()) {
             let _ = writeln!(
@@ -157,7 +153,7 @@ pub(super) fn link_security(
 }
 
 /// The latency figures: what they show, and each law's pair.
-pub(super) fn latency_figures(
+fn latency_figures(
     s: &mut String,
     mode: LoopMode,
     metrics: &[LawMetrics],
@@ -193,7 +189,7 @@ pub(super) fn latency_figures(
 }
 
 /// Pauses listed per law in the report (all are in `summary.json`, up to its own limit).
-pub(super) const PAUSES_SHOWN: usize = 8;
+const PAUSES_SHOWN: usize = 8;
 
 /// The [`PAUSES_SHOWN`] longest pauses, in tick order (regression: the report showed the first
 /// eight, so a 30 ms stall after eight sub-millisecond ones of a busy host was not in it).
@@ -209,7 +205,7 @@ fn longest_in_tick_order(
 
 /// The realtime plant's own stalls: the policy, each law's real-time factor, its pauses of
 /// simulated time and whether its record says the machine disturbed it.
-pub(super) fn overrun_markdown(
+fn overrun_markdown(
     cfg: &RunConfig,
     metrics: &[LawMetrics],
     timing: &[Option<TimingSummary>],

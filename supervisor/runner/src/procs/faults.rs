@@ -13,7 +13,7 @@ use std::path::Path;
 use std::process::ExitStatus;
 
 /// The line of a child's log that says why it stopped (see [`peer_text::reason`]).
-pub(super) fn last_line(path: &Path) -> String {
+fn last_line(path: &Path) -> String {
     Tail::read(path).reason()
 }
 
@@ -56,7 +56,7 @@ pub(super) fn fault_cause(
     silence_timeout_ms: u32,
 ) -> Option<Fault> {
     let (plant, ctrl) = (ending.plant, ending.controller);
-    let (plant_log, ctrl_log) = (&pair.logs.plant, &pair.logs.controller);
+    let (plant_log, ctrl_log) = pair.logs().paths();
     let ok = |s: Option<ExitStatus>| s.is_some_and(|s| s.success());
     let (last_torque, last_tel) = (streams.last_torque, streams.last_tel);
     // A plant that exits 0 has finished the run: the final state N + 1 says so. Without it (and

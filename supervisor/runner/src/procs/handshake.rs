@@ -20,7 +20,6 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::header::payload_header::PayloadHeader;
 use std::cell::Cell;
-use std::process::Child;
 use std::time::Duration;
 
 /// What one child says, on its own control service, believed only from that child: the first
@@ -28,14 +27,14 @@ use std::time::Duration;
 /// only that publisher is heard. The service has one publisher slot, so once the child holds it
 /// no other process can publish there; if another process took it first, the run is refused.
 pub(super) struct ControlIn {
-    pub(super) sub: Subscriber<Svc, ControlMsg, ()>,
+    sub: Subscriber<Svc, ControlMsg, ()>,
     pub(super) who: Sender,
     /// The child's pid, once it is spawned.
     pub(super) root: Cell<Option<u32>>,
     /// The child's publisher, once its first message proved it.
     pub(super) publisher: Cell<Option<iceoryx2::identifiers::UniquePublisherId>>,
     /// The first process not the child's that published here (pid; 0 if its pid is unknown).
-    pub(super) intruder: Cell<Option<u32>>,
+    intruder: Cell<Option<u32>>,
 }
 
 impl ControlIn {
@@ -94,7 +93,7 @@ impl ControlIn {
     }
 
     /// One line about a process that published on this child's service, if one did.
-    pub(super) fn intrusion(&self) -> Option<String> {
+    fn intrusion(&self) -> Option<String> {
         let pid = self.intruder.get()?;
         let who = role(self.who);
         Some(format!(
@@ -149,12 +148,9 @@ impl Observer {
 
     /// The children's pids: from now on their control services are believed only from them.
     pub(super) fn trust(&self, pair: &Pair) {
-        for (c, child) in [
-            (&self.from_plant, &pair.plant),
-            (&self.from_controller, &pair.controller),
-        ] {
-            c.root.set(child.child.as_ref().map(Child::id));
-        }
+        let (plant, controller) = pair.pids();
+        self.from_plant.root.set(plant);
+        self.from_controller.root.set(controller);
     }
 
     /// The next message of either child (the plant's first).
@@ -184,7 +180,7 @@ impl Observer {
 /// Polls the control channel until `done` says a handshake step is complete (Ok(true)), failing
 /// (with the children's stderr) if a child exits first or the handshake timeout passes. Ok(false)
 /// if Ctrl-C / SIGTERM / SIGHUP arrived first.
-pub(super) fn await_control(
+fn await_control(
     obs: &Observer,
     pair: &mut Pair,
     step: &dyn Fn() -> String,
@@ -206,7 +202,7 @@ pub(super) fn await_control(
         }
         pair.check_alive()?;
         if rt::now_ns() > deadline {
-            let said = pair.logs.said();
+            let said = pair.logs().said();
             bail!(
                 "{}{} within {} s{}{said}",
                 step(),
@@ -227,7 +223,7 @@ pub(super) fn handshake(
     pair: &mut Pair,
     study: &Study,
 ) -> Result<bool> {
-    let pair_shown = pair.shown.clone();
+    let pair_shown = pair.shown().clone();
     let ready_from = [std::cell::Cell::new(false), std::cell::Cell::new(false)];
     let mut label = None;
     let silent = || {
@@ -259,7 +255,7 @@ pub(super) fn handshake(
     if !ready {
         return Ok(false);
     }
-    pair.controller_label = label;
+    pair.said_label(label);
     feed.send_initial(&study.reference)?;
     let unarmed = || {
         format!(
@@ -288,14 +284,12 @@ pub(super) fn stopped_before_start(
     obs.stop();
     // A child that had not subscribed yet misses STOP: dropping the pair sends it SIGTERM.
     let end = rt::now_ns() + 200_000_000;
-    while (pair.plant.exited().is_none() || pair.controller.exited().is_none())
-        && rt::now_ns() < end
-    {
+    while matches!(pair.exited(), (None, _) | (_, None)) && rt::now_ns() < end {
         std::thread::sleep(Duration::from_millis(2));
     }
     // Read the logs after the children are gone, so their last lines are in.
-    let logs = pair.logs.clone();
-    let controller_label = pair.controller_label.take();
+    let logs = pair.logs().clone();
+    let controller_label = pair.take_label();
     drop(pair);
     let child_messages = logs.messages();
     let mut rec = lawrun::recorder(study, law, keep)?;

@@ -134,7 +134,7 @@ pub fn run_law(
     obs.control.send_copy(start).ipc("send START")?;
 
     let ending = observe(&obs, &mut feed, &mut pair, study, &mut streams)?;
-    let mut child_messages = pair.logs.messages();
+    let mut child_messages = pair.logs().messages();
     child_messages.extend(
         obs.intrusions()
             .into_iter()
@@ -150,8 +150,8 @@ pub fn run_law(
             study.config.loop_.silence_timeout_ms,
         )
     };
-    let (plant_rss, ctrl_rss) = (pair.plant.peak_rss_kib, pair.controller.peak_rss_kib);
-    let controller_label = pair.controller_label.take();
+    let (plant_rss, ctrl_rss) = pair.peak_rss_kib();
+    let controller_label = pair.take_label();
     drop(pair);
     // A child killed by a signal leaves its iceoryx2 node behind: the surviving supervisor
     // removes it now (and says so) rather than leaving it to the next run.

@@ -19,11 +19,11 @@ use std::time::Duration;
 use super::OnTick;
 
 /// Ticks the observer holds open at most (a ring indexed by tick).
-pub(super) const WINDOW: u64 = 32_768;
+const WINDOW: u64 = 32_768;
 
 /// A tick is finished once the loop has been seen this far past it (2.5 s at Ts = 0.3 ms): a
 /// reply up to that late is still filed with its tick (and shows as late).
-pub(super) const LAG: u64 = 8_192;
+const LAG: u64 = 8_192;
 
 /// The open ticks, a ring of [`WINDOW`] slots.
 pub(super) struct Window {
@@ -88,7 +88,7 @@ pub(super) struct Observation<'a> {
     pub(super) csv: Option<TimingCsv>,
     /// The last tick with a loop message (state, reply, or telemetry of the loop, not of the
     /// safe stop after it).
-    pub(super) last_seen: Option<u64>,
+    last_seen: Option<u64>,
     /// The newest reply seen (the controller has answered up to its tick).
     pub(super) last_torque: Option<TorqueMsg>,
     /// The newest telemetry of the loop seen.
@@ -99,14 +99,14 @@ pub(super) struct Observation<'a> {
     pub(super) diverged: Option<PlantSaid>,
     /// The first tick since the last complete one that was not complete: a loss if the loop
     /// shows up again later, else where the run ended.
-    pub(super) gap: Option<u64>,
+    gap: Option<u64>,
     /// The recorder stopped (the divergence rule).
     pub(super) stopped: bool,
     /// The first tick whose reply carried a non-finite torque: the run diverged there (the
     /// recorder will say so when it gets to it), so the loop is stopped now, not 2.5 s later.
-    pub(super) non_finite: Option<u64>,
+    non_finite: Option<u64>,
     /// Replies for a tick that already had one (only the first is kept: the plant applies it).
-    pub(super) duplicate_replies: u64,
+    duplicate_replies: u64,
     /// The tick of the first state with `STATE_FINAL` (N + 1 after a complete run).
     pub(super) final_tick: Option<u64>,
     /// The state after the last tick, N + 1.
@@ -115,7 +115,7 @@ pub(super) struct Observation<'a> {
     pub(super) on_tick: Option<OnTick<'a>>,
     /// Ticks whose replies the near bridge of a remote controller said may have been lost on
     /// the link (REPLIES_LOST: first..=last), not yet finished; at most [`LOST_RANGES`].
-    pub(super) replies_lost: std::collections::VecDeque<(u64, u64)>,
+    replies_lost: std::collections::VecDeque<(u64, u64)>,
 }
 
 /// Ranges of REPLIES_LOST held at once; more are merged into the last (it only widens what is
@@ -132,7 +132,7 @@ pub(super) struct PlantSaid {
     pub(super) kind: ControlKind,
 }
 
-pub(super) fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
+fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
     Some(a.map_or(b, |a| a.max(b)))
 }
 
@@ -260,7 +260,7 @@ impl<'a> Observation<'a> {
     /// REPLIES_LOST for ticks `first..=last`: those not yet finished are recorded with their
     /// reply unknown; those finished already (the message came too late for their rows) are
     /// counted all the same, so the run is not called whole.
-    pub(super) fn replies_lost(&mut self, first: u64, last: u64) {
+    fn replies_lost(&mut self, first: u64, last: u64) {
         let last = last.min(self.window.last.saturating_sub(1));
         if first > last {
             return;
@@ -294,7 +294,7 @@ impl<'a> Observation<'a> {
     }
 
     /// One finished tick to the timing file, the histograms and the recorder.
-    pub(super) fn finish_tick(&mut self, seen: Seen) -> Result<()> {
+    fn finish_tick(&mut self, seen: Seen) -> Result<()> {
         if let Some(csv) = &mut self.csv {
             csv.write(&seen)?;
         }
@@ -466,7 +466,7 @@ pub(super) fn observe(
         if let Some(a) = streams.answered() {
             feed.feed(&study.reference, a)?;
         }
-        let (p, c) = (pair.plant.exited(), pair.controller.exited());
+        let (p, c) = pair.exited();
         let now = rt::now_ns();
         if first_exit.is_none() {
             first_exit = match (p.is_some(), c.is_some()) {
@@ -508,9 +508,10 @@ pub(super) fn observe(
     }
     streams.timing.sample_steal(rt::now_ns(), true);
     streams.drain(obs)?;
+    let (plant, controller) = pair.exited();
     Ok(Ending {
-        plant: pair.plant.exited(),
-        controller: pair.controller.exited(),
+        plant,
+        controller,
         first_exit,
         interrupted: stop_sent.is_some() && !diverged_stop,
         diverged_stop,

@@ -15,15 +15,15 @@ use std::time::Duration;
 /// A child process, reaped with its resource usage (wait4), and killed and reaped on drop, so
 /// no process outlives the run, whatever happens.
 pub(super) struct Reaped {
-    pub(super) child: Option<Child>,
-    pub(super) who: Sender,
-    pub(super) status: Option<ExitStatus>,
+    child: Option<Child>,
+    who: Sender,
+    status: Option<ExitStatus>,
     /// Its peak resident set size, KiB, once it has exited.
-    pub(super) peak_rss_kib: Option<u64>,
+    peak_rss_kib: Option<u64>,
 }
 
 impl Reaped {
-    pub(super) fn new(child: Child, who: Sender) -> Self {
+    fn new(child: Child, who: Sender) -> Self {
         Self {
             child: Some(child),
             who,
@@ -33,7 +33,7 @@ impl Reaped {
     }
 
     /// Its exit status, if it has exited (reaps it then).
-    pub(super) fn exited(&mut self) -> Option<ExitStatus> {
+    fn exited(&mut self) -> Option<ExitStatus> {
         use std::os::unix::process::ExitStatusExt;
         if self.status.is_none()
             && let Some(c) = &self.child
@@ -88,16 +88,16 @@ pub(super) fn own_peak_rss_kib() -> u64 {
 
 /// What to execute for one child: a program and the arguments that come before the standard
 /// ones.
-pub(super) struct Launch {
-    pub(super) program: PathBuf,
-    pub(super) args: Vec<String>,
+struct Launch {
+    program: PathBuf,
+    args: Vec<String>,
     /// The user's own command (not the built-in executable).
-    pub(super) custom: bool,
+    custom: bool,
 }
 
 impl Launch {
     /// The config's `command` if it has one, else the built-in `name` in `dir`.
-    pub(super) fn of(command: &[String], dir: &Path, name: &str) -> Self {
+    fn of(command: &[String], dir: &Path, name: &str) -> Self {
         match command.split_first() {
             Some((program, args)) => Self {
                 program: PathBuf::from(program),
@@ -113,7 +113,7 @@ impl Launch {
     }
 
     /// The command line as the user would type it.
-    pub(super) fn shown(&self) -> String {
+    fn shown(&self) -> String {
         std::iter::once(self.program.display().to_string())
             .chain(self.args.iter().cloned())
             .collect::<Vec<_>>()
@@ -121,7 +121,7 @@ impl Launch {
     }
 }
 
-pub(super) fn spawn(
+fn spawn(
     launch: &Launch,
     args: &[String],
     log: &Path,
@@ -195,26 +195,31 @@ pub(super) fn in_process_tree(pid: u32, root: u32) -> bool {
 
 /// The two children of one run and their stderr logs.
 pub(super) struct Pair {
-    pub(super) plant: Reaped,
-    pub(super) controller: Reaped,
-    pub(super) logs: Logs,
+    plant: Reaped,
+    controller: Reaped,
+    logs: Logs,
     /// The plant's and the controller's command lines, for messages.
-    pub(super) shown: (String, String),
+    shown: (String, String),
     /// Where a near bridge (one side across the link) writes the link's report: present once a
     /// far side joined. None when both children are on this host.
-    pub(super) link_report: Option<PathBuf>,
+    link_report: Option<PathBuf>,
     /// What the controller called itself in its READY (its text; escaped, bounded), if anything.
-    pub(super) controller_label: Option<String>,
+    controller_label: Option<String>,
 }
 
 /// The children's stderr logs.
 #[derive(Clone)]
 pub(super) struct Logs {
-    pub(super) plant: PathBuf,
-    pub(super) controller: PathBuf,
+    plant: PathBuf,
+    controller: PathBuf,
 }
 
 impl Logs {
+    /// The plant's log and the controller's.
+    pub(super) fn paths(&self) -> (&Path, &Path) {
+        (&self.plant, &self.controller)
+    }
+
     /// The last lines both children printed (at most [`peer_text::MAX_LINES`] each, read from
     /// the end of their logs, sanitized; a first line says where earlier ones are).
     pub(super) fn messages(&self) -> Vec<String> {
@@ -299,6 +304,42 @@ impl Pair {
             }),
             controller_label: None,
         })
+    }
+
+    /// Each child's exit status, the plant's first, for those that have exited (reaped then).
+    pub(super) fn exited(&mut self) -> (Option<ExitStatus>, Option<ExitStatus>) {
+        (self.plant.exited(), self.controller.exited())
+    }
+
+    /// Each child's pid while it has not been reaped, the plant's first.
+    pub(super) fn pids(&self) -> (Option<u32>, Option<u32>) {
+        let pid = |r: &Reaped| r.child.as_ref().map(Child::id);
+        (pid(&self.plant), pid(&self.controller))
+    }
+
+    /// Each child's peak resident set size, KiB, once it has exited, the plant's first.
+    pub(super) fn peak_rss_kib(&self) -> (Option<u64>, Option<u64>) {
+        (self.plant.peak_rss_kib, self.controller.peak_rss_kib)
+    }
+
+    /// The children's stderr logs.
+    pub(super) fn logs(&self) -> &Logs {
+        &self.logs
+    }
+
+    /// The plant's and the controller's command lines, for messages.
+    pub(super) fn shown(&self) -> &(String, String) {
+        &self.shown
+    }
+
+    /// Keeps what the controller called itself in its READY.
+    pub(super) fn said_label(&mut self, label: Option<String>) {
+        self.controller_label = label;
+    }
+
+    /// What the controller called itself, taken.
+    pub(super) fn take_label(&mut self) -> Option<String> {
+        self.controller_label.take()
     }
 
     /// How long the handshake may take: a run across the link waits for the far side to join

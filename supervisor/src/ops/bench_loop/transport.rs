@@ -164,6 +164,6 @@ pub(super) fn steal_share(
     (loop_wall_s > 0.0).then(|| (ms, ms * 1e-3 / loop_wall_s))
 }
 
-pub(super) fn fmt_cpu(c: Option<usize>) -> String {
+fn fmt_cpu(c: Option<usize>) -> String {
     c.map_or("any".into(), |c| c.to_string())
 }

@@ -3,7 +3,7 @@
 use super::*;
 
 /// The reference's task-space path and each run's FK(q), for the 3-D figure.
-pub(super) fn path_series(study: &Study, pair: &[&LawRun]) -> Vec<Series3> {
+fn path_series(study: &Study, pair: &[&LawRun]) -> Vec<Series3> {
     let mut paths = vec![Series3 {
         name: "reference x_d".into(),
         color: plot::RGBColor(0, 0, 0),
@@ -84,7 +84,7 @@ pub(super) fn figures(
 }
 
 /// Joint `j`'s tracking error e = q_d − q at record `k` of `r`, rad.
-pub(super) fn tracking_error(study: &Study, r: &LawRun, k: usize, j: usize) -> f64 {
+fn tracking_error(study: &Study, r: &LawRun, k: usize, j: usize) -> f64 {
     study.reference.row(r.records[k].sample.k as usize).joint.q[j] - r.records[k].q_true[j]
 }
 
@@ -94,7 +94,7 @@ pub(super) fn torque(r: &LawRun, k: usize, j: usize) -> f64 {
 }
 
 /// One panel per joint: `f` of each run over records `ks`, against run time k·Ts (s).
-pub(super) fn joint_panels(
+fn joint_panels(
     ts: f64,
     f: PerTick,
     runs: &[&LawRun],
@@ -127,7 +127,7 @@ pub(super) fn joint_panels(
 
 /// Explicit vs implicit super-twisting: joint 1's torque and error over the 50 ms window where
 /// their torques differ most (`<stem>-sta-torque`), when both laws ran.
-pub(super) fn sta_figure(
+fn sta_figure(
     study: &Study,
     runs: &[LawRun],
     dir: &Path,

@@ -36,7 +36,7 @@ pub(super) fn verdict(c: &Case) -> String {
 
 /// Whether the STA/IS ratio's distance from 1 exceeds the round-off spread of the two runs (the
 /// sum of their RMS spreads), when they had twins.
-pub(super) fn spread_clause(c: &Case) -> String {
+fn spread_clause(c: &Case) -> String {
     let (Some(is), Some(sta)) = (
         c.laws[&Law::TdeIs].sensitivity,
         c.laws[&Law::TdcIsSta].sensitivity,
@@ -59,7 +59,7 @@ pub(super) fn spread_clause(c: &Case) -> String {
     }
 }
 
-pub(super) fn verdict_words(c: &Case) -> String {
+fn verdict_words(c: &Case) -> String {
     let r = c.sta_over_is_rms;
     let (is, sta) = (&c.laws[&Law::TdeIs], &c.laws[&Law::TdcIsSta]);
     if is.status != RunStatus::Ok || sta.status != RunStatus::Ok {
@@ -94,7 +94,7 @@ pub(super) fn verdict_words(c: &Case) -> String {
 }
 
 /// One word and the ratio range, for the terminal.
-pub(super) fn short_verdict(c: &Case) -> String {
+fn short_verdict(c: &Case) -> String {
     let r = c.sta_over_is_rms;
     let (lo, hi) = (
         r.iter().cloned().fold(f64::INFINITY, f64::min),
@@ -139,7 +139,7 @@ pub(super) fn report(s: &PaperSummary) -> String {
 }
 
 /// What ran, how, and what carries over from the paper's robot to ours.
-pub(super) fn intro(o: &mut String, s: &PaperSummary) {
+fn intro(o: &mut String, s: &PaperSummary) {
     let _ = writeln!(o, "# Reproducing the study: Tables II–IV and Figures 2–9\n");
     let _ = writeln!(
         o,
@@ -160,7 +160,7 @@ pub(super) fn intro(o: &mut String, s: &PaperSummary) {
 }
 
 /// The paper's published RMS for scenario `scn`, then ours for every preset and law.
-pub(super) fn rms_table(o: &mut String, s: &PaperSummary, scn: PathKind, cs: &[&Case]) {
+fn rms_table(o: &mut String, s: &PaperSummary, scn: PathKind, cs: &[&Case]) {
     let _ = writeln!(
         o,
         "| source | controller | Joint 1 | Joint 2 | Joint 3 | round-off |\n|---|---|---|---|---|---|"
@@ -213,7 +213,7 @@ pub(super) fn verdicts(o: &mut String, cs: &[&Case]) {
 }
 
 /// Torque and TDE figures the paper does not report, per preset and law.
-pub(super) fn unreported_table(o: &mut String, cs: &[&Case]) {
+fn unreported_table(o: &mut String, cs: &[&Case]) {
     let _ = writeln!(
         o,
         "\nWhat the paper does not report (commanded torque; TDE error from the plant's true state):\n"
@@ -246,7 +246,7 @@ pub(super) fn unreported_table(o: &mut String, cs: &[&Case]) {
 }
 
 /// The figures of each preset.
-pub(super) fn figure_list(o: &mut String, cs: &[&Case]) {
+fn figure_list(o: &mut String, cs: &[&Case]) {
     for c in cs {
         let _ = writeln!(o, "### Figures, {} preset\n", c.preset);
         for f in c.figures.iter().filter(|f| !f.ends_with(STA_FIGURE)) {
@@ -256,7 +256,7 @@ pub(super) fn figure_list(o: &mut String, cs: &[&Case]) {
 }
 
 /// The largest of three per-joint values.
-pub(super) fn max3(v: [f64; 3]) -> f64 {
+fn max3(v: [f64; 3]) -> f64 {
     v.into_iter().fold(0.0, f64::max)
 }
 
@@ -278,7 +278,7 @@ pub fn sta_row(scenario: &str, preset: &str, law: &str, m: &LawMetrics) -> Strin
 }
 
 /// min–max of `f(num) / f(den)` over the cases of `preset` (None if it has none).
-pub(super) fn ratio_range(
+fn ratio_range(
     s: &PaperSummary,
     preset: Preset,
     f: impl Fn(&LawMetrics) -> f64,
@@ -327,7 +327,7 @@ pub(super) fn times(r: (f64, f64), what: &str) -> String {
 }
 
 /// Whether the implicit law shows the limit cycle of a mismatched M̄ under `preset`, in words.
-pub(super) fn cycles(s: &PaperSummary, preset: Preset) -> String {
+fn cycles(s: &PaperSummary, preset: Preset) -> String {
     let cs: Vec<&Case> = s.cases.iter().filter(|c| c.preset == preset).collect();
     let on = |law| {
         cs.iter()
@@ -372,7 +372,7 @@ pub(super) fn clamps(s: &PaperSummary, preset: Preset, law: Law) -> String {
 
 /// `tde-is`, the explicit `tdc-is-sta` and the implicit `tdc-is-ista` side by side, per scenario
 /// and preset, with the torque figures and what the numbers say.
-pub(super) fn sta_comparison(o: &mut String, s: &PaperSummary) {
+fn sta_comparison(o: &mut String, s: &PaperSummary) {
     let _ = writeln!(
         o,
         "## Explicit vs implicit super-twisting
@@ -454,7 +454,7 @@ pub(super) fn sta_comparison(o: &mut String, s: &PaperSummary) {
 }
 
 /// Why the paper preset's M̄ makes a limit cycle on our plant, with S1's numbers.
-pub(super) fn mismatch_explanation(o: &mut String, s: &PaperSummary) {
+fn mismatch_explanation(o: &mut String, s: &PaperSummary) {
     let _ = writeln!(o, "## Why the paper's literal M̄ misbehaves on this plant\n");
     let Some(c) = s
         .cases

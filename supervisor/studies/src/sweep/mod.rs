@@ -18,6 +18,7 @@ mod point;
 mod report;
 mod schema;
 pub mod shard;
+pub mod tasks;
 
 use plots::*;
 pub use point::*;

@@ -143,7 +143,7 @@ pub(super) fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(Str
 /// The delay study's headline: tracking and TDE error against the effective estimation delay
 /// L_eff/Ts = ℓ + D/Ts from 1 to 3 ticks, integer ℓ (D = d·Ts at the first d) and the transport
 /// delay D (at the first ℓ, whole and sub-tick) as two series per law on the same axes.
-pub(super) fn effective_delay_figures(
+fn effective_delay_figures(
     sw: &SweepFile,
     rows: &[Row],
     out: &Path,

@@ -170,7 +170,7 @@ pub const LINK_MAX_MISS_BURST: u64 = deltaloop_timing::MAX_MISS_BURST;
 
 /// What a link point measured besides its metrics (see [`Row::link_delay_us`]).
 #[derive(Debug, Clone, Default)]
-pub(super) struct LinkResult {
+struct LinkResult {
     rtt_p50_us: Option<f64>,
     median_arrival_us: Option<f64>,
     injected_rms_rad: Option<f64>,

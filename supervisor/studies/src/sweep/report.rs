@@ -14,7 +14,7 @@ use std::path::Path;
 /// within 2× its value at D = 0 (every delay up to it included), and the RMS there; None without
 /// a D = 0 result. The rows of D = 0 and of the budget come with it (their round-off spreads cut
 /// the printed digits).
-pub(super) fn latency_budget<'a>(
+fn latency_budget<'a>(
     sw: &SweepFile,
     rows: &'a [Row],
     scenario: PathKind,
@@ -78,7 +78,7 @@ pub(super) const TDE: Shown = Shown {
 
 /// A value with 3 significant digits, or fewer when its round-off twin moved it by more than a
 /// unit of the third (`†` marks those), then `±x %`: the half-width of its 95 % CI over the repeats.
-pub(super) fn value_text(r: &Row, m: Shown) -> String {
+fn value_text(r: &Row, m: Shown) -> String {
     let x = (m.value)(r);
     let rel = (m.roundoff)(r);
     let mut t = if rel.is_finite() && sensitivity::digits(x, rel) < 3 {
@@ -124,7 +124,7 @@ pub(super) fn cell(r: Option<&Row>, m: Shown) -> String {
 }
 
 /// One markdown table: a row per law, a column per value of one delay axis.
-pub(super) fn axis_table<'a>(
+fn axis_table<'a>(
     s: &mut String,
     caption: &str,
     sym: &str,

@@ -164,7 +164,7 @@ impl std::fmt::Display for Job {
 }
 
 /// The first value listed twice on a sweep axis, if any (linear: an axis may list thousands).
-pub(super) fn repeated(values: &[String]) -> Option<&String> {
+fn repeated(values: &[String]) -> Option<&String> {
     let mut seen = std::collections::HashSet::with_capacity(values.len());
     values.iter().find(|v| !seen.insert(v.as_str()))
 }
@@ -360,7 +360,7 @@ fn check_link(sw: &SweepFile) -> Result<()> {
 
 /// Reads the sweep's base scenario. Its text is never echoed: `base` may name any file (say
 /// `/etc/passwd`), so a parse error says only where it is.
-pub(super) fn load_base(path: &Path) -> Result<RunConfig> {
+fn load_base(path: &Path) -> Result<RunConfig> {
     RunConfig::from_file(path).map_err(|e| match e {
         ConfigError::Parse { position, .. } => anyhow::anyhow!(
             "sweep key `base`: {} is not a valid scenario config (parse error{}; `deltaloop run` on it shows the message)",
