@@ -39,10 +39,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-mod child;
 mod relay;
 
-use child::*;
 use relay::*;
 
 /// The run's config with the placement of the process that runs here (`role`) taken from this
@@ -413,51 +411,6 @@ fn refuse(tcp: &mut Tcp, why: String) -> Result<(u8, Option<String>)> {
     Ok((EXIT_SETUP, Some(line)))
 }
 
-/// Relays the run between the local process's ports and the link until it ends; its exit code.
-/// `(spin_ns, mode, far_emu)`: how this side polls, the loop mode, and its emulated link.
-/// `named`: the READY text naming a controller of the user's ([`ready_naming`]).
-fn relay(
-    ports: Either,
-    link: &mut FarLink,
-    (spin_ns, mode, far_emu): (u64, LoopMode, crate::emulation::Emulation),
-    named: Option<[u8; 160]>,
-    term: &AtomicBool,
-) -> Result<u8> {
-    Ok(match ports {
-        Either::Controller(ports) => {
-            let mut f = Far {
-                ports,
-                host: ControllerHost::new(spin_ns, false),
-                named,
-            };
-            let code = f.forward(link, term)?;
-            if f.host.stale > 0 {
-                eprintln!(
-                    "deltaloop-bridge: {} state(s) of a backlog not passed on to the controller (a newer one went instead)",
-                    f.host.stale
-                );
-            }
-            if f.host.refused_recalls() > 0 {
-                eprintln!(
-                    "deltaloop-bridge: warning: refused {} recall(s) of replies from the near side (malformed, beyond the ring, or too many at once)",
-                    f.host.refused_recalls()
-                );
-            }
-            code
-        }
-        Either::Plant(ports) => {
-            let mut f = FarPlant {
-                ports,
-                host: PlantHost::new(spin_ns, mode == LoopMode::Lockstep).with_record(),
-            };
-            let code = f.forward(link, term)?;
-            let counts = f.host.counts();
-            crate::near::link_summary(&far_emu, link.udp.emulated_lost, Some(counts));
-            code
-        }
-    })
-}
-
 /// One run: HELLO, ports, the far process, the loop, the end.
 fn serve(
     a: &Args,
@@ -533,31 +486,88 @@ fn serve(
         .link
         .as_ref()
         .is_some_and(|l| l.path == deltaloop_config::LinkPath::Relay);
-    let mut link = FarLink {
-        udp,
-        tcp,
-        child,
-        stop_sent: false,
-        near_gone_ns: None,
-        next_check: 0,
-        session,
-        handoff: Some(mine),
-        relay: wants_relay,
-        direct: false,
-        loop_cpu: mode.layout(&cfg).and_then(|l| match a.role {
-            RemoteSide::Controller => l.controller_cpu,
-            RemoteSide::Plant => l.plant_cpu,
-        }),
-    };
+    let loop_cpu = mode.layout(&cfg).and_then(|l| match a.role {
+        RemoteSide::Controller => l.controller_cpu,
+        RemoteSide::Plant => l.plant_cpu,
+    });
+    let mut link = FarLink::new((udp, tcp), child, session, mine, wants_relay, loop_cpu);
     let named = a.controller_cmd.as_ref().and_then(|_| ready_naming(cmd));
     let code = relay(ports, &mut link, (spin_ns, mode, far_emu), named, term)?;
     link.report(code)?;
     std::thread::sleep(ipc::LINGER);
-    let line = (!link.child.last_line.is_empty()).then(|| link.child.last_line.clone());
+    let line = (!link.last_line().is_empty()).then(|| link.last_line().to_string());
     drop(link);
     let id = hello.run_id.clone();
     ipc::remove_dead_nodes_where(&|n| n.ends_with(&id));
     Ok((code, line))
+}
+
+/// Removes the run's temporary folder (its config) when the run is over.
+struct TempDir(PathBuf);
+
+/// The prefix of a far bridge's private folder in the temporary directory.
+const DIR_PREFIX: &str = "deltaloop-join-";
+
+/// A new folder of this process for run `run_id`, mode 700, under a name no one can guess
+/// (regression: the name was `deltaloop-join-<pid>-<run id>`, and a link planted there made
+/// `join` write the run's config through it). Never an existing path.
+fn private_dir(run_id: &str) -> Result<PathBuf> {
+    use std::os::unix::fs::DirBuilderExt;
+    let salt: [u8; 8] = crate::seal::random_bytes().map_err(anyhow::Error::msg)?;
+    let salt: String = salt.iter().map(|b| format!("{b:02x}")).collect();
+    let dir = std::env::temp_dir().join(format!(
+        "{DIR_PREFIX}{}-{run_id}-{salt}",
+        std::process::id()
+    ));
+    std::fs::DirBuilder::new()
+        .mode(0o700)
+        .create(&dir)
+        .with_context(|| format!("cannot create {}", dir.display()))?;
+    Ok(dir)
+}
+
+/// Removes what far bridges killed outright left behind: their private folders (a process that
+/// is gone named in the folder's name) and their dead iceoryx2 nodes' resources (regression: a
+/// far bridge killed with -9 left 17 entries, 11 MiB, in /dev/shm and its folder, and no later
+/// `join` removed them). Says what it removed.
+pub fn remove_leftovers() {
+    let mut gone = 0;
+    if let Ok(rd) = std::fs::read_dir(std::env::temp_dir()) {
+        for e in rd.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let Some(pid) = name
+                .strip_prefix(DIR_PREFIX)
+                .and_then(|r| r.split('-').next())
+                .and_then(|p| p.parse::<i32>().ok())
+            else {
+                continue;
+            };
+            // SAFETY: kill with signal 0 only asks whether the process exists.
+            let alive = unsafe { libc::kill(pid, 0) } == 0
+                || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM);
+            // SAFETY: geteuid has no preconditions.
+            let me = unsafe { libc::geteuid() };
+            let mine = e
+                .metadata()
+                .is_ok_and(|m| std::os::unix::fs::MetadataExt::uid(&m) == me);
+            if !alive && mine && std::fs::remove_dir_all(e.path()).is_ok() {
+                gone += 1;
+            }
+        }
+    }
+    let nodes = ipc::remove_dead_nodes();
+    if gone > 0 || !nodes.is_empty() {
+        eprintln!(
+            "deltaloop-bridge: removed what earlier far bridges killed outright left: {gone} folder(s), the iceoryx2 resources of {} dead node(s)",
+            nodes.len()
+        );
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
 
 #[cfg(test)]

@@ -161,20 +161,10 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         };
         (peer.handoff, peer.relay) = (handoff, link.path == LinkPath::Relay);
         peer.loop_cpu = a.run.mode.layout(&cfg).and_then(|l| l.controller_cpu);
-        let mut n = NearPlant {
-            ports,
-            peer,
-            host: ControllerHost::new(spin_ns, true),
-            // Half the silence timeout: before the controller's own silence rule ends it.
-            silence_ns: (silence_ms * 1_000_000 / 2).max(100_000_000),
-            started_ns: None,
-            heard_ns: 0,
-            copies: VecDeque::with_capacity(COPIES),
-            final_ns: None,
-            hold_ns: emu.delay_ns + emu.jitter_ns + 1_000_000,
-        };
+        let hold_ns = emu.delay_ns + emu.jitter_ns + 1_000_000;
+        let mut n = NearPlant::new(ports, peer, spin_ns, silence_ms, hold_ns);
         let r = n.forward(term);
-        finish(&mut n.peer, &report, &emu, None, r)
+        finish(n.peer(), &report, &emu, None, r)
     } else {
         let ports = Ports::open(run_id, ipc::RELAY_BUFFER)?;
         let Some(mut peer) = connect(&at, &hello, &ports.control, term, &report)? else {

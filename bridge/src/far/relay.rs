@@ -1,31 +1,68 @@
-//! The far side's loop once the run started: the relay between the local process's iceoryx2\nports and the link (controller here: [`Far`]; plant here: [`FarPlant`]).
+//! The far side's loop once the run started: the process it started ([`FarChild`]), the link
+//! around it ([`FarLink`]) and the relay between the process's iceoryx2 ports and the link
+//! (controller here: `Far`; plant here: `FarPlant`).
 
 use super::*;
 
 /// The link and the far process: what both roles do around their loop.
 pub(super) struct FarLink {
-    pub(super) udp: Udp,
-    pub(super) tcp: Tcp,
-    pub(super) child: FarChild,
-    pub(super) stop_sent: bool,
+    udp: Udp,
+    tcp: Tcp,
+    child: FarChild,
+    stop_sent: bool,
     /// When the near side closed the control connection.
-    pub(super) near_gone_ns: Option<u64>,
+    near_gone_ns: Option<u64>,
     /// When to look whether the process has exited next.
-    pub(super) next_check: u64,
+    next_check: u64,
     /// The run's session, the hand-off to the process and whether it took the link's socket
     /// at START (the direct path: this side then relays no datagram and never reads the socket).
-    pub(super) session: Session,
-    pub(super) handoff: Option<deltaloop_transport::handoff::End>,
-    pub(super) relay: bool,
-    pub(super) direct: bool,
+    session: Session,
+    handoff: Option<deltaloop_transport::handoff::End>,
+    relay: bool,
+    direct: bool,
     /// The CPU of the process started here, which this side leaves on the direct path.
-    pub(super) loop_cpu: Option<usize>,
+    loop_cpu: Option<usize>,
 }
 
 impl FarLink {
+    /// The link of a run that has started `child`: `relay` if the config asks for the relay
+    /// path, `loop_cpu` the CPU of the process (left to it on the direct path).
+    pub(super) fn new(
+        (udp, tcp): (Udp, Tcp),
+        child: FarChild,
+        session: Session,
+        handoff: deltaloop_transport::handoff::End,
+        relay: bool,
+        loop_cpu: Option<usize>,
+    ) -> Self {
+        Self {
+            udp,
+            tcp,
+            child,
+            stop_sent: false,
+            near_gone_ns: None,
+            next_check: 0,
+            session,
+            handoff: Some(handoff),
+            relay,
+            direct: false,
+            loop_cpu,
+        }
+    }
+
+    /// Datagrams the emulation dropped on this side.
+    pub(super) fn emulated_lost(&self) -> u64 {
+        self.udp.emulated_lost
+    }
+
+    /// The process's last line on stderr (empty: none).
+    pub(super) fn last_line(&self) -> &str {
+        &self.child.last_line
+    }
+
     /// The wait of one turn: the socket, the control connection, the wake-up `event` and the
     /// process's stderr.
-    pub(super) fn wait(&self, event: &Listener<Svc>, timeout_ns: u64) -> Result<[bool; 4]> {
+    fn wait(&self, event: &Listener<Svc>, timeout_ns: u64) -> Result<[bool; 4]> {
         let err_fd = self
             .child
             .child
@@ -55,7 +92,7 @@ impl FarLink {
     /// The end of a turn: stderr passed on, STOP published here on SIGTERM or when the near side
     /// has gone (the process is stopped 3 s later if it does not exit), the process's exit.
     /// Some: its exit code.
-    pub(super) fn ended(
+    fn ended(
         &mut self,
         control: &Publisher<Svc, ControlMsg, ()>,
         err_in: bool,
@@ -100,7 +137,7 @@ impl FarLink {
     }
 
     /// The process's stderr: shown here and sent to the near side line by line.
-    pub(super) fn stderr(&mut self) -> Result<()> {
+    fn stderr(&mut self) -> Result<()> {
         let c = &mut self.child;
         let Some(err) = c.child.stderr.as_mut() else {
             return Ok(());
@@ -174,7 +211,7 @@ impl FarLink {
 
     /// A START or STOP from the near side, published here (START's deadline made absolute on
     /// this host's clock). Returns whether it was START.
-    pub(super) fn run_control(
+    fn run_control(
         control: &Publisher<Svc, ControlMsg, ()>,
         p: &[u8],
         hand: &mut Hand<'_>,
@@ -210,7 +247,7 @@ impl FarLink {
 
 /// What START needs to hand the link's socket on: the hand-off, the socket, the session, whether
 /// the run asks for the relay, and where to say the process took it.
-pub(super) struct Hand<'a> {
+struct Hand<'a> {
     handoff: Option<&'a deltaloop_transport::handoff::End>,
     udp: &'a mut Udp,
     session: &'a Session,
@@ -221,7 +258,7 @@ pub(super) struct Hand<'a> {
 
 impl FarLink {
     /// The parts of this link START needs ([`Hand`]), beside its TCP stream.
-    pub(super) fn hand(&mut self) -> (&mut Tcp, Hand<'_>) {
+    fn hand(&mut self) -> (&mut Tcp, Hand<'_>) {
         (
             &mut self.tcp,
             Hand {
@@ -237,12 +274,12 @@ impl FarLink {
 }
 
 /// `--role controller`: the supervisor and the plant on the controller's host.
-pub(super) struct Far {
-    pub(super) ports: Ports,
-    pub(super) host: ControllerHost,
+struct Far {
+    ports: Ports,
+    host: ControllerHost,
     /// The READY text of `--controller-cmd`'s label, for a controller that does not name itself
     /// (see [`ready_naming`]).
-    pub(super) named: Option<[u8; 160]>,
+    named: Option<[u8; 160]>,
 }
 
 /// The READY text that names a controller of the user's started with `cmd`, as
@@ -256,7 +293,7 @@ pub(super) fn ready_naming(cmd: &[String]) -> Option<[u8; 160]> {
 
 impl Far {
     /// Carries the run until the controller exits; its exit code.
-    pub(super) fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
+    fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
         loop {
             let now = rt::now_ns();
             let timeout = if l.direct {
@@ -286,7 +323,7 @@ impl Far {
         }
     }
 
-    pub(super) fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
+    fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
         while let Some(s) = self.ports.control_in.receive().ipc("receive control")? {
             let mut c = *s.payload();
             if let Some(text) = self.named
@@ -354,14 +391,14 @@ impl Far {
 }
 
 /// `--role plant`: the supervisor and the controller on the plant's host.
-pub(super) struct FarPlant {
-    pub(super) ports: PlantSidePorts,
-    pub(super) host: PlantHost,
+struct FarPlant {
+    ports: PlantSidePorts,
+    host: PlantHost,
 }
 
 impl FarPlant {
     /// Carries the run until the plant exits; its exit code.
-    pub(super) fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
+    fn forward(&mut self, l: &mut FarLink, term: &AtomicBool) -> Result<u8> {
         loop {
             let timeout = if l.direct {
                 crate::near::DIRECT_TURN_NS
@@ -389,7 +426,7 @@ impl FarPlant {
     }
 
     /// The near side's run control and the controller's READY/ARMED in.
-    pub(super) fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
+    fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
         if !tcp_in {
             return Ok(());
         }
@@ -426,5 +463,126 @@ impl FarPlant {
             l.tcp.flush()?;
         }
         Ok(())
+    }
+}
+
+/// The ports of the role this side serves.
+pub(super) enum Either {
+    Controller(Ports),
+    Plant(PlantSidePorts),
+}
+
+/// Relays the run between the local process's ports and the link until it ends; its exit code.
+/// `(spin_ns, mode, far_emu)`: how this side polls, the loop mode, and its emulated link.
+/// `named`: the READY text naming a controller of the user's ([`ready_naming`]).
+pub(super) fn relay(
+    ports: Either,
+    link: &mut FarLink,
+    (spin_ns, mode, far_emu): (u64, LoopMode, crate::emulation::Emulation),
+    named: Option<[u8; 160]>,
+    term: &AtomicBool,
+) -> Result<u8> {
+    Ok(match ports {
+        Either::Controller(ports) => {
+            let mut f = Far {
+                ports,
+                host: ControllerHost::new(spin_ns, false),
+                named,
+            };
+            let code = f.forward(link, term)?;
+            if f.host.stale > 0 {
+                eprintln!(
+                    "deltaloop-bridge: {} state(s) of a backlog not passed on to the controller (a newer one went instead)",
+                    f.host.stale
+                );
+            }
+            if f.host.refused_recalls() > 0 {
+                eprintln!(
+                    "deltaloop-bridge: warning: refused {} recall(s) of replies from the near side (malformed, beyond the ring, or too many at once)",
+                    f.host.refused_recalls()
+                );
+            }
+            code
+        }
+        Either::Plant(ports) => {
+            let mut f = FarPlant {
+                ports,
+                host: PlantHost::new(spin_ns, mode == LoopMode::Lockstep).with_record(),
+            };
+            let code = f.forward(link, term)?;
+            let counts = f.host.counts();
+            crate::near::link_summary(&far_emu, link.emulated_lost(), Some(counts));
+            code
+        }
+    })
+}
+
+pub(super) fn spawn(
+    cmd: &[String],
+    run_id: &str,
+    mode: LoopMode,
+    config: &std::path::Path,
+    law: Option<&str>,
+    handoff: &deltaloop_transport::handoff::End,
+) -> Result<FarChild> {
+    let what = if law.is_some() { "controller" } else { "plant" };
+    let mut c = Command::new(&cmd[0]);
+    c.args(&cmd[1..])
+        .args(["--run-id", run_id, "--config"])
+        .arg(config)
+        .args(["--mode", mode.name()])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    if let Some(law) = law {
+        c.args(["--law", law]);
+    }
+    // The link key is this bridge's, never the process's it starts.
+    crate::seal::scrub_secrets(&mut c);
+    rt::die_with_parent(&mut c);
+    // The process may take the link's socket at START (the direct path).
+    deltaloop_transport::handoff::inherit(&mut c, handoff);
+    let child = c
+        .spawn()
+        .with_context(|| format!("cannot start the {what} `{}`", cmd.join(" ")))?;
+    if let Some(e) = &child.stderr {
+        use std::os::fd::AsRawFd;
+        // SAFETY: setting O_NONBLOCK on a pipe descriptor we own.
+        unsafe {
+            let fl = libc::fcntl(e.as_raw_fd(), libc::F_GETFL);
+            libc::fcntl(e.as_raw_fd(), libc::F_SETFL, fl | libc::O_NONBLOCK);
+        }
+    }
+    Ok(FarChild {
+        child,
+        what,
+        stderr_buf: Vec::with_capacity(4096),
+        last_line: String::new(),
+    })
+}
+
+/// The process this side started, its stderr and its end.
+pub(super) struct FarChild {
+    child: Child,
+    /// `controller` or `plant`.
+    what: &'static str,
+    stderr_buf: Vec<u8>,
+    last_line: String,
+}
+
+impl Drop for FarChild {
+    fn drop(&mut self) {
+        if self.child.try_wait().ok().flatten().is_none() {
+            // SAFETY: signalling our own child, not yet reaped.
+            unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
+            for _ in 0..200 {
+                if self.child.try_wait().ok().flatten().is_some() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
     }
 }

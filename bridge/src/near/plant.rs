@@ -4,31 +4,59 @@ use super::*;
 
 /// `--role plant`: the plant's stand-in on the controller's (and the supervisor's) host.
 pub(super) struct NearPlant {
-    pub(super) ports: PlantPorts,
-    pub(super) peer: Peer,
-    pub(super) host: ControllerHost,
+    ports: PlantPorts,
+    peer: Peer,
+    host: ControllerHost,
     /// The link is taken for lost after this long without a word from the far side while the
     /// loop runs and the controller here owes no reply, ns.
-    pub(super) silence_ns: u64,
+    silence_ns: u64,
     /// When START went to the far side.
-    pub(super) started_ns: Option<u64>,
+    started_ns: Option<u64>,
     /// When the far side was last heard (a datagram or a frame), or a reply last went to it.
-    pub(super) heard_ns: u64,
+    heard_ns: u64,
     /// The states' copies that came over TCP (arrival, state), oldest first, each waiting for
     /// its datagram: a copy whose datagram has not come within `hold_ns` (lost on the link), or
     /// that a newer state has overtaken, is published itself, so the supervisor here records
     /// every state. Pre-allocated ([`COPIES`]).
-    pub(super) copies: VecDeque<(u64, StateMsg)>,
+    copies: VecDeque<(u64, StateMsg)>,
     /// When the final state was published here (the far plant's, or ours on giving up).
-    pub(super) final_ns: Option<u64>,
+    final_ns: Option<u64>,
     /// How long a copy waits for its datagram: the emulated delay and jitter, and 1 ms.
-    pub(super) hold_ns: u64,
+    hold_ns: u64,
 }
 
 /// States' copies held at most; a fuller queue publishes its oldest.
-pub(super) const COPIES: usize = 1024;
+const COPIES: usize = 1024;
 
 impl NearPlant {
+    /// The stand-in for a plant across the link, `silence_ms` the run's controller silence
+    /// timeout and `hold_ns` how long a state's copy waits for its datagram.
+    pub(super) fn new(
+        ports: PlantPorts,
+        peer: Peer,
+        spin_ns: u64,
+        silence_ms: u64,
+        hold_ns: u64,
+    ) -> Self {
+        Self {
+            ports,
+            peer,
+            host: ControllerHost::new(spin_ns, true),
+            // Half the silence timeout: before the controller's own silence rule ends it.
+            silence_ns: (silence_ms * 1_000_000 / 2).max(100_000_000),
+            started_ns: None,
+            heard_ns: 0,
+            copies: VecDeque::with_capacity(COPIES),
+            final_ns: None,
+            hold_ns,
+        }
+    }
+
+    /// The link's peer, for the run's end.
+    pub(super) fn peer(&mut self) -> &mut Peer {
+        &mut self.peer
+    }
+
     pub(super) fn forward(&mut self, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         loop {
             let now = rt::now_ns();
@@ -84,7 +112,7 @@ impl NearPlant {
 
     /// The supervisor's run control and the controller's READY/ARMED out; the far plant's
     /// control, telemetry, final state, log and end in.
-    pub(super) fn control_plane(&mut self, tcp_in: bool) -> Result<()> {
+    fn control_plane(&mut self, tcp_in: bool) -> Result<()> {
         let p = &mut self.peer;
         if p.forward_control(&self.ports.control)? && self.started_ns.is_none() {
             // START is out (the controller here has it too): from now on the far side must be
@@ -214,7 +242,7 @@ impl NearPlant {
 impl NearPlant {
     /// Releases the controller here with a final state (the last one again), as the plant
     /// would at its end, unless the final state came.
-    pub(super) fn release(&mut self) -> Result<()> {
+    fn release(&mut self) -> Result<()> {
         if self.final_ns.is_some() {
             return Ok(());
         }

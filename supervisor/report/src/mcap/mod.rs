@@ -39,7 +39,7 @@ use serde::Serialize;
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use tick::{Columns, Control, Row, Timing};
+use tick::{Columns, Row, Timing};
 
 /// What to export, and where (default `RUN_DIR/run.mcap`).
 pub struct ExportRequest<'a> {
@@ -397,7 +397,7 @@ fn write_export(out: &mut Out, dir: &Path, input: &RunInput) -> Result<()> {
             continue;
         };
         let r = Row::parse(&|i| row.get(i).unwrap_or(""), &cols).with_context(at)?;
-        write_row(out, ch, &law, (&r, &cols), ts_ns, Some(&mut painter))?;
+        r.write(out, ch, &law, &cols, ts_ns, Some((&mut painter, 1)))?;
     }
     if let Some((done, ch)) = current.take() {
         finish_law(out, dir, study, summary, &done, &ch)?;
@@ -492,48 +492,6 @@ fn law_channels(out: &mut impl Bus, law: &str) -> Result<Channels> {
         events: out.channel(log, &format!("/{law}/events"), "json")?,
         scene: out.channel(sc, &format!("/{law}/scene"), "json")?,
     })
-}
-
-fn write_row(
-    out: &mut impl Bus,
-    ch: &Channels,
-    law: &str,
-    (r, cols): (&Row, &Columns),
-    ts_ns: u64,
-    painter: Option<&mut Painter>,
-) -> Result<()> {
-    let t = r.k * ts_ns;
-    let all = |g: [Option<f64>; 3]| g.map(|x| x.unwrap_or(f64::NAN));
-    let [q, qd, tau_a] = tick::JOINT_STATE.map(|name| all(r.group(name)));
-    out.write(ch.joints, t, &cdr::joint_state(t, &q, &qd, &tau_a))?;
-    let t_s = t as f64 * 1e-9;
-    out.json(ch.control, t, &Control { row: r, cols, t_s })?;
-    if r.reply != "applied" {
-        out.log(
-            ch.events,
-            t,
-            WARNING,
-            law,
-            format!("tick {}: reply {}", r.k, r.reply),
-        )?;
-    }
-    if matches!(r.drives.as_str(), "held" | "rejected") {
-        out.log(
-            ch.events,
-            t,
-            INFO,
-            law,
-            format!("tick {}: drives {}", r.k, r.drives),
-        )?;
-    }
-    if let Some(scene) = painter
-        .map(|p| p.draw(r.k, t, &Vec3::from(q)))
-        .transpose()?
-        .flatten()
-    {
-        out.write(ch.scene, t, scene)?;
-    }
-    Ok(())
 }
 
 /// After a law's rows: its timing rows (`<law>.timing.csv`, a regular file of at most the
@@ -696,14 +654,13 @@ impl<B: Bus> Live<B> {
         trace::render(self.law, r, row, n_true, &mut self.fields);
         let fields = &self.fields;
         let row = Row::parse(&|i| fields.get(i).map_or("", String::as_str), &self.cols)?;
-        let painter = (row.k % self.scene_every == 0).then_some(&mut self.painter);
-        write_row(
+        row.write(
             &mut self.out,
             &self.ch,
             self.law.name(),
-            (&row, &self.cols),
+            &self.cols,
             self.ts_ns,
-            painter,
+            Some((&mut self.painter, self.scene_every)),
         )
     }
 

@@ -3,13 +3,17 @@
 //! so they are serialised straight from the row (a `serde_json::Value` map per message cost a
 //! few dozen allocations a tick), with their keys in the order serde_json's maps sort them.
 
+use super::{Bus, Channels, INFO, WARNING};
 use crate::trace;
 use anyhow::Result;
+use deltaloop_mcap::cdr;
+use deltaloop_mcap::scene::Painter;
+use deltaloop_model::Vec3;
 use serde::Serialize;
 use serde::ser::{SerializeMap, Serializer};
 
 /// The per-joint groups a `JointState` carries (not repeated in the control message).
-pub(super) const JOINT_STATE: [&str; 3] = ["q", "qdot", "tau_applied"];
+const JOINT_STATE: [&str; 3] = ["q", "qdot", "tau_applied"];
 
 /// A field of the control message.
 #[derive(Clone, Copy)]
@@ -84,11 +88,11 @@ impl Columns {
 
 /// One trace row, parsed.
 pub(super) struct Row {
-    pub(super) k: u64,
+    k: u64,
     /// Every per-joint group: its name and three values (None: an empty cell).
     joints: Vec<(&'static str, [Option<f64>; 3])>,
-    pub(super) reply: String,
-    pub(super) drives: String,
+    reply: String,
+    drives: String,
     arrival_ns: Option<u64>,
 }
 
@@ -128,7 +132,7 @@ impl Row {
         })
     }
 
-    pub(super) fn group(&self, name: &str) -> [Option<f64>; 3] {
+    fn group(&self, name: &str) -> [Option<f64>; 3] {
         self.joints
             .iter()
             .find(|(n, _)| *n == name)
@@ -137,11 +141,11 @@ impl Row {
 }
 
 /// Tick `row`'s control message: the trace row but for the joint state, with the time `t_s`.
-pub(super) struct Control<'a> {
-    pub(super) row: &'a Row,
-    pub(super) cols: &'a Columns,
+struct Control<'a> {
+    row: &'a Row,
+    cols: &'a Columns,
     /// t = k·Ts, s.
-    pub(super) t_s: f64,
+    t_s: f64,
 }
 
 impl Serialize for Control<'_> {
@@ -204,5 +208,63 @@ impl Serialize for Timing<'_> {
             }
         }
         m.end()
+    }
+}
+
+impl Row {
+    /// Writes the tick's messages: its joint state, its control message, an event for a reply
+    /// not applied or drives that held or rejected, and (with a painter, every `n`-th tick) its
+    /// scene.
+    pub(super) fn write(
+        &self,
+        out: &mut impl Bus,
+        ch: &Channels,
+        law: &str,
+        cols: &Columns,
+        ts_ns: u64,
+        painter: Option<(&mut Painter, u64)>,
+    ) -> Result<()> {
+        let r = self;
+        let t = r.k * ts_ns;
+        let all = |g: [Option<f64>; 3]| g.map(|x| x.unwrap_or(f64::NAN));
+        let [q, qd, tau_a] = JOINT_STATE.map(|name| all(r.group(name)));
+        out.write(ch.joints, t, &cdr::joint_state(t, &q, &qd, &tau_a))?;
+        let t_s = t as f64 * 1e-9;
+        out.json(
+            ch.control,
+            t,
+            &Control {
+                row: self,
+                cols,
+                t_s,
+            },
+        )?;
+        if r.reply != "applied" {
+            out.log(
+                ch.events,
+                t,
+                WARNING,
+                law,
+                format!("tick {}: reply {}", r.k, r.reply),
+            )?;
+        }
+        if matches!(r.drives.as_str(), "held" | "rejected") {
+            out.log(
+                ch.events,
+                t,
+                INFO,
+                law,
+                format!("tick {}: drives {}", r.k, r.drives),
+            )?;
+        }
+        let painter = painter.and_then(|(p, n)| r.k.is_multiple_of(n).then_some(p));
+        if let Some(scene) = painter
+            .map(|p| p.draw(r.k, t, &Vec3::from(q)))
+            .transpose()?
+            .flatten()
+        {
+            out.write(ch.scene, t, scene)?;
+        }
+        Ok(())
     }
 }

@@ -26,19 +26,19 @@ use std::time::Duration;
 /// publisher seen there must belong to the child's process (or a descendant of it), and after it
 /// only that publisher is heard. The service has one publisher slot, so once the child holds it
 /// no other process can publish there; if another process took it first, the run is refused.
-pub(super) struct ControlIn {
+struct ControlIn {
     sub: Subscriber<Svc, ControlMsg, ()>,
-    pub(super) who: Sender,
+    who: Sender,
     /// The child's pid, once it is spawned.
-    pub(super) root: Cell<Option<u32>>,
+    root: Cell<Option<u32>>,
     /// The child's publisher, once its first message proved it.
-    pub(super) publisher: Cell<Option<iceoryx2::identifiers::UniquePublisherId>>,
+    publisher: Cell<Option<iceoryx2::identifiers::UniquePublisherId>>,
     /// The first process not the child's that published here (pid; 0 if its pid is unknown).
     intruder: Cell<Option<u32>>,
 }
 
 impl ControlIn {
-    pub(super) fn open(node: &Node<Svc>, run_id: &str, who: Sender) -> Result<Self> {
+    fn open(node: &Node<Svc>, run_id: &str, who: Sender) -> Result<Self> {
         Ok(Self {
             sub: ipc::control(node, run_id, who)?
                 .subscriber_builder()
@@ -52,7 +52,7 @@ impl ControlIn {
     }
 
     /// The kinds `who` may send.
-    pub(super) fn allowed(&self, kind: ControlKind) -> bool {
+    fn allowed(&self, kind: ControlKind) -> bool {
         match self.who {
             Sender::Plant => kind.said_by_plant(),
             Sender::Controller => kind.said_by_controller(),
@@ -62,7 +62,7 @@ impl ControlIn {
 
     /// The next message the child itself sent, of a kind it may send; everything else is dropped
     /// (and a foreign publisher remembered).
-    pub(super) fn receive(&self) -> Result<Option<ControlMsg>> {
+    fn receive(&self) -> Result<Option<ControlMsg>> {
         while let Some(sample) = self.sub.receive().ipc("receive control")? {
             let origin = sample.origin();
             let trusted = match (self.publisher.get(), self.root.get()) {
@@ -112,8 +112,8 @@ pub(super) struct Observer {
     pub(super) telemetry: Subscriber<Svc, TelemetryMsg, ()>,
     /// START and STOP: the only publisher of `control`, taken before the children start.
     pub(super) control: Publisher<Svc, ControlMsg, ()>,
-    pub(super) from_plant: ControlIn,
-    pub(super) from_controller: ControlIn,
+    from_plant: ControlIn,
+    from_controller: ControlIn,
     pub(super) node: Node<Svc>,
 }
 
@@ -151,6 +151,16 @@ impl Observer {
         let (plant, controller) = pair.pids();
         self.from_plant.root.set(plant);
         self.from_controller.root.set(controller);
+    }
+
+    /// The plant's next message on its control service (from the plant only).
+    pub(super) fn plant_said(&self) -> Result<Option<ControlMsg>> {
+        self.from_plant.receive()
+    }
+
+    /// The controller's next message on its control service (from the controller only).
+    pub(super) fn controller_said(&self) -> Result<Option<ControlMsg>> {
+        self.from_controller.receive()
     }
 
     /// The next message of either child (the plant's first).

@@ -8,7 +8,6 @@
 //! [`Recorder`](deltaloop_study::record::Recorder) the in-process loop fills (so every row and metric comes
 //! from the same code) and on to disk: memory does not grow with the run.
 
-mod faults;
 mod handshake;
 mod observe;
 mod spawn;
@@ -25,7 +24,6 @@ use deltaloop_timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
 use deltaloop_transport::ipc::{self, IpcContext};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{ControlKind, ControlMsg, Sender};
-use faults::fault_cause;
 use handshake::{Observer, handshake, stopped_before_start};
 use observe::{Observation, observe};
 use spawn::{Pair, own_peak_rss_kib};
@@ -140,16 +138,7 @@ pub fn run_law(
             .into_iter()
             .map(|i| format!("deltaloop: {i}")),
     );
-    let cause = if ending.interrupted || ending.diverged_stop {
-        None
-    } else {
-        fault_cause(
-            &ending,
-            &pair,
-            &streams,
-            study.config.loop_.silence_timeout_ms,
-        )
-    };
+    let cause = ending.fault(&pair, &streams, study.config.loop_.silence_timeout_ms);
     let (plant_rss, ctrl_rss) = pair.peak_rss_kib();
     let controller_label = pair.take_label();
     drop(pair);
@@ -168,7 +157,7 @@ pub fn run_law(
             .into_iter()
             .map(|w| format!("deltaloop: warning: {w}")),
     );
-    let (run, mut timing) = streams.finish(ending.interrupted, cause.as_ref())?;
+    let (run, mut timing) = streams.finish(ending.interrupted(), cause.as_ref())?;
     timing.steal =
         deltaloop_timing::steal_ms_between(&steal_before, &deltaloop_timing::steal_jiffies());
     timing.peak_rss = PeakRss::from_kib(own_peak_rss_kib(), plant_rss, ctrl_rss);
@@ -184,7 +173,7 @@ pub fn run_law(
     Ok(ProcessRun {
         controller_label,
         fault: cause,
-        interrupted: ending.interrupted,
+        interrupted: ending.interrupted(),
         run_id: rid,
         run,
         timing,

@@ -18,6 +18,8 @@ use std::time::Duration;
 
 use super::OnTick;
 
+mod faults;
+
 /// Ticks the observer holds open at most (a ring indexed by tick).
 const WINDOW: u64 = 32_768;
 
@@ -26,16 +28,16 @@ const WINDOW: u64 = 32_768;
 const LAG: u64 = 8_192;
 
 /// The open ticks, a ring of [`WINDOW`] slots.
-pub(super) struct Window {
-    pub(super) slots: Vec<Seen>,
+struct Window {
+    slots: Vec<Seen>,
     /// The next tick to finish.
-    pub(super) next: u64,
+    next: u64,
     /// The last tick kept (N + 1: the state after the run).
-    pub(super) last: u64,
+    last: u64,
 }
 
 impl Window {
-    pub(super) fn new(last: u64) -> Self {
+    fn new(last: u64) -> Self {
         let empty = Seen {
             k: u64::MAX,
             ..Seen::default()
@@ -48,7 +50,7 @@ impl Window {
     }
 
     /// The slot of tick k (cleared if it held an older tick).
-    pub(super) fn slot(&mut self, k: u64) -> &mut Seen {
+    fn slot(&mut self, k: u64) -> &mut Seen {
         let s = &mut self.slots[(k % WINDOW) as usize];
         if s.k != k {
             *s = Seen {
@@ -60,7 +62,7 @@ impl Window {
     }
 
     /// Takes the next tick out of the window.
-    pub(super) fn take(&mut self) -> Seen {
+    fn take(&mut self) -> Seen {
         let k = self.next;
         self.next += 1;
         let s = &mut self.slots[(k % WINDOW) as usize];
@@ -81,38 +83,38 @@ impl Window {
 /// by tick in the window, and hand every finished tick, in order, to `<law>.timing.csv`, the
 /// timing histograms and the recorder (trace and metrics). Memory is fixed at START.
 pub(super) struct Observation<'a> {
-    pub(super) window: Window,
-    pub(super) rec: LawRecorder<'a>,
-    pub(super) timing: TimingAcc,
+    window: Window,
+    rec: LawRecorder<'a>,
+    timing: TimingAcc,
     /// `<law>.timing.csv`, unless `record.timing_csv = false`.
-    pub(super) csv: Option<TimingCsv>,
+    csv: Option<TimingCsv>,
     /// The last tick with a loop message (state, reply, or telemetry of the loop, not of the
     /// safe stop after it).
     last_seen: Option<u64>,
     /// The newest reply seen (the controller has answered up to its tick).
-    pub(super) last_torque: Option<TorqueMsg>,
+    last_torque: Option<TorqueMsg>,
     /// The newest telemetry of the loop seen.
-    pub(super) last_tel: Option<TelemetryMsg>,
+    last_tel: Option<TelemetryMsg>,
     /// The plant's FAULT: it stopped the loop at this tick (and braked).
-    pub(super) plant_fault: Option<PlantSaid>,
+    plant_fault: Option<PlantSaid>,
     /// The plant's DIVERGED: its model failed at this tick.
-    pub(super) diverged: Option<PlantSaid>,
+    diverged: Option<PlantSaid>,
     /// The first tick since the last complete one that was not complete: a loss if the loop
     /// shows up again later, else where the run ended.
     gap: Option<u64>,
     /// The recorder stopped (the divergence rule).
-    pub(super) stopped: bool,
+    stopped: bool,
     /// The first tick whose reply carried a non-finite torque: the run diverged there (the
     /// recorder will say so when it gets to it), so the loop is stopped now, not 2.5 s later.
     non_finite: Option<u64>,
     /// Replies for a tick that already had one (only the first is kept: the plant applies it).
     duplicate_replies: u64,
     /// The tick of the first state with `STATE_FINAL` (N + 1 after a complete run).
-    pub(super) final_tick: Option<u64>,
+    final_tick: Option<u64>,
     /// The state after the last tick, N + 1.
-    pub(super) after: Option<StateMsg>,
+    after: Option<StateMsg>,
     /// Called with every finished tick, in tick order (see [`super::OnTick`]).
-    pub(super) on_tick: Option<OnTick<'a>>,
+    on_tick: Option<OnTick<'a>>,
     /// Ticks whose replies the near bridge of a remote controller said may have been lost on
     /// the link (REPLIES_LOST: first..=last), not yet finished; at most [`LOST_RANGES`].
     replies_lost: std::collections::VecDeque<(u64, u64)>,
@@ -123,13 +125,13 @@ pub(super) struct Observation<'a> {
 const LOST_RANGES: usize = 64;
 
 /// A tick and a line from the plant's control channel (FAULT, OVERRUN, PLANT_ERROR, DIVERGED).
-pub(super) struct PlantSaid {
-    pub(super) tick: u64,
-    pub(super) cause: String,
+struct PlantSaid {
+    tick: u64,
+    cause: String,
     /// What it said: FAULT (the controller went silent, or reported an error), OVERRUN (its own
     /// process woke too late, `overrun = "fault"`), PLANT_ERROR (its own physics failed) or
     /// DIVERGED.
-    pub(super) kind: ControlKind,
+    kind: ControlKind,
 }
 
 fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
@@ -166,7 +168,7 @@ impl<'a> Observation<'a> {
 
     /// Takes everything waiting on the observer's ports, and finishes the ticks the loop has
     /// left [`LAG`] behind.
-    pub(super) fn drain(&mut self, obs: &Observer) -> Result<()> {
+    fn drain(&mut self, obs: &Observer) -> Result<()> {
         while let Some(s) = obs.state.receive().ipc("observe state")? {
             let m = *s.payload();
             if m.flags & wire::STATE_FINAL != 0 && self.final_tick.is_none() {
@@ -211,7 +213,7 @@ impl<'a> Observation<'a> {
                 self.last_tel = Some(m);
             }
         }
-        while let Some(m) = obs.from_plant.receive()? {
+        while let Some(m) = obs.plant_said()? {
             let m = &m;
             let fault = |kind| PlantSaid {
                 tick: m.tick,
@@ -230,7 +232,7 @@ impl<'a> Observation<'a> {
                 _ => {}
             }
         }
-        while let Some(m) = obs.from_controller.receive()? {
+        while let Some(m) = obs.controller_said()? {
             if m.kind() == Some(ControlKind::RepliesLost) {
                 self.replies_lost(m.tick, m.ticks);
             }
@@ -246,7 +248,7 @@ impl<'a> Observation<'a> {
 
     /// Whether tick k goes into the window; makes room for it by finishing the oldest ticks (a
     /// tick already finished, or beyond the run, is dropped).
-    pub(super) fn open(&mut self, k: u64) -> Result<bool> {
+    fn open(&mut self, k: u64) -> Result<bool> {
         if k > self.window.last || k < self.window.next {
             return Ok(false);
         }
@@ -289,7 +291,7 @@ impl<'a> Observation<'a> {
     }
 
     /// The ticks the controller has answered (the reference it no longer needs).
-    pub(super) fn answered(&self) -> Option<u64> {
+    fn answered(&self) -> Option<u64> {
         self.last_torque.map(|t| t.tick)
     }
 
@@ -426,15 +428,36 @@ impl<'a> Observation<'a> {
 
 /// How the observed run ended.
 pub(super) struct Ending {
-    pub(super) plant: Option<ExitStatus>,
-    pub(super) controller: Option<ExitStatus>,
+    plant: Option<ExitStatus>,
+    controller: Option<ExitStatus>,
     /// When the first child exited while the other still ran, and which.
-    pub(super) first_exit: Option<(u64, Sender)>,
+    first_exit: Option<(u64, Sender)>,
     /// The supervisor sent STOP (Ctrl-C / SIGTERM).
-    pub(super) interrupted: bool,
+    interrupted: bool,
     /// The supervisor sent STOP because the run diverged (the record ended by the divergence
     /// rule): the run's status is the divergence, not a fault or an interruption.
-    pub(super) diverged_stop: bool,
+    diverged_stop: bool,
+}
+
+impl Ending {
+    /// Whether the run was stopped on request (Ctrl-C, SIGTERM).
+    pub(super) fn interrupted(&self) -> bool {
+        self.interrupted
+    }
+
+    /// What went wrong, in one line, or None: the children finished normally, or the run was
+    /// stopped on purpose (on request, or by the divergence rule).
+    pub(super) fn fault(
+        &self,
+        pair: &Pair,
+        streams: &Observation<'_>,
+        silence_timeout_ms: u32,
+    ) -> Option<Fault> {
+        if self.interrupted || self.diverged_stop {
+            return None;
+        }
+        faults::fault_cause(self, pair, streams, silence_timeout_ms)
+    }
 }
 
 /// Observes until both children exit (or the bounded waits after a STOP or one child's exit run

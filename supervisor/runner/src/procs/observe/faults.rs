@@ -1,10 +1,10 @@
 //! How a process run ended, in words: a child's exit status or signal, the line of its log that
 //! says why, and the run's [`Fault`].
 
-use super::observe::{Ending, Observation};
-use super::role;
-use super::spawn::Pair;
-use super::status::status_text;
+use super::super::role;
+use super::super::spawn::Pair;
+use super::super::status::status_text;
+use super::{Ending, Observation};
 use crate::peer_text::{self, Tail};
 use deltaloop_config::RemoteSide;
 use deltaloop_study::record::{Fault, FaultKind};
@@ -284,7 +284,7 @@ fn exit_kind(who: Sender, s: ExitStatus) -> FaultKind {
 
 #[cfg(test)]
 mod tests {
-    use super::super::status::killed_by;
+    use super::super::super::status::killed_by;
     use super::*;
 
     /// The kind of a fault from how the children ended: the root cause, not its echo (a
