@@ -51,7 +51,7 @@ impl FarLink {
     }
 
     /// Datagrams the emulation dropped on this side.
-    pub(super) fn emulated_lost(&self) -> u64 {
+    fn emulated_lost(&self) -> u64 {
         self.udp.emulated_lost
     }
 

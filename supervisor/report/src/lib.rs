@@ -217,7 +217,7 @@ impl RunFolder {
 
 /// `p` absolute, with links and `..` resolved as far as it exists; the part that does not exist
 /// yet is appended as written, `..` folded (nothing in it can be a link).
-pub(crate) fn resolved(p: &Path) -> PathBuf {
+fn resolved(p: &Path) -> PathBuf {
     use std::path::Component;
     let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
     let mut base = abs.as_path();

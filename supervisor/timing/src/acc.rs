@@ -19,8 +19,8 @@ pub struct Seen {
 /// The interval logs of a run's distributions, `<prefix><name>.hlog`: one interval per second of
 /// run time (tick k is at k·Ts), created at the first tick (their base time is tick 0's).
 struct Hlogs {
-    pub(super) dir: PathBuf,
-    pub(super) prefix: String,
+    dir: PathBuf,
+    prefix: String,
     /// In the order of [`Timing::dists`].
     writers: Option<Vec<HlogWriter>>,
 }
@@ -59,21 +59,21 @@ impl Hlogs {
 /// interrupt) only covers the ticks it reached: the ticks after the last telemetry of the loop are
 /// held back until another telemetry shows the loop went on, and left out at the end.
 pub struct TimingAcc {
-    pub(super) t: Timing,
+    t: Timing,
     /// N: the run's last tick.
-    pub(super) n: u64,
-    pub(super) ts_ns: u64,
-    pub(super) realtime: bool,
+    n: u64,
+    ts_ns: u64,
+    realtime: bool,
     prev_wake: Option<u64>,
     /// Ticks after the last loop telemetry so far.
     pending: Vec<Seen>,
     /// One past the last tick with loop telemetry.
-    pub(super) reached: u64,
+    reached: u64,
     /// The last tick counted.
-    pub(super) last: Option<u64>,
+    last: Option<u64>,
     hlogs: Option<Hlogs>,
     /// The host's steal, sampled while the loop runs (realtime process runs).
-    pub(super) steal: Option<StealLog>,
+    steal: Option<StealLog>,
 }
 
 impl TimingAcc {

@@ -53,10 +53,10 @@ pub fn timing_cells(seen: &Seen, link: Option<RemoteSide>) -> Option<[Option<u64
 /// and the plant's flags, so any latency can be recomputed. Empty cells: the supervisor did not
 /// see that message.
 pub struct TimingCsv {
-    pub(super) path: std::path::PathBuf,
-    pub(super) w: csv::Writer<std::fs::File>,
-    pub(super) fields: [String; 13],
-    pub(super) link: Option<RemoteSide>,
+    path: std::path::PathBuf,
+    w: csv::Writer<std::fs::File>,
+    fields: [String; 13],
+    link: Option<RemoteSide>,
 }
 
 impl TimingCsv {

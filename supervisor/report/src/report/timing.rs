@@ -65,11 +65,7 @@ pub fn timing_markdown(
 }
 
 /// The percentiles of every latency, one row per law and quantity.
-pub(super) fn percentiles(
-    s: &mut String,
-    metrics: &[LawMetrics],
-    timing: &[Option<TimingSummary>],
-) {
+fn percentiles(s: &mut String, metrics: &[LawMetrics], timing: &[Option<TimingSummary>]) {
     let _ = writeln!(
         s,
         "| law | quantity | p50 | p99 | p99.9 | p99.99 | max | count |\n|---|---|---|---|---|---|---|---|"
@@ -97,7 +93,7 @@ pub(super) fn percentiles(
 }
 
 /// Ticks, misses, drops, losses and stolen CPU time per law.
-pub(super) fn counts(s: &mut String, metrics: &[LawMetrics], timing: &[Option<TimingSummary>]) {
+fn counts(s: &mut String, metrics: &[LawMetrics], timing: &[Option<TimingSummary>]) {
     let _ = writeln!(
         s,
         "\n| law | ticks | loop wall time (s) | deadline misses | miss ratio | late replies dropped | states skipped by controller | samples lost by supervisor (state/torque/telemetry) | CPU time stolen by the hypervisor (ms) |\n|---|---|---|---|---|---|---|---|---|"

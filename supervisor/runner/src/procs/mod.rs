@@ -8,14 +8,14 @@
 //! [`Recorder`](deltaloop_study::record::Recorder) the in-process loop fills (so every row and metric comes
 //! from the same code) and on to disk: memory does not grow with the run.
 
-mod handshake;
+mod children;
 mod observe;
-mod spawn;
 mod status;
 
 use crate::feed::ReferenceFeed;
 use crate::lawrun::{self, Keep, LawRun};
 use anyhow::{Context, Result, anyhow, bail};
+use children::{Observer, Pair, handshake, own_peak_rss_kib, stopped_before_start};
 use deltaloop_config::{Law, LoopMode, RemoteSide};
 use deltaloop_config::{Priority, ResolvedLayout};
 use deltaloop_study::Study;
@@ -24,9 +24,7 @@ use deltaloop_timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
 use deltaloop_transport::ipc::{self, IpcContext};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{ControlKind, ControlMsg, Sender};
-use handshake::{Observer, handshake, stopped_before_start};
 use observe::{Observation, observe};
-use spawn::{Pair, own_peak_rss_kib};
 use std::path::{Path, PathBuf};
 
 /// What one law's process run produced.

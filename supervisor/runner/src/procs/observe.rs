@@ -2,8 +2,8 @@
 //! in order to `<law>.timing.csv`, the timing histograms and the recorder, until both children
 //! exit.
 
-use super::handshake::Observer;
-use super::spawn::Pair;
+use super::children::Observer;
+use super::children::Pair;
 use crate::feed::ReferenceFeed;
 use crate::lawrun::{self, LawRecorder, LawRun};
 use anyhow::{Result, bail};

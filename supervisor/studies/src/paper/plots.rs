@@ -89,7 +89,7 @@ fn tracking_error(study: &Study, r: &LawRun, k: usize, j: usize) -> f64 {
 }
 
 /// Joint `j`'s commanded torque at record `k` of `r`, N m.
-pub(super) fn torque(r: &LawRun, k: usize, j: usize) -> f64 {
+fn torque(r: &LawRun, k: usize, j: usize) -> f64 {
     r.records[k].tau[j]
 }
 

@@ -22,7 +22,7 @@ pub fn fmt_rms(x: f64) -> String {
     format!("{x:.3e}")
 }
 
-pub(super) fn verdict(c: &Case) -> String {
+fn verdict(c: &Case) -> String {
     let both_ok = [Law::TdeIs, Law::TdcIsSta]
         .iter()
         .all(|l| c.laws[l].status == RunStatus::Ok);
@@ -202,7 +202,7 @@ fn rms_table(o: &mut String, s: &PaperSummary, scn: PathKind, cs: &[&Case]) {
 }
 
 /// Whether TDC+IS+STA beats TDC+IS, per preset.
-pub(super) fn verdicts(o: &mut String, cs: &[&Case]) {
+fn verdicts(o: &mut String, cs: &[&Case]) {
     let _ = writeln!(
         o,
         "\nDoes the proposal beat TDC+IS here, as the paper claims?\n"
@@ -354,7 +354,7 @@ fn cycles(s: &PaperSummary, preset: Preset) -> String {
 }
 
 /// Clamped intervals per scenario of `preset`, "S1 n, S2 n, S3 n".
-pub(super) fn clamps(s: &PaperSummary, preset: Preset, law: Law) -> String {
+fn clamps(s: &PaperSummary, preset: Preset, law: Law) -> String {
     s.cases
         .iter()
         .filter(|c| c.preset == preset)

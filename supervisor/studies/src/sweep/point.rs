@@ -191,13 +191,13 @@ impl Row {
 /// A metric read off a row.
 pub(super) type Metric = fn(&Row) -> f64;
 
-pub(super) fn maxj(v: [f64; 3]) -> f64 {
+fn maxj(v: [f64; 3]) -> f64 {
     v.into_iter().fold(0.0, f64::max)
 }
 
 /// Status and reason of a point (see [`Row::status`]): the run's own (see
 /// [`RunEnd::status`](deltaloop_study::record::RunEnd::status)), or `error` with the error.
-pub(super) fn status(m: Option<&LawMetrics>, err: Option<&str>) -> (RunStatus, String) {
+fn status(m: Option<&LawMetrics>, err: Option<&str>) -> (RunStatus, String) {
     match (m, err) {
         (Some(m), None) => (m.status, m.reason.clone().unwrap_or_default()),
         (Some(_), Some(e)) => (RunStatus::Error, e.to_string()),

@@ -52,7 +52,7 @@ fn latency_budget<'a>(
 /// A metric as the sweep's tables show it: its value (with the CI's half-width when the row
 /// has repeats), the round-off spread of its twin (NaN: none) and the interval.
 #[derive(Clone, Copy)]
-pub(super) struct Shown {
+struct Shown {
     pub value: Metric,
     pub roundoff: Metric,
     pub ci: fn(&Row) -> (f64, f64),
@@ -61,7 +61,7 @@ pub(super) struct Shown {
 }
 
 /// RMS joint error, max over joints.
-pub(super) const RMS: Shown = Shown {
+const RMS: Shown = Shown {
     value: |r| r.rms_rad,
     roundoff: |r| r.rms_rad_roundoff,
     ci: |r| (r.rms_rad_ci95_lo, r.rms_rad_ci95_hi),
@@ -69,7 +69,7 @@ pub(super) const RMS: Shown = Shown {
 };
 
 /// TDE error RMS, max over joints.
-pub(super) const TDE: Shown = Shown {
+const TDE: Shown = Shown {
     value: |r| r.tde_err_rms,
     roundoff: |r| r.tde_err_rms_roundoff,
     ci: |r| (r.tde_err_rms_ci95_lo, r.tde_err_rms_ci95_hi),
@@ -111,7 +111,7 @@ fn pct(x: f64) -> String {
     }
 }
 
-pub(super) fn cell(r: Option<&Row>, m: Shown) -> String {
+fn cell(r: Option<&Row>, m: Shown) -> String {
     match r {
         None => "–".into(),
         Some(r) => match r.status {

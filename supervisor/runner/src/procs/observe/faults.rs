@@ -1,8 +1,8 @@
 //! How a process run ended, in words: a child's exit status or signal, the line of its log that
 //! says why, and the run's [`Fault`].
 
+use super::super::children::Pair;
 use super::super::role;
-use super::super::spawn::Pair;
 use super::super::status::status_text;
 use super::{Ending, Observation};
 use crate::peer_text::{self, Tail};
