@@ -9,9 +9,10 @@
 //! iceoryx2's own code costs per cycle, with no second CPU and no cache line moving between CPUs.
 //! (2) costs about (5) plus (0): the library's instructions plus the lines the CPUs trade.
 //!
-//! A crate of its own so that these loops are optimised as the loop processes are, whatever
-//! the supervisor's own level (`Cargo.toml`): a baseline built with less optimisation than the
-//! code it is compared with would not measure the transport.
+//! The yardsticks of `bench loop`, and nothing of a run: no recorder, no report, no link, no
+//! figures (tests/e2e/crate_graph.rs). Built as the loop processes are (the release profile
+//! optimises every crate alike): a baseline built with less optimisation than the code it is
+//! compared with would not measure the transport.
 
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, Priority, RunConfig};

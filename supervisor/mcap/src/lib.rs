@@ -1,8 +1,8 @@
-//! What a run's MCAP file (and `top`'s live view) receives every tick, encoded here rather than
-//! in the supervisor: the robot's 3D scene ([`scene`]), its joint state ([`cdr`]), and the file
-//! they go to ([`file::McapFile`], whose writer's generic code is instantiated here). The
-//! supervisor is compiled for its build time (opt-level 0 in release); this crate is optimised,
-//! so writing a tick's messages costs the recording supervisor tens of µs, not hundreds.
+//! The MCAP encoding of a robot in motion: its 3D scene ([`scene`], `foxglove.SceneUpdate`), its
+//! joint state ([`cdr`], ROS 2 `JointState` in CDR), and the chunked, LZ4-compressed file they
+//! go to ([`file::McapFile`]). Plain encoders over the model, with no run folder, no study and no
+//! transport (tests/e2e/crate_graph.rs): the report writes a run's file and its live bus with
+//! them, a tick's messages in tens of µs.
 
 pub mod cdr;
 pub mod file;

@@ -2,9 +2,8 @@
 //! (DejaVu Sans, see `supervisor/plot/assets/DejaVuSans.LICENSE`), so it renders on machines without
 //! fonts.
 //!
-//! A crate of its own, under plain-data calls (series of points, histograms, bins), so that
-//! plotters' generic drawing code is compiled once here: monomorphised in the supervisor it was a
-//! sixth of that crate's code, compiled twice per test build (the library and its unit tests).
+//! Plain-data calls (series of points, histograms, timeline bins) and nothing of a run: the
+//! report, the timing and the studies draw their figures with it.
 
 use anyhow::{Context, Result, anyhow};
 use deltaloop_config::Law;

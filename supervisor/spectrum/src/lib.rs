@@ -1,9 +1,8 @@
 //! The one-sided energy spectrum of a real series after removing its end-to-end trend: the FFT
 //! behind the study's chattering metric (docs/controllers.md, "What the study measures").
 //!
-//! A crate of its own so that the FFT library's generic code is compiled once, here, behind a
-//! plain `&[f64]` API: monomorphised in the supervisor it was a third of that crate's code,
-//! compiled twice per test build (the library and its unit tests).
+//! Signal processing behind a plain `&[f64]` API, nothing of a run: the study's metrics call
+//! it.
 
 use rustfft::{FftPlanner, num_complex::Complex};
 
