@@ -18,14 +18,15 @@ pub struct Emulation {
 }
 
 impl Emulation {
-    /// The emulation of the config's `[link]` (validated there: delay and jitter 0..=1 s, loss
-    /// 0..=1).
+    /// The emulation of the config's `[link]` (checked there, by `LinkEmulation::check`), in
+    /// the units the sender draws in.
     pub fn of(link: &deltaloop_config::LinkSection) -> Self {
+        let e = link.emulation();
         Self {
-            delay_ns: (link.delay_us * 1000.0).round() as u64,
-            jitter_ns: (link.jitter_us * 1000.0).round() as u64,
-            loss_ppm: (link.loss * 1e6).round() as u32,
-            seed: link.seed,
+            delay_ns: (e.delay_us * 1000.0).round() as u64,
+            jitter_ns: (e.jitter_us * 1000.0).round() as u64,
+            loss_ppm: (e.loss * 1e6).round() as u32,
+            seed: e.seed,
         }
     }
 

@@ -96,7 +96,9 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
             allow_missing,
         }) => {
             let out = out.expect("clap requires --out");
-            tasks::merge_shards(&dirs, &out, force, allow_missing)?
+            let (said, missing) = tasks::merge_shards(&dirs, &out, force, allow_missing)?;
+            println!("{said}");
+            return missing.map_or(Ok(()), Err);
         }
     };
     // A closed pipe (`sweep plan | head`) is not an error worth a panic.

@@ -87,14 +87,14 @@ pub fn run_shard(r: ShardRun<'_>) -> Result<String> {
 
 /// `sweep merge DIRS --out OUT`: shard folders into one sweep folder. Everything is read and
 /// checked before the output folder is made, and a merge never empties its input. Returns the
-/// line to print; with points missing, the outputs (with `allow_missing`) and then an error
-/// naming how to run them.
+/// line to print and, with points missing (their outputs written with `allow_missing`), the
+/// error that names how to run them.
 pub fn merge_shards(
     dirs: &[PathBuf],
     out: &Path,
     force: bool,
     allow_missing: bool,
-) -> Result<String> {
+) -> Result<(String, Option<anyhow::Error>)> {
     let t0 = Instant::now();
     let opts = merge::Options {
         allow_missing,
@@ -116,18 +116,17 @@ pub fn merge_shards(
         counts(&m.rows, t0.elapsed().as_secs_f64()),
         out.display()
     );
-    if !m.missing.is_empty() {
-        println!("{said}");
-        anyhow::bail!(
+    let missing = (!m.missing.is_empty()).then(|| {
+        anyhow::anyhow!(
             "{} of {} points missing (listed in {}): re-run them with `deltaloop sweep run {} --points {}`",
             m.missing.len(),
             m.plan.points.len(),
             out.join("report.md").display(),
             m.sweep_file,
             plan::ranges_text(&m.missing)
-        );
-    }
-    Ok(said)
+        )
+    });
+    Ok((said, missing))
 }
 
 /// `N points in T s: … ok, … diverged, …` (and the runs, when points repeat).
