@@ -32,4 +32,5 @@ mod sweep_cluster;
 mod sweep_repeats;
 mod timing_files;
 mod top_foxglove;
+mod whatif;
 mod wire_contract;

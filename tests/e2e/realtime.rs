@@ -129,6 +129,7 @@ fn realtime_run_tracks_s1_close_to_inproc_and_writes_histograms() {
         }
         assert_eq!(o.status.success(), all_ok, "{err}");
         assert_replays(&b);
+        crate::whatif::assert_as_recorded_replays(&b, &ran);
         assert_clean(&b, &sr);
         let report = std::fs::read_to_string(b.join("report.md")).unwrap();
         assert!(

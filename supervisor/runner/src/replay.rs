@@ -20,12 +20,14 @@ use std::path::{Path, PathBuf};
 
 /// What one tick of the recorded trace says about the transport.
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct Recorded {
-    law: Law,
-    k: u64,
-    fate: ReplyFate,
-    /// A_k − t_k, ns, for an applied command.
-    arrival_ns: Option<u64>,
+pub struct Recorded {
+    pub law: Law,
+    /// The tick k.
+    pub k: u64,
+    /// What became of the controller's reply to it.
+    pub fate: ReplyFate,
+    /// A_k − t_k, ns, for an applied command (None on the row a run diverged on).
+    pub arrival_ns: Option<u64>,
 }
 
 /// The recorded ticks of a trace, read one row at a time.
@@ -257,6 +259,25 @@ pub enum Verdict {
         recorded: String,
         replayed: String,
     },
+}
+
+/// Reads the transport's part of a finished run's trace, row by row in the file's order, checked
+/// as a replay checks it, into `each`; returns the run's study (its config: the transport delay
+/// the arrivals include). Memory does not grow with the run.
+pub fn read_recorded(run_dir: &Path, mut each: impl FnMut(&Recorded)) -> Result<Study> {
+    let cfg = RunConfig::from_file(&run_dir.join("config.toml"))?;
+    if !cfg.record.trace {
+        bail!(
+            "{} has no trace.csv: the run was recorded with record.trace = false (its config.toml)",
+            run_dir.display()
+        );
+    }
+    let study = Study::new(cfg).context("the recorded scenario")?;
+    let mut rows = TraceRows::open(&run_dir.join("trace.csv"), &study)?;
+    while let Some(r) = rows.next()? {
+        each(&r);
+    }
+    Ok(study)
 }
 
 /// Replays the run in `run_dir` into `out` (its `trace.csv` and nothing else) and compares.

@@ -14,6 +14,7 @@ mod run;
 mod soak;
 mod sweep;
 mod top;
+mod whatif;
 mod words;
 
 use crate::record::RunStatus;
@@ -47,6 +48,9 @@ enum Command {
     /// Re-run a finished run in-process from its folder (config, replies and arrivals in its
     /// trace) and check that it reproduces `trace.csv` byte for byte.
     Replay(replay::Args),
+    /// What a measured latency distribution would cost the tracking: each law run in-process
+    /// over many latency sequences drawn from a realtime run, an HdrHistogram or a text file.
+    Whatif(whatif::Args),
     /// Watch a live lockstep or realtime run: ticks, misses, round-trip and wake-lateness
     /// percentiles, tracking error. It only reads (the run's spare observer slot); q quits.
     Top(top::Args),
@@ -107,6 +111,7 @@ pub fn main() -> ExitCode {
         Command::Paper(a) => paper::exec(a, &cx),
         Command::Sweep(a) => sweep::exec(a, &cx),
         Command::Replay(a) => replay::exec(a, &cx),
+        Command::Whatif(a) => whatif::exec(a, &cx),
         Command::Export(a) => export::exec(a, &cx),
         Command::Top(a) => top::exec(a, &cx),
         Command::Soak(a) => soak::exec(a, &cx),

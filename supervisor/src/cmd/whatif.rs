@@ -1,0 +1,96 @@
+//! `deltaloop whatif CONFIG --latency SOURCE`: the tracking a measured latency distribution would
+//! cost each law, as a distribution over in-process replicas.
+
+use super::words::Words;
+use super::{Context, OutArgs};
+use crate::output::{self, RunFolder};
+use anyhow::Result;
+use deltaloop_config::{Law, RunConfig};
+use deltaloop_studies::whatif::{self, DrawChoice, Request, source::Unit};
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Scenario file (TOML), e.g. configs/s1-nominal.toml.
+    config: PathBuf,
+    /// Where the latencies come from (repeatable; pooled): a realtime run folder (its ticks'
+    /// `arrival_ns`), an HdrHistogram file (`.hgrm` or `.hlog`), or a text file of latencies in
+    /// µs, one per line.
+    #[arg(long = "latency", value_name = "SOURCE", required = true)]
+    latency: Vec<PathBuf>,
+    /// Only this law (repeatable; default: the config's laws).
+    #[arg(long = "law", value_parser = Words::<Law>::new())]
+    laws: Vec<Law>,
+    /// Replicas per law (each a drawn latency sequence).
+    #[arg(long, default_value_t = 200)]
+    replicas: u64,
+    /// Seed of the latency draws (sensor noise keeps the scenario's seed).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Draw model (default: block for run folders and text files, independent when an
+    /// HdrHistogram file is among the sources).
+    #[arg(long, value_parser = Words::<DrawChoice>::new())]
+    draw: Option<DrawChoice>,
+    /// Block length of the block bootstrap, ticks (default 1000).
+    #[arg(long)]
+    block_ticks: Option<usize>,
+    /// Replay one run folder's own sequence per law, in order (with --replicas 1): its trace.
+    #[arg(long)]
+    as_recorded: bool,
+    /// Unit of an HdrHistogram file that does not state its own.
+    #[arg(long, value_parser = Words::<Unit>::new())]
+    latency_unit: Option<Unit>,
+    /// Also run with the latencies multiplied by these factors, e.g. 0.5,2,4 (1 always runs).
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    scale: Vec<f64>,
+    /// Write each replica's trace.csv under traces/.
+    #[arg(long)]
+    keep_traces: bool,
+    #[command(flatten)]
+    out: OutArgs,
+}
+
+pub fn exec(a: Args, cx: &Context) -> Result<()> {
+    let mut cfg = RunConfig::from_file(&a.config)?;
+    if !a.laws.is_empty() {
+        cfg.controller.laws = a.laws.clone();
+    }
+    let dir = a
+        .out
+        .out
+        .clone()
+        .unwrap_or_else(|| output::default_run_dir(&format!("whatif-{}", cfg.name)));
+    let sources: Vec<(&std::path::Path, &str)> = a
+        .latency
+        .iter()
+        .map(|p| (p.as_path(), "a --latency source"))
+        .collect();
+    let planned = whatif::plan(Request {
+        config: cfg,
+        config_path: &a.config,
+        sources: &a.latency,
+        unit: a.latency_unit,
+        draw: a.draw,
+        block_ticks: a.block_ticks,
+        as_recorded: a.as_recorded,
+        replicas: a.replicas,
+        seed: a.seed,
+        scales: &a.scale,
+        keep_traces: a.keep_traces,
+        command: &cx.command_line,
+    })?;
+    // Claimed only once the inputs are good: a refused command empties no folder.
+    let folder = RunFolder::claim_apart(&dir, a.out.force, &sources)?;
+    let o = match whatif::run(planned, folder.path(), cx.tty) {
+        Ok(o) => o,
+        Err(e) => {
+            folder.release_unused();
+            return Err(e);
+        }
+    };
+    for l in &o.table {
+        println!("{l}");
+    }
+    println!("wrote {}", folder.path().display());
+    Ok(())
+}

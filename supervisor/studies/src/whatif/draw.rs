@@ -1,0 +1,356 @@
+//! How a replica's latencies are drawn from the pooled records, and the arrival schedule they
+//! make for the in-process loop.
+//!
+//! A drawn latency L (ns after the tick's state was published) meets the realtime arrival rule
+//! with the plant on time: a reply with L ≤ the torque budget acts at L, any later one is a miss
+//! and the drives hold. A record's late, skipped and missed ticks stay so at every scale (their
+//! latency is unknown beyond the budget).
+
+use super::source::{Latencies, Source, Tick};
+use anyhow::{Result, bail};
+use deltaloop_runner::inproc::{Schedule, Step};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// The draw model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Model {
+    /// Circular blocks of `ticks` consecutive ticks from the pooled sequences, each block
+    /// starting at a tick drawn uniformly from all of them: keeps bursts up to a block long.
+    Block { ticks: usize },
+    /// Every tick drawn on its own from the pooled distribution: keeps the distribution, not
+    /// its order.
+    Independent,
+    /// Each law's own recorded sequence, in order, as it was (one run folder, one replica): the
+    /// replay.
+    AsRecorded,
+}
+
+impl Model {
+    /// The name in the output.
+    pub fn name(self) -> &'static str {
+        match self {
+            Model::Block { .. } => "block-bootstrap",
+            Model::Independent => "independent",
+            Model::AsRecorded => "as-recorded",
+        }
+    }
+
+    /// One line for the terminal and the report.
+    pub fn describe(self, ts_s: f64) -> String {
+        match self {
+            Model::Block { ticks } => format!(
+                "block bootstrap: circular blocks of {ticks} ticks ({:.3} s) from the pooled records",
+                ticks as f64 * ts_s
+            ),
+            Model::Independent => {
+                "independent draws from the pooled distribution (no bursts)".into()
+            }
+            Model::AsRecorded => "as recorded: each law's own sequence, in order".into(),
+        }
+    }
+}
+
+/// The pooled latencies, ready to draw from.
+pub struct Pool {
+    /// Every recorded sequence (block bootstrap).
+    seqs: Vec<Vec<Tick>>,
+    /// Cumulative lengths of `seqs`: a block's start is uniform over all their ticks.
+    seq_ends: Vec<u64>,
+    /// Every distinct outcome with its cumulative weight (independent draws).
+    items: Vec<(Tick, u64)>,
+}
+
+impl Pool {
+    /// Pools `sources` for `model`. A block bootstrap needs sequences; independent draws take
+    /// any source.
+    pub fn new(sources: &[Source], model: Model) -> Result<Self> {
+        let mut seqs = Vec::new();
+        let mut hist: Vec<(Tick, u64)> = Vec::new();
+        for s in sources {
+            match &s.latencies {
+                Latencies::Sequences(v) => {
+                    seqs.extend(v.iter().filter(|s| !s.is_empty()).cloned());
+                    for t in v.iter().flatten() {
+                        hist.push((*t, 1));
+                    }
+                }
+                Latencies::Histogram(h) => {
+                    if let Model::Block { .. } = model {
+                        bail!(
+                            "--latency {}: an HdrHistogram file keeps no order, so a block bootstrap cannot draw from it: use --draw independent",
+                            s.path.display()
+                        );
+                    }
+                    hist.extend(h.iter().map(|&(v, c)| (Tick::Reply(v), c)));
+                }
+            }
+        }
+        let mut seq_ends = Vec::with_capacity(seqs.len());
+        let mut total = 0u64;
+        for s in &seqs {
+            total += s.len() as u64;
+            seq_ends.push(total);
+        }
+        // Independent draws: equal outcomes merged, weights made cumulative.
+        hist.sort_unstable_by_key(|&(t, _)| order(t));
+        hist.dedup_by(|b, a| {
+            let same = a.0 == b.0;
+            if same {
+                a.1 += b.1;
+            }
+            same
+        });
+        let mut cum = 0u64;
+        let items = hist
+            .into_iter()
+            .filter(|&(_, c)| c > 0)
+            .map(|(t, c)| {
+                cum += c;
+                (t, cum)
+            })
+            .collect();
+        Ok(Self {
+            seqs,
+            seq_ends,
+            items,
+        })
+    }
+
+    /// Every pooled outcome with its weight, ascending: (outcome, count).
+    pub fn distribution(&self) -> impl Iterator<Item = (Tick, u64)> + '_ {
+        let mut prev = 0;
+        self.items.iter().map(move |&(t, cum)| {
+            let c = cum - prev;
+            prev = cum;
+            (t, c)
+        })
+    }
+
+    fn total_weight(&self) -> u64 {
+        self.items.last().map_or(0, |i| i.1)
+    }
+}
+
+/// A sort key: replies by latency, then late, skipped, missed.
+fn order(t: Tick) -> (u8, u64) {
+    match t {
+        Tick::Reply(l) => (0, l),
+        Tick::Late => (1, 0),
+        Tick::Skipped => (2, 0),
+        Tick::Missed => (3, 0),
+    }
+}
+
+/// One replica's arrival schedule: ticks 0..=`last`, each drawn as `model` says.
+pub struct Drawn<'p> {
+    pool: &'p Pool,
+    model: Model,
+    rng: ChaCha8Rng,
+    /// Latencies are multiplied by this.
+    scale: f64,
+    budget_ns: u64,
+    last: u64,
+    /// The block being read: (sequence, position, ticks left).
+    block: (usize, usize, usize),
+    /// Ticks whose reply did not act (late, skipped, missed), so far.
+    pub misses: u64,
+}
+
+impl<'p> Drawn<'p> {
+    /// Replica `replica`'s schedule. Its draws depend on (`seed`, `replica`) only, so every law
+    /// and every scale of a replica meet the same latencies (common random numbers: the laws
+    /// are compared on equal terms, and the scale curve is smooth).
+    pub fn new(
+        pool: &'p Pool,
+        model: Model,
+        seed: u64,
+        replica: u64,
+        scale: f64,
+        budget_ns: u64,
+        last: u64,
+    ) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(replica);
+        Self {
+            pool,
+            model,
+            rng,
+            scale,
+            budget_ns,
+            last,
+            block: (0, 0, 0),
+            misses: 0,
+        }
+    }
+
+    fn draw(&mut self) -> Tick {
+        match self.model {
+            Model::Block { ticks } => {
+                if self.block.2 == 0 {
+                    let total = self.pool.seq_ends.last().copied().unwrap_or(0);
+                    let u = self.rng.random_range(0..total.max(1));
+                    let s = self.pool.seq_ends.partition_point(|&end| end <= u);
+                    let start = self.pool.seq_ends[s] - self.pool.seqs[s].len() as u64;
+                    self.block = (s, (u - start) as usize, ticks.max(1));
+                }
+                let (s, pos, left) = self.block;
+                let seq = &self.pool.seqs[s];
+                self.block = (s, (pos + 1) % seq.len(), left - 1);
+                seq[pos]
+            }
+            Model::Independent | Model::AsRecorded => {
+                let u = self.rng.random_range(0..self.pool.total_weight().max(1));
+                let i = self.pool.items.partition_point(|&(_, cum)| cum <= u);
+                self.pool.items[i].0
+            }
+        }
+    }
+
+    /// The step a drawn outcome makes at this scale under the arrival rule.
+    fn step_of(&self, t: Tick) -> Step {
+        match t {
+            Tick::Reply(l) => {
+                let l = (l as f64 * self.scale).round() as u64;
+                if l <= self.budget_ns {
+                    Step::After(l)
+                } else {
+                    Step::Late
+                }
+            }
+            Tick::Late => Step::Late,
+            Tick::Skipped => Step::Skipped,
+            Tick::Missed => Step::Missed,
+        }
+    }
+}
+
+impl Schedule for Drawn<'_> {
+    fn step(&mut self, k: u64) -> Result<Option<Step>> {
+        if k > self.last {
+            return Ok(None);
+        }
+        let t = self.draw();
+        let step = self.step_of(t);
+        if !matches!(step, Step::After(_)) {
+            self.misses += 1;
+        }
+        Ok(Some(step))
+    }
+
+    fn interruptible(&self) -> bool {
+        false
+    }
+}
+
+/// A law's recorded sequence replayed in order, each reply at its recorded latency and every
+/// verdict as the run's plant made it: the replay of that run.
+pub struct AsRecorded<'r> {
+    pub seq: &'r [Tick],
+    pub misses: u64,
+}
+
+impl Schedule for AsRecorded<'_> {
+    fn step(&mut self, k: u64) -> Result<Option<Step>> {
+        let Some(&t) = self.seq.get(k as usize) else {
+            return Ok(None);
+        };
+        Ok(Some(match t {
+            Tick::Reply(l) => Step::After(l),
+            other => {
+                self.misses += 1;
+                match other {
+                    Tick::Late => Step::Late,
+                    Tick::Skipped => Step::Skipped,
+                    _ => Step::Missed,
+                }
+            }
+        }))
+    }
+
+    fn interruptible(&self) -> bool {
+        false
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::source::Kind;
+    use super::*;
+
+    fn seq_source(seqs: Vec<Vec<Tick>>) -> Source {
+        Source {
+            path: "x".into(),
+            kind: Kind::Text,
+            latencies: Latencies::Sequences(seqs),
+            laws: vec![],
+        }
+    }
+
+    fn steps(d: &mut Drawn, n: u64) -> Vec<Step> {
+        (0..n).map(|k| d.step(k).unwrap().unwrap()).collect()
+    }
+
+    /// A block is a run of consecutive recorded ticks (wrapping round its sequence), never
+    /// mixing sequences; a replica's draws are the same whatever else runs.
+    #[test]
+    fn blocks_are_consecutive_ticks_of_one_sequence_and_replicas_repeat() {
+        let a: Vec<Tick> = (0..10).map(|i| Tick::Reply(1000 + i)).collect();
+        let b: Vec<Tick> = (0..7).map(|i| Tick::Reply(5000 + i)).collect();
+        let pool = Pool::new(&[seq_source(vec![a, b])], Model::Block { ticks: 4 }).unwrap();
+        let model = Model::Block { ticks: 4 };
+        let mut d = Drawn::new(&pool, model, 7, 3, 1.0, 1_000_000, 99);
+        let got = steps(&mut d, 100);
+        for block in got.chunks(4) {
+            let ls: Vec<u64> = block
+                .iter()
+                .map(|s| match s {
+                    Step::After(l) => *l,
+                    other => panic!("{other:?}"),
+                })
+                .collect();
+            let (base, len) = if ls[0] >= 5000 { (5000, 7) } else { (1000, 10) };
+            for w in ls.windows(2) {
+                assert_eq!((w[1] - base), (w[0] - base + 1) % len, "{ls:?}");
+            }
+        }
+        let mut again = Drawn::new(&pool, model, 7, 3, 1.0, 1_000_000, 99);
+        assert_eq!(steps(&mut again, 100), got);
+        let mut other = Drawn::new(&pool, model, 7, 4, 1.0, 1_000_000, 99);
+        assert_ne!(steps(&mut other, 100), got);
+        assert_eq!(d.step(100).unwrap(), None, "ticks end after `last`");
+    }
+
+    /// The arrival rule: a scaled latency above the budget is a miss; a record's misses stay
+    /// misses; independent draws follow the weights.
+    #[test]
+    fn the_budget_decides_and_independent_draws_follow_the_weights() {
+        let src = Source {
+            path: "h".into(),
+            kind: Kind::Hgrm,
+            latencies: Latencies::Histogram(vec![(10_000, 3), (100_000, 1)]),
+            laws: vec![],
+        };
+        let e = Pool::new(std::slice::from_ref(&src), Model::Block { ticks: 10 })
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("--draw independent"), "{e}");
+        let pool = Pool::new(
+            &[src, seq_source(vec![vec![Tick::Missed]])],
+            Model::Independent,
+        )
+        .unwrap();
+        let mut d = Drawn::new(&pool, Model::Independent, 1, 0, 2.0, 150_000, 19_999);
+        let got = steps(&mut d, 20_000);
+        let count = |s: Step| got.iter().filter(|&&x| x == s).count() as f64 / 20_000.0;
+        assert!((count(Step::After(20_000)) - 0.6).abs() < 0.02);
+        // 100 µs × 2 = 200 µs > 150 µs: late.
+        assert!((count(Step::Late) - 0.2).abs() < 0.02);
+        assert!((count(Step::Missed) - 0.2).abs() < 0.02);
+        assert_eq!(
+            d.misses,
+            got.iter().filter(|s| !matches!(s, Step::After(_))).count() as u64
+        );
+    }
+}

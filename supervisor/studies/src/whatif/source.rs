@@ -1,0 +1,482 @@
+//! Where `whatif`'s latencies come from: a realtime run folder (each tick's fate and
+//! `arrival_ns`), an HdrHistogram file (`.hgrm` percentile text or `.hlog` interval log), or a
+//! text file of round-trip latencies in µs, one per line. A latency means what `arrival_ns`
+//! means: the reply's arrival after the tick's state was published, on the plant's clock, less
+//! the configured transport delay (which the scenario adds back).
+
+use anyhow::{Context, Result, anyhow, bail};
+use deltaloop_config::files;
+use deltaloop_runner::replay;
+use deltaloop_study::record::ReplyFate;
+use std::path::{Path, PathBuf};
+
+/// What became of one tick's reply, as a record tells it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Tick {
+    /// A reply arrived this many ns after the tick's state was published.
+    Reply(u64),
+    /// The controller answered after the budget: the drives held.
+    Late,
+    /// The controller answered a newer state instead of this one.
+    Skipped,
+    /// No reply.
+    Missed,
+}
+
+deltaloop_names::text_enum! {
+    "lowercase", "latency unit";
+    /// The unit of a file's latencies (`--latency-unit`).
+    pub enum Unit {
+        Ns,
+        Us,
+        Ms,
+        S,
+    }
+}
+
+impl Unit {
+    /// Nanoseconds in one of this unit.
+    pub fn ns(self) -> f64 {
+        match self {
+            Unit::Ns => 1.0,
+            Unit::Us => 1e3,
+            Unit::Ms => 1e6,
+            Unit::S => 1e9,
+        }
+    }
+
+    /// The unit a comment line names ("values in microseconds", "values in ns"), if any.
+    fn named_in(comment: &str) -> Option<Self> {
+        let c = comment.to_ascii_lowercase();
+        let at = c.find("values in ")? + "values in ".len();
+        let word: String = c[at..]
+            .chars()
+            .take_while(|ch| ch.is_alphanumeric() || *ch == 'µ')
+            .collect();
+        match word.as_str() {
+            "ns" | "nanoseconds" => Some(Unit::Ns),
+            "us" | "µs" | "microseconds" => Some(Unit::Us),
+            "ms" | "milliseconds" => Some(Unit::Ms),
+            "s" | "seconds" => Some(Unit::S),
+            _ => None,
+        }
+    }
+}
+
+/// One source's latencies.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Latencies {
+    /// Recorded in order, one per tick (a run folder: one sequence per law; a text file: one).
+    Sequences(Vec<Vec<Tick>>),
+    /// A distribution without order: (latency ns, count), ascending.
+    Histogram(Vec<(u64, u64)>),
+}
+
+/// What kind of file or folder a source is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    RunFolder,
+    Hgrm,
+    Hlog,
+    Text,
+}
+
+impl Kind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::RunFolder => "run folder",
+            Kind::Hgrm => "hgrm",
+            Kind::Hlog => "hlog",
+            Kind::Text => "text",
+        }
+    }
+}
+
+/// A loaded `--latency` source.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Source {
+    pub path: PathBuf,
+    pub kind: Kind,
+    pub latencies: Latencies,
+    /// A run folder's sequences by law, in the file's order (for `--as-recorded`).
+    pub laws: Vec<deltaloop_config::Law>,
+}
+
+/// The largest latency file read (text, `.hgrm`, `.hlog`), bytes: 100 M lines of text.
+const MAX_FILE_BYTES: u64 = 1 << 30;
+
+impl Source {
+    /// Loads `path`: a directory is a run folder; a file by its extension (`.hgrm`, `.hlog`,
+    /// anything else text). `unit` is the unit of an HdrHistogram file that does not say its own.
+    pub fn load(path: &Path, unit: Option<Unit>) -> Result<Self> {
+        let meta = std::fs::metadata(path)
+            .map_err(|e| anyhow!("--latency {}: cannot read it: {e}", path.display()))?;
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+        let (kind, latencies, laws) = if meta.is_dir() {
+            let (seqs, laws) = run_folder(path)?;
+            (Kind::RunFolder, Latencies::Sequences(seqs), laws)
+        } else if ext == "hgrm" {
+            (Kind::Hgrm, Latencies::Histogram(hgrm(path, unit)?), vec![])
+        } else if ext == "hlog" {
+            (Kind::Hlog, Latencies::Histogram(hlog(path, unit)?), vec![])
+        } else {
+            (Kind::Text, Latencies::Sequences(vec![text(path)?]), vec![])
+        };
+        let s = Self {
+            path: path.to_path_buf(),
+            kind,
+            latencies,
+            laws,
+        };
+        if s.ticks() == 0 {
+            bail!(
+                "--latency {}: holds no latency (a {} with nothing in it)",
+                path.display(),
+                kind.name()
+            );
+        }
+        Ok(s)
+    }
+
+    /// A run folder's recorded sequence of `law` (empty if it has none).
+    pub fn sequence_of(&self, law: deltaloop_config::Law) -> &[Tick] {
+        match (&self.latencies, self.laws.iter().position(|&l| l == law)) {
+            (Latencies::Sequences(s), Some(i)) => &s[i],
+            _ => &[],
+        }
+    }
+
+    /// How many latencies (ticks, or a histogram's count) it holds.
+    pub fn ticks(&self) -> u64 {
+        match &self.latencies {
+            Latencies::Sequences(s) => s.iter().map(|s| s.len() as u64).sum(),
+            Latencies::Histogram(h) => h.iter().map(|&(_, c)| c).sum(),
+        }
+    }
+}
+
+/// A realtime run folder: per law, each tick's fate and latency (`arrival_ns` less the run's
+/// transport delay). The row a run diverged on (applied, no arrival) is kept as a reply at 0 ns:
+/// the replay takes it so, and the divergence rule ends the run on it before it acts.
+fn run_folder(dir: &Path) -> Result<(Vec<Vec<Tick>>, Vec<deltaloop_config::Law>)> {
+    let mut seqs: Vec<Vec<Tick>> = Vec::new();
+    let mut laws = Vec::new();
+    let mut delay_ns = None;
+    let mut bad = None;
+    let study = replay::read_recorded(dir, |r| {
+        if laws.last() != Some(&r.law) {
+            if laws.contains(&r.law) {
+                bad.get_or_insert(format!("law `{}` appears twice", r.law));
+            }
+            laws.push(r.law);
+            seqs.push(Vec::new());
+        }
+        let d: u64 = *delay_ns.get_or_insert(0);
+        let t = match r.fate {
+            ReplyFate::Applied => Tick::Reply(r.arrival_ns.map_or(0, |a| a.saturating_sub(d))),
+            ReplyFate::Late => Tick::Late,
+            ReplyFate::Skipped => Tick::Skipped,
+            ReplyFate::Missed => Tick::Missed,
+        };
+        if let Some(s) = seqs.last_mut() {
+            s.push(t);
+        }
+    })
+    .with_context(|| format!("--latency {}", dir.display()))?;
+    if let Some(b) = bad {
+        bail!("--latency {}: trace.csv: {b}", dir.display());
+    }
+    // The arrivals count from t_k and include the run's transport delay: take it off.
+    let d = study.config.transport_delay_ns();
+    if d > 0 {
+        for s in &mut seqs {
+            for t in s.iter_mut() {
+                if let Tick::Reply(l) = t {
+                    *l = l.saturating_sub(d);
+                }
+            }
+        }
+    }
+    Ok((seqs, laws))
+}
+
+/// A text file of latencies in µs, one per line; blank lines and `#` comments are skipped.
+fn text(path: &Path) -> Result<Vec<Tick>> {
+    use std::io::BufRead;
+    let file = files::open_regular(path, MAX_FILE_BYTES, "a latency file")
+        .map_err(|e| anyhow!("--latency {}: cannot read it: {e}", path.display()))?;
+    let mut out = Vec::new();
+    for (i, line) in std::io::BufReader::new(file).lines().enumerate() {
+        let line = line.with_context(|| format!("--latency {}", path.display()))?;
+        let v = line.trim();
+        if v.is_empty() || v.starts_with('#') {
+            continue;
+        }
+        out.push(Tick::Reply(latency_ns(v, 1e3).ok_or_else(|| {
+            anyhow!(
+                "--latency {} line {}: {} is not a latency: expected a number of µs ≥ 0, one per line",
+                path.display(),
+                i + 1,
+                deltaloop_config::show_str(v)
+            )
+        })?));
+    }
+    Ok(out)
+}
+
+/// `v` (a number in a unit of `scale` ns) in ns; None if it is not a finite number ≥ 0 below an
+/// hour.
+fn latency_ns(v: &str, scale: f64) -> Option<u64> {
+    let x: f64 = v.parse().ok()?;
+    let ns = x * scale;
+    (x.is_finite() && x >= 0.0 && ns < 3.6e12).then(|| ns.round() as u64)
+}
+
+/// The unit a file states in its comment lines, the one given, or an error naming both.
+fn unit_of(path: &Path, comments: &[&str], given: Option<Unit>) -> Result<Unit> {
+    let stated = comments.iter().find_map(|c| Unit::named_in(c));
+    match (stated, given) {
+        (Some(s), Some(g)) if s != g => bail!(
+            "--latency {}: the file says its values are in {} but --latency-unit is {}",
+            path.display(),
+            s.name(),
+            g.name()
+        ),
+        (Some(u), _) | (None, Some(u)) => Ok(u),
+        (None, None) => bail!(
+            "--latency {}: the file does not say the unit of its values: give --latency-unit ns, us, ms or s",
+            path.display()
+        ),
+    }
+}
+
+/// An HdrHistogram percentile-distribution file (`outputPercentileDistribution`: Value,
+/// Percentile, TotalCount, 1/(1-Percentile)): each row's value with the count it adds. Files whose
+/// TotalCount column is cumulative (Java's) and those that count per row (deltaloop's) read alike
+/// (the `Total count` footer tells them apart).
+fn hgrm(path: &Path, unit: Option<Unit>) -> Result<Vec<(u64, u64)>> {
+    let text = files::read_regular(path, MAX_FILE_BYTES, "a percentile file")
+        .map_err(|e| anyhow!("--latency {}: cannot read it: {e}", path.display()))?;
+    let text = String::from_utf8_lossy(&text);
+    let comments: Vec<&str> = text.lines().filter(|l| l.starts_with('#')).collect();
+    let scale = unit_of(path, &comments, unit)?.ns();
+    let mut rows: Vec<(u64, f64, u64)> = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let cols: Vec<&str> = line.split_whitespace().collect();
+        if line.starts_with('#') || cols.is_empty() || cols[0] == "Value" {
+            continue;
+        }
+        let at = || format!("--latency {} line {}", path.display(), i + 1);
+        let (Some(v), Some(p), Some(c)) = (
+            cols.first().and_then(|v| latency_ns(v, scale)),
+            cols.get(1).and_then(|p| p.parse::<f64>().ok()),
+            cols.get(2).and_then(|c| c.parse::<u64>().ok()),
+        ) else {
+            bail!(
+                "{}: {} is not a percentile row: expected Value Percentile TotalCount 1/(1-Percentile)",
+                at(),
+                deltaloop_config::show_str(line.trim())
+            );
+        };
+        if !(0.0..=1.0).contains(&p) || rows.last().is_some_and(|r| p < r.1 || v < r.0) {
+            bail!(
+                "{}: percentile {p} at value {v} ns: rows must rise in value and percentile (0..=1)",
+                at()
+            );
+        }
+        rows.push((v, p, c));
+    }
+    let footer = comments.iter().find_map(|c| {
+        let at = c.find("Total count")?;
+        c[at..]
+            .split('=')
+            .nth(1)?
+            .trim()
+            .trim_end_matches(']')
+            .split(|ch: char| ch == ',' || ch.is_whitespace())
+            .next()?
+            .parse::<u64>()
+            .ok()
+    });
+    // Java's TotalCount is cumulative; deltaloop's own files count each row. A column that adds
+    // up to the footer's total counts rows (a cumulative one can only do so when every row but
+    // the last is 0, where both readings agree); else it must rise to the total.
+    let sum: u64 = rows.iter().map(|r| r.2).sum();
+    let rising = rows.windows(2).all(|w| w[0].2 <= w[1].2);
+    let last = rows.last().map_or(0, |r| r.2);
+    let per_row = match footer {
+        Some(t) if t == sum => true,
+        Some(t) if rising && t == last => false,
+        None => !rising,
+        Some(t) => bail!(
+            "--latency {}: the TotalCount column neither adds up nor rises to the footer's total count {t}",
+            path.display()
+        ),
+    };
+    let mut out: Vec<(u64, u64)> = Vec::new();
+    let mut before = 0u64;
+    for &(v, _, c) in &rows {
+        let n = if per_row { c } else { c.saturating_sub(before) };
+        before = c;
+        if n > 0 {
+            out.push((v, n));
+        }
+    }
+    merge_equal(&mut out);
+    Ok(out)
+}
+
+/// An HdrHistogram interval log: every interval added up.
+fn hlog(path: &Path, unit: Option<Unit>) -> Result<Vec<(u64, u64)>> {
+    let log = deltaloop_timing::hlog::read(path)
+        .with_context(|| format!("--latency {}", path.display()))?;
+    let head = files::read_regular(path, MAX_FILE_BYTES, "an interval log")
+        .map_err(|e| anyhow!("--latency {}: cannot read it: {e}", path.display()))?;
+    let head = String::from_utf8_lossy(&head);
+    let comments: Vec<&str> = head.lines().take_while(|l| l.starts_with('#')).collect();
+    let scale = unit_of(path, &comments, unit)?.ns();
+    let mut out = Vec::new();
+    for i in &log.intervals {
+        for v in i.hist.iter_recorded() {
+            let ns = v.value_iterated_to() as f64 * scale;
+            out.push((ns.round() as u64, v.count_at_value()));
+        }
+    }
+    out.sort_unstable();
+    merge_equal(&mut out);
+    Ok(out)
+}
+
+/// Adds up the counts of equal values (sorted input).
+fn merge_equal(v: &mut Vec<(u64, u64)>) {
+    v.dedup_by(|b, a| {
+        if a.0 == b.0 {
+            a.1 += b.1;
+            true
+        } else {
+            false
+        }
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn file(dir: &tempfile::TempDir, name: &str, text: &str) -> PathBuf {
+        let p = dir.path().join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    #[test]
+    fn a_text_file_is_a_sequence_in_us_and_bad_lines_are_named() {
+        let d = tempfile::tempdir().unwrap();
+        let p = file(&d, "rtt.txt", "# ping\n12.5\n\n30\n0\n");
+        let s = Source::load(&p, None).unwrap();
+        assert_eq!(
+            s.latencies,
+            Latencies::Sequences(vec![vec![
+                Tick::Reply(12_500),
+                Tick::Reply(30_000),
+                Tick::Reply(0)
+            ]])
+        );
+        for bad in ["-1", "nan", "12 us", "inf"] {
+            let p = file(&d, "bad.txt", &format!("10\n{bad}\n"));
+            let e = Source::load(&p, None).unwrap_err().to_string();
+            assert!(e.contains("line 2") && e.contains("µs ≥ 0"), "{e}");
+        }
+        let p = file(&d, "empty.txt", "# nothing\n");
+        let e = Source::load(&p, None).unwrap_err().to_string();
+        assert!(e.contains("holds no latency"), "{e}");
+    }
+
+    /// deltaloop's own `.hgrm` (counts per row, unit in its comment) and Java's (cumulative
+    /// TotalCount, no unit) read to the same distribution.
+    #[test]
+    fn hgrm_files_of_either_count_convention_read_alike() {
+        let mut h = deltaloop_study::latency_histogram();
+        for (v, n) in [(10_000u64, 50u64), (20_000, 30), (90_000, 20)] {
+            h.record_n(v, n).unwrap();
+        }
+        let d = tempfile::tempdir().unwrap();
+        let own = file(&d, "a.hgrm", &deltaloop_timing::hgrm(&h, "round trip"));
+        let ours = Source::load(&own, None).unwrap();
+        let Latencies::Histogram(got) = &ours.latencies else {
+            panic!("{ours:?}")
+        };
+        assert_eq!(got.iter().map(|c| c.1).sum::<u64>(), 100);
+        let near = |ns: u64, want: u64| ns.abs_diff(want) * 100 <= want;
+        let at = |want: u64| {
+            got.iter()
+                .filter(|(v, _)| near(*v, want))
+                .map(|c| c.1)
+                .sum::<u64>()
+        };
+        assert_eq!(
+            (at(10_000), at(20_000), at(90_000)),
+            (50, 30, 20),
+            "{got:?}"
+        );
+
+        let java = "       Value     Percentile TotalCount 1/(1-Percentile)\n\n\
+                    10.000 0.500000000000 50 2.00\n\
+                    20.000 0.800000000000 80 5.00\n\
+                    90.000 1.000000000000 100 inf\n\
+                    #[Mean    =       29.000, StdDeviation   =       30.000]\n\
+                    #[Max     =       90.000, Total count    =          100]\n";
+        let j = file(&d, "j.hgrm", java);
+        let e = Source::load(&j, None).unwrap_err().to_string();
+        assert!(e.contains("--latency-unit"), "{e}");
+        let j = Source::load(&j, Some(Unit::Us)).unwrap();
+        assert_eq!(
+            j.latencies,
+            Latencies::Histogram(vec![(10_000, 50), (20_000, 30), (90_000, 20)])
+        );
+        let e = Source::load(&own, Some(Unit::Ns)).unwrap_err().to_string();
+        assert!(e.contains("says its values are in us"), "{e}");
+    }
+
+    #[test]
+    fn hgrm_rows_that_fall_are_refused_with_their_line() {
+        let d = tempfile::tempdir().unwrap();
+        let p = file(&d, "x.hgrm", "# values in ns\n20 0.5 5 2\n10 0.9 9 10\n");
+        let e = Source::load(&p, None).unwrap_err().to_string();
+        assert!(e.contains("line 3") && e.contains("must rise"), "{e}");
+        let p = file(&d, "y.hgrm", "# values in ns\nabc\n");
+        let e = Source::load(&p, None).unwrap_err().to_string();
+        assert!(
+            e.contains("line 2") && e.contains("not a percentile row"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn an_hlog_adds_up_its_intervals_in_its_stated_unit() {
+        use deltaloop_timing::hlog::HlogWriter;
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("x.hlog");
+        let t = deltaloop_study::latency_histogram();
+        let base =
+            std::time::SystemTime::UNIX_EPOCH + std::time::Duration::from_secs(1_700_000_000);
+        let mut w = HlogWriter::create(
+            &p,
+            "test; values in ns",
+            base,
+            std::time::Duration::from_secs(1),
+            &t,
+        )
+        .unwrap();
+        w.record(100_000_000, 15_000).unwrap();
+        w.record(200_000_000, 15_000).unwrap();
+        w.record(1_500_000_000, 40_000).unwrap();
+        w.finish(2_000_000_000).unwrap();
+        let s = Source::load(&p, None).unwrap();
+        let Latencies::Histogram(h) = &s.latencies else {
+            panic!()
+        };
+        assert_eq!(h.iter().map(|c| c.1).sum::<u64>(), 3);
+        assert!(h[0].1 == 2 && h[0].0.abs_diff(15_000) < 20, "{h:?}");
+    }
+}
