@@ -15,8 +15,10 @@ use rand_chacha::ChaCha8Rng;
 /// The draw model.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Model {
-    /// Circular blocks of `ticks` consecutive ticks from the pooled sequences, each block
-    /// starting at a tick drawn uniformly from all of them: keeps bursts up to a block long.
+    /// Circular blocks of `ticks` consecutive ticks of one recorded sequence: each replica first
+    /// draws a sequence (weighted by its length) from the pool, then its blocks from it, each
+    /// starting at a uniformly drawn tick. Keeps bursts up to a block long, and the difference
+    /// between records (a run the host disturbed more than another).
     Block { ticks: usize },
     /// Every tick drawn on its own from the pooled distribution: keeps the distribution, not
     /// its order.
@@ -40,7 +42,7 @@ impl Model {
     pub fn describe(self, ts_s: f64) -> String {
         match self {
             Model::Block { ticks } => format!(
-                "block bootstrap: circular blocks of {ticks} ticks ({:.3} s) from the pooled records",
+                "block bootstrap: circular blocks of {ticks} ticks ({:.3} s) of one record per replica, drawn from the pool",
                 ticks as f64 * ts_s
             ),
             Model::Independent => {
@@ -55,7 +57,7 @@ impl Model {
 pub struct Pool {
     /// Every recorded sequence (block bootstrap).
     seqs: Vec<Vec<Tick>>,
-    /// Cumulative lengths of `seqs`: a block's start is uniform over all their ticks.
+    /// Cumulative lengths of `seqs`: a replica's sequence is drawn weighted by its length.
     seq_ends: Vec<u64>,
     /// Every distinct outcome with its cumulative weight (independent draws).
     items: Vec<(Tick, u64)>,
@@ -151,8 +153,10 @@ pub struct Drawn<'p> {
     scale: f64,
     budget_ns: u64,
     last: u64,
-    /// The block being read: (sequence, position, ticks left).
-    block: (usize, usize, usize),
+    /// The replica's sequence (block bootstrap).
+    seq: usize,
+    /// The block being read: (position, ticks left).
+    block: (usize, usize),
     /// Ticks whose reply did not act (late, skipped, missed), so far.
     pub misses: u64,
 }
@@ -172,6 +176,14 @@ impl<'p> Drawn<'p> {
     ) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         rng.set_stream(replica);
+        let seq = match model {
+            Model::Block { .. } => {
+                let total = pool.seq_ends.last().copied().unwrap_or(0);
+                let u = rng.random_range(0..total.max(1));
+                pool.seq_ends.partition_point(|&end| end <= u)
+            }
+            _ => 0,
+        };
         Self {
             pool,
             model,
@@ -179,7 +191,8 @@ impl<'p> Drawn<'p> {
             scale,
             budget_ns,
             last,
-            block: (0, 0, 0),
+            seq,
+            block: (0, 0),
             misses: 0,
         }
     }
@@ -187,16 +200,12 @@ impl<'p> Drawn<'p> {
     fn draw(&mut self) -> Tick {
         match self.model {
             Model::Block { ticks } => {
-                if self.block.2 == 0 {
-                    let total = self.pool.seq_ends.last().copied().unwrap_or(0);
-                    let u = self.rng.random_range(0..total.max(1));
-                    let s = self.pool.seq_ends.partition_point(|&end| end <= u);
-                    let start = self.pool.seq_ends[s] - self.pool.seqs[s].len() as u64;
-                    self.block = (s, (u - start) as usize, ticks.max(1));
+                let seq = &self.pool.seqs[self.seq];
+                if self.block.1 == 0 {
+                    self.block = (self.rng.random_range(0..seq.len()), ticks.max(1));
                 }
-                let (s, pos, left) = self.block;
-                let seq = &self.pool.seqs[s];
-                self.block = (s, (pos + 1) % seq.len(), left - 1);
+                let (pos, left) = self.block;
+                self.block = ((pos + 1) % seq.len(), left - 1);
                 seq[pos]
             }
             Model::Independent | Model::AsRecorded => {
@@ -291,8 +300,9 @@ mod tests {
         (0..n).map(|k| d.step(k).unwrap().unwrap()).collect()
     }
 
-    /// A block is a run of consecutive recorded ticks (wrapping round its sequence), never
-    /// mixing sequences; a replica's draws are the same whatever else runs.
+    /// A block is a run of consecutive recorded ticks (wrapping round its sequence); a replica
+    /// draws all its blocks from one sequence, and the replicas from both; a replica's draws are
+    /// the same whatever else runs.
     #[test]
     fn blocks_are_consecutive_ticks_of_one_sequence_and_replicas_repeat() {
         let a: Vec<Tick> = (0..10).map(|i| Tick::Reply(1000 + i)).collect();
@@ -314,6 +324,31 @@ mod tests {
                 assert_eq!((w[1] - base), (w[0] - base + 1) % len, "{ls:?}");
             }
         }
+        let from_b = |steps: &[Step]| {
+            steps
+                .iter()
+                .all(|s| matches!(s, Step::After(l) if *l >= 5000))
+        };
+        let from_a = |steps: &[Step]| {
+            steps
+                .iter()
+                .all(|s| matches!(s, Step::After(l) if *l < 5000))
+        };
+        assert!(
+            from_a(&got) || from_b(&got),
+            "one sequence per replica: {got:?}"
+        );
+        let (mut a, mut b) = (0, 0);
+        for r in 0..100 {
+            let mut d = Drawn::new(&pool, model, 7, r, 1.0, 1_000_000, 9);
+            let s = steps(&mut d, 10);
+            a += usize::from(from_a(&s));
+            b += usize::from(from_b(&s));
+        }
+        assert!(
+            a + b == 100 && a > 40 && b > 20,
+            "weighted by length 10 : 7: {a} {b}"
+        );
         let mut again = Drawn::new(&pool, model, 7, 3, 1.0, 1_000_000, 99);
         assert_eq!(steps(&mut again, 100), got);
         let mut other = Drawn::new(&pool, model, 7, 4, 1.0, 1_000_000, 99);
