@@ -23,7 +23,7 @@ pub use deltaloop_link_setup::random_bytes;
 #[derive(Clone)]
 pub struct Session {
     pub id: u64,
-    pub(crate) keys: [[u8; KEY_LEN]; 4],
+    keys: [[u8; KEY_LEN]; 4],
 }
 
 /// Which end of the link: the near side (the supervisor's host, which listens and answers the

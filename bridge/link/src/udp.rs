@@ -425,10 +425,8 @@ mod tests {
         let mut moved = relay(&mut tx, 3);
         moved[8] ^= 1;
         tap.send_to(&moved, to_near).unwrap();
-        let other = Session {
-            id: session.id,
-            ..Session::generate().unwrap()
-        };
+        let mut other = Session::generate().unwrap();
+        other.id = session.id;
         let (a, b) = (
             UdpSocket::bind("127.0.0.1:0").unwrap(),
             UdpSocket::bind("127.0.0.1:0").unwrap(),
