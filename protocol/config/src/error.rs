@@ -1,12 +1,9 @@
 //! The one error type of the crate: every message is one line that names the key, the value and
 //! what is allowed.
 
-use crate::text::{MAX_ECHO_CHARS, escape_cut};
-use std::fmt;
-
 /// A config problem, naming the key, the value and what is allowed. Every message is one line:
 /// echoed text has its control and format characters escaped and is cut to
-/// [`MAX_ECHO_CHARS`] characters.
+/// [`MAX_ECHO_CHARS`](crate::text::MAX_ECHO_CHARS) characters.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum ConfigError {
     /// The file could not be read (missing, not a regular file, too large, not UTF-8).
@@ -33,18 +30,4 @@ pub enum ConfigError {
         value: String,
         allowed: String,
     },
-}
-
-/// A [`ConfigError::Range`] for `key`; a long value is cut to [`MAX_ECHO_CHARS`] characters.
-pub(crate) fn range(key: &str, value: impl fmt::Display, allowed: &str) -> ConfigError {
-    let value = value.to_string();
-    ConfigError::Range {
-        key: key.into(),
-        value: if value.chars().count() > MAX_ECHO_CHARS {
-            escape_cut(&value, MAX_ECHO_CHARS, false)
-        } else {
-            value
-        },
-        allowed: allowed.into(),
-    }
 }

@@ -4,7 +4,6 @@
 use crate::error::ConfigError;
 use crate::files::read_text_file;
 use crate::layout::Layout;
-use crate::text::name_from_stem;
 use crate::text::{clean_message, show_path, toml_error_position};
 use deltaloop_names::{ControllerParams, Law, Preset, VelocitySource};
 use serde::{Deserialize, Serialize};
@@ -379,7 +378,7 @@ macro_rules! controller_section {
 
         impl ControllerSection {
             /// The constants: the preset with this section's overrides applied.
-            pub(crate) fn params(&self) -> ControllerParams {
+            pub fn params(&self) -> ControllerParams {
                 let p = ControllerParams::preset(self.preset);
                 ControllerParams {
                     $($name: self.$name.unwrap_or(p.$name),)*
@@ -670,6 +669,28 @@ impl Default for RecordSection {
         }
     }
 }
+/// The default name from a file stem: every character outside [`NAME_RULE`](crate::validate::NAME_RULE) becomes `_`, a
+/// leading `.` or `-` too, cut to 64 characters (`scenario` if nothing is left).
+fn name_from_stem(stem: &str) -> String {
+    let mut name: String = stem
+        .chars()
+        .take(64)
+        .enumerate()
+        .map(|(i, c)| {
+            let ok = c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-');
+            if ok && !(i == 0 && matches!(c, '.' | '-')) {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if name.is_empty() {
+        name = "scenario".into();
+    }
+    name
+}
+
 impl RunConfig {
     /// Parses, fills the preset, and validates. `path` only labels errors.
     pub fn from_toml_str(text: &str, path: Option<&Path>) -> Result<Self, ConfigError> {
@@ -686,12 +707,8 @@ impl RunConfig {
         }
         cfg.controller.resolve_preset();
         let ts = cfg.loop_.ts_s;
-        cfg.loop_
-            .realtime
-            .fill(Layout::realtime_default().wake_early_within(ts));
-        cfg.loop_
-            .lockstep
-            .fill(Layout::lockstep_default().wake_early_within(ts));
+        cfg.loop_.realtime.fill(Layout::realtime_default(), ts);
+        cfg.loop_.lockstep.fill(Layout::lockstep_default(), ts);
         if cfg.loop_.overrun_after_us.is_none() && ts.is_finite() && ts > 0.0 {
             cfg.loop_.overrun_after_us = Some((ts * 1e6).round().clamp(1.0, 1e6) as u32);
         }

@@ -137,28 +137,6 @@ pub fn toml_error_line(text: &str, e: &toml::de::Error) -> String {
     format!("{}{at}", clean_message(e.message()))
 }
 
-/// The default name from a file stem: every character outside [`NAME_RULE`](crate::validate::NAME_RULE) becomes `_`, a
-/// leading `.` or `-` too, cut to 64 characters (`scenario` if nothing is left).
-pub(crate) fn name_from_stem(stem: &str) -> String {
-    let mut name: String = stem
-        .chars()
-        .take(64)
-        .enumerate()
-        .map(|(i, c)| {
-            let ok = c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-');
-            if ok && !(i == 0 && matches!(c, '.' | '-')) {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    if name.is_empty() {
-        name = "scenario".into();
-    }
-    name
-}
-
 #[cfg(test)]
 mod tests {
     use crate::test_util::{MIN, err};

@@ -1,13 +1,28 @@
 //! Validation: every value of a parsed config against its allowed range, one section at a time,
 //! with an error that names the key, the value and what is allowed.
 
-use crate::error::{ConfigError, range};
+use crate::error::ConfigError;
 use crate::layout::{Layout, Poll};
 use crate::schema::{
     ControllerSection, FaultSection, LinkEmulation, LinkSection, LoopSection, PathKind,
     PlantSection, RunConfig, ScenarioSection, SensorSection, step_tick,
 };
-use crate::text::{show_num, show_str};
+use crate::text::{MAX_ECHO_CHARS, escape_cut, show_num, show_str};
+use std::fmt;
+
+/// A [`ConfigError::Range`] for `key`; a long value is cut to [`MAX_ECHO_CHARS`] characters.
+fn range(key: &str, value: impl fmt::Display, allowed: &str) -> ConfigError {
+    let value = value.to_string();
+    ConfigError::Range {
+        key: key.into(),
+        value: if value.chars().count() > MAX_ECHO_CHARS {
+            escape_cut(&value, MAX_ECHO_CHARS, false)
+        } else {
+            value
+        },
+        allowed: allowed.into(),
+    }
+}
 
 /// Largest accepted TDE delay ℓ (`controller.tde_delay_samples`), ticks. The controller keeps ℓ
 /// past (acceleration, torque) pairs.
@@ -418,7 +433,7 @@ impl Layout {
     /// Checks one mode's layout; `section` names it in errors (`loop.realtime`, `loop.lockstep`),
     /// `ts_s` is the (already validated) control period, which bounds `wake_early_us`: waking more
     /// than a period before the deadline would wake before the previous tick.
-    pub(crate) fn validate(&self, section: &str, ts_s: f64) -> Result<(), ConfigError> {
+    fn validate(&self, section: &str, ts_s: f64) -> Result<(), ConfigError> {
         for (k, v) in [
             ("plant_cpu", self.plant_cpu),
             ("controller_cpu", self.controller_cpu),
@@ -580,6 +595,15 @@ mod tests {
     use super::*;
     use crate::test_util::{MIN, err};
     use std::path::PathBuf;
+
+    #[test]
+    fn the_one_cpu_yield_layout_is_valid() {
+        assert!(
+            Layout::realtime_one_cpu_yield()
+                .validate("loop.realtime", 3e-4)
+                .is_ok()
+        );
+    }
 
     #[test]
     fn out_of_range_names_key_value_and_range() {
