@@ -4,10 +4,11 @@ use std::ffi::{c_char, c_int, c_void};
 
 use deltaloop_controller::process::{Step, serve};
 use deltaloop_transport::args::LoopArgs;
+use deltaloop_transport::exit::ProcessEnd;
 use deltaloop_wire::{RefSample, StateMsg, TorqueMsg};
 
 use crate::error::refusal;
-use crate::process::{exit_code, main_of, parse, usage};
+use crate::process::main_of;
 use crate::run::DlRun;
 
 /// Called once before READY with the run: read the constants, allocate what the step needs.
@@ -102,25 +103,22 @@ pub unsafe extern "C" fn dl_controller_main(
 ) -> c_int {
     // SAFETY: as the caller promised.
     unsafe {
-        main_of(argc, argv, |words, name| {
-            controller_main(words, name, init, step, user)
+        main_of(argc, argv, |args, name| {
+            controller_main(args, name, init, step, user)
         })
     }
 }
 
+/// How the controller process ended, or the usage error of a null step function.
 fn controller_main(
-    words: &[String],
+    args: Args,
     name: &str,
     init: DlInitFn,
     step: DlStepFn,
     user: *mut c_void,
-) -> u8 {
-    let args: Args = match parse(words) {
-        Ok(a) => a,
-        Err(code) => return code,
-    };
+) -> Result<anyhow::Result<ProcessEnd>, &'static str> {
     let Some(step) = step else {
-        return usage(name, "dl_controller_main: the step function is null");
+        return Err("dl_controller_main: the step function is null");
     };
     let term = deltaloop_transport::rt::child_signals();
     let end = serve(&args.run, &term, name, |cfg| {
@@ -139,5 +137,5 @@ fn controller_main(
             label: run.label(),
         })
     });
-    exit_code(name, end)
+    Ok(end)
 }

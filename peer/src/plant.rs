@@ -9,11 +9,12 @@ use deltaloop_model::{PlantSample, Vec3};
 use deltaloop_plant::process::serve;
 use deltaloop_plant::tick::{Drives, Physics};
 use deltaloop_transport::args::LoopArgs;
+use deltaloop_transport::exit::ProcessEnd;
 
 use crate::controller::DlInitFn;
 use crate::error::refusal;
 use crate::model::{DlJoints, drives_of};
-use crate::process::{exit_code, main_of, parse, usage};
+use crate::process::main_of;
 use crate::run::DlRun;
 
 /// What a plant in C does; `user` is the pointer given to [`dl_plant_main`]. Each returns 0, or
@@ -149,24 +150,23 @@ pub unsafe extern "C" fn dl_plant_main(
 ) -> c_int {
     // SAFETY: as the caller promised.
     unsafe {
-        main_of(argc, argv, |words, name| {
-            plant_main(words, name, fns.as_ref(), user)
+        main_of(argc, argv, |args, name| {
+            plant_main(args, name, fns.as_ref(), user)
         })
     }
 }
 
-fn plant_main(words: &[String], name: &str, fns: Option<&DlPlantFns>, user: *mut c_void) -> u8 {
-    let args: Args = match parse(words) {
-        Ok(a) => a,
-        Err(code) => return code,
-    };
+/// How the plant process ended, or the usage error of a null function.
+fn plant_main(
+    args: Args,
+    name: &str,
+    fns: Option<&DlPlantFns>,
+    user: *mut c_void,
+) -> Result<anyhow::Result<ProcessEnd>, &'static str> {
     let Some((fns, truth, measure, advance)) =
         fns.and_then(|f| Some((f, f.truth?, f.measure?, f.advance?)))
     else {
-        return usage(
-            name,
-            "dl_plant_main: fns, or its truth, measure or advance, is null",
-        );
+        return Err("dl_plant_main: fns, or its truth, measure or advance, is null");
     };
     let term = deltaloop_transport::rt::child_signals();
     let end = serve(&args.run, &term, name, |cfg| {
@@ -198,5 +198,5 @@ fn plant_main(words: &[String], name: &str, fns: Option<&DlPlantFns>, user: *mut
             })
         })
     });
-    exit_code(name, end)
+    Ok(end)
 }

@@ -8,12 +8,40 @@ use deltaloop_transport::exit::{self, EXIT_FAULT, EXIT_USAGE, ProcessEnd};
 
 use crate::error::set_error;
 
+/// Runs a `*_main` entry point: parses the arguments as `A` and calls `body` with them and the
+/// process's name (argv[0]'s file name); returns the exit code. `body` returns how the process
+/// ended, or `Err(why)` for a usage error of the caller (a null function). clap's own exits
+/// (`--help`, a bad argument), the end's line on stderr and the last error are seen to here; a
+/// panic is caught and reported as a fault.
+///
+/// # Safety
+/// `argv` holds `argc` valid C strings (or is null).
+pub(crate) unsafe fn main_of<A: clap::Parser>(
+    argc: c_int,
+    argv: *const *const c_char,
+    body: impl FnOnce(A, &str) -> Result<anyhow::Result<ProcessEnd>, &'static str>,
+) -> c_int {
+    // SAFETY: as the caller promised.
+    unsafe {
+        catch_main(argc, argv, |words, name| {
+            let args = match parse(words) {
+                Ok(a) => a,
+                Err(code) => return code,
+            };
+            match body(args, name) {
+                Ok(end) => exit_code(name, end),
+                Err(why) => usage(name, why),
+            }
+        })
+    }
+}
+
 /// Runs `body` with the arguments as strings and the process's name (argv[0]'s file name), and
 /// returns its exit code; a panic is caught and reported as a fault.
 ///
 /// # Safety
 /// `argv` holds `argc` valid C strings (or is null).
-pub(crate) unsafe fn main_of(
+unsafe fn catch_main(
     argc: c_int,
     argv: *const *const c_char,
     body: impl FnOnce(&[String], &str) -> u8,
@@ -36,7 +64,7 @@ pub(crate) unsafe fn main_of(
 }
 
 /// The parsed arguments, or the exit code after clap printed why not (0 for `--help`).
-pub(crate) fn parse<A: clap::Parser>(words: &[String]) -> Result<A, u8> {
+fn parse<A: clap::Parser>(words: &[String]) -> Result<A, u8> {
     A::try_parse_from(words).map_err(|e| {
         let _ = e.print();
         if e.use_stderr() {
@@ -49,7 +77,7 @@ pub(crate) fn parse<A: clap::Parser>(words: &[String]) -> Result<A, u8> {
 }
 
 /// A usage error of the caller (a null function): its line on stderr and in the last error.
-pub(crate) fn usage(name: &str, why: &str) -> u8 {
+fn usage(name: &str, why: &str) -> u8 {
     set_error(why);
     eprintln!("{name}: {why}");
     EXIT_USAGE
@@ -57,7 +85,7 @@ pub(crate) fn usage(name: &str, why: &str) -> u8 {
 
 /// The exit code of how the process ended, having printed its one line on stderr and set it as
 /// the last error (every end but completed).
-pub(crate) fn exit_code(name: &str, end: anyhow::Result<ProcessEnd>) -> u8 {
+fn exit_code(name: &str, end: anyhow::Result<ProcessEnd>) -> u8 {
     match &end {
         Ok(ProcessEnd::Completed) => {}
         Ok(ProcessEnd::Stopped(why) | ProcessEnd::Fault(why) | ProcessEnd::PeerSilent(why)) => {
