@@ -273,6 +273,12 @@ impl PlantSidePorts {
     }
 }
 
+/// The ports of the role this side serves.
+enum Either {
+    Controller(Ports),
+    Plant(PlantSidePorts),
+}
+
 /// How long a far side waits before it connects again to a near side that said it was busy,
 /// closed the connection or did not answer in time.
 const RETRY: Duration = Duration::from_millis(200);
@@ -493,13 +499,22 @@ fn serve(
     let mut link = FarLink::new((udp, tcp), child, session, mine, wants_relay, loop_cpu);
     let named = a.controller_cmd.as_ref().and_then(|_| ready_naming(cmd));
     let code = relay(ports, &mut link, (spin_ns, mode, far_emu), named, term)?;
-    link.report(code)?;
+    let last = link.report(code)?;
     std::thread::sleep(ipc::LINGER);
-    let line = (!link.last_line().is_empty()).then(|| link.last_line().to_string());
+    let line = (!last.is_empty()).then_some(last);
     drop(link);
     let id = hello.run_id.clone();
     ipc::remove_dead_nodes_where(&|n| n.ends_with(&id));
     Ok((code, line))
+}
+
+/// The READY text that names a controller of the user's started with `cmd`, as
+/// `RunConfig::controller_label` names a local one: the supervisor on the other host labels a
+/// foreign controller by its READY text, else by its own config's command, which for a remote
+/// controller is the near bridge and names nothing.
+fn ready_naming(cmd: &[String]) -> Option<[u8; 160]> {
+    let label = deltaloop_config::ControllerSection::command_label(cmd)?;
+    Some(ControlMsg::with_text(ControlKind::Ready, Sender::Controller, 0, &label).text)
 }
 
 /// Removes the run's temporary folder (its config) when the run is over.

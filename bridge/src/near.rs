@@ -43,8 +43,6 @@ use std::time::Duration;
 
 mod plant;
 
-use plant::*;
-
 /// How the far side ended: its exit code and last line.
 struct FarEnd {
     code: u8,
@@ -162,9 +160,12 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         (peer.handoff, peer.relay) = (handoff, link.path == LinkPath::Relay);
         peer.loop_cpu = a.run.mode.layout(&cfg).and_then(|l| l.controller_cpu);
         let hold_ns = emu.delay_ns + emu.jitter_ns + 1_000_000;
-        let mut n = NearPlant::new(ports, peer, spin_ns, silence_ms, hold_ns);
-        let r = n.forward(term);
-        finish(n.peer(), &report, &emu, None, r)
+        plant::stand_in(
+            (ports, peer),
+            (spin_ns, silence_ms, hold_ns),
+            term,
+            |peer, r| finish(peer, &report, &emu, None, r),
+        )
     } else {
         let ports = Ports::open(run_id, ipc::RELAY_BUFFER)?;
         let Some(mut peer) = connect(&at, &hello, &ports.control, term, &report)? else {

@@ -55,11 +55,6 @@ impl FarLink {
         self.udp.emulated_lost
     }
 
-    /// The process's last line on stderr (empty: none).
-    pub(super) fn last_line(&self) -> &str {
-        &self.child.last_line
-    }
-
     /// The wait of one turn: the socket, the control connection, the wake-up `event` and the
     /// process's stderr.
     fn wait(&self, event: &Listener<Svc>, timeout_ns: u64) -> Result<[bool; 4]> {
@@ -164,8 +159,8 @@ impl FarLink {
 
     /// Tells the near side what this side refused on the link (for the run's record there, and
     /// a warning here) and how the process ended, and waits (a little) for everything queued to
-    /// go out.
-    pub(super) fn report(&mut self, code: u8) -> Result<()> {
+    /// go out. Returns the process's last line on stderr (empty: none), which went with its end.
+    pub(super) fn report(&mut self, code: u8) -> Result<String> {
         if self.direct
             && let Some(h) = &self.handoff
             && let Some((refused, lost)) = crate::direct::read_counts(h)
@@ -190,7 +185,7 @@ impl FarLink {
             self.tcp.flush()?;
             std::thread::sleep(Duration::from_millis(1));
         }
-        Ok(())
+        Ok(line)
     }
 
     /// Says, here and in the run's log on the other host, at START, which path the process took:
@@ -280,15 +275,6 @@ struct Far {
     /// The READY text of `--controller-cmd`'s label, for a controller that does not name itself
     /// (see [`ready_naming`]).
     named: Option<[u8; 160]>,
-}
-
-/// The READY text that names a controller of the user's started with `cmd`, as
-/// `RunConfig::controller_label` names a local one: the supervisor on the other host labels a
-/// foreign controller by its READY text, else by its own config's command, which for a remote
-/// controller is the near bridge and names nothing.
-pub(super) fn ready_naming(cmd: &[String]) -> Option<[u8; 160]> {
-    let label = deltaloop_config::ControllerSection::command_label(cmd)?;
-    Some(ControlMsg::with_text(ControlKind::Ready, Sender::Controller, 0, &label).text)
 }
 
 impl Far {
@@ -464,12 +450,6 @@ impl FarPlant {
         }
         Ok(())
     }
-}
-
-/// The ports of the role this side serves.
-pub(super) enum Either {
-    Controller(Ports),
-    Plant(PlantSidePorts),
 }
 
 /// Relays the run between the local process's ports and the link until it ends; its exit code.

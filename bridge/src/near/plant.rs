@@ -3,7 +3,7 @@
 use super::*;
 
 /// `--role plant`: the plant's stand-in on the controller's (and the supervisor's) host.
-pub(super) struct NearPlant {
+struct NearPlant {
     ports: PlantPorts,
     peer: Peer,
     host: ControllerHost,
@@ -28,16 +28,24 @@ pub(super) struct NearPlant {
 /// States' copies held at most; a fuller queue publishes its oldest.
 const COPIES: usize = 1024;
 
+/// Stands in for the plant across the link until the run ends (`silence_ms` the run's controller
+/// silence timeout, `hold_ns` how long a state's copy waits for its datagram), then hands the
+/// link's peer and how the run ended to `end`, the run's end, while the ports here are still open.
+pub(super) fn stand_in<R>(
+    (ports, peer): (PlantPorts, Peer),
+    (spin_ns, silence_ms, hold_ns): (u64, u64, u64),
+    term: &AtomicBool,
+    end: impl FnOnce(&mut Peer, Result<(u8, Option<String>)>) -> R,
+) -> R {
+    let mut n = NearPlant::new(ports, peer, spin_ns, silence_ms, hold_ns);
+    let r = n.forward(term);
+    end(&mut n.peer, r)
+}
+
 impl NearPlant {
     /// The stand-in for a plant across the link, `silence_ms` the run's controller silence
     /// timeout and `hold_ns` how long a state's copy waits for its datagram.
-    pub(super) fn new(
-        ports: PlantPorts,
-        peer: Peer,
-        spin_ns: u64,
-        silence_ms: u64,
-        hold_ns: u64,
-    ) -> Self {
+    fn new(ports: PlantPorts, peer: Peer, spin_ns: u64, silence_ms: u64, hold_ns: u64) -> Self {
         Self {
             ports,
             peer,
@@ -52,12 +60,7 @@ impl NearPlant {
         }
     }
 
-    /// The link's peer, for the run's end.
-    pub(super) fn peer(&mut self) -> &mut Peer {
-        &mut self.peer
-    }
-
-    pub(super) fn forward(&mut self, term: &AtomicBool) -> Result<(u8, Option<String>)> {
+    fn forward(&mut self, term: &AtomicBool) -> Result<(u8, Option<String>)> {
         loop {
             let now = rt::now_ns();
             let timeout = if self.peer.direct {
