@@ -39,7 +39,7 @@ use serde::Serialize;
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use tick::{Columns, Row, Timing};
+use tick::{Columns, Row, write_timing};
 
 /// What to export, and where (default `RUN_DIR/run.mcap`).
 pub struct ExportRequest<'a> {
@@ -515,8 +515,7 @@ fn finish_law(
                 .iter()
                 .zip(row.iter().map(|cell| cell.parse::<u64>().ok()))
                 .collect();
-            let (k, m) = Timing::new(&cells, &order);
-            out.json(ch.timing, k * ts_ns, &m)?;
+            write_timing(out, ch, ts_ns, &cells, &order)?;
         }
     }
     ending(out, ch, law, &summary["laws"][law], ts_ns)
@@ -671,8 +670,13 @@ impl<B: Bus> Live<B> {
         }
         let cells: [(&str, Option<u64>); 13] =
             std::array::from_fn(|i| (TIMING_COLUMNS[i], cells[i]));
-        let (k, m) = Timing::new(&cells, &self.timing_order);
-        self.out.json(self.ch.timing, k * self.ts_ns, &m)
+        write_timing(
+            &mut self.out,
+            &self.ch,
+            self.ts_ns,
+            &cells,
+            &self.timing_order,
+        )
     }
 }
 

@@ -169,7 +169,7 @@ impl Serialize for Control<'_> {
 
 /// A timing row's message: its cells by column name (null: not seen) and the round trip
 /// `round_trip_ns` (torque received − state published, ns).
-pub(super) struct Timing<'a> {
+struct Timing<'a> {
     cells: &'a [(&'a str, Option<u64>)],
     /// The cells' indices by name, `cells.len()` standing for the round trip.
     order: &'a [usize],
@@ -185,7 +185,7 @@ pub(super) fn timing_order<'a>(names: impl Iterator<Item = &'a str>) -> Vec<usiz
 
 impl<'a> Timing<'a> {
     /// The message of `cells`, keys in `order` ([`timing_order`] of their names); with its tick.
-    pub(super) fn new(cells: &'a [(&'a str, Option<u64>)], order: &'a [usize]) -> (u64, Self) {
+    fn new(cells: &'a [(&'a str, Option<u64>)], order: &'a [usize]) -> (u64, Self) {
         let k = Self::cell(cells, "k").unwrap_or(0);
         (k, Timing { cells, order })
     }
@@ -193,6 +193,19 @@ impl<'a> Timing<'a> {
     fn cell(cells: &[(&str, Option<u64>)], name: &str) -> Option<u64> {
         cells.iter().find(|c| c.0 == name).and_then(|c| c.1)
     }
+}
+
+/// Writes the timing message of `cells` (keys in `order`, [`timing_order`] of their names) on
+/// `ch`'s timing channel at its tick.
+pub(super) fn write_timing(
+    out: &mut impl Bus,
+    ch: &Channels,
+    ts_ns: u64,
+    cells: &[(&str, Option<u64>)],
+    order: &[usize],
+) -> Result<()> {
+    let (k, m) = Timing::new(cells, order);
+    out.json(ch.timing, k * ts_ns, &m)
 }
 
 impl Serialize for Timing<'_> {
