@@ -301,7 +301,7 @@ fn ratio_range(
 
 /// A ratio range against `what` in words: "3.1–4.0× lower than what", "1.2–1.5× higher than
 /// what", or "0.90–1.10× what (lower on some scenarios, higher on others)".
-pub(super) fn times(r: (f64, f64), what: &str) -> String {
+fn times(r: (f64, f64), what: &str) -> String {
     let x = |v: f64| {
         if v >= 10.0 {
             format!("{v:.0}")
@@ -574,4 +574,21 @@ pub fn terminal(s: &PaperSummary, out: &Path) -> String {
     }
     let _ = writeln!(o, "report: {}", out.join("report.md").display());
     o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Ratio ranges read as the direction the numbers say, whichever it is.
+    #[test]
+    fn ratio_ranges_read_as_their_direction() {
+        assert_eq!(times((0.25, 0.5), "x"), "2.00–4.00× lower than x");
+        assert_eq!(times((12.0, 150.0), "x"), "12–150× higher than x");
+        assert_eq!(
+            times((0.8, 1.2), "x"),
+            "0.80–1.20× x (lower on some scenarios, higher on others)"
+        );
+        assert!(times((f64::NAN, 1.0), "x").starts_with("not comparable"));
+    }
 }
