@@ -5,11 +5,11 @@
 //! first reference chunks, ARMED, START; or STOP when a signal comes first.
 
 use super::status::status_text;
-use super::{ProcessRun, exe_dir, role};
+use super::{ProcessRun, Started, exe_dir, new_run_id, role};
 use crate::feed::ReferenceFeed;
 use crate::lawrun::{self, Keep};
 use crate::peer_text::{self, Tail};
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result, anyhow, bail};
 use deltaloop_config::{Law, LoopMode, RemoteSide, RunConfig};
 use deltaloop_study::Study;
 use deltaloop_timing::Timing;
@@ -23,6 +23,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::header::payload_header::PayloadHeader;
 use std::cell::Cell;
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::Duration;
@@ -88,17 +89,6 @@ impl Drop for Reaped {
             let _ = c.wait();
         }
     }
-}
-
-/// The supervisor's own peak resident set size so far, KiB.
-pub(super) fn own_peak_rss_kib() -> u64 {
-    let mut ru = std::mem::MaybeUninit::<libc::rusage>::zeroed();
-    // SAFETY: getrusage fills the struct we own.
-    if unsafe { libc::getrusage(libc::RUSAGE_SELF, ru.as_mut_ptr()) } != 0 {
-        return 0;
-    }
-    // SAFETY: filled by the successful call.
-    unsafe { ru.assume_init() }.ru_maxrss as u64
 }
 
 /// What to execute for one child: a program and the arguments that come before the standard
@@ -224,20 +214,20 @@ pub(super) struct Pair {
 
 /// The children's stderr logs.
 #[derive(Clone)]
-pub(super) struct Logs {
+struct Logs {
     plant: PathBuf,
     controller: PathBuf,
 }
 
 impl Logs {
     /// The plant's log and the controller's.
-    pub(super) fn paths(&self) -> (&Path, &Path) {
+    fn paths(&self) -> (&Path, &Path) {
         (&self.plant, &self.controller)
     }
 
     /// The last lines both children printed (at most [`peer_text::MAX_LINES`] each, read from
     /// the end of their logs, sanitized; a first line says where earlier ones are).
-    pub(super) fn messages(&self) -> Vec<String> {
+    fn messages(&self) -> Vec<String> {
         let mut m = Tail::read(&self.plant).last_lines(peer_text::MAX_LINES, &self.plant);
         m.extend(Tail::read(&self.controller).last_lines(peer_text::MAX_LINES, &self.controller));
         m
@@ -261,7 +251,7 @@ impl Logs {
 impl Pair {
     /// Starts both children with the run id, the resolved config and the mode: the built-in
     /// executables next to `deltaloop`, or the config's `command`s in their place.
-    pub(super) fn spawn(
+    fn spawn(
         run_id: &str,
         law: Law,
         mode: LoopMode,
@@ -337,9 +327,14 @@ impl Pair {
         (self.plant.peak_rss_kib, self.controller.peak_rss_kib)
     }
 
-    /// The children's stderr logs.
-    pub(super) fn logs(&self) -> &Logs {
-        &self.logs
+    /// The last lines both children printed (see [`Logs::messages`]).
+    pub(super) fn messages(&self) -> Vec<String> {
+        self.logs.messages()
+    }
+
+    /// The plant's stderr log and the controller's.
+    pub(super) fn log_paths(&self) -> (&Path, &Path) {
+        self.logs.paths()
     }
 
     /// The plant's and the controller's command lines, for messages.
@@ -508,18 +503,28 @@ impl ControlIn {
 /// The supervisor's ports: observers of the three loop streams, run control (the reference
 /// publisher is a [`ReferenceFeed`] on the same node).
 pub(super) struct Observer {
-    pub(super) state: Subscriber<Svc, StateMsg, ()>,
-    pub(super) torque: Subscriber<Svc, TorqueMsg, ()>,
-    pub(super) telemetry: Subscriber<Svc, TelemetryMsg, ()>,
+    state: Subscriber<Svc, StateMsg, ()>,
+    torque: Subscriber<Svc, TorqueMsg, ()>,
+    telemetry: Subscriber<Svc, TelemetryMsg, ()>,
     /// START and STOP: the only publisher of `control`, taken before the children start.
-    pub(super) control: Publisher<Svc, ControlMsg, ()>,
+    control: Publisher<Svc, ControlMsg, ()>,
     from_plant: ControlIn,
     from_controller: ControlIn,
-    pub(super) node: Node<Svc>,
+    node: Node<Svc>,
+}
+
+/// A message the supervisor's ports took: of the loop's streams, or of a child's control service
+/// (from that child only).
+pub(super) enum Observed {
+    State(StateMsg),
+    Torque(TorqueMsg),
+    Telemetry(TelemetryMsg),
+    Plant(ControlMsg),
+    Controller(ControlMsg),
 }
 
 impl Observer {
-    pub(super) fn open(run_id: &str) -> Result<Self> {
+    fn open(run_id: &str) -> Result<Self> {
         let node = ipc::node("supervisor", run_id)?;
         Ok(Self {
             state: ipc::state(&node, run_id)?
@@ -548,20 +553,37 @@ impl Observer {
     }
 
     /// The children's pids: from now on their control services are believed only from them.
-    pub(super) fn trust(&self, pair: &Pair) {
+    fn trust(&self, pair: &Pair) {
         let (plant, controller) = pair.pids();
         self.from_plant.root.set(plant);
         self.from_controller.root.set(controller);
     }
 
-    /// The plant's next message on its control service (from the plant only).
-    pub(super) fn plant_said(&self) -> Result<Option<ControlMsg>> {
-        self.from_plant.receive()
+    /// Hands `on` every message waiting on the ports, in this order: the states, the replies,
+    /// the telemetry, then the plant's and the controller's control messages.
+    pub(super) fn drain(&self, on: &mut dyn FnMut(Observed) -> Result<()>) -> Result<()> {
+        while let Some(s) = self.state.receive().ipc("observe state")? {
+            on(Observed::State(*s.payload()))?;
+        }
+        while let Some(s) = self.torque.receive().ipc("observe torque")? {
+            on(Observed::Torque(*s.payload()))?;
+        }
+        while let Some(s) = self.telemetry.receive().ipc("observe telemetry")? {
+            on(Observed::Telemetry(*s.payload()))?;
+        }
+        while let Some(m) = self.from_plant.receive()? {
+            on(Observed::Plant(m))?;
+        }
+        while let Some(m) = self.from_controller.receive()? {
+            on(Observed::Controller(m))?;
+        }
+        Ok(())
     }
 
-    /// The controller's next message on its control service (from the controller only).
-    pub(super) fn controller_said(&self) -> Result<Option<ControlMsg>> {
-        self.from_controller.receive()
+    /// Sends START to both children.
+    pub(super) fn start(&self, start: ControlMsg) -> Result<()> {
+        self.control.send_copy(start).ipc("send START")?;
+        Ok(())
     }
 
     /// The next message of either child (the plant's first).
@@ -585,6 +607,57 @@ impl Observer {
         let _ = self
             .control
             .send_copy(ControlMsg::new(ControlKind::Stop, Sender::Supervisor));
+    }
+}
+
+/// Opens the supervisor's ports and the reference feed, spawns the pair and runs the handshake.
+/// Breaks with the run's result when Ctrl-C (or SIGTERM, SIGHUP) came first: nothing was
+/// started (see [`stopped_before_start`]).
+pub(super) fn start_pair(
+    study: &Study,
+    law: Law,
+    mode: LoopMode,
+    run_dir: &Path,
+    keep: &Keep,
+) -> Result<ControlFlow<ProcessRun, Started>> {
+    // A full /dev/shm would kill a child with SIGBUS mid-set-up: say so up front instead.
+    if let Some(free) = ipc::shm_free_bytes() {
+        ipc::check_shm(ipc::shm_needed_bytes(), free).map_err(|e| anyhow!(e))?;
+    }
+    let rid = new_run_id();
+    let obs = Observer::open(&rid)?;
+    let lead = match mode {
+        LoopMode::Lockstep => crate::feed::LOCKSTEP_LEAD_CHUNKS,
+        _ => ipc::REF_RING as u64,
+    };
+    let mut feed = ReferenceFeed::create(&obs.node, &rid, study.reference.row_count(), lead)?;
+    let mut pair = Pair::spawn(&rid, law, mode, run_dir, &study.config)?;
+    obs.trust(&pair);
+    match handshake(&obs, &mut feed, &mut pair, study) {
+        Ok(true) => Ok(ControlFlow::Continue(Started {
+            rid,
+            obs,
+            feed,
+            pair,
+        })),
+        Ok(false) => {
+            stopped_before_start(&obs, pair, law, study, rid, keep).map(ControlFlow::Break)
+        }
+        Err(e) => {
+            // A child that died during set-up leaves a half-created node: remove it now.
+            drop(pair);
+            drop(feed);
+            drop(obs);
+            let removed = ipc::remove_dead_nodes();
+            Err(if removed.is_empty() {
+                e
+            } else {
+                anyhow!(
+                    "{e:#}; removed the iceoryx2 resources of the {} dead node(s) it left",
+                    removed.len()
+                )
+            })
+        }
     }
 }
 
@@ -613,7 +686,7 @@ fn await_control(
         }
         pair.check_alive()?;
         if rt::now_ns() > deadline {
-            let said = pair.logs().said();
+            let said = pair.logs.said();
             bail!(
                 "{}{} within {} s{}{said}",
                 step(),
@@ -628,7 +701,7 @@ fn await_control(
 
 /// READY from both children, the first chunks of the reference to the controller, ARMED from it.
 /// Ok(false) if the run was interrupted first.
-pub(super) fn handshake(
+fn handshake(
     obs: &Observer,
     feed: &mut ReferenceFeed,
     pair: &mut Pair,
@@ -684,7 +757,7 @@ const LABEL_CHARS: usize = 64;
 
 /// Ctrl-C (or SIGTERM, SIGHUP) during the handshake: no START is sent; STOP releases both
 /// children, which exit at once; the run holds no tick.
-pub(super) fn stopped_before_start(
+fn stopped_before_start(
     obs: &Observer,
     mut pair: Pair,
     law: Law,
@@ -699,7 +772,7 @@ pub(super) fn stopped_before_start(
         std::thread::sleep(Duration::from_millis(2));
     }
     // Read the logs after the children are gone, so their last lines are in.
-    let logs = pair.logs().clone();
+    let logs = pair.logs.clone();
     let controller_label = pair.take_label();
     drop(pair);
     let child_messages = logs.messages();

@@ -13,18 +13,17 @@ mod observe;
 mod status;
 
 use crate::feed::ReferenceFeed;
-use crate::lawrun::{self, Keep, LawRun};
-use anyhow::{Context, Result, anyhow, bail};
-use children::{Observer, Pair, handshake, own_peak_rss_kib, stopped_before_start};
-use deltaloop_config::{Law, LoopMode, RemoteSide};
+use crate::lawrun::{Keep, LawRun};
+use anyhow::{Context, Result, bail};
+use children::{Observer, Pair};
+use deltaloop_config::{Law, LoopMode};
 use deltaloop_config::{Priority, ResolvedLayout};
 use deltaloop_study::Study;
 use deltaloop_study::record::Fault;
-use deltaloop_timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
-use deltaloop_transport::ipc::{self, IpcContext};
+use deltaloop_timing::{Seen, Timing};
 use deltaloop_transport::rt;
-use deltaloop_transport::wire::{ControlKind, ControlMsg, Sender};
-use observe::{Observation, observe};
+use deltaloop_transport::wire::Sender;
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
 /// What one law's process run produced.
@@ -81,153 +80,30 @@ pub fn run_law(
     let Some(layout) = mode.layout(cfg) else {
         bail!("mode {mode} runs no processes");
     };
-    let Started {
-        rid,
-        obs,
-        mut feed,
-        mut pair,
-        ready,
-    } = start_pair(study, law, mode, run_dir)?;
-    if !ready {
-        return stopped_before_start(&obs, pair, law, study, rid, keep);
-    }
+    let started = match children::start_pair(study, law, mode, run_dir, keep)? {
+        ControlFlow::Continue(started) => started,
+        // Ctrl-C (or SIGTERM, SIGHUP) during the handshake: nothing was started.
+        ControlFlow::Break(stopped) => return Ok(stopped),
+    };
     let sched_warnings = schedule_supervisor(&layout, mode, cfg.loop_.ts_s);
-    let n = study.reference.n as u64;
-    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
-    // Allocate (and touch) everything the observer fills before START, not after: the loop does
-    // not wait for the supervisor (regression: a 10-minute lockstep run lost its first 32 k
-    // ticks while the supervisor allocated per-tick tables after START).
-    let link = deltaloop_report::link::across(cfg);
-    let mut timing = TimingAcc::new(n, ts_ns, mode == LoopMode::Realtime, link)
-        .with_hlogs(run_dir, &format!("{law}."));
-    // The steal at each pause of the plant's clock, when the plant runs on this host.
-    if mode == LoopMode::Realtime && link != Some(RemoteSide::Plant) {
-        timing = timing.with_steal();
-    }
-    let mut streams = Observation::new(
-        lawrun::recorder(study, law, keep)?,
-        timing,
-        cfg.record
-            .timing_csv
-            .then(|| TimingCsv::create(&run_dir.join(format!("{law}.timing.csv")), link))
-            .transpose()?,
-        // Shortened to the recorder's lifetime (a coercion Option does not do by itself).
-        on_tick.map(|f| -> OnTick<'_> { f }),
-    );
-    let mut start = ControlMsg::new(ControlKind::Start, Sender::Supervisor);
-    start.ticks = n;
-    start.q0 = study.reference.q0().into();
-    // Both children poll for START every ≤ 1 ms: tick 0 comes 10 ms after it. Across the link
-    // START also crosses both bridges and the control connection (behind the reference chunks),
-    // and each loop process takes the link's socket on it: 100 ms there.
-    start.t0_ns = rt::now_ns()
-        + if link.is_some() {
-            100_000_000
-        } else {
-            10_000_000
-        };
-    let steal_before = deltaloop_timing::steal_jiffies();
-    obs.control.send_copy(start).ipc("send START")?;
-
-    let ending = observe(&obs, &mut feed, &mut pair, study, &mut streams)?;
-    let mut child_messages = pair.logs().messages();
-    child_messages.extend(
-        obs.intrusions()
-            .into_iter()
-            .map(|i| format!("deltaloop: {i}")),
-    );
-    let cause = ending.fault(&pair, &streams, study.config.loop_.silence_timeout_ms);
-    let (plant_rss, ctrl_rss) = pair.peak_rss_kib();
-    let controller_label = pair.take_label();
-    drop(pair);
-    // A child killed by a signal leaves its iceoryx2 node behind: the surviving supervisor
-    // removes it now (and says so) rather than leaving it to the next run.
-    let removed = ipc::remove_dead_nodes();
-    if !removed.is_empty() {
-        child_messages.push(format!(
-            "removed the iceoryx2 resources of {} dead node(s): {}",
-            removed.len(),
-            removed.join(", ")
-        ));
-    }
-    child_messages.extend(
-        sched_warnings
-            .into_iter()
-            .map(|w| format!("deltaloop: warning: {w}")),
-    );
-    let (run, mut timing) = streams.finish(ending.interrupted(), cause.as_ref())?;
-    timing.steal =
-        deltaloop_timing::steal_ms_between(&steal_before, &deltaloop_timing::steal_jiffies());
-    timing.peak_rss = PeakRss::from_kib(own_peak_rss_kib(), plant_rss, ctrl_rss);
-    if timing.link.is_some() {
-        let path = deltaloop_link_setup::LinkReport::path(&run_dir.join("config.toml"), &rid);
-        timing.link_report = deltaloop_link_setup::LinkReport::read(&path);
-        // The supervisor's copy is in summary.json; the file was only the way here.
-        let _ = std::fs::remove_file(&path);
-        if let Some(n) = deltaloop_timing::link_refusals_note(timing.link_report.as_ref()) {
-            child_messages.push(format!("deltaloop: warning: {n}"));
-        }
-    }
-    Ok(ProcessRun {
-        controller_label,
-        fault: cause,
-        interrupted: ending.interrupted(),
-        run_id: rid,
-        run,
-        timing,
-        child_messages,
-    })
+    observe::run(
+        started,
+        study,
+        (law, mode),
+        run_dir,
+        keep,
+        on_tick,
+        sched_warnings,
+    )
 }
 
-/// A pair through the handshake.
+/// A pair through the handshake (ARMED from both children; START not sent yet): the run id
+/// that scopes its services, the supervisor's ports, the reference feed and the children.
 struct Started {
     rid: String,
     obs: Observer,
     feed: ReferenceFeed,
     pair: Pair,
-    /// Both children are ARMED (false: a signal came first; nothing was started).
-    ready: bool,
-}
-
-/// Opens the supervisor's ports and the reference feed, spawns the pair and runs the handshake.
-fn start_pair(study: &Study, law: Law, mode: LoopMode, run_dir: &Path) -> Result<Started> {
-    // A full /dev/shm would kill a child with SIGBUS mid-set-up: say so up front instead.
-    if let Some(free) = ipc::shm_free_bytes() {
-        ipc::check_shm(ipc::shm_needed_bytes(), free).map_err(|e| anyhow!(e))?;
-    }
-    let rid = new_run_id();
-    let obs = Observer::open(&rid)?;
-    let lead = match mode {
-        LoopMode::Lockstep => crate::feed::LOCKSTEP_LEAD_CHUNKS,
-        _ => ipc::REF_RING as u64,
-    };
-    let mut feed = ReferenceFeed::create(&obs.node, &rid, study.reference.row_count(), lead)?;
-    let mut pair = Pair::spawn(&rid, law, mode, run_dir, &study.config)?;
-    obs.trust(&pair);
-    match handshake(&obs, &mut feed, &mut pair, study) {
-        Ok(ready) => Ok(Started {
-            rid,
-            obs,
-            feed,
-            pair,
-            ready,
-        }),
-        Err(e) => {
-            // A child that died during set-up leaves a half-created node: remove it now.
-            drop(pair);
-            drop(feed);
-            drop(obs);
-            let removed = ipc::remove_dead_nodes();
-            Err(if removed.is_empty() {
-                e
-            } else {
-                anyhow!(
-                    "{e:#}; removed the iceoryx2 resources of the {} dead node(s) it left",
-                    removed.len()
-                )
-            })
-        }
-    }
 }
 
 /// Pins the supervisor as the layout says; returns the warnings (and, for realtime, those about

@@ -1,18 +1,23 @@
 //! Observing the loop: every message filed by tick in a fixed window, every finished tick handed
 //! in order to `<law>.timing.csv`, the timing histograms and the recorder, until both children
-//! exit.
+//! exit. [`run`] is a started pair's run from START to its record: the observation allocated,
+//! START, the observation, how the run ended.
 
-use super::children::Observer;
-use super::children::Pair;
+use super::children::{Observed, Observer, Pair};
+use super::{ProcessRun, Started};
 use crate::feed::ReferenceFeed;
-use crate::lawrun::{self, LawRecorder, LawRun};
+use crate::lawrun::{self, Keep, LawRecorder, LawRun};
 use anyhow::{Result, bail};
+use deltaloop_config::{Law, LoopMode, RemoteSide};
 use deltaloop_study::Study;
 use deltaloop_study::record::Fault;
-use deltaloop_timing::{Seen, Timing, TimingAcc, TimingCsv};
-use deltaloop_transport::ipc::IpcContext;
+use deltaloop_timing::{PeakRss, Seen, Timing, TimingAcc, TimingCsv};
+use deltaloop_transport::ipc;
 use deltaloop_transport::rt;
-use deltaloop_transport::wire::{self, ControlKind, Sender, StateMsg, TelemetryMsg, TorqueMsg};
+use deltaloop_transport::wire::{
+    self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
+};
+use std::path::Path;
 use std::process::ExitStatus;
 use std::time::Duration;
 
@@ -82,7 +87,7 @@ impl Window {
 /// Everything the supervisor does with the loop's streams while they arrive: file each message
 /// by tick in the window, and hand every finished tick, in order, to `<law>.timing.csv`, the
 /// timing histograms and the recorder (trace and metrics). Memory is fixed at START.
-pub(super) struct Observation<'a> {
+struct Observation<'a> {
     window: Window,
     rec: LawRecorder<'a>,
     timing: TimingAcc,
@@ -139,7 +144,7 @@ fn max_opt(a: Option<u64>, b: u64) -> Option<u64> {
 }
 
 impl<'a> Observation<'a> {
-    pub(super) fn new(
+    fn new(
         rec: LawRecorder<'a>,
         timing: TimingAcc,
         csv: Option<TimingCsv>,
@@ -169,79 +174,82 @@ impl<'a> Observation<'a> {
     /// Takes everything waiting on the observer's ports, and finishes the ticks the loop has
     /// left [`LAG`] behind.
     fn drain(&mut self, obs: &Observer) -> Result<()> {
-        while let Some(s) = obs.state.receive().ipc("observe state")? {
-            let m = *s.payload();
-            if m.flags & wire::STATE_FINAL != 0 && self.final_tick.is_none() {
-                self.final_tick = Some(m.tick);
-            }
-            if self.open(m.tick)? {
-                self.window.slot(m.tick).state = Some(m);
-                self.last_seen = max_opt(self.last_seen, m.tick);
-            }
-        }
-        while let Some(s) = obs.torque.receive().ipc("observe torque")? {
-            let m = *s.payload();
-            if self.open(m.tick)? {
-                // The first reply is the one the plant applied (a second one for the same tick
-                // is dropped by it): keep that one (regression: the trace recorded the second,
-                // and replay disagreed with the run).
-                let slot = self.window.slot(m.tick);
-                if slot.torque.is_none() {
-                    slot.torque = Some(m);
-                } else {
-                    self.duplicate_replies += 1;
-                }
-                self.last_seen = max_opt(self.last_seen, m.tick);
-                if m.tau.iter().any(|x| !x.is_finite()) && m.tick < self.window.last {
-                    self.non_finite.get_or_insert(m.tick);
-                }
-            }
-            if self.last_torque.is_none_or(|t| t.tick < m.tick) {
-                self.last_torque = Some(m);
-            }
-        }
-        while let Some(s) = obs.telemetry.receive().ipc("observe telemetry")? {
-            let m = *s.payload();
-            let in_loop = m.flags & wire::TEL_SAFE_STOP == 0;
-            if self.open(m.tick)? {
-                self.window.slot(m.tick).tel = Some(m);
-                if in_loop {
-                    self.last_seen = max_opt(self.last_seen, m.tick);
-                }
-            }
-            if in_loop && self.last_tel.is_none_or(|t| t.tick < m.tick) {
-                self.last_tel = Some(m);
-            }
-        }
-        while let Some(m) = obs.plant_said()? {
-            let m = &m;
-            let fault = |kind| PlantSaid {
-                tick: m.tick,
-                cause: m.text(),
-                kind,
-            };
-            match m.kind() {
-                Some(k @ ControlKind::Diverged) if self.diverged.is_none() => {
-                    self.diverged = Some(fault(k))
-                }
-                Some(k @ (ControlKind::Fault | ControlKind::Overrun | ControlKind::PlantError))
-                    if self.plant_fault.is_none() =>
-                {
-                    self.plant_fault = Some(fault(k))
-                }
-                _ => {}
-            }
-        }
-        while let Some(m) = obs.controller_said()? {
-            if m.kind() == Some(ControlKind::RepliesLost) {
-                self.replies_lost(m.tick, m.ticks);
-            }
-        }
+        obs.drain(&mut |m| self.file(m))?;
         while let Some(seen) = self.last_seen
             && self.window.next + LAG <= seen
         {
             let t = self.window.take();
             self.finish_tick(t)?;
+        }
+        Ok(())
+    }
+
+    /// Files one message the observer's ports took.
+    fn file(&mut self, m: Observed) -> Result<()> {
+        match m {
+            Observed::State(m) => {
+                if m.flags & wire::STATE_FINAL != 0 && self.final_tick.is_none() {
+                    self.final_tick = Some(m.tick);
+                }
+                if self.open(m.tick)? {
+                    self.window.slot(m.tick).state = Some(m);
+                    self.last_seen = max_opt(self.last_seen, m.tick);
+                }
+            }
+            Observed::Torque(m) => {
+                if self.open(m.tick)? {
+                    // The first reply is the one the plant applied (a second one for the same
+                    // tick is dropped by it): keep that one (regression: the trace recorded the
+                    // second, and replay disagreed with the run).
+                    let slot = self.window.slot(m.tick);
+                    if slot.torque.is_none() {
+                        slot.torque = Some(m);
+                    } else {
+                        self.duplicate_replies += 1;
+                    }
+                    self.last_seen = max_opt(self.last_seen, m.tick);
+                    if m.tau.iter().any(|x| !x.is_finite()) && m.tick < self.window.last {
+                        self.non_finite.get_or_insert(m.tick);
+                    }
+                }
+                if self.last_torque.is_none_or(|t| t.tick < m.tick) {
+                    self.last_torque = Some(m);
+                }
+            }
+            Observed::Telemetry(m) => {
+                let in_loop = m.flags & wire::TEL_SAFE_STOP == 0;
+                if self.open(m.tick)? {
+                    self.window.slot(m.tick).tel = Some(m);
+                    if in_loop {
+                        self.last_seen = max_opt(self.last_seen, m.tick);
+                    }
+                }
+                if in_loop && self.last_tel.is_none_or(|t| t.tick < m.tick) {
+                    self.last_tel = Some(m);
+                }
+            }
+            Observed::Plant(m) => {
+                let m = &m;
+                let fault = |kind| PlantSaid {
+                    tick: m.tick,
+                    cause: m.text(),
+                    kind,
+                };
+                match m.kind() {
+                    Some(k @ ControlKind::Diverged) if self.diverged.is_none() => {
+                        self.diverged = Some(fault(k))
+                    }
+                    Some(
+                        k @ (ControlKind::Fault | ControlKind::Overrun | ControlKind::PlantError),
+                    ) if self.plant_fault.is_none() => self.plant_fault = Some(fault(k)),
+                    _ => {}
+                }
+            }
+            Observed::Controller(m) => {
+                if m.kind() == Some(ControlKind::RepliesLost) {
+                    self.replies_lost(m.tick, m.ticks);
+                }
+            }
         }
         Ok(())
     }
@@ -356,11 +364,7 @@ impl<'a> Observation<'a> {
 
     /// After both children are gone: finishes every tick left, decides where and why the
     /// stream ended, and returns the run and its timing.
-    pub(super) fn finish(
-        mut self,
-        interrupted: bool,
-        cause: Option<&Fault>,
-    ) -> Result<(LawRun, Timing)> {
+    fn finish(mut self, interrupted: bool, cause: Option<&Fault>) -> Result<(LawRun, Timing)> {
         if let Some(f) = cause {
             self.rec.fault(f.clone());
         }
@@ -427,7 +431,7 @@ impl<'a> Observation<'a> {
 }
 
 /// How the observed run ended.
-pub(super) struct Ending {
+struct Ending {
     plant: Option<ExitStatus>,
     controller: Option<ExitStatus>,
     /// When the first child exited while the other still ran, and which.
@@ -441,13 +445,13 @@ pub(super) struct Ending {
 
 impl Ending {
     /// Whether the run was stopped on request (Ctrl-C, SIGTERM).
-    pub(super) fn interrupted(&self) -> bool {
+    fn interrupted(&self) -> bool {
         self.interrupted
     }
 
     /// What went wrong, in one line, or None: the children finished normally, or the run was
     /// stopped on purpose (on request, or by the divergence rule).
-    pub(super) fn fault(
+    fn fault(
         &self,
         pair: &Pair,
         streams: &Observation<'_>,
@@ -462,7 +466,7 @@ impl Ending {
 
 /// Observes until both children exit (or the bounded waits after a STOP or one child's exit run
 /// out), filing every message by tick.
-pub(super) fn observe(
+fn observe(
     obs: &Observer,
     feed: &mut ReferenceFeed,
     pair: &mut Pair,
@@ -539,6 +543,124 @@ pub(super) fn observe(
         interrupted: stop_sent.is_some() && !diverged_stop,
         diverged_stop,
     })
+}
+
+/// The run of a pair through the handshake (`started`, of `law` in `mode`), from START until
+/// both children are gone: allocates everything the observer fills, sends START, observes,
+/// classifies how the run ended and finishes its record and timing. `sched_warnings` (about
+/// the supervisor's own scheduling) go with the children's messages.
+pub(super) fn run(
+    started: Started,
+    study: &Study,
+    (law, mode): (Law, LoopMode),
+    run_dir: &Path,
+    keep: &Keep,
+    on_tick: Option<OnTick<'_>>,
+    sched_warnings: Vec<String>,
+) -> Result<ProcessRun> {
+    let Started {
+        rid,
+        obs,
+        mut feed,
+        mut pair,
+    } = started;
+    let cfg = &study.config;
+    let n = study.reference.n as u64;
+    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
+    // Allocate (and touch) everything the observer fills before START, not after: the loop does
+    // not wait for the supervisor (regression: a 10-minute lockstep run lost its first 32 k
+    // ticks while the supervisor allocated per-tick tables after START).
+    let link = deltaloop_report::link::across(cfg);
+    let mut timing = TimingAcc::new(n, ts_ns, mode == LoopMode::Realtime, link)
+        .with_hlogs(run_dir, &format!("{law}."));
+    // The steal at each pause of the plant's clock, when the plant runs on this host.
+    if mode == LoopMode::Realtime && link != Some(RemoteSide::Plant) {
+        timing = timing.with_steal();
+    }
+    let mut streams = Observation::new(
+        lawrun::recorder(study, law, keep)?,
+        timing,
+        cfg.record
+            .timing_csv
+            .then(|| TimingCsv::create(&run_dir.join(format!("{law}.timing.csv")), link))
+            .transpose()?,
+        // Shortened to the recorder's lifetime (a coercion Option does not do by itself).
+        on_tick.map(|f| -> OnTick<'_> { f }),
+    );
+    let mut start = ControlMsg::new(ControlKind::Start, Sender::Supervisor);
+    start.ticks = n;
+    start.q0 = study.reference.q0().into();
+    // Both children poll for START every ≤ 1 ms: tick 0 comes 10 ms after it. Across the link
+    // START also crosses both bridges and the control connection (behind the reference chunks),
+    // and each loop process takes the link's socket on it: 100 ms there.
+    start.t0_ns = rt::now_ns()
+        + if link.is_some() {
+            100_000_000
+        } else {
+            10_000_000
+        };
+    let steal_before = deltaloop_timing::steal_jiffies();
+    obs.start(start)?;
+
+    let ending = observe(&obs, &mut feed, &mut pair, study, &mut streams)?;
+    let mut child_messages = pair.messages();
+    child_messages.extend(
+        obs.intrusions()
+            .into_iter()
+            .map(|i| format!("deltaloop: {i}")),
+    );
+    let cause = ending.fault(&pair, &streams, study.config.loop_.silence_timeout_ms);
+    let (plant_rss, ctrl_rss) = pair.peak_rss_kib();
+    let controller_label = pair.take_label();
+    drop(pair);
+    // A child killed by a signal leaves its iceoryx2 node behind: the surviving supervisor
+    // removes it now (and says so) rather than leaving it to the next run.
+    let removed = ipc::remove_dead_nodes();
+    if !removed.is_empty() {
+        child_messages.push(format!(
+            "removed the iceoryx2 resources of {} dead node(s): {}",
+            removed.len(),
+            removed.join(", ")
+        ));
+    }
+    child_messages.extend(
+        sched_warnings
+            .into_iter()
+            .map(|w| format!("deltaloop: warning: {w}")),
+    );
+    let (run, mut timing) = streams.finish(ending.interrupted(), cause.as_ref())?;
+    timing.steal =
+        deltaloop_timing::steal_ms_between(&steal_before, &deltaloop_timing::steal_jiffies());
+    timing.peak_rss = PeakRss::from_kib(own_peak_rss_kib(), plant_rss, ctrl_rss);
+    if timing.link.is_some() {
+        let path = deltaloop_link_setup::LinkReport::path(&run_dir.join("config.toml"), &rid);
+        timing.link_report = deltaloop_link_setup::LinkReport::read(&path);
+        // The supervisor's copy is in summary.json; the file was only the way here.
+        let _ = std::fs::remove_file(&path);
+        if let Some(n) = deltaloop_timing::link_refusals_note(timing.link_report.as_ref()) {
+            child_messages.push(format!("deltaloop: warning: {n}"));
+        }
+    }
+    Ok(ProcessRun {
+        controller_label,
+        fault: cause,
+        interrupted: ending.interrupted(),
+        run_id: rid,
+        run,
+        timing,
+        child_messages,
+    })
+}
+
+/// The supervisor's own peak resident set size so far, KiB.
+fn own_peak_rss_kib() -> u64 {
+    let mut ru = std::mem::MaybeUninit::<libc::rusage>::zeroed();
+    // SAFETY: getrusage fills the struct we own.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, ru.as_mut_ptr()) } != 0 {
+        return 0;
+    }
+    // SAFETY: filled by the successful call.
+    unsafe { ru.assume_init() }.ru_maxrss as u64
 }
 
 #[cfg(test)]

@@ -16,7 +16,7 @@ pub(super) fn status_text(s: ExitStatus) -> String {
 /// "was killed by SIGBUS (…)" for signal `sig`. A loop process touches nothing but its shared
 /// memory mappings that could fault with SIGBUS: a page of a `/dev/shm` file that cannot be
 /// backed because the file system is full.
-pub(super) fn killed_by(sig: i32) -> String {
+fn killed_by(sig: i32) -> String {
     let name = match sig {
         libc::SIGKILL => "SIGKILL",
         libc::SIGBUS => {
@@ -35,4 +35,23 @@ pub(super) fn killed_by(sig: i32) -> String {
         _ => return format!("was killed by signal {sig}"),
     };
     format!("was killed ({name})")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Regression: a full /dev/shm mid-run killed the plant with a bare "signal 7".
+    #[test]
+    fn regression_a_child_killed_by_sigbus_is_named_with_its_likely_cause() {
+        let bus = killed_by(libc::SIGBUS);
+        assert!(
+            bus.starts_with("was killed by SIGBUS")
+                && bus.contains("shared memory (/dev/shm) ran out"),
+            "{bus}"
+        );
+        assert_eq!(killed_by(libc::SIGKILL), "was killed (SIGKILL)");
+        assert_eq!(killed_by(libc::SIGSEGV), "was killed (SIGSEGV)");
+        assert_eq!(killed_by(64), "was killed by signal 64");
+    }
 }

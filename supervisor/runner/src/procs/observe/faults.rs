@@ -56,7 +56,7 @@ pub(super) fn fault_cause(
     silence_timeout_ms: u32,
 ) -> Option<Fault> {
     let (plant, ctrl) = (ending.plant, ending.controller);
-    let (plant_log, ctrl_log) = pair.logs().paths();
+    let (plant_log, ctrl_log) = pair.log_paths();
     let ok = |s: Option<ExitStatus>| s.is_some_and(|s| s.success());
     let (last_torque, last_tel) = (streams.last_torque, streams.last_tel);
     // A plant that exits 0 has finished the run: the final state N + 1 says so. Without it (and
@@ -284,7 +284,6 @@ fn exit_kind(who: Sender, s: ExitStatus) -> FaultKind {
 
 #[cfg(test)]
 mod tests {
-    use super::super::super::status::killed_by;
     use super::*;
 
     /// The kind of a fault from how the children ended: the root cause, not its echo (a
@@ -382,19 +381,5 @@ mod tests {
         let stopped = code(5);
         assert_eq!(culprit(FaultKind::Stopped, stopped), About::Controller);
         assert_eq!(culprit(FaultKind::Stopped, ok), About::Plant);
-    }
-
-    /// Regression: a full /dev/shm mid-run killed the plant with a bare "signal 7".
-    #[test]
-    fn regression_a_child_killed_by_sigbus_is_named_with_its_likely_cause() {
-        let bus = killed_by(libc::SIGBUS);
-        assert!(
-            bus.starts_with("was killed by SIGBUS")
-                && bus.contains("shared memory (/dev/shm) ran out"),
-            "{bus}"
-        );
-        assert_eq!(killed_by(libc::SIGKILL), "was killed (SIGKILL)");
-        assert_eq!(killed_by(libc::SIGSEGV), "was killed (SIGSEGV)");
-        assert_eq!(killed_by(64), "was killed by signal 64");
     }
 }
