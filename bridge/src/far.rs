@@ -498,8 +498,7 @@ fn serve(
     });
     let mut link = FarLink::new((udp, tcp), child, session, mine, wants_relay, loop_cpu);
     let named = a.controller_cmd.as_ref().and_then(|_| ready_naming(cmd));
-    let code = relay(ports, &mut link, (spin_ns, mode, far_emu), named, term)?;
-    let last = link.report(code)?;
+    let (code, last) = relay(ports, &mut link, (spin_ns, mode, far_emu), named, term)?;
     std::thread::sleep(ipc::LINGER);
     let line = (!last.is_empty()).then_some(last);
     drop(link);

@@ -160,7 +160,7 @@ impl FarLink {
     /// Tells the near side what this side refused on the link (for the run's record there, and
     /// a warning here) and how the process ended, and waits (a little) for everything queued to
     /// go out. Returns the process's last line on stderr (empty: none), which went with its end.
-    pub(super) fn report(&mut self, code: u8) -> Result<String> {
+    fn report(&mut self, code: u8) -> Result<String> {
         if self.direct
             && let Some(h) = &self.handoff
             && let Some((refused, lost)) = crate::direct::read_counts(h)
@@ -452,17 +452,19 @@ impl FarPlant {
     }
 }
 
-/// Relays the run between the local process's ports and the link until it ends; its exit code.
-/// `(spin_ns, mode, far_emu)`: how this side polls, the loop mode, and its emulated link.
-/// `named`: the READY text naming a controller of the user's ([`ready_naming`]).
+/// Relays the run between the local process's ports and the link until it ends, then reports
+/// its end to the near side ([`FarLink::report`], the ports closed): the process's exit code and
+/// its last line on stderr (empty: none). `(spin_ns, mode, far_emu)`: how this side polls, the
+/// loop mode, and its emulated link. `named`: the READY text naming a controller of the user's
+/// ([`ready_naming`]).
 pub(super) fn relay(
     ports: Either,
     link: &mut FarLink,
     (spin_ns, mode, far_emu): (u64, LoopMode, crate::emulation::Emulation),
     named: Option<[u8; 160]>,
     term: &AtomicBool,
-) -> Result<u8> {
-    Ok(match ports {
+) -> Result<(u8, String)> {
+    let code = match ports {
         Either::Controller(ports) => {
             let mut f = Far {
                 ports,
@@ -494,7 +496,9 @@ pub(super) fn relay(
             crate::near::link_summary(&far_emu, link.emulated_lost(), Some(counts));
             code
         }
-    })
+    };
+    let last = link.report(code)?;
+    Ok((code, last))
 }
 
 pub(super) fn spawn(
