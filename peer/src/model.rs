@@ -34,15 +34,6 @@ pub struct DlJoints {
 }
 
 impl DlJoints {
-    pub(crate) fn sample(&self, k: u64) -> PlantSample {
-        PlantSample {
-            k,
-            q: Vec3::from(self.q),
-            qd: Vec3::from(self.qd),
-            tau_applied: Vec3::from(self.tau_applied),
-        }
-    }
-
     fn of(s: &PlantSample) -> Self {
         Self {
             q: s.q.into(),

@@ -76,7 +76,12 @@ impl CPhysics {
         if rc != 0 {
             return Err(refusal(rc));
         }
-        Ok(j.sample(self.tick))
+        Ok(PlantSample {
+            k: self.tick,
+            q: Vec3::from(j.q),
+            qd: Vec3::from(j.qd),
+            tau_applied: Vec3::from(j.tau_applied),
+        })
     }
 }
 
