@@ -322,11 +322,6 @@ impl Pair {
         (pid(&self.plant), pid(&self.controller))
     }
 
-    /// Each child's peak resident set size, KiB, once it has exited, the plant's first.
-    pub(super) fn peak_rss_kib(&self) -> (Option<u64>, Option<u64>) {
-        (self.plant.peak_rss_kib, self.controller.peak_rss_kib)
-    }
-
     /// The last lines both children printed (see [`Logs::messages`]).
     pub(super) fn messages(&self) -> Vec<String> {
         self.logs.messages()
@@ -347,9 +342,12 @@ impl Pair {
         self.controller_label = label;
     }
 
-    /// What the controller called itself, taken.
-    pub(super) fn take_label(&mut self) -> Option<String> {
-        self.controller_label.take()
+    /// Ends the pair: each child's peak resident set size, KiB, for those that have exited (the
+    /// plant's first), and what the controller called itself; then a child still running is
+    /// stopped (see [`Reaped`]).
+    pub(super) fn close(mut self) -> ((Option<u64>, Option<u64>), Option<String>) {
+        let rss = (self.plant.peak_rss_kib, self.controller.peak_rss_kib);
+        (rss, self.controller_label.take())
     }
 
     /// How long the handshake may take: a run across the link waits for the far side to join
@@ -773,8 +771,7 @@ fn stopped_before_start(
     }
     // Read the logs after the children are gone, so their last lines are in.
     let logs = pair.logs.clone();
-    let controller_label = pair.take_label();
-    drop(pair);
+    let (_, controller_label) = pair.close();
     let child_messages = logs.messages();
     let mut rec = lawrun::recorder(study, law, keep)?;
     rec.interrupt();

@@ -610,9 +610,7 @@ pub(super) fn run(
             .map(|i| format!("deltaloop: {i}")),
     );
     let cause = ending.fault(&pair, &streams, study.config.loop_.silence_timeout_ms);
-    let (plant_rss, ctrl_rss) = pair.peak_rss_kib();
-    let controller_label = pair.take_label();
-    drop(pair);
+    let ((plant_rss, ctrl_rss), controller_label) = pair.close();
     // A child killed by a signal leaves its iceoryx2 node behind: the surviving supervisor
     // removes it now (and says so) rather than leaving it to the next run.
     let removed = ipc::remove_dead_nodes();
