@@ -11,7 +11,7 @@
 //!   copy shipped to a cluster worker) have the same hash; a changed axis or base constant does
 //!   not.
 
-use super::{Job, SweepFile, check, jobs, point_config};
+use super::{Job, SweepFile, jobs, point_config};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{LoopMode, RunConfig};
 use serde::Serialize;
@@ -24,7 +24,9 @@ pub struct Point {
     pub index: usize,
     /// `<index>-<hash>` (see the module doc).
     pub id: String,
-    pub(super) job: Job,
+    /// Its parameters (scenario, preset, law, ℓ, d and a side axis's value), as [`Point::label`]
+    /// shows them.
+    pub job: Job,
     /// The loop mode it runs in.
     pub mode: LoopMode,
 }
@@ -94,9 +96,8 @@ impl Plan {
     /// Expands `sweep` over `base` and checks the sweep's keys (the points' configs are checked
     /// by [`Plan::check_points`], for the points that run).
     pub fn new(sweep: SweepFile, base: RunConfig) -> Result<Self> {
-        check(&sweep)?;
         let mut points = Vec::new();
-        for (index, job) in jobs(&sweep).into_iter().enumerate() {
+        for (index, job) in jobs(&sweep)?.into_iter().enumerate() {
             let mode = if job.kind.realtime() {
                 LoopMode::Realtime
             } else {

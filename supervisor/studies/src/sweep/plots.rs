@@ -37,11 +37,6 @@ fn bars(rows: &[&Row], x: impl Fn(&Row) -> f64, band: Band) -> Vec<(f64, f64, f6
         .collect()
 }
 
-/// A point of the ℓ × d grid (not of the realtime or the sub-tick delay axis).
-pub(super) fn on_grid(r: &Row) -> bool {
-    r.mode != LoopMode::Realtime && r.transport_delay_us == 0.0
-}
-
 /// (file stem, x axis, metric) of every figure written.
 pub(super) fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(String, String)>> {
     let mut written = Vec::new();
@@ -72,8 +67,8 @@ pub(super) fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(Str
         let on_axis = |r: &Row| -> bool {
             let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
             match axis {
-                "tde_delay" => on_grid(r) && r.transport_delay_samples == d0,
-                "transport_delay" => on_grid(r) && r.tde_delay_samples == l0,
+                "tde_delay" => r.on_grid() && r.transport_delay_samples == d0,
+                "transport_delay" => r.on_grid() && r.tde_delay_samples == l0,
                 _ => r.mode == LoopMode::Realtime && r.link_delay_us.is_none(),
             }
         };
@@ -171,7 +166,7 @@ fn effective_delay_figures(
                             .filter(|r| r.law == law)
                             .filter(|r| {
                                 if by_ell {
-                                    on_grid(r) && r.transport_delay_samples == d0
+                                    r.on_grid() && r.transport_delay_samples == d0
                                 } else {
                                     r.tde_delay_samples == l0
                                 }

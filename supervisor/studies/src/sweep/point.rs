@@ -181,6 +181,12 @@ struct LinkResult {
 }
 
 impl Row {
+    /// Whether the row is a point of the ℓ × d grid: not of the realtime axes (compute delay,
+    /// link delay) nor of the sub-tick delay axis.
+    pub fn on_grid(&self) -> bool {
+        self.mode != LoopMode::Realtime && self.transport_delay_us == 0.0
+    }
+
     /// Whether the row is a result (every status but `interrupted`: a point cut short by
     /// Ctrl-C / SIGTERM measured nothing complete).
     pub fn is_result(&self) -> bool {
@@ -208,7 +214,7 @@ fn status(m: Option<&LawMetrics>, err: Option<&str>) -> (RunStatus, String) {
     }
 }
 
-pub(super) fn row(
+fn row(
     job: &Job,
     ts_s: f64,
     mode: LoopMode,
@@ -294,7 +300,7 @@ pub(super) fn row(
 /// standard deviation and 95 % CI of the headline ones (the latency cost, a ratio: geometric mean
 /// and log-space interval); counts and round-trip tails the largest; the round-off spreads of the
 /// first repeat that ended `ok`.
-pub(super) fn summarise(reps: Vec<Row>) -> Row {
+fn summarise(reps: Vec<Row>) -> Row {
     let ok: Vec<&Row> = reps.iter().filter(|r| r.status == RunStatus::Ok).collect();
     let first_bad = reps.iter().find(|r| r.status != RunStatus::Ok);
     let n = reps.len() as u32;
@@ -629,4 +635,302 @@ fn link_far(
     }
     .apply(cfg)?;
     Ok(far)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sweep::{PointKind, report};
+    use deltaloop_study::record::{Fault, FaultKind, Outcome, RunEnd};
+
+    /// S2, matched, `tdc`, ℓ = 1, d = 0, a realtime point at a 200 µs compute delay.
+    fn s2_tdc_realtime_job() -> Job {
+        Job {
+            scenario: PathKind::S2,
+            preset: Preset::Matched,
+            law: Law::Tdc,
+            ell: 1,
+            d: 0,
+            kind: PointKind::Compute { us: 200 },
+        }
+    }
+
+    /// Repeats fold into one row: means over the `ok` repeats, the hand-computed standard
+    /// deviation and t interval (rms 1, 2, 3 → mean 2, s = 1, t₀.₉₇₅,₂ = 4.302652729911275,
+    /// half-width 4.302652729911275/√3 = 2.484137...), the first non-ok repeat's status named by
+    /// its seed and left out, the largest counts.
+    #[test]
+    fn repeats_summarise_to_mean_std_and_t_interval() {
+        let job = Job {
+            kind: PointKind::Grid,
+            ..s2_tdc_realtime_job()
+        };
+        let m = some_metrics();
+        let mk = |rms: f64, seed: u64, clamps: u64| {
+            let mut r = row(&job, 3e-4, LoopMode::Inproc, Some(&m), None, None);
+            (r.rms_rad, r.seed, r.clamp_count) = (rms, seed, clamps);
+            r
+        };
+        let mut bad = mk(f64::NAN, 13, 0);
+        bad.status = RunStatus::Diverged;
+        bad.reason = "|e| > 0.5 rad".into();
+        let r = summarise(vec![
+            mk(1.0, 10, 0),
+            mk(2.0, 11, 5),
+            mk(3.0, 12, 2),
+            bad.clone(),
+        ]);
+        assert_eq!((r.repeats, r.repeats_ok, r.seed), (4, 3, 10));
+        assert_eq!(r.status, RunStatus::Ok);
+        assert_eq!(
+            r.reason,
+            "1 of 4 seeds did not end ok (left out of the means); seed 13 diverged: |e| > 0.5 rad"
+        );
+        // No repeat ok: the first repeat's status.
+        let none = summarise(vec![bad.clone(), bad]);
+        assert_eq!((none.status, none.repeats_ok), (RunStatus::Diverged, 0));
+        assert_eq!((r.rms_rad, r.rms_rad_std), (2.0, 1.0));
+        let half = 4.302652729911275 / 3f64.sqrt();
+        assert!(
+            (r.rms_rad_ci95_lo - (2.0 - half)).abs() < 1e-7,
+            "{}",
+            r.rms_rad_ci95_lo
+        );
+        assert!((r.rms_rad_ci95_hi - (2.0 + half)).abs() < 1e-7);
+        assert_eq!(r.clamp_count, 5);
+        // One repeat: the row as it was, no interval.
+        let one = summarise(vec![mk(1.0, 10, 0)]);
+        assert_eq!((one.repeats, one.rms_rad), (1, 1.0));
+        assert!(one.rms_rad_std.is_nan() && one.rms_rad_ci95_lo.is_nan());
+    }
+
+    /// Regression: `repeats = 1` wrote the text `NaN` in the spread columns where the docs say
+    /// a value that does not exist is an empty cell; an empty cell (or an old shard's `NaN`)
+    /// reads back as no value.
+    #[test]
+    fn regression_a_single_repeat_leaves_its_spread_cells_empty_not_nan() {
+        let job = Job {
+            kind: PointKind::Grid,
+            ..s2_tdc_realtime_job()
+        };
+        let one = summarise(vec![row(
+            &job,
+            3e-4,
+            LoopMode::Inproc,
+            Some(&some_metrics()),
+            None,
+            None,
+        )]);
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.serialize(&one).unwrap();
+        let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        assert!(!text.contains("NaN"), "{text}");
+        let mut rd = csv::Reader::from_reader(text.as_bytes());
+        let head = rd.headers().unwrap().clone();
+        let rec = rd.records().next().unwrap().unwrap();
+        for col in ["rms_rad_std", "rms_rad_ci95_lo", "latency_cost"] {
+            let i = head.iter().position(|h| h == col).unwrap();
+            assert_eq!(&rec[i], "", "{col} in {text}");
+        }
+        let i = head.iter().position(|h| h == "rms_rad").unwrap();
+        assert!(rec[i].parse::<f64>().unwrap() > 0.0);
+        // A shard of an older version wrote `NaN` there.
+        let std = head.iter().position(|h| h == "rms_rad_std").unwrap();
+        let old: csv::StringRecord = rec
+            .iter()
+            .enumerate()
+            .map(|(k, c)| if k == std { "NaN" } else { c })
+            .collect();
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.write_record(&head).unwrap();
+        w.write_record(&old).unwrap();
+        let old = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        for t in [text, old] {
+            let back: Row = csv::Reader::from_reader(t.as_bytes())
+                .deserialize()
+                .next()
+                .unwrap()
+                .unwrap();
+            assert!(back.rms_rad_std.is_nan() && back.rms_rad == one.rms_rad);
+        }
+    }
+
+    /// Metrics of a real (short) run, to vary.
+    fn some_metrics() -> LawMetrics {
+        let cfg = RunConfig::from_toml_str(
+            "[scenario]\npath = \"s2\"\n[controller]\nlaws = [\"tdc\"]\n",
+            None,
+        )
+        .unwrap();
+        let study = Study::new(cfg).unwrap();
+        inproc::run_law(&study, Law::Tdc, &Keep::default())
+            .unwrap()
+            .metrics
+    }
+
+    /// `m` as if its run had ended with `outcome` and `fault`: the status fields as
+    /// [`MetricsAcc::finish`](deltaloop_study::record::metrics::MetricsAcc::finish) sets them.
+    fn ended(m: &LawMetrics, outcome: Outcome, fault: Option<Fault>) -> LawMetrics {
+        let end = RunEnd {
+            law: m.law,
+            records: m.ticks + 1,
+            lost_ticks: 0,
+            first_lost: None,
+            no_telemetry: u64::from(outcome == Outcome::LostData),
+            first_no_telemetry: (outcome == Outcome::LostData).then_some(5),
+            replies_lost: 0,
+            first_reply_lost: None,
+            duplicate_replies: 0,
+            stamps_replaced: 0,
+            outcome,
+            fault,
+        };
+        LawMetrics {
+            status: end.status(),
+            reason: end.reason(),
+            status_tick: end.status_tick(),
+            fault_kind: end.fault.as_ref().map(|f| f.kind),
+            completed: end.outcome == Outcome::Completed,
+            diverged_at_tick: match end.outcome {
+                Outcome::Diverged { tick, .. } => Some(tick),
+                _ => None,
+            },
+            ..m.clone()
+        }
+    }
+
+    #[test]
+    fn regression_sweep_row_status_and_reason() {
+        let job = s2_tdc_realtime_job();
+        let ok = some_metrics();
+        assert!(ok.completed);
+        let rt = LoopMode::Realtime;
+        let empty_timing = deltaloop_timing::Timing::default().summary();
+        assert_eq!(empty_timing.round_trip.count, 0);
+
+        let r = row(&job, 3e-4, rt, Some(&ok), None, Some(&empty_timing));
+        assert_eq!((r.status, r.reason.as_str()), (RunStatus::Ok, ""));
+        // No round-trip sample: no percentile, not 0.
+        assert_eq!(r.round_trip_p999_us, None);
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.serialize(&r).unwrap();
+        let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        let mut rd = csv::Reader::from_reader(text.as_bytes());
+        let col = rd
+            .headers()
+            .unwrap()
+            .iter()
+            .position(|h| h == "round_trip_p999_us");
+        let rec = rd.records().next().unwrap().unwrap();
+        assert_eq!(&rec[col.unwrap()], "", "{text}");
+
+        // A controller too slow for its deadlines: the plant stops on a fault. Not a divergence,
+        // even if the error passed the bound while the torque was held.
+        let slow = Fault {
+            tick: 99,
+            kind: FaultKind::ControllerSilent,
+            cause: "no torque within the budget for 100 consecutive ticks".into(),
+        };
+        let m = ended(&ok, Outcome::Faulted, Some(slow.clone()));
+        let r = row(&job, 3e-4, rt, Some(&m), None, Some(&empty_timing));
+        assert_eq!(r.status, RunStatus::Fault);
+        assert_eq!(m.fault_kind, Some(FaultKind::ControllerSilent));
+        assert_eq!(r.reason, m.reason.clone().unwrap());
+        let drifted = Outcome::Diverged {
+            tick: 120,
+            reason: "|e| > 0.5 rad".into(),
+        };
+        let m = ended(&ok, drifted, Some(slow.clone()));
+        let r = row(&job, 3e-4, rt, Some(&m), None, None);
+        assert_eq!((r.status, r.diverged_at_tick), (RunStatus::Fault, None));
+        // A stop on request nobody here made is its own status.
+        let stop = Fault {
+            kind: FaultKind::Stopped,
+            ..slow
+        };
+        let r = row(
+            &job,
+            3e-4,
+            rt,
+            Some(&ended(&ok, Outcome::Faulted, Some(stop))),
+            None,
+            None,
+        );
+        assert_eq!(r.status, RunStatus::Stopped);
+
+        // Interrupted: marked, no metrics, not a result.
+        let m = ended(&ok, Outcome::Interrupted { tick: 42 }, None);
+        let r = row(&job, 3e-4, rt, Some(&m), None, Some(&empty_timing));
+        assert_eq!(r.status, RunStatus::Interrupted);
+        assert!(!r.is_result() && r.rms_rad.is_nan() && r.deadline_misses.is_none());
+
+        // Diverged: the tick, and a reason even without a recorded one.
+        let at7 = Outcome::Diverged {
+            tick: 7,
+            reason: String::new(),
+        };
+        let r = row(&job, 3e-4, rt, Some(&ended(&ok, at7, None)), None, None);
+        assert_eq!(
+            (r.status, r.diverged_at_tick),
+            (RunStatus::Diverged, Some(7))
+        );
+        assert!(!r.reason.is_empty());
+        let r = row(&job, 3e-4, rt, None, Some("boom".into()), None);
+        assert_eq!((r.status, r.reason.as_str()), (RunStatus::Error, "boom"));
+        let r = row(&job, 3e-4, rt, Some(&ok), Some("boom".into()), None);
+        assert_eq!(r.status, RunStatus::Error);
+        // The loop finished but the supervisor lost ticks: its own status, with the reason; the
+        // csv says `lost_data`, and a row of an older sweep (`lost-data`) still reads.
+        let m = ended(&ok, Outcome::LostData, None);
+        let r = row(&job, 3e-4, rt, Some(&m), None, None);
+        assert_eq!(r.status, RunStatus::LostData);
+        assert!(!r.reason.is_empty());
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.serialize(&r).unwrap();
+        let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        assert!(text.contains(",lost_data,"), "{text}");
+        let old = text.replace(",lost_data,", ",lost-data,");
+        let back: Row = csv::Reader::from_reader(old.as_bytes())
+            .deserialize()
+            .next()
+            .unwrap()
+            .unwrap();
+        assert_eq!(back.status, RunStatus::LostData);
+
+        // The report counts them apart and leaves the interrupted point out.
+        let sw: SweepFile = toml::from_str(
+            "name = \"r\"\nbase = \"b.toml\"\nscenarios = [\"s2\"]\npresets = [\"matched\"]\nlaws = [\"tdc\"]\ntde_delay_samples = [1]\ntransport_delay_samples = [0]\ncompute_delay_us = [200, 300]\n"
+        )
+        .unwrap();
+        let too_slow = Fault {
+            tick: 99,
+            kind: FaultKind::ControllerSilent,
+            cause: "too slow".into(),
+        };
+        let m = ended(&ok, Outcome::Faulted, Some(too_slow));
+        let stopped = row(&job, 3e-4, rt, Some(&m), None, Some(&empty_timing));
+        let m = ended(&ok, Outcome::Interrupted { tick: 3 }, None);
+        let cut = row(
+            &Job {
+                kind: PointKind::Compute { us: 300 },
+                ..job.clone()
+            },
+            3e-4,
+            rt,
+            Some(&m),
+            None,
+            None,
+        );
+        let md = report(&sw, &[stopped, cut], &[], Path::new("s.toml"));
+        assert!(md.contains(" 1 points;"), "{md}");
+        assert!(
+            md.contains("Diverged: 0; stopped on a loop fault: 1; errors: 0."),
+            "{md}"
+        );
+        assert!(
+            md.contains("| fault |") && md.contains("fault at tick 99: too slow"),
+            "{md}"
+        );
+        assert!(!md.contains("interrupted"), "{md}");
+    }
 }

@@ -1,6 +1,5 @@
 //! The sweep's `report.md`: one table per axis, the latency budget of each law.
 
-use super::plots::on_grid;
 use super::point::{LINK_MAX_MISS_SHARE, Metric, Row};
 use super::schema::SweepFile;
 use deltaloop_config::PathKind;
@@ -301,7 +300,7 @@ fn grid_tables(s: &mut String, sw: &SweepFile, rows: &[Row]) {
                     pr.name()
                 );
                 let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
-                let base = |r: &&Row| on_grid(r) && r.scenario == sc && r.preset == pr;
+                let base = |r: &&Row| r.on_grid() && r.scenario == sc && r.preset == pr;
                 let by_ell = |law: Law, l: u32| {
                     rows.iter().filter(base).find(|r| {
                         r.law == law && r.tde_delay_samples == l && r.transport_delay_samples == d0

@@ -181,7 +181,7 @@ pub const MAX_POINTS: u64 = 100_000;
 /// How many points a sweep expands to: scenarios × presets × laws × (ℓ × d + the sub-tick
 /// delays above 0 + the compute delays), in checked arithmetic; the error names the axes, their
 /// product and [`MAX_POINTS`].
-pub(super) fn point_count(sw: &SweepFile) -> Result<u64> {
+fn point_count(sw: &SweepFile) -> Result<u64> {
     let n = |v: usize| v as u64;
     let us = sw.transport_delay_us.iter().filter(|&&us| us > 0.0).count();
     let count = n(sw.tde_delay_samples.len())
@@ -213,7 +213,7 @@ pub(super) fn point_count(sw: &SweepFile) -> Result<u64> {
 
 /// Checks the sweep file's own keys: name, mode, and every axis non-empty and without repeats
 /// (a repeated value would run the same point twice, and `run` rejects a repeated law too).
-pub(super) fn check(sw: &SweepFile) -> Result<()> {
+fn check(sw: &SweepFile) -> Result<()> {
     if !cfgfile::name_is_valid(&sw.name) {
         bail!(
             "sweep key `name` = {} is out of range: {}",
@@ -418,7 +418,10 @@ fn check_seeds(sw: &SweepFile, base: &RunConfig) -> Result<()> {
     Ok(())
 }
 
-pub(super) fn jobs(sw: &SweepFile) -> Vec<Job> {
+/// The sweep's points in the canonical expansion order (scenario, preset, law, then ℓ × d, then
+/// the side axes), once its own keys pass [`check`].
+pub(super) fn jobs(sw: &SweepFile) -> Result<Vec<Job>> {
+    check(sw)?;
     let mut v = Vec::new();
     for &scenario in &sw.scenarios {
         for &preset in &sw.presets {
@@ -460,12 +463,29 @@ pub(super) fn jobs(sw: &SweepFile) -> Vec<Job> {
             }
         }
     }
-    v
+    Ok(v)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A sweep of exactly [`MAX_POINTS`] points is counted whole (one more is refused:
+    /// `regression_sweep_points_are_counted_and_capped_before_expanding`).
+    #[test]
+    fn a_sweep_at_the_cap_is_counted_whole() {
+        let list = |n: usize| {
+            let v: Vec<String> = (0..n).map(|i| i.to_string()).collect();
+            format!("[{}]", v.join(","))
+        };
+        let sw: SweepFile = toml::from_str(&format!(
+            "name = \"c\"\nbase = \"base.toml\"\nscenarios = [\"s1\", \"s2\"]\npresets = [\"matched\"]\nlaws = [\"tdc\"]\ntde_delay_samples = {}\ntransport_delay_samples = {}\n",
+            list(250),
+            list(200)
+        ))
+        .unwrap();
+        assert_eq!(point_count(&sw).unwrap(), MAX_POINTS);
+    }
 
     /// Regression: `sensor.seed = 2⁶⁴ − 1` with 3 repeats ran seeds that wrapped to 0 and 1, and
     /// the report said "seeds 18446744073709551615 to 1". The sweep is refused in one line.
