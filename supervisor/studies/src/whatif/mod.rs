@@ -134,7 +134,7 @@ pub fn plan(req: Request<'_>) -> Result<Planned<'_>> {
 }
 
 /// How many times each law's in-process run is timed for the speed baseline (the median counts).
-const BASELINE_RUNS: usize = 3;
+const BASELINE_RUNS: usize = 9;
 
 /// Runs a planned what-if into `out` (claimed by the caller); `progress` draws a bar on stderr.
 pub fn run(p: Planned<'_>, out: &Path, progress: bool) -> Result<Outcome> {
