@@ -552,7 +552,10 @@ pub fn hgrm(h: &Histogram<u64>, what: &str) -> String {
         "Value", "Percentile", "TotalCount", "1/(1-Percentile)"
     );
     if !h.is_empty() {
+        // TotalCount is the count at or below the row's value, as Java's writer has it.
+        let mut total = 0u64;
         for v in h.iter_quantiles(5) {
+            total += v.count_since_last_iteration();
             let pct = v.quantile_iterated_to();
             let inv = if pct < 1.0 {
                 format!("{:>14.2}", 1.0 / (1.0 - pct))
@@ -564,7 +567,7 @@ pub fn hgrm(h: &Histogram<u64>, what: &str) -> String {
                 "{:>12.3} {:>14.12} {:>10} {inv}",
                 v.value_iterated_to() as f64 / 1e3,
                 pct,
-                v.count_since_last_iteration()
+                total
             );
         }
     }
@@ -593,6 +596,28 @@ pub fn hgrm(h: &Histogram<u64>, what: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression: the `.hgrm` TotalCount column counted each row's own values, where the
+    /// standard (Java's `outputPercentileDistribution`) has the count up to the row's value: it
+    /// rises to the total.
+    #[test]
+    fn regression_hgrm_total_count_is_cumulative() {
+        let mut h = histogram();
+        h.record_n(10_000, 50).unwrap();
+        h.record_n(90_000, 50).unwrap();
+        let text = hgrm(&h, "x");
+        let counts: Vec<u64> = text
+            .lines()
+            .filter(|l| !l.starts_with('#') && !l.trim().is_empty() && !l.contains("Value"))
+            .map(|l| l.split_whitespace().nth(2).unwrap().parse().unwrap())
+            .collect();
+        assert!(counts.windows(2).all(|w| w[0] <= w[1]), "{counts:?}");
+        assert_eq!(counts.last(), Some(&100), "{text}");
+    }
+
+    fn histogram() -> Histogram<u64> {
+        Histogram::new_with_bounds(1, 100_000_000_000, 3).unwrap()
+    }
 
     /// Regression: the near bridge's link report carries counts the far side sent (any u64);
     /// adding them for the note and the report overflowed and panicked the supervisor. A report
