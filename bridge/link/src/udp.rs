@@ -26,6 +26,22 @@ impl Rng {
 /// Datagrams held back by the emulated delay at most; more are dropped (and counted).
 const QUEUE: usize = 1024;
 
+/// Datagrams taken per `recvmmsg`: a drain that finds one (the loop's usual case) learns in the
+/// same system call that there is no second, instead of asking again.
+const BATCH: usize = 8;
+
+/// Received datagrams not yet handed out.
+struct Inbox {
+    bufs: Box<[[u8; MAX_DATAGRAM]; BATCH]>,
+    lens: [usize; BATCH],
+    /// How many `bufs` hold datagrams, and the next to hand out.
+    n: usize,
+    next: usize,
+    /// The last `recvmmsg` found fewer than it could take: once its datagrams are handed out,
+    /// the drain ends without another system call.
+    short: bool,
+}
+
 /// The loop's datagram socket, connected to the peer (the kernel drops datagrams from anyone
 /// else), with its pre-allocated buffers and, on a run's link, the session's sealing.
 pub struct Udp {
@@ -34,6 +50,7 @@ pub struct Udp {
     /// Sealing and opening (None: the bench's plain ping-pong, never a run).
     seal: Option<(Sealer, Opener)>,
     buf: [u8; MAX_DATAGRAM],
+    inbox: Inbox,
     emu: Emulation,
     rng: Rng,
     /// Ring of held datagrams: (due, length, bytes).
@@ -97,6 +114,13 @@ impl Udp {
             session,
             seal,
             buf: [0; MAX_DATAGRAM],
+            inbox: Inbox {
+                bufs: Box::new([[0; MAX_DATAGRAM]; BATCH]),
+                lens: [0; BATCH],
+                n: 0,
+                next: 0,
+                short: false,
+            },
             emu,
             rng: Rng(emu.seed),
             queue: vec![(0, 0, [0u8; MAX_DATAGRAM]); if emu.is_off() { 0 } else { QUEUE }]
@@ -194,26 +218,33 @@ impl Udp {
     /// Receives one datagram of this run: its kind and payload (opened), None when there is
     /// none. Refused datagrams (malformed, of another run, forged, replayed) are counted by
     /// reason and skipped: never applied.
+    ///
+    /// A drain (`while let Some(..) = recv()`) costs one system call per [`BATCH`] datagrams: the
+    /// call that finds fewer than a batch also tells that the socket is empty.
     pub fn recv(&mut self) -> Result<Option<(Kind, &[u8])>> {
         loop {
-            let n = match self.sock.recv(&mut self.buf) {
-                Ok(n) => n,
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        ErrorKind::WouldBlock | ErrorKind::ConnectionRefused
-                    ) =>
-                {
+            let ib = &mut self.inbox;
+            if ib.next == ib.n {
+                if std::mem::take(&mut ib.short) {
                     return Ok(None);
                 }
-                Err(e) => return Err(e).context("receive on the link's UDP socket"),
-            };
+                let got = fill(&self.sock, ib).context("receive on the link's UDP socket")?;
+                if got == 0 {
+                    return Ok(None);
+                }
+                ib.short = got < BATCH;
+            }
+            let i = ib.next;
+            ib.next += 1;
+            let len = ib.lens[i];
             match open(
-                &mut self.buf[..n],
+                &mut ib.bufs[i][..len],
                 self.session,
                 self.seal.as_mut().map(|s| &mut s.1),
             ) {
-                Ok((kind, len)) => return Ok(Some((kind, &self.buf[HEADER..HEADER + len]))),
+                Ok((kind, len)) => {
+                    return Ok(Some((kind, &self.inbox.bufs[i][HEADER..HEADER + len])));
+                }
                 Err((reason, why)) => {
                     self.refused.add(reason);
                     if self.last_refusal.is_none() {
@@ -252,6 +283,45 @@ pub fn open(
     }
     frame::check_size(h.kind, &b[HEADER..HEADER + len]).map_err(refused)?;
     Ok((h.kind, len))
+}
+
+/// Takes what the socket holds, up to a batch, into `ib` without blocking; how many. Nothing
+/// waiting (or an ICMP refusal of an earlier send) is 0.
+fn fill(sock: &UdpSocket, ib: &mut Inbox) -> std::io::Result<usize> {
+    // SAFETY: each iovec points into its own buffer of `ib.bufs`, which outlives the call; the
+    // headers are plain C structs that zero is a valid value of (no address, no control data).
+    let mut iov: [libc::iovec; BATCH] = unsafe { std::mem::zeroed() };
+    let mut msgs: [libc::mmsghdr; BATCH] = unsafe { std::mem::zeroed() };
+    for ((v, m), b) in iov.iter_mut().zip(&mut msgs).zip(ib.bufs.iter_mut()) {
+        v.iov_base = b.as_mut_ptr().cast();
+        v.iov_len = MAX_DATAGRAM;
+        m.msg_hdr.msg_iov = v;
+        m.msg_hdr.msg_iovlen = 1;
+    }
+    // SAFETY: `msgs` holds BATCH valid headers as set up above; no timeout.
+    let r = unsafe {
+        libc::recvmmsg(
+            sock.as_raw_fd(),
+            msgs.as_mut_ptr(),
+            BATCH as libc::c_uint,
+            libc::MSG_DONTWAIT,
+            std::ptr::null_mut(),
+        )
+    };
+    ib.next = 0;
+    ib.n = 0;
+    if r < 0 {
+        let e = std::io::Error::last_os_error();
+        return match e.kind() {
+            ErrorKind::WouldBlock | ErrorKind::ConnectionRefused => Ok(0),
+            _ => Err(e),
+        };
+    }
+    ib.n = r as usize;
+    for (len, m) in ib.lens.iter_mut().zip(&msgs).take(ib.n) {
+        *len = (m.msg_len as usize).min(MAX_DATAGRAM);
+    }
+    Ok(ib.n)
 }
 
 /// Waits until one of `fds` is readable (or writable, for those that ask) or `timeout_ns` passes;
@@ -376,6 +446,31 @@ mod tests {
             let (k, p) = b.recv().unwrap().unwrap();
             assert_eq!((k, bytes::read::<u64>(&p[..8])), (Kind::Ping, Some(i)));
         }
+    }
+
+    /// A drain takes every waiting datagram, in order, across batches (more than [`BATCH`]
+    /// wait), and ends once the socket is empty; the next drain sees what came after.
+    #[test]
+    fn a_drain_takes_every_datagram_across_batches_and_the_next_sees_later_ones() {
+        let (mut a, mut b) = pair(Emulation::default());
+        let drain = |b: &mut Udp| {
+            let mut got = Vec::new();
+            while let Some((_, p)) = b.recv().unwrap() {
+                got.push(bytes::read::<u64>(&p[..8]).unwrap());
+            }
+            got
+        };
+        for i in 0..(2 * BATCH as u64 + 3) {
+            a.send(Kind::Ping, &[&i.to_ne_bytes(), &[0u8; 160]], 0)
+                .unwrap();
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        assert_eq!(drain(&mut b), (0..2 * BATCH as u64 + 3).collect::<Vec<_>>());
+        assert_eq!(drain(&mut b), Vec::<u64>::new());
+        a.send(Kind::Ping, &[&99u64.to_ne_bytes(), &[0u8; 160]], 0)
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        assert_eq!(drain(&mut b), vec![99]);
     }
 
     /// An attacker on the path (a forwarder between the two ends, which reads every datagram):

@@ -585,6 +585,9 @@ fn wait_state_direct(
     }
     let until = rt::now_ns().saturating_add(silence_ns);
     let mut blocked = false;
+    // Whether the last wait saw a wake-up event: only then is there one to drain (a pending one
+    // makes the next wait return at once).
+    let mut event = false;
     loop {
         if term.load(Ordering::Relaxed) {
             return Ok(Waited::Stopped("stopped by SIGTERM"));
@@ -610,13 +613,16 @@ fn wait_state_direct(
             return Ok(Waited::Stopped("stopped by the supervisor (STOP)"));
         }
         blocked = true;
-        listener.try_wait(|_| {}).ipc("drain state events")?;
+        if std::mem::take(&mut event) {
+            listener.try_wait(|_| {}).ipc("drain state events")?;
+        }
         let slice = (until - now).min(BLOCK_SLICE_NS).min(link.timeout_ns(now));
         let mut fds = [
             direct::readable(&link.udp),
             deltaloop_link::udp::event(listener),
         ];
         deltaloop_link::udp::wait(&mut fds, slice)?;
+        event = fds[1].revents != 0;
     }
 }
 

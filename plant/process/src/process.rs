@@ -644,6 +644,9 @@ fn wait_torque_direct<P: Physics>(
     poll: Poll,
     side: &mut PlantSide<P>,
 ) -> Result<Awaited> {
+    // Whether the last wait saw a wake-up event: only then is there one to drain (a system call
+    // saved on every other tick; a pending one makes the next wait return at once).
+    let mut event = false;
     loop {
         let now = rt::now_ns();
         let (mut got, mut late) = (None, 0u64);
@@ -677,7 +680,9 @@ fn wait_torque_direct<P: Physics>(
             rt::poll_pause(poll);
             continue;
         }
-        listener.try_wait(|_| {}).ipc("drain torque events")?;
+        if std::mem::take(&mut event) {
+            listener.try_wait(|_| {}).ipc("drain torque events")?;
+        }
         if let Some(why) = controller_error(from_controller) {
             return Ok(Awaited::ControllerError(why));
         }
@@ -687,6 +692,7 @@ fn wait_torque_direct<P: Physics>(
             deltaloop_link::udp::event(listener),
         ];
         deltaloop_link::udp::wait(&mut fds, slice)?;
+        event = fds[1].revents != 0;
     }
 }
 
