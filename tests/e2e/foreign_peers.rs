@@ -563,11 +563,19 @@ fn a_c_plant_writes_the_builtin_plants_trace_byte_for_byte() {
 }
 
 /// In realtime the C controller answers as the built-in does: round trip p50 within 1.5× of the
-/// built-in controller's in the same test (runs on either side of it), and no more misses
-/// (judged on undisturbed runs; regression: another test's load on the other CPU during the C
-/// run alone made a C p50 of 42 µs against the built-in's 22 µs look like the C library's).
+/// built-in controller's in the same test (runs on either side of it), and no more misses than
+/// the worse of them but for a few (judged on undisturbed runs; regression: another
+/// test's load on the other CPU during the C run alone made a C p50 of 42 µs against the
+/// built-in's 22 µs look like the C library's).
+///
+/// Regression: "no more misses" at all failed one run in eight on this VM (C 2, built-in 0 and
+/// 1): a preemption of a few hundred µs costs a tick and is not a disturbance the record flags
+/// (those start at 2 % of the ticks or five in a row), so it lands on any of the three runs.
 #[test]
 fn a_c_controller_in_realtime_answers_as_fast_as_the_builtin() {
+    // About 1e-3 of S1's 2668 ticks: the share of misses the link issue allows a loop on this
+    // machine.
+    const MISS_ALLOWANCE: u64 = 3;
     let Some(exe) = c_tdc() else { return };
     let tmp = tempfile::tempdir().unwrap();
     common::on_a_noisy_host(
@@ -622,7 +630,7 @@ fn a_c_controller_in_realtime_answers_as_fast_as_the_builtin() {
                     p50(&b),
                     p50(&b2)
                 ))
-            } else if misses(&c) > misses(&b).max(misses(&b2)) {
+            } else if misses(&c) > misses(&b).max(misses(&b2)) + MISS_ALLOWANCE {
                 Err(format!(
                     "misses: C {}, built-in {} and {}",
                     misses(&c),
