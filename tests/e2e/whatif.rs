@@ -387,3 +387,38 @@ fn leave_one_out_predicts_each_of_ten_realtime_runs() {
         );
     }
 }
+
+/// deltaloop's own files are sources as they are: a lockstep run's `.hgrm` (unit read from its
+/// header, independent draws) and its `.hlog` (ns, every interval added up) give the same pooled
+/// count of latencies as the run has ticks.
+#[test]
+fn a_runs_own_hgrm_and_hlog_are_read_in_their_units() {
+    let tmp = tempfile::tempdir().unwrap();
+    let r = tmp.path().join("ls");
+    let s = run("configs/s2-fast.toml", "lockstep", &r, &["--law", "tdc"]);
+    let count = s["timing"]["tdc"]["round_trip"]["count"].as_u64().unwrap();
+    for f in ["tdc.round_trip.hgrm", "tdc.round_trip.hlog"] {
+        let out = tmp.path().join(f);
+        let src = r.join(f);
+        let w = whatif_ok(
+            "configs/s2-fast.toml",
+            &out,
+            &[
+                "--law",
+                "tdc",
+                "--latency",
+                src.to_str().unwrap(),
+                "--replicas",
+                "2",
+            ],
+        );
+        assert_eq!(w["latency"]["draw"], "independent", "{f}");
+        assert_eq!(w["latency"]["ticks"].as_u64(), Some(count), "{f}");
+        let p50 = w["latency"]["p50_us"].as_f64().unwrap();
+        let want = s["timing"]["tdc"]["round_trip"]["p50_us"].as_f64().unwrap();
+        assert!(
+            (p50 - want).abs() <= 0.01 * want + 0.1,
+            "{f}: p50 {p50} µs vs the run's {want}"
+        );
+    }
+}
