@@ -64,17 +64,20 @@ pub struct Pool {
 }
 
 impl Pool {
-    /// Pools `sources` for `model`. A block bootstrap needs sequences; independent draws take
-    /// any source.
-    pub fn new(sources: &[Source], model: Model) -> Result<Self> {
+    /// Pools `sources` for `model`. A block bootstrap needs sequences, and takes them out of
+    /// the sources (held once, not twice); independent draws take any source and keep only the
+    /// distribution (each distinct outcome once, whatever the record's length).
+    pub fn new(sources: &mut [Source], model: Model) -> Result<Self> {
         let mut seqs = Vec::new();
-        let mut hist: Vec<(Tick, u64)> = Vec::new();
-        for s in sources {
-            match &s.latencies {
+        let mut counts: std::collections::BTreeMap<(u8, u64), u64> = Default::default();
+        for s in sources.iter_mut() {
+            match &mut s.latencies {
                 Latencies::Sequences(v) => {
-                    seqs.extend(v.iter().filter(|s| !s.is_empty()).cloned());
                     for t in v.iter().flatten() {
-                        hist.push((*t, 1));
+                        *counts.entry(order(*t)).or_default() += 1;
+                    }
+                    if let Model::Block { .. } = model {
+                        seqs.extend(std::mem::take(v).into_iter().filter(|s| !s.is_empty()));
                     }
                 }
                 Latencies::Histogram(h) => {
@@ -84,7 +87,9 @@ impl Pool {
                             s.path.display()
                         );
                     }
-                    hist.extend(h.iter().map(|&(v, c)| (Tick::Reply(v), c)));
+                    for &(v, c) in h.iter() {
+                        *counts.entry(order(Tick::Reply(v))).or_default() += c;
+                    }
                 }
             }
         }
@@ -94,22 +99,13 @@ impl Pool {
             total += s.len() as u64;
             seq_ends.push(total);
         }
-        // Independent draws: equal outcomes merged, weights made cumulative.
-        hist.sort_unstable_by_key(|&(t, _)| order(t));
-        hist.dedup_by(|b, a| {
-            let same = a.0 == b.0;
-            if same {
-                a.1 += b.1;
-            }
-            same
-        });
         let mut cum = 0u64;
-        let items = hist
+        let items = counts
             .into_iter()
             .filter(|&(_, c)| c > 0)
-            .map(|(t, c)| {
+            .map(|(key, c)| {
                 cum += c;
-                (t, cum)
+                (tick_of(key), cum)
             })
             .collect();
         Ok(Self {
@@ -131,6 +127,16 @@ impl Pool {
 
     fn total_weight(&self) -> u64 {
         self.items.last().map_or(0, |i| i.1)
+    }
+}
+
+/// The outcome of a sort key.
+fn tick_of((kind, l): (u8, u64)) -> Tick {
+    match kind {
+        0 => Tick::Reply(l),
+        1 => Tick::Late,
+        2 => Tick::Skipped,
+        _ => Tick::Missed,
     }
 }
 
@@ -293,6 +299,7 @@ mod tests {
             kind: Kind::Text,
             latencies: Latencies::Sequences(seqs),
             laws: vec![],
+            ticks: 0,
         }
     }
 
@@ -307,7 +314,7 @@ mod tests {
     fn blocks_are_consecutive_ticks_of_one_sequence_and_replicas_repeat() {
         let a: Vec<Tick> = (0..10).map(|i| Tick::Reply(1000 + i)).collect();
         let b: Vec<Tick> = (0..7).map(|i| Tick::Reply(5000 + i)).collect();
-        let pool = Pool::new(&[seq_source(vec![a, b])], Model::Block { ticks: 4 }).unwrap();
+        let pool = Pool::new(&mut [seq_source(vec![a, b])], Model::Block { ticks: 4 }).unwrap();
         let model = Model::Block { ticks: 4 };
         let mut d = Drawn::new(&pool, model, 7, 3, 1.0, 1_000_000, 99);
         let got = steps(&mut d, 100);
@@ -365,14 +372,15 @@ mod tests {
             kind: Kind::Hgrm,
             latencies: Latencies::Histogram(vec![(10_000, 3), (100_000, 1)]),
             laws: vec![],
+            ticks: 4,
         };
-        let e = Pool::new(std::slice::from_ref(&src), Model::Block { ticks: 10 })
+        let e = Pool::new(&mut [src.clone()], Model::Block { ticks: 10 })
             .err()
             .unwrap()
             .to_string();
         assert!(e.contains("--draw independent"), "{e}");
         let pool = Pool::new(
-            &[src, seq_source(vec![vec![Tick::Missed]])],
+            &mut [src, seq_source(vec![vec![Tick::Missed]])],
             Model::Independent,
         )
         .unwrap();

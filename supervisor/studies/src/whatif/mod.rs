@@ -93,7 +93,7 @@ pub fn plan(req: Request<'_>) -> Result<Planned<'_>> {
     if req.block_ticks == Some(0) {
         bail!("--block-ticks = 0: expected at least 1 tick");
     }
-    let sources = req
+    let mut sources = req
         .sources
         .iter()
         .map(|p| Source::load(p, req.unit))
@@ -122,7 +122,7 @@ pub fn plan(req: Request<'_>) -> Result<Planned<'_>> {
             }
         }
     }
-    let pool = Pool::new(&sources, model)?;
+    let pool = Pool::new(&mut sources, model)?;
     Ok(Planned {
         req,
         study,

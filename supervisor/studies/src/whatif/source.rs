@@ -100,6 +100,8 @@ pub struct Source {
     pub latencies: Latencies,
     /// A run folder's sequences by law, in the file's order (for `--as-recorded`).
     pub laws: Vec<deltaloop_config::Law>,
+    /// How many latencies (ticks, or a histogram's count) it held when loaded.
+    pub ticks: u64,
 }
 
 /// The largest latency file read (text, `.hgrm`, `.hlog`), bytes: 100 M lines of text.
@@ -122,13 +124,18 @@ impl Source {
         } else {
             (Kind::Text, Latencies::Sequences(vec![text(path)?]), vec![])
         };
+        let ticks = match &latencies {
+            Latencies::Sequences(s) => s.iter().map(|s| s.len() as u64).sum(),
+            Latencies::Histogram(h) => h.iter().map(|&(_, c)| c).sum(),
+        };
         let s = Self {
             path: path.to_path_buf(),
             kind,
             latencies,
             laws,
+            ticks,
         };
-        if s.ticks() == 0 {
+        if s.ticks == 0 {
             bail!(
                 "--latency {}: holds no latency (a {} with nothing in it)",
                 path.display(),
@@ -143,14 +150,6 @@ impl Source {
         match (&self.latencies, self.laws.iter().position(|&l| l == law)) {
             (Latencies::Sequences(s), Some(i)) => &s[i],
             _ => &[],
-        }
-    }
-
-    /// How many latencies (ticks, or a histogram's count) it holds.
-    pub fn ticks(&self) -> u64 {
-        match &self.latencies {
-            Latencies::Sequences(s) => s.iter().map(|s| s.len() as u64).sum(),
-            Latencies::Histogram(h) => h.iter().map(|&(_, c)| c).sum(),
         }
     }
 }

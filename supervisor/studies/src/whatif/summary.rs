@@ -324,7 +324,7 @@ fn latency_out(i: &Inputs<'_>) -> LatencyOut {
             .map(|s| SourceOut {
                 path: s.path.display().to_string(),
                 kind: s.kind.name().to_string(),
-                ticks: s.ticks(),
+                ticks: s.ticks,
             })
             .collect(),
         draw: i.model.name().to_string(),
