@@ -265,14 +265,18 @@ impl PlantEnd {
             self.resent += 1;
         }
         let (inbox, newest, resend) = (&mut self.inbox, self.newest_sent, &mut self.resend);
-        while let Some((kind, p)) = self.udp.recv()? {
+        while let Some((kind, p, rx)) = self.udp.recv_stamped()? {
             if kind != Kind::Torque {
                 continue;
             }
             inbox.take(p, newest, |mut t, residence| {
-                let now = rt::now_ns();
-                t.t_publish_ns = now;
-                t.t_state_rx_ns = now.saturating_sub(residence);
+                // When the reply reached this host (the kernel's stamp), not when the plant
+                // looked: a plant preempted after it came does not charge its own delay to the
+                // controller as latency, or as a miss (as on one host, where the controller's
+                // publish stamp counts).
+                let at = rx.unwrap_or_else(rt::now_ns);
+                t.t_publish_ns = at;
+                t.t_state_rx_ns = at.saturating_sub(residence);
                 t.t_poll_until_ns = 0;
                 if let Some((s, due)) = resend
                     && s.tick == t.tick

@@ -30,10 +30,18 @@ const QUEUE: usize = 1024;
 /// same system call that there is no second, instead of asking again.
 const BATCH: usize = 8;
 
+/// A received datagram: its kind, its payload, and when it reached the socket (CLOCK_MONOTONIC
+/// ns; None if the kernel did not say).
+pub type Stamped<'a> = (Kind, &'a [u8], Option<u64>);
+
 /// Received datagrams not yet handed out.
 struct Inbox {
     bufs: Box<[[u8; MAX_DATAGRAM]; BATCH]>,
     lens: [usize; BATCH],
+    /// When the kernel took each datagram in (SO_TIMESTAMPNS, CLOCK_REALTIME ns; 0: not told).
+    stamps: [u64; BATCH],
+    /// Room for each datagram's control message (its timestamp).
+    cmsgs: [[u64; 8]; BATCH],
     /// How many `bufs` hold datagrams, and the next to hand out.
     n: usize,
     next: usize,
@@ -109,6 +117,23 @@ impl Udp {
         emu: Emulation,
     ) -> Result<Self> {
         sock.set_nonblocking(true)?;
+        // The kernel stamps each datagram as it arrives: a receiver that was itself preempted
+        // still learns when the datagram came, not when it looked.
+        let on: libc::c_int = 1;
+        // SAFETY: a valid socket and a c_int option value of the size given.
+        let r = unsafe {
+            libc::setsockopt(
+                sock.as_raw_fd(),
+                libc::SOL_SOCKET,
+                libc::SO_TIMESTAMPNS,
+                (&on as *const libc::c_int).cast(),
+                std::mem::size_of::<libc::c_int>() as libc::socklen_t,
+            )
+        };
+        if r != 0 {
+            return Err(std::io::Error::last_os_error())
+                .context("SO_TIMESTAMPNS on the link's socket");
+        }
         Ok(Self {
             sock,
             session,
@@ -117,6 +142,8 @@ impl Udp {
             inbox: Inbox {
                 bufs: Box::new([[0; MAX_DATAGRAM]; BATCH]),
                 lens: [0; BATCH],
+                stamps: [0; BATCH],
+                cmsgs: [[0; 8]; BATCH],
                 n: 0,
                 next: 0,
                 short: false,
@@ -222,6 +249,12 @@ impl Udp {
     /// A drain (`while let Some(..) = recv()`) costs one system call per [`BATCH`] datagrams: the
     /// call that finds fewer than a batch also tells that the socket is empty.
     pub fn recv(&mut self) -> Result<Option<(Kind, &[u8])>> {
+        Ok(self.recv_stamped()?.map(|(k, p, _)| (k, p)))
+    }
+
+    /// [`Udp::recv`], with when the datagram reached this host's socket (the kernel's stamp,
+    /// CLOCK_MONOTONIC ns; None if the kernel gave none).
+    pub fn recv_stamped(&mut self) -> Result<Option<Stamped<'_>>> {
         loop {
             let ib = &mut self.inbox;
             if ib.next == ib.n {
@@ -237,13 +270,15 @@ impl Udp {
             let i = ib.next;
             ib.next += 1;
             let len = ib.lens[i];
+            let rx = monotonic_of(ib.stamps[i]);
             match open(
                 &mut ib.bufs[i][..len],
                 self.session,
                 self.seal.as_mut().map(|s| &mut s.1),
             ) {
                 Ok((kind, len)) => {
-                    return Ok(Some((kind, &self.inbox.bufs[i][HEADER..HEADER + len])));
+                    let at = (rx > 0).then_some(rx);
+                    return Ok(Some((kind, &self.inbox.bufs[i][HEADER..HEADER + len], at)));
                 }
                 Err((reason, why)) => {
                     self.refused.add(reason);
@@ -292,11 +327,18 @@ fn fill(sock: &UdpSocket, ib: &mut Inbox) -> std::io::Result<usize> {
     // headers are plain C structs that zero is a valid value of (no address, no control data).
     let mut iov: [libc::iovec; BATCH] = unsafe { std::mem::zeroed() };
     let mut msgs: [libc::mmsghdr; BATCH] = unsafe { std::mem::zeroed() };
-    for ((v, m), b) in iov.iter_mut().zip(&mut msgs).zip(ib.bufs.iter_mut()) {
+    for (((v, m), b), c) in iov
+        .iter_mut()
+        .zip(&mut msgs)
+        .zip(ib.bufs.iter_mut())
+        .zip(ib.cmsgs.iter_mut())
+    {
         v.iov_base = b.as_mut_ptr().cast();
         v.iov_len = MAX_DATAGRAM;
         m.msg_hdr.msg_iov = v;
         m.msg_hdr.msg_iovlen = 1;
+        m.msg_hdr.msg_control = c.as_mut_ptr().cast();
+        m.msg_hdr.msg_controllen = std::mem::size_of_val(c);
     }
     // SAFETY: `msgs` holds BATCH valid headers as set up above; no timeout.
     let r = unsafe {
@@ -318,10 +360,48 @@ fn fill(sock: &UdpSocket, ib: &mut Inbox) -> std::io::Result<usize> {
         };
     }
     ib.n = r as usize;
-    for (len, m) in ib.lens.iter_mut().zip(&msgs).take(ib.n) {
+    for ((len, stamp), m) in ib.lens.iter_mut().zip(&mut ib.stamps).zip(&msgs).take(ib.n) {
         *len = (m.msg_len as usize).min(MAX_DATAGRAM);
+        *stamp = kernel_stamp(&m.msg_hdr);
     }
     Ok(ib.n)
+}
+
+/// The SCM_TIMESTAMPNS of a received message, CLOCK_REALTIME ns; 0 if it has none.
+fn kernel_stamp(h: &libc::msghdr) -> u64 {
+    // SAFETY: `h` is a header the kernel filled, its control buffer ours and `msg_controllen`
+    // long; the CMSG_* walk stays inside it, and the timestamp is read unaligned.
+    unsafe {
+        let mut c = libc::CMSG_FIRSTHDR(h);
+        while !c.is_null() {
+            if (*c).cmsg_level == libc::SOL_SOCKET && (*c).cmsg_type == libc::SCM_TIMESTAMPNS {
+                let ts: libc::timespec = std::ptr::read_unaligned(libc::CMSG_DATA(c).cast());
+                return ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64;
+            }
+            c = libc::CMSG_NXTHDR(h, c);
+        }
+    }
+    0
+}
+
+/// A CLOCK_REALTIME time (ns) as CLOCK_MONOTONIC, by the two clocks' offset now (two vDSO
+/// reads); 0 stays 0.
+fn monotonic_of(realtime_ns: u64) -> u64 {
+    if realtime_ns == 0 {
+        return 0;
+    }
+    let read = |clock| {
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: clock_gettime writes into the timespec we own; both clocks exist on Linux.
+        unsafe { libc::clock_gettime(clock, &mut ts) };
+        ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+    };
+    let (rt, mono) = (read(libc::CLOCK_REALTIME), read(libc::CLOCK_MONOTONIC));
+    // A stamp from the future (the realtime clock stepped back) is now.
+    mono.saturating_sub(rt.saturating_sub(realtime_ns))
 }
 
 /// Waits until one of `fds` is readable (or writable, for those that ask) or `timeout_ns` passes;
@@ -471,6 +551,24 @@ mod tests {
             .unwrap();
         std::thread::sleep(std::time::Duration::from_millis(20));
         assert_eq!(drain(&mut b), vec![99]);
+    }
+
+    /// A datagram's stamp is when it reached the socket, not when it was read: one read 30 ms
+    /// after it came says so.
+    #[test]
+    fn a_datagram_is_stamped_with_its_arrival_not_its_reading() {
+        let (mut a, mut b) = pair(Emulation::default());
+        let sent = deltaloop_transport::rt::now_ns();
+        a.send(Kind::Ping, &[&7u64.to_ne_bytes(), &[0u8; 160]], 0)
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(30));
+        let read = deltaloop_transport::rt::now_ns();
+        let (_, _, at) = b.recv_stamped().unwrap().unwrap();
+        let at = at.expect("the kernel stamps UDP datagrams");
+        assert!(
+            at >= sent.saturating_sub(1_000_000) && at + 20_000_000 < read,
+            "sent {sent}, stamped {at}, read {read}"
+        );
     }
 
     /// An attacker on the path (a forwarder between the two ends, which reads every datagram):

@@ -651,7 +651,9 @@ fn wait_torque_direct<P: Physics>(
         let now = rt::now_ns();
         let (mut got, mut late) = (None, 0u64);
         link.poll(|m| {
-            let rx_ns = m.t_publish_ns;
+            // The reply's stamp is when it reached this host (the kernel's); the plant took it
+            // now, and the round trip counts to now, as on one host.
+            let rx_ns = rt::now_ns();
             let (stamp_ns, stamp_replaced) = trusted_stamp(m.t_publish_ns, state_pub_ns, rx_ns);
             match reply_verdict(&m, stamp_ns, tick, until_ns) {
                 Reply::Apply if got.is_none() => {
