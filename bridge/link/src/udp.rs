@@ -38,7 +38,8 @@ pub type Stamped<'a> = (Kind, &'a [u8], Option<u64>);
 struct Inbox {
     bufs: Box<[[u8; MAX_DATAGRAM]; BATCH]>,
     lens: [usize; BATCH],
-    /// When the kernel took each datagram in (SO_TIMESTAMPNS, CLOCK_REALTIME ns; 0: not told).
+    /// When the kernel took each datagram in (SO_TIMESTAMPNS, moved to CLOCK_MONOTONIC ns; 0:
+    /// not told).
     stamps: [u64; BATCH],
     /// Room for each datagram's control message (its timestamp).
     cmsgs: [[u64; 8]; BATCH],
@@ -270,7 +271,7 @@ impl Udp {
             let i = ib.next;
             ib.next += 1;
             let len = ib.lens[i];
-            let rx = monotonic_of(ib.stamps[i]);
+            let rx = ib.stamps[i];
             match open(
                 &mut ib.bufs[i][..len],
                 self.session,
@@ -360,9 +361,10 @@ fn fill(sock: &UdpSocket, ib: &mut Inbox) -> std::io::Result<usize> {
         };
     }
     ib.n = r as usize;
+    let offset = ClockOffset::now();
     for ((len, stamp), m) in ib.lens.iter_mut().zip(&mut ib.stamps).zip(&msgs).take(ib.n) {
         *len = (m.msg_len as usize).min(MAX_DATAGRAM);
-        *stamp = kernel_stamp(&m.msg_hdr);
+        *stamp = offset.monotonic_of(kernel_stamp(&m.msg_hdr));
     }
     Ok(ib.n)
 }
@@ -384,24 +386,39 @@ fn kernel_stamp(h: &libc::msghdr) -> u64 {
     0
 }
 
-/// A CLOCK_REALTIME time (ns) as CLOCK_MONOTONIC, by the two clocks' offset now (two vDSO
-/// reads); 0 stays 0.
-fn monotonic_of(realtime_ns: u64) -> u64 {
-    if realtime_ns == 0 {
-        return 0;
-    }
-    let read = |clock| {
-        let mut ts = libc::timespec {
-            tv_sec: 0,
-            tv_nsec: 0,
+/// CLOCK_REALTIME and CLOCK_MONOTONIC read together (two vDSO reads): what maps the kernel's
+/// receive stamps of one batch onto the loop's clock.
+struct ClockOffset {
+    realtime_ns: u64,
+    monotonic_ns: u64,
+}
+
+impl ClockOffset {
+    fn now() -> Self {
+        let read = |clock| {
+            let mut ts = libc::timespec {
+                tv_sec: 0,
+                tv_nsec: 0,
+            };
+            // SAFETY: clock_gettime writes into the timespec we own; both clocks exist on Linux.
+            unsafe { libc::clock_gettime(clock, &mut ts) };
+            ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
         };
-        // SAFETY: clock_gettime writes into the timespec we own; both clocks exist on Linux.
-        unsafe { libc::clock_gettime(clock, &mut ts) };
-        ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
-    };
-    let (rt, mono) = (read(libc::CLOCK_REALTIME), read(libc::CLOCK_MONOTONIC));
-    // A stamp from the future (the realtime clock stepped back) is now.
-    mono.saturating_sub(rt.saturating_sub(realtime_ns))
+        Self {
+            realtime_ns: read(libc::CLOCK_REALTIME),
+            monotonic_ns: read(libc::CLOCK_MONOTONIC),
+        }
+    }
+
+    /// A CLOCK_REALTIME time (ns) as CLOCK_MONOTONIC; 0 stays 0, a stamp from the future (the
+    /// realtime clock stepped back) is now.
+    fn monotonic_of(&self, realtime_ns: u64) -> u64 {
+        if realtime_ns == 0 {
+            return 0;
+        }
+        self.monotonic_ns
+            .saturating_sub(self.realtime_ns.saturating_sub(realtime_ns))
+    }
 }
 
 /// Waits until one of `fds` is readable (or writable, for those that ask) or `timeout_ns` passes;

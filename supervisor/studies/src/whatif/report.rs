@@ -3,7 +3,7 @@
 
 use super::draw::Pool;
 use super::source::Tick;
-use super::summary::{ByName, Dist, LawOut, Sample, WhatIfJson};
+use super::summary::{ByName, Dist, LawOut, Sample, WhatIfJson, as_measured, of_law};
 use anyhow::Result;
 use deltaloop_config::Law;
 use deltaloop_report::plot::{self, Panel, Series};
@@ -237,7 +237,10 @@ pub fn figure(
     laws: &[Law],
     scales: &[f64],
 ) -> Result<()> {
-    let mut panels = vec![latency_panel(json, pool), rms_panel(samples, laws, scales)];
+    let mut panels = vec![
+        latency_panel(json, pool),
+        rms_panel(samples, json.replicas as usize, laws, scales),
+    ];
     if let Some(sc) = &json.scales {
         panels.push(scale_panel(sc, laws));
     }
@@ -293,16 +296,12 @@ fn latency_panel(json: &WhatIfJson, pool: &Pool) -> Panel {
     }
 }
 
-fn rms_panel(samples: &[Sample], laws: &[Law], scales: &[f64]) -> Panel {
-    let one = scales.iter().position(|&s| s == 1.0).unwrap_or(0);
-    let nl = laws.len();
-    let reps = samples.len() / (nl * scales.len()).max(1);
+fn rms_panel(samples: &[Sample], replicas: usize, laws: &[Law], scales: &[f64]) -> Panel {
     let series = laws
         .iter()
         .enumerate()
         .map(|(l, &law)| {
-            let mut v: Vec<f64> = (0..reps)
-                .map(|r| &samples[(one * reps + r) * nl + l])
+            let mut v: Vec<f64> = of_law(samples, laws.len(), replicas, as_measured(scales), l)
                 .filter(|s| s.status == RunStatus::Ok)
                 .map(|s| s.rms_max_rad)
                 .collect();

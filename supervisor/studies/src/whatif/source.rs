@@ -160,7 +160,6 @@ impl Source {
 fn run_folder(dir: &Path) -> Result<(Vec<Vec<Tick>>, Vec<deltaloop_config::Law>)> {
     let mut seqs: Vec<Vec<Tick>> = Vec::new();
     let mut laws = Vec::new();
-    let mut delay_ns = None;
     let mut bad = None;
     let study = replay::read_recorded(dir, |r| {
         if laws.last() != Some(&r.law) {
@@ -170,9 +169,8 @@ fn run_folder(dir: &Path) -> Result<(Vec<Vec<Tick>>, Vec<deltaloop_config::Law>)
             laws.push(r.law);
             seqs.push(Vec::new());
         }
-        let d: u64 = *delay_ns.get_or_insert(0);
         let t = match r.fate {
-            ReplyFate::Applied => Tick::Reply(r.arrival_ns.map_or(0, |a| a.saturating_sub(d))),
+            ReplyFate::Applied => Tick::Reply(r.arrival_ns.unwrap_or(0)),
             ReplyFate::Late => Tick::Late,
             ReplyFate::Skipped => Tick::Skipped,
             ReplyFate::Missed => Tick::Missed,

@@ -62,7 +62,7 @@ pub struct Sample {
 impl Sample {
     pub fn of(m: &LawMetrics, misses: u64) -> Self {
         Self {
-            rms_max_rad: m.rms_rad.into_iter().fold(0.0, f64::max),
+            rms_max_rad: deltaloop_runner::replay::max_rms(m),
             max_err_rad: m.max_abs_err_rad.into_iter().fold(0.0, f64::max),
             misses,
             clamps: m.clamp_count,
@@ -233,21 +233,36 @@ pub fn scale_key(s: f64) -> String {
     format!("{s}")
 }
 
+/// The samples of law `l` of `laws` laws at scale `s`, replica by replica: `samples` is in the
+/// jobs' order (scale, replica, law).
+pub fn of_law(
+    samples: &[Sample],
+    laws: usize,
+    replicas: usize,
+    s: usize,
+    l: usize,
+) -> impl Iterator<Item = &Sample> {
+    (0..replicas).map(move |r| &samples[(s * replicas + r) * laws + l])
+}
+
+/// Where scale 1 (the latencies as measured, always run) is in `scales`.
+pub fn as_measured(scales: &[f64]) -> usize {
+    scales.iter().position(|&s| s == 1.0).unwrap_or(0)
+}
+
 pub fn summarize(i: Inputs<'_>) -> WhatIfJson {
-    let nl = i.laws.len();
     let per = |s: usize| -> ByName<LawOut> {
         i.laws
             .iter()
             .enumerate()
             .map(|(l, law)| {
-                let mine: Vec<&Sample> = (0..i.replicas as usize)
-                    .map(|r| &i.samples[(s * i.replicas as usize + r) * nl + l])
-                    .collect();
+                let mine: Vec<&Sample> =
+                    of_law(i.samples, i.laws.len(), i.replicas as usize, s, l).collect();
                 (law.to_string(), LawOut::of(&mine))
             })
             .collect()
     };
-    let one = i.scales.iter().position(|&s| s == 1.0).unwrap_or(0);
+    let one = as_measured(i.scales);
     let scales = (i.scales.len() > 1).then(|| {
         (0..i.scales.len())
             .map(|s| (scale_key(i.scales[s]), per(s)))
