@@ -24,14 +24,7 @@ use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_transport::exit::{EXIT_FAULT, EXIT_SETUP, EXIT_STOPPED};
 use deltaloop_transport::ipc::{self, IpcContext, Svc};
 use deltaloop_transport::rt;
-use deltaloop_transport::wire::{
-    self, ControlKind, ControlMsg, RefSample, Sender, StateMsg, TelemetryMsg, TorqueMsg,
-};
-use iceoryx2::port::listener::Listener;
-use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::prelude::*;
+use deltaloop_transport::wire::{self, ControlKind, ControlMsg, RefSample, Sender, StateMsg};
 use std::io::{ErrorKind, Read};
 use std::net::{SocketAddr, TcpStream, UdpSocket};
 use std::path::PathBuf;
@@ -188,27 +181,22 @@ fn connect(a: &Args, term: &AtomicBool) -> Result<Option<TcpStream>> {
 
 /// `--role controller`: the supervisor's and the plant's ports on this host.
 struct Ports {
-    state: Publisher<Svc, StateMsg, ()>,
-    torque: Subscriber<Svc, TorqueMsg, ()>,
-    state_ready: Notifier<Svc>,
-    torque_ready: Listener<Svc>,
-    control: Publisher<Svc, ControlMsg, ()>,
-    control_in: Subscriber<Svc, ControlMsg, ()>,
-    reference: Publisher<Svc, [RefSample], ()>,
-    _node: Node<Svc>,
+    state: ipc::StateOut,
+    torque: ipc::TorqueIn,
+    state_ready: ipc::Ping,
+    torque_ready: ipc::Wake,
+    control: ipc::ControlOut,
+    control_in: ipc::ControlIn,
+    reference: ipc::RefOut,
+    _node: ipc::RunNode,
 }
 
 /// The supervisor's `control` publisher and a subscriber on the service of `from`.
-fn run_control(node: &Node<Svc>, run_id: &str, from: Sender) -> Result<ipc::ControlPorts> {
+fn run_control(node: &ipc::Node<Svc>, run_id: &str, from: Sender) -> Result<ipc::ControlPorts> {
     Ok((
-        ipc::control(node, run_id, Sender::Supervisor)?
-            .publisher_builder()
-            .create()
-            .ipc("control publisher")?,
+        ipc::control(node, run_id, Sender::Supervisor)?.publisher("control publisher")?,
         ipc::control(node, run_id, from)?
-            .subscriber_builder()
-            .create()
-            .ipc(format!("{} subscriber", ipc::control_service(from)))?,
+            .subscriber(None, &format!("{} subscriber", ipc::control_service(from)))?,
     ))
 }
 
@@ -233,17 +221,17 @@ impl Ports {
 
 /// `--role plant`: the supervisor's and the controller's ports on this host.
 struct PlantSidePorts {
-    state: Subscriber<Svc, StateMsg, ()>,
-    torque: Publisher<Svc, TorqueMsg, ()>,
-    state_ready: Listener<Svc>,
-    torque_ready: Notifier<Svc>,
-    control: Publisher<Svc, ControlMsg, ()>,
+    state: ipc::StateIn,
+    torque: ipc::TorqueOut,
+    state_ready: ipc::Wake,
+    torque_ready: ipc::Ping,
+    control: ipc::ControlOut,
     /// The plant's control messages.
-    control_in: Subscriber<Svc, ControlMsg, ()>,
+    control_in: ipc::ControlIn,
     /// READY and ARMED as the controller there says them.
-    as_controller: Publisher<Svc, ControlMsg, ()>,
-    telemetry: Subscriber<Svc, TelemetryMsg, ()>,
-    _node: Node<Svc>,
+    as_controller: ipc::ControlOut,
+    telemetry: ipc::TelemetryIn,
+    _node: ipc::RunNode,
 }
 
 impl PlantSidePorts {
@@ -260,14 +248,9 @@ impl PlantSidePorts {
             control,
             control_in,
             as_controller: ipc::control(&node, run_id, Sender::Controller)?
-                .publisher_builder()
-                .create()
-                .ipc("control-controller publisher")?,
+                .publisher("control-controller publisher")?,
             telemetry: ipc::telemetry(&node, run_id)?
-                .subscriber_builder()
-                .buffer_size(ipc::OBSERVER_BUFFER)
-                .create()
-                .ipc("telemetry subscriber")?,
+                .subscriber(Some(ipc::OBSERVER_BUFFER), "telemetry subscriber")?,
             _node: node,
         })
     }

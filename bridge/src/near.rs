@@ -26,16 +26,9 @@ use anyhow::{Context, Result, bail};
 use deltaloop_config::RemoteSide;
 use deltaloop_config::{LinkPath, LoopMode, RunConfig};
 use deltaloop_transport::exit::{EXIT_FAULT, EXIT_STOPPED};
-use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, Svc};
+use deltaloop_transport::ipc::{self, ControlPorts, IpcContext};
 use deltaloop_transport::rt;
-use deltaloop_transport::wire::{
-    self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
-};
-use iceoryx2::port::listener::Listener;
-use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::prelude::*;
+use deltaloop_transport::wire::{self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg};
 use std::collections::VecDeque;
 use std::net::{SocketAddr, TcpListener, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -77,14 +70,14 @@ type Ports = ipc::ControllerPorts;
 /// place: the plant's loop ports, its telemetry and control, and the controller's control (its
 /// READY and ARMED go to the far side, which says them to the plant there).
 struct PlantPorts {
-    state: Publisher<Svc, StateMsg, ()>,
-    torque: Subscriber<Svc, TorqueMsg, ()>,
-    state_ready: Notifier<Svc>,
-    torque_ready: Listener<Svc>,
-    telemetry: Publisher<Svc, TelemetryMsg, ()>,
+    state: ipc::StateOut,
+    torque: ipc::TorqueIn,
+    state_ready: ipc::Ping,
+    torque_ready: ipc::Wake,
+    telemetry: ipc::TelemetryOut,
     control: ControlPorts,
-    from_controller: Subscriber<Svc, ControlMsg, ()>,
-    _node: Node<Svc>,
+    from_controller: ipc::ControlIn,
+    _node: ipc::RunNode,
 }
 
 impl PlantPorts {
@@ -97,15 +90,10 @@ impl PlantPorts {
             torque,
             state_ready,
             torque_ready,
-            telemetry: ipc::telemetry(&node, run_id)?
-                .publisher_builder()
-                .create()
-                .ipc("telemetry publisher")?,
+            telemetry: ipc::telemetry(&node, run_id)?.publisher("telemetry publisher")?,
             control: ipc::control_ports(&node, run_id, Sender::Plant)?,
             from_controller: ipc::control(&node, run_id, Sender::Controller)?
-                .subscriber_builder()
-                .create()
-                .ipc("control-controller subscriber")?,
+                .subscriber(None, "control-controller subscriber")?,
             _node: node,
         })
     }
@@ -813,7 +801,7 @@ pub fn link_summary(emu: &Emulation, dropped: u64, counts: Option<crate::sides::
 fn stopped(control: &ControlPorts, term: &AtomicBool) -> Result<bool> {
     let mut stop = term.load(Ordering::Relaxed);
     while let Some(s) = control.1.receive().ipc("receive control")? {
-        stop |= s.payload().kind() == Some(ControlKind::Stop);
+        stop |= s.kind() == Some(ControlKind::Stop);
     }
     Ok(stop)
 }
@@ -828,7 +816,7 @@ const FAR_END_WAIT_NS: u64 = 700_000_000;
 
 impl Peer {
     /// The wait of one turn: the socket, the control connection and the wake-up `event`.
-    fn wait(&self, event: &Listener<Svc>, timeout_ns: u64) -> Result<[bool; 3]> {
+    fn wait(&self, event: &ipc::Wake, timeout_ns: u64) -> Result<[bool; 3]> {
         let mut fds = [
             link::readable(&self.udp.sock),
             link::readable(&self.tcp.stream),
@@ -851,7 +839,7 @@ impl Peer {
     fn forward_control(&mut self, control: &ControlPorts) -> Result<bool> {
         let mut started = false;
         while let Some(s) = control.1.receive().ipc("receive control")? {
-            let mut c = *s.payload();
+            let mut c = s;
             match (c.kind(), c.sender()) {
                 (Some(ControlKind::Start), Some(Sender::Supervisor)) => {
                     if let Some(h) = &self.handoff {
@@ -1055,7 +1043,7 @@ impl Near {
 
 /// REPLIES_LOST, as the controller: its replies to ticks `first..=last` may have been lost on
 /// the link, and could not be recovered.
-fn replies_lost(control: &Publisher<Svc, ControlMsg, ()>, first: u64, last: u64) -> Result<()> {
+fn replies_lost(control: &ipc::ControlOut, first: u64, last: u64) -> Result<()> {
     let mut m = ControlMsg::with_text(
         ControlKind::RepliesLost,
         Sender::Controller,

@@ -15,13 +15,9 @@ use crate::frame::Kind;
 use crate::link::{self, Tcp, Udp};
 use crate::replies::{Inbox, Outbox, Recalls};
 use anyhow::Result;
-use deltaloop_transport::ipc::{self, IpcContext, Svc};
+use deltaloop_transport::ipc::{self, IpcContext};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{self, ControlKind, ControlMsg, Sender, StateMsg, TorqueMsg};
-use iceoryx2::port::listener::Listener;
-use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
 
 pub use deltaloop_link::direct::RESEND_NS;
 
@@ -154,14 +150,14 @@ impl PlantHost {
     /// "missed" is then what happened. Lockstep sends each (each awaits its reply).
     pub fn states(
         &mut self,
-        (state, state_ready): (&Subscriber<Svc, StateMsg, ()>, &Listener<Svc>),
+        (state, state_ready): (&ipc::StateIn, &ipc::Wake),
         udp: &mut Udp,
         tcp: &mut Tcp,
     ) -> Result<()> {
-        state_ready.try_wait(|_| {}).ipc("drain state-ready")?;
+        state_ready.try_wait().ipc("drain state-ready")?;
         let mut newest: Option<StateMsg> = None;
         while let Some(s) = state.receive().ipc("receive state")? {
-            let st: StateMsg = *s.payload();
+            let st: StateMsg = s;
             if st.flags & wire::STATE_FINAL != 0 {
                 if let Some(n) = newest.take() {
                     self.send_state(&n, udp)?;
@@ -206,7 +202,7 @@ impl PlantHost {
     /// host. Returns whether any came.
     pub fn torques(
         &mut self,
-        (torque, torque_ready): (&Publisher<Svc, TorqueMsg, ()>, &Notifier<Svc>),
+        (torque, torque_ready): (&ipc::TorqueOut, &ipc::Ping),
         udp: &mut Udp,
     ) -> Result<bool> {
         let mut any = false;
@@ -285,7 +281,7 @@ impl PlantHost {
     pub fn recalled(
         &mut self,
         p: &[u8],
-        (torque, torque_ready): (&Publisher<Svc, TorqueMsg, ()>, &Notifier<Svc>),
+        (torque, torque_ready): (&ipc::TorqueOut, &ipc::Ping),
         unknown: impl FnMut(u64, u64),
     ) -> Result<()> {
         let (last_state, resend) = (self.last_state, &mut self.resend);
@@ -309,7 +305,7 @@ impl PlantHost {
 /// controller's host) and wakes the plant unless it polls for it (`last_state`: the tick and
 /// `t_poll_until_ns` of the last state sent); a lockstep resend of its state is called off.
 fn republish(
-    (torque, torque_ready): (&Publisher<Svc, TorqueMsg, ()>, &Notifier<Svc>),
+    (torque, torque_ready): (&ipc::TorqueOut, &ipc::Ping),
     mut t: TorqueMsg,
     residence: u64,
     last_state: (u64, u64),
@@ -483,13 +479,13 @@ impl ControllerHost {
     /// The controller's replies, out as datagrams with the residence here.
     pub fn torques(
         &mut self,
-        (torque, torque_ready): (&Subscriber<Svc, TorqueMsg, ()>, &Listener<Svc>),
+        (torque, torque_ready): (&ipc::TorqueIn, &ipc::Wake),
         udp: &mut Udp,
         tcp: &mut Tcp,
     ) -> Result<()> {
-        torque_ready.try_wait(|_| {}).ipc("drain torque-ready")?;
+        torque_ready.try_wait().ipc("drain torque-ready")?;
         while let Some(s) = torque.receive().ipc("receive torque")? {
-            let t: &TorqueMsg = s.payload();
+            let t: &TorqueMsg = &s;
             self.controller_poll_until = t.t_poll_until_ns;
             self.poll_until = 0;
             let now = rt::now_ns();
@@ -640,9 +636,9 @@ impl Copies {
 
     /// Every reply the controller published on this host since the last call (the direct path:
     /// its residence from the controller's own stamps), out.
-    pub fn take(&mut self, torque: &Subscriber<Svc, TorqueMsg, ()>, tcp: &mut Tcp) -> Result<()> {
+    pub fn take(&mut self, torque: &ipc::TorqueIn, tcp: &mut Tcp) -> Result<()> {
         while let Some(s) = torque.receive().ipc("receive torque")? {
-            let t: &TorqueMsg = s.payload();
+            let t: &TorqueMsg = &s;
             self.push(t, t.t_publish_ns.saturating_sub(t.t_state_rx_ns), tcp)?;
         }
         self.flush(tcp)
@@ -652,7 +648,7 @@ impl Copies {
 /// A REPLIES frame's replies filed for the record here (the direct path, `--controller-remote`),
 /// on this host's clock as the relay republished them, waking no one: the plant took each from
 /// its own socket. Malformed entries are skipped.
-pub fn file_replies(p: &[u8], torque: &Publisher<Svc, TorqueMsg, ()>) -> Result<()> {
+pub fn file_replies(p: &[u8], torque: &ipc::TorqueOut) -> Result<()> {
     for i in 0..p.len() / crate::replies::ENTRY {
         let Some(e) = crate::replies::entry(p, i) else {
             continue;
@@ -674,8 +670,8 @@ pub fn file_replies(p: &[u8], torque: &Publisher<Svc, TorqueMsg, ()>) -> Result<
 /// words call this: the near side, and the far side of a remote plant.
 pub fn say_as_controller(
     p: &[u8],
-    control: &Publisher<Svc, ControlMsg, ()>,
-    torque_ready: &Notifier<Svc>,
+    control: &ipc::ControlOut,
+    torque_ready: &ipc::Ping,
 ) -> Result<()> {
     let Some(c) = bytes::read::<ControlMsg>(p) else {
         return Ok(());
@@ -695,24 +691,24 @@ pub fn say_as_controller(
 }
 
 /// The ports a [`ControllerHost`] publishes states on: `state` and `state-ready`.
-pub type StatePorts<'a> = (&'a Publisher<Svc, StateMsg, ()>, &'a Notifier<Svc>);
+pub type StatePorts<'a> = (&'a ipc::StateOut, &'a ipc::Ping);
 
 /// The controller's loop ports, which a [`PlantHost`] holds: `state`, `torque`, `state-ready`,
 /// `torque-ready` (as [`ipc::ControllerLoop`], borrowed).
 pub type ControllerEnds<'a> = (
-    &'a Subscriber<Svc, StateMsg, ()>,
-    &'a Publisher<Svc, TorqueMsg, ()>,
-    &'a Listener<Svc>,
-    &'a Notifier<Svc>,
+    &'a ipc::StateIn,
+    &'a ipc::TorqueOut,
+    &'a ipc::Wake,
+    &'a ipc::Ping,
 );
 
 /// The plant's loop ports, which a [`ControllerHost`] holds: `state`, `torque`, `state-ready`,
 /// `torque-ready` (as [`ipc::PlantLoop`], borrowed).
 pub type PlantEnds<'a> = (
-    &'a Publisher<Svc, StateMsg, ()>,
-    &'a Subscriber<Svc, TorqueMsg, ()>,
-    &'a Notifier<Svc>,
-    &'a Listener<Svc>,
+    &'a ipc::StateOut,
+    &'a ipc::TorqueIn,
+    &'a ipc::Ping,
+    &'a ipc::Wake,
 );
 
 #[cfg(test)]
@@ -840,7 +836,7 @@ mod tests {
         assert!(host.states((&ends.0, &ends.2), &mut far).unwrap());
         let mut published = Vec::new();
         while let Some(s) = controller.0.receive().unwrap() {
-            published.push(s.payload().tick);
+            published.push(s.tick);
         }
         assert_eq!(published, [9]);
         assert_eq!(host.stale, 9);
@@ -921,8 +917,8 @@ mod tests {
         let heard = |plant: &ipc::PlantLoop| {
             let mut got = Vec::new();
             while let Some(s) = plant.1.receive().unwrap() {
-                assert_eq!(s.payload().tau[0], s.payload().tick as f64);
-                got.push(s.payload().tick);
+                assert_eq!(s.tau[0], s.tick as f64);
+                got.push(s.tick);
             }
             got
         };

@@ -243,6 +243,55 @@ fn supervisor_spawns_the_bridge_without_linking_it() {
     );
 }
 
+/// iceoryx2 is the transport's: every other crate reaches the run's services through
+/// `deltaloop_transport::ipc` and its concrete ports, so iceoryx2's generic code is compiled once
+/// (docs/performance.md, "Build and test time"). Only the transport and the wire (its
+/// `ZeroCopySend`, behind a feature) name it among their normal dependencies.
+#[test]
+fn only_the_transport_and_the_wire_depend_on_iceoryx2() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = Command::new(cargo)
+        .args([
+            "metadata",
+            "--offline",
+            "--locked",
+            "--no-deps",
+            "--format-version",
+            "1",
+        ])
+        .current_dir(root)
+        .output()
+        .expect("cargo metadata");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let mut users: Vec<&str> = meta["packages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|p| {
+            p["dependencies"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|d| d["name"] == "iceoryx2" && d["kind"].is_null())
+        })
+        .map(|p| p["name"].as_str().unwrap())
+        .collect();
+    users.sort_unstable();
+    assert_eq!(users, ["deltaloop-transport", "deltaloop-wire"]);
+    // The edge is real: the loop processes do reach iceoryx2, through the transport.
+    assert!(
+        graph("deltaloop-controller")
+            .iter()
+            .any(|n| n == "iceoryx2")
+    );
+}
+
 /// clap is the command line's, in one module each: `bridge/src/cli.rs` and
 /// `supervisor/src/cmd/`. The rest of both crates takes its arguments as plain values.
 #[test]

@@ -447,14 +447,9 @@ pub fn wait(fds: &mut [libc::pollfd], timeout_ns: u64) -> Result<()> {
 }
 
 /// A pollfd for a wake-up event's listener (readable when an event is pending).
-pub fn event(
-    listener: &iceoryx2::port::listener::Listener<deltaloop_transport::ipc::Svc>,
-) -> libc::pollfd {
-    use iceoryx2::prelude::FileDescriptorBased;
-    // SAFETY: the descriptor belongs to `listener`, which outlives the poll; we only poll it.
-    let fd = unsafe { listener.file_descriptor().native_handle() };
+pub fn event(listener: &deltaloop_transport::ipc::Wake) -> libc::pollfd {
     libc::pollfd {
-        fd,
+        fd: listener.fd(),
         events: libc::POLLIN,
         revents: 0,
     }

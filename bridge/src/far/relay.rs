@@ -57,7 +57,7 @@ impl FarLink {
 
     /// The wait of one turn: the socket, the control connection, the wake-up `event` and the
     /// process's stderr.
-    fn wait(&self, event: &Listener<Svc>, timeout_ns: u64) -> Result<[bool; 4]> {
+    fn wait(&self, event: &ipc::Wake, timeout_ns: u64) -> Result<[bool; 4]> {
         let err_fd = self
             .child
             .child
@@ -89,7 +89,7 @@ impl FarLink {
     /// Some: its exit code.
     fn ended(
         &mut self,
-        control: &Publisher<Svc, ControlMsg, ()>,
+        control: &ipc::ControlOut,
         err_in: bool,
         term: &AtomicBool,
     ) -> Result<Option<u8>> {
@@ -206,11 +206,7 @@ impl FarLink {
 
     /// A START or STOP from the near side, published here (START's deadline made absolute on
     /// this host's clock). Returns whether it was START.
-    fn run_control(
-        control: &Publisher<Svc, ControlMsg, ()>,
-        p: &[u8],
-        hand: &mut Hand<'_>,
-    ) -> Result<bool> {
+    fn run_control(control: &ipc::ControlOut, p: &[u8], hand: &mut Hand<'_>) -> Result<bool> {
         let Some(mut c) = bytes::read::<ControlMsg>(p) else {
             return Ok(false);
         };
@@ -311,7 +307,7 @@ impl Far {
 
     fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
         while let Some(s) = self.ports.control_in.receive().ipc("receive control")? {
-            let mut c = *s.payload();
+            let mut c = s;
             if let Some(text) = self.named
                 && c.kind() == Some(ControlKind::Ready)
                 && c.text[0] == 0
@@ -339,17 +335,12 @@ impl Far {
                 Kind::Control => started |= FarLink::run_control(&ports.control, p, &mut hand)?,
                 Kind::Reference => {
                     let rows = p.len() / size_of::<RefSample>();
-                    let chunk = ports
-                        .reference
-                        .loan_slice_uninit(rows)
-                        .ipc("loan a reference chunk")?;
-                    let chunk = chunk.write_from_fn(|i| {
+                    ports.reference.send_chunk(rows, &mut |i| {
                         bytes::read::<RefSample>(
                             &p[i * size_of::<RefSample>()..(i + 1) * size_of::<RefSample>()],
                         )
                         .unwrap_or_default()
-                    });
-                    chunk.send().ipc("send a reference chunk")?;
+                    })?;
                 }
                 Kind::Final => finals = bytes::read::<StateMsg>(p),
                 // The plant there took its socket: the record there needs a copy of each reply
@@ -440,10 +431,10 @@ impl FarPlant {
             .receive()
             .ipc("receive plant control")?
         {
-            l.tcp.send(Kind::Control, &[bytes_of(s.payload())])?;
+            l.tcp.send(Kind::Control, &[bytes_of(&s)])?;
         }
         while let Some(s) = self.ports.telemetry.receive().ipc("receive telemetry")? {
-            l.tcp.queue(Kind::Telemetry, &[bytes_of(s.payload())])?;
+            l.tcp.queue(Kind::Telemetry, &[bytes_of(&s)])?;
         }
         if l.tcp.pending() > 0 {
             l.tcp.flush()?;

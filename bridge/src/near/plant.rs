@@ -133,7 +133,7 @@ impl NearPlant {
             .receive()
             .ipc("receive control")?
         {
-            let c = *s.payload();
+            let c = s;
             if c.kind().is_some_and(ControlKind::said_by_controller) {
                 p.tcp.send(Kind::Control, &[bytes_of(&c)])?;
             }

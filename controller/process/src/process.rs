@@ -21,11 +21,10 @@ use deltaloop_config::{Law, LoopMode, RunConfig};
 use deltaloop_link::direct::{self, ControllerEnd};
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
-use deltaloop_transport::ipc::{self, IpcContext, Svc};
+use deltaloop_transport::ipc::ListenerWaitError;
+use deltaloop_transport::ipc::{self, ControlIn, IpcContext, RefIn};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{self, ControlKind, ControlMsg, RefSample, StateMsg};
-use iceoryx2::port::listener::ListenerWaitError;
-use iceoryx2::port::subscriber::Subscriber;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -467,7 +466,7 @@ fn await_row(
 
 /// Copies every chunk waiting on the reference subscriber into the ring, each row under its own
 /// tick, and releases the samples at once (the supervisor reuses their memory).
-fn drain_reference(sub: &Subscriber<Svc, [RefSample], ()>, ring: &mut RefRing) -> Result<()> {
+fn drain_reference(sub: &RefIn, ring: &mut RefRing) -> Result<()> {
     while let Some(chunk) = sub.receive().ipc("receive reference")? {
         for row in chunk.payload() {
             ring.put(row);
@@ -532,7 +531,7 @@ fn wait_state(
         let mut newest: Option<StateMsg> = None;
         let mut seen = 0u64;
         while let Some(sample) = sub.receive().ipc("receive state")? {
-            newest = Some(*sample.payload());
+            newest = Some(sample);
             seen += 1;
         }
         if let Some(s) = newest {
@@ -553,7 +552,7 @@ fn wait_state(
         // blocking receive, woken directly by the notification) is precise enough and cheapest.
         // A signal (SIGTERM, or SIGCONT after a SIGSTOP) only interrupts the wait: look again.
         let slice = (until - now).min(BLOCK_SLICE_NS);
-        match listener.timed_wait(|_| {}, core::time::Duration::from_nanos(slice)) {
+        match listener.timed_wait(core::time::Duration::from_nanos(slice)) {
             Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
             Err(e) => return Err(e).ipc("wait for state").map_err(Into::into),
         }
@@ -597,7 +596,7 @@ fn wait_state_direct(
             return Ok(Waited::State(s, older, rt::now_ns()));
         }
         while let Some(sample) = sub.receive().ipc("receive state")? {
-            let s = *sample.payload();
+            let s = sample;
             if s.flags & wire::STATE_FINAL != 0 {
                 return Ok(Waited::State(s, 0, rt::now_ns()));
             }
@@ -614,7 +613,7 @@ fn wait_state_direct(
         }
         blocked = true;
         if std::mem::take(&mut event) {
-            listener.try_wait(|_| {}).ipc("drain state events")?;
+            listener.try_wait().ipc("drain state events")?;
         }
         let slice = (until - now).min(BLOCK_SLICE_NS).min(link.timeout_ns(now));
         let mut fds = [
@@ -643,14 +642,14 @@ struct Control {
 }
 
 /// Drains the supervisor's control service (only the supervisor can publish there).
-fn drain_control(sub: &Subscriber<Svc, ControlMsg, ()>) -> Result<Control> {
+fn drain_control(sub: &ControlIn) -> Result<Control> {
     let mut c = Control {
         start: None,
         stop: false,
     };
     while let Some(m) = sub.receive().ipc("receive control")? {
-        match m.payload().kind() {
-            Some(ControlKind::Start) => c.start = Some(*m.payload()),
+        match m.kind() {
+            Some(ControlKind::Start) => c.start = Some(m),
             Some(ControlKind::Stop) => c.stop = true,
             _ => {}
         }

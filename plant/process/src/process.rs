@@ -22,16 +22,11 @@ use deltaloop_link::direct::{self, PlantEnd};
 use deltaloop_model::Vec3;
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::{self, ProcessEnd};
-use deltaloop_transport::ipc::{self, ControlPorts, IpcContext, Svc};
-use deltaloop_transport::rt;
-use deltaloop_transport::wire::{
-    self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
+use deltaloop_transport::ipc::{
+    self, ControlIn, ControlPorts, IpcContext, Ping, StateOut, TelemetryOut, TorqueIn, Wake,
 };
-use iceoryx2::port::listener::Listener;
-use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::prelude::*;
+use deltaloop_transport::rt;
+use deltaloop_transport::wire::{self, ControlKind, ControlMsg, Sender, StateMsg, TorqueMsg};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -60,19 +55,19 @@ pub fn main() -> ExitCode {
 
 /// The plant's iceoryx2 ports.
 struct Ports {
-    state: Publisher<Svc, StateMsg, ()>,
-    telemetry: Publisher<Svc, TelemetryMsg, ()>,
-    torque: Subscriber<Svc, TorqueMsg, ()>,
-    state_ready: Notifier<Svc>,
-    torque_ready: Listener<Svc>,
+    state: StateOut,
+    telemetry: TelemetryOut,
+    torque: TorqueIn,
+    state_ready: Ping,
+    torque_ready: Wake,
     control: ControlPorts,
     /// The controller's own control service: its CONTROLLER_ERROR (its step failed) ends the
     /// loop at once instead of after the silence window.
-    from_controller: Subscriber<Svc, ControlMsg, ()>,
+    from_controller: ControlIn,
     /// Across two hosts, the link's socket its bridge handed on: states out and replies in go
     /// there, not through the bridge (None: iceoryx2, on one host or relayed).
     link: Option<PlantEnd>,
-    _node: Node<Svc>,
+    _node: ipc::RunNode,
 }
 
 impl Ports {
@@ -82,15 +77,13 @@ impl Ports {
             ipc::plant_loop(&node, run_id, ipc::LOOP_BUFFER)?;
         Ok(Self {
             state,
-            telemetry: ipc::sole_publisher(&ipc::telemetry(&node, run_id)?, "telemetry")?,
+            telemetry: ipc::telemetry(&node, run_id)?.sole_publisher("telemetry")?,
             torque,
             state_ready,
             torque_ready,
             control: ipc::control_ports(&node, run_id, Sender::Plant)?,
             from_controller: ipc::control(&node, run_id, Sender::Controller)?
-                .subscriber_builder()
-                .create()
-                .ipc("control-controller subscriber")?,
+                .subscriber(None, "control-controller subscriber")?,
             link: None,
             _node: node,
         })
@@ -596,7 +589,7 @@ fn wait_torque<P: Physics>(
     loop {
         let now = rt::now_ns();
         while let Some(sample) = sub.receive().ipc("receive torque")? {
-            let m = *sample.payload();
+            let m = sample;
             let rx_ns = rt::now_ns();
             let (stamp_ns, stamp_replaced) = trusted_stamp(m.t_publish_ns, state_pub_ns, rx_ns);
             match reply_verdict(&m, stamp_ns, tick, until_ns) {
@@ -621,7 +614,7 @@ fn wait_torque<P: Physics>(
             continue;
         }
         // Drop wake-ups already seen (e.g. a late reply's), so the poll sleeps until a new one.
-        listener.try_wait(|_| {}).ipc("drain torque events")?;
+        listener.try_wait().ipc("drain torque events")?;
         if sub.has_samples().unwrap_or(true) {
             continue;
         }
@@ -638,7 +631,7 @@ fn wait_torque<P: Physics>(
 /// late) are counted late, as on iceoryx2; the record's copies on iceoryx2 are not for the loop.
 fn wait_torque_direct<P: Physics>(
     link: &mut PlantEnd,
-    (listener, from_controller): (&Listener<Svc>, &Subscriber<Svc, ControlMsg, ()>),
+    (listener, from_controller): (&Wake, &ControlIn),
     tick: u64,
     (state_pub_ns, poll_until_ns, until_ns): (u64, u64, u64),
     poll: Poll,
@@ -683,7 +676,7 @@ fn wait_torque_direct<P: Physics>(
             continue;
         }
         if std::mem::take(&mut event) {
-            listener.try_wait(|_| {}).ipc("drain torque events")?;
+            listener.try_wait().ipc("drain torque events")?;
         }
         if let Some(why) = controller_error(from_controller) {
             return Ok(Awaited::ControllerError(why));
@@ -703,9 +696,9 @@ const STOPPED: &str = "stopped by the supervisor (STOP)";
 
 /// Whether STOP came on the supervisor's control service (the only one the plant reads; only the
 /// supervisor can publish there).
-fn stop_requested(sub: &Subscriber<Svc, ControlMsg, ()>) -> bool {
+fn stop_requested(sub: &ControlIn) -> bool {
     while let Ok(Some(m)) = sub.receive() {
-        if m.payload().kind() == Some(ControlKind::Stop) {
+        if m.kind() == Some(ControlKind::Stop) {
             return true;
         }
     }
@@ -715,9 +708,8 @@ fn stop_requested(sub: &Subscriber<Svc, ControlMsg, ()>) -> bool {
 /// The controller's CONTROLLER_ERROR, if it sent one, as the plant's cause: which tick, and the
 /// error it quoted. Only the controller can publish on its service (one publisher slot, checked
 /// by the supervisor); its other kinds are not for the plant.
-fn controller_error(sub: &Subscriber<Svc, ControlMsg, ()>) -> Option<String> {
+fn controller_error(sub: &ControlIn) -> Option<String> {
     while let Ok(Some(m)) = sub.receive() {
-        let m = m.payload();
         if m.kind() == Some(ControlKind::ControllerError) && m.sender() == Some(Sender::Controller)
         {
             return Some(format!(
@@ -732,15 +724,15 @@ fn controller_error(sub: &Subscriber<Svc, ControlMsg, ()>) -> Option<String> {
 
 /// Polls the control channel for START (1 ms steps) up to `timeout_ms`; None on STOP or SIGTERM.
 fn wait_for_start(
-    sub: &Subscriber<Svc, ControlMsg, ()>,
+    sub: &ControlIn,
     timeout_ms: u32,
     term: &AtomicBool,
 ) -> Result<Option<ControlMsg>> {
     let end = rt::now_ns() + u64::from(timeout_ms) * 1_000_000;
     while rt::now_ns() < end {
         while let Some(m) = sub.receive().ipc("receive control")? {
-            match m.payload().kind() {
-                Some(ControlKind::Start) => return Ok(Some(*m.payload())),
+            match m.kind() {
+                Some(ControlKind::Start) => return Ok(Some(m)),
                 Some(ControlKind::Stop) => return Ok(None),
                 _ => {}
             }

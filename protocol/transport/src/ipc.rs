@@ -2,14 +2,21 @@
 //! settings agree (iceoryx2 refuses to open a service with different settings). Service and node
 //! names carry the run id: two runs, or two tests in parallel, never meet.
 
+pub use crate::ports::{
+    ControlIn, ControlOut, ControlService, Ping, RefChunk, RefIn, RefOut, RunNode, Sent, StateIn,
+    StateOut, StateService, TelemetryIn, TelemetryOut, TelemetryService, TorqueIn, TorqueOut,
+    TorqueService, Wake,
+};
 use crate::wire::{self, ControlMsg, RefSample, Sender, StateMsg, TelemetryMsg, TorqueMsg};
+pub use crate::iox::{IpcContext, IpcError, Svc, describe_process};
+/// iceoryx2's names the ports' users see (they need not depend on iceoryx2).
+pub use iceoryx2::identifiers::UniquePublisherId;
+pub use iceoryx2::node::Node;
 use iceoryx2::node::NodeView;
+pub use iceoryx2::port::listener::ListenerWaitError;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use std::fmt::Debug;
-
-/// The iceoryx2 service variant: inter-process, shared memory.
-pub type Svc = ipc::Service;
 
 /// Per-subscriber queue of an observer (the supervisor): 2.4 s of ticks at 3.3 kHz.
 pub const OBSERVER_BUFFER: usize = 8192;
@@ -27,29 +34,6 @@ pub const START_TIMEOUT_NS: u64 = 2 * HANDSHAKE_TIMEOUT_NS;
 pub const RELAY_BUFFER: usize = OBSERVER_BUFFER;
 /// Per-subscriber queue in the loop itself: the loop always takes the newest sample.
 pub const LOOP_BUFFER: usize = 4;
-
-/// A transport error, with what was being set up.
-#[derive(Debug, thiserror::Error)]
-#[error("iceoryx2: {what}: {detail}")]
-pub struct IpcError {
-    pub what: String,
-    pub detail: String,
-}
-
-/// Names what was being done when an iceoryx2 call failed: `port.receive().ipc("receive state")?`.
-pub trait IpcContext<T> {
-    /// Turns the error into an [`IpcError`] that says `what`.
-    fn ipc(self, what: impl Into<String>) -> Result<T, IpcError>;
-}
-
-impl<T, E: Debug> IpcContext<T> for Result<T, E> {
-    fn ipc(self, what: impl Into<String>) -> Result<T, IpcError> {
-        self.map_err(|e| IpcError {
-            what: what.into(),
-            detail: format!("{e:?}"),
-        })
-    }
-}
 
 /// The iceoryx2 configuration, set in code (defaults), so no process looks for a config file or
 /// warns that there is none. iceoryx2's own silent clean-up of dead nodes is off: the supervisor
@@ -107,7 +91,7 @@ pub fn root_of(v: &str) -> Option<(String, String)> {
 }
 
 /// A node for `role` in run `run_id`. Signal handling stays with the process.
-pub fn node(role: &str, run_id: &str) -> Result<Node<Svc>, IpcError> {
+pub fn node(role: &str, run_id: &str) -> Result<RunNode, IpcError> {
     let name = NodeName::new(&format!("deltaloop-{role}-{run_id}")).ipc("node name")?;
     NodeBuilder::new()
         .name(&name)
@@ -115,6 +99,7 @@ pub fn node(role: &str, run_id: &str) -> Result<Node<Svc>, IpcError> {
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Svc>()
         .ipc(format!("create node for {role}"))
+        .map(Into::into)
 }
 
 /// A run id unique on this machine: pid, a per-process counter and the clock.
@@ -149,11 +134,9 @@ pub const SPARE: usize = 1;
 /// new peer: it maps the peer's data segment there (a few MiB, every page locked under `mlockall`:
 /// hundreds of µs) or opens the listener's socket (≈ 100 µs), which made tick 0 miss its budget.
 /// Called after START, when every loop port exists.
-pub fn connect_now(
-    ports: &[&dyn iceoryx2::port::update_connections::UpdateConnections],
-) -> Result<(), IpcError> {
+pub fn connect_now(ports: &[&dyn crate::ports::Connect]) -> Result<(), IpcError> {
     for p in ports {
-        p.update_connections().ipc("connect the loop's ports")?;
+        p.connect()?;
     }
     Ok(())
 }
@@ -215,27 +198,18 @@ fn pubsub<T: ZeroCopySend + Debug + Copy + 'static>(
 }
 
 /// Plant → controller + supervisor.
-pub fn state(
-    node: &Node<Svc>,
-    run_id: &str,
-) -> Result<publish_subscribe::PortFactory<Svc, StateMsg, ()>, IpcError> {
-    pubsub(node, run_id, "state", 1, 2 + SPARE, OBSERVER_BUFFER)
+pub fn state(node: &Node<Svc>, run_id: &str) -> Result<StateService, IpcError> {
+    pubsub::<StateMsg>(node, run_id, "state", 1, 2 + SPARE, OBSERVER_BUFFER).map(Into::into)
 }
 
 /// Controller → plant + supervisor.
-pub fn torque(
-    node: &Node<Svc>,
-    run_id: &str,
-) -> Result<publish_subscribe::PortFactory<Svc, TorqueMsg, ()>, IpcError> {
-    pubsub(node, run_id, "torque", 1, 2 + SPARE, OBSERVER_BUFFER)
+pub fn torque(node: &Node<Svc>, run_id: &str) -> Result<TorqueService, IpcError> {
+    pubsub::<TorqueMsg>(node, run_id, "torque", 1, 2 + SPARE, OBSERVER_BUFFER).map(Into::into)
 }
 
 /// Plant → supervisor.
-pub fn telemetry(
-    node: &Node<Svc>,
-    run_id: &str,
-) -> Result<publish_subscribe::PortFactory<Svc, TelemetryMsg, ()>, IpcError> {
-    pubsub(node, run_id, "telemetry", 1, 1 + SPARE, OBSERVER_BUFFER)
+pub fn telemetry(node: &Node<Svc>, run_id: &str) -> Result<TelemetryService, IpcError> {
+    pubsub::<TelemetryMsg>(node, run_id, "telemetry", 1, 1 + SPARE, OBSERVER_BUFFER).map(Into::into)
 }
 
 /// The control service `from` publishes on: `control` (the supervisor: START, STOP),
@@ -253,76 +227,22 @@ pub fn control_service(from: Sender) -> &'static str {
     }
 }
 
-/// A process as a message names it: `pid 1234, \`its command line\`` (escaped; the pid alone when
-/// its command line cannot be read, 0 when iceoryx2 could not say).
-pub fn describe_process(pid: u32) -> String {
-    let cmd = std::fs::read(format!("/proc/{pid}/cmdline"))
-        .map(|c| {
-            let c = String::from_utf8_lossy(&c).replace('\0', " ");
-            wire::escape_peer_text(c.trim())
-        })
-        .unwrap_or_default();
-    if cmd.is_empty() {
-        format!("pid {pid}")
-    } else {
-        format!("pid {pid}, `{cmd}`")
-    }
-}
-
-/// The only publisher of service `what` (created by `factory`), or an error that names the
-/// process holding its one slot (regression: a stranger that took the slot of `state` first
-/// had the run blame the plant, with nobody named).
-pub fn sole_publisher<T: ZeroCopySend + Debug + Copy + 'static>(
-    factory: &publish_subscribe::PortFactory<Svc, T, ()>,
-    what: &str,
-) -> Result<iceoryx2::port::publisher::Publisher<Svc, T, ()>, IpcError> {
-    factory.publisher_builder().create().map_err(|e| {
-        let mut holders = Vec::new();
-        factory.dynamic_config().list_publishers(|p| {
-            holders.push(p.node_id.pid::<Svc>().map_or(0, |p| p.value() as u32));
-            CallbackProgression::Continue
-        });
-        let held = if holders.is_empty() {
-            String::new()
-        } else {
-            let who: Vec<String> = holders.into_iter().map(describe_process).collect();
-            format!(
-                ": its only publisher slot is held by another process ({})",
-                who.join("; ")
-            )
-        };
-        IpcError {
-            what: format!("publisher on {what}"),
-            detail: format!("{e:?}{held}"),
-        }
-    })
-}
-
 /// Run control sent by `from` (see [`control_service`]): one publisher, the other two roles and
 /// an observer subscribe.
-pub fn control(
-    node: &Node<Svc>,
-    run_id: &str,
-    from: Sender,
-) -> Result<publish_subscribe::PortFactory<Svc, ControlMsg, ()>, IpcError> {
-    pubsub(node, run_id, control_service(from), 1, 2 + SPARE, 64)
+pub fn control(node: &Node<Svc>, run_id: &str, from: Sender) -> Result<ControlService, IpcError> {
+    pubsub::<ControlMsg>(node, run_id, control_service(from), 1, 2 + SPARE, 64).map(Into::into)
 }
 
 /// A loop process's two ends of run control: its publisher on its own service, its subscriber on
 /// the supervisor's.
-pub type ControlPorts = (
-    iceoryx2::port::publisher::Publisher<Svc, ControlMsg, ()>,
-    iceoryx2::port::subscriber::Subscriber<Svc, ControlMsg, ()>,
-);
+pub type ControlPorts = (ControlOut, ControlIn);
 
 /// Opens run control for the loop process `me`: a publisher on its own service, a subscriber on
 /// the supervisor's. The publisher fails if another process already holds the slot.
 pub fn control_ports(node: &Node<Svc>, run_id: &str, me: Sender) -> Result<ControlPorts, IpcError> {
-    let publisher = sole_publisher(&control(node, run_id, me)?, control_service(me))?;
-    let subscriber = control(node, run_id, Sender::Supervisor)?
-        .subscriber_builder()
-        .create()
-        .ipc("control subscriber")?;
+    let publisher = control(node, run_id, me)?.sole_publisher(control_service(me))?;
+    let subscriber =
+        control(node, run_id, Sender::Supervisor)?.subscriber(None, "control subscriber")?;
     Ok((publisher, subscriber))
 }
 
@@ -380,28 +300,24 @@ pub fn reference(
 
 /// The supervisor's end of the reference: chunks of up to [`REF_CHUNK`] rows, one loaned at a
 /// time (it fills and sends each before the next).
-pub fn reference_publisher(
-    node: &Node<Svc>,
-    run_id: &str,
-) -> Result<iceoryx2::port::publisher::Publisher<Svc, [RefSample], ()>, IpcError> {
+pub fn reference_publisher(node: &Node<Svc>, run_id: &str) -> Result<RefOut, IpcError> {
     reference(node, run_id)?
         .publisher_builder()
         .initial_max_slice_len(REF_CHUNK)
         .max_loaned_samples(1)
         .create()
         .ipc("reference publisher")
+        .map(Into::into)
 }
 
 /// The controller's end of the reference, queueing up to [`REF_RING`] chunks.
-pub fn reference_subscriber(
-    node: &Node<Svc>,
-    run_id: &str,
-) -> Result<iceoryx2::port::subscriber::Subscriber<Svc, [RefSample], ()>, IpcError> {
+pub fn reference_subscriber(node: &Node<Svc>, run_id: &str) -> Result<RefIn, IpcError> {
     reference(node, run_id)?
         .subscriber_builder()
         .buffer_size(REF_RING)
         .create()
         .ipc("reference subscriber")
+        .map(Into::into)
 }
 
 /// A wake-up event: `state-ready` wakes the controller, `torque-ready` wakes the plant.
@@ -419,16 +335,29 @@ pub fn wakeup(
         .ipc(format!("open event {what}"))
 }
 
+/// The listening end of the wake-up event `what` ([`wakeup`]).
+pub fn listener(node: &Node<Svc>, run_id: &str, what: &str) -> Result<Wake, IpcError> {
+    wakeup(node, run_id, what)?
+        .listener_builder()
+        .create()
+        .ipc(format!("{what} listener"))
+        .map(Into::into)
+}
+
+/// The notifying end of the wake-up event `what` ([`wakeup`]).
+pub fn notifier(node: &Node<Svc>, run_id: &str, what: &str) -> Result<Ping, IpcError> {
+    wakeup(node, run_id, what)?
+        .notifier_builder()
+        .create()
+        .ipc(format!("{what} notifier"))
+        .map(Into::into)
+}
+
 /// The controller's end of the loop: `state` subscriber (`buffer` deep: [`LOOP_BUFFER`], or
 /// [`RELAY_BUFFER`] in a bridge), `torque`
 /// publisher, `state-ready` listener, `torque-ready` notifier (the built-in controller and the
 /// bridge's near side, which stands in for it).
-pub type ControllerLoop = (
-    iceoryx2::port::subscriber::Subscriber<Svc, StateMsg, ()>,
-    iceoryx2::port::publisher::Publisher<Svc, TorqueMsg, ()>,
-    iceoryx2::port::listener::Listener<Svc>,
-    iceoryx2::port::notifier::Notifier<Svc>,
-);
+pub type ControllerLoop = (StateIn, TorqueOut, Wake, Ping);
 
 /// Opens [`ControllerLoop`].
 pub fn controller_loop(
@@ -437,20 +366,10 @@ pub fn controller_loop(
     buffer: usize,
 ) -> Result<ControllerLoop, IpcError> {
     Ok((
-        state(node, run_id)?
-            .subscriber_builder()
-            .buffer_size(buffer)
-            .create()
-            .ipc("state subscriber")?,
-        sole_publisher(&torque(node, run_id)?, "torque")?,
-        wakeup(node, run_id, "state-ready")?
-            .listener_builder()
-            .create()
-            .ipc("state listener")?,
-        wakeup(node, run_id, "torque-ready")?
-            .notifier_builder()
-            .create()
-            .ipc("torque notifier")?,
+        state(node, run_id)?.subscriber(Some(buffer), "state subscriber")?,
+        torque(node, run_id)?.sole_publisher("torque")?,
+        listener(node, run_id, "state-ready")?,
+        notifier(node, run_id, "torque-ready")?,
     ))
 }
 
@@ -458,13 +377,13 @@ pub fn controller_loop(
 /// chunks and run control. Held by the built-in controller and by the bridge's near side, which
 /// stands in for it.
 pub struct ControllerPorts {
-    pub state: iceoryx2::port::subscriber::Subscriber<Svc, StateMsg, ()>,
-    pub torque: iceoryx2::port::publisher::Publisher<Svc, TorqueMsg, ()>,
-    pub state_ready: iceoryx2::port::listener::Listener<Svc>,
-    pub torque_ready: iceoryx2::port::notifier::Notifier<Svc>,
-    pub reference: iceoryx2::port::subscriber::Subscriber<Svc, [RefSample], ()>,
+    pub state: StateIn,
+    pub torque: TorqueOut,
+    pub state_ready: Wake,
+    pub torque_ready: Ping,
+    pub reference: RefIn,
     pub control: ControlPorts,
-    _node: Node<Svc>,
+    _node: RunNode,
 }
 
 impl ControllerPorts {
@@ -497,30 +416,15 @@ impl ControllerPorts {
 /// [`controller_loop`]),
 /// `state-ready` notifier, `torque-ready` listener (the built-in plant and the bridge's far side,
 /// which stands in for it).
-pub type PlantLoop = (
-    iceoryx2::port::publisher::Publisher<Svc, StateMsg, ()>,
-    iceoryx2::port::subscriber::Subscriber<Svc, TorqueMsg, ()>,
-    iceoryx2::port::notifier::Notifier<Svc>,
-    iceoryx2::port::listener::Listener<Svc>,
-);
+pub type PlantLoop = (StateOut, TorqueIn, Ping, Wake);
 
 /// Opens [`PlantLoop`].
 pub fn plant_loop(node: &Node<Svc>, run_id: &str, buffer: usize) -> Result<PlantLoop, IpcError> {
     Ok((
-        sole_publisher(&state(node, run_id)?, "state")?,
-        torque(node, run_id)?
-            .subscriber_builder()
-            .buffer_size(buffer)
-            .create()
-            .ipc("torque subscriber")?,
-        wakeup(node, run_id, "state-ready")?
-            .notifier_builder()
-            .create()
-            .ipc("state notifier")?,
-        wakeup(node, run_id, "torque-ready")?
-            .listener_builder()
-            .create()
-            .ipc("torque listener")?,
+        state(node, run_id)?.sole_publisher("state")?,
+        torque(node, run_id)?.subscriber(Some(buffer), "torque subscriber")?,
+        notifier(node, run_id, "state-ready")?,
+        listener(node, run_id, "torque-ready")?,
     ))
 }
 
@@ -626,13 +530,8 @@ pub fn published_needs_notify(peer_poll_until_ns: u64) -> bool {
 /// iceoryx2's own `Listener::timed_wait` uses a socket receive timeout, which the kernel rounds up
 /// to whole jiffies (1–4 ms): useless for a 150 µs budget. This polls the listener's file
 /// descriptor with `ppoll` (a high-resolution timer) instead. Returns whether an event is pending.
-pub fn wait_event(
-    listener: &iceoryx2::port::listener::Listener<Svc>,
-    timeout_ns: u64,
-) -> Result<bool, IpcError> {
-    use iceoryx2::prelude::FileDescriptorBased;
-    // SAFETY: the descriptor belongs to `listener`, which outlives this call; we only poll it.
-    let fd = unsafe { listener.file_descriptor().native_handle() };
+pub fn wait_event(listener: &Wake, timeout_ns: u64) -> Result<bool, IpcError> {
+    let fd = listener.fd();
     let mut pfd = libc::pollfd {
         fd,
         events: libc::POLLIN,

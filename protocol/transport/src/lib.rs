@@ -8,8 +8,10 @@
 pub mod args;
 pub mod exit;
 pub mod handoff;
+mod iox;
 pub mod ipc;
 pub mod observe;
+pub mod ports;
 pub mod rt;
 /// The wire types, with iceoryx2's `ZeroCopySend`: `deltaloop-wire`.
 pub use deltaloop_wire as wire;

@@ -31,25 +31,14 @@ fn first_exchange_footprint_change(connect: bool) -> (isize, isize) {
     let ctrl = ipc::node("controller", &run).unwrap();
     let publisher = ipc::state(&plant, &run)
         .unwrap()
-        .publisher_builder()
-        .create()
+        .publisher("state publisher")
         .unwrap();
     let subscriber = ipc::state(&ctrl, &run)
         .unwrap()
-        .subscriber_builder()
-        .buffer_size(LOOP_BUFFER)
-        .create()
+        .subscriber(Some(LOOP_BUFFER), "state subscriber")
         .unwrap();
-    let listener = ipc::wakeup(&ctrl, &run, "state-ready")
-        .unwrap()
-        .listener_builder()
-        .create()
-        .unwrap();
-    let notifier = ipc::wakeup(&plant, &run, "state-ready")
-        .unwrap()
-        .notifier_builder()
-        .create()
-        .unwrap();
+    let listener = ipc::listener(&ctrl, &run, "state-ready").unwrap();
+    let notifier = ipc::notifier(&plant, &run, "state-ready").unwrap();
     if connect {
         ipc::connect_now(&[&publisher, &subscriber, &notifier]).unwrap();
     }
@@ -61,8 +50,8 @@ fn first_exchange_footprint_change(connect: bool) -> (isize, isize) {
         })
         .unwrap();
     notifier.notify().unwrap();
-    let got = subscriber.receive().unwrap().map(|s| s.payload().tick);
-    let woke = listener.try_wait(|_| {}).unwrap() > 0;
+    let got = subscriber.receive().unwrap().map(|s| s.tick);
+    let woke = listener.try_wait().unwrap() > 0;
     let after = footprint();
     assert_eq!((got, woke), (Some(7), true), "connect = {connect}");
     (

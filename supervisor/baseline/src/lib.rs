@@ -23,7 +23,6 @@ use deltaloop_transport::ipc::{self, IpcContext};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{StateMsg, TorqueMsg};
 use hdrhistogram::Histogram;
-use iceoryx2::port::subscriber::Subscriber;
 use std::cell::UnsafeCell;
 use std::io::{Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
@@ -214,21 +213,10 @@ pub fn iox_one_thread(study: &Study, cpu: Option<usize>) -> Result<Measured> {
     let node = ipc::node("bench-one-thread", &run_id)?;
     let state = ipc::state(&node, &run_id)?;
     let torque = ipc::torque(&node, &run_id)?;
-    let state_tx = state.publisher_builder().create().ipc("state publisher")?;
-    let state_rx = state
-        .subscriber_builder()
-        .buffer_size(ipc::LOOP_BUFFER)
-        .create()
-        .ipc("state subscriber")?;
-    let torque_tx = torque
-        .publisher_builder()
-        .create()
-        .ipc("torque publisher")?;
-    let torque_rx = torque
-        .subscriber_builder()
-        .buffer_size(ipc::LOOP_BUFFER)
-        .create()
-        .ipc("torque subscriber")?;
+    let state_tx = state.publisher("state publisher")?;
+    let state_rx = state.subscriber(Some(ipc::LOOP_BUFFER), "state subscriber")?;
+    let torque_tx = torque.publisher("torque publisher")?;
+    let torque_rx = torque.subscriber(Some(ipc::LOOP_BUFFER), "torque subscriber")?;
     pin("bench loop", cpu);
     let mut ctrl = study.controller_side(Law::TdcIsSta);
     drive(study, "iox one-thread", |st| {
@@ -237,15 +225,14 @@ pub fn iox_one_thread(study: &Study, cpu: Option<usize>) -> Result<Measured> {
             bail!("iox one-thread baseline: state {} not delivered", st.tick);
         };
         let rx = rt::now_ns();
-        let got = *sample.payload();
-        drop(sample);
+        let got = sample;
         torque_tx
             .send_copy(answer(study, &mut ctrl, &got, rx))
             .ipc("publish torque")?;
         let Some(reply) = torque_rx.receive().ipc("receive torque")? else {
             bail!("iox one-thread baseline: reply {} not delivered", st.tick);
         };
-        Ok(*reply.payload())
+        Ok(reply)
     })
 }
 
@@ -260,22 +247,10 @@ pub fn iox_controller(
     let study = Study::new(RunConfig::from_file(config)?)?;
     pin("iox-controller", cpu);
     let node = ipc::node("bench-controller", run_id)?;
-    let state = ipc::state(&node, run_id)?
-        .subscriber_builder()
-        .create()
-        .ipc("state subscriber")?;
-    let torque = ipc::torque(&node, run_id)?
-        .publisher_builder()
-        .create()
-        .ipc("torque publisher")?;
-    let state_ready = ipc::wakeup(&node, run_id, "state-ready")?
-        .listener_builder()
-        .create()
-        .ipc("state listener")?;
-    let torque_ready = ipc::wakeup(&node, run_id, "torque-ready")?
-        .notifier_builder()
-        .create()
-        .ipc("torque notifier")?;
+    let state = ipc::state(&node, run_id)?.subscriber(None, "state subscriber")?;
+    let torque = ipc::torque(&node, run_id)?.publisher("torque publisher")?;
+    let state_ready = ipc::listener(&node, run_id, "state-ready")?;
+    let torque_ready = ipc::notifier(&node, run_id, "torque-ready")?;
     let mut ctrl = study.controller_side(Law::TdcIsSta);
     let last = study.reference.n as u64;
     let mut heard = Instant::now();
@@ -288,14 +263,13 @@ pub fn iox_controller(
                 Handoff::Polling => std::hint::spin_loop(),
                 Handoff::Blocking => {
                     // A signal only cuts the wait short; the loop looks again.
-                    let _ = state_ready.timed_wait(|_| {}, Duration::from_millis(10));
+                    let _ = state_ready.timed_wait(Duration::from_millis(10));
                 }
             }
             continue;
         };
         let rx = rt::now_ns();
-        let st = *sample.payload();
-        drop(sample);
+        let st = sample;
         heard = Instant::now();
         let reply = if st.tick == PROBE_TICK {
             TorqueMsg {
@@ -326,23 +300,11 @@ pub fn iox_lockstep(
 ) -> Result<Measured> {
     let run_id = ipc::new_run_id();
     let node = ipc::node("bench-plant", &run_id)?;
-    let state = ipc::state(&node, &run_id)?
-        .publisher_builder()
-        .create()
-        .ipc("state publisher")?;
-    let torque = ipc::torque(&node, &run_id)?
-        .subscriber_builder()
-        .buffer_size(ipc::LOOP_BUFFER)
-        .create()
-        .ipc("torque subscriber")?;
-    let state_ready = ipc::wakeup(&node, &run_id, "state-ready")?
-        .notifier_builder()
-        .create()
-        .ipc("state notifier")?;
-    let torque_ready = ipc::wakeup(&node, &run_id, "torque-ready")?
-        .listener_builder()
-        .create()
-        .ipc("torque listener")?;
+    let state = ipc::state(&node, &run_id)?.publisher("state publisher")?;
+    let torque =
+        ipc::torque(&node, &run_id)?.subscriber(Some(ipc::LOOP_BUFFER), "torque subscriber")?;
+    let state_ready = ipc::notifier(&node, &run_id, "state-ready")?;
+    let torque_ready = ipc::listener(&node, &run_id, "torque-ready")?;
     let mut args = vec!["--run-id", &run_id];
     if handoff == Handoff::Blocking {
         args.push("--blocking");
@@ -360,7 +322,7 @@ pub fn iox_lockstep(
         state_ready.notify().ipc("notify probe")?;
         std::thread::sleep(Duration::from_millis(1));
         while let Some(s) = torque.receive().ipc("receive torque")? {
-            if s.payload().tick == PROBE_TICK {
+            if s.tick == PROBE_TICK {
                 break 'probe;
             }
         }
@@ -391,7 +353,7 @@ pub fn iox_lockstep(
                 Handoff::Blocking => {
                     // Drop wake-ups already seen, look once more, then sleep until a new one
                     // (the plant process waits the same way).
-                    torque_ready.try_wait(|_| {}).ipc("drain torque events")?;
+                    torque_ready.try_wait().ipc("drain torque events")?;
                     if !torque.has_samples().unwrap_or(true) {
                         ipc::wait_event(&torque_ready, 10_000_000)?;
                     }
@@ -413,10 +375,10 @@ pub fn iox_lockstep(
 /// The next reply in `torque`, past any echo of a probe: the probes sent every millisecond until
 /// the first echo may have queued several at the helper, whose echoes come after the loop has
 /// started.
-fn next_reply(torque: &Subscriber<ipc::Svc, TorqueMsg, ()>) -> Result<Option<TorqueMsg>> {
+fn next_reply(torque: &ipc::TorqueIn) -> Result<Option<TorqueMsg>> {
     while let Some(s) = torque.receive().ipc("receive torque")? {
-        if s.payload().tick != PROBE_TICK {
-            return Ok(Some(*s.payload()));
+        if s.tick != PROBE_TICK {
+            return Ok(Some(s));
         }
     }
     Ok(None)
@@ -513,11 +475,9 @@ mod tests {
         let run_id = ipc::new_run_id();
         let node = ipc::node("bench-test", &run_id).unwrap();
         let torque = ipc::torque(&node, &run_id).unwrap();
-        let tx = torque.publisher_builder().create().unwrap();
+        let tx = torque.publisher("publisher").unwrap();
         let rx = torque
-            .subscriber_builder()
-            .buffer_size(ipc::LOOP_BUFFER)
-            .create()
+            .subscriber(Some(ipc::LOOP_BUFFER), "subscriber")
             .unwrap();
         for tick in [PROBE_TICK, PROBE_TICK, 0] {
             tx.send_copy(TorqueMsg {

@@ -256,7 +256,9 @@ pub fn with_ext(stem: &Path, ext: &str) -> PathBuf {
 macro_rules! write_both {
     ($stem:expr, $size:expr, $draw:expr) => {{
         register_font();
-        $draw(SVGBackend::new(&with_ext($stem, "svg"), $size).into_drawing_area())?;
+        $draw(
+            super::Canvas::Svg(SVGBackend::new(&with_ext($stem, "svg"), $size)).into_drawing_area(),
+        )?;
         super::png(&with_ext($stem, "png"), $size, |area| $draw(area))?;
         Ok(())
     }};

@@ -13,7 +13,9 @@ use plotters::prelude::*;
 use std::path::Path;
 use std::sync::Once;
 
+mod canvas;
 mod latency;
+use canvas::Canvas;
 pub mod timeline;
 pub use latency::{
     TimeBin, latency_percentiles, latency_percentiles_colored, quantity_color, timeline, with_ext,
@@ -221,13 +223,13 @@ where
 
 /// Draws with `draw` into an RGB buffer of `size` (pixels) and writes it to `path` as a PNG:
 /// plotters' bitmap backend draws, the `png` crate encodes.
-pub fn png(
+fn png(
     path: &Path,
     size: (u32, u32),
-    draw: impl for<'a> FnOnce(DrawingArea<BitMapBackend<'a>, Shift>) -> Result<()>,
+    draw: impl for<'a> FnOnce(DrawingArea<Canvas<'a>, Shift>) -> Result<()>,
 ) -> Result<()> {
     let mut buf = vec![0u8; size.0 as usize * size.1 as usize * 3];
-    draw(BitMapBackend::with_buffer(&mut buf, size).into_drawing_area())?;
+    draw(Canvas::Bitmap(BitMapBackend::with_buffer(&mut buf, size)).into_drawing_area())?;
     let named = || format!("cannot write {}", path.display());
     let file = std::fs::File::create(path).with_context(named)?;
     let mut enc = ::png::Encoder::new(std::io::BufWriter::new(file), size.0, size.1);
@@ -244,7 +246,7 @@ pub fn figure(stem: &Path, title: &str, panels: &[Panel], cols: usize) -> Result
     let rows = panels.len().div_ceil(cols.max(1)) as u32;
     let size = (620 * cols as u32, 440 * rows + 40);
     draw(
-        SVGBackend::new(&stem.with_extension("svg"), size).into_drawing_area(),
+        Canvas::Svg(SVGBackend::new(&stem.with_extension("svg"), size)).into_drawing_area(),
         title,
         panels,
         cols,
@@ -328,7 +330,7 @@ pub fn figure3(stem: &Path, title: &str, series: &[Series3]) -> Result<()> {
     register_font();
     let size = (900, 720);
     draw3(
-        SVGBackend::new(&stem.with_extension("svg"), size).into_drawing_area(),
+        Canvas::Svg(SVGBackend::new(&stem.with_extension("svg"), size)).into_drawing_area(),
         title,
         series,
     )?;

@@ -5,9 +5,8 @@
 
 use anyhow::Result;
 use deltaloop_study::reference::JointReference;
-use deltaloop_transport::ipc::{self, IpcContext, REF_CHUNK, REF_RING, Svc};
+use deltaloop_transport::ipc::{self, REF_CHUNK, REF_RING, RefOut};
 use deltaloop_transport::wire::RefSample;
-use iceoryx2::port::publisher::Publisher;
 
 /// Chunks of a reference of `total_rows` rows: ⌈total / `REF_CHUNK`⌉.
 pub fn chunk_count(total_rows: u64) -> u64 {
@@ -41,7 +40,7 @@ pub const LOCKSTEP_LEAD_CHUNKS: u64 = 1;
 
 /// The reference publisher and how far it has got.
 pub struct ReferenceFeed {
-    publisher: Publisher<Svc, [RefSample], ()>,
+    publisher: RefOut,
     /// The next chunk to send (= chunks sent so far).
     next: u64,
     /// Rows of the reference, N + 2.
@@ -53,7 +52,7 @@ pub struct ReferenceFeed {
 impl ReferenceFeed {
     /// Opens the reference publisher on the supervisor's node.
     pub fn create(
-        node: &iceoryx2::node::Node<ipc::Svc>,
+        node: &ipc::Node<ipc::Svc>,
         run_id: &str,
         total_rows: usize,
         lead: u64,
@@ -102,21 +101,18 @@ impl ReferenceFeed {
     /// it.
     fn send_chunk(&self, reference: &JointReference, c: u64) -> Result<()> {
         let ticks = chunk_ticks(c, self.total_rows);
-        let sample = self
-            .publisher
-            .loan_slice_uninit((ticks.end - ticks.start) as usize)
-            .ipc(format!("loan reference chunk {c}"))?;
-        let sample = sample.write_from_fn(|i| {
-            let tick = ticks.start + i as u64;
-            let j = reference.row(tick as usize).joint;
-            RefSample {
-                tick,
-                q: j.q.into(),
-                qd: j.qd.into(),
-                qdd: j.qdd.into(),
-            }
-        });
-        sample.send().ipc(format!("send reference chunk {c}"))?;
+        self.publisher
+            .send_chunk((ticks.end - ticks.start) as usize, &mut |i| {
+                let tick = ticks.start + i as u64;
+                let j = reference.row(tick as usize).joint;
+                RefSample {
+                    tick,
+                    q: j.q.into(),
+                    qd: j.qd.into(),
+                    qdd: j.qdd.into(),
+                }
+            })
+            .map_err(|e| anyhow::anyhow!("{e} (reference chunk {c})"))?;
         Ok(())
     }
 }

@@ -18,10 +18,6 @@ use deltaloop_transport::rt;
 use deltaloop_transport::wire::{
     ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
 };
-use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::prelude::*;
-use iceoryx2::service::header::payload_header::PayloadHeader;
 use std::cell::Cell;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -421,23 +417,23 @@ fn far_side_note(link_report: Option<&Path>) -> String {
 /// only that publisher is heard. The service has one publisher slot, so once the child holds it
 /// no other process can publish there; if another process took it first, the run is refused.
 struct ControlIn {
-    sub: Subscriber<Svc, ControlMsg, ()>,
+    sub: ipc::ControlIn,
     who: Sender,
     /// The child's pid, once it is spawned.
     root: Cell<Option<u32>>,
     /// The child's publisher, once its first message proved it.
-    publisher: Cell<Option<iceoryx2::identifiers::UniquePublisherId>>,
+    publisher: Cell<Option<ipc::UniquePublisherId>>,
     /// The first process not the child's that published here (pid; 0 if its pid is unknown).
     intruder: Cell<Option<u32>>,
 }
 
 impl ControlIn {
-    fn open(node: &Node<Svc>, run_id: &str, who: Sender) -> Result<Self> {
+    fn open(node: &ipc::Node<Svc>, run_id: &str, who: Sender) -> Result<Self> {
         Ok(Self {
-            sub: ipc::control(node, run_id, who)?
-                .subscriber_builder()
-                .create()
-                .ipc(format!("subscriber on {}", ipc::control_service(who)))?,
+            sub: ipc::control(node, run_id, who)?.subscriber(
+                None,
+                &format!("subscriber on {}", ipc::control_service(who)),
+            )?,
             who,
             root: Cell::new(None),
             publisher: Cell::new(None),
@@ -457,16 +453,12 @@ impl ControlIn {
     /// The next message the child itself sent, of a kind it may send; everything else is dropped
     /// (and a foreign publisher remembered).
     fn receive(&self) -> Result<Option<ControlMsg>> {
-        while let Some(sample) = self.sub.receive().ipc("receive control")? {
-            let origin = sample.origin();
+        while let Some(sample) = self.sub.receive_sent().ipc("receive control")? {
+            let origin = sample.origin;
             let trusted = match (self.publisher.get(), self.root.get()) {
                 (Some(id), _) => id == origin,
                 (None, Some(root)) => {
-                    let pid = sample
-                        .header()
-                        .node_id()
-                        .pid::<Svc>()
-                        .map_or(0, |p| p.value() as u32);
+                    let pid = sample.pid;
                     let ok = pid != 0 && in_process_tree(pid, root);
                     if ok {
                         self.publisher.set(Some(origin));
@@ -477,7 +469,7 @@ impl ControlIn {
                 }
                 (None, None) => false,
             };
-            let m = *sample.payload();
+            let m = sample.msg;
             if trusted && m.sender() == Some(self.who) && m.kind().is_some_and(|k| self.allowed(k))
             {
                 return Ok(Some(m));
@@ -501,14 +493,14 @@ impl ControlIn {
 /// The supervisor's ports: observers of the three loop streams, run control (the reference
 /// publisher is a [`ReferenceFeed`] on the same node).
 pub(super) struct Observer {
-    state: Subscriber<Svc, StateMsg, ()>,
-    torque: Subscriber<Svc, TorqueMsg, ()>,
-    telemetry: Subscriber<Svc, TelemetryMsg, ()>,
+    state: ipc::StateIn,
+    torque: ipc::TorqueIn,
+    telemetry: ipc::TelemetryIn,
     /// START and STOP: the only publisher of `control`, taken before the children start.
-    control: Publisher<Svc, ControlMsg, ()>,
+    control: ipc::ControlOut,
     from_plant: ControlIn,
     from_controller: ControlIn,
-    node: Node<Svc>,
+    node: ipc::RunNode,
 }
 
 /// A message the supervisor's ports took: of the loop's streams, or of a child's control service
@@ -526,24 +518,13 @@ impl Observer {
         let node = ipc::node("supervisor", run_id)?;
         Ok(Self {
             state: ipc::state(&node, run_id)?
-                .subscriber_builder()
-                .buffer_size(OBSERVER_BUFFER)
-                .create()
-                .ipc("state observer")?,
+                .subscriber(Some(OBSERVER_BUFFER), "state observer")?,
             torque: ipc::torque(&node, run_id)?
-                .subscriber_builder()
-                .buffer_size(OBSERVER_BUFFER)
-                .create()
-                .ipc("torque observer")?,
+                .subscriber(Some(OBSERVER_BUFFER), "torque observer")?,
             telemetry: ipc::telemetry(&node, run_id)?
-                .subscriber_builder()
-                .buffer_size(OBSERVER_BUFFER)
-                .create()
-                .ipc("telemetry observer")?,
+                .subscriber(Some(OBSERVER_BUFFER), "telemetry observer")?,
             control: ipc::control(&node, run_id, Sender::Supervisor)?
-                .publisher_builder()
-                .create()
-                .ipc("control publisher")?,
+                .publisher("control publisher")?,
             from_plant: ControlIn::open(&node, run_id, Sender::Plant)?,
             from_controller: ControlIn::open(&node, run_id, Sender::Controller)?,
             node,
@@ -561,13 +542,13 @@ impl Observer {
     /// the telemetry, then the plant's and the controller's control messages.
     pub(super) fn drain(&self, on: &mut dyn FnMut(Observed) -> Result<()>) -> Result<()> {
         while let Some(s) = self.state.receive().ipc("observe state")? {
-            on(Observed::State(*s.payload()))?;
+            on(Observed::State(s))?;
         }
         while let Some(s) = self.torque.receive().ipc("observe torque")? {
-            on(Observed::Torque(*s.payload()))?;
+            on(Observed::Torque(s))?;
         }
         while let Some(s) = self.telemetry.receive().ipc("observe telemetry")? {
-            on(Observed::Telemetry(*s.payload()))?;
+            on(Observed::Telemetry(s))?;
         }
         while let Some(m) = self.from_plant.receive()? {
             on(Observed::Plant(m))?;

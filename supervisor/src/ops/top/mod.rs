@@ -16,14 +16,10 @@ use crate::study::Study;
 use crate::timing::live::LiveStats;
 use anyhow::{Context, Result, anyhow, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
-use deltaloop_transport::ipc::{self, IpcContext, OBSERVER_BUFFER, Svc};
+use deltaloop_transport::ipc::{self, IpcContext, OBSERVER_BUFFER};
 use deltaloop_transport::observe;
-use deltaloop_transport::wire::{
-    self, ControlKind, ControlMsg, Sender, StateMsg, TelemetryMsg, TorqueMsg,
-};
+use deltaloop_transport::wire::{self, ControlKind, Sender};
 use find::RunInfo;
-use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::prelude::*;
 use relay::Relay;
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
@@ -36,12 +32,12 @@ const LIVENESS: Duration = Duration::from_secs(1);
 
 /// The observer's ports on one run.
 struct Watch {
-    state: Subscriber<Svc, StateMsg, ()>,
-    telemetry: Subscriber<Svc, TelemetryMsg, ()>,
-    control: Subscriber<Svc, ControlMsg, ()>,
+    state: ipc::StateIn,
+    telemetry: ipc::TelemetryIn,
+    control: ipc::ControlIn,
     /// The replies (only for `--foxglove`: the view draws them; the slot is left free otherwise).
-    torque: Option<Subscriber<Svc, TorqueMsg, ()>>,
-    _node: Node<Svc>,
+    torque: Option<ipc::TorqueIn>,
+    _node: ipc::RunNode,
 }
 
 /// Why attaching failed, in words the user can act on.
@@ -127,9 +123,9 @@ impl Watched {
     /// Takes everything waiting and updates the status (and the Foxglove view, if one is served).
     fn drain(&mut self, w: &Watch, mut relay: Option<&mut Relay<'_, LiveBus>>) -> Result<()> {
         while let Some(m) = w.telemetry.receive().ipc("receive telemetry")? {
-            self.stats.telemetry(m.payload());
+            self.stats.telemetry(&m);
             if let Some(r) = relay.as_deref_mut() {
-                r.telemetry(m.payload());
+                r.telemetry(&m);
             }
             if self.status == Status::Waiting {
                 self.status = Status::Running;
@@ -138,12 +134,11 @@ impl Watched {
         if let Some(t) = &w.torque {
             while let Some(m) = t.receive().ipc("receive torque")? {
                 if let Some(r) = relay.as_deref_mut() {
-                    r.torque(m.payload());
+                    r.torque(&m);
                 }
             }
         }
         while let Some(s) = w.state.receive().ipc("receive state")? {
-            let s = *s.payload();
             if s.flags & wire::STATE_FINAL != 0 {
                 self.status = match self.stop_reason.take() {
                     Some(why) => Status::Stopped { why },
@@ -162,7 +157,7 @@ impl Watched {
             }
         }
         while let Some(m) = w.control.receive().ipc("receive control")? {
-            let m = m.payload();
+            let m = &m;
             // The text is the peer's: shown on the terminal only as one escaped line.
             let text = || {
                 crate::loops::peer_text::sanitize(
