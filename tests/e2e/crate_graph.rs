@@ -250,25 +250,7 @@ fn supervisor_spawns_the_bridge_without_linking_it() {
 #[test]
 fn only_the_transport_and_the_wire_depend_on_iceoryx2() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let out = Command::new(cargo)
-        .args([
-            "metadata",
-            "--offline",
-            "--locked",
-            "--no-deps",
-            "--format-version",
-            "1",
-        ])
-        .current_dir(root)
-        .output()
-        .expect("cargo metadata");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let meta = workspace_metadata(root);
     let mut users: Vec<&str> = meta["packages"]
         .as_array()
         .unwrap()
@@ -383,25 +365,7 @@ fn profiles_are_few_optimised_in_release_and_name_direct_dependencies() {
         "opt-level 0 in release: {release_zero:?}"
     );
     // What the workspace names: its members and their direct dependencies.
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let out = Command::new(cargo)
-        .args([
-            "metadata",
-            "--offline",
-            "--locked",
-            "--no-deps",
-            "--format-version",
-            "1",
-        ])
-        .current_dir(root)
-        .output()
-        .expect("cargo metadata");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let meta = workspace_metadata(root);
     let mut named: Vec<String> = Vec::new();
     for p in meta["packages"].as_array().unwrap() {
         named.push(p["name"].as_str().unwrap().to_string());
@@ -421,6 +385,29 @@ fn profiles_are_few_optimised_in_release_and_name_direct_dependencies() {
         orphans.is_empty(),
         "sections naming crates the workspace does not depend on directly: {orphans:?}"
     );
+}
+
+/// `cargo metadata` of the workspace's own packages (no dependencies).
+fn workspace_metadata(root: &std::path::Path) -> serde_json::Value {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = Command::new(cargo)
+        .args([
+            "metadata",
+            "--offline",
+            "--locked",
+            "--no-deps",
+            "--format-version",
+            "1",
+        ])
+        .current_dir(root)
+        .output()
+        .expect("cargo metadata");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
 }
 
 /// The module a source file is (`a::b::c` from `src/a/b/c.rs` or `src/a/b/c/mod.rs`), and the

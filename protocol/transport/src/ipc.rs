@@ -2,13 +2,13 @@
 //! settings agree (iceoryx2 refuses to open a service with different settings). Service and node
 //! names carry the run id: two runs, or two tests in parallel, never meet.
 
+pub use crate::iox::{IpcContext, IpcError, Svc, describe_process};
 pub use crate::ports::{
     ControlIn, ControlOut, ControlService, Ping, RefChunk, RefIn, RefOut, RunNode, Sent, StateIn,
     StateOut, StateService, TelemetryIn, TelemetryOut, TelemetryService, TorqueIn, TorqueOut,
     TorqueService, Wake,
 };
 use crate::wire::{self, ControlMsg, RefSample, Sender, StateMsg, TelemetryMsg, TorqueMsg};
-pub use crate::iox::{IpcContext, IpcError, Svc, describe_process};
 /// iceoryx2's names the ports' users see (they need not depend on iceoryx2).
 pub use iceoryx2::identifiers::UniquePublisherId;
 pub use iceoryx2::node::Node;
