@@ -312,8 +312,8 @@ fn baselines_need_no_link_and_no_figures() {
 }
 
 /// What the recording supervisor encodes every tick (the MCAP file's scene, joint states and
-/// writer) is a crate of its own, so that it is optimised while the supervisor is built at
-/// opt-level 0: it needs neither the supervisor nor the loop's transport.
+/// writer) is a crate of its own, plain encoders over the model: it needs neither the
+/// supervisor nor the loop's transport.
 #[test]
 fn mcap_messages_need_no_supervisor() {
     assert_none_of(
