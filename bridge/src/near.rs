@@ -838,8 +838,7 @@ impl Peer {
     /// causes. Returns whether START went out.
     fn forward_control(&mut self, control: &ControlPorts) -> Result<bool> {
         let mut started = false;
-        while let Some(s) = control.1.receive().ipc("receive control")? {
-            let mut c = s;
+        while let Some(mut c) = control.1.receive().ipc("receive control")? {
             match (c.kind(), c.sender()) {
                 (Some(ControlKind::Start), Some(Sender::Supervisor)) => {
                     if let Some(h) = &self.handoff {

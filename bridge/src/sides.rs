@@ -156,8 +156,7 @@ impl PlantHost {
     ) -> Result<()> {
         state_ready.try_wait().ipc("drain state-ready")?;
         let mut newest: Option<StateMsg> = None;
-        while let Some(s) = state.receive().ipc("receive state")? {
-            let st: StateMsg = s;
+        while let Some(st) = state.receive().ipc("receive state")? {
             if st.flags & wire::STATE_FINAL != 0 {
                 if let Some(n) = newest.take() {
                     self.send_state(&n, udp)?;
@@ -484,8 +483,7 @@ impl ControllerHost {
         tcp: &mut Tcp,
     ) -> Result<()> {
         torque_ready.try_wait().ipc("drain torque-ready")?;
-        while let Some(s) = torque.receive().ipc("receive torque")? {
-            let t: &TorqueMsg = &s;
+        while let Some(t) = torque.receive().ipc("receive torque")? {
             self.controller_poll_until = t.t_poll_until_ns;
             self.poll_until = 0;
             let now = rt::now_ns();
@@ -495,10 +493,10 @@ impl ControllerHost {
             } else {
                 t.t_publish_ns.saturating_sub(t.t_state_rx_ns)
             };
-            let payload = self.replies.push(t, residence);
+            let payload = self.replies.push(&t, residence);
             udp.send(Kind::Torque, &[payload], now)?;
             if let Some(c) = &mut self.copies {
-                c.push(t, residence, tcp)?;
+                c.push(&t, residence, tcp)?;
             }
         }
         Ok(())
@@ -637,9 +635,8 @@ impl Copies {
     /// Every reply the controller published on this host since the last call (the direct path:
     /// its residence from the controller's own stamps), out.
     pub fn take(&mut self, torque: &ipc::TorqueIn, tcp: &mut Tcp) -> Result<()> {
-        while let Some(s) = torque.receive().ipc("receive torque")? {
-            let t: &TorqueMsg = &s;
-            self.push(t, t.t_publish_ns.saturating_sub(t.t_state_rx_ns), tcp)?;
+        while let Some(t) = torque.receive().ipc("receive torque")? {
+            self.push(&t, t.t_publish_ns.saturating_sub(t.t_state_rx_ns), tcp)?;
         }
         self.flush(tcp)
     }

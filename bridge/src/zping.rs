@@ -50,7 +50,7 @@ pub fn zping(a: &ZPingArgs) -> Result<()> {
         let got = loop {
             match sub.recv_timeout(Duration::from_millis(100)) {
                 Ok(Some(sample)) => {
-                    let b = sample.to_bytes();
+                    let b = sample.payload().to_bytes();
                     if b.len() >= 8 && b[..8] == i.to_ne_bytes() {
                         break Some(rt::now_ns() - t);
                     }
@@ -84,7 +84,7 @@ pub fn zpong(a: &ZPongArgs, term: &AtomicBool) -> Result<()> {
     while !term.load(Ordering::Relaxed) {
         if let Ok(Some(sample)) = sub.recv_timeout(Duration::from_millis(100)) {
             publisher
-                .put(sample.to_bytes().into_owned())
+                .put(sample.payload().to_bytes().into_owned())
                 .wait()
                 .map_err(|e| anyhow!("{e}"))?;
         }

@@ -306,8 +306,7 @@ impl Far {
     }
 
     fn control_plane(&mut self, l: &mut FarLink, tcp_in: bool) -> Result<()> {
-        while let Some(s) = self.ports.control_in.receive().ipc("receive control")? {
-            let mut c = s;
+        while let Some(mut c) = self.ports.control_in.receive().ipc("receive control")? {
             if let Some(text) = self.named
                 && c.kind() == Some(ControlKind::Ready)
                 && c.text[0] == 0

@@ -127,13 +127,12 @@ impl NearPlant {
             self.host
                 .start((&self.ports.state, &self.ports.state_ready))?;
         }
-        while let Some(s) = self
+        while let Some(c) = self
             .ports
             .from_controller
             .receive()
             .ipc("receive control")?
         {
-            let c = s;
             if c.kind().is_some_and(ControlKind::said_by_controller) {
                 p.tcp.send(Kind::Control, &[bytes_of(&c)])?;
             }

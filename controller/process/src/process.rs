@@ -595,8 +595,7 @@ fn wait_state_direct(
         if let Some((s, older)) = link.poll()? {
             return Ok(Waited::State(s, older, rt::now_ns()));
         }
-        while let Some(sample) = sub.receive().ipc("receive state")? {
-            let s = sample;
+        while let Some(s) = sub.receive().ipc("receive state")? {
             if s.flags & wire::STATE_FINAL != 0 {
                 return Ok(Waited::State(s, 0, rt::now_ns()));
             }

@@ -588,8 +588,7 @@ fn wait_torque<P: Physics>(
     let (sub, listener) = (&ports.torque, &ports.torque_ready);
     loop {
         let now = rt::now_ns();
-        while let Some(sample) = sub.receive().ipc("receive torque")? {
-            let m = sample;
+        while let Some(m) = sub.receive().ipc("receive torque")? {
             let rx_ns = rt::now_ns();
             let (stamp_ns, stamp_replaced) = trusted_stamp(m.t_publish_ns, state_pub_ns, rx_ns);
             match reply_verdict(&m, stamp_ns, tick, until_ns) {

@@ -64,6 +64,24 @@ macro_rules! drop_here {
     )*};
 }
 
+/// A publisher slot refused on service `what` (`e`), naming the processes (`holders`, pids)
+/// that hold its slots.
+fn slot_taken(what: &str, e: &dyn std::fmt::Debug, holders: &[u32]) -> IpcError {
+    let held = if holders.is_empty() {
+        String::new()
+    } else {
+        let who: Vec<String> = holders.iter().map(|&p| describe_process(p)).collect();
+        format!(
+            ": its only publisher slot is held by another process ({})",
+            who.join("; ")
+        )
+    };
+    IpcError {
+        what: format!("publisher on {what}"),
+        detail: format!("{e:?}{held}"),
+    }
+}
+
 /// The service of one fixed-size message type and its two ends.
 macro_rules! message_ports {
     ($($msg:ty: $service:ident, $out:ident, $in:ident;)*) => {$(
@@ -94,19 +112,7 @@ macro_rules! message_ports {
                         holders.push(p.node_id.pid::<Svc>().map_or(0, |p| p.value() as u32));
                         CallbackProgression::Continue
                     });
-                    let held = if holders.is_empty() {
-                        String::new()
-                    } else {
-                        let who: Vec<String> = holders.into_iter().map(describe_process).collect();
-                        format!(
-                            ": its only publisher slot is held by another process ({})",
-                            who.join("; ")
-                        )
-                    };
-                    IpcError {
-                        what: format!("publisher on {what}"),
-                        detail: format!("{e:?}{held}"),
-                    }
+                    slot_taken(what, &e, &holders)
                 })?;
                 Ok($out(ManuallyDrop::new(p)))
             }
@@ -136,11 +142,6 @@ macro_rules! message_ports {
             /// Publishes a copy of `m`; the number of subscribers it reached.
             pub fn send_copy(&self, m: $msg) -> Result<usize, SendError> {
                 self.0.send_copy(m)
-            }
-
-            /// This port, as a received message's `origin` names it.
-            pub fn id(&self) -> UniquePublisherId {
-                self.0.id()
             }
         }
 

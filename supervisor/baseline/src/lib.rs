@@ -221,11 +221,10 @@ pub fn iox_one_thread(study: &Study, cpu: Option<usize>) -> Result<Measured> {
     let mut ctrl = study.controller_side(Law::TdcIsSta);
     drive(study, "iox one-thread", |st| {
         state_tx.send_copy(st).ipc("publish state")?;
-        let Some(sample) = state_rx.receive().ipc("receive state")? else {
+        let Some(got) = state_rx.receive().ipc("receive state")? else {
             bail!("iox one-thread baseline: state {} not delivered", st.tick);
         };
         let rx = rt::now_ns();
-        let got = sample;
         torque_tx
             .send_copy(answer(study, &mut ctrl, &got, rx))
             .ipc("publish torque")?;
@@ -255,7 +254,7 @@ pub fn iox_controller(
     let last = study.reference.n as u64;
     let mut heard = Instant::now();
     loop {
-        let Some(sample) = state.receive().ipc("receive state")? else {
+        let Some(st) = state.receive().ipc("receive state")? else {
             if heard.elapsed() > PEER_TIMEOUT {
                 bail!("iox-controller: no state for {PEER_TIMEOUT:?}");
             }
@@ -269,7 +268,6 @@ pub fn iox_controller(
             continue;
         };
         let rx = rt::now_ns();
-        let st = sample;
         heard = Instant::now();
         let reply = if st.tick == PROBE_TICK {
             TorqueMsg {

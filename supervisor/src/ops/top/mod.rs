@@ -157,7 +157,6 @@ impl Watched {
             }
         }
         while let Some(m) = w.control.receive().ipc("receive control")? {
-            let m = &m;
             // The text is the peer's: shown on the terminal only as one escaped line.
             let text = || {
                 crate::loops::peer_text::sanitize(
