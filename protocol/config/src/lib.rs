@@ -36,7 +36,8 @@ pub use mode::LoopMode;
 pub use schema::{
     ApplyTorque, ControllerSection, FaultInjection, FaultSection, LinkEmulation, LinkPath,
     LinkSection, LoopSection, Overrun, PathKind, PlantSection, RecordSection, RemoteSide,
-    RunConfig, ScenarioSection, Segment, SensorSection, TorqueLimit,
+    Ros2Distro, Ros2Range, Ros2Section, RunConfig, ScenarioSection, Segment, SensorSection,
+    TorqueLimit,
 };
 pub use text::{
     MAX_ECHO_CHARS, clean_message, show_num, show_path, show_str, toml_error_line,

@@ -522,6 +522,73 @@ pub struct RunConfig {
     /// One process of the run on another host (None: every process on this one).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub link: Option<LinkSection>,
+    /// ROS 2: the run's live topics (`--ros2`) and a ROS 2 node as the controller
+    /// (`--controller ros2`). None: the defaults, when either asks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ros2: Option<Ros2Section>,
+}
+
+/// `[ros2]`: how deltaloop appears in a ROS 2 graph (docs/guide/ros2.md). DDS without
+/// DDS-Security authenticates no one, so discovery stays on this host unless asked otherwise.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Ros2Section {
+    /// DDS domain, 0..=232 (None: `ROS_DOMAIN_ID`, else 0).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub domain: Option<u16>,
+    /// Discovery range (None: `ROS_AUTOMATIC_DISCOVERY_RANGE`, else `localhost`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub range: Option<Ros2Range>,
+    /// The live topics' namespace: `/<namespace>/<law>/joint_states`, … (ROS name tokens).
+    pub namespace: String,
+    /// Publish every this many ticks (1: every tick; 10: 333 Hz at Ts = 0.3 ms).
+    pub every: u32,
+    /// `--controller ros2`: the robot's joint states, published by deltaloop (a ROS name).
+    pub state_topic: String,
+    /// `--controller ros2`: the node's commands (JointState, `effort` in N m) (a ROS name).
+    pub command_topic: String,
+    /// The ROS 2 distribution whose graph format `ros_discovery_info` uses.
+    pub distro: Ros2Distro,
+    /// `--controller ros2`: how long to wait for the node to appear, s.
+    pub wait_s: f64,
+}
+
+impl Default for Ros2Section {
+    fn default() -> Self {
+        Self {
+            domain: None,
+            range: None,
+            namespace: "deltaloop".into(),
+            every: 10,
+            state_topic: "/robot_joint_states".into(),
+            command_topic: "/robot_joint_commands".into(),
+            distro: Ros2Distro::default(),
+            wait_s: 20.0,
+        }
+    }
+}
+
+deltaloop_names::text_enum! {
+    "lowercase", "ROS 2 discovery range";
+    /// How far DDS discovery reaches (`[ros2] range`, ROS 2's `ROS_AUTOMATIC_DISCOVERY_RANGE`).
+    pub enum Ros2Range {
+        /// This host only (loopback): the default.
+        Localhost,
+        /// The local networks (multicast): anyone there can read the run and, with
+        /// `--controller ros2`, command the robot.
+        Subnet,
+    }
+}
+
+deltaloop_names::text_enum! {
+    "lowercase", "ROS 2 distribution";
+    /// The graph format of `ros_discovery_info`: Humble's 24-byte gids or Jazzy's 16.
+    #[derive(Default)]
+    pub enum Ros2Distro {
+        Humble,
+        #[default]
+        Jazzy,
+    }
 }
 
 /// `[link]`: one process of the run on another host, across `deltaloop-bridge`

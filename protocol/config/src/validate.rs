@@ -5,7 +5,7 @@ use crate::error::ConfigError;
 use crate::layout::{Layout, Poll};
 use crate::schema::{
     ControllerSection, FaultSection, LinkEmulation, LinkSection, LoopSection, PathKind,
-    PlantSection, RunConfig, ScenarioSection, SensorSection, step_tick,
+    PlantSection, Ros2Section, RunConfig, ScenarioSection, SensorSection, step_tick,
 };
 use crate::text::{MAX_ECHO_CHARS, escape_cut, show_num, show_str};
 use std::fmt;
@@ -325,6 +325,61 @@ impl LinkEmulation {
     }
 }
 
+/// What a ROS name's tokens may hold: letters, digits and `_`, split by `/`, no token starting
+/// with a digit, no empty token.
+pub const ROS_NAME_RULE: &str =
+    "ROS name tokens of A-Z a-z 0-9 _ split by /, none empty or starting with a digit";
+
+/// Whether `name` (without a leading `/`) is made of ROS name tokens: see [`ROS_NAME_RULE`].
+pub fn ros_name_is_valid(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= 200
+        && name.split('/').all(|t| {
+            !t.is_empty()
+                && !t.starts_with(|c: char| c.is_ascii_digit())
+                && t.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_')
+        })
+}
+
+impl Ros2Section {
+    /// `[ros2]`: the domain, the names, the rate and the wait.
+    fn validate(&self) -> Result<(), ConfigError> {
+        if let Some(d) = self.domain.filter(|d| *d > 232) {
+            return Err(range("ros2.domain", d, "0 <= domain <= 232"));
+        }
+        if !ros_name_is_valid(&self.namespace) {
+            return Err(range(
+                "ros2.namespace",
+                show_str(&self.namespace),
+                ROS_NAME_RULE,
+            ));
+        }
+        for (key, t) in [
+            ("ros2.state_topic", &self.state_topic),
+            ("ros2.command_topic", &self.command_topic),
+        ] {
+            if !ros_name_is_valid(t.strip_prefix('/').unwrap_or(t)) {
+                return Err(range(key, show_str(t), ROS_NAME_RULE));
+            }
+        }
+        if !(1..=1_000_000).contains(&self.every) {
+            return Err(range(
+                "ros2.every",
+                self.every,
+                "1 <= every <= 1000000 ticks",
+            ));
+        }
+        if !(self.wait_s > 0.0 && self.wait_s <= 25.0) {
+            return Err(range(
+                "ros2.wait_s",
+                show_num(self.wait_s),
+                "0 < wait_s <= 25 s (inside the 30 s handshake)",
+            ));
+        }
+        Ok(())
+    }
+}
+
 impl LinkSection {
     /// `[link]`: the address this host listens on, the emulation's and the spin's bounds (in
     /// realtime the spin is bounded by the torque budget too, where the mode is known).
@@ -535,6 +590,9 @@ impl RunConfig {
         self.sensor.validate()?;
         self.faults.validate()?;
         self.controller.validate()?;
+        if let Some(ros2) = &self.ros2 {
+            ros2.validate()?;
+        }
         if let Some(link) = &self.link {
             link.validate()?;
         }

@@ -13,6 +13,21 @@ use deltaloop_study::record::{Recorder, RunEnd, TickRecord, TickSink};
 use deltaloop_study::reference::RefRow;
 use deltaloop_transport::wire::StateMsg;
 use std::path::PathBuf;
+use std::sync::Arc;
+
+/// A sink of each law's finished ticks beyond the run's files (the ROS 2 live topics), made when
+/// the law starts recording. If it cannot be made the law runs without it (a warning line).
+pub type TapFn = dyn Fn(&Study, Law) -> Result<Box<dyn TickSink + Send>> + Send + Sync;
+
+/// A [`TapFn`] to hand around.
+#[derive(Clone)]
+pub struct Tap(pub Arc<TapFn>);
+
+impl std::fmt::Debug for Tap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Tap")
+    }
+}
 
 /// What to keep of a law's ticks besides the metrics.
 #[derive(Clone, Debug, Default)]
@@ -23,6 +38,8 @@ pub struct Keep {
     pub records: bool,
     /// Write this MCAP file of the law while it records.
     pub mcap: Option<PathBuf>,
+    /// Also hand every finished tick to this sink.
+    pub tap: Option<Tap>,
 }
 
 /// The sinks of one law's ticks.
@@ -33,6 +50,7 @@ pub struct RunSinks<'a> {
     mcap: Option<Live>,
     /// The first MCAP write error (the file then stops; the run and its trace go on).
     mcap_error: Option<anyhow::Error>,
+    tap: Option<Box<dyn TickSink + Send>>,
 }
 
 impl TickSink for RunSinks<'_> {
@@ -49,6 +67,9 @@ impl TickSink for RunSinks<'_> {
         {
             self.mcap_error = Some(e);
             self.mcap = None;
+        }
+        if let Some(t) = &mut self.tap {
+            t.take(r, row, n_true);
         }
     }
 }
@@ -90,6 +111,13 @@ pub fn recorder<'a>(study: &'a Study, law: Law, keep: &Keep) -> Result<LawRecord
             .map(|p| Live::create(p, study, law))
             .transpose()?,
         mcap_error: None,
+        tap: keep.tap.as_ref().and_then(|t| match (t.0)(study, law) {
+            Ok(s) => Some(s),
+            Err(e) => {
+                eprintln!("warning: `{law}` runs without its live view: {e:#}");
+                None
+            }
+        }),
     };
     Ok(Recorder::new(law, reference, study.params.m_bar, sinks))
 }

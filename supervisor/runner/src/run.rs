@@ -1,7 +1,7 @@
 //! `deltaloop run`: one scenario, one or more laws, one run folder.
 
 use crate::inproc;
-use crate::lawrun::{Keep, LawRun};
+use crate::lawrun::{Keep, LawRun, Tap};
 use crate::procs::{self, OnTick};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, LoopMode, Overrun, RunConfig};
@@ -71,6 +71,11 @@ pub struct Overrides {
     pub controller_cmd: Option<String>,
     /// What the run calls its controller (controller.label).
     pub controller_label: Option<String>,
+    /// A ROS 2 node is the controller: `deltaloop-ros2-robot` in the controller's place
+    /// (`--controller ros2`; `[ros2]` added with its defaults if the file has none).
+    pub ros2_controller: bool,
+    /// Publish the run's live topics (`--ros2`; `[ros2]` added likewise).
+    pub ros2: bool,
     pub remote: crate::join::RemoteArgs,
 }
 
@@ -111,11 +116,31 @@ impl Overrides {
         if let Some(l) = &self.controller_label {
             cfg.controller.label = l.clone();
         }
+        if self.ros2_controller {
+            if self.controller_cmd.is_some() {
+                bail!("--controller ros2 and --controller-cmd both name the controller: give one");
+            }
+            let exe = procs::exe_dir()?.join(ROS2_ROBOT);
+            if !exe.is_file() {
+                bail!(
+                    "--controller ros2: {} is missing (deltaloop built without its `ros2` feature?)",
+                    exe.display()
+                );
+            }
+            cfg.controller.command = vec![exe.to_string_lossy().into_owned()];
+            cfg.controller.label = "ros2".into();
+        }
+        if self.ros2 || self.ros2_controller {
+            cfg.ros2.get_or_insert_default();
+        }
         self.remote.apply(&mut cfg)?;
         cfg.validate()?;
         Ok(cfg)
     }
 }
+
+/// The executable of `--controller ros2`, beside `deltaloop`.
+pub const ROS2_ROBOT: &str = "deltaloop-ros2-robot";
 
 /// Loads a config and applies command-line overrides.
 pub fn load_config(path: &Path, o: &Overrides) -> Result<RunConfig> {
@@ -144,6 +169,8 @@ pub struct RunRequest<'a> {
     pub on_tick: Option<OnTick<'a>>,
     /// Also write each law's `<law>.mcap` while it records ([`output::mcap::Live`]).
     pub mcap: bool,
+    /// Also hand each law's finished ticks to this sink (the ROS 2 live topics).
+    pub tap: Option<Tap>,
 }
 
 impl<'a> RunRequest<'a> {
@@ -159,6 +186,7 @@ impl<'a> RunRequest<'a> {
             command,
             on_tick: None,
             mcap: false,
+            tap: None,
         }
     }
 }
@@ -191,6 +219,7 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
         command,
         mut on_tick,
         mcap,
+        tap,
     } = req;
     if sensitivity && mode == LoopMode::Realtime {
         bail!(
@@ -227,6 +256,7 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
         trace: cfg.record.trace.then(|| output::trace_part(&dir, law)),
         records: keep_records,
         mcap: mcap.then(|| dir.join(format!("{law}.mcap"))),
+        tap: tap.clone(),
     };
     let mut laws = match mode {
         LoopMode::Inproc => run_inproc(&study, keep),

@@ -43,12 +43,31 @@ pub struct OverrideArgs {
     /// Run this command in place of the built-in controller process (controller.command).
     #[arg(long, value_name = "CMD")]
     pub controller_cmd: Option<String>,
+    /// Which controller answers: `builtin` (the law, the default) or `ros2` (a ROS 2 node over
+    /// DDS, on /robot_joint_states → /robot_joint_commands; docs/guide/ros2.md).
+    #[arg(long, value_parser = Words::<ControllerKind>::new())]
+    pub controller: Option<ControllerKind>,
+    /// Publish the run live to ROS 2 (DDS, this host only unless [ros2] or ROS 2's environment
+    /// say otherwise): /deltaloop/<law>/joint_states, /tf, /clock, /diagnostics, /rosout.
+    #[arg(long)]
+    pub ros2: bool,
     /// What the tables, summary.json and report.md call the controller that ran, beside the law
     /// it answered as (controller.label; default: --controller-cmd's program or script name).
     #[arg(long, value_name = "LABEL")]
     pub controller_label: Option<String>,
     #[command(flatten)]
     pub remote: RemoteFlags,
+}
+
+deltaloop_names::text_enum! {
+    "lowercase", "controller";
+    /// `--controller`: what answers the plant's states.
+    pub enum ControllerKind {
+        /// The built-in controller process (the law).
+        Builtin,
+        /// A ROS 2 node over DDS.
+        Ros2,
+    }
 }
 
 /// `--controller-remote`, `--plant-remote` and the emulated link, shared by `run` and `soak`.
@@ -102,6 +121,8 @@ impl From<OverrideArgs> for Overrides {
             plant_cmd: a.plant_cmd,
             controller_cmd: a.controller_cmd,
             controller_label: a.controller_label,
+            ros2_controller: a.controller == Some(ControllerKind::Ros2),
+            ros2: a.ros2,
             remote: a.remote.into(),
         }
     }

@@ -32,7 +32,9 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
     overrides.remote.check_mode(a.mode)?;
     let cfg = run::load_config(&a.config, &overrides)?;
     overrides.remote.check_run(a.mode, &cfg, a.sensitivity)?;
+    let tap = crate::ops::ros2::live_tap(&cfg, overrides.ros2)?;
     let o = run::run(RunRequest {
+        tap,
         out: a.out.out,
         force: a.out.force,
         sensitivity: a.sensitivity,

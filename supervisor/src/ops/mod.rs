@@ -8,5 +8,6 @@ pub mod bench;
 pub mod bench_loop;
 pub mod bench_net;
 pub mod export;
+pub mod ros2;
 pub mod soak;
 pub mod top;

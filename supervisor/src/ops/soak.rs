@@ -434,7 +434,9 @@ pub fn soak(r: Request<'_>) -> Result<()> {
         let (acc, done, end, tty) = (acc.clone(), done.clone(), end.clone(), r.tty);
         std::thread::spawn(move || report(&acc, &done, &end, total, ts, tty))
     };
+    let tap = super::ros2::live_tap(&cfg, r.overrides.ros2)?;
     let result = run::run(run::RunRequest {
+        tap,
         out: Some(out),
         force: r.force,
         on_tick: Some(&mut on_tick),

@@ -1,0 +1,360 @@
+//! One DDS participant as a ROS 2 participant: its domain and discovery range resolved as ROS 2
+//! resolves them, its writers and readers under ROS topic names, and its nodes announced on
+//! `ros_discovery_info` (what `ros2 node list` reads).
+
+use crate::msg::{
+    Gid16, Gid24, NodeEntitiesInfo, PARTICIPANT_ENTITIES_INFO, ParticipantEntitiesInfo, RosType,
+};
+use anyhow::{Context, Result, bail};
+use deltaloop_config::{Ros2Distro, Ros2Range, Ros2Section};
+use rustdds::no_key::{DataReader, DataWriter};
+use rustdds::policy::{Durability, History, Reliability};
+use rustdds::{
+    CDRDeserializerAdapter, CDRSerializerAdapter, DomainParticipant, DomainParticipantBuilder,
+    GUID, QosPolicies, QosPolicyBuilder, RTPSEntity, TopicKind,
+};
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+use std::net::Ipv4Addr;
+use std::sync::Mutex;
+
+/// A writer of ROS 2 message `T`.
+pub type Writer<T> = DataWriter<T, CDRSerializerAdapter<T>>;
+/// A reader of ROS 2 message `T`.
+pub type Reader<T> = DataReader<T, CDRDeserializerAdapter<T>>;
+
+/// Where deltaloop meets ROS 2: `[ros2]` with ROS 2's environment applied.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Settings {
+    pub domain: u16,
+    pub range: Ros2Range,
+    pub section: Ros2Section,
+}
+
+impl Settings {
+    /// `[ros2]` first, then ROS 2's own variables (`ROS_DOMAIN_ID`, `ROS_AUTOMATIC_DISCOVERY_RANGE`,
+    /// Humble's `ROS_LOCALHOST_ONLY`), then this host only. `env` reads a variable.
+    pub fn resolve(section: &Ros2Section, env: impl Fn(&str) -> Option<String>) -> Result<Self> {
+        let set = |v: &str| env(v).filter(|s| !s.trim().is_empty());
+        let domain = match (section.domain, set("ROS_DOMAIN_ID")) {
+            (Some(d), _) => d,
+            (None, Some(v)) => match v.trim().parse::<u16>() {
+                Ok(d) if d <= 232 => d,
+                _ => bail!(
+                    "ROS_DOMAIN_ID = {v:?}: allowed 0..=232 (or unset, and [ros2] domain in the config)"
+                ),
+            },
+            (None, None) => 0,
+        };
+        let range = match (section.range, set("ROS_AUTOMATIC_DISCOVERY_RANGE")) {
+            (Some(r), _) => r,
+            (None, Some(v)) => match v.trim() {
+                "LOCALHOST" => Ros2Range::Localhost,
+                "SUBNET" | "SYSTEM_DEFAULT" => Ros2Range::Subnet,
+                _ => bail!(
+                    "ROS_AUTOMATIC_DISCOVERY_RANGE = {v:?}: allowed LOCALHOST, SUBNET or SYSTEM_DEFAULT (OFF would leave deltaloop unseen)"
+                ),
+            },
+            (None, None) if set("ROS_LOCALHOST_ONLY").as_deref() == Some("0") => Ros2Range::Subnet,
+            (None, None) => Ros2Range::Localhost,
+        };
+        Ok(Self {
+            domain,
+            range,
+            section: section.clone(),
+        })
+    }
+
+    /// The warning line for a range beyond this host, if it is one.
+    pub fn warning(&self) -> Option<String> {
+        (self.range == Ros2Range::Subnet).then(|| {
+            format!(
+                "warning: ROS 2 discovery on the local networks (domain {}): DDS without DDS-Security authenticates no one, so anyone there can read this run{}",
+                self.domain, ", and a node there can command the robot with --controller ros2"
+            )
+        })
+    }
+
+    /// `/<namespace>/<law>/<leaf>` as a DDS topic name: the law's `-` written `_` (ROS names
+    /// allow no hyphen).
+    pub fn law_topic(&self, law: &str, leaf: &str) -> String {
+        format!(
+            "/{}/{}/{leaf}",
+            self.section.namespace,
+            law.replace('-', "_")
+        )
+    }
+}
+
+/// A ROS topic name (`/a/b`) as its DDS topic (`rt/a/b`).
+pub fn dds_topic(ros_name: &str) -> String {
+    format!("rt/{}", ros_name.trim_start_matches('/'))
+}
+
+/// Reliable, volatile, the last `depth` kept; a full send window drops the sample at once (the
+/// writer is never blocked: `write` says WouldBlock).
+pub fn reliable(depth: i32) -> QosPolicies {
+    QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::ZERO,
+        })
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth })
+        .build()
+}
+
+/// Reliable and transient local: a reader that joins later gets the last `depth`.
+pub fn latched(depth: i32) -> QosPolicies {
+    QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::ZERO,
+        })
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth })
+        .build()
+}
+
+/// Best effort, the last `depth` kept.
+pub fn best_effort(depth: i32) -> QosPolicies {
+    QosPolicyBuilder::new()
+        .reliability(Reliability::BestEffort)
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth })
+        .build()
+}
+
+/// A node's endpoints, as `ros_discovery_info` lists them.
+#[derive(Clone, Debug, Default)]
+struct NodeInfo {
+    name: String,
+    readers: Vec<GUID>,
+    writers: Vec<GUID>,
+}
+
+/// The graph writer: Humble's gids or Jazzy's.
+enum GraphWriter {
+    Humble(Writer<ParticipantEntitiesInfo<Gid24>>),
+    Jazzy(Writer<ParticipantEntitiesInfo<Gid16>>),
+}
+
+/// One DDS participant with its ROS 2 nodes.
+pub struct Participant {
+    pub settings: Settings,
+    dp: DomainParticipant,
+    publisher: rustdds::Publisher,
+    subscriber: rustdds::Subscriber,
+    graph: GraphWriter,
+    nodes: Mutex<Vec<NodeInfo>>,
+}
+
+impl<T: RosType> RosType for ParticipantEntitiesInfo<T> {
+    const DDS_TYPE: &'static str = PARTICIPANT_ENTITIES_INFO;
+}
+
+impl Participant {
+    /// Joins domain `settings.domain`, its discovery pinned to loopback unless the range is the
+    /// subnet.
+    pub fn join(settings: Settings) -> Result<Self> {
+        let b = DomainParticipantBuilder::new(settings.domain);
+        let b = match settings.range {
+            Ros2Range::Localhost => b.with_only_networks([Ipv4Addr::LOCALHOST]),
+            Ros2Range::Subnet => b,
+        };
+        let dp = b
+            .build()
+            .with_context(|| format!("cannot join DDS domain {}", settings.domain))?;
+        let qos = reliable(10);
+        let publisher = dp.create_publisher(&qos).context("DDS publisher")?;
+        let subscriber = dp.create_subscriber(&qos).context("DDS subscriber")?;
+        let graph_qos = latched(1);
+        let topic = dp
+            .create_topic(
+                "ros_discovery_info".into(),
+                PARTICIPANT_ENTITIES_INFO.into(),
+                &graph_qos,
+                TopicKind::NoKey,
+            )
+            .context("the topic ros_discovery_info")?;
+        let graph = match settings.section.distro {
+            Ros2Distro::Humble => GraphWriter::Humble(
+                publisher.create_datawriter_no_key_cdr(&topic, Some(graph_qos))?,
+            ),
+            Ros2Distro::Jazzy => {
+                GraphWriter::Jazzy(publisher.create_datawriter_no_key_cdr(&topic, Some(graph_qos))?)
+            }
+        };
+        Ok(Self {
+            settings,
+            dp,
+            publisher,
+            subscriber,
+            graph,
+            nodes: Mutex::new(Vec::new()),
+        })
+    }
+
+    /// A writer of `T` on ROS topic `ros_name` for node `node`.
+    pub fn writer<T: Serialize + RosType>(
+        &self,
+        node: &str,
+        ros_name: &str,
+        qos: QosPolicies,
+    ) -> Result<Writer<T>> {
+        let topic = self
+            .dp
+            .create_topic(
+                dds_topic(ros_name),
+                T::DDS_TYPE.into(),
+                &qos,
+                TopicKind::NoKey,
+            )
+            .with_context(|| format!("the topic {ros_name}"))?;
+        let w = self
+            .publisher
+            .create_datawriter_no_key_cdr::<T>(&topic, Some(qos))
+            .with_context(|| format!("a writer on {ros_name}"))?;
+        self.add(node, w.guid(), true)?;
+        Ok(w)
+    }
+
+    /// A reader of `T` on ROS topic `ros_name` for node `node`.
+    pub fn reader<T: DeserializeOwned + RosType + 'static>(
+        &self,
+        node: &str,
+        ros_name: &str,
+        qos: QosPolicies,
+    ) -> Result<Reader<T>> {
+        let topic = self
+            .dp
+            .create_topic(
+                dds_topic(ros_name),
+                T::DDS_TYPE.into(),
+                &qos,
+                TopicKind::NoKey,
+            )
+            .with_context(|| format!("the topic {ros_name}"))?;
+        let r = self
+            .subscriber
+            .create_datareader_no_key_cdr::<T>(&topic, Some(qos))
+            .with_context(|| format!("a reader on {ros_name}"))?;
+        self.add(node, r.guid(), false)?;
+        Ok(r)
+    }
+
+    /// Files an endpoint under `node` and announces the graph again.
+    fn add(&self, node: &str, guid: GUID, writer: bool) -> Result<()> {
+        let mut nodes = self.nodes.lock().unwrap_or_else(|e| e.into_inner());
+        let i = match nodes.iter().position(|n| n.name == node) {
+            Some(i) => i,
+            None => {
+                nodes.push(NodeInfo {
+                    name: node.into(),
+                    ..NodeInfo::default()
+                });
+                nodes.len() - 1
+            }
+        };
+        if writer {
+            nodes[i].writers.push(guid);
+        } else {
+            nodes[i].readers.push(guid);
+        }
+        self.announce(&nodes)
+    }
+
+    /// `ros_discovery_info`: this participant's nodes and their endpoints' gids.
+    fn announce(&self, nodes: &[NodeInfo]) -> Result<()> {
+        fn info<G>(
+            dp: GUID,
+            nodes: &[NodeInfo],
+            gid: impl Fn(GUID) -> G,
+        ) -> ParticipantEntitiesInfo<G> {
+            ParticipantEntitiesInfo {
+                gid: gid(dp),
+                node_entities_info_seq: nodes
+                    .iter()
+                    .map(|n| NodeEntitiesInfo {
+                        node_namespace: "/".into(),
+                        node_name: n.name.clone(),
+                        reader_gid_seq: n.readers.iter().map(|g| gid(*g)).collect(),
+                        writer_gid_seq: n.writers.iter().map(|g| gid(*g)).collect(),
+                    })
+                    .collect(),
+            }
+        }
+        let dp = self.dp.guid();
+        let sent = match &self.graph {
+            GraphWriter::Jazzy(w) => w.write(info(dp, nodes, |g| g.to_bytes()), None).is_ok(),
+            GraphWriter::Humble(w) => {
+                let gid = |g: GUID| {
+                    let mut b = [0u8; 24];
+                    b[..16].copy_from_slice(&g.to_bytes());
+                    b
+                };
+                w.write(info(dp, nodes, gid), None).is_ok()
+            }
+        };
+        if !sent {
+            bail!("cannot announce the node on ros_discovery_info");
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn env<'a>(vars: &'a [(&'a str, &'a str)]) -> impl Fn(&str) -> Option<String> + 'a {
+        move |k| {
+            vars.iter()
+                .find(|(n, _)| *n == k)
+                .map(|(_, v)| v.to_string())
+        }
+    }
+
+    /// Nothing set: domain 0, this host only, no warning. The config beats the environment;
+    /// the environment beats the default; a subnet says so.
+    #[test]
+    fn discovery_stays_on_this_host_unless_asked() {
+        let s = Ros2Section::default();
+        let r = Settings::resolve(&s, env(&[])).unwrap();
+        assert_eq!((r.domain, r.range), (0, Ros2Range::Localhost));
+        assert!(r.warning().is_none());
+        let vars = [
+            ("ROS_DOMAIN_ID", "42"),
+            ("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET"),
+        ];
+        let r = Settings::resolve(&s, env(&vars)).unwrap();
+        assert_eq!((r.domain, r.range), (42, Ros2Range::Subnet));
+        assert!(r.warning().unwrap().contains("authenticates no one"));
+        let pinned = Ros2Section {
+            domain: Some(7),
+            range: Some(Ros2Range::Localhost),
+            ..s.clone()
+        };
+        let r = Settings::resolve(&pinned, env(&vars)).unwrap();
+        assert_eq!((r.domain, r.range), (7, Ros2Range::Localhost));
+        let r = Settings::resolve(&s, env(&[("ROS_LOCALHOST_ONLY", "1")])).unwrap();
+        assert_eq!(r.range, Ros2Range::Localhost);
+    }
+
+    #[test]
+    fn a_bad_ros_variable_is_named() {
+        let s = Ros2Section::default();
+        let e = Settings::resolve(&s, env(&[("ROS_DOMAIN_ID", "300")])).unwrap_err();
+        assert!(e.to_string().contains("ROS_DOMAIN_ID = \"300\""), "{e}");
+        let e =
+            Settings::resolve(&s, env(&[("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")])).unwrap_err();
+        assert!(e.to_string().contains("allowed LOCALHOST"), "{e}");
+    }
+
+    #[test]
+    fn law_topics_use_ros_names() {
+        let r = Settings::resolve(&Ros2Section::default(), env(&[])).unwrap();
+        assert_eq!(
+            dds_topic(&r.law_topic("tdc-is-sta", "joint_states")),
+            "rt/deltaloop/tdc_is_sta/joint_states"
+        );
+    }
+}

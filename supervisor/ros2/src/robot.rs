@@ -1,0 +1,356 @@
+//! `--controller ros2`: a ROS 2 node is the controller. This process takes the controller's
+//! place in the run (the same handshake, reference ring and stamps as any controller process,
+//! [`deltaloop_controller::process::serve`]) and is the robot's side of ros-controls'
+//! topic-based hardware interface: each state goes out on `/robot_joint_states` (JointState: q,
+//! q̇ as measured, `effort` τᵃ_k, stamp k·Ts) and the node's command for it comes back on
+//! `/robot_joint_commands` (JointState, `effort` τ_k, the state's stamp).
+//!
+//! A command answers tick k if and only if its stamp is k·Ts. In lockstep the process waits for
+//! it (up to the silence limit); in realtime until the next tick's deadline, and the plant applies
+//! it by the arrival rule (its latency felt and recorded). A command with other names, another
+//! length, a non-finite torque, another tick's stamp, or from a second publisher is refused and
+//! counted; the counts are the process's last line.
+
+use crate::live::trajectory_of;
+use crate::msg::{self, JointState, JointTrajectory};
+use crate::node::{Participant, Reader, Settings, Writer, latched, reliable};
+use anyhow::{Context, Result, bail};
+use deltaloop_config::{LoopMode, RunConfig};
+use deltaloop_controller::process::Step;
+use deltaloop_study::Study;
+use deltaloop_transport::wire::{RefSample, StateMsg, TorqueMsg};
+use rustdds::mio1::{Events, Interest, Poll, Token};
+use rustdds::{GUID, StatusEvented};
+use std::time::{Duration, Instant};
+
+/// The node the robot's topics belong to.
+pub const NODE: &str = "deltaloop_robot";
+
+/// Commands refused, by cause.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Refused {
+    /// Joint names other than joint_1, joint_2, joint_3 (in that order).
+    pub names: u64,
+    /// `effort` not three values.
+    pub length: u64,
+    /// A NaN or infinite torque.
+    pub non_finite: u64,
+    /// A stamp of a tick already answered or given up (or not a tick at all).
+    pub stale: u64,
+    /// From a publisher other than the first one heard.
+    pub second_publisher: u64,
+}
+
+impl Refused {
+    pub fn total(&self) -> u64 {
+        self.names + self.length + self.non_finite + self.stale + self.second_publisher
+    }
+}
+
+/// What a command is to the tick `k` waited for.
+#[derive(Debug, PartialEq)]
+pub enum Verdict {
+    /// It answers tick k: τ, N m.
+    Answer([f64; 3]),
+    /// For a later tick (the node ahead of us?): kept for no one, counted stale.
+    Refused(&'static str),
+}
+
+/// Judges one command against tick `k` (period `ts_ns`), counting a refusal in `refused`.
+pub fn judge(m: &JointState, k: u64, ts_ns: u64, refused: &mut Refused) -> Verdict {
+    let named = m.name.is_empty() || m.name.iter().map(String::as_str).eq(msg::JOINTS);
+    if !named {
+        refused.names += 1;
+        return Verdict::Refused("names");
+    }
+    let Ok(tau) = <[f64; 3]>::try_from(m.effort.as_slice()) else {
+        refused.length += 1;
+        return Verdict::Refused("length");
+    };
+    if !tau.iter().all(|t| t.is_finite()) {
+        refused.non_finite += 1;
+        return Verdict::Refused("non-finite");
+    }
+    match m.header.stamp.ns() {
+        Some(t) if t == k * ts_ns => Verdict::Answer(tau),
+        _ => {
+            refused.stale += 1;
+            Verdict::Refused("stale")
+        }
+    }
+}
+
+/// The robot's side of the DDS loop: a [`Step`] that asks the node.
+pub struct Robot {
+    _part: Participant,
+    states: Writer<JointState>,
+    reference: Writer<JointState>,
+    _trajectory: Writer<JointTrajectory>,
+    commands: Reader<JointState>,
+    poll: Poll,
+    events: Events,
+    ts_ns: u64,
+    realtime: bool,
+    silence: Duration,
+    /// The first publisher heard on the command topic: the only one obeyed.
+    from: Option<GUID>,
+    pub refused: Refused,
+    label: String,
+}
+
+impl Robot {
+    /// Joins the graph of the run's `[ros2]`, publishes `law`'s trajectory and waits for the
+    /// node (a reader of the states and a writer of the commands, `[ros2] wait_s`).
+    pub fn new(cfg: &RunConfig, mode: LoopMode, law: &str) -> Result<Self> {
+        let section = cfg.ros2.clone().unwrap_or_default();
+        let settings = Settings::resolve(&section, |v| std::env::var(v).ok())?;
+        if let Some(w) = settings.warning() {
+            eprintln!("{NODE}: {w}");
+        }
+        let study = Study::new(cfg.clone()).context("the scenario's reference")?;
+        let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
+        let law_topic = |leaf: &str| settings.law_topic(law, leaf);
+        let (state_topic, command_topic) =
+            (section.state_topic.clone(), section.command_topic.clone());
+        let domain = settings.domain;
+        let part = Participant::join(settings.clone())?;
+        let trajectory: Writer<JointTrajectory> =
+            part.writer(NODE, &law_topic("trajectory"), latched(1))?;
+        trajectory
+            .write(trajectory_of(&study.reference, ts_ns), None)
+            .map_err(|e| anyhow::anyhow!("cannot publish the trajectory: {e:?}"))?;
+        let states: Writer<JointState> = part.writer(NODE, &state_topic, reliable(10))?;
+        let reference = part.writer(NODE, &law_topic("reference"), reliable(10))?;
+        let mut commands: Reader<JointState> = part.reader(NODE, &command_topic, reliable(10))?;
+        let poll = Poll::new().context("mio poll")?;
+        poll.registry()
+            .register(&mut commands, Token(0), Interest::READABLE)
+            .context("register the command reader")?;
+        // The node is there when it reads the states and its commands reach us.
+        let until = Instant::now() + Duration::from_secs_f64(section.wait_s);
+        let (mut heard, mut read) = (false, false);
+        loop {
+            while let Some(s) = commands.try_recv_status() {
+                heard |= matches!(s, rustdds::DataReaderStatus::SubscriptionMatched { .. });
+            }
+            while let Some(s) = states.try_recv_status() {
+                read |= matches!(s, rustdds::DataWriterStatus::PublicationMatched { .. });
+            }
+            if heard && read {
+                break;
+            }
+            if Instant::now() >= until {
+                bail!(
+                    "no ROS 2 node {} within {} s (domain {domain}, {}): start the node first, or raise [ros2] wait_s",
+                    match (heard, read) {
+                        (false, false) => format!("read {state_topic} or wrote {command_topic}"),
+                        (false, true) => format!("wrote {command_topic}"),
+                        _ => format!("read {state_topic}"),
+                    },
+                    section.wait_s,
+                    if settings.range == deltaloop_config::Ros2Range::Localhost {
+                        "this host only"
+                    } else {
+                        "the local networks"
+                    }
+                );
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        Ok(Self {
+            _part: part,
+            states,
+            reference,
+            _trajectory: trajectory,
+            commands,
+            poll,
+            events: Events::with_capacity(4),
+            ts_ns,
+            realtime: mode == LoopMode::Realtime,
+            silence: Duration::from_millis(u64::from(cfg.loop_.silence_timeout_ms)),
+            from: None,
+            refused: Refused::default(),
+            label: "ros2".into(),
+        })
+    }
+
+    /// The commands taken now: the answer to tick `k`, if one came.
+    fn take(&mut self, k: u64) -> Option<[f64; 3]> {
+        let mut answer = None;
+        while let Ok(Some(s)) = self.commands.take_next_sample() {
+            let w = s.sample_info().writer_guid();
+            if *self.from.get_or_insert(w) != w {
+                self.refused.second_publisher += 1;
+                continue;
+            }
+            if let Verdict::Answer(t) = judge(s.value(), k, self.ts_ns, &mut self.refused) {
+                answer.get_or_insert(t);
+            }
+        }
+        answer
+    }
+
+    /// The count line of the end.
+    pub fn summary(&self) -> String {
+        let r = &self.refused;
+        format!(
+            "{NODE}: {} command(s) refused: {} joint names, {} lengths, {} non-finite, {} stale, {} second publisher",
+            r.total(),
+            r.names,
+            r.length,
+            r.non_finite,
+            r.stale,
+            r.second_publisher
+        )
+    }
+}
+
+impl Step for Robot {
+    fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<TorqueMsg, String> {
+        self.reply(state, row)?
+            .ok_or_else(|| format!("the ROS 2 node did not answer tick {}", state.tick))
+    }
+
+    fn reply(&mut self, state: &StateMsg, row: &RefSample) -> Result<Option<TorqueMsg>, String> {
+        let k = state.tick;
+        let t_ns = k * self.ts_ns;
+        let _ = self
+            .reference
+            .write(msg::joint_state(t_ns, &row.q, &row.qd, &[]), None);
+        let js = msg::joint_state(t_ns, &state.q, &state.qd, &state.tau_applied);
+        if let Err(e) = self.states.write(js, None) {
+            return Err(format!("cannot publish the state of tick {k}: {e:?}"));
+        }
+        // Realtime: until the next tick's deadline (a later command answers a tick gone).
+        let until = if self.realtime {
+            let left = (state.t_deadline_ns + self.ts_ns).saturating_sub(rt_now_ns());
+            Instant::now() + Duration::from_nanos(left)
+        } else {
+            Instant::now() + self.silence
+        };
+        loop {
+            if let Some(tau) = self.take(k) {
+                return Ok(Some(TorqueMsg {
+                    tick: k,
+                    tau,
+                    ..TorqueMsg::default()
+                }));
+            }
+            let now = Instant::now();
+            if now >= until {
+                return if self.realtime {
+                    Ok(None)
+                } else {
+                    Err(format!(
+                        "the ROS 2 node did not answer tick {k} within {} ms",
+                        self.silence.as_millis()
+                    ))
+                };
+            }
+            let slice = (until - now).min(Duration::from_millis(50));
+            let _ = self.poll.poll(&mut self.events, Some(slice));
+        }
+    }
+
+    fn label(&self) -> Option<&str> {
+        Some(&self.label)
+    }
+}
+
+/// The loop's clock (CLOCK_MONOTONIC), ns: the plant's deadlines are on it.
+fn rt_now_ns() -> u64 {
+    deltaloop_transport::rt::now_ns()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cmd(stamp_ns: u64, names: &[&str], effort: &[f64]) -> JointState {
+        let mut m = msg::joint_state(stamp_ns, &[], &[], effort);
+        m.name = names.iter().map(|s| s.to_string()).collect();
+        m
+    }
+
+    /// Only the tick's own stamp, the three joints and finite torques answer; each refusal is
+    /// counted under its cause.
+    #[test]
+    fn a_command_answers_its_tick_only() {
+        let ts = 300_000;
+        let mut r = Refused::default();
+        let good = cmd(7 * ts, &msg::JOINTS, &[1.0, -2.0, 0.5]);
+        assert_eq!(
+            judge(&good, 7, ts, &mut r),
+            Verdict::Answer([1.0, -2.0, 0.5])
+        );
+        let unnamed = cmd(7 * ts, &[], &[1.0, 2.0, 3.0]);
+        assert_eq!(
+            judge(&unnamed, 7, ts, &mut r),
+            Verdict::Answer([1.0, 2.0, 3.0])
+        );
+        assert_eq!(r, Refused::default());
+        judge(&cmd(6 * ts, &msg::JOINTS, &[0.0; 3]), 7, ts, &mut r);
+        judge(&cmd(7 * ts + 1, &msg::JOINTS, &[0.0; 3]), 7, ts, &mut r);
+        judge(
+            &cmd(7 * ts, &["joint_1", "joint_3", "joint_2"], &[0.0; 3]),
+            7,
+            ts,
+            &mut r,
+        );
+        judge(&cmd(7 * ts, &msg::JOINTS, &[0.0; 2]), 7, ts, &mut r);
+        judge(
+            &cmd(7 * ts, &msg::JOINTS, &[0.0, f64::NAN, 0.0]),
+            7,
+            ts,
+            &mut r,
+        );
+        let mut neg = cmd(0, &msg::JOINTS, &[0.0; 3]);
+        neg.header.stamp.sec = -1;
+        judge(&neg, 0, ts, &mut r);
+        assert_eq!(
+            r,
+            Refused {
+                names: 1,
+                length: 1,
+                non_finite: 1,
+                stale: 3,
+                second_publisher: 0
+            }
+        );
+    }
+}
+
+impl Drop for Robot {
+    fn drop(&mut self) {
+        eprintln!("{}", self.summary());
+    }
+}
+
+/// The arguments a controller process gets from `deltaloop run`.
+#[derive(clap::Parser, Debug)]
+#[command(
+    name = "deltaloop-ros2-robot",
+    about = "the robot's side of a ROS 2 controller node (started by `deltaloop run --controller ros2`)"
+)]
+struct Args {
+    #[command(flatten)]
+    run: deltaloop_transport::args::LoopArgs,
+    /// The law the run is labelled with (the node computes it).
+    #[arg(long, default_value = "")]
+    law: String,
+}
+
+/// Entry point of `deltaloop-ros2-robot`.
+pub fn main() -> std::process::ExitCode {
+    use clap::Parser as _;
+    let args = Args::parse();
+    let term = deltaloop_transport::rt::child_signals();
+    let mode = args.run.mode;
+    let law = args.law.clone();
+    deltaloop_transport::exit::exit(
+        NODE,
+        deltaloop_controller::process::serve(&args.run, &term, NODE, |cfg| {
+            Robot::new(cfg, mode, &law)
+        }),
+    )
+}
