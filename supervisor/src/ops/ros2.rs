@@ -1,0 +1,47 @@
+//! `--ros2`: the run's live ROS 2 topics, fed by every law's recorder ([`Tap`]).
+
+use anyhow::Result;
+use deltaloop_config::RunConfig;
+use deltaloop_runner::lawrun::Tap;
+
+/// The tap of `--ros2` (None when not asked): joins the ROS 2 graph of the run's `[ros2]` and
+/// says where on stderr, with a warning line if discovery reaches beyond this host.
+#[cfg(feature = "ros2")]
+pub fn live_tap(cfg: &RunConfig, asked: bool) -> Result<Option<Tap>> {
+    use deltaloop_ros2::live::LiveRun;
+    use deltaloop_ros2::node::Settings;
+    use deltaloop_study::record::TickSink;
+    if !asked {
+        return Ok(None);
+    }
+    let section = cfg.ros2.clone().unwrap_or_default();
+    let settings = Settings::resolve(&section, |v| std::env::var(v).ok())?;
+    if let Some(w) = settings.warning() {
+        eprintln!("{w}");
+    }
+    eprintln!(
+        "ROS 2: node /{} on DDS domain {} ({}), topics {}, /tf, /clock, /diagnostics, /rosout",
+        deltaloop_ros2::live::NODE,
+        settings.domain,
+        match settings.range {
+            deltaloop_config::Ros2Range::Localhost => "this host only",
+            deltaloop_config::Ros2Range::Subnet => "the local networks",
+        },
+        settings.law_topic("<law>", "{joint_states,reference,trajectory}"),
+    );
+    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
+    let live = LiveRun::open(settings, deltaloop_model::DeltaRobot::default(), ts_ns)?;
+    Ok(Some(Tap(std::sync::Arc::new(move |study, law| {
+        let topics = live.law(law, &study.reference)?;
+        Ok(Box::new(topics) as Box<dyn TickSink + Send>)
+    }))))
+}
+
+/// Without the `ros2` feature: `--ros2` is refused.
+#[cfg(not(feature = "ros2"))]
+pub fn live_tap(_cfg: &RunConfig, asked: bool) -> Result<Option<Tap>> {
+    if asked {
+        anyhow::bail!("--ros2: this deltaloop was built without its `ros2` feature");
+    }
+    Ok(None)
+}
