@@ -14,6 +14,8 @@
 //! optimises every crate alike): a baseline built with less optimisation than the code it is
 //! compared with would not measure the transport.
 
+pub mod paced;
+
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{Law, Priority, RunConfig};
 use deltaloop_controller::ControllerSide;

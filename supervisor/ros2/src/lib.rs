@@ -9,6 +9,7 @@
 //! Discovery stays on this host unless the config or ROS 2's environment widens it
 //! ([`node::Settings::resolve`]): DDS without DDS-Security authenticates no one.
 
+pub mod bench;
 pub mod live;
 pub mod msg;
 pub mod node;

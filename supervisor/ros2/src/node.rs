@@ -123,6 +123,34 @@ pub fn best_effort(depth: i32) -> QosPolicies {
         .build()
 }
 
+/// Waits until `writer` has a matched reader and `reader` a matched writer (DDS discovery), or
+/// `timeout`; returns which of the two matched.
+pub fn wait_matched<W, R>(
+    writer: &Writer<W>,
+    reader: &Reader<R>,
+    timeout: std::time::Duration,
+) -> (bool, bool)
+where
+    W: Serialize,
+    R: DeserializeOwned + 'static,
+{
+    use rustdds::StatusEvented;
+    let until = std::time::Instant::now() + timeout;
+    let (mut read, mut heard) = (false, false);
+    loop {
+        while let Some(s) = reader.try_recv_status() {
+            heard |= matches!(s, rustdds::DataReaderStatus::SubscriptionMatched { .. });
+        }
+        while let Some(s) = writer.try_recv_status() {
+            read |= matches!(s, rustdds::DataWriterStatus::PublicationMatched { .. });
+        }
+        if (read && heard) || std::time::Instant::now() >= until {
+            return (read, heard);
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+}
+
 /// A node's endpoints, as `ros_discovery_info` lists them.
 #[derive(Clone, Debug, Default)]
 struct NodeInfo {

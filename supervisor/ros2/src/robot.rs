@@ -13,14 +13,14 @@
 
 use crate::live::trajectory_of;
 use crate::msg::{self, JointState, JointTrajectory};
-use crate::node::{Participant, Reader, Settings, Writer, latched, reliable};
+use crate::node::{Participant, Reader, Settings, Writer, latched, reliable, wait_matched};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{LoopMode, RunConfig};
 use deltaloop_controller::process::Step;
 use deltaloop_study::Study;
 use deltaloop_transport::wire::{RefSample, StateMsg, TorqueMsg};
+use rustdds::GUID;
 use rustdds::mio1::{Events, Interest, Poll, Token};
-use rustdds::{GUID, StatusEvented};
 use std::time::{Duration, Instant};
 
 /// The node the robot's topics belong to.
@@ -127,35 +127,23 @@ impl Robot {
             .register(&mut commands, Token(0), Interest::READABLE)
             .context("register the command reader")?;
         // The node is there when it reads the states and its commands reach us.
-        let until = Instant::now() + Duration::from_secs_f64(section.wait_s);
-        let (mut heard, mut read) = (false, false);
-        loop {
-            while let Some(s) = commands.try_recv_status() {
-                heard |= matches!(s, rustdds::DataReaderStatus::SubscriptionMatched { .. });
-            }
-            while let Some(s) = states.try_recv_status() {
-                read |= matches!(s, rustdds::DataWriterStatus::PublicationMatched { .. });
-            }
-            if heard && read {
-                break;
-            }
-            if Instant::now() >= until {
-                bail!(
-                    "no ROS 2 node {} within {} s (domain {domain}, {}): start the node first, or raise [ros2] wait_s",
-                    match (heard, read) {
-                        (false, false) => format!("read {state_topic} or wrote {command_topic}"),
-                        (false, true) => format!("wrote {command_topic}"),
-                        _ => format!("read {state_topic}"),
-                    },
-                    section.wait_s,
-                    if settings.range == deltaloop_config::Ros2Range::Localhost {
-                        "this host only"
-                    } else {
-                        "the local networks"
-                    }
-                );
-            }
-            std::thread::sleep(Duration::from_millis(5));
+        let (read, heard) =
+            wait_matched(&states, &commands, Duration::from_secs_f64(section.wait_s));
+        if !(read && heard) {
+            bail!(
+                "no ROS 2 node {} within {} s (domain {domain}, {}): start the node first, or raise [ros2] wait_s",
+                match (read, heard) {
+                    (false, false) => format!("read {state_topic} or wrote {command_topic}"),
+                    (true, false) => format!("wrote {command_topic}"),
+                    _ => format!("read {state_topic}"),
+                },
+                section.wait_s,
+                if settings.range == deltaloop_config::Ros2Range::Localhost {
+                    "this host only"
+                } else {
+                    "the local networks"
+                }
+            );
         }
         Ok(Self {
             _part: part,

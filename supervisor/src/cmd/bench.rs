@@ -1,4 +1,5 @@
-//! `deltaloop bench loop | plant | net`: the transport's cost, the plant's speed and the link's.
+//! `deltaloop bench loop | plant | net | ros2`: the transport's cost, the plant's speed, the
+//! link's, and DDS's.
 
 use super::Context;
 use anyhow::Result;
@@ -63,6 +64,20 @@ enum What {
         #[arg(long)]
         polling: bool,
     },
+    /// ROS 2's transport against the loop's: a ping-pong of state-sized messages at 3.3 kHz
+    /// over DDS (RustDDS, two participants on loopback), iceoryx2 and UDP on loopback,
+    /// interleaved rounds.
+    Ros2 {
+        /// Round trips per row and round (3.3 kHz: 10000 take 3 s).
+        #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(100..=10_000_000))]
+        count: u64,
+        /// Interleaved rounds (the rows' histograms pool them).
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=100))]
+        rounds: u32,
+        /// The DDS domain of the ping-pong (this host only).
+        #[arg(long, default_value_t = 231, value_parser = clap::value_parser!(u16).range(0..=232))]
+        domain: u16,
+    },
 }
 
 pub fn exec(a: Args, _cx: &Context) -> Result<()> {
@@ -91,6 +106,11 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
             }
             crate::ops::bench_net::run(hold_s, out.as_deref(), zenoh_bridge.as_deref(), polling)
         }
+        What::Ros2 {
+            count,
+            rounds,
+            domain,
+        } => crate::ops::bench_ros2::run(count, rounds, domain),
     }
 }
 

@@ -7,6 +7,7 @@ pub use deltaloop_studies::{paper, sweep};
 pub mod bench;
 pub mod bench_loop;
 pub mod bench_net;
+pub mod bench_ros2;
 pub mod export;
 pub mod ros2;
 pub mod soak;
