@@ -25,6 +25,7 @@ mod python_interop;
 mod realtime;
 mod replay;
 mod replay_merge_hardening;
+mod ros2;
 mod run_folder;
 mod sensitivity;
 mod soak;

@@ -65,16 +65,6 @@ pub trait Step {
     /// transport sets the tick's stamps), or why the step failed (the run ends with a fault).
     fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<wire::TorqueMsg, String>;
 
-    /// [`Self::step`], or None: no reply to this state (a controller elsewhere that did not
-    /// answer in time; the plant holds the torque, as for any miss).
-    fn reply(
-        &mut self,
-        state: &StateMsg,
-        row: &RefSample,
-    ) -> Result<Option<wire::TorqueMsg>, String> {
-        self.step(state, row).map(Some)
-    }
-
     /// What the controller calls itself, said in its READY (the run shows it beside the law);
     /// None: nothing (the built-in law, or a peer that did not say).
     fn label(&self) -> Option<&str> {
@@ -373,12 +363,8 @@ fn answer_states(
             Ok(r) => r,
             Err(end) => break end,
         };
-        let mut msg = match side.reply(&state, &r) {
-            Ok(Some(m)) => m,
-            Ok(None) => {
-                drain_reference(&ports.reference, ring)?;
-                continue;
-            }
+        let mut msg = match side.step(&state, &r) {
+            Ok(m) => m,
             Err(why) => {
                 tell_plant_the_step_failed(ports, state.tick, &why);
                 break ProcessEnd::Fault(format!("the step failed at tick {}: {why}", state.tick));

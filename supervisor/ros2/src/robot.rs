@@ -5,9 +5,9 @@
 //! q̇ as measured, `effort` τᵃ_k, stamp k·Ts) and the node's command for it comes back on
 //! `/robot_joint_commands` (JointState, `effort` τ_k, the state's stamp).
 //!
-//! A command answers tick k if and only if its stamp is k·Ts. In lockstep the process waits for
-//! it (up to the silence limit); in realtime until the next tick's deadline, and the plant applies
-//! it by the arrival rule (its latency felt and recorded). A command with other names, another
+//! A command answers tick k if and only if its stamp is k·Ts. The process waits for it (up to
+//! the silence limit) in both modes; in realtime the plant applies it by the arrival rule (its
+//! latency felt and recorded, a late one dropped and counted). A command with other names, another
 //! length, a non-finite torque, another tick's stamp, or from a second publisher is refused and
 //! counted; the counts are the process's last line.
 
@@ -15,7 +15,7 @@ use crate::live::trajectory_of;
 use crate::msg::{self, JointState, JointTrajectory};
 use crate::node::{Participant, Reader, Settings, Writer, latched, reliable, wait_matched};
 use anyhow::{Context, Result, bail};
-use deltaloop_config::{LoopMode, RunConfig};
+use deltaloop_config::RunConfig;
 use deltaloop_controller::process::Step;
 use deltaloop_study::Study;
 use deltaloop_transport::wire::{RefSample, StateMsg, TorqueMsg};
@@ -90,7 +90,6 @@ pub struct Robot {
     poll: Poll,
     events: Events,
     ts_ns: u64,
-    realtime: bool,
     silence: Duration,
     /// The first publisher heard on the command topic: the only one obeyed.
     from: Option<GUID>,
@@ -101,7 +100,7 @@ pub struct Robot {
 impl Robot {
     /// Joins the graph of the run's `[ros2]`, publishes `law`'s trajectory and waits for the
     /// node (a reader of the states and a writer of the commands, `[ros2] wait_s`).
-    pub fn new(cfg: &RunConfig, mode: LoopMode, law: &str) -> Result<Self> {
+    pub fn new(cfg: &RunConfig, law: &str) -> Result<Self> {
         let section = cfg.ros2.clone().unwrap_or_default();
         let settings = Settings::resolve(&section, |v| std::env::var(v).ok())?;
         if let Some(w) = settings.warning() {
@@ -154,7 +153,6 @@ impl Robot {
             poll,
             events: Events::with_capacity(4),
             ts_ns,
-            realtime: mode == LoopMode::Realtime,
             silence: Duration::from_millis(u64::from(cfg.loop_.silence_timeout_ms)),
             from: None,
             refused: Refused::default(),
@@ -194,12 +192,12 @@ impl Robot {
 }
 
 impl Step for Robot {
+    /// Publishes the state (and the reference row) and waits for the node's command for it: in
+    /// lockstep and in realtime alike, up to the silence limit. In realtime the plant judges it by
+    /// its arrival (late: dropped and counted); meanwhile newer states queue and the newest is
+    /// answered next, the others skipped. The node sees exactly the states it answers, as the
+    /// built-in controller does: the run replays.
     fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<TorqueMsg, String> {
-        self.reply(state, row)?
-            .ok_or_else(|| format!("the ROS 2 node did not answer tick {}", state.tick))
-    }
-
-    fn reply(&mut self, state: &StateMsg, row: &RefSample) -> Result<Option<TorqueMsg>, String> {
         let k = state.tick;
         let t_ns = k * self.ts_ns;
         let _ = self
@@ -209,31 +207,21 @@ impl Step for Robot {
         if let Err(e) = self.states.write(js, None) {
             return Err(format!("cannot publish the state of tick {k}: {e:?}"));
         }
-        // Realtime: until the next tick's deadline (a later command answers a tick gone).
-        let until = if self.realtime {
-            let left = (state.t_deadline_ns + self.ts_ns).saturating_sub(rt_now_ns());
-            Instant::now() + Duration::from_nanos(left)
-        } else {
-            Instant::now() + self.silence
-        };
+        let until = Instant::now() + self.silence;
         loop {
             if let Some(tau) = self.take(k) {
-                return Ok(Some(TorqueMsg {
+                return Ok(TorqueMsg {
                     tick: k,
                     tau,
                     ..TorqueMsg::default()
-                }));
+                });
             }
             let now = Instant::now();
             if now >= until {
-                return if self.realtime {
-                    Ok(None)
-                } else {
-                    Err(format!(
-                        "the ROS 2 node did not answer tick {k} within {} ms",
-                        self.silence.as_millis()
-                    ))
-                };
+                return Err(format!(
+                    "the ROS 2 node did not answer tick {k} within {} ms",
+                    self.silence.as_millis()
+                ));
             }
             let slice = (until - now).min(Duration::from_millis(50));
             let _ = self.poll.poll(&mut self.events, Some(slice));
@@ -243,11 +231,6 @@ impl Step for Robot {
     fn label(&self) -> Option<&str> {
         Some(&self.label)
     }
-}
-
-/// The loop's clock (CLOCK_MONOTONIC), ns: the plant's deadlines are on it.
-fn rt_now_ns() -> u64 {
-    deltaloop_transport::rt::now_ns()
 }
 
 #[cfg(test)]
@@ -333,12 +316,9 @@ pub fn main() -> std::process::ExitCode {
     use clap::Parser as _;
     let args = Args::parse();
     let term = deltaloop_transport::rt::child_signals();
-    let mode = args.run.mode;
     let law = args.law.clone();
     deltaloop_transport::exit::exit(
         NODE,
-        deltaloop_controller::process::serve(&args.run, &term, NODE, |cfg| {
-            Robot::new(cfg, mode, &law)
-        }),
+        deltaloop_controller::process::serve(&args.run, &term, NODE, |cfg| Robot::new(cfg, &law)),
     )
 }

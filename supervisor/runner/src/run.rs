@@ -120,7 +120,7 @@ impl Overrides {
             if self.controller_cmd.is_some() {
                 bail!("--controller ros2 and --controller-cmd both name the controller: give one");
             }
-            let exe = procs::exe_dir()?.join(ROS2_ROBOT);
+            let exe = procs::exe_dir()?.join(procs::ROS2_ROBOT);
             if !exe.is_file() {
                 bail!(
                     "--controller ros2: {} is missing (deltaloop built without its `ros2` feature?)",
@@ -138,9 +138,6 @@ impl Overrides {
         Ok(cfg)
     }
 }
-
-/// The executable of `--controller ros2`, beside `deltaloop`.
-pub const ROS2_ROBOT: &str = "deltaloop-ros2-robot";
 
 /// Loads a config and applies command-line overrides.
 pub fn load_config(path: &Path, o: &Overrides) -> Result<RunConfig> {

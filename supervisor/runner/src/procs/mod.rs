@@ -51,6 +51,9 @@ fn role(who: Sender) -> &'static str {
     }
 }
 
+/// The executable of `--controller ros2`, beside `deltaloop`.
+pub const ROS2_ROBOT: &str = "deltaloop-ros2-robot";
+
 /// Where the child executables are: next to the running one.
 pub fn exe_dir() -> Result<PathBuf> {
     let exe = std::env::current_exe().context("cannot locate the deltaloop executable")?;

@@ -1,0 +1,455 @@
+//! ROS 2 over DDS, tested against an independent DDS implementation: Python nodes on PyPI's
+//! `cyclonedds` (Eclipse Cyclone DDS, the library behind ROS 2's rmw_cyclonedds) with the ROS 2
+//! types written by hand (`python/deltaloop/ros2.py`, the scripts of `examples/ros2/`), in the
+//! tests' venv. Every participant on both sides is pinned to loopback (deltaloop: this host
+//! only, its default; Cyclone: interface `lo`, multicast off), each test on a domain of its own.
+
+use crate::common;
+use common::python::{python, root, text};
+use deltaloop_model::{DeltaRobot, Vec3};
+use serde_json::Value;
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// `deltaloop <args>` on DDS domain `domain`, ROS 2's other variables unset.
+fn deltaloop(domain: u16, args: &[&str]) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_deltaloop"));
+    c.args(args)
+        .current_dir(root())
+        .env("ROS_DOMAIN_ID", domain.to_string())
+        .env_remove("ROS_AUTOMATIC_DISCOVERY_RANGE")
+        .env_remove("ROS_LOCALHOST_ONLY")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    c
+}
+
+/// `examples/ros2/<script> <args>` in the venv.
+fn node(script: &str, args: &[&str]) -> Child {
+    Command::new(python())
+        .arg(root().join("examples/ros2").join(script))
+        .args(args)
+        .current_dir(root())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("{script} starts: {e}"))
+}
+
+/// Waits for `child` at most `limit`, killing it past that; its output.
+fn wait(mut child: Child, limit: Duration, what: &str) -> Output {
+    let t0 = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if t0.elapsed() > limit {
+            let _ = child.kill();
+            let o = child.wait_with_output().unwrap();
+            panic!(
+                "{what}: still running after {limit:?}\n{}\n{}",
+                text(&o.stdout),
+                text(&o.stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.wait_with_output().unwrap()
+}
+
+fn ok(o: &Output, what: &str) {
+    assert!(
+        o.status.success(),
+        "{what} failed ({}):\n{}\n{}",
+        o.status,
+        text(&o.stdout),
+        text(&o.stderr)
+    );
+}
+
+/// Until `path` exists (the run folder's config.toml: the run has started).
+fn wait_for(path: &Path) {
+    let t0 = Instant::now();
+    while !path.exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "{} never appeared",
+            path.display()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// A float as Python's `float.hex()` writes it, exactly.
+fn from_hex(s: &str) -> f64 {
+    let (neg, s) = s.strip_prefix('-').map_or((false, s), |r| (true, r));
+    let v = match s {
+        "inf" => f64::INFINITY,
+        "nan" => f64::NAN,
+        _ => {
+            let s = s.strip_prefix("0x").expect("0x");
+            let (m, e) = s.split_once('p').expect("p");
+            let (int, frac) = m.split_once('.').unwrap_or((m, ""));
+            let digits = u64::from_str_radix(&format!("{int}{frac}"), 16).expect("hex digits");
+            let exp = e.parse::<i32>().expect("exponent") - 4 * frac.len() as i32;
+            // Two steps: 2^exp alone may leave the range of f64 where the product does not.
+            digits as f64 * 2f64.powi(exp / 2) * 2f64.powi(exp - exp / 2)
+        }
+    };
+    if neg { -v } else { v }
+}
+
+fn hexes(v: &Value) -> Vec<f64> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| from_hex(x.as_str().unwrap()))
+        .collect()
+}
+
+/// The watcher's lines by topic (ROS name, leading `/`).
+fn lines(path: &Path) -> BTreeMap<String, Vec<Value>> {
+    let mut by = BTreeMap::<String, Vec<Value>>::new();
+    for l in std::fs::read_to_string(path).unwrap().lines() {
+        let v: Value = serde_json::from_str(l).unwrap();
+        let t = v["topic"].as_str().unwrap();
+        let t = format!(
+            "/{}",
+            t.strip_prefix("rt/").unwrap_or(t).trim_start_matches('/')
+        );
+        by.entry(t).or_default().push(v);
+    }
+    by
+}
+
+/// trace.csv's rows by tick: column name → value.
+fn trace(dir: &Path) -> BTreeMap<u64, BTreeMap<String, String>> {
+    let mut r = csv::Reader::from_path(dir.join("trace.csv")).unwrap();
+    let h: Vec<String> = r.headers().unwrap().iter().map(String::from).collect();
+    r.records()
+        .map(|rec| {
+            let rec = rec.unwrap();
+            let row: BTreeMap<String, String> = h
+                .iter()
+                .cloned()
+                .zip(rec.iter().map(String::from))
+                .collect();
+            (row["k"].parse().unwrap(), row)
+        })
+        .collect()
+}
+
+fn col3(row: &BTreeMap<String, String>, name: &str) -> Vec<f64> {
+    (1..=3)
+        .map(|j| row[&format!("{name}_{j}")].parse::<f64>().unwrap())
+        .collect()
+}
+
+fn bits(v: &[f64]) -> Vec<u64> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+/// The tick of a stamp at period `ts_ns`.
+fn tick(v: &Value, ts_ns: u64) -> u64 {
+    let ns = v["sec"].as_u64().unwrap() * 1_000_000_000 + v["nanosec"].as_u64().unwrap();
+    assert_eq!(ns % ts_ns, 0, "a stamp off the tick grid: {v}");
+    ns / ts_ns
+}
+
+/// `run --ros2`, watched by a Cyclone DDS node: every joint state it received equals trace.csv's
+/// q, q̇ and τᵃ of that tick bit for bit (and the reference its q_des), the `/tf` pose is the
+/// forward kinematics of that q, `/clock` runs on the ticks, `/diagnostics` reports the law and
+/// `/rosout` its start and end; nearly every tenth tick arrived.
+#[test]
+fn ros2_live_topics_equal_the_trace_bit_for_bit() {
+    let domain = 171;
+    let tmp = tempfile::tempdir().unwrap();
+    let (out, seen) = (tmp.path().join("run"), tmp.path().join("watch.jsonl"));
+    let d = domain.to_string();
+    let watcher = node(
+        "watch.py",
+        &[
+            "--domain",
+            &d,
+            "--law",
+            "tdc",
+            "--out",
+            seen.to_str().unwrap(),
+            "--idle-s",
+            "3",
+        ],
+    );
+    // Discovery before the first tick (the trajectory would come anyway: transient local).
+    std::thread::sleep(Duration::from_secs(2));
+    let run = deltaloop(
+        domain,
+        &[
+            "run",
+            "configs/s1-nominal.toml",
+            "--law",
+            "tdc",
+            "--mode",
+            "realtime",
+            "--hold-s",
+            "1.5",
+            "--ros2",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    )
+    .output()
+    .unwrap();
+    ok(&run, "the run");
+    assert!(
+        text(&run.stderr).contains("ROS 2: node /deltaloop on DDS domain 171 (this host only)")
+    );
+    ok(
+        &wait(watcher, Duration::from_secs(60), "watch.py"),
+        "watch.py",
+    );
+
+    let rows = trace(&out);
+    let by = lines(&seen);
+    let ts_ns = 300_000;
+    let js = &by["/deltaloop/tdc/joint_states"];
+    let expected = rows.keys().filter(|k| *k % 10 == 0).count();
+    assert!(
+        js.len() * 10 >= expected * 9,
+        "{} of {expected} joint states arrived",
+        js.len()
+    );
+    let robot = DeltaRobot::default();
+    for m in js {
+        let k = tick(m, ts_ns);
+        assert_eq!(k % 10, 0, "every 10th tick only");
+        let row = &rows[&k];
+        assert_eq!(
+            m["name"],
+            serde_json::json!(["joint_1", "joint_2", "joint_3"])
+        );
+        assert_eq!(m["frame_id"], "base");
+        assert_eq!(
+            bits(&hexes(&m["position"])),
+            bits(&col3(row, "q")),
+            "q at tick {k}"
+        );
+        assert_eq!(
+            bits(&hexes(&m["velocity"])),
+            bits(&col3(row, "qdot")),
+            "q̇ at tick {k}"
+        );
+        assert_eq!(
+            bits(&hexes(&m["effort"])),
+            bits(&col3(row, "tau_applied")),
+            "τᵃ at {k}"
+        );
+    }
+    for m in &by["/deltaloop/tdc/reference"] {
+        let k = tick(m, ts_ns);
+        assert_eq!(
+            bits(&hexes(&m["position"])),
+            bits(&col3(&rows[&k], "q_des")),
+            "q_d at {k}"
+        );
+    }
+    let tf = &by["/tf"];
+    assert!(
+        tf.len() * 10 >= expected * 9,
+        "{} poses of {expected}",
+        tf.len()
+    );
+    for m in tf {
+        let t = &m["transforms"][0];
+        assert_eq!(t["frame_id"], "base");
+        assert_eq!(t["child_frame_id"], "tdc/end_effector");
+        let k = tick(t, ts_ns);
+        let q = col3(&rows[&k], "q");
+        let x = robot.fk(&Vec3::new(q[0], q[1], q[2])).unwrap();
+        assert_eq!(
+            bits(&hexes(&t["translation"])),
+            bits(x.as_slice()),
+            "pose at tick {k}"
+        );
+    }
+    let clock: Vec<u64> = by["/clock"].iter().map(|m| tick(m, ts_ns)).collect();
+    assert!(
+        clock.windows(2).all(|w| w[0] < w[1]),
+        "the clock runs forward"
+    );
+    let diag = &by["/diagnostics"];
+    let status = &diag[0]["status"][0];
+    assert_eq!(status["name"], "deltaloop/tdc");
+    assert!(status["values"]["misses"].is_string(), "{status}");
+    let said: Vec<&str> = by["/rosout"]
+        .iter()
+        .map(|m| m["msg"].as_str().unwrap())
+        .collect();
+    assert!(said.contains(&"tdc: started"), "{said:?}");
+    let last = rows.keys().max().unwrap();
+    assert!(
+        said.iter()
+            .any(|s| s.starts_with(&format!("tdc: ended at tick {last}"))),
+        "{said:?}"
+    );
+}
+
+/// Starts `--controller ros2` in `mode` on `domain` and the Cyclone tdc node against its
+/// resolved config; the run's output (the node must end well too).
+fn with_dds_controller(domain: u16, mode: &str, out: &Path) -> Output {
+    let run = deltaloop(
+        domain,
+        &[
+            "run",
+            "configs/s1-ros2.toml",
+            "--mode",
+            mode,
+            "--controller",
+            "ros2",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    )
+    .spawn()
+    .unwrap();
+    let config = out.join("config.toml");
+    wait_for(&config);
+    let d = domain.to_string();
+    let ctl = node(
+        "controller.py",
+        &[
+            "--config",
+            config.to_str().unwrap(),
+            "--domain",
+            &d,
+            "--idle-s",
+            "2",
+        ],
+    );
+    let run = wait(run, Duration::from_secs(120), "the run");
+    let ctl = wait(ctl, Duration::from_secs(60), "controller.py");
+    ok(&ctl, "controller.py");
+    run
+}
+
+/// trace.csv without the law's internals s and N̂ (a JointState command carries only τ).
+fn robot_columns(dir: &Path) -> String {
+    let mut r = csv::Reader::from_path(dir.join("trace.csv")).unwrap();
+    let h: Vec<String> = r.headers().unwrap().iter().map(String::from).collect();
+    let keep: Vec<usize> = (0..h.len())
+        .filter(|i| !(h[*i].starts_with("s_") || h[*i].starts_with("n_hat_")))
+        .collect();
+    let mut s = keep
+        .iter()
+        .map(|i| h[*i].clone())
+        .collect::<Vec<_>>()
+        .join(",");
+    for rec in r.records() {
+        let rec = rec.unwrap();
+        s.push('\n');
+        s += &keep.iter().map(|i| &rec[*i]).collect::<Vec<_>>().join(",");
+    }
+    s
+}
+
+/// A Cyclone DDS node is the tdc controller over /robot_joint_states → /robot_joint_commands:
+/// in lockstep the run is the built-in controller's byte for byte (but for the law's internals,
+/// which a command does not carry); in realtime at 1 kHz it completes `ok`, every command judged
+/// by the arrival rule.
+#[test]
+fn ros2_controller_node_closes_the_loop() {
+    let tmp = tempfile::tempdir().unwrap();
+    let builtin = tmp.path().join("builtin");
+    common::run("configs/s1-ros2.toml", "lockstep", &builtin, &[]);
+    let dds = tmp.path().join("dds-lockstep");
+    let run = with_dds_controller(172, "lockstep", &dds);
+    ok(&run, "the lockstep run over DDS");
+    assert_eq!(robot_columns(&dds), robot_columns(&builtin));
+    let s = common::summary(&dds);
+    assert_eq!(s["laws"]["tdc"]["status"], "ok", "{s}");
+    let log = std::fs::read_to_string(dds.join("tdc.controller.log")).unwrap();
+    assert!(log.contains("0 command(s) refused"), "{log}");
+
+    let rt = tmp.path().join("dds-realtime");
+    let run = with_dds_controller(172, "realtime", &rt);
+    ok(&run, "the realtime run over DDS");
+    let s = common::summary(&rt);
+    assert_eq!(s["laws"]["tdc"]["status"], "ok", "{s}");
+    // The node's latency was felt: commands arrived hundreds of µs after their state.
+    let arrivals: Vec<u64> = trace(&rt)
+        .values()
+        .filter_map(|r| r["arrival_ns"].parse().ok())
+        .collect();
+    assert!(
+        arrivals.len() > 700,
+        "{} commands applied of 801",
+        arrivals.len()
+    );
+    common::assert_replays(&rt);
+}
+
+/// The run's node is in the ROS graph as `ros2 node list` finds it: `/deltaloop` on
+/// `ros_discovery_info`, its publishers the run's topics with their ROS types.
+#[test]
+fn ros2_node_is_in_the_graph() {
+    let domain = 173;
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let run = deltaloop(
+        domain,
+        &[
+            "run",
+            "configs/s1-nominal.toml",
+            "--law",
+            "tdc",
+            "--mode",
+            "realtime",
+            "--hold-s",
+            "4",
+            "--ros2",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    )
+    .spawn()
+    .unwrap();
+    wait_for(&out.join("config.toml"));
+    std::thread::sleep(Duration::from_secs(2));
+    let d = domain.to_string();
+    let g = wait(
+        node("graph.py", &["--domain", &d, "--wait-s", "20"]),
+        Duration::from_secs(60),
+        "graph.py",
+    );
+    ok(&wait(run, Duration::from_secs(60), "the run"), "the run");
+    ok(&g, "graph.py");
+    let graph: Value = serde_json::from_slice(&g.stdout).unwrap();
+    let nodes = graph["nodes"].as_array().unwrap();
+    let me = nodes
+        .iter()
+        .find(|n| n["name"] == "/deltaloop")
+        .unwrap_or_else(|| panic!("no /deltaloop node in {graph}"));
+    let publishes = |topic: &str, ty: &str| {
+        me["publishers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|p| p["topic"] == topic && p["type"] == ty)
+    };
+    for (topic, ty) in [
+        ("/deltaloop/tdc/joint_states", "sensor_msgs/msg/JointState"),
+        ("/deltaloop/tdc/reference", "sensor_msgs/msg/JointState"),
+        (
+            "/deltaloop/tdc/trajectory",
+            "trajectory_msgs/msg/JointTrajectory",
+        ),
+        ("/tf", "tf2_msgs/msg/TFMessage"),
+        ("/clock", "rosgraph_msgs/msg/Clock"),
+        ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"),
+        ("/rosout", "rcl_interfaces/msg/Log"),
+    ] {
+        assert!(
+            publishes(topic, ty),
+            "/deltaloop does not publish {topic} ({ty}): {me}"
+        );
+    }
+    assert_eq!(graph["unmatched_gids"], 0, "{graph}");
+}
