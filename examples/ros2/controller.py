@@ -6,7 +6,8 @@
         [--idle-s 5] [--wait-s 60]
 
 It reads the law's reference from `rt/<namespace>/<law>/trajectory` (transient local, so it may
-start before or after the run: points[k] is tick k's q_d, q̇_d, q̈_d). Only then does it subscribe
+start before or after the run: points[k] is tick k's q_d, q̇_d, q̈_d; the trajectory ends at the
+first tick of the hold, which every later tick holds). Only then does it subscribe
 to the states, so a robot side that waits for a matched subscriber knows the node is ready. It
 answers every robot_joint_states sample (stamp k·Ts; position q_k, velocity q̇_k, effort τᵃ_k)
 with one robot_joint_commands sample of the same stamp whose effort is τ_k, in order. The law is
@@ -15,7 +16,7 @@ same states it gives the built-in controller's torques bit for bit.
 
 Ends with exit 0 and one line on stderr (`answered N states, first tick A, last tick B`) after
 `--idle-s` seconds without a state once one was answered, or on SIGTERM/SIGINT. Exit 1: no
-trajectory or no state within `--wait-s`, or a state whose tick has no trajectory point.
+trajectory or no state within `--wait-s`, or a state stamped off the tick grid.
 All DDS traffic stays on loopback (`deltaloop.ros2.participant`).
 """
 
@@ -218,13 +219,13 @@ def main() -> int:
                     s = decode(data)
                     t = s.header.stamp
                     k, rest = divmod(t.sec * 1_000_000_000 + t.nanosec, ts_ns)
-                    if rest or not 0 <= k < refs_n:
-                        return fail(f"state at {t.sec} s {t.nanosec} ns: no trajectory point for its tick "
-                                    f"(points 0..{refs_n - 1}, Ts = {ts_ns} ns)")
+                    if rest or k < 0:
+                        return fail(f"state at {t.sec} s {t.nanosec} ns: not on a tick (Ts = {ts_ns} ns)")
+                    # The trajectory ends at the first tick of the hold: every later tick holds it.
                     if last is not None and k != last + 1:
                         print(f"ros2-tdc: state of tick {k} follows tick {last}", file=sys.stderr)
                     try:
-                        tau = step(State(s.position, s.velocity, s.effort), refs[k])[0]
+                        tau = step(State(s.position, s.velocity, s.effort), refs[min(k, refs_n - 1)])[0]
                     except IndexError:
                         return fail(f"tick {k}: the state or its trajectory point has fewer than 3 joints")
                     write(cmd_writer, encode(t.sec, t.nanosec, s.header.frame_id, names, empty, empty, tau))

@@ -294,22 +294,19 @@ fn ros2_live_topics_equal_the_trace_bit_for_bit() {
 
 /// Starts `--controller ros2` in `mode` on `domain` and the Cyclone tdc node against its
 /// resolved config; the run's output (the node must end well too).
-fn with_dds_controller(domain: u16, mode: &str, out: &Path) -> Output {
-    let run = deltaloop(
-        domain,
-        &[
-            "run",
-            "configs/s1-ros2.toml",
-            "--mode",
-            mode,
-            "--controller",
-            "ros2",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    )
-    .spawn()
-    .unwrap();
+fn with_dds_controller(domain: u16, mode: &str, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "run",
+        "configs/s1-ros2.toml",
+        "--mode",
+        mode,
+        "--controller",
+        "ros2",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let run = deltaloop(domain, &args).spawn().unwrap();
     let config = out.join("config.toml");
     wait_for(&config);
     let d = domain.to_string();
@@ -358,9 +355,11 @@ fn robot_columns(dir: &Path) -> String {
 fn ros2_controller_node_closes_the_loop() {
     let tmp = tempfile::tempdir().unwrap();
     let builtin = tmp.path().join("builtin");
-    common::run("configs/s1-ros2.toml", "lockstep", &builtin, &[]);
+    // Through the hold too: the trajectory ends at its first tick, which the node holds.
+    let hold = ["--hold-s", "0.3"];
+    common::run("configs/s1-ros2.toml", "lockstep", &builtin, &hold);
     let dds = tmp.path().join("dds-lockstep");
-    let run = with_dds_controller(172, "lockstep", &dds);
+    let run = with_dds_controller(172, "lockstep", &dds, &hold);
     ok(&run, "the lockstep run over DDS");
     assert_eq!(robot_columns(&dds), robot_columns(&builtin));
     let s = common::summary(&dds);
@@ -369,7 +368,7 @@ fn ros2_controller_node_closes_the_loop() {
     assert!(log.contains("0 command(s) refused"), "{log}");
 
     let rt = tmp.path().join("dds-realtime");
-    let run = with_dds_controller(172, "realtime", &rt);
+    let run = with_dds_controller(172, "realtime", &rt, &[]);
     ok(&run, "the realtime run over DDS");
     let s = common::summary(&rt);
     assert_eq!(s["laws"]["tdc"]["status"], "ok", "{s}");

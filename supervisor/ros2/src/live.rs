@@ -90,6 +90,7 @@ impl LiveRun {
                 .writer(NODE, &s.law_topic(&name, "reference"), reliable(100))?,
             _trajectory: trajectory,
             frame: format!("{}/end_effector", name.replace('-', "_")),
+            status_name: format!("{}/{}", s.section.namespace, name.replace('-', "_")),
             every: u64::from(s.section.every.max(1)),
             run: Arc::clone(self),
             law,
@@ -162,6 +163,8 @@ pub struct LawTopics {
     _trajectory: Writer<JointTrajectory>,
     /// The `/tf` child frame: `<law>/end_effector`.
     frame: String,
+    /// The `/diagnostics` status: `<namespace>/<law>`.
+    status_name: String,
     every: u64,
     health: Health,
     last_k: u64,
@@ -235,7 +238,7 @@ impl LawTopics {
         let level = if h.misses > 0 { 1 } else { 0 };
         let status = DiagnosticStatus {
             level,
-            name: format!("deltaloop/{}", self.law.to_string().replace('-', "_")),
+            name: self.status_name.clone(),
             message: format!("{} misses in {} ticks", h.misses, h.ticks),
             hardware_id: NODE.into(),
             values: values

@@ -151,6 +151,74 @@ where
     }
 }
 
+/// This process's UDP sockets (IPv4 or IPv6), by descriptor.
+pub fn udp_sockets() -> Vec<i32> {
+    let Ok(dir) = std::fs::read_dir("/proc/self/fd") else {
+        return Vec::new();
+    };
+    let int = |fd: i32, opt: i32| {
+        let mut v: libc::c_int = 0;
+        let mut len = size_of::<libc::c_int>() as libc::socklen_t;
+        // SAFETY: getsockopt writes at most `len` bytes into `v`, which we own.
+        let rc =
+            unsafe { libc::getsockopt(fd, libc::SOL_SOCKET, opt, (&raw mut v).cast(), &mut len) };
+        (rc == 0).then_some(v)
+    };
+    dir.filter_map(|e| e.ok()?.file_name().to_str()?.parse::<i32>().ok())
+        .filter(|fd| {
+            int(*fd, libc::SO_TYPE) == Some(libc::SOCK_DGRAM)
+                && matches!(
+                    int(*fd, libc::SO_DOMAIN),
+                    Some(libc::AF_INET | libc::AF_INET6)
+                )
+        })
+        .collect()
+}
+
+/// Binds each socket to the loopback interface (SO_BINDTODEVICE): datagrams that come in on
+/// another interface never reach it, and it sends through `lo` only.
+pub fn pin_to_loopback(fds: &[i32]) -> Result<()> {
+    const LO: &[u8] = b"lo\0";
+    for fd in fds {
+        // SAFETY: the option value is LO's bytes, its length passed with it.
+        let rc = unsafe {
+            libc::setsockopt(
+                *fd,
+                libc::SOL_SOCKET,
+                libc::SO_BINDTODEVICE,
+                LO.as_ptr().cast(),
+                LO.len() as libc::socklen_t,
+            )
+        };
+        if rc != 0 {
+            bail!(
+                "SO_BINDTODEVICE lo on a DDS socket: {}",
+                std::io::Error::last_os_error()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The interface a socket is bound to (SO_BINDTODEVICE), if any.
+pub fn bound_device(fd: i32) -> Option<String> {
+    let mut buf = [0u8; 16];
+    let mut len = buf.len() as libc::socklen_t;
+    // SAFETY: getsockopt writes at most `len` bytes into `buf`, which we own.
+    let rc = unsafe {
+        libc::getsockopt(
+            fd,
+            libc::SOL_SOCKET,
+            libc::SO_BINDTODEVICE,
+            buf.as_mut_ptr().cast(),
+            &mut len,
+        )
+    };
+    let name = &buf[..(len as usize).min(buf.len())];
+    let name = name.split(|b| *b == 0).next().unwrap_or_default();
+    (rc == 0 && !name.is_empty()).then(|| String::from_utf8_lossy(name).into_owned())
+}
+
 /// A node's endpoints, as `ros_discovery_info` lists them.
 #[derive(Clone, Debug, Default)]
 struct NodeInfo {
@@ -188,9 +256,24 @@ impl Participant {
             Ros2Range::Localhost => b.with_only_networks([Ipv4Addr::LOCALHOST]),
             Ros2Range::Subnet => b,
         };
+        let before = udp_sockets();
         let dp = b
             .build()
             .with_context(|| format!("cannot join DDS domain {}", settings.domain))?;
+        if settings.range == Ros2Range::Localhost {
+            // RustDDS binds its sockets to the wildcard address whatever the networks it is
+            // told to use: bound to `lo`, they neither hear nor send on any other interface.
+            let new: Vec<i32> = udp_sockets()
+                .into_iter()
+                .filter(|fd| !before.contains(fd))
+                .collect();
+            pin_to_loopback(&new).with_context(|| {
+                format!(
+                    "cannot keep DDS on this host (domain {}); [ros2] range = \"subnet\" would reach the local networks",
+                    settings.domain
+                )
+            })?;
+        }
         let qos = reliable(10);
         let publisher = dp.create_publisher(&qos).context("DDS publisher")?;
         let subscriber = dp.create_subscriber(&qos).context("DDS subscriber")?;
@@ -375,6 +458,28 @@ mod tests {
         let e =
             Settings::resolve(&s, env(&[("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")])).unwrap_err();
         assert!(e.to_string().contains("allowed LOCALHOST"), "{e}");
+    }
+
+    /// On this host only, every UDP socket the participant opened is bound to `lo` (RustDDS
+    /// itself binds the wildcard address).
+    #[test]
+    fn a_localhost_participant_hears_and_sends_on_lo_only() {
+        let before = udp_sockets();
+        let s = Settings {
+            domain: 229,
+            range: Ros2Range::Localhost,
+            section: Ros2Section::default(),
+        };
+        let p = Participant::join(s).unwrap();
+        let new: Vec<i32> = udp_sockets()
+            .into_iter()
+            .filter(|fd| !before.contains(fd))
+            .collect();
+        assert!(new.len() >= 2, "the participant's sockets: {new:?}");
+        for fd in &new {
+            assert_eq!(bound_device(*fd).as_deref(), Some("lo"), "socket {fd}");
+        }
+        drop(p);
     }
 
     #[test]

@@ -39,11 +39,18 @@ pub struct Refused {
     pub stale: u64,
     /// From a publisher other than the first one heard.
     pub second_publisher: u64,
+    /// Not a JointState in plain CDR (another type, XCDR2, truncated).
+    pub undecodable: u64,
 }
 
 impl Refused {
     pub fn total(&self) -> u64 {
-        self.names + self.length + self.non_finite + self.stale + self.second_publisher
+        self.names
+            + self.length
+            + self.non_finite
+            + self.stale
+            + self.second_publisher
+            + self.undecodable
     }
 }
 
@@ -163,7 +170,17 @@ impl Robot {
     /// The commands taken now: the answer to tick `k`, if one came.
     fn take(&mut self, k: u64) -> Option<[f64; 3]> {
         let mut answer = None;
-        while let Ok(Some(s)) = self.commands.take_next_sample() {
+        // RustDDS moves past a sample it cannot decode; the bound only guards against an error
+        // that would not move on.
+        for _ in 0..4096 {
+            let s = match self.commands.take_next_sample() {
+                Ok(Some(s)) => s,
+                Ok(None) => break,
+                Err(_) => {
+                    self.refused.undecodable += 1;
+                    continue;
+                }
+            };
             let w = s.sample_info().writer_guid();
             if *self.from.get_or_insert(w) != w {
                 self.refused.second_publisher += 1;
@@ -180,13 +197,14 @@ impl Robot {
     pub fn summary(&self) -> String {
         let r = &self.refused;
         format!(
-            "{NODE}: {} command(s) refused: {} joint names, {} lengths, {} non-finite, {} stale, {} second publisher",
+            "{NODE}: {} command(s) refused: {} joint names, {} lengths, {} non-finite, {} stale, {} second publisher, {} undecodable",
             r.total(),
             r.names,
             r.length,
             r.non_finite,
             r.stale,
-            r.second_publisher
+            r.second_publisher,
+            r.undecodable
         )
     }
 }
@@ -285,7 +303,8 @@ mod tests {
                 length: 1,
                 non_finite: 1,
                 stale: 3,
-                second_publisher: 0
+                second_publisher: 0,
+                undecodable: 0,
             }
         );
     }
