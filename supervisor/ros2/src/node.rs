@@ -304,6 +304,18 @@ impl Participant {
         })
     }
 
+    /// The DDS topic of ROS topic `ros_name` and message `T`.
+    fn topic<T: RosType>(&self, ros_name: &str, qos: &QosPolicies) -> Result<rustdds::Topic> {
+        self.dp
+            .create_topic(
+                dds_topic(ros_name),
+                T::DDS_TYPE.into(),
+                qos,
+                TopicKind::NoKey,
+            )
+            .with_context(|| format!("the topic {ros_name}"))
+    }
+
     /// A writer of `T` on ROS topic `ros_name` for node `node`.
     pub fn writer<T: Serialize + RosType>(
         &self,
@@ -311,15 +323,7 @@ impl Participant {
         ros_name: &str,
         qos: QosPolicies,
     ) -> Result<Writer<T>> {
-        let topic = self
-            .dp
-            .create_topic(
-                dds_topic(ros_name),
-                T::DDS_TYPE.into(),
-                &qos,
-                TopicKind::NoKey,
-            )
-            .with_context(|| format!("the topic {ros_name}"))?;
+        let topic = self.topic::<T>(ros_name, &qos)?;
         let w = self
             .publisher
             .create_datawriter_no_key_cdr::<T>(&topic, Some(qos))
@@ -335,15 +339,7 @@ impl Participant {
         ros_name: &str,
         qos: QosPolicies,
     ) -> Result<Reader<T>> {
-        let topic = self
-            .dp
-            .create_topic(
-                dds_topic(ros_name),
-                T::DDS_TYPE.into(),
-                &qos,
-                TopicKind::NoKey,
-            )
-            .with_context(|| format!("the topic {ros_name}"))?;
+        let topic = self.topic::<T>(ros_name, &qos)?;
         let r = self
             .subscriber
             .create_datareader_no_key_cdr::<T>(&topic, Some(qos))
