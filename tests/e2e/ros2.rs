@@ -385,6 +385,61 @@ fn ros2_controller_node_closes_the_loop() {
     common::assert_replays(&rt);
 }
 
+/// Commands deltaloop must refuse, each counted under its cause (other joint names, two efforts,
+/// a NaN, the stamp of a tick gone, a second publisher), change nothing: between them the node's
+/// answers give the built-in's run byte for byte (but for s and N̂).
+#[test]
+fn ros2_controller_refuses_and_counts_bad_commands() {
+    let domain = 174;
+    let tmp = tempfile::tempdir().unwrap();
+    let builtin = tmp.path().join("builtin");
+    common::run("configs/s1-ros2.toml", "lockstep", &builtin, &[]);
+    let out = tmp.path().join("hostile");
+    let run = deltaloop(
+        domain,
+        &[
+            "run",
+            "configs/s1-ros2.toml",
+            "--mode",
+            "lockstep",
+            "--controller",
+            "ros2",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    )
+    .spawn()
+    .unwrap();
+    let config = out.join("config.toml");
+    wait_for(&config);
+    let node = Command::new(python())
+        .arg(root().join("tests/peers/ros2_hostile.py"))
+        .args([
+            "--config",
+            config.to_str().unwrap(),
+            "--domain",
+            &domain.to_string(),
+        ])
+        .current_dir(root())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    ok(&wait(run, Duration::from_secs(120), "the run"), "the run");
+    ok(
+        &wait(node, Duration::from_secs(60), "ros2_hostile.py"),
+        "ros2_hostile.py",
+    );
+    let log = std::fs::read_to_string(out.join("tdc.controller.log")).unwrap();
+    assert!(
+        log.contains(
+            "5 command(s) refused: 1 joint names, 1 lengths, 1 non-finite, 1 stale, 1 second publisher, 0 undecodable"
+        ),
+        "{log}"
+    );
+    assert_eq!(robot_columns(&out), robot_columns(&builtin));
+}
+
 /// The run's node is in the ROS graph as `ros2 node list` finds it: `/deltaloop` on
 /// `ros_discovery_info`, its publishers the run's topics with their ROS types.
 #[test]
