@@ -26,10 +26,10 @@ fn deltaloop(domain: u16, args: &[&str]) -> Command {
     c
 }
 
-/// `examples/ros2/<script> <args>` in the venv.
+/// The Python node `script` (a path from the repository root) with `args`, in the venv.
 fn node(script: &str, args: &[&str]) -> Child {
     Command::new(python())
-        .arg(root().join("examples/ros2").join(script))
+        .arg(root().join(script))
         .args(args)
         .current_dir(root())
         .stdout(Stdio::piped())
@@ -77,6 +77,21 @@ fn wait_for(path: &Path) {
         );
         std::thread::sleep(Duration::from_millis(20));
     }
+}
+
+/// `run configs/s1-nominal.toml --law tdc --mode realtime --hold-s HOLD --ros2 --out OUT`.
+fn live_run(domain: u16, hold_s: &str, out: &Path) -> Command {
+    let args = [
+        "run",
+        "configs/s1-nominal.toml",
+        "--law",
+        "tdc",
+        "--mode",
+        "realtime",
+    ];
+    let mut c = deltaloop(domain, &args);
+    c.args(["--hold-s", hold_s, "--ros2", "--out", out.to_str().unwrap()]);
+    c
 }
 
 /// A float as Python's `float.hex()` writes it, exactly.
@@ -166,7 +181,7 @@ fn ros2_live_topics_equal_the_trace_bit_for_bit() {
     let (out, seen) = (tmp.path().join("run"), tmp.path().join("watch.jsonl"));
     let d = domain.to_string();
     let watcher = node(
-        "watch.py",
+        "examples/ros2/watch.py",
         &[
             "--domain",
             &d,
@@ -175,29 +190,12 @@ fn ros2_live_topics_equal_the_trace_bit_for_bit() {
             "--out",
             seen.to_str().unwrap(),
             "--idle-s",
-            "3",
+            "10",
         ],
     );
     // Discovery before the first tick (the trajectory would come anyway: transient local).
     std::thread::sleep(Duration::from_secs(2));
-    let run = deltaloop(
-        domain,
-        &[
-            "run",
-            "configs/s1-nominal.toml",
-            "--law",
-            "tdc",
-            "--mode",
-            "realtime",
-            "--hold-s",
-            "1.5",
-            "--ros2",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    )
-    .output()
-    .unwrap();
+    let run = live_run(domain, "1.5", &out).output().unwrap();
     ok(&run, "the run");
     assert!(
         text(&run.stderr).contains("ROS 2: node /deltaloop on DDS domain 171 (this host only)")
@@ -292,9 +290,15 @@ fn ros2_live_topics_equal_the_trace_bit_for_bit() {
     );
 }
 
-/// Starts `--controller ros2` in `mode` on `domain` and the Cyclone tdc node against its
-/// resolved config; the run's output (the node must end well too).
-fn with_dds_controller(domain: u16, mode: &str, out: &Path, extra: &[&str]) -> Output {
+/// Starts `--controller ros2` in `mode` on `domain` and the Cyclone node `script` (a tdc
+/// controller) against its resolved config; the run's output (the node must end well too).
+fn with_dds_controller(
+    script: &str,
+    domain: u16,
+    mode: &str,
+    out: &Path,
+    extra: &[&str],
+) -> Output {
     let mut args = vec![
         "run",
         "configs/s1-ros2.toml",
@@ -311,7 +315,7 @@ fn with_dds_controller(domain: u16, mode: &str, out: &Path, extra: &[&str]) -> O
     wait_for(&config);
     let d = domain.to_string();
     let ctl = node(
-        "controller.py",
+        script,
         &[
             "--config",
             config.to_str().unwrap(),
@@ -322,10 +326,13 @@ fn with_dds_controller(domain: u16, mode: &str, out: &Path, extra: &[&str]) -> O
         ],
     );
     let run = wait(run, Duration::from_secs(120), "the run");
-    let ctl = wait(ctl, Duration::from_secs(60), "controller.py");
-    ok(&ctl, "controller.py");
+    let ctl = wait(ctl, Duration::from_secs(60), script);
+    ok(&ctl, script);
     run
 }
+
+/// The example tdc node.
+const CONTROLLER: &str = "examples/ros2/controller.py";
 
 /// trace.csv without the law's internals s and N̂ (a JointState command carries only τ).
 fn robot_columns(dir: &Path) -> String {
@@ -359,7 +366,7 @@ fn ros2_controller_node_closes_the_loop() {
     let hold = ["--hold-s", "0.3"];
     common::run("configs/s1-ros2.toml", "lockstep", &builtin, &hold);
     let dds = tmp.path().join("dds-lockstep");
-    let run = with_dds_controller(172, "lockstep", &dds, &hold);
+    let run = with_dds_controller(CONTROLLER, 172, "lockstep", &dds, &hold);
     ok(&run, "the lockstep run over DDS");
     assert_eq!(robot_columns(&dds), robot_columns(&builtin));
     let s = common::summary(&dds);
@@ -368,7 +375,7 @@ fn ros2_controller_node_closes_the_loop() {
     assert!(log.contains("0 command(s) refused"), "{log}");
 
     let rt = tmp.path().join("dds-realtime");
-    let run = with_dds_controller(172, "realtime", &rt, &[]);
+    let run = with_dds_controller(CONTROLLER, 172, "realtime", &rt, &[]);
     ok(&run, "the realtime run over DDS");
     let s = common::summary(&rt);
     assert_eq!(s["laws"]["tdc"]["status"], "ok", "{s}");
@@ -395,40 +402,10 @@ fn ros2_controller_refuses_and_counts_bad_commands() {
     let builtin = tmp.path().join("builtin");
     common::run("configs/s1-ros2.toml", "lockstep", &builtin, &[]);
     let out = tmp.path().join("hostile");
-    let run = deltaloop(
-        domain,
-        &[
-            "run",
-            "configs/s1-ros2.toml",
-            "--mode",
-            "lockstep",
-            "--controller",
-            "ros2",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    )
-    .spawn()
-    .unwrap();
-    let config = out.join("config.toml");
-    wait_for(&config);
-    let node = Command::new(python())
-        .arg(root().join("tests/peers/ros2_hostile.py"))
-        .args([
-            "--config",
-            config.to_str().unwrap(),
-            "--domain",
-            &domain.to_string(),
-        ])
-        .current_dir(root())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    ok(&wait(run, Duration::from_secs(120), "the run"), "the run");
+    let hostile = "tests/peers/ros2_hostile.py";
     ok(
-        &wait(node, Duration::from_secs(60), "ros2_hostile.py"),
-        "ros2_hostile.py",
+        &with_dds_controller(hostile, domain, "lockstep", &out, &[]),
+        "the run",
     );
     let log = std::fs::read_to_string(out.join("tdc.controller.log")).unwrap();
     assert!(
@@ -447,29 +424,15 @@ fn ros2_node_is_in_the_graph() {
     let domain = 173;
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
-    let run = deltaloop(
-        domain,
-        &[
-            "run",
-            "configs/s1-nominal.toml",
-            "--law",
-            "tdc",
-            "--mode",
-            "realtime",
-            "--hold-s",
-            "4",
-            "--ros2",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    )
-    .spawn()
-    .unwrap();
+    let run = live_run(domain, "4", &out).spawn().unwrap();
     wait_for(&out.join("config.toml"));
     std::thread::sleep(Duration::from_secs(2));
     let d = domain.to_string();
     let g = wait(
-        node("graph.py", &["--domain", &d, "--wait-s", "20"]),
+        node(
+            "examples/ros2/graph.py",
+            &["--domain", &d, "--wait-s", "20"],
+        ),
         Duration::from_secs(60),
         "graph.py",
     );

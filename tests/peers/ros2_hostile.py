@@ -3,7 +3,7 @@ answer to tick 5 a command with the joints in another order, to tick 6 one with 
 tick 7 one with a NaN, to tick 8 tick 7's stamp again, and to tick 9 a valid-looking command from a
 second writer. Every answer itself is the tdc law's, so the run stays the built-in's.
 
-    python tests/peers/ros2_hostile.py --config RUN/config.toml --domain N
+    python tests/peers/ros2_hostile.py --config RUN/config.toml --domain N [--idle-s 2]
 """
 
 import argparse
@@ -27,6 +27,7 @@ def main():
     p = argparse.ArgumentParser()
     p.add_argument("--config", required=True)
     p.add_argument("--domain", type=int, required=True)
+    p.add_argument("--idle-s", type=float, default=2.0, help="exit this long after the last state")
     a = p.parse_args()
     cfg = tomllib.load(open(a.config, "rb"))
     ts_ns = round(float(cfg["loop"]["ts_s"]) * 1e9)
@@ -76,7 +77,7 @@ def main():
                 second.write(command(t, [0.0, 0.0, 0.0]))
             main_writer.write(command(t, tau))
             answered += 1
-        idle = time.monotonic() + 2
+        idle = time.monotonic() + a.idle_s
     print(f"ros2_hostile: answered {answered} states", file=sys.stderr)
     return 0
 

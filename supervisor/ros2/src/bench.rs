@@ -3,11 +3,10 @@
 //! RustDDS's notification (mio), as `--controller ros2` waits.
 
 use crate::msg::{self, JointState, Time};
-use crate::node::{Participant, Reader, Settings, reliable, wait_matched};
+use crate::node::{Participant, Settings, Waiting, reliable, wait_matched};
 use anyhow::{Context, Result, bail};
 use deltaloop_baseline::paced::{PONG_TIMEOUT, PingPong, paced};
 use deltaloop_config::{Ros2Range, Ros2Section};
-use rustdds::mio1::{Events, Interest, Poll, Token};
 use std::time::{Duration, Instant};
 
 const PING: &str = "/deltaloop_bench/ping";
@@ -21,28 +20,20 @@ fn settings(domain: u16) -> Settings {
     }
 }
 
-/// Waits on `reader` until `until`; the samples taken.
-fn take(reader: &mut Reader<JointState>, poll: &mut Poll, until: Instant) -> Vec<JointState> {
-    let mut events = Events::with_capacity(4);
+/// Waits on `r` until `until` for samples; hands each to `each`. Whether one came.
+fn take(r: &mut Waiting<JointState>, until: Instant, mut each: impl FnMut(JointState)) -> bool {
     loop {
-        let mut got = Vec::new();
-        while let Ok(Some(s)) = reader.take_next_sample() {
-            got.push(s.into_value());
+        let mut got = false;
+        while let Ok(Some(s)) = r.reader.take_next_sample() {
+            each(s.into_value());
+            got = true;
         }
         let now = Instant::now();
-        if !got.is_empty() || now >= until {
+        if got || now >= until {
             return got;
         }
-        let _ = poll.poll(&mut events, Some(until - now));
+        r.wait(until - now);
     }
-}
-
-fn registered(mut r: Reader<JointState>) -> Result<(Reader<JointState>, Poll)> {
-    let poll = Poll::new().context("mio poll")?;
-    poll.registry()
-        .register(&mut r, Token(0), Interest::READABLE)
-        .context("register a reader")?;
-    Ok((r, poll))
 }
 
 /// `count` round trips every `period_ns` over DDS on `domain`, this host only.
@@ -51,18 +42,14 @@ pub fn dds(domain: u16, count: u64, period_ns: u64) -> Result<PingPong> {
     let echo = std::thread::spawn(move || -> Result<()> {
         let p = Participant::join(settings(domain))?;
         let w = p.writer::<JointState>("deltaloop_bench_pong", PONG, reliable(10))?;
-        let (mut r, mut poll) =
-            registered(p.reader::<JointState>("deltaloop_bench_pong", PING, reliable(10))?)?;
+        let mut r =
+            Waiting::new(p.reader::<JointState>("deltaloop_bench_pong", PING, reliable(10))?)?;
         let _ = ready_tx.send(());
-        loop {
-            let got = take(&mut r, &mut poll, Instant::now() + Duration::from_secs(2));
-            if got.is_empty() {
-                return Ok(()); // the ping ended: silence
-            }
-            for m in got {
-                let _ = w.write(m, None);
-            }
-        }
+        // Until the ping ends: two seconds of silence.
+        while take(&mut r, Instant::now() + Duration::from_secs(2), |m| {
+            let _ = w.write(m, None);
+        }) {}
+        Ok(())
     });
     ready_rx
         .recv_timeout(Duration::from_secs(10))
@@ -73,21 +60,19 @@ pub fn dds(domain: u16, count: u64, period_ns: u64) -> Result<PingPong> {
     if wait_matched(&w, &r, Duration::from_secs(10)) != (true, true) {
         bail!("the two DDS participants did not discover each other within 10 s");
     }
-    let (mut r, mut poll) = registered(r)?;
+    let mut r = Waiting::new(r)?;
     let state = |seq: u64| msg::joint_state(seq, &[0.1; 3], &[0.2; 3], &[0.3; 3]);
     let out = paced(count, period_ns, |seq| {
         w.write(state(seq), None)
             .map_err(|e| anyhow::anyhow!("DDS write: {e:?}"))?;
         let until = Instant::now() + PONG_TIMEOUT;
-        loop {
-            let got = take(&mut r, &mut poll, until);
-            if got.is_empty() {
-                return Ok(false);
-            }
-            if got.iter().any(|m| m.header.stamp == Time::of_ns(seq)) {
-                return Ok(true);
-            }
-        }
+        let mut back = false;
+        while !back
+            && take(&mut r, until, |m| {
+                back |= m.header.stamp == Time::of_ns(seq)
+            })
+        {}
+        Ok(back)
     });
     drop(w);
     let _ = echo.join();

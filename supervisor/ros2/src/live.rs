@@ -53,12 +53,8 @@ impl LiveRun {
         }))
     }
 
-    /// The settings it joined with.
-    pub fn settings(&self) -> &Settings {
-        &self.part.settings
-    }
-
-    /// A line on `/rosout` at `level` (msg::INFO, WARN, ERROR), stamped with simulated `t_ns`.
+    /// A line on `/rosout` at `level` (rcl_interfaces/Log's: INFO 20, …), stamped with simulated
+    /// `t_ns`.
     pub fn log(&self, level: u8, t_ns: u64, text: &str) {
         let m = Log {
             stamp: Time::of_ns(t_ns),

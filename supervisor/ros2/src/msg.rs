@@ -148,10 +148,8 @@ pub struct Log {
 }
 ros_type!(Log, "rcl_interfaces::msg::dds_::Log_");
 
-/// Log levels of [`Log`].
+/// The level of [`Log`]'s lines here (the run's events).
 pub const INFO: u8 = 20;
-pub const WARN: u8 = 30;
-pub const ERROR: u8 = 40;
 
 /// trajectory_msgs/JointTrajectoryPoint: rad, rad/s, rad/s², N m; `time_from_start` a Duration.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -65,6 +65,21 @@ impl Settings {
         })
     }
 
+    /// A run's `[ros2]` (its defaults if none) with this process's environment.
+    pub fn of_run(cfg: &deltaloop_config::RunConfig) -> Result<Self> {
+        Self::resolve(&cfg.ros2.clone().unwrap_or_default(), |v| {
+            std::env::var(v).ok()
+        })
+    }
+
+    /// Where discovery reaches, in words.
+    pub fn reach(&self) -> &'static str {
+        match self.range {
+            Ros2Range::Localhost => "this host only",
+            Ros2Range::Subnet => "the local networks",
+        }
+    }
+
     /// The warning line for a range beyond this host, if it is one.
     pub fn warning(&self) -> Option<String> {
         (self.range == Ros2Range::Subnet).then(|| {
@@ -91,36 +106,34 @@ pub fn dds_topic(ros_name: &str) -> String {
     format!("rt/{}", ros_name.trim_start_matches('/'))
 }
 
-/// Reliable, volatile, the last `depth` kept; a full send window drops the sample at once (the
-/// writer is never blocked: `write` says WouldBlock).
-pub fn reliable(depth: i32) -> QosPolicies {
+/// The QoS of deltaloop's endpoints: `reliability`, `durability`, the last `depth` kept.
+fn qos(reliability: Reliability, durability: Durability, depth: i32) -> QosPolicies {
     QosPolicyBuilder::new()
-        .reliability(Reliability::Reliable {
-            max_blocking_time: rustdds::Duration::ZERO,
-        })
-        .durability(Durability::Volatile)
+        .reliability(reliability)
+        .durability(durability)
         .history(History::KeepLast { depth })
         .build()
+}
+
+/// Reliable that never blocks the writer: a full send window drops the sample at once (`write`
+/// says WouldBlock).
+const RELIABLE: Reliability = Reliability::Reliable {
+    max_blocking_time: rustdds::Duration::ZERO,
+};
+
+/// Reliable and volatile.
+pub fn reliable(depth: i32) -> QosPolicies {
+    qos(RELIABLE, Durability::Volatile, depth)
 }
 
 /// Reliable and transient local: a reader that joins later gets the last `depth`.
 pub fn latched(depth: i32) -> QosPolicies {
-    QosPolicyBuilder::new()
-        .reliability(Reliability::Reliable {
-            max_blocking_time: rustdds::Duration::ZERO,
-        })
-        .durability(Durability::TransientLocal)
-        .history(History::KeepLast { depth })
-        .build()
+    qos(RELIABLE, Durability::TransientLocal, depth)
 }
 
-/// Best effort, the last `depth` kept.
+/// Best effort and volatile.
 pub fn best_effort(depth: i32) -> QosPolicies {
-    QosPolicyBuilder::new()
-        .reliability(Reliability::BestEffort)
-        .durability(Durability::Volatile)
-        .history(History::KeepLast { depth })
-        .build()
+    qos(Reliability::BestEffort, Durability::Volatile, depth)
 }
 
 /// Waits until `writer` has a matched reader and `reader` a matched writer (DDS discovery), or
@@ -217,6 +230,33 @@ pub fn bound_device(fd: i32) -> Option<String> {
     let name = &buf[..(len as usize).min(buf.len())];
     let name = name.split(|b| *b == 0).next().unwrap_or_default();
     (rc == 0 && !name.is_empty()).then(|| String::from_utf8_lossy(name).into_owned())
+}
+
+/// A reader that blocks until RustDDS notifies a sample (through mio), its events allocated once.
+pub struct Waiting<T> {
+    pub reader: Reader<T>,
+    poll: rustdds::mio1::Poll,
+    events: rustdds::mio1::Events,
+}
+
+impl<T: DeserializeOwned + 'static> Waiting<T> {
+    pub fn new(mut reader: Reader<T>) -> Result<Self> {
+        use rustdds::mio1::{Events, Interest, Poll, Token};
+        let poll = Poll::new().context("mio poll")?;
+        poll.registry()
+            .register(&mut reader, Token(0), Interest::READABLE)
+            .context("register a DDS reader")?;
+        Ok(Self {
+            reader,
+            poll,
+            events: Events::with_capacity(4),
+        })
+    }
+
+    /// Blocks until a sample may have come, or `timeout` (a signal may end it sooner).
+    pub fn wait(&mut self, timeout: std::time::Duration) {
+        let _ = self.poll.poll(&mut self.events, Some(timeout));
+    }
 }
 
 /// A node's endpoints, as `ros_discovery_info` lists them.

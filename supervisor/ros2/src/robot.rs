@@ -13,14 +13,13 @@
 
 use crate::live::trajectory_of;
 use crate::msg::{self, JointState, JointTrajectory};
-use crate::node::{Participant, Reader, Settings, Writer, latched, reliable, wait_matched};
+use crate::node::{Participant, Settings, Waiting, Writer, latched, reliable, wait_matched};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::RunConfig;
 use deltaloop_controller::process::Step;
 use deltaloop_study::Study;
 use deltaloop_transport::wire::{RefSample, StateMsg, TorqueMsg};
 use rustdds::GUID;
-use rustdds::mio1::{Events, Interest, Poll, Token};
 use std::time::{Duration, Instant};
 
 /// The node the robot's topics belong to.
@@ -54,38 +53,31 @@ impl Refused {
     }
 }
 
-/// What a command is to the tick `k` waited for.
-#[derive(Debug, PartialEq)]
-pub enum Verdict {
-    /// It answers tick k: τ, N m.
-    Answer([f64; 3]),
-    /// For a later tick (the node ahead of us?): kept for no one, counted stale.
-    Refused(&'static str),
-}
-
-/// Judges one command against tick `k` (period `ts_ns`), counting a refusal in `refused`.
-pub fn judge(m: &JointState, k: u64, ts_ns: u64, refused: &mut Refused) -> Verdict {
+/// Judges one command against tick `k` (period `ts_ns`): τ (N m) if it answers tick k, else
+/// None with the refusal counted under its cause in `refused`.
+pub fn judge(m: &JointState, k: u64, ts_ns: u64, refused: &mut Refused) -> Option<[f64; 3]> {
     let named = m.name.is_empty() || m.name.iter().map(String::as_str).eq(msg::JOINTS);
     if !named {
         refused.names += 1;
-        return Verdict::Refused("names");
+        return None;
     }
     let Ok(tau) = <[f64; 3]>::try_from(m.effort.as_slice()) else {
         refused.length += 1;
-        return Verdict::Refused("length");
+        return None;
     };
     if !tau.iter().all(|t| t.is_finite()) {
         refused.non_finite += 1;
-        return Verdict::Refused("non-finite");
+        return None;
     }
-    match m.header.stamp.ns() {
-        Some(t) if t == k * ts_ns => Verdict::Answer(tau),
-        _ => {
-            refused.stale += 1;
-            Verdict::Refused("stale")
-        }
+    if m.header.stamp.ns() != Some(k * ts_ns) {
+        refused.stale += 1;
+        return None;
     }
+    Some(tau)
 }
+
+/// What the run calls this controller (its READY): `tdc (ros2)` in the tables.
+const LABEL: &str = "ros2";
 
 /// The robot's side of the DDS loop: a [`Step`] that asks the node.
 pub struct Robot {
@@ -93,23 +85,20 @@ pub struct Robot {
     states: Writer<JointState>,
     reference: Writer<JointState>,
     _trajectory: Writer<JointTrajectory>,
-    commands: Reader<JointState>,
-    poll: Poll,
-    events: Events,
+    commands: Waiting<JointState>,
     ts_ns: u64,
     silence: Duration,
     /// The first publisher heard on the command topic: the only one obeyed.
     from: Option<GUID>,
     pub refused: Refused,
-    label: String,
 }
 
 impl Robot {
     /// Joins the graph of the run's `[ros2]`, publishes `law`'s trajectory and waits for the
     /// node (a reader of the states and a writer of the commands, `[ros2] wait_s`).
     pub fn new(cfg: &RunConfig, law: &str) -> Result<Self> {
-        let section = cfg.ros2.clone().unwrap_or_default();
-        let settings = Settings::resolve(&section, |v| std::env::var(v).ok())?;
+        let settings = Settings::of_run(cfg)?;
+        let section = settings.section.clone();
         if let Some(w) = settings.warning() {
             eprintln!("{NODE}: {w}");
         }
@@ -127,14 +116,13 @@ impl Robot {
             .map_err(|e| anyhow::anyhow!("cannot publish the trajectory: {e:?}"))?;
         let states: Writer<JointState> = part.writer(NODE, &state_topic, reliable(10))?;
         let reference = part.writer(NODE, &law_topic("reference"), reliable(10))?;
-        let mut commands: Reader<JointState> = part.reader(NODE, &command_topic, reliable(10))?;
-        let poll = Poll::new().context("mio poll")?;
-        poll.registry()
-            .register(&mut commands, Token(0), Interest::READABLE)
-            .context("register the command reader")?;
+        let commands = Waiting::new(part.reader(NODE, &command_topic, reliable(10))?)?;
         // The node is there when it reads the states and its commands reach us.
-        let (read, heard) =
-            wait_matched(&states, &commands, Duration::from_secs_f64(section.wait_s));
+        let (read, heard) = wait_matched(
+            &states,
+            &commands.reader,
+            Duration::from_secs_f64(section.wait_s),
+        );
         if !(read && heard) {
             bail!(
                 "no ROS 2 node {} within {} s (domain {domain}, {}): start the node first, or raise [ros2] wait_s",
@@ -144,11 +132,7 @@ impl Robot {
                     _ => format!("read {state_topic}"),
                 },
                 section.wait_s,
-                if settings.range == deltaloop_config::Ros2Range::Localhost {
-                    "this host only"
-                } else {
-                    "the local networks"
-                }
+                settings.reach()
             );
         }
         Ok(Self {
@@ -157,13 +141,10 @@ impl Robot {
             reference,
             _trajectory: trajectory,
             commands,
-            poll,
-            events: Events::with_capacity(4),
             ts_ns,
             silence: Duration::from_millis(u64::from(cfg.loop_.silence_timeout_ms)),
             from: None,
             refused: Refused::default(),
-            label: "ros2".into(),
         })
     }
 
@@ -173,7 +154,7 @@ impl Robot {
         // RustDDS moves past a sample it cannot decode; the bound only guards against an error
         // that would not move on.
         for _ in 0..4096 {
-            let s = match self.commands.take_next_sample() {
+            let s = match self.commands.reader.take_next_sample() {
                 Ok(Some(s)) => s,
                 Ok(None) => break,
                 Err(_) => {
@@ -186,7 +167,7 @@ impl Robot {
                 self.refused.second_publisher += 1;
                 continue;
             }
-            if let Verdict::Answer(t) = judge(s.value(), k, self.ts_ns, &mut self.refused) {
+            if let Some(t) = judge(s.value(), k, self.ts_ns, &mut self.refused) {
                 answer.get_or_insert(t);
             }
         }
@@ -194,7 +175,7 @@ impl Robot {
     }
 
     /// The count line of the end.
-    pub fn summary(&self) -> String {
+    fn summary(&self) -> String {
         let r = &self.refused;
         format!(
             "{NODE}: {} command(s) refused: {} joint names, {} lengths, {} non-finite, {} stale, {} second publisher, {} undecodable",
@@ -241,13 +222,13 @@ impl Step for Robot {
                     self.silence.as_millis()
                 ));
             }
-            let slice = (until - now).min(Duration::from_millis(50));
-            let _ = self.poll.poll(&mut self.events, Some(slice));
+            self.commands
+                .wait((until - now).min(Duration::from_millis(50)));
         }
     }
 
     fn label(&self) -> Option<&str> {
-        Some(&self.label)
+        Some(LABEL)
     }
 }
 
@@ -268,15 +249,9 @@ mod tests {
         let ts = 300_000;
         let mut r = Refused::default();
         let good = cmd(7 * ts, &msg::JOINTS, &[1.0, -2.0, 0.5]);
-        assert_eq!(
-            judge(&good, 7, ts, &mut r),
-            Verdict::Answer([1.0, -2.0, 0.5])
-        );
+        assert_eq!(judge(&good, 7, ts, &mut r), Some([1.0, -2.0, 0.5]));
         let unnamed = cmd(7 * ts, &[], &[1.0, 2.0, 3.0]);
-        assert_eq!(
-            judge(&unnamed, 7, ts, &mut r),
-            Verdict::Answer([1.0, 2.0, 3.0])
-        );
+        assert_eq!(judge(&unnamed, 7, ts, &mut r), Some([1.0, 2.0, 3.0]));
         assert_eq!(r, Refused::default());
         judge(&cmd(6 * ts, &msg::JOINTS, &[0.0; 3]), 7, ts, &mut r);
         judge(&cmd(7 * ts + 1, &msg::JOINTS, &[0.0; 3]), 7, ts, &mut r);

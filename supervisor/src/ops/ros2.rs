@@ -14,8 +14,7 @@ pub fn live_tap(cfg: &RunConfig, asked: bool) -> Result<Option<Tap>> {
     if !asked {
         return Ok(None);
     }
-    let section = cfg.ros2.clone().unwrap_or_default();
-    let settings = Settings::resolve(&section, |v| std::env::var(v).ok())?;
+    let settings = Settings::of_run(cfg)?;
     if let Some(w) = settings.warning() {
         eprintln!("{w}");
     }
@@ -23,10 +22,7 @@ pub fn live_tap(cfg: &RunConfig, asked: bool) -> Result<Option<Tap>> {
         "ROS 2: node /{} on DDS domain {} ({}), topics {}, /tf, /clock, /diagnostics, /rosout",
         deltaloop_ros2::live::NODE,
         settings.domain,
-        match settings.range {
-            deltaloop_config::Ros2Range::Localhost => "this host only",
-            deltaloop_config::Ros2Range::Subnet => "the local networks",
-        },
+        settings.reach(),
         settings.law_topic("<law>", "{joint_states,reference,trajectory}"),
     );
     let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
