@@ -1,6 +1,6 @@
 """What `ros2 node list` and `ros2 node info` would show, from DDS alone (no ROS install).
 
-    python examples/ros2/graph.py --domain N [--distro jazzy|humble] [--wait-s 5]
+    python examples/ros2/graph.py --domain N [--distro jazzy|humble] [--wait-s 5] [--expect TOPIC]…
 
 A ROS 2 node is not a DDS entity: each participant announces its nodes on `ros_discovery_info`
 (rmw_dds_common's ParticipantEntitiesInfo, reliable, transient local), each node with the gids
@@ -9,15 +9,15 @@ participant prefix + 4-byte entity id), the key of its DCPSPublication / DCPSSub
 built-in sample, which carries the topic and type. This joins the two, with ROS names: topic
 `rt/a/b` → `/a/b`, type `pkg::msg::dds_::Name_` → `pkg/msg/Name`.
 
-Waits up to `--wait-s` for at least one node (then until the graph is complete, or stops
-changing for 0.5 s), and prints on stdout
+Waits up to `--wait-s` for at least one node and for a publisher of each `--expect` topic (then
+until the graph is complete, or stops changing for 0.5 s), and prints on stdout
 
     {"nodes": [{"name": "/deltaloop", "publishers": [{"topic": "/deltaloop/tdc/joint_states",
       "type": "sensor_msgs/msg/JointState"}, …], "subscribers": […]}, …], "unmatched_gids": 0}
 
 `unmatched_gids`: gids named by a node with no endpoint discovered behind them. Gids are 16 bytes
 on Iron and later (`--distro jazzy`, the default) and 24 on Humble (`--distro humble`). Exit 1 if
-no node was seen. All DDS traffic stays on loopback (`deltaloop.ros2.participant`).
+no node was seen, 2 if an expected topic has no publisher. All DDS traffic stays on loopback (`deltaloop.ros2.participant`).
 """
 
 import argparse
@@ -57,6 +57,8 @@ def main() -> int:
     p.add_argument("--domain", type=int, required=True, help="DDS domain id")
     p.add_argument("--distro", choices=sorted(ros2.GID_BYTES), default="jazzy", help="Gid: jazzy 16 bytes, humble 24")
     p.add_argument("--wait-s", type=float, default=5.0, help="longest wait for the first node")
+    p.add_argument("--expect", action="append", default=[], metavar="TOPIC",
+                   help="wait also for a node publishing this ROS topic (repeatable)")
     a = p.parse_args()
 
     _, _, ParticipantEntitiesInfo = ros2.graph_types(a.distro)
@@ -101,6 +103,10 @@ def main() -> int:
         return [bytes(g.data)[:16] for pi in participants.values() for n in pi.node_entities_info_seq
                 for g in (*n.reader_gid_seq, *n.writer_gid_seq)]
 
+    def published():
+        mine = set(gids())
+        return {ros_topic(e[1]) for g, e in endpoints.items() if e[0] and g in mine}
+
     start = time.monotonic()
     last_change = start
     while True:
@@ -108,7 +114,8 @@ def main() -> int:
             last_change = time.monotonic()
         now = time.monotonic()
         nodes = sum(len(pi.node_entities_info_seq) for pi in participants.values())
-        if nodes and (all(g in endpoints for g in gids()) or now - last_change >= _SETTLE_S):
+        expected = set(a.expect) <= published()
+        if nodes and expected and (all(g in endpoints for g in gids()) or now - last_change >= _SETTLE_S):
             break
         if now - start >= a.wait_s:
             break
@@ -133,7 +140,10 @@ def main() -> int:
     if not out:
         print(f"graph: no node on {ros2.TOPIC_DISCOVERY} within {a.wait_s:g} s "
               f"(a {other} graph needs --distro {other})", file=sys.stderr)
-    return 0 if out else 1
+    missing = sorted(set(a.expect) - {p["topic"] for n in out for p in n["publishers"]})
+    if out and missing:
+        print(f"graph: no node publishes {', '.join(missing)} within {a.wait_s:g} s", file=sys.stderr)
+    return 1 if not out else 2 if missing else 0
 
 
 if __name__ == "__main__":

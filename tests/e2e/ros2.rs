@@ -424,14 +424,17 @@ fn ros2_node_is_in_the_graph() {
     let domain = 173;
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
-    let run = live_run(domain, "4", &out).spawn().unwrap();
+    // The law's topics exist while it runs: the hold keeps it running while graph.py starts
+    // (seconds on a loaded host), and graph.py waits for them (regression: it once read the
+    // graph before the law had begun).
+    let run = live_run(domain, "10", &out).spawn().unwrap();
     wait_for(&out.join("config.toml"));
-    std::thread::sleep(Duration::from_secs(2));
     let d = domain.to_string();
+    let law = "/deltaloop/tdc/joint_states";
     let g = wait(
         node(
             "examples/ros2/graph.py",
-            &["--domain", &d, "--wait-s", "20"],
+            &["--domain", &d, "--wait-s", "30", "--expect", law],
         ),
         Duration::from_secs(60),
         "graph.py",

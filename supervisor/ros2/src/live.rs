@@ -17,6 +17,7 @@ use deltaloop_config::Law;
 use deltaloop_model::{DeltaRobot, Vec3};
 use deltaloop_study::record::{ReplyFate, TickRecord, TickSink};
 use deltaloop_study::reference::{JointReference, RefRow};
+use rustdds::RTPSEntity;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -84,7 +85,7 @@ impl LiveRun {
             reference: self
                 .part
                 .writer(NODE, &s.law_topic(&name, "reference"), reliable(100))?,
-            _trajectory: trajectory,
+            trajectory,
             frame: format!("{}/end_effector", name.replace('-', "_")),
             status_name: format!("{}/{}", s.section.namespace, name.replace('-', "_")),
             every: u64::from(s.section.every.max(1)),
@@ -156,7 +157,7 @@ pub struct LawTopics {
     law: Law,
     joints: Writer<JointState>,
     reference: Writer<JointState>,
-    _trajectory: Writer<JointTrajectory>,
+    trajectory: Writer<JointTrajectory>,
     /// The `/tf` child frame: `<law>/end_effector`.
     frame: String,
     /// The `/diagnostics` status: `<namespace>/<law>`.
@@ -281,6 +282,14 @@ impl TickSink for LawTopics {
 
 impl Drop for LawTopics {
     fn drop(&mut self) {
+        let mine = [
+            self.joints.guid(),
+            self.reference.guid(),
+            self.trajectory.guid(),
+        ];
+        if let Err(e) = self.run.part.retire(&mine) {
+            eprintln!("ROS 2: {e:#}");
+        }
         let t_ns = self.last_k * self.run.ts_ns;
         self.run.log(
             msg::INFO,

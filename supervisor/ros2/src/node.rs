@@ -409,6 +409,28 @@ impl Participant {
         self.announce(&nodes)
     }
 
+    /// Takes endpoints out of the graph (their writers or readers are about to be dropped), so
+    /// that `ros2 node info` lists no gid without an endpoint behind it, and announces it.
+    pub fn retire(&self, guids: &[GUID]) -> Result<()> {
+        let mut nodes = self.nodes.lock().unwrap_or_else(|e| e.into_inner());
+        for n in nodes.iter_mut() {
+            n.writers.retain(|g| !guids.contains(g));
+            n.readers.retain(|g| !guids.contains(g));
+        }
+        self.announce(&nodes)
+    }
+
+    /// The gids `node` announces: (readers, writers).
+    #[cfg(test)]
+    fn announced(&self, node: &str) -> (Vec<GUID>, Vec<GUID>) {
+        let nodes = self.nodes.lock().unwrap_or_else(|e| e.into_inner());
+        nodes
+            .iter()
+            .find(|n| n.name == node)
+            .map(|n| (n.readers.clone(), n.writers.clone()))
+            .unwrap_or_default()
+    }
+
     /// `ros_discovery_info`: this participant's nodes and their endpoints' gids.
     fn announce(&self, nodes: &[NodeInfo]) -> Result<()> {
         fn info<G>(
@@ -516,6 +538,22 @@ mod tests {
             assert_eq!(bound_device(*fd).as_deref(), Some("lo"), "socket {fd}");
         }
         drop(p);
+    }
+
+    /// A law's writers leave the graph with the law: no stale gid stays announced.
+    #[test]
+    fn retired_endpoints_leave_the_graph() {
+        let s = Settings {
+            domain: 228,
+            range: Ros2Range::Localhost,
+            section: Ros2Section::default(),
+        };
+        let p = Participant::join(s).unwrap();
+        let a: Writer<crate::msg::Clock> = p.writer("n", "/a", best_effort(1)).unwrap();
+        let b: Writer<crate::msg::Clock> = p.writer("n", "/b", best_effort(1)).unwrap();
+        assert_eq!(p.announced("n").1, vec![a.guid(), b.guid()]);
+        p.retire(&[a.guid()]).unwrap();
+        assert_eq!(p.announced("n"), (vec![], vec![b.guid()]));
     }
 
     #[test]
