@@ -80,6 +80,28 @@ pub struct Overrides {
 }
 
 impl Overrides {
+    /// The flags that name a process need a mode with processes: in `--mode inproc` the laws
+    /// run inside the supervisor, and the process a flag names would silently not run.
+    pub fn check_mode(&self, mode: LoopMode) -> Result<()> {
+        self.remote.check_mode(mode)?;
+        if mode.is_process() {
+            return Ok(());
+        }
+        let flag = if self.ros2_controller {
+            "--controller ros2"
+        } else if self.controller_cmd.is_some() {
+            "--controller-cmd"
+        } else if self.plant_cmd.is_some() {
+            "--plant-cmd"
+        } else {
+            return Ok(());
+        };
+        bail!(
+            "{flag} with --mode {}: it names a process, and inproc runs none (allowed: --mode lockstep or realtime)",
+            mode.name()
+        )
+    }
+
     /// Applies the overrides and validates the result (same errors as the file would give).
     pub fn apply(&self, mut cfg: RunConfig) -> Result<RunConfig> {
         if !self.laws.is_empty() {
@@ -635,6 +657,45 @@ pub fn error_status(e: &anyhow::Error) -> RunStatus {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression: `--controller-cmd` with `--mode inproc` ran the built-in law and said nothing.
+    #[test]
+    fn regression_a_process_flag_in_inproc_is_refused() {
+        let cases = [
+            (
+                Overrides {
+                    controller_cmd: Some("python3 c.py".into()),
+                    ..Overrides::default()
+                },
+                "--controller-cmd",
+            ),
+            (
+                Overrides {
+                    plant_cmd: Some("./plant".into()),
+                    ..Overrides::default()
+                },
+                "--plant-cmd",
+            ),
+            (
+                Overrides {
+                    ros2_controller: true,
+                    ..Overrides::default()
+                },
+                "--controller ros2",
+            ),
+        ];
+        for (o, flag) in cases {
+            let e = o.check_mode(LoopMode::Inproc).unwrap_err().to_string();
+            assert!(
+                e.starts_with(&format!("{flag} with --mode inproc"))
+                    && e.contains("allowed: --mode lockstep or realtime"),
+                "{e}"
+            );
+            o.check_mode(LoopMode::Lockstep).unwrap();
+            o.check_mode(LoopMode::Realtime).unwrap();
+        }
+        Overrides::default().check_mode(LoopMode::Inproc).unwrap();
+    }
 
     /// Regression: a run whose first law failed to start said "the laws that finished are kept
     /// in …" though none had.

@@ -29,13 +29,7 @@ pub struct Args {
 
 pub fn exec(a: Args, cx: &Context) -> Result<()> {
     let overrides = Overrides::from(a.overrides);
-    overrides.remote.check_mode(a.mode)?;
-    if overrides.ros2_controller && !a.mode.is_process() {
-        anyhow::bail!(
-            "--controller ros2 with --mode {}: a ROS 2 node answers a process run (--mode lockstep or realtime)",
-            a.mode.name()
-        );
-    }
+    overrides.check_mode(a.mode)?;
     let cfg = run::load_config(&a.config, &overrides)?;
     overrides.remote.check_run(a.mode, &cfg, a.sensitivity)?;
     let tap = crate::ops::ros2::live_tap(&cfg, overrides.ros2)?;
