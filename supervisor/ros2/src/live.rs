@@ -1,5 +1,6 @@
 //! A run seen from ROS 2 while it runs (`run --ros2`): each law's finished ticks, as the run
-//! records them, on `/<namespace>/<law>/joint_states` and `reference`, the platform's pose on
+//! records them, on `/<namespace>/<law>/joint_states` and `reference` (unless the robot of
+//! `--controller ros2` publishes it), the platform's pose on
 //! `/tf`, the simulated time on `/clock`, the loop's health on `/diagnostics` once a second, and
 //! the run's events on `/rosout`.
 //!
@@ -69,23 +70,35 @@ impl LiveRun {
         let _ = lock(&self.rosout).write(m, None);
     }
 
-    /// The sink of `law`'s ticks: its topics made, its trajectory published.
-    pub fn law(self: &Arc<Self>, law: Law, reference: &JointReference) -> Result<LawTopics> {
+    /// The sink of `law`'s ticks: its topics made, its trajectory published. `reference`: None
+    /// when another node publishes the law's `reference` and `trajectory` (the robot of
+    /// `--controller ros2`), so that those topics have one writer.
+    pub fn law(
+        self: &Arc<Self>,
+        law: Law,
+        reference: Option<&JointReference>,
+    ) -> Result<LawTopics> {
         let s = &self.part.settings;
         let name = law.to_string();
-        let trajectory: Writer<JointTrajectory> =
-            self.part
-                .writer(NODE, &s.law_topic(&name, "trajectory"), latched(1))?;
-        let _ = trajectory.write(trajectory_of(reference, self.ts_ns), None);
+        let reference = match reference {
+            Some(r) => {
+                let trajectory: Writer<JointTrajectory> =
+                    self.part
+                        .writer(NODE, &s.law_topic(&name, "trajectory"), latched(1))?;
+                let _ = trajectory.write(trajectory_of(r, self.ts_ns), None);
+                let states =
+                    self.part
+                        .writer(NODE, &s.law_topic(&name, "reference"), reliable(100))?;
+                Some(ReferenceTopics { states, trajectory })
+            }
+            None => None,
+        };
         self.log(msg::INFO, 0, &format!("{law}: started"));
         Ok(LawTopics {
             joints: self
                 .part
                 .writer(NODE, &s.law_topic(&name, "joint_states"), reliable(100))?,
-            reference: self
-                .part
-                .writer(NODE, &s.law_topic(&name, "reference"), reliable(100))?,
-            trajectory,
+            reference,
             frame: format!("{}/end_effector", name.replace('-', "_")),
             status_name: format!("{}/{}", s.section.namespace, name.replace('-', "_")),
             every: u64::from(s.section.every.max(1)),
@@ -151,13 +164,18 @@ impl Health {
     }
 }
 
+/// A law's `reference` (per tick) and `trajectory` (all of it, latched).
+struct ReferenceTopics {
+    states: Writer<JointState>,
+    trajectory: Writer<JointTrajectory>,
+}
+
 /// One law's topics: a [`TickSink`] of the run's recorder.
 pub struct LawTopics {
     run: Arc<LiveRun>,
     law: Law,
     joints: Writer<JointState>,
-    reference: Writer<JointState>,
-    trajectory: Writer<JointTrajectory>,
+    reference: Option<ReferenceTopics>,
     /// The `/tf` child frame: `<law>/end_effector`.
     frame: String,
     /// The `/diagnostics` status: `<namespace>/<law>`.
@@ -179,11 +197,13 @@ impl LawTopics {
             .joints
             .write(msg::joint_state(t_ns, &q, &qd, &tau), None)
             .is_ok();
-        let j = &row.joint;
-        ok &= self
-            .reference
-            .write(msg::joint_state(t_ns, &arr(&j.q), &arr(&j.qd), &[]), None)
-            .is_ok();
+        if let Some(rt) = &self.reference {
+            let j = &row.joint;
+            ok &= rt
+                .states
+                .write(msg::joint_state(t_ns, &arr(&j.q), &arr(&j.qd), &[]), None)
+                .is_ok();
+        }
         if let Ok(x) = self.run.robot.fk(&r.q_true) {
             let tf = TransformStamped {
                 header: Header {
@@ -282,11 +302,10 @@ impl TickSink for LawTopics {
 
 impl Drop for LawTopics {
     fn drop(&mut self) {
-        let mine = [
-            self.joints.guid(),
-            self.reference.guid(),
-            self.trajectory.guid(),
-        ];
+        let mut mine = vec![self.joints.guid()];
+        if let Some(rt) = &self.reference {
+            mine.extend([rt.states.guid(), rt.trajectory.guid()]);
+        }
         if let Err(e) = self.run.part.retire(&mine) {
             eprintln!("ROS 2: {e:#}");
         }
@@ -305,5 +324,37 @@ impl Drop for LawTopics {
                 }
             ),
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use deltaloop_config::{Ros2Range, Ros2Section, RunConfig};
+    use deltaloop_study::Study;
+
+    /// With `--controller ros2` the robot writes the law's reference topics, so the run's node
+    /// writes only the law's joint_states (one writer per topic); otherwise all three. A law's
+    /// writers leave the graph when it ends.
+    #[test]
+    fn a_law_leaves_its_reference_to_the_robot() {
+        let s = Settings {
+            domain: 227,
+            range: Ros2Range::Localhost,
+            section: Ros2Section::default(),
+        };
+        let live = LiveRun::open(s, DeltaRobot::default(), 300_000).unwrap();
+        let writers = || live.part.announced(NODE).1.len();
+        let run_wide = writers();
+        let topics = live.law(Law::Tdc, None).unwrap();
+        assert_eq!(writers(), run_wide + 1);
+        drop(topics);
+        assert_eq!(writers(), run_wide);
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/s1-nominal.toml");
+        let study = Study::new(RunConfig::from_file(path.as_ref()).unwrap()).unwrap();
+        let topics = live.law(Law::Tdc, Some(&study.reference)).unwrap();
+        assert_eq!(writers(), run_wide + 3);
+        drop(topics);
+        assert_eq!(writers(), run_wide);
     }
 }

@@ -422,7 +422,7 @@ impl Participant {
 
     /// The gids `node` announces: (readers, writers).
     #[cfg(test)]
-    fn announced(&self, node: &str) -> (Vec<GUID>, Vec<GUID>) {
+    pub(crate) fn announced(&self, node: &str) -> (Vec<GUID>, Vec<GUID>) {
         let nodes = self.nodes.lock().unwrap_or_else(|e| e.into_inner());
         nodes
             .iter()

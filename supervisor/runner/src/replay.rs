@@ -344,9 +344,7 @@ const UNKNOWN_INTERNALS: &[&str] = &["s_1", "s_2", "s_3", "n_hat_1", "n_hat_2", 
 /// Whether the run's controller was a ROS 2 node (`--controller ros2`): its replies carried τ
 /// only, so the recorded internals are zeros the replay's law does not reproduce.
 fn internals_unknown(cfg: &RunConfig) -> bool {
-    cfg.controller.command.first().is_some_and(|c| {
-        Path::new(c).file_name() == Some(std::ffi::OsStr::new(crate::procs::ROS2_ROBOT))
-    })
+    crate::procs::ros2_robot_answers(cfg)
 }
 
 /// Compares two trace files byte for byte (header and line ends included), and names the line

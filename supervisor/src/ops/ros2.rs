@@ -18,17 +18,24 @@ pub fn live_tap(cfg: &RunConfig, asked: bool) -> Result<Option<Tap>> {
     if let Some(w) = settings.warning() {
         eprintln!("{w}");
     }
+    // The robot of `--controller ros2` publishes the law's reference topics itself.
+    let robot = deltaloop_runner::procs::ros2_robot_answers(cfg);
+    let leaves = if robot {
+        "joint_states"
+    } else {
+        "{joint_states,reference,trajectory}"
+    };
     eprintln!(
         "ROS 2: node /{} on DDS domain {} ({}), topics {}, /tf, /clock, /diagnostics, /rosout",
         deltaloop_ros2::live::NODE,
         settings.domain,
         settings.reach(),
-        settings.law_topic("<law>", "{joint_states,reference,trajectory}"),
+        settings.law_topic("<law>", leaves),
     );
     let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
     let live = LiveRun::open(settings, deltaloop_model::DeltaRobot::default(), ts_ns)?;
     Ok(Some(Tap(std::sync::Arc::new(move |study, law| {
-        let topics = live.law(law, &study.reference)?;
+        let topics = live.law(law, (!robot).then_some(&study.reference))?;
         Ok(Box::new(topics) as Box<dyn TickSink + Send>)
     }))))
 }

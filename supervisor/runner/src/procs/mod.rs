@@ -54,6 +54,15 @@ fn role(who: Sender) -> &'static str {
 /// The executable of `--controller ros2`, beside `deltaloop`.
 pub const ROS2_ROBOT: &str = "deltaloop-ros2-robot";
 
+/// Whether `cfg`'s controller is the robot of `--controller ros2`, which stands for a ROS 2
+/// node: its replies carry τ only, and it publishes the law's reference topics itself.
+pub fn ros2_robot_answers(cfg: &deltaloop_config::RunConfig) -> bool {
+    cfg.controller
+        .command
+        .first()
+        .is_some_and(|c| Path::new(c).file_name() == Some(std::ffi::OsStr::new(ROS2_ROBOT)))
+}
+
 /// Where the child executables are: next to the running one.
 pub fn exe_dir() -> Result<PathBuf> {
     let exe = std::env::current_exe().context("cannot locate the deltaloop executable")?;
