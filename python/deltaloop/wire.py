@@ -37,6 +37,7 @@ OVERRUN = 9
 PLANT_ERROR = 10  # the plant's own physics failed at `tick`; `text` quotes the error
 CONTROLLER_ERROR = 11  # the controller's step failed at `tick`; the plant stops at once
 REPLIES_LOST = 12  # the replies to ticks `tick`..=`ticks` may have been lost on the link (a bridge says it)
+REPLIES_REFUSED = 13  # at the end: the controller's own transport refused `ticks` replies (`text`: each cause)
 
 # ControlMsg.from
 FROM_PLANT = 1

@@ -408,11 +408,21 @@ fn ros2_controller_refuses_and_counts_bad_commands() {
         "the run",
     );
     let log = std::fs::read_to_string(out.join("tdc.controller.log")).unwrap();
+    let why = "1 joint names, 1 lengths, 1 non-finite, 1 stale, 1 second publisher, 0 undecodable";
     assert!(
-        log.contains(
-            "5 command(s) refused: 1 joint names, 1 lengths, 1 non-finite, 1 stale, 1 second publisher, 0 undecodable"
-        ),
+        log.contains(&format!("5 command(s) refused: {why}")),
         "{log}"
+    );
+    // The counts reach the run's record, as the plant's own refusals do.
+    let summary: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let m = &summary["laws"]["tdc"];
+    assert_eq!(m["refused_replies"], 5, "{m}");
+    assert_eq!(m["refused_replies_why"], why, "{m}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        report.contains("the controller's transport refused 5 reply(ies)"),
+        "{report}"
     );
     assert_eq!(robot_columns(&out), robot_columns(&builtin));
 }

@@ -70,6 +70,12 @@ pub trait Step {
     fn label(&self) -> Option<&str> {
         None
     }
+
+    /// At the loop's end: how many replies its own transport refused, and of which causes (one
+    /// line); None: it refuses none of its own (the built-in law, a C peer: the plant judges).
+    fn refused(&self) -> Option<(u64, String)> {
+        None
+    }
 }
 
 impl Step for ControllerSide {
@@ -158,6 +164,18 @@ pub fn serve<S: Step>(
     let end = answer_states(&ports, &mut link, &mut lp, &mut side, &mut ring, term);
     if let (Some(h), Some(l)) = (&handoff, &link) {
         direct::counts(h, &l.udp);
+    }
+    if let Some((n, why)) = side.refused().filter(|(n, _)| *n > 0) {
+        let mut m = ControlMsg::with_text(
+            ControlKind::RepliesRefused,
+            wire::Sender::Controller,
+            0,
+            &why,
+        );
+        m.ticks = n;
+        if let Err(e) = ports.control.0.send_copy(m) {
+            eprintln!("{name}: cannot say the refused replies: {e:?}");
+        }
     }
     std::thread::sleep(ipc::LINGER);
     end

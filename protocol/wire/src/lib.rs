@@ -190,6 +190,12 @@ pub enum ControlKind {
     /// as the controller): the supervisor records those ticks' `reply` as unknown, rather than
     /// as unanswered, and counts them. `text` says why.
     RepliesLost = 12,
+    /// Once, at the loop's end: the controller's own transport refused `ticks` replies in all
+    /// (the robot of `--controller ros2`: a ROS 2 node's commands with other joint names or
+    /// lengths, non-finite, stale, from a second publisher, undecodable); `text` counts each
+    /// cause. The supervisor counts them (`refused_replies`); a controller that refused nothing
+    /// need not say it. The plant ignores it.
+    RepliesRefused = 13,
 }
 
 impl ControlKind {
@@ -210,6 +216,7 @@ impl ControlKind {
                 | ControlKind::Armed
                 | ControlKind::ControllerError
                 | ControlKind::RepliesLost
+                | ControlKind::RepliesRefused
         )
     }
 
@@ -227,6 +234,7 @@ impl ControlKind {
             Self::PlantError,
             Self::ControllerError,
             Self::RepliesLost,
+            Self::RepliesRefused,
         ]
         .into_iter()
         .find(|k| *k as u32 == v)
@@ -266,14 +274,14 @@ pub struct ControlMsg {
     pub from: u32,
     pub tick: u64,
     /// START: N, the last tick that gets a command (the plant then publishes tick N + 1 as final);
-    /// REPLIES_LOST: the last tick of the range.
+    /// REPLIES_LOST: the last tick of the range; REPLIES_REFUSED: how many replies.
     pub ticks: u64,
     /// START: initial joint angles q_d(0), rad.
     pub q0: [f64; 3],
     /// START: the monotonic time of tick 0's deadline, ns.
     pub t0_ns: u64,
-    /// FAULT, DIVERGED, STOPPED, OVERRUN, PLANT_ERROR, CONTROLLER_ERROR, REPLIES_LOST: UTF-8
-    /// text, NUL-padded;
+    /// FAULT, DIVERGED, STOPPED, OVERRUN, PLANT_ERROR, CONTROLLER_ERROR, REPLIES_LOST,
+    /// REPLIES_REFUSED: UTF-8 text, NUL-padded;
     /// read it with [`ControlMsg::text`].
     pub text: [u8; 160],
 }

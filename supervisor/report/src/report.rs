@@ -485,6 +485,17 @@ fn peer_notes(s: &mut String, metrics: &[LawMetrics]) {
                 m.law, m.stamps_replaced
             );
         }
+        if m.refused_replies > 0 {
+            let _ = writeln!(
+                s,
+                "\n**`{}`: the controller's transport refused {} reply(ies)** before they reached the plant ({}).",
+                m.law,
+                m.refused_replies,
+                m.refused_replies_why
+                    .as_deref()
+                    .unwrap_or("no causes given")
+            );
+        }
         if m.duplicate_replies > 0 {
             let _ = writeln!(
                 s,

@@ -42,6 +42,22 @@ pub struct Refused {
     pub undecodable: u64,
 }
 
+/// Each cause's count, in one line: `1 joint names, 0 lengths, …`.
+impl std::fmt::Display for Refused {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} joint names, {} lengths, {} non-finite, {} stale, {} second publisher, {} undecodable",
+            self.names,
+            self.length,
+            self.non_finite,
+            self.stale,
+            self.second_publisher,
+            self.undecodable
+        )
+    }
+}
+
 impl Refused {
     pub fn total(&self) -> u64 {
         self.names
@@ -177,16 +193,7 @@ impl Robot {
     /// The count line of the end.
     fn summary(&self) -> String {
         let r = &self.refused;
-        format!(
-            "{NODE}: {} command(s) refused: {} joint names, {} lengths, {} non-finite, {} stale, {} second publisher, {} undecodable",
-            r.total(),
-            r.names,
-            r.length,
-            r.non_finite,
-            r.stale,
-            r.second_publisher,
-            r.undecodable
-        )
+        format!("{NODE}: {} command(s) refused: {r}", r.total())
     }
 }
 
@@ -229,6 +236,10 @@ impl Step for Robot {
 
     fn label(&self) -> Option<&str> {
         Some(LABEL)
+    }
+
+    fn refused(&self) -> Option<(u64, String)> {
+        Some((self.refused.total(), self.refused.to_string()))
     }
 }
 

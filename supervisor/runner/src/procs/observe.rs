@@ -245,11 +245,11 @@ impl<'a> Observation<'a> {
                     _ => {}
                 }
             }
-            Observed::Controller(m) => {
-                if m.kind() == Some(ControlKind::RepliesLost) {
-                    self.replies_lost(m.tick, m.ticks);
-                }
-            }
+            Observed::Controller(m) => match m.kind() {
+                Some(ControlKind::RepliesLost) => self.replies_lost(m.tick, m.ticks),
+                Some(ControlKind::RepliesRefused) => self.rec.refused_replies(m.ticks, m.text()),
+                _ => {}
+            },
         }
         Ok(())
     }

@@ -781,6 +781,8 @@ mod tests {
             replies_lost: 0,
             first_reply_lost: None,
             duplicate_replies: 0,
+            refused_replies: 0,
+            refused_why: None,
             stamps_replaced: 0,
             outcome,
             fault,

@@ -39,6 +39,11 @@ pub struct LawMetrics {
     pub replies_lost: u64,
     /// Second (and later) replies for a tick that already had one: the first is recorded.
     pub duplicate_replies: u64,
+    /// Replies the controller's own transport refused before they reached the plant (a ROS 2
+    /// node's commands with wrong names, lengths, non-finite, stale, from a second publisher,
+    /// undecodable), and each cause's count (None: it said nothing).
+    pub refused_replies: u64,
+    pub refused_replies_why: Option<String>,
     /// Ticks whose applied reply carried a publish stamp outside [state published, reply
     /// received] on the plant's clock: the plant used its own receive time instead.
     pub stamps_replaced: u64,
@@ -472,6 +477,8 @@ impl<'a> MetricsAcc<'a> {
             telemetry_missing: end.no_telemetry,
             replies_lost: end.replies_lost,
             duplicate_replies: end.duplicate_replies,
+            refused_replies: end.refused_replies,
+            refused_replies_why: end.refused_why.clone(),
             stamps_replaced: end.stamps_replaced,
             completed,
             diverged_at_tick,
