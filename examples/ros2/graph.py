@@ -140,7 +140,7 @@ def main() -> int:
     if not out:
         print(f"graph: no node on {ros2.TOPIC_DISCOVERY} within {a.wait_s:g} s "
               f"(a {other} graph needs --distro {other})", file=sys.stderr)
-    missing = sorted(set(a.expect) - {p["topic"] for n in out for p in n["publishers"]})
+    missing = sorted(set(a.expect) - published())
     if out and missing:
         print(f"graph: no node publishes {', '.join(missing)} within {a.wait_s:g} s", file=sys.stderr)
     return 1 if not out else 2 if missing else 0

@@ -104,8 +104,9 @@ fn sweep_cmd(sweep: &Path, out: &Path, tmp: &Path) -> Command {
 }
 
 /// What a link row says: Ok(difference) for a run that matched its twin, or an undisturbed one
-/// (matched or not), Err(why) for a mismatch the machine disturbed (which says nothing). Anything else is a failure: a run that
-/// ended badly without the machine having disturbed it, or an ok run without its injected twin.
+/// (matched or not), Err(why) for a mismatch the machine disturbed (which says nothing).
+/// Anything else is a failure: a run that ended badly without the machine having disturbed it,
+/// or an ok run without its injected twin.
 fn verdict(r: &std::collections::HashMap<String, String>) -> Result<f64, String> {
     let f = |k: &str| r[k].parse::<f64>().ok();
     let d = &r["link_delay_us"];
@@ -160,10 +161,10 @@ fn verdict(r: &std::collections::HashMap<String, String>) -> Result<f64, String>
 /// with their round-trip logs and the report's section, and leaves no far side behind. A run the
 /// loaded machine disturbed (a fault, too many misses or a burst of them, a stalled plant: the
 /// sweep's `link_disturbed`, the runs' own classifier) counts when it matched and says nothing
-/// when it did not; an undisturbed one may still
-/// miss the tolerance now and then (a few misses at a sensitive moment of the motion:
-/// docs/guide/delay-study.md), so the test fails when a point had undisturbed runs and none
-/// matched in three sweeps; a point the machine disturbed in all three is inconclusive.
+/// when it did not; an undisturbed one may still miss the tolerance now and then (a few misses
+/// at a sensitive moment of the motion: docs/guide/delay-study.md), so the test fails when a
+/// point had undisturbed runs and none matched in three sweeps; a point the machine disturbed in
+/// all three is inconclusive.
 #[test]
 fn link_delay_sweep_matches_the_injected_delay() {
     let test = "link_delay_sweep_matches_the_injected_delay";

@@ -414,8 +414,7 @@ fn ros2_controller_refuses_and_counts_bad_commands() {
         "{log}"
     );
     // The counts reach the run's record, as the plant's own refusals do.
-    let summary: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let summary = common::summary(&out);
     let m = &summary["laws"]["tdc"];
     assert_eq!(m["refused_replies"], 5, "{m}");
     assert_eq!(m["refused_replies_why"], why, "{m}");

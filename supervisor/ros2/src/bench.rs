@@ -6,19 +6,10 @@ use crate::msg::{self, JointState, Time};
 use crate::node::{Participant, Settings, Waiting, reliable, wait_matched};
 use anyhow::{Context, Result, bail};
 use deltaloop_baseline::paced::{PONG_TIMEOUT, PingPong, paced};
-use deltaloop_config::{Ros2Range, Ros2Section};
 use std::time::{Duration, Instant};
 
 const PING: &str = "/deltaloop_bench/ping";
 const PONG: &str = "/deltaloop_bench/pong";
-
-fn settings(domain: u16) -> Settings {
-    Settings {
-        domain,
-        range: Ros2Range::Localhost,
-        section: Ros2Section::default(),
-    }
-}
 
 /// Waits on `r` until `until` for samples; hands each to `each`. Whether one came.
 fn take(r: &mut Waiting<JointState>, until: Instant, mut each: impl FnMut(JointState)) -> bool {
@@ -40,7 +31,7 @@ fn take(r: &mut Waiting<JointState>, until: Instant, mut each: impl FnMut(JointS
 pub fn dds(domain: u16, count: u64, period_ns: u64) -> Result<PingPong> {
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
     let echo = std::thread::spawn(move || -> Result<()> {
-        let p = Participant::join(settings(domain))?;
+        let p = Participant::join(Settings::localhost(domain))?;
         let w = p.writer::<JointState>("deltaloop_bench_pong", PONG, reliable(10))?;
         let mut r =
             Waiting::new(p.reader::<JointState>("deltaloop_bench_pong", PING, reliable(10))?)?;
@@ -54,7 +45,7 @@ pub fn dds(domain: u16, count: u64, period_ns: u64) -> Result<PingPong> {
     ready_rx
         .recv_timeout(Duration::from_secs(10))
         .context("the DDS pong did not start")?;
-    let p = Participant::join(settings(domain))?;
+    let p = Participant::join(Settings::localhost(domain))?;
     let w = p.writer::<JointState>("deltaloop_bench_ping", PING, reliable(10))?;
     let r = p.reader::<JointState>("deltaloop_bench_ping", PONG, reliable(10))?;
     if wait_matched(&w, &r, Duration::from_secs(10)) != (true, true) {

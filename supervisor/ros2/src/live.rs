@@ -80,19 +80,9 @@ impl LiveRun {
     ) -> Result<LawTopics> {
         let s = &self.part.settings;
         let name = law.to_string();
-        let reference = match reference {
-            Some(r) => {
-                let trajectory: Writer<JointTrajectory> =
-                    self.part
-                        .writer(NODE, &s.law_topic(&name, "trajectory"), latched(1))?;
-                let _ = trajectory.write(trajectory_of(r, self.ts_ns), None);
-                let states =
-                    self.part
-                        .writer(NODE, &s.law_topic(&name, "reference"), reliable(100))?;
-                Some(ReferenceTopics { states, trajectory })
-            }
-            None => None,
-        };
+        let reference = reference
+            .map(|r| ReferenceTopics::publish(&self.part, NODE, &name, r, self.ts_ns, 100))
+            .transpose()?;
         self.log(msg::INFO, 0, &format!("{law}: started"));
         Ok(LawTopics {
             joints: self
@@ -164,10 +154,44 @@ impl Health {
     }
 }
 
-/// A law's `reference` (per tick) and `trajectory` (all of it, latched).
-struct ReferenceTopics {
+/// A law's `reference` (per tick) and `trajectory` (all of it, latched): the run's node writes
+/// them, or the robot's with `--controller ros2`.
+pub struct ReferenceTopics {
     states: Writer<JointState>,
     trajectory: Writer<JointTrajectory>,
+}
+
+impl ReferenceTopics {
+    /// `law`'s two topics for `node`, the trajectory published (`depth`: the per-tick topic's
+    /// send window).
+    pub fn publish(
+        part: &Participant,
+        node: &str,
+        law: &str,
+        reference: &JointReference,
+        ts_ns: u64,
+        depth: i32,
+    ) -> Result<Self> {
+        let s = &part.settings;
+        let trajectory: Writer<JointTrajectory> =
+            part.writer(node, &s.law_topic(law, "trajectory"), latched(1))?;
+        trajectory
+            .write(trajectory_of(reference, ts_ns), None)
+            .map_err(|e| anyhow::anyhow!("cannot publish the trajectory: {e:?}"))?;
+        let states = part.writer(node, &s.law_topic(law, "reference"), reliable(depth))?;
+        Ok(Self { states, trajectory })
+    }
+
+    /// The reference at `t_ns` (ns of simulated time): q rad, q̇ rad/s. Whether it went out (a
+    /// full send window drops it).
+    pub fn write(&self, t_ns: u64, q: &[f64; 3], qd: &[f64; 3]) -> bool {
+        let m = msg::joint_state(t_ns, q, qd, &[]);
+        self.states.write(m, None).is_ok()
+    }
+
+    fn guids(&self) -> [rustdds::GUID; 2] {
+        [self.states.guid(), self.trajectory.guid()]
+    }
 }
 
 /// One law's topics: a [`TickSink`] of the run's recorder.
@@ -198,11 +222,7 @@ impl LawTopics {
             .write(msg::joint_state(t_ns, &q, &qd, &tau), None)
             .is_ok();
         if let Some(rt) = &self.reference {
-            let j = &row.joint;
-            ok &= rt
-                .states
-                .write(msg::joint_state(t_ns, &arr(&j.q), &arr(&j.qd), &[]), None)
-                .is_ok();
+            ok &= rt.write(t_ns, &arr(&row.joint.q), &arr(&row.joint.qd));
         }
         if let Ok(x) = self.run.robot.fk(&r.q_true) {
             let tf = TransformStamped {
@@ -304,7 +324,7 @@ impl Drop for LawTopics {
     fn drop(&mut self) {
         let mut mine = vec![self.joints.guid()];
         if let Some(rt) = &self.reference {
-            mine.extend([rt.states.guid(), rt.trajectory.guid()]);
+            mine.extend(rt.guids());
         }
         if let Err(e) = self.run.part.retire(&mine) {
             eprintln!("ROS 2: {e:#}");
@@ -330,7 +350,7 @@ impl Drop for LawTopics {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use deltaloop_config::{Ros2Range, Ros2Section, RunConfig};
+    use deltaloop_config::RunConfig;
     use deltaloop_study::Study;
 
     /// With `--controller ros2` the robot writes the law's reference topics, so the run's node
@@ -338,12 +358,7 @@ mod tests {
     /// writers leave the graph when it ends.
     #[test]
     fn a_law_leaves_its_reference_to_the_robot() {
-        let s = Settings {
-            domain: 227,
-            range: Ros2Range::Localhost,
-            section: Ros2Section::default(),
-        };
-        let live = LiveRun::open(s, DeltaRobot::default(), 300_000).unwrap();
+        let live = LiveRun::open(Settings::localhost(227), DeltaRobot::default(), 300_000).unwrap();
         let writers = || live.part.announced(NODE).1.len();
         let run_wide = writers();
         let topics = live.law(Law::Tdc, None).unwrap();

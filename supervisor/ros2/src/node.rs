@@ -65,6 +65,16 @@ impl Settings {
         })
     }
 
+    /// Domain `domain`, this host only, the section's defaults (the bench's and tests' own
+    /// participants).
+    pub fn localhost(domain: u16) -> Self {
+        Self {
+            domain,
+            range: Ros2Range::Localhost,
+            section: Ros2Section::default(),
+        }
+    }
+
     /// A run's `[ros2]` (its defaults if none) with this process's environment.
     pub fn of_run(cfg: &deltaloop_config::RunConfig) -> Result<Self> {
         Self::resolve(&cfg.ros2.clone().unwrap_or_default(), |v| {
@@ -523,12 +533,7 @@ mod tests {
     #[test]
     fn a_localhost_participant_hears_and_sends_on_lo_only() {
         let before = udp_sockets();
-        let s = Settings {
-            domain: 229,
-            range: Ros2Range::Localhost,
-            section: Ros2Section::default(),
-        };
-        let p = Participant::join(s).unwrap();
+        let p = Participant::join(Settings::localhost(229)).unwrap();
         let new: Vec<i32> = udp_sockets()
             .into_iter()
             .filter(|fd| !before.contains(fd))
@@ -543,12 +548,7 @@ mod tests {
     /// A law's writers leave the graph with the law: no stale gid stays announced.
     #[test]
     fn retired_endpoints_leave_the_graph() {
-        let s = Settings {
-            domain: 228,
-            range: Ros2Range::Localhost,
-            section: Ros2Section::default(),
-        };
-        let p = Participant::join(s).unwrap();
+        let p = Participant::join(Settings::localhost(228)).unwrap();
         let a: Writer<crate::msg::Clock> = p.writer("n", "/a", best_effort(1)).unwrap();
         let b: Writer<crate::msg::Clock> = p.writer("n", "/b", best_effort(1)).unwrap();
         assert_eq!(p.announced("n").1, vec![a.guid(), b.guid()]);

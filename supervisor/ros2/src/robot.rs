@@ -11,9 +11,9 @@
 //! length, a non-finite torque, another tick's stamp, or from a second publisher is refused and
 //! counted; the counts are the process's last line.
 
-use crate::live::trajectory_of;
-use crate::msg::{self, JointState, JointTrajectory};
-use crate::node::{Participant, Settings, Waiting, Writer, latched, reliable, wait_matched};
+use crate::live::ReferenceTopics;
+use crate::msg::{self, JointState};
+use crate::node::{Participant, Settings, Waiting, Writer, reliable, wait_matched};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::RunConfig;
 use deltaloop_controller::process::Step;
@@ -99,8 +99,7 @@ const LABEL: &str = "ros2";
 pub struct Robot {
     _part: Participant,
     states: Writer<JointState>,
-    reference: Writer<JointState>,
-    _trajectory: Writer<JointTrajectory>,
+    reference: ReferenceTopics,
     commands: Waiting<JointState>,
     ts_ns: u64,
     silence: Duration,
@@ -120,18 +119,12 @@ impl Robot {
         }
         let study = Study::new(cfg.clone()).context("the scenario's reference")?;
         let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
-        let law_topic = |leaf: &str| settings.law_topic(law, leaf);
         let (state_topic, command_topic) =
             (section.state_topic.clone(), section.command_topic.clone());
         let domain = settings.domain;
         let part = Participant::join(settings.clone())?;
-        let trajectory: Writer<JointTrajectory> =
-            part.writer(NODE, &law_topic("trajectory"), latched(1))?;
-        trajectory
-            .write(trajectory_of(&study.reference, ts_ns), None)
-            .map_err(|e| anyhow::anyhow!("cannot publish the trajectory: {e:?}"))?;
+        let reference = ReferenceTopics::publish(&part, NODE, law, &study.reference, ts_ns, 10)?;
         let states: Writer<JointState> = part.writer(NODE, &state_topic, reliable(10))?;
-        let reference = part.writer(NODE, &law_topic("reference"), reliable(10))?;
         let commands = Waiting::new(part.reader(NODE, &command_topic, reliable(10))?)?;
         // The node is there when it reads the states and its commands reach us.
         let (read, heard) = wait_matched(
@@ -155,7 +148,6 @@ impl Robot {
             _part: part,
             states,
             reference,
-            _trajectory: trajectory,
             commands,
             ts_ns,
             silence: Duration::from_millis(u64::from(cfg.loop_.silence_timeout_ms)),
@@ -206,9 +198,7 @@ impl Step for Robot {
     fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<TorqueMsg, String> {
         let k = state.tick;
         let t_ns = k * self.ts_ns;
-        let _ = self
-            .reference
-            .write(msg::joint_state(t_ns, &row.q, &row.qd, &[]), None);
+        let _ = self.reference.write(t_ns, &row.q, &row.qd);
         let js = msg::joint_state(t_ns, &state.q, &state.qd, &state.tau_applied);
         if let Err(e) = self.states.write(js, None) {
             return Err(format!("cannot publish the state of tick {k}: {e:?}"));

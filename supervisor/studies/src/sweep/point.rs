@@ -782,7 +782,7 @@ mod tests {
             first_reply_lost: None,
             duplicate_replies: 0,
             refused_replies: 0,
-            refused_why: None,
+            refused_replies_why: None,
             stamps_replaced: 0,
             outcome,
             fault,

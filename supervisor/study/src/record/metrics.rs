@@ -478,7 +478,7 @@ impl<'a> MetricsAcc<'a> {
             replies_lost: end.replies_lost,
             duplicate_replies: end.duplicate_replies,
             refused_replies: end.refused_replies,
-            refused_replies_why: end.refused_why.clone(),
+            refused_replies_why: end.refused_replies_why.clone(),
             stamps_replaced: end.stamps_replaced,
             completed,
             diverged_at_tick,

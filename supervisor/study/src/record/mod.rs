@@ -223,7 +223,7 @@ pub struct RunEnd {
     /// Replies the controller's own transport refused (`REPLIES_REFUSED`: a ROS 2 node's bad
     /// commands), and its count of each cause.
     pub refused_replies: u64,
-    pub refused_why: Option<String>,
+    pub refused_replies_why: Option<String>,
     /// Ticks whose applied reply carried a publish stamp the plant could not believe
     /// (`TEL_STAMP_REPLACED`): the plant used its own receive time.
     pub stamps_replaced: u64,
@@ -382,10 +382,10 @@ impl<'a, S: TickSink> Recorder<'a, S> {
         &mut self.sink
     }
 
-    /// The controller's transport refused `n` replies (`why`: each cause's count).
+    /// The controller's transport refused `n` replies in all (`why`: each cause's count).
     pub fn refused_replies(&mut self, n: u64, why: String) {
-        self.ticks.end.refused_replies += n;
-        self.ticks.end.refused_why = Some(why);
+        self.ticks.end.refused_replies = n;
+        self.ticks.end.refused_replies_why = Some(why);
     }
 
     /// `n` replies came for ticks that already had one (the first was kept).
@@ -463,7 +463,7 @@ impl<'a> OpenTicks<'a> {
                 first_reply_lost: None,
                 duplicate_replies: 0,
                 refused_replies: 0,
-                refused_why: None,
+                refused_replies_why: None,
                 stamps_replaced: 0,
                 outcome: Outcome::Completed,
                 fault: None,
