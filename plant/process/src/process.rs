@@ -266,7 +266,7 @@ where
     let mut clock = Clock {
         mode: args.mode,
         t0_ns: start.t0_ns,
-        ts_ns: (cfg.loop_.ts_s * 1e9).round() as u64,
+        ts_ns: cfg.ts_ns(),
         budget_ns: u64::from(cfg.loop_.torque_budget_us) * 1000,
         silence_ns: u64::from(cfg.loop_.silence_timeout_ms) * 1_000_000,
         spin_ns: layout.spin_ns(),

@@ -827,10 +827,9 @@ impl RunConfig {
     /// The plant's wake lateness beyond which the overrun policy acts, ns (see
     /// [`LoopSection::overrun_after_us`]; one period if unset).
     pub fn overrun_after_ns(&self) -> u64 {
-        self.loop_.overrun_after_us.map_or_else(
-            || (self.loop_.ts_s * 1e9).round() as u64,
-            |us| u64::from(us) * 1000,
-        )
+        self.loop_
+            .overrun_after_us
+            .map_or_else(|| self.ts_ns(), |us| u64::from(us) * 1000)
     }
 
     /// Motion duration T of the scenario, s.

@@ -118,7 +118,7 @@ impl Robot {
             eprintln!("{NODE}: {w}");
         }
         let study = Study::new(cfg.clone()).context("the scenario's reference")?;
-        let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
+        let ts_ns = cfg.ts_ns();
         let (state_topic, command_topic) =
             (section.state_topic.clone(), section.command_topic.clone());
         let domain = settings.domain;

@@ -327,7 +327,9 @@ pub fn replay(run_dir: &Path, out: &Path) -> Result<(Verdict, Vec<LawRun>)> {
     }
     output::join_trace(out, &laws)?;
     let cap = output::trace::max_bytes(&study);
-    let unknown = if internals_unknown(&study.config) {
+    // A ROS 2 node's replies (`--controller ros2`) carried τ only: the recorded internals are
+    // zeros the replay's law does not reproduce.
+    let unknown = if crate::procs::ros2_robot_answers(&study.config) {
         UNKNOWN_INTERNALS
     } else {
         &[]
@@ -340,12 +342,6 @@ pub fn replay(run_dir: &Path, out: &Path) -> Result<(Verdict, Vec<LawRun>)> {
 
 /// The trace columns of the law's internals (s, N̂), per joint.
 const UNKNOWN_INTERNALS: &[&str] = &["s_1", "s_2", "s_3", "n_hat_1", "n_hat_2", "n_hat_3"];
-
-/// Whether the run's controller was a ROS 2 node (`--controller ros2`): its replies carried τ
-/// only, so the recorded internals are zeros the replay's law does not reproduce.
-fn internals_unknown(cfg: &RunConfig) -> bool {
-    crate::procs::ros2_robot_answers(cfg)
-}
 
 /// Compares two trace files byte for byte (header and line ends included), and names the line
 /// and column of the first difference. Lines are read one at a time (at most `cap` bytes of the

@@ -32,7 +32,7 @@ pub fn live_tap(cfg: &RunConfig, asked: bool) -> Result<Option<Tap>> {
         settings.reach(),
         settings.law_topic("<law>", leaves),
     );
-    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
+    let ts_ns = cfg.ts_ns();
     let live = LiveRun::open(settings, deltaloop_model::DeltaRobot::default(), ts_ns)?;
     Ok(Some(Tap(std::sync::Arc::new(move |study, law| {
         let topics = live.law(law, (!robot).then_some(&study.reference))?;

@@ -475,7 +475,7 @@ fn observe(
 ) -> Result<Ending> {
     let cfg = &study.config;
     let n = study.reference.n as u64;
-    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
+    let ts_ns = cfg.ts_ns();
     // Bounded waits: after STOP, or after one child exits early, the other gets the safe stop
     // (plus the silence timeout for the plant to notice a dead controller), then it is stopped.
     // The overall limit leaves room for the whole safe stop too (regression: a 60 s safe stop
@@ -566,7 +566,7 @@ pub(super) fn run(
     } = started;
     let cfg = &study.config;
     let n = study.reference.n as u64;
-    let ts_ns = (cfg.loop_.ts_s * 1e9).round() as u64;
+    let ts_ns = cfg.ts_ns();
     // Allocate (and touch) everything the observer fills before START, not after: the loop does
     // not wait for the supervisor (regression: a 10-minute lockstep run lost its first 32 k
     // ticks while the supervisor allocated per-tick tables after START).
