@@ -18,6 +18,7 @@ mod input_hardening;
 mod link_loopback;
 mod live_monitor;
 mod messages_monitors;
+mod out_claims;
 mod mujoco_plant;
 mod paper;
 mod process_modes;

@@ -87,26 +87,77 @@ pub fn default_run_dir(name: &str) -> PathBuf {
 pub struct RunFolder {
     dir: PathBuf,
     _lock: std::fs::File,
+    /// The topmost folder the claim made (None: `dir` existed): [`RunFolder::release_unused`]
+    /// removes what it made.
+    created: Option<PathBuf>,
 }
 
-/// The lock file in every run folder; its presence also marks a folder as deltaloop's.
+/// The lock file in every folder a command claimed. Its content, [`MARK`], marks the folder as
+/// deltaloop's: only a claim that succeeded writes it.
 const LOCK_FILE: &str = ".deltaloop-lock";
+
+/// What a successful claim writes into [`LOCK_FILE`]: the one mark `--force` trusts. An empty
+/// lock file (left by a refused command of an older deltaloop, or made by anyone) or a
+/// stranger's `config.toml` does not make a folder deltaloop's.
+const MARK: &[u8] = b"deltaloop output folder: `--force` may empty it; locked while a command writes here\n";
+
+/// A folder is, holds or lies inside something the command reads: refused, `--force` or not.
+fn refuse_sources<P: AsRef<Path>>(dir: &Path, sources: &[(P, &str)]) -> Result<()> {
+    let here = resolved(dir);
+    for (src, what) in sources {
+        let src = src.as_ref();
+        let there = resolved(src);
+        let how = if here == there {
+            "is"
+        } else if there.starts_with(&here) {
+            "contains"
+        } else if here.starts_with(&there) {
+            "is inside"
+        } else {
+            continue;
+        };
+        anyhow::bail!(
+            "--out {} {how} {what} {}: writing there would destroy what is read; choose another --out (--force does not change this)",
+            dir.display(),
+            src.display()
+        );
+    }
+    Ok(())
+}
+
+/// Takes the lock of an open lock file without waiting; false if another run holds it.
+fn try_lock(f: &std::fs::File) -> bool {
+    // SAFETY: flock on a descriptor we own; non-blocking, released when the file closes.
+    unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(f), libc::LOCK_EX | libc::LOCK_NB) == 0 }
+}
+
+/// Whether `dir` is a deltaloop folder: its lock file carries [`MARK`].
+fn is_marked(dir: &Path) -> bool {
+    let mut head = [0u8; MARK.len()];
+    std::fs::File::open(dir.join(LOCK_FILE))
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
+        .is_ok_and(|()| head == MARK)
+}
 
 impl RunFolder {
     /// Claims `dir`: refuses a non-empty folder unless `force` (then empties it, but only if it
-    /// is a deltaloop folder: one with a lock file, `config.toml`, `summary.json` or a sweep's
-    /// `sweep.toml`), and refuses a
-    /// folder another run holds, `force` or not.
+    /// is a deltaloop folder: one a command claimed, its lock file marked so), and refuses a
+    /// folder another run holds, `force` or not. A refusal leaves nothing behind: no lock file,
+    /// no folder that was not there.
     /// A symbolic link is refused, `force` or not: emptying it would empty whatever it points to.
     pub fn claim(dir: &Path, force: bool) -> Result<Self> {
-        Self::claim_apart(dir, force, &[])
+        Self::claim_apart::<&Path>(dir, force, &[])
     }
 
     /// [`RunFolder::claim`], refusing also, `force` or not, a folder that is, contains or lies
-    /// inside one of `sources` (what the command reads, with a few words naming it): emptying it
-    /// would destroy the command's own input. Paths are compared resolved (links, `..`), so no
-    /// spelling of the same folder slips through.
-    pub fn claim_apart(dir: &Path, force: bool, sources: &[(&Path, &str)]) -> Result<Self> {
+    /// inside one of `sources` (every file or folder the command reads, with a few words naming
+    /// it): emptying it would destroy the command's own input. Paths are compared resolved
+    /// (links, `..`), so no spelling of the same folder slips through.
+    pub fn claim_apart<P: AsRef<Path>>(
+        dir: &Path,
+        force: bool,
+        sources: &[(P, &str)],
+    ) -> Result<Self> {
         let shown = dir.display();
         if std::fs::symlink_metadata(dir).is_ok_and(|m| m.file_type().is_symlink()) {
             let to = std::fs::read_link(dir)
@@ -116,28 +167,14 @@ impl RunFolder {
                 "run folder {shown} is a symbolic link{to}: deltaloop never writes through a link; give a real folder as --out"
             );
         }
-        let here = resolved(dir);
-        for (src, what) in sources {
-            let there = resolved(src);
-            let how = if here == there {
-                "is"
-            } else if there.starts_with(&here) {
-                "contains"
-            } else if here.starts_with(&there) {
-                "is inside"
-            } else {
-                continue;
-            };
-            anyhow::bail!(
-                "--out {shown} {how} {what} {}: writing there would destroy what is read; choose another --out (--force does not change this)",
-                src.display()
-            );
-        }
-        let entries: Vec<PathBuf> = match std::fs::read_dir(dir) {
-            Ok(rd) => rd.filter_map(|e| e.ok().map(|e| e.path())).collect(),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
-            Err(e) => anyhow::bail!("cannot read run folder {shown}: {e}"),
-        };
+        refuse_sources(dir, sources)?;
+        // Everything is decided before anything is written: a refusal creates nothing.
+        let doomed = Self::survey(dir, force)?;
+        let created = dir
+            .ancestors()
+            .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
+            .last()
+            .map(Path::to_path_buf);
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create run folder {shown}"))?;
         let lock = std::fs::OpenOptions::new()
@@ -146,49 +183,64 @@ impl RunFolder {
             .write(true)
             .open(dir.join(LOCK_FILE))
             .with_context(|| format!("cannot create {}", dir.join(LOCK_FILE).display()))?;
-        // SAFETY: flock on a descriptor we own; non-blocking, released when the file closes.
-        if unsafe {
-            libc::flock(
-                std::os::fd::AsRawFd::as_raw_fd(&lock),
-                libc::LOCK_EX | libc::LOCK_NB,
-            )
-        } != 0
-        {
+        if !try_lock(&lock) {
+            // Another run took it since the survey: the folder and its lock file are its own.
             anyhow::bail!(
                 "run folder {shown} is in use by another deltaloop run: choose another --out"
             );
         }
-        let theirs: Vec<&PathBuf> = entries.iter().filter(|p| !p.ends_with(LOCK_FILE)).collect();
-        if !theirs.is_empty() {
-            if !force {
-                anyhow::bail!(
-                    "run folder {shown} is not empty ({} entries): choose another --out, or pass --force to empty and reuse it",
-                    theirs.len()
-                );
-            }
-            let ours = entries.iter().any(|p| {
-                ["config.toml", "summary.json", "sweep.toml", LOCK_FILE]
-                    .iter()
-                    .any(|f| p.ends_with(f))
-            });
-            if !ours {
-                anyhow::bail!(
-                    "run folder {shown} is not empty and does not look like a deltaloop run folder (no config.toml, summary.json or sweep.toml): refusing to empty it, even with --force"
-                );
-            }
-            for p in theirs {
-                let r = if p.is_dir() && !p.is_symlink() {
-                    std::fs::remove_dir_all(p)
-                } else {
-                    std::fs::remove_file(p)
-                };
-                r.with_context(|| format!("--force: cannot remove {}", p.display()))?;
-            }
+        for p in doomed {
+            let r = if p.is_dir() && !p.is_symlink() {
+                std::fs::remove_dir_all(&p)
+            } else {
+                std::fs::remove_file(&p)
+            };
+            r.with_context(|| format!("--force: cannot remove {}", p.display()))?;
         }
+        lock.set_len(0)
+            .and_then(|()| std::io::Write::write_all(&mut &lock, MARK))
+            .with_context(|| format!("cannot write {}", dir.join(LOCK_FILE).display()))?;
         Ok(Self {
             dir: dir.to_path_buf(),
             _lock: lock,
+            created,
         })
+    }
+
+    /// What claiming `dir` would remove (its entries but the lock file), or why it is refused:
+    /// held by another run, or not empty without `force`, or not empty and not deltaloop's.
+    /// Reads only.
+    fn survey(dir: &Path, force: bool) -> Result<Vec<PathBuf>> {
+        let shown = dir.display();
+        let entries: Vec<PathBuf> = match std::fs::read_dir(dir) {
+            Ok(rd) => rd.filter_map(|e| e.ok().map(|e| e.path())).collect(),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+            Err(e) => anyhow::bail!("cannot read run folder {shown}: {e}"),
+        };
+        if std::fs::File::open(dir.join(LOCK_FILE)).is_ok_and(|f| !try_lock(&f)) {
+            anyhow::bail!(
+                "run folder {shown} is in use by another deltaloop run: choose another --out"
+            );
+        }
+        let theirs: Vec<PathBuf> = entries
+            .into_iter()
+            .filter(|p| !p.ends_with(LOCK_FILE))
+            .collect();
+        if theirs.is_empty() {
+            return Ok(theirs);
+        }
+        if !force {
+            anyhow::bail!(
+                "run folder {shown} is not empty ({} entries): choose another --out, or pass --force to empty and reuse it",
+                theirs.len()
+            );
+        }
+        if !is_marked(dir) {
+            anyhow::bail!(
+                "run folder {shown} is not empty and does not look like a deltaloop run folder (no deltaloop command wrote it: its {LOCK_FILE} is missing or unmarked): refusing to empty it, even with --force"
+            );
+        }
+        Ok(theirs)
     }
 
     /// Whether two paths name the same folder (resolved: links, `..`), existing or not.
@@ -201,8 +253,8 @@ impl RunFolder {
         &self.dir
     }
 
-    /// Gives the folder up; removes it if nothing but its lock file was written (a command
-    /// refused before it wrote anything leaves no empty folder behind).
+    /// Gives the folder up; if nothing but its lock file was written (a command refused after
+    /// the claim), removes the lock file, and the folders the claim made: nothing is left behind.
     pub fn release_unused(self) {
         let only_lock = std::fs::read_dir(&self.dir).is_ok_and(|entries| {
             entries
@@ -210,7 +262,15 @@ impl RunFolder {
                 .all(|e| e.file_name() == std::ffi::OsStr::new(LOCK_FILE))
         });
         if only_lock {
-            let _ = std::fs::remove_dir_all(&self.dir);
+            let _ = std::fs::remove_file(self.dir.join(LOCK_FILE));
+            if let Some(top) = &self.created {
+                // Only empty folders go (remove_dir): from `dir` up to the first it made.
+                for d in self.dir.ancestors() {
+                    if std::fs::remove_dir(d).is_err() || d == top.as_path() {
+                        break;
+                    }
+                }
+            }
         }
     }
 }
@@ -461,6 +521,85 @@ mod tests {
         assert!(run.join("config.toml").exists());
         let other = RunFolder::claim_apart(&d.join("other"), false, &src).unwrap();
         assert!(other.path().join(LOCK_FILE).exists());
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    /// Every entry of `dir` by name, sorted.
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    /// Regression: a refused claim left `.deltaloop-lock` in the folder, and that file alone made
+    /// it deltaloop's: the next claim with `force` emptied it. Refused without and with `force`,
+    /// the folder keeps its one file and gains nothing; a folder that did not exist is not made.
+    #[test]
+    fn regression_a_refused_claim_leaves_no_lock_file() {
+        let d = tmp("refused");
+        let thesis = d.join("thesis");
+        std::fs::create_dir_all(&thesis).unwrap();
+        std::fs::write(thesis.join("thesis.tex"), "precious").unwrap();
+        for force in [false, true, true] {
+            let e = RunFolder::claim(&thesis, force).unwrap_err().to_string();
+            let says = if force { "does not look like" } else { "is not empty" };
+            assert!(e.contains(says), "{e}");
+            assert_eq!(names(&thesis), ["thesis.tex"]);
+        }
+        let src = [(thesis.as_path(), "the source")];
+        assert!(RunFolder::claim_apart(&thesis.join("new"), true, &src).is_err());
+        assert_eq!(names(&thesis), ["thesis.tex"]);
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    /// Regression: `force` emptied any folder with a lock file, `config.toml`, `summary.json` or
+    /// `sweep.toml`, files a refusal or a stranger leaves. Only a claim's mark counts; a folder
+    /// with nothing but an unmarked lock file is empty, and claimed.
+    #[test]
+    fn regression_force_trusts_no_stray_lock_file_or_strangers_files() {
+        let top = tmp("stray");
+        let d = top.join("run");
+        let all = [LOCK_FILE, "config.toml", "summary.json", "sweep.toml", "thesis.tex"];
+        for f in all {
+            std::fs::write(d.join(f), "").unwrap();
+        }
+        let e = RunFolder::claim(&d, true).unwrap_err().to_string();
+        assert!(e.contains("does not look like a deltaloop run folder"), "{e}");
+        let mut want = all.map(String::from).to_vec();
+        want.sort();
+        assert_eq!(names(&d), want);
+        for f in &all[1..] {
+            std::fs::remove_file(d.join(f)).unwrap();
+        }
+        let f = RunFolder::claim(&d, false).unwrap();
+        assert!(is_marked(f.path()));
+        let _ = std::fs::remove_dir_all(&top);
+    }
+
+    /// A claimed folder stays deltaloop's however its command ended (here: cut short after its
+    /// config): `force` empties it. A command that then fails before writing releases it, and
+    /// the folders the claim made go with the lock file.
+    #[test]
+    fn a_claimed_folder_is_reclaimed_with_force_and_released_whole() {
+        let d = tmp("reclaim");
+        let run = d.join("a/b/run");
+        let f = RunFolder::claim(&run, false).unwrap();
+        std::fs::write(run.join("config.toml"), "x").unwrap();
+        assert!(RunFolder::claim(&run, true).unwrap_err().to_string().contains("in use"));
+        drop(f);
+        assert!(RunFolder::claim(&run, false).is_err());
+        let f = RunFolder::claim(&run, true).unwrap();
+        assert_eq!(names(&run), [LOCK_FILE]);
+        f.release_unused();
+        assert!(run.exists(), "a folder the claim did not make stays");
+        assert!(names(&run).is_empty());
+        std::fs::remove_dir(&run).unwrap();
+        RunFolder::claim(&run, false).unwrap().release_unused();
+        assert_eq!(names(&d.join("a")), ["b"]);
         let _ = std::fs::remove_dir_all(&d);
     }
 }

@@ -166,6 +166,29 @@ pub fn load_config(path: &Path, o: &Overrides) -> Result<RunConfig> {
     o.apply(RunConfig::from_file(path)?)
 }
 
+/// What [`load_config`] reads, each with what it is: the scenario file and the link key file
+/// (for [`RunRequest::reads`]).
+pub fn config_reads(path: &Path, o: &Overrides) -> Vec<(PathBuf, &'static str)> {
+    let key = o.remote.link_key.clone().map(|k| (k, "the link key file"));
+    std::iter::once((path.to_path_buf(), "the scenario file"))
+        .chain(key)
+        .collect()
+}
+
+/// The files a config's plant and controller commands name (words with a `/` that exist: the
+/// program, a script), each with what it is: a run folder may not hold them.
+pub fn command_files(cfg: &RunConfig) -> Vec<(PathBuf, &'static str)> {
+    let named = |cmd: &[String], what: &'static str| {
+        cmd.iter()
+            .filter(|w| w.contains('/') && Path::new(w).exists())
+            .map(move |w| (PathBuf::from(w), what))
+            .collect::<Vec<_>>()
+    };
+    let mut v = named(&cfg.plant.command, "a file of the plant command");
+    v.extend(named(&cfg.controller.command, "a file of the controller command"));
+    v
+}
+
 /// What to run: every law of a config in one mode, into one run folder. `deltaloop run`, the
 /// paper and a soak all ask through it.
 pub struct RunRequest<'a> {
@@ -175,6 +198,10 @@ pub struct RunRequest<'a> {
     /// [`output::RunFolder::claim`]).
     pub out: Option<PathBuf>,
     pub force: bool,
+    /// What the command read (the scenario file, the link key, …; see [`config_reads`]), each
+    /// with what it is. The run folder may not be, hold or lie inside any of them, nor any file
+    /// the config's commands name, `force` or not ([`output::RunFolder::claim_apart`]).
+    pub reads: Vec<(PathBuf, &'static str)>,
     /// Keep every tick's record in memory too (for figures of short runs); otherwise the ticks
     /// are only streamed to `trace.csv` (unless `record.trace = false`) and the metrics, and
     /// memory does not grow with the run.
@@ -200,6 +227,7 @@ impl<'a> RunRequest<'a> {
             mode,
             out: None,
             force: false,
+            reads: Vec::new(),
             keep_records: false,
             sensitivity: false,
             command,
@@ -233,6 +261,7 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
         mode,
         out,
         force,
+        mut reads,
         keep_records,
         sensitivity,
         command,
@@ -254,9 +283,11 @@ pub fn run(req: RunRequest<'_>) -> Result<RunOutput> {
     let study =
         Study::new(config).context("the scenario's reference leaves the robot's workspace")?;
     let cfg = &study.config;
-    let folder = output::RunFolder::claim(
+    reads.extend(command_files(cfg));
+    let folder = output::RunFolder::claim_apart(
         &out.unwrap_or_else(|| output::default_run_dir(&cfg.name)),
         force,
+        &reads,
     )?;
     let dir = folder.path().to_path_buf();
     // The resolved config goes first, and only here: the child processes read it, and it

@@ -37,6 +37,7 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
         tap,
         out: a.out.out,
         force: a.out.force,
+        reads: run::config_reads(&a.config, &overrides),
         sensitivity: a.sensitivity,
         mcap: a.mcap,
         ..RunRequest::new(cfg, a.mode, &cx.command_line)

@@ -439,6 +439,7 @@ pub fn soak(r: Request<'_>) -> Result<()> {
         tap,
         out: Some(out),
         force: r.force,
+        reads: run::config_reads(r.config, r.overrides),
         on_tick: Some(&mut on_tick),
         mcap: r.mcap,
         ..run::RunRequest::new(cfg, r.mode, r.command)

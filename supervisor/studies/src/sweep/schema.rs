@@ -380,6 +380,15 @@ pub fn load(path: &Path) -> Result<(SweepFile, RunConfig)> {
     load_with_base(path, None)
 }
 
+/// The base config a sweep reads: `base` when given, else the sweep file's `base` key, relative
+/// to the sweep file's folder.
+pub fn base_path(path: &Path, sw: &SweepFile, base: Option<&Path>) -> PathBuf {
+    base.map_or_else(
+        || path.parent().unwrap_or(Path::new(".")).join(&sw.base),
+        Path::to_path_buf,
+    )
+}
+
 /// [`load`], with the base read from `base` instead of the file's `base` key when given (a copy
 /// shipped next to the sweep file; the key stays as written).
 pub fn load_with_base(path: &Path, base: Option<&Path>) -> Result<(SweepFile, RunConfig)> {
@@ -393,11 +402,7 @@ pub fn load_with_base(path: &Path, base: Option<&Path>) -> Result<(SweepFile, Ru
         )
     })?;
     check(&sw)?;
-    let base_path = base.map_or_else(
-        || path.parent().unwrap_or(Path::new(".")).join(&sw.base),
-        Path::to_path_buf,
-    );
-    let base = load_base(&base_path)?;
+    let base = load_base(&base_path(path, &sw, base))?;
     check_seeds(&sw, &base)?;
     Ok((sw, base))
 }

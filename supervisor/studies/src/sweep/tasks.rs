@@ -15,13 +15,29 @@ pub fn run_here(sweep: &Path, out: Option<PathBuf>, force: bool, progress: bool)
     let t0 = Instant::now();
     let (sw, base) = super::load(sweep)?;
     let out = out.unwrap_or_else(|| default_run_dir(&format!("sweep-{}", sw.name)));
-    let _folder = RunFolder::claim_apart(&out, force, &[(sweep, "the sweep file")])?;
+    let reads = sweep_reads(sweep, super::base_path(sweep, &sw, None), &base);
+    let _folder = RunFolder::claim_apart(&out, force, &reads)?;
     let rows = super::run_loaded(&sw, &base, sweep, &out, progress)?;
     Ok(format!(
         "{}\nsweep folder: {}",
         counts(&rows, t0.elapsed().as_secs_f64()),
         out.display()
     ))
+}
+
+/// What a sweep reads, each with what it is: the sweep file, its base config and the files the
+/// base's commands name. Its folder may be, hold or lie inside none of them.
+fn sweep_reads(
+    sweep: &Path,
+    base_path: PathBuf,
+    base: &deltaloop_config::RunConfig,
+) -> Vec<(PathBuf, &'static str)> {
+    let mut v = vec![
+        (sweep.to_path_buf(), "the sweep file"),
+        (base_path, "the sweep's base config"),
+    ];
+    v.extend(deltaloop_runner::run::command_files(base));
+    v
 }
 
 /// `sweep plan FILE`: every point with its id, as text or (for a cluster driver) JSON. Every
@@ -56,6 +72,7 @@ pub struct ShardRun<'a> {
 pub fn run_shard(r: ShardRun<'_>) -> Result<String> {
     let t0 = Instant::now();
     let (sw, base) = super::load_with_base(r.sweep, r.base)?;
+    let reads = sweep_reads(r.sweep, super::base_path(r.sweep, &sw, r.base), &base);
     let plan = Plan::new(sw, base)?;
     let idx = r
         .selection
@@ -65,7 +82,7 @@ pub fn run_shard(r: ShardRun<'_>) -> Result<String> {
     let out = r
         .out
         .unwrap_or_else(|| default_run_dir(&format!("sweep-{}-shard", plan.sweep.name)));
-    let _folder = RunFolder::claim_apart(&out, r.force, &[(r.sweep, "the sweep file")])?;
+    let _folder = RunFolder::claim_apart(&out, r.force, &reads)?;
     let jobs = r.jobs.map_or_else(
         || std::thread::available_parallelism().map_or(1, |n| n.get()),
         |j| j as usize,
