@@ -87,9 +87,9 @@ pub fn default_run_dir(name: &str) -> PathBuf {
 pub struct RunFolder {
     dir: PathBuf,
     _lock: std::fs::File,
-    /// The topmost folder the claim made (None: `dir` existed): [`RunFolder::release_unused`]
-    /// removes what it made.
-    created: Option<PathBuf>,
+    /// The topmost folder [`RunFolder::release_unused`] may remove: the first the claim made, or
+    /// `dir` if it was deltaloop's already (None: a folder of the user's, kept).
+    removable: Option<PathBuf>,
 }
 
 /// The lock file in every folder a command claimed. Its content, [`MARK`], marks the folder as
@@ -170,11 +170,14 @@ impl RunFolder {
         refuse_sources(dir, sources)?;
         // Everything is decided before anything is written: a refusal creates nothing.
         let doomed = Self::survey(dir, force)?;
-        let created = dir
-            .ancestors()
-            .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
-            .last()
-            .map(Path::to_path_buf);
+        let removable = if is_marked(dir) {
+            Some(dir.to_path_buf())
+        } else {
+            dir.ancestors()
+                .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
+                .last()
+                .map(Path::to_path_buf)
+        };
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create run folder {shown}"))?;
         let lock = std::fs::OpenOptions::new()
@@ -203,7 +206,7 @@ impl RunFolder {
         Ok(Self {
             dir: dir.to_path_buf(),
             _lock: lock,
-            created,
+            removable,
         })
     }
 
@@ -254,7 +257,8 @@ impl RunFolder {
     }
 
     /// Gives the folder up; if nothing but its lock file was written (a command refused after
-    /// the claim), removes the lock file, and the folders the claim made: nothing is left behind.
+    /// the claim), removes the lock file, and the folder unless it was a folder of the user's
+    /// (with the folders the claim made for it): no empty folder is left behind.
     pub fn release_unused(self) {
         let only_lock = std::fs::read_dir(&self.dir).is_ok_and(|entries| {
             entries
@@ -263,7 +267,7 @@ impl RunFolder {
         });
         if only_lock {
             let _ = std::fs::remove_file(self.dir.join(LOCK_FILE));
-            if let Some(top) = &self.created {
+            if let Some(top) = &self.removable {
                 // Only empty folders go (remove_dir): from `dir` up to the first it made.
                 for d in self.dir.ancestors() {
                     if std::fs::remove_dir(d).is_err() || d == top.as_path() {
@@ -581,8 +585,9 @@ mod tests {
     }
 
     /// A claimed folder stays deltaloop's however its command ended (here: cut short after its
-    /// config): `force` empties it. A command that then fails before writing releases it, and
-    /// the folders the claim made go with the lock file.
+    /// config): `force` empties it. A command that fails before writing anything releases its
+    /// folder: the lock file goes, and the folder too (with the folders the claim made for it)
+    /// unless it was an empty folder of the user's.
     #[test]
     fn a_claimed_folder_is_reclaimed_with_force_and_released_whole() {
         let d = tmp("reclaim");
@@ -595,11 +600,14 @@ mod tests {
         let f = RunFolder::claim(&run, true).unwrap();
         assert_eq!(names(&run), [LOCK_FILE]);
         f.release_unused();
-        assert!(run.exists(), "a folder the claim did not make stays");
-        assert!(names(&run).is_empty());
-        std::fs::remove_dir(&run).unwrap();
-        RunFolder::claim(&run, false).unwrap().release_unused();
         assert_eq!(names(&d.join("a")), ["b"]);
+        assert!(names(&d.join("a/b")).is_empty());
+        let user = d.join("user");
+        std::fs::create_dir(&user).unwrap();
+        RunFolder::claim(&user, false).unwrap().release_unused();
+        assert!(user.is_dir() && names(&user).is_empty());
+        RunFolder::claim(&d.join("x/y/z"), false).unwrap().release_unused();
+        assert!(!d.join("x").exists());
         let _ = std::fs::remove_dir_all(&d);
     }
 }
