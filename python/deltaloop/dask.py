@@ -176,6 +176,20 @@ class Result:
     tasks: int = 0
 
 
+#: What a folder deltaloop claimed holds in its lock file (``MARK`` in
+#: supervisor/report/src/lib.rs): the one sign ``--force`` trusts.
+LOCK_FILE = ".deltaloop-lock"
+MARK = b"deltaloop output folder: `--force` may empty it; locked while a command writes here\n"
+
+
+def _is_marked(d: Path) -> bool:
+    try:
+        with open(d / LOCK_FILE, "rb") as f:
+            return f.read(len(MARK)) == MARK
+    except OSError:
+        return False
+
+
 class _Shard:
     """The driver's shard folder, grown as results arrive: one ``sweep.csv`` (rows appended),
     the sweep and base, the points' run folders, and ``shard.json`` listing what arrived."""
@@ -191,6 +205,8 @@ class _Shard:
         m = json.loads(files["shard.json"])
         if self.csv is None:
             self.dir.mkdir(parents=True, exist_ok=True)
+            # Marked as deltaloop's, as a claimed folder is: a later --force may empty it.
+            (self.dir / LOCK_FILE).write_bytes(MARK)
             for name in ("sweep.toml", "base.toml"):
                 (self.dir / name).write_text(files[name])
             self.csv = open(self.dir / "sweep.csv", "w", newline="")
@@ -256,8 +272,9 @@ def run_sweep(
         if d.exists() and any(d.iterdir()):
             if not force:
                 raise SweepError(f"{d} is not empty: choose another --out, or pass --force")
-            # Like `deltaloop --force`: only a folder deltaloop wrote is emptied.
-            if not any((d / f).exists() for f in ("shard.json", "sweep.toml", ".deltaloop-lock")):
+            # Like `deltaloop --force`: only a folder deltaloop claimed (its lock file marked) is
+            # emptied; a stray lock file or a stranger's sweep.toml does not count.
+            if not _is_marked(d):
                 raise SweepError(f"{d} is not a deltaloop sweep folder: --force empties only those")
             shutil.rmtree(d)
     pl = plan(sweep_file, exe)

@@ -99,7 +99,8 @@ const LOCK_FILE: &str = ".deltaloop-lock";
 /// What a successful claim writes into [`LOCK_FILE`]: the one mark `--force` trusts. An empty
 /// lock file (left by a refused command of an older deltaloop, or made by anyone) or a
 /// stranger's `config.toml` does not make a folder deltaloop's.
-const MARK: &[u8] = b"deltaloop output folder: `--force` may empty it; locked while a command writes here\n";
+const MARK: &[u8] =
+    b"deltaloop output folder: `--force` may empty it; locked while a command writes here\n";
 
 /// A folder is, holds or lies inside something the command reads: refused, `--force` or not.
 fn refuse_sources<P: AsRef<Path>>(dir: &Path, sources: &[(P, &str)]) -> Result<()> {
@@ -128,7 +129,12 @@ fn refuse_sources<P: AsRef<Path>>(dir: &Path, sources: &[(P, &str)]) -> Result<(
 /// Takes the lock of an open lock file without waiting; false if another run holds it.
 fn try_lock(f: &std::fs::File) -> bool {
     // SAFETY: flock on a descriptor we own; non-blocking, released when the file closes.
-    unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(f), libc::LOCK_EX | libc::LOCK_NB) == 0 }
+    unsafe {
+        libc::flock(
+            std::os::fd::AsRawFd::as_raw_fd(f),
+            libc::LOCK_EX | libc::LOCK_NB,
+        ) == 0
+    }
 }
 
 /// Whether `dir` is a deltaloop folder: its lock file carries [`MARK`].
@@ -550,7 +556,11 @@ mod tests {
         std::fs::write(thesis.join("thesis.tex"), "precious").unwrap();
         for force in [false, true, true] {
             let e = RunFolder::claim(&thesis, force).unwrap_err().to_string();
-            let says = if force { "does not look like" } else { "is not empty" };
+            let says = if force {
+                "does not look like"
+            } else {
+                "is not empty"
+            };
             assert!(e.contains(says), "{e}");
             assert_eq!(names(&thesis), ["thesis.tex"]);
         }
@@ -567,12 +577,21 @@ mod tests {
     fn regression_force_trusts_no_stray_lock_file_or_strangers_files() {
         let top = tmp("stray");
         let d = top.join("run");
-        let all = [LOCK_FILE, "config.toml", "summary.json", "sweep.toml", "thesis.tex"];
+        let all = [
+            LOCK_FILE,
+            "config.toml",
+            "summary.json",
+            "sweep.toml",
+            "thesis.tex",
+        ];
         for f in all {
             std::fs::write(d.join(f), "").unwrap();
         }
         let e = RunFolder::claim(&d, true).unwrap_err().to_string();
-        assert!(e.contains("does not look like a deltaloop run folder"), "{e}");
+        assert!(
+            e.contains("does not look like a deltaloop run folder"),
+            "{e}"
+        );
         let mut want = all.map(String::from).to_vec();
         want.sort();
         assert_eq!(names(&d), want);
@@ -594,7 +613,12 @@ mod tests {
         let run = d.join("a/b/run");
         let f = RunFolder::claim(&run, false).unwrap();
         std::fs::write(run.join("config.toml"), "x").unwrap();
-        assert!(RunFolder::claim(&run, true).unwrap_err().to_string().contains("in use"));
+        assert!(
+            RunFolder::claim(&run, true)
+                .unwrap_err()
+                .to_string()
+                .contains("in use")
+        );
         drop(f);
         assert!(RunFolder::claim(&run, false).is_err());
         let f = RunFolder::claim(&run, true).unwrap();
@@ -606,7 +630,9 @@ mod tests {
         std::fs::create_dir(&user).unwrap();
         RunFolder::claim(&user, false).unwrap().release_unused();
         assert!(user.is_dir() && names(&user).is_empty());
-        RunFolder::claim(&d.join("x/y/z"), false).unwrap().release_unused();
+        RunFolder::claim(&d.join("x/y/z"), false)
+            .unwrap()
+            .release_unused();
         assert!(!d.join("x").exists());
         let _ = std::fs::remove_dir_all(&d);
     }

@@ -185,7 +185,10 @@ pub fn command_files(cfg: &RunConfig) -> Vec<(PathBuf, &'static str)> {
             .collect::<Vec<_>>()
     };
     let mut v = named(&cfg.plant.command, "a file of the plant command");
-    v.extend(named(&cfg.controller.command, "a file of the controller command"));
+    v.extend(named(
+        &cfg.controller.command,
+        "a file of the controller command",
+    ));
     v
 }
 

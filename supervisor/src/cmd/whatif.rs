@@ -60,9 +60,14 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| output::default_run_dir(&format!("whatif-{}", cfg.name)));
-    let sources: Vec<(&std::path::Path, &str)> = std::iter::once((a.config.as_path(), "the scenario file"))
-        .chain(a.latency.iter().map(|p| (p.as_path(), "a --latency source")))
-        .collect();
+    let sources: Vec<(&std::path::Path, &str)> =
+        std::iter::once((a.config.as_path(), "the scenario file"))
+            .chain(
+                a.latency
+                    .iter()
+                    .map(|p| (p.as_path(), "a --latency source")),
+            )
+            .collect();
     let planned = whatif::plan(Request {
         config: cfg,
         config_path: &a.config,
