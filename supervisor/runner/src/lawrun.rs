@@ -80,6 +80,19 @@ impl RunSinks<'_> {
         self.mcap.is_some()
     }
 
+    /// Whether the trace could not be written (a full disk): the run stops there.
+    pub fn failed(&self) -> bool {
+        self.trace.as_ref().is_some_and(TraceWriter::failed)
+    }
+
+    /// Hands the trace rows written so far to the kernel; the trace's first write error, if any.
+    pub fn flush(&mut self) -> Result<()> {
+        match &mut self.trace {
+            Some(t) => t.flush(),
+            None => Ok(()),
+        }
+    }
+
     /// Tick k's timing row (process modes), for the MCAP file.
     pub fn timing(&mut self, cells: &[Option<u64>; 13]) {
         if let Some(m) = &mut self.mcap
