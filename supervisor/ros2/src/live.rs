@@ -333,8 +333,12 @@ impl LawTopics {
 const OK: u8 = 0;
 const WARN: u8 = 1;
 
+/// Live: each tick as soon as it is recorded, not [`deltaloop_study::record::OPEN_TICKS`]
+/// later when it is final (what it publishes does not change after).
 impl TickSink for LawTopics {
-    fn take(&mut self, r: &TickRecord, row: &RefRow, _n_true: Option<Vec3>) {
+    fn take(&mut self, _r: &TickRecord, _row: &RefRow, _n_true: Option<Vec3>) {}
+
+    fn recorded(&mut self, r: &TickRecord, row: &RefRow) {
         let k = r.sample.k;
         self.last_k = k;
         self.health

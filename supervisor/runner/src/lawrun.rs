@@ -72,6 +72,12 @@ impl TickSink for RunSinks<'_> {
             t.take(r, row, n_true);
         }
     }
+
+    fn recorded(&mut self, r: &TickRecord, row: &RefRow) {
+        if let Some(t) = &mut self.tap {
+            t.recorded(r, row);
+        }
+    }
 }
 
 impl RunSinks<'_> {
