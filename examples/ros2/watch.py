@@ -1,7 +1,7 @@
 """Records what a `deltaloop run … --ros2` publishes for one law, as JSON lines, over plain DDS.
 
     python examples/ros2/watch.py --domain N --out FILE [--namespace deltaloop] [--law tdc]
-        [--idle-s 5] [--wait-s 60]
+        [--idle-s 5] [--wait-s 60] [--arrival]
 
 Subscribes to the law's `rt/<namespace>/<law>/{joint_states,reference,trajectory}` and to the
 shared `rt/tf`, `rt/clock`, `rt/diagnostics` and `rt/rosout`, and writes one line per sample:
@@ -10,6 +10,8 @@ shared `rt/tf`, `rt/clock`, `rt/diagnostics` and `rt/rosout`, and writes one lin
      "name": ["joint_1", "joint_2", "joint_3"], "position": ["0x1.0p-3", …], "velocity": […], "effort": […]}
 
 Every float64 is written as its `float.hex()` string, so it reads back exactly: `float.fromhex(s)`.
+With `--arrival` each line also has `arrival_ns`: when the watcher took the sample, CLOCK_MONOTONIC
+ns (the clock of a run's `<law>.timing.csv`, on the same host).
 The other types: trajectory {sec, nanosec, frame_id, joint_names, points: [{positions,
 velocities, accelerations, effort, sec, nanosec}]} (one line for the whole trajectory); tf
 {transforms: [{sec, nanosec, frame_id, child_frame_id, translation: [x, y, z], rotation:
@@ -95,6 +97,7 @@ def main() -> int:
     p.add_argument("--out", required=True, help="the JSON-lines file to write")
     p.add_argument("--idle-s", type=float, default=5.0, help="exit this long after the last sample")
     p.add_argument("--wait-s", type=float, default=60.0, help="longest wait for the first sample (0: for ever)")
+    p.add_argument("--arrival", action="store_true", help="add arrival_ns (CLOCK_MONOTONIC) to each line")
     a = p.parse_args()
 
     stop = [None]
@@ -138,6 +141,10 @@ def main() -> int:
                 while True:
                     got = r.take(N=_BATCH, condition=cond)
                     batch = [to_json(s) for s in got if not isinstance(s, InvalidSample)]
+                    if a.arrival:
+                        now = time.monotonic_ns()
+                        for rec in batch:
+                            rec["arrival_ns"] = now
                     for rec in batch:
                         out.write(json.dumps({"topic": name, **rec}, separators=(",", ":")) + "\n")
                     n += len(batch)

@@ -236,56 +236,126 @@ pub fn render(
 /// `trace.csv` rows of one law ([`COLUMNS`]), written as the ticks are recorded (the file's
 /// part for that law; [`join_trace`] puts the parts behind the header).
 ///
-/// A write error is kept (the first one, naming the file) and returned by [`TraceWriter::finish`].
+/// Rows are encoded into a buffer of about [`WRITE_BYTES`] and handed to the kernel whole: the
+/// file always ends at the end of a row. A write error (a full disk) cuts the file back to its
+/// last whole row and is kept (the first one, naming the file): [`TraceWriter::failed`] says so
+/// at once, [`TraceWriter::finish`] returns it, and later rows are not written.
 pub struct TraceWriter {
     path: PathBuf,
     law: Law,
-    w: csv::Writer<std::fs::File>,
+    rows: csv::Writer<Rows>,
+    file: std::fs::File,
+    /// Bytes of the file, all of them whole rows.
+    whole: u64,
     fields: Vec<String>,
     error: Option<anyhow::Error>,
+}
+
+/// The rows a [`TraceWriter`] holds before it writes them, bytes (about a hundred rows).
+pub const WRITE_BYTES: usize = 64 * 1024;
+
+/// Encoded rows not yet written (the cell lets the writer empty them behind the encoder).
+struct Rows(std::cell::RefCell<Vec<u8>>);
+
+impl std::io::Write for Rows {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.0.get_mut().extend_from_slice(b);
+        Ok(b.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
 impl TraceWriter {
     /// Creates the part file `path` for `law`'s rows, starting with the header (a part is a valid
     /// CSV on its own: what a killed run leaves is readable).
     pub fn create(path: &Path, law: Law) -> Result<Self> {
-        let mut w = csv::WriterBuilder::new()
-            .has_headers(false)
-            .from_path(path)
+        let file = std::fs::File::create(path)
             .with_context(|| format!("cannot create {}", path.display()))?;
         let header = header();
-        w.write_record(&header)
-            .with_context(|| format!("cannot write {}", path.display()))?;
-        Ok(Self {
+        let mut w = Self {
             path: path.to_path_buf(),
             law,
-            w,
+            rows: csv::WriterBuilder::new()
+                .has_headers(false)
+                .from_writer(Rows(std::cell::RefCell::new(Vec::with_capacity(
+                    WRITE_BYTES + MAX_ROW_BYTES as usize,
+                )))),
+            file,
+            whole: 0,
             fields: vec![String::new(); header.len()],
             error: None,
-        })
+        };
+        w.encode(&header);
+        w.flush()?;
+        Ok(w)
     }
 
-    /// Writes tick k's row (into the fields allocated at creation: no allocation per row).
+    /// Writes tick k's row (into the fields and buffer allocated at creation: no allocation per
+    /// row).
     pub fn write(&mut self, rec: &TickRecord, reference: &RefRow, n_true: Option<Vec3>) {
         if self.error.is_some() {
             return;
         }
         render(self.law, rec, reference, n_true, &mut self.fields);
-        if let Err(e) = self.w.write_record(&self.fields) {
-            self.error = Some(
-                anyhow::Error::new(e).context(format!("cannot write {}", self.path.display())),
-            );
+        let fields = std::mem::take(&mut self.fields);
+        self.encode(&fields);
+        self.fields = fields;
+        if self.rows.get_ref().0.borrow().len() >= WRITE_BYTES {
+            self.write_rows();
         }
     }
 
-    /// Flushes the part file; the first write error, if any.
-    pub fn finish(mut self) -> Result<()> {
-        if let Some(e) = self.error.take() {
-            return Err(e);
+    /// Encodes one row into the buffer (memory only).
+    fn encode<T: AsRef<[u8]>>(&mut self, fields: &[T]) {
+        // Into a Vec: neither can fail but for memory.
+        let _ = self.rows.write_record(fields);
+        let _ = self.rows.flush();
+    }
+
+    /// Writes the buffered rows; on failure cuts the file back to its last whole row.
+    fn write_rows(&mut self) {
+        use std::io::Write as _;
+        let mut buf = self.rows.get_ref().0.borrow_mut();
+        if self.error.is_some() || buf.is_empty() {
+            return;
         }
-        self.w
-            .flush()
-            .with_context(|| format!("cannot write {}", self.path.display()))
+        match self.file.write_all(&buf) {
+            Ok(()) => self.whole += buf.len() as u64,
+            Err(e) => {
+                let _ = self.file.set_len(self.whole);
+                self.error = Some(
+                    anyhow::Error::new(e).context(format!("cannot write {}", self.path.display())),
+                );
+            }
+        }
+        buf.clear();
+    }
+
+    /// Whether a write has failed (the rows stop there).
+    pub fn failed(&self) -> bool {
+        self.error.is_some()
+    }
+
+    /// Hands every row so far to the kernel (a killed run keeps them); the first write error, if
+    /// any.
+    pub fn flush(&mut self) -> Result<()> {
+        self.write_rows();
+        match &self.error {
+            Some(e) => Err(anyhow::anyhow!("{e:#}")),
+            None => Ok(()),
+        }
+    }
+
+    /// Writes what is left; the first write error, if any.
+    pub fn finish(mut self) -> Result<()> {
+        self.write_rows();
+        match self.error.take() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
     }
 }
 
@@ -310,6 +380,15 @@ pub fn max_bytes(study: &Study) -> u64 {
 /// disk): a CSV with the same header.
 pub fn trace_of(dir: &Path, law: Law) -> PathBuf {
     dir.join(format!("trace.{law}.csv"))
+}
+
+/// Keeps the rows of a law that could not finish (its trace failed: a full disk) apart from
+/// `trace.csv`, as [`trace_of`] that law (whole rows up to the failed write).
+pub fn keep_apart(dir: &Path, law: Law) {
+    let part = trace_part(dir, law);
+    if part.is_file() {
+        let _ = std::fs::rename(&part, trace_of(dir, law));
+    }
 }
 
 /// Writes `trace.csv` in `dir` from the part files of `laws`, in order: the first part becomes the

@@ -131,11 +131,14 @@ pub fn trajectory_of(reference: &JointReference, ts_ns: u64) -> JointTrajectory 
     }
 }
 
-/// The loop's health over the last second of wall time, for `/diagnostics`.
+/// The loop's health over the last second of wall time, for `/diagnostics`: from the first
+/// tick it counts (not from when the law's topics were made).
 struct Health {
-    since: Instant,
+    /// When its first tick came; None before it.
+    since: Option<Instant>,
     first_k: u64,
     ticks: u64,
+    /// Ticks whose reply was not applied (late, skipped, missed): the drives held.
     misses: u64,
     /// A_k − t_k of the applied commands, µs.
     arrival_us: hdrhistogram::Histogram<u64>,
@@ -144,13 +147,39 @@ struct Health {
 impl Health {
     fn new() -> Self {
         Self {
-            since: Instant::now(),
+            since: None,
             first_k: 0,
             ticks: 0,
             misses: 0,
             arrival_us: hdrhistogram::Histogram::new_with_bounds(1, 60_000_000, 3)
                 .expect("static bounds"),
         }
+    }
+
+    /// Counts tick k (`missed`: its reply was not applied; `arrival_ns`: A_k − t_k).
+    fn count(&mut self, k: u64, missed: bool, arrival_ns: Option<u64>) {
+        if self.since.is_none() {
+            self.since = Some(Instant::now());
+            self.first_k = k;
+        }
+        self.ticks += 1;
+        self.misses += u64::from(missed);
+        if let Some(a) = arrival_ns {
+            let _ = self.arrival_us.record((a / 1000).max(1));
+        }
+    }
+
+    /// Whether a second of wall time has passed since its first tick.
+    fn second_over(&self) -> bool {
+        self.since.is_some_and(|t| t.elapsed().as_secs() >= 1)
+    }
+
+    /// Starts over (the next interval).
+    fn reset(&mut self) {
+        self.since = None;
+        self.ticks = 0;
+        self.misses = 0;
+        self.arrival_us.reset();
     }
 }
 
@@ -259,10 +288,12 @@ impl LawTopics {
         }
     }
 
+    /// One `/diagnostics` status of the ticks counted since the last one, the last of them
+    /// `k`: WARN if any of them missed, else OK.
     fn diagnose(&mut self, k: u64) {
         let h = &mut self.health;
-        let wall = h.since.elapsed().as_secs_f64();
-        let sim = (k - h.first_k) as f64 * self.run.ts_ns as f64 * 1e-9;
+        let wall = h.since.map_or(0.0, |t| t.elapsed().as_secs_f64());
+        let sim = (k + 1).saturating_sub(h.first_k) as f64 * self.run.ts_ns as f64 * 1e-9;
         let q = |p: f64| h.arrival_us.value_at_quantile(p).to_string();
         let values = [
             ("ticks", h.ticks.to_string()),
@@ -272,7 +303,7 @@ impl LawTopics {
             ("real_time_factor", format!("{:.3}", sim / wall.max(1e-9))),
             ("dropped_samples", self.dropped.to_string()),
         ];
-        let level = if h.misses > 0 { 1 } else { 0 };
+        let level = if h.misses > 0 { WARN } else { OK };
         let status = DiagnosticStatus {
             level,
             name: self.status_name.clone(),
@@ -294,27 +325,28 @@ impl LawTopics {
             status: vec![status],
         };
         let _ = lock(&self.run.diagnostics).write(m, None);
-        *h = Health::new();
-        h.first_k = k;
+        h.reset();
     }
 }
 
+/// diagnostic_msgs/DiagnosticStatus levels.
+const OK: u8 = 0;
+const WARN: u8 = 1;
+
+/// Live: each tick as soon as it is recorded, not [`deltaloop_study::record::OPEN_TICKS`]
+/// later when it is final (what it publishes does not change after).
 impl TickSink for LawTopics {
-    fn take(&mut self, r: &TickRecord, row: &RefRow, _n_true: Option<Vec3>) {
+    fn take(&mut self, _r: &TickRecord, _row: &RefRow, _n_true: Option<Vec3>) {}
+
+    fn recorded(&mut self, r: &TickRecord, row: &RefRow) {
         let k = r.sample.k;
         self.last_k = k;
-        let h = &mut self.health;
-        h.ticks += 1;
-        if matches!(r.fate, ReplyFate::Missed | ReplyFate::Late) {
-            h.misses += 1;
-        }
-        if let Some(a) = r.arrival_ns {
-            let _ = h.arrival_us.record((a / 1000).max(1));
-        }
+        self.health
+            .count(k, r.fate != ReplyFate::Applied, r.arrival_ns);
         if k.is_multiple_of(self.every) {
             self.publish(r, row);
         }
-        if self.health.since.elapsed().as_secs() >= 1 {
+        if self.health.second_over() {
             self.diagnose(k);
         }
     }
@@ -322,6 +354,10 @@ impl TickSink for LawTopics {
 
 impl Drop for LawTopics {
     fn drop(&mut self) {
+        // The ticks of the last (part of a) second.
+        if self.health.ticks > 0 {
+            self.diagnose(self.last_k);
+        }
         let mut mine = vec![self.joints.guid()];
         if let Some(rt) = &self.reference {
             mine.extend(rt.guids());

@@ -176,7 +176,8 @@ pub fn run_schedule<'a>(
             }
         };
         last = Some(k);
-        if !rec.tick(&state, reply.as_ref()) {
+        // A trace that cannot be written (a full disk) ends the run at its first failed write.
+        if !rec.tick(&state, reply.as_ref()) || rec.sink().failed() {
             return lawrun::finish(rec, None);
         }
         match plant.advance(arrival) {

@@ -72,12 +72,31 @@ impl TickSink for RunSinks<'_> {
             t.take(r, row, n_true);
         }
     }
+
+    fn recorded(&mut self, r: &TickRecord, row: &RefRow) {
+        if let Some(t) = &mut self.tap {
+            t.recorded(r, row);
+        }
+    }
 }
 
 impl RunSinks<'_> {
     /// Whether [`Self::timing`] has anywhere to write.
     pub fn wants_timing(&self) -> bool {
         self.mcap.is_some()
+    }
+
+    /// Whether the trace could not be written (a full disk): the run stops there.
+    pub fn failed(&self) -> bool {
+        self.trace.as_ref().is_some_and(TraceWriter::failed)
+    }
+
+    /// Hands the trace rows written so far to the kernel; the trace's first write error, if any.
+    pub fn flush(&mut self) -> Result<()> {
+        match &mut self.trace {
+            Some(t) => t.flush(),
+            None => Ok(()),
+        }
     }
 
     /// Tick k's timing row (process modes), for the MCAP file.

@@ -509,8 +509,12 @@ fn write_results(
     if mode == LoopMode::Realtime && !metrics.is_empty() {
         md.push_str(&latency_cost_markdown(study, metrics)?);
     }
-    let traced = &cfg.controller.laws[..];
-    output::write_run_folder(dir, &summary, cfg.record.trace.then_some(traced), &md)?;
+    // `trace.csv` holds whole laws: one that failed (a full disk) keeps what it wrote apart.
+    let traced: Vec<Law> = laws.runs.iter().map(|r| r.law).collect();
+    for &law in cfg.controller.laws.iter().filter(|l| !traced.contains(l)) {
+        output::trace::keep_apart(dir, law);
+    }
+    output::write_run_folder(dir, &summary, cfg.record.trace.then_some(&traced[..]), &md)?;
     let mut table = report::terminal_table(cfg, label.as_deref(), metrics);
     if mode.is_process() {
         table.push_str(&report::timing_table(metrics, &timing_summaries));

@@ -32,6 +32,7 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
     overrides.check_mode(a.mode)?;
     let cfg = run::load_config(&a.config, &overrides)?;
     overrides.remote.check_run(a.mode, &cfg, a.sensitivity)?;
+    refuse_if_too_big(&cfg, a.mode, a.out.out.as_deref())?;
     let tap = crate::ops::ros2::live_tap(&cfg, overrides.ros2)?;
     let o = run::run(RunRequest {
         tap,
@@ -44,4 +45,33 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
     })?;
     o.print();
     Ok(())
+}
+
+/// Refuses up front a run whose per-tick files would not fit on the disk of its run folder (a
+/// long `--hold-s`), as `soak` refuses a long `--duration`.
+fn refuse_if_too_big(
+    cfg: &deltaloop_config::RunConfig,
+    mode: LoopMode,
+    out: Option<&std::path::Path>,
+) -> Result<()> {
+    let laws = cfg.controller.laws.len() as u64;
+    // Ticks 0..=N and the state after them, per law.
+    let ticks = (cfg.ticks(cfg.motion_duration_s()) + 2).saturating_mul(laws);
+    let record = deltaloop_config::RecordSection {
+        // In-process runs write no timing file.
+        timing_csv: cfg.record.timing_csv && mode.is_process(),
+        ..cfg.record.clone()
+    };
+    let dir = out.map_or_else(|| crate::output::default_run_dir(&cfg.name), PathBuf::from);
+    let asked = format!(
+        "a run of {:.0} s (scenario.hold_s = {}, {laws} law{})",
+        cfg.motion_duration_s() + cfg.scenario.hold_s,
+        cfg.scenario.hold_s,
+        if laws == 1 { "" } else { "s" }
+    );
+    let ask = crate::ops::soak::DiskAsk {
+        asked: &asked,
+        shorter: "scenario.hold_s (--hold-s)",
+    };
+    crate::ops::soak::refuse_if_too_big(ticks, &record, &dir, &ask)
 }

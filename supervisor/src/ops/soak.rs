@@ -65,14 +65,21 @@ fn free_bytes(path: &Path) -> Option<u64> {
     Some(st.f_bavail as u64 * st.f_frsize as u64)
 }
 
-/// Err with one line if a run of `ticks` ticks recording what `record` asks would not fit in
-/// `free` bytes.
+/// What a run asks of the disk, in the words of its refusal: `asked` names the run and its
+/// length as given (`--duration 1day`), `shorter` what to shorten (`--duration`).
+pub struct DiskAsk<'a> {
+    pub asked: &'a str,
+    pub shorter: &'a str,
+}
+
+/// Err with one line if a run of `ticks` ticks (of every law) recording what `record` asks
+/// would not fit in `free` bytes.
 pub fn check_disk(
     ticks: u64,
     record: &RecordSection,
     free: u64,
     dir: &Path,
-    duration: &str,
+    ask: &DiskAsk<'_>,
 ) -> Result<(), String> {
     let (per_tick, files) = per_tick_disk(record);
     let need = ticks.saturating_mul(per_tick);
@@ -81,11 +88,27 @@ pub fn check_disk(
     }
     let gb = |b: u64| b as f64 / 1e9;
     Err(format!(
-        "--duration {duration} writes about {:.1} GB ({ticks} ticks of ≈ {per_tick} B in {files}) but {} has {:.1} GB free: choose a shorter --duration, another --out, or fewer per-tick files ([record] in the config)",
+        "{} writes about {:.1} GB ({ticks} ticks of ≈ {per_tick} B in {files}) but {} has {:.1} GB free: choose a shorter {}, another --out, or fewer per-tick files ([record] in the config)",
+        ask.asked,
         gb(need),
         dir.display(),
-        gb(free)
+        gb(free),
+        ask.shorter
     ))
+}
+
+/// Refuses, before anything is written, a run of `ticks` ticks that would not fit on the file
+/// system of `dir` (or of its nearest existing ancestor); see [`check_disk`].
+pub fn refuse_if_too_big(
+    ticks: u64,
+    record: &RecordSection,
+    dir: &Path,
+    ask: &DiskAsk<'_>,
+) -> anyhow::Result<()> {
+    match free_bytes(dir) {
+        Some(free) => check_disk(ticks, record, free, dir, ask).map_err(|e| anyhow::anyhow!(e)),
+        None => Ok(()),
+    }
 }
 
 /// One minute of loop time: the ticks at loop times in ((index − 1)·60 s, index·60 s], and tick 0
@@ -408,9 +431,12 @@ pub fn soak(r: Request<'_>) -> Result<()> {
         .unwrap_or_else(|| crate::output::default_run_dir(&format!("soak-{}", cfg.name)));
 
     let shown = humantime::format_duration(r.duration).to_string();
-    if let Some(free) = free_bytes(&out) {
-        check_disk(total, &cfg.record, free, &out, &shown).map_err(|e| anyhow::anyhow!(e))?;
-    }
+    let asked = format!("--duration {shown}");
+    let ask = DiskAsk {
+        asked: &asked,
+        shorter: "--duration",
+    };
+    refuse_if_too_big(total, &cfg.record, &out, &ask)?;
     let acc = Arc::new(Mutex::new(MinuteAcc::new(ts)));
     let mut on_tick = {
         let acc = acc.clone();
@@ -641,27 +667,32 @@ mod tests {
     fn a_soak_that_would_fill_the_disk_is_refused_up_front() {
         let ticks = 288_000_000; // 24 h at 3.3 kHz
         let all = RecordSection::default();
-        let e = check_disk(ticks, &all, 59_000_000_000, Path::new("runs/x"), "1day").unwrap_err();
+        let ask = |asked| DiskAsk {
+            asked,
+            shorter: "--duration",
+        };
+        let (day, hour) = (ask("--duration 1day"), ask("--duration 1h"));
+        let e = check_disk(ticks, &all, 59_000_000_000, Path::new("runs/x"), &day).unwrap_err();
         assert!(
             e.starts_with("--duration 1day writes about 216.0 GB (288000000 ticks of ≈ 750 B in trace.csv and timing.csv)"),
             "{e}"
         );
         assert!(e.contains("runs/x has 59.0 GB free"), "{e}");
-        assert!(check_disk(12_000_000, &all, 59_000_000_000, Path::new("."), "1h").is_ok());
+        assert!(check_disk(12_000_000, &all, 59_000_000_000, Path::new("."), &hour).is_ok());
         // Without the trace the day takes 31.7 GB and fits; with no per-tick file nothing grows.
         let timing_only = RecordSection {
             trace: false,
             timing_csv: true,
         };
-        assert!(check_disk(ticks, &timing_only, 59_000_000_000, Path::new("."), "1day").is_ok());
+        assert!(check_disk(ticks, &timing_only, 59_000_000_000, Path::new("."), &day).is_ok());
         let e =
-            check_disk(ticks, &timing_only, 30_000_000_000, Path::new("."), "1day").unwrap_err();
+            check_disk(ticks, &timing_only, 30_000_000_000, Path::new("."), &day).unwrap_err();
         assert!(e.contains("≈ 110 B in timing.csv)"), "{e}");
         let none = RecordSection {
             trace: false,
             timing_csv: false,
         };
-        assert!(check_disk(u64::MAX, &none, 0, Path::new("."), "1day").is_ok());
+        assert!(check_disk(u64::MAX, &none, 0, Path::new("."), &day).is_ok());
         assert!(free_bytes(Path::new("no/such/dir/below/cwd")).is_some_and(|b| b > 0));
     }
 

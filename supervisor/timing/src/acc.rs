@@ -125,6 +125,11 @@ impl TimingAcc {
         self.n
     }
 
+    /// Ts, ns.
+    pub fn ts_ns(&self) -> u64 {
+        self.ts_ns
+    }
+
     /// Also writes each distribution's interval log, `<dir>/<prefix><name>.hlog`, as the ticks
     /// come (the files appear with the first tick).
     pub fn with_hlogs(mut self, dir: &Path, prefix: &str) -> Self {

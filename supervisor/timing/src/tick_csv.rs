@@ -91,9 +91,14 @@ impl TimingCsv {
             .with_context(|| format!("cannot write {}", self.path.display()))
     }
 
-    pub fn finish(mut self) -> Result<()> {
+    /// Hands the rows written so far to the kernel (a killed run keeps them).
+    pub fn flush(&mut self) -> Result<()> {
         self.w
             .flush()
             .with_context(|| format!("cannot write {}", self.path.display()))
+    }
+
+    pub fn finish(mut self) -> Result<()> {
+        self.flush()
     }
 }

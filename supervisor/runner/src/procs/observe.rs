@@ -28,9 +28,22 @@ mod faults;
 /// Ticks the observer holds open at most (a ring indexed by tick).
 const WINDOW: u64 = 32_768;
 
-/// A tick is finished once the loop has been seen this far past it (2.5 s at Ts = 0.3 ms): a
-/// reply up to that late is still filed with its tick (and shows as late).
-const LAG: u64 = 8_192;
+/// How long the supervisor waits for what is missing of a tick, in loop time (ns): a tick is
+/// finished once it is whole (its state, its telemetry and the reply the plant applied, or, for
+/// a reply the plant did not apply, a newer reply of a local controller: it will not answer
+/// this state any more), else once the plant's states are this far past it. A reply later than
+/// that counts as missed; the row is not rewritten after.
+const GRACE_NS: u64 = 100_000_000;
+
+/// The longest wait for the supervisor's copy of a reply that the plant's telemetry says it
+/// applied (ticks; 2.5 s at Ts = 0.3 ms): the copy is on its way (held up behind a bridge), and
+/// a row without it would say "missed" of a reply that was applied.
+const APPLIED_LAG: u64 = 8_192;
+
+/// How often the supervisor hands what it wrote of `trace.<law>.part` and `<law>.timing.csv` to
+/// the kernel (ns of its own clock): a killed run loses at most this much more than the
+/// [`GRACE_NS`] and the recorder's open ticks.
+const FLUSH_EVERY_NS: u64 = 250_000_000;
 
 /// The open ticks, a ring of [`WINDOW`] slots.
 struct Window {
@@ -96,6 +109,14 @@ struct Observation<'a> {
     /// The last tick with a loop message (state, reply, or telemetry of the loop, not of the
     /// safe stop after it).
     last_seen: Option<u64>,
+    /// The newest state seen: the loop's clock as the supervisor sees it (states are drained
+    /// first, so every reply and telemetry sent before one is taken in the same drain).
+    last_state: Option<u64>,
+    /// [`GRACE_NS`] in ticks.
+    grace: u64,
+    /// The controller is across the link: a reply that did not come may yet be said lost
+    /// (REPLIES_LOST), so a tick without one waits the grace.
+    remote_controller: bool,
     /// The newest reply seen (the controller has answered up to its tick).
     last_torque: Option<TorqueMsg>,
     /// The newest telemetry of the loop seen.
@@ -150,12 +171,17 @@ impl<'a> Observation<'a> {
         csv: Option<TimingCsv>,
         on_tick: Option<OnTick<'a>>,
     ) -> Self {
+        let grace = GRACE_NS.div_ceil(timing.ts_ns().max(1)).max(2);
+        let remote_controller = timing.across() == Some(RemoteSide::Controller);
         Self {
             window: Window::new(timing.last_tick() + 1),
             rec,
             timing,
             csv,
             last_seen: None,
+            last_state: None,
+            grace,
+            remote_controller,
             last_torque: None,
             last_tel: None,
             plant_fault: None,
@@ -171,17 +197,47 @@ impl<'a> Observation<'a> {
         }
     }
 
-    /// Takes everything waiting on the observer's ports, and finishes the ticks the loop has
-    /// left [`LAG`] behind.
+    /// Takes everything waiting on the observer's ports, and finishes, in order, every tick that
+    /// is whole or has waited long enough ([`GRACE_NS`]).
     fn drain(&mut self, obs: &Observer) -> Result<()> {
         obs.drain(&mut |m| self.file(m))?;
-        while let Some(seen) = self.last_seen
-            && self.window.next + LAG <= seen
+        while let Some(now) = self.last_state
+            && self.window.next < self.window.last
+            && self.ready(self.window.next, now)
         {
             let t = self.window.take();
             self.finish_tick(t)?;
         }
         Ok(())
+    }
+
+    /// Whether tick k can be finished with the plant's states seen up to tick `now`.
+    fn ready(&mut self, k: u64, now: u64) -> bool {
+        let newer_reply = self.last_torque.is_some_and(|t| t.tick > k);
+        let local = !self.remote_controller;
+        let s = self.window.slot(k);
+        if now >= k + APPLIED_LAG {
+            return true;
+        }
+        let Some(tel) = s.tel.filter(|_| s.state.is_some()) else {
+            return now >= k + self.grace;
+        };
+        let applied = tel.flags & (wire::TEL_MISSED | wire::TEL_SAFE_STOP) == 0;
+        match (s.torque.is_some(), applied) {
+            (true, _) => true,
+            // The plant applied a reply whose copy has not come yet.
+            (false, true) => false,
+            (false, false) => (local && newer_reply) || now >= k + self.grace,
+        }
+    }
+
+    /// Hands what is written of the trace part and the timing file to the kernel (a killed
+    /// supervisor loses only what it has not finished).
+    fn flush(&mut self) -> Result<()> {
+        if let Some(csv) = &mut self.csv {
+            csv.flush()?;
+        }
+        self.rec.sink_mut().flush()
     }
 
     /// Files one message the observer's ports took.
@@ -194,6 +250,7 @@ impl<'a> Observation<'a> {
                 if self.open(m.tick)? {
                     self.window.slot(m.tick).state = Some(m);
                     self.last_seen = max_opt(self.last_seen, m.tick);
+                    self.last_state = max_opt(self.last_state, m.tick);
                 }
             }
             Observed::Torque(m) => {
@@ -487,9 +544,14 @@ fn observe(
     let mut stop_sent: Option<u64> = None;
     let mut diverged_stop = false;
     let mut first_exit: Option<(u64, Sender)> = None;
+    let mut flushed_ns = rt::now_ns();
     loop {
         streams.timing.sample_steal(rt::now_ns(), false);
         streams.drain(obs)?;
+        if rt::now_ns() > flushed_ns + FLUSH_EVERY_NS {
+            streams.flush()?;
+            flushed_ns = rt::now_ns();
+        }
         if let Some(a) = streams.answered() {
             feed.feed(&study.reference, a)?;
         }
@@ -509,7 +571,10 @@ fn observe(
         // rather than let it run on to the scenario's end (regression: a realtime soak whose
         // robot diverged after 2 minutes ran on for the rest of its hour, unrecorded).
         let interrupted = crate::signals::interrupted();
-        let diverged = streams.stopped || streams.non_finite.is_some();
+        // A trace that cannot be written (a full disk) stops the loop too: the run ends with
+        // that error, at its first failed write.
+        let diverged =
+            streams.stopped || streams.non_finite.is_some() || streams.rec.sink().failed();
         if (interrupted || diverged) && stop_sent.is_none() {
             obs.stop();
             stop_sent = Some(now);

@@ -332,6 +332,11 @@ pub trait TickSink {
     /// Tick k is final: its record, its reference row and the TDE truth
     /// N_k = (q̇_{k+1} − q̇_k)/Ts − τᵃ_{k+1}/M̄ (rad/s², true rates; None if tick k + 1 is unknown).
     fn take(&mut self, r: &TickRecord, row: &RefRow, n_true: Option<Vec3>);
+
+    /// Tick k as soon as it is recorded with what the plant did (its telemetry), before it is
+    /// final: a later reply may still mark a missed reply skipped, and its TDE truth waits for
+    /// the next tick. For live views, which should not wait [`OPEN_TICKS`] ticks.
+    fn recorded(&mut self, _r: &TickRecord, _row: &RefRow) {}
 }
 
 /// Ticks kept open after they are recorded: a later reply can still mark them skipped (a
@@ -352,6 +357,8 @@ struct OpenTicks<'a> {
     reference: &'a JointReference,
     m_bar: f64,
     open: VecDeque<(TickRecord, RefRow)>,
+    /// The newest open tick went to [`TickSink::recorded`].
+    told: bool,
     last_k: Option<u64>,
     end: RunEnd,
 }
@@ -403,6 +410,7 @@ impl<'a, S: TickSink> Recorder<'a, S> {
     /// counted: the tick's fates are unknown).
     pub fn applied(&mut self, tel: Option<&TelemetryMsg>) {
         self.ticks.applied(tel);
+        self.ticks.tell(&mut self.sink);
     }
 
     /// The last recorded tick's reply may have been lost on the link (`REPLIES_LOST`): whether
@@ -410,6 +418,7 @@ impl<'a, S: TickSink> Recorder<'a, S> {
     /// is counted.
     pub fn reply_lost(&mut self) {
         self.ticks.reply_lost();
+        self.ticks.tell(&mut self.sink);
     }
 
     /// `n` ticks from `first` whose replies may have been lost on the link were recorded before
@@ -451,6 +460,7 @@ impl<'a> OpenTicks<'a> {
             reference,
             m_bar,
             open: VecDeque::with_capacity(OPEN_TICKS + 1),
+            told: true,
             last_k: None,
             end: RunEnd {
                 law,
@@ -546,12 +556,24 @@ impl<'a> OpenTicks<'a> {
 
     /// Opens a tick; the oldest open tick goes to the sink once more than [`OPEN_TICKS`] are open.
     fn push(&mut self, record: TickRecord, row: RefRow, sink: &mut dyn TickSink) {
+        self.tell(sink);
         self.last_k = Some(record.sample.k);
         self.end.records += 1;
         self.open.push_back((record, row));
+        self.told = false;
         if self.open.len() > OPEN_TICKS {
             self.close_oldest(None, sink);
         }
+    }
+
+    /// Hands the newest open tick to [`TickSink::recorded`], unless it went there already.
+    fn tell(&mut self, sink: &mut dyn TickSink) {
+        if !self.told
+            && let Some((r, row)) = self.open.back()
+        {
+            sink.recorded(r, row);
+        }
+        self.told = true;
     }
 
     /// Hands the oldest open tick to the sink, with its TDE truth from the tick after it (the
@@ -655,6 +677,7 @@ impl<'a> OpenTicks<'a> {
     /// Takes the state after the last tick (N + 1, or wherever the plant stopped), if the plant
     /// got there, closes every open tick and returns how the run ended, with the sink.
     fn finish(mut self, after: Option<&StateMsg>, sink: &mut dyn TickSink) -> RunEnd {
+        self.tell(sink);
         let after = after.map(|s| {
             let sample = measured(s);
             self.hold_previous(sample.k, sample.tau_applied);
