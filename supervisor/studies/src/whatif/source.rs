@@ -449,6 +449,46 @@ mod tests {
         );
     }
 
+    /// Regression: the counts of an `.hgrm` were added in u64 without a check: 10 µs × 2^63 and
+    /// 20 µs × 2^63 wrapped to a total of 0 and printed 1.8e20 % misses with exit 0 (in a release
+    /// build). Counts that add up past 2^64 are refused, in one file or pooled over several.
+    #[test]
+    fn regression_hgrm_counts_that_wrap_u64_are_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let big = 1u64 << 63;
+        let p = file(
+            &d,
+            "w.hgrm",
+            &format!("# values in us\n10 0.5 {big} 2\n20 1.0 {big} inf\n"),
+        );
+        let e = format!("{:#}", Source::load(&p, None).unwrap_err());
+        assert!(e.contains("w.hgrm") && e.contains("2^64"), "{e}");
+        let half = file(&d, "h.hgrm", &format!("# values in us\n10 1.0 {big} inf\n"));
+        let mut two = [
+            Source::load(&half, None).unwrap(),
+            Source::load(&half, None).unwrap(),
+        ];
+        let e = super::super::draw::Pool::new(&mut two, super::super::draw::Model::Independent)
+            .err()
+            .map(|e| format!("{e:#}"))
+            .unwrap_or_default();
+        assert!(e.contains("2^64"), "pooled: {e}");
+    }
+
+    /// Regression: `--latency-unit ns` was ignored for a text file (read in µs all the same),
+    /// and a text file with a byte that is not UTF-8 failed without its line.
+    #[test]
+    fn regression_text_files_take_the_latency_unit_and_name_a_non_utf8_line() {
+        let d = tempfile::tempdir().unwrap();
+        let p = file(&d, "ns.txt", "1500\n");
+        let s = Source::load(&p, Some(Unit::Ns)).unwrap();
+        assert_eq!(s.latencies, Latencies::Sequences(vec![vec![Tick::Reply(1500)]]));
+        let p = d.path().join("bad.txt");
+        std::fs::write(&p, b"10\n20\n3\xff0\n").unwrap();
+        let e = format!("{:#}", Source::load(&p, None).unwrap_err());
+        assert!(e.contains("bad.txt line 3") && e.contains("UTF-8"), "{e}");
+    }
+
     #[test]
     fn an_hlog_adds_up_its_intervals_in_its_stated_unit() {
         use deltaloop_timing::hlog::HlogWriter;
