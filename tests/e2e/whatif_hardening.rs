@@ -333,7 +333,10 @@ fn regression_whatif_refuses_a_law_twice_and_names_tiny_scales_short() {
     let out = tmp.path().join("twice");
     let o = whatif(&out, &["--law", "tdc", "--law", "tdc", "--latency", l]);
     let e = one_line_error(&o);
-    assert!(e.contains("--law tdc") && e.contains("twice"), "{e}");
+    assert!(
+        e.contains("--law") && e.contains("tdc") && e.contains("each law at most once"),
+        "{e}"
+    );
     assert!(!out.exists());
     let out = tmp.path().join("tiny");
     ok(&whatif(
