@@ -309,7 +309,8 @@ fn regression_whatif_refuses_run_folders_replay_would_refuse() {
     ]);
     let e = one_line_error(&o);
     assert!(
-        e.contains("--as-recorded") && e.contains("config.toml") && e.contains("name"),
+        e.contains("--as-recorded")
+            && e.contains("config.toml has name = \"s2-fast\" where the scenario has \"s1-nominal\""),
         "{e}"
     );
     // A text file of zeros is a valid source.

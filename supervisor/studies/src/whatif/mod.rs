@@ -147,6 +147,7 @@ pub fn plan(req: Request<'_>) -> Result<Planned<'_>> {
 fn check_recorded(cfg: &RunConfig, rec: &RunConfig, path: &Path, model: Model) -> Result<()> {
     let mut rec = rec.clone();
     rec.controller.laws.clone_from(&cfg.controller.laws);
+    rec.description.clone_from(&cfg.description);
     let (mine, theirs) = (serde_json::to_value(cfg)?, serde_json::to_value(&rec)?);
     let keys: &[&str] = match model {
         Model::AsRecorded => &[""],
@@ -260,10 +261,12 @@ fn run_all(p: Planned<'_>, out: &Path, progress: bool) -> Result<Outcome> {
         one_run_s.push(t[BASELINE_RUNS / 2]);
     }
 
+    // Job i is law l of replica r at scale s, in that order; not listed up front (a million
+    // replicas took seconds to list before a signal could stop them).
     let nl = laws.len();
-    let jobs: Vec<(usize, u64, usize)> = (0..scales.len())
-        .flat_map(|s| (0..req.replicas).flat_map(move |r| (0..nl).map(move |l| (s, r, l))))
-        .collect();
+    let per_scale = req.replicas as usize * nl;
+    let jobs = scales.len() * per_scale;
+    let job = |i: usize| (i / per_scale, ((i % per_scale) / nl) as u64, i % nl);
     let traces_dir = |s: usize, r: u64| -> PathBuf {
         let d = out.join("traces");
         let d = if scales.len() > 1 {
@@ -284,11 +287,13 @@ fn run_all(p: Planned<'_>, out: &Path, progress: bool) -> Result<Outcome> {
         }
     }
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let bar = output::progress_bar(jobs.len(), progress);
+    let bar = output::progress_bar(jobs, progress);
     bar.set_message("replicas");
     let t0 = Instant::now();
-    let samples = deltaloop_runner::pool::map(&jobs, threads, |&(s, r, l)| {
-        go_on()?;
+    // After Ctrl-C no job starts (a million of them, each returning an error with its
+    // backtrace, took minutes).
+    let samples = deltaloop_runner::pool::map_until(jobs, threads, signals::interrupted, |i| {
+        let (s, r, l) = job(i);
         let law = laws[l];
         let keep = Keep {
             trace: req
@@ -322,8 +327,15 @@ fn run_all(p: Planned<'_>, out: &Path, progress: bool) -> Result<Outcome> {
     });
     bar.finish_and_clear();
     let wall_s = t0.elapsed().as_secs_f64();
+    // A job not run means a signal came, which `go_on` reports first.
     go_on()?;
-    let samples = samples.into_iter().collect::<Result<Vec<Sample>>>()?;
+    if samples.len() != jobs {
+        bail!("{} of {jobs} replicas ran", samples.len());
+    }
+    let samples = samples
+        .into_iter()
+        .map(|(_, s)| s)
+        .collect::<Result<Vec<Sample>>>()?;
     if req.keep_traces {
         for s in 0..scales.len() {
             for r in 0..req.replicas {
