@@ -37,4 +37,5 @@ mod sweep_repeats;
 mod timing_files;
 mod top_foxglove;
 mod whatif;
+mod whatif_hardening;
 mod wire_contract;

@@ -12,7 +12,9 @@ use crate::lawrun::{self, Keep, LawRecorder, LawRun};
 use anyhow::Result;
 use deltaloop_config::Law;
 use deltaloop_model::Vec3;
-use deltaloop_plant::{Arrival, PlantSide};
+use deltaloop_plant::{Arrival, PlantSide, PlantStop};
+use deltaloop_study::record::{Fault, FaultKind};
+use deltaloop_transport::wire::{self, TelemetryMsg};
 use deltaloop_study::Study;
 use deltaloop_study::record::metrics::LawMetrics;
 
@@ -188,7 +190,7 @@ pub fn run_schedule<'a>(
                 if let Some(tel) = stop.failed_interval() {
                     rec.applied(Some(tel));
                 }
-                rec.plant_failed(stop.cause().to_string());
+                end_on(&mut rec, stop);
                 return lawrun::finish(rec, None);
             }
         }
@@ -196,6 +198,27 @@ pub fn run_schedule<'a>(
     // A run that reached its last tick N closes with the state N + 1.
     let after = (last == Some(study.reference.n as u64)).then(|| plant.state());
     lawrun::finish(rec, after.as_ref())
+}
+
+/// How the plant's stop ends the record. A controller-silence stop is the loop fault the
+/// process modes call it (regression: in-process it was recorded as a divergence), and its tick,
+/// whose reply missed the budget like the ones before it, reads late (or missed) and held.
+fn end_on(rec: &mut LawRecorder<'_>, stop: PlantStop) {
+    match stop {
+        PlantStop::ControllerSilent { tick, cause } => {
+            rec.applied(Some(&TelemetryMsg {
+                tick,
+                flags: wire::TEL_MISSED | wire::TEL_HELD,
+                ..TelemetryMsg::default()
+            }));
+            rec.fault(Fault {
+                tick,
+                kind: FaultKind::ControllerSilent,
+                cause,
+            });
+        }
+        other => rec.plant_failed(other.cause().to_string()),
+    }
 }
 
 /// Runs several laws, each on its own thread, each with what `keep(law)` asks for.

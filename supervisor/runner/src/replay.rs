@@ -177,6 +177,39 @@ impl TraceRows {
     }
 }
 
+/// Replay's check of a law's rows: its ticks count 0, 1, 2, … with none lost or repeated; Err
+/// names the row (`line` of `path`) whose tick `k` is not the tick `due`.
+fn tick_due(path: &Path, line: u64, k: u64, due: u64) -> Result<()> {
+    if k == due {
+        return Ok(());
+    }
+    let why = if k > due {
+        format!(
+            "the run lost ticks {due}..{} (or the file was edited)",
+            k - 1
+        )
+    } else {
+        "the file was edited (ticks out of order)".into()
+    };
+    bail!(
+        "{} line {line}: tick {k} where tick {due} was due: {why}; only a run with every tick can be replayed",
+        path.display()
+    )
+}
+
+/// The error for an applied reply without its arrival on `line`, which is not its law's last.
+fn no_arrival(path: &Path, line: u64) -> anyhow::Error {
+    anyhow::anyhow!(
+        "{} line {line}: column arrival_ns is empty: an applied reply needs its arrival in ns (only the row a run diverged on has none)",
+        path.display()
+    )
+}
+
+/// The error for a law whose rows start again on `line`.
+fn law_twice(path: &Path, line: u64, law: Law) -> anyhow::Error {
+    anyhow::anyhow!("{} line {line}: law `{law}` appears twice", path.display())
+}
+
 /// The recorded rows of one law as an arrival schedule for the in-process loop.
 struct Replayed<'r> {
     rows: &'r mut TraceRows,
@@ -190,29 +223,11 @@ impl Schedule for Replayed<'_> {
         let Some(r) = self.rows.next_of(self.law)? else {
             return Ok(None);
         };
-        if r.k != k {
-            let why = if r.k > k {
-                format!(
-                    "the run lost ticks {k}..{} (or the file was edited)",
-                    r.k - 1
-                )
-            } else {
-                "the file was edited (ticks out of order)".into()
-            };
-            bail!(
-                "{} line {}: tick {} where tick {k} was due: {why}; only a run with every tick can be replayed",
-                self.rows.path.display(),
-                self.rows.line,
-                r.k
-            );
-        }
+        tick_due(&self.rows.path, self.rows.line, r.k, k)?;
         if r.fate == ReplyFate::Applied && r.arrival_ns.is_none() {
             let line = self.rows.line;
             if self.rows.next_of(self.law)?.is_some() {
-                bail!(
-                    "{} line {line}: column arrival_ns is empty: an applied reply needs its arrival in ns (only the row a run diverged on has none)",
-                    self.rows.path.display()
-                );
+                return Err(no_arrival(&self.rows.path, line));
             }
             // Regression: every run that diverged by the tracking rule was refused. Its last row
             // is replayed as recorded; the rule ends the replay on it before any arrival counts.
@@ -264,8 +279,10 @@ pub enum Verdict {
 }
 
 /// Reads the transport's part of a finished run's trace, row by row in the file's order, checked
-/// as a replay checks it, into `each`; returns the run's study (its config: the transport delay
-/// the arrivals include). Memory does not grow with the run.
+/// as a replay checks it (each row's cells; each law's rows in one stretch, its ticks 0, 1, 2, …
+/// with none lost or repeated; an applied reply without its arrival only on a law's last row),
+/// into `each`; returns the run's study (its config: the transport delay the arrivals include).
+/// Memory does not grow with the run.
 pub fn read_recorded(run_dir: &Path, mut each: impl FnMut(&Recorded)) -> Result<Study> {
     let cfg = RunConfig::from_file(&run_dir.join("config.toml"))?;
     if !cfg.record.trace {
@@ -276,7 +293,22 @@ pub fn read_recorded(run_dir: &Path, mut each: impl FnMut(&Recorded)) -> Result<
     }
     let study = Study::new(cfg).context("the recorded scenario")?;
     let mut rows = TraceRows::open(&run_dir.join("trace.csv"), &study)?;
+    let mut laws: Vec<Law> = Vec::new();
+    let (mut due, mut no_arrival_on) = (0u64, None);
     while let Some(r) = rows.next()? {
+        if laws.last() != Some(&r.law) {
+            if laws.contains(&r.law) {
+                return Err(law_twice(&rows.path, rows.line, r.law));
+            }
+            laws.push(r.law);
+            due = 0;
+        } else if let Some(line) = no_arrival_on {
+            return Err(no_arrival(&rows.path, line));
+        }
+        tick_due(&rows.path, rows.line, r.k, due)?;
+        due += 1;
+        no_arrival_on =
+            (r.fate == ReplyFate::Applied && r.arrival_ns.is_none()).then_some(rows.line);
         each(&r);
     }
     Ok(study)
@@ -307,12 +339,7 @@ pub fn replay(run_dir: &Path, out: &Path) -> Result<(Verdict, Vec<LawRun>)> {
     let mut runs = Vec::new();
     while let Some(first) = rows.next()? {
         if laws.contains(&first.law) {
-            bail!(
-                "{} line {}: law `{}` appears twice",
-                recorded.display(),
-                rows.line,
-                first.law
-            );
+            return Err(law_twice(&recorded, rows.line, first.law));
         }
         rows.peeked = Some(first);
         let keep = Keep {

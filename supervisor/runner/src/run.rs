@@ -664,6 +664,19 @@ impl std::fmt::Display for Interrupted {
 
 impl std::error::Error for Interrupted {}
 
+/// A command stopped by Ctrl-C / SIGTERM whose result is whole or nothing (`whatif`): it wrote
+/// none of it. The string names what was stopped.
+#[derive(Debug)]
+pub struct Cancelled(pub String);
+
+impl std::fmt::Display for Cancelled {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} interrupted before its end; nothing was written", self.0)
+    }
+}
+
+impl std::error::Error for Cancelled {}
+
 /// A run whose law ended with a status that fails the command (a fault, a stop on request, lost
 /// data); its folder is written. The exit code comes from `status` (`cmd::exit_code`).
 #[derive(Debug)]
@@ -684,7 +697,7 @@ impl std::error::Error for Ended {}
 /// The status an error of [`run`] stands for: `interrupted`, the status of [`Ended`], or
 /// `error` for any other failure.
 pub fn error_status(e: &anyhow::Error) -> RunStatus {
-    if e.downcast_ref::<Interrupted>().is_some() {
+    if e.downcast_ref::<Interrupted>().is_some() || e.downcast_ref::<Cancelled>().is_some() {
         RunStatus::Interrupted
     } else {
         e.downcast_ref::<Ended>()

@@ -37,7 +37,8 @@ pub struct Args {
     /// Replay one run folder's own sequence per law, in order (with --replicas 1): its trace.
     #[arg(long)]
     as_recorded: bool,
-    /// Unit of an HdrHistogram file that does not state its own.
+    /// Unit of a text file's latencies (default us), and of an HdrHistogram file that does not
+    /// state its own.
     #[arg(long, value_parser = Words::<Unit>::new())]
     latency_unit: Option<Unit>,
     /// Also run with the latencies multiplied by these factors, e.g. 0.5,2,4 (1 always runs).
@@ -53,7 +54,10 @@ pub struct Args {
 pub fn exec(a: Args, cx: &Context) -> Result<()> {
     let mut cfg = RunConfig::from_file(&a.config)?;
     if !a.laws.is_empty() {
+        // Checked as the file's own list is (regression: `--law tdc --law tdc` ran the law twice
+        // and wrote its key twice into whatif.json).
         cfg.controller.laws = a.laws.clone();
+        cfg.validate().map_err(|e| anyhow::anyhow!("--law: {e}"))?;
     }
     let dir = a
         .out

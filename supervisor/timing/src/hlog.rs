@@ -148,35 +148,103 @@ const MAX_LOG_BYTES: u64 = 512 << 20;
 
 /// Reads an interval log (whole file in memory: for tests and tools, not for the run).
 pub fn read(path: &Path) -> Result<Hlog> {
+    let mut intervals = Vec::new();
+    let (base_time_s, start_time_s) = each_interval(path, |i| {
+        intervals.push(i);
+        Ok(())
+    })?;
+    Ok(Hlog {
+        base_time_s,
+        start_time_s,
+        intervals,
+    })
+}
+
+/// Reads an interval log, handing each interval to `each` as it is decoded (memory: the file
+/// and one interval's histogram); returns its BaseTime and StartTime (s since the epoch).
+pub fn each_interval(
+    path: &Path,
+    mut each: impl FnMut(Interval) -> Result<()>,
+) -> Result<(Option<f64>, Option<f64>)> {
     let bytes = deltaloop_config::files::read_regular(path, MAX_LOG_BYTES, "an interval log")
         .map_err(|e| anyhow!("cannot read {}: {e}", path.display()))?;
     let bad = |what: &str| anyhow!("{}: {what}", path.display());
-    let mut log = Hlog {
-        base_time_s: None,
-        start_time_s: None,
-        intervals: Vec::new(),
-    };
-    let mut de = Deserializer::new();
+    let (mut base, mut start) = (None, None);
     for entry in IntervalLogIterator::new(&bytes) {
         match entry.map_err(|e| bad(&format!("not an interval log ({e:?})")))? {
-            LogEntry::StartTime(t) => log.start_time_s = Some(t.as_secs_f64()),
-            LogEntry::BaseTime(t) => log.base_time_s = Some(t.as_secs_f64()),
+            LogEntry::StartTime(t) => start = Some(t.as_secs_f64()),
+            LogEntry::BaseTime(t) => base = Some(t.as_secs_f64()),
             LogEntry::Interval(i) => {
                 let raw = base64::engine::general_purpose::STANDARD
                     .decode(i.encoded_histogram())
                     .map_err(|e| bad(&format!("interval is not base64 ({e})")))?;
-                let hist = de
-                    .deserialize(&mut raw.as_slice())
-                    .map_err(|e| bad(&format!("interval is not a V2 histogram ({e:?})")))?;
-                log.intervals.push(Interval {
+                let hist = decode(&raw)
+                    .map_err(|e| bad(&format!("interval at {} s: {e}", i.start_timestamp().as_secs_f64())))?;
+                each(Interval {
                     start_s: i.start_timestamp().as_secs_f64(),
                     length_s: i.duration().as_secs_f64(),
                     hist,
-                });
+                })?;
             }
         }
     }
-    Ok(log)
+    Ok((base, start))
+}
+
+/// The cookies of HdrHistogram's V2 encoding: plain, and deflated (`V2DeflateSerializer`).
+const V2_COOKIE: u32 = 0x1c84_9313;
+const V2_COMPRESSED_COOKIE: u32 = 0x1c84_9314;
+/// The plain V2 header, bytes: cookie, payload length, normalizing offset, significant digits,
+/// lowest and highest trackable value, integer-to-double ratio.
+const V2_HEADER_BYTES: usize = 40;
+/// Deflate's largest expansion: at most 1032 bytes out of each byte in.
+const DEFLATE_MAX_RATIO: u64 = 1032;
+
+/// Decodes one V2 histogram (deflated or plain), checking each length its header claims against
+/// the bytes there are before anything is allocated for it (regression: a 360-byte log whose
+/// header claimed a 4 GiB payload had 4 GiB allocated). What a payload inflates to is bounded by
+/// deflate's ratio, so every allocation is bounded by the file's size.
+fn decode(raw: &[u8]) -> std::result::Result<Histogram<u64>, String> {
+    use std::io::Read as _;
+    let word = |b: &[u8], at: usize| {
+        b.get(at..at + 4)
+            .map(|w| u32::from_be_bytes([w[0], w[1], w[2], w[3]]))
+    };
+    let inflated;
+    let plain: &[u8] = match word(raw, 0) {
+        Some(V2_COMPRESSED_COOKIE) => {
+            let body = raw.get(8..).unwrap_or_default();
+            let len = word(raw, 4).unwrap_or(u32::MAX) as usize;
+            if len > body.len() {
+                return Err(format!(
+                    "its compressed payload claims {len} bytes, {} are there",
+                    body.len()
+                ));
+            }
+            let mut out = Vec::new();
+            flate2::read::ZlibDecoder::new(&body[..len])
+                .take(DEFLATE_MAX_RATIO * len as u64)
+                .read_to_end(&mut out)
+                .map_err(|e| format!("its payload does not inflate ({e})"))?;
+            inflated = out;
+            &inflated
+        }
+        Some(V2_COOKIE) => raw,
+        _ => return Err("not a V2 histogram (unknown cookie)".into()),
+    };
+    if word(plain, 0) != Some(V2_COOKIE) {
+        return Err("not a V2 histogram (unknown cookie inside)".into());
+    }
+    let claimed = word(plain, 4).unwrap_or(u32::MAX) as usize;
+    let there = plain.len().saturating_sub(V2_HEADER_BYTES);
+    if plain.len() < V2_HEADER_BYTES || claimed > there {
+        return Err(format!(
+            "its histogram's payload claims {claimed} bytes of counts, {there} are there"
+        ));
+    }
+    Deserializer::new()
+        .deserialize(&mut &plain[..])
+        .map_err(|e| format!("not a V2 histogram ({e:?})"))
 }
 
 /// The wall-clock time of a CLOCK_MONOTONIC stamp (ns) from the past: now minus its age.

@@ -68,6 +68,7 @@ impl Pool {
     /// the sources (held once, not twice); independent draws take any source and keep only the
     /// distribution (each distinct outcome once, whatever the record's length).
     pub fn new(sources: &mut [Source], model: Model) -> Result<Self> {
+        let sources_len = sources.len();
         let mut seqs = Vec::new();
         let mut counts: std::collections::BTreeMap<(u8, u64), u64> = Default::default();
         for s in sources.iter_mut() {
@@ -88,7 +89,8 @@ impl Pool {
                         );
                     }
                     for &(v, c) in h.iter() {
-                        *counts.entry(order(Tick::Reply(v))).or_default() += c;
+                        let n = counts.entry(order(Tick::Reply(v))).or_default();
+                        *n = n.checked_add(c).ok_or_else(|| past_2_64(sources_len))?;
                     }
                 }
             }
@@ -104,10 +106,10 @@ impl Pool {
             .into_iter()
             .filter(|&(_, c)| c > 0)
             .map(|(key, c)| {
-                cum += c;
-                (tick_of(key), cum)
+                cum = cum.checked_add(c).ok_or_else(|| past_2_64(sources_len))?;
+                Ok((tick_of(key), cum))
             })
-            .collect();
+            .collect::<Result<_>>()?;
         Ok(Self {
             seqs,
             seq_ends,
@@ -128,6 +130,13 @@ impl Pool {
     fn total_weight(&self) -> u64 {
         self.items.last().map_or(0, |i| i.1)
     }
+}
+
+/// The error for pooled counts past u64 (regression: they wrapped).
+fn past_2_64(sources: usize) -> anyhow::Error {
+    anyhow::anyhow!(
+        "the {sources} --latency sources' counts add up past 2^64 latencies: not records of runs"
+    )
 }
 
 /// The outcome of a sort key.
@@ -253,8 +262,9 @@ impl Schedule for Drawn<'_> {
         Ok(Some(step))
     }
 
+    /// Ctrl-C ends a replica at once: whatif then writes nothing.
     fn interruptible(&self) -> bool {
-        false
+        true
     }
 }
 
@@ -283,8 +293,9 @@ impl Schedule for AsRecorded<'_> {
         }))
     }
 
+    /// Ctrl-C ends a replica at once: whatif then writes nothing.
     fn interruptible(&self) -> bool {
-        false
+        true
     }
 }
 
@@ -300,6 +311,7 @@ mod tests {
             latencies: Latencies::Sequences(seqs),
             laws: vec![],
             ticks: 0,
+            recorded: None,
         }
     }
 
@@ -373,6 +385,7 @@ mod tests {
             latencies: Latencies::Histogram(vec![(10_000, 3), (100_000, 1)]),
             laws: vec![],
             ticks: 4,
+            recorded: None,
         };
         let e = Pool::new(&mut [src.clone()], Model::Block { ticks: 10 })
             .err()

@@ -14,6 +14,8 @@ use deltaloop_config::{Law, RunConfig};
 use deltaloop_report as output;
 use deltaloop_runner::inproc;
 use deltaloop_runner::lawrun::{self, Keep};
+use deltaloop_runner::run::Cancelled;
+use deltaloop_runner::signals;
 use deltaloop_study::Study;
 use draw::{AsRecorded, Drawn, Model, Pool};
 use source::{Kind, Source, Unit};
@@ -122,6 +124,11 @@ pub fn plan(req: Request<'_>) -> Result<Planned<'_>> {
             }
         }
     }
+    for src in &sources {
+        if let Some(rec) = &src.recorded {
+            check_recorded(&study.config, rec, &src.path, model)?;
+        }
+    }
     let pool = Pool::new(&mut sources, model)?;
     Ok(Planned {
         req,
@@ -133,11 +140,93 @@ pub fn plan(req: Request<'_>) -> Result<Planned<'_>> {
     })
 }
 
+/// A run folder's config against the scenario: `--as-recorded` replays the run, so the scenario
+/// must be the run's (the laws aside: `--law` picks among them); a drawn record's verdicts
+/// (late, missed) were made at its period and budget, so those must be the scenario's
+/// (regression: S1's 2668 rows ran `--as-recorded` as S2, which has 668).
+fn check_recorded(cfg: &RunConfig, rec: &RunConfig, path: &Path, model: Model) -> Result<()> {
+    let mut rec = rec.clone();
+    rec.controller.laws.clone_from(&cfg.controller.laws);
+    rec.description.clone_from(&cfg.description);
+    let (mine, theirs) = (serde_json::to_value(cfg)?, serde_json::to_value(&rec)?);
+    let keys: &[&str] = match model {
+        Model::AsRecorded => &[""],
+        _ => &["loop.ts_s", "loop.torque_budget_us"],
+    };
+    for key in keys {
+        let (mut a, mut b) = (&mine, &theirs);
+        for part in key.split('.').filter(|p| !p.is_empty()) {
+            (a, b) = (&a[part], &b[part]);
+        }
+        if let Some((rest, a, b)) = first_difference(a, b) {
+            let at = [*key, rest.as_str()]
+                .into_iter()
+                .filter(|k| !k.is_empty())
+                .collect::<Vec<_>>()
+                .join(".");
+            bail!(
+                "--latency {}: its config.toml has {at} = {b} where the scenario has {a}: {}",
+                path.display(),
+                match model {
+                    Model::AsRecorded => "--as-recorded replays that run: give its config.toml as CONFIG",
+                    _ => "its late and missed ticks were judged at its own period and budget: record at the scenario's",
+                }
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The first place where two JSON values differ: (dotted key, "" at the top; a; b).
+fn first_difference(
+    a: &serde_json::Value,
+    b: &serde_json::Value,
+) -> Option<(String, String, String)> {
+    use serde_json::Value;
+    let null = Value::Null;
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => x
+            .keys()
+            .chain(y.keys().filter(|k| !x.contains_key(*k)))
+            .find_map(|k| {
+                let (p, q) = (x.get(k).unwrap_or(&null), y.get(k).unwrap_or(&null));
+                first_difference(p, q).map(|(rest, p, q)| {
+                    let at = if rest.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{k}.{rest}")
+                    };
+                    (at, p, q)
+                })
+            }),
+        _ if a == b => None,
+        _ => Some((String::new(), a.to_string(), b.to_string())),
+    }
+}
+
 /// How many times each law's in-process run is timed for the speed baseline (the median counts).
 const BASELINE_RUNS: usize = 9;
 
 /// Runs a planned what-if into `out` (claimed by the caller); `progress` draws a bar on stderr.
+/// Ctrl-C / SIGTERM stop it within a replica's tick ([`Cancelled`]); then, as on any error, it
+/// leaves nothing in `out` (no `whatif.json` unless every replica ran, no `traces/`).
 pub fn run(p: Planned<'_>, out: &Path, progress: bool) -> Result<Outcome> {
+    let result = run_all(p, out, progress);
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(out.join("traces"));
+    }
+    result
+}
+
+/// Whether Ctrl-C / SIGTERM asked the what-if to stop: Err to return if so.
+fn go_on() -> Result<()> {
+    if signals::interrupted() {
+        return Err(anyhow::Error::new(Cancelled("whatif".into())));
+    }
+    Ok(())
+}
+
+fn run_all(p: Planned<'_>, out: &Path, progress: bool) -> Result<Outcome> {
     let Planned {
         req,
         study,
@@ -156,26 +245,32 @@ pub fn run(p: Planned<'_>, out: &Path, progress: bool) -> Result<Outcome> {
     let mut one_run_s = Vec::new();
     let mut ideal = Vec::new();
     for &law in &laws {
+        // Each run checked: an interrupted one is short, its RMS not the ideal's.
         let first = inproc::run_law(&study, law, &Keep::default())?;
+        go_on()?;
         ideal.push(deltaloop_runner::replay::max_rms(&first.metrics));
         let mut t: Vec<f64> = (0..BASELINE_RUNS)
             .map(|_| {
                 let t0 = Instant::now();
-                inproc::run_law(&study, law, &Keep::default()).map(|_| t0.elapsed().as_secs_f64())
+                let run = inproc::run_law(&study, law, &Keep::default());
+                go_on()?;
+                run.map(|_| t0.elapsed().as_secs_f64())
             })
             .collect::<Result<_>>()?;
         t.sort_by(f64::total_cmp);
         one_run_s.push(t[BASELINE_RUNS / 2]);
     }
 
+    // Job i is law l of replica r at scale s, in that order; not listed up front (a million
+    // replicas took seconds to list before a signal could stop them).
     let nl = laws.len();
-    let jobs: Vec<(usize, u64, usize)> = (0..scales.len())
-        .flat_map(|s| (0..req.replicas).flat_map(move |r| (0..nl).map(move |l| (s, r, l))))
-        .collect();
+    let per_scale = req.replicas as usize * nl;
+    let jobs = scales.len() * per_scale;
+    let job = |i: usize| (i / per_scale, ((i % per_scale) / nl) as u64, i % nl);
     let traces_dir = |s: usize, r: u64| -> PathBuf {
         let d = out.join("traces");
         let d = if scales.len() > 1 {
-            d.join(format!("x{}", scales[s]))
+            d.join(format!("x{}", summary::scale_key(scales[s])))
         } else {
             d
         };
@@ -184,6 +279,7 @@ pub fn run(p: Planned<'_>, out: &Path, progress: bool) -> Result<Outcome> {
     if req.keep_traces {
         for s in 0..scales.len() {
             for r in 0..req.replicas {
+                go_on()?;
                 let d = traces_dir(s, r);
                 std::fs::create_dir_all(&d)
                     .with_context(|| format!("cannot create {}", d.display()))?;
@@ -191,10 +287,13 @@ pub fn run(p: Planned<'_>, out: &Path, progress: bool) -> Result<Outcome> {
         }
     }
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let bar = output::progress_bar(jobs.len(), progress);
+    let bar = output::progress_bar(jobs, progress);
     bar.set_message("replicas");
     let t0 = Instant::now();
-    let samples = deltaloop_runner::pool::map(&jobs, threads, |&(s, r, l)| {
+    // After Ctrl-C no job starts (a million of them, each returning an error with its
+    // backtrace, took minutes).
+    let samples = deltaloop_runner::pool::map_until(jobs, threads, signals::interrupted, |i| {
+        let (s, r, l) = job(i);
         let law = laws[l];
         let keep = Keep {
             trace: req
@@ -228,10 +327,19 @@ pub fn run(p: Planned<'_>, out: &Path, progress: bool) -> Result<Outcome> {
     });
     bar.finish_and_clear();
     let wall_s = t0.elapsed().as_secs_f64();
-    let samples = samples.into_iter().collect::<Result<Vec<Sample>>>()?;
+    // A job not run means a signal came, which `go_on` reports first.
+    go_on()?;
+    if samples.len() != jobs {
+        bail!("{} of {jobs} replicas ran", samples.len());
+    }
+    let samples = samples
+        .into_iter()
+        .map(|(_, s)| s)
+        .collect::<Result<Vec<Sample>>>()?;
     if req.keep_traces {
         for s in 0..scales.len() {
             for r in 0..req.replicas {
+                go_on()?;
                 output::join_trace(&traces_dir(s, r), &laws)?;
             }
         }

@@ -89,6 +89,29 @@ fn latency_line(json: &WhatIfJson) -> String {
     )
 }
 
+/// The budget rule, when it ended replicas: one line naming it and each law's share so ended
+/// (at any scale); None when no replica faulted.
+fn budget_rule(json: &WhatIfJson) -> Option<String> {
+    let mut shares: Vec<String> = Vec::new();
+    let mut note = |scale: &str, laws: &ByName<LawOut>| {
+        for (law, o) in laws.iter().filter(|(_, o)| o.faulted_share > 0.0) {
+            shares.push(format!("`{law}` {scale}{}", pct(o.faulted_share)));
+        }
+    };
+    match &json.scales {
+        Some(sc) => sc.iter().for_each(|(k, laws)| note(&format!("×{k} "), laws)),
+        None => note("", &json.laws),
+    }
+    (!shares.is_empty()).then(|| {
+        format!(
+            "the budget rule: a reply later than the {:.0} µs budget (loop.torque_budget_us) is a miss, and {} misses in a row (faults.controller_silence_ticks) stop the loop with the controller-silence fault; it ended {} of the replicas",
+            json.latency.budget_us,
+            json.latency.controller_silence_ticks,
+            shares.join(", ")
+        )
+    })
+}
+
 /// The terminal's lines.
 pub fn table(json: &WhatIfJson) -> Vec<String> {
     let rows = rows(json, &json.laws);
@@ -110,6 +133,7 @@ pub fn table(json: &WhatIfJson) -> Vec<String> {
             .collect();
         out.push(cells.join("  ").trim_end().to_string());
     }
+    out.extend(budget_rule(json));
     if let Some(sc) = &json.scales {
         for (s, laws) in sc.iter() {
             let line: Vec<String> = laws
@@ -155,6 +179,9 @@ pub fn markdown(json: &WhatIfJson) -> String {
          target would fall. The CI is that of the mean.\n"
     );
     md_table(&mut s, &rows(json, &json.laws));
+    if let Some(rule) = budget_rule(json) {
+        let _ = writeln!(s, "\nThe faulted replicas: {rule}.");
+    }
     if let Some(sc) = &json.scales {
         let _ = writeln!(s, "\n## Latency scaled\n");
         let _ = writeln!(

@@ -5,7 +5,7 @@
 //! the configured transport delay (which the scenario adds back).
 
 use anyhow::{Context, Result, anyhow, bail};
-use deltaloop_config::files;
+use deltaloop_config::{Law, LoopMode, RunConfig, files};
 use deltaloop_runner::replay;
 use deltaloop_study::record::ReplyFate;
 use std::path::{Path, PathBuf};
@@ -42,6 +42,16 @@ impl Unit {
             Unit::Us => 1e3,
             Unit::Ms => 1e6,
             Unit::S => 1e9,
+        }
+    }
+
+    /// The unit's symbol in messages (`µs`).
+    fn symbol(self) -> &'static str {
+        match self {
+            Unit::Ns => "ns",
+            Unit::Us => "µs",
+            Unit::Ms => "ms",
+            Unit::S => "s",
         }
     }
 
@@ -99,9 +109,11 @@ pub struct Source {
     pub kind: Kind,
     pub latencies: Latencies,
     /// A run folder's sequences by law, in the file's order (for `--as-recorded`).
-    pub laws: Vec<deltaloop_config::Law>,
+    pub laws: Vec<Law>,
     /// How many latencies (ticks, or a histogram's count) it held when loaded.
     pub ticks: u64,
+    /// A run folder's `config.toml` (checked against the what-if's scenario).
+    pub recorded: Option<Box<RunConfig>>,
 }
 
 /// The largest latency file read (text, `.hgrm`, `.hlog`), bytes: 100 M lines of text.
@@ -114,19 +126,21 @@ impl Source {
         let meta = std::fs::metadata(path)
             .map_err(|e| anyhow!("--latency {}: cannot read it: {e}", path.display()))?;
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+        let mut recorded = None;
         let (kind, latencies, laws) = if meta.is_dir() {
-            let (seqs, laws) = run_folder(path)?;
+            let (seqs, laws, config) = run_folder(path)?;
+            recorded = Some(Box::new(config));
             (Kind::RunFolder, Latencies::Sequences(seqs), laws)
         } else if ext == "hgrm" {
             (Kind::Hgrm, Latencies::Histogram(hgrm(path, unit)?), vec![])
         } else if ext == "hlog" {
             (Kind::Hlog, Latencies::Histogram(hlog(path, unit)?), vec![])
         } else {
-            (Kind::Text, Latencies::Sequences(vec![text(path)?]), vec![])
+            (Kind::Text, Latencies::Sequences(vec![text(path, unit)?]), vec![])
         };
         let ticks = match &latencies {
             Latencies::Sequences(s) => s.iter().map(|s| s.len() as u64).sum(),
-            Latencies::Histogram(h) => h.iter().map(|&(_, c)| c).sum(),
+            Latencies::Histogram(h) => total(path, h.iter().map(|&(_, c)| c))?,
         };
         let s = Self {
             path: path.to_path_buf(),
@@ -134,6 +148,7 @@ impl Source {
             latencies,
             laws,
             ticks,
+            recorded,
         };
         if s.ticks == 0 {
             bail!(
@@ -146,7 +161,7 @@ impl Source {
     }
 
     /// A run folder's recorded sequence of `law` (empty if it has none).
-    pub fn sequence_of(&self, law: deltaloop_config::Law) -> &[Tick] {
+    pub fn sequence_of(&self, law: Law) -> &[Tick] {
         match (&self.latencies, self.laws.iter().position(|&l| l == law)) {
             (Latencies::Sequences(s), Some(i)) => &s[i],
             _ => &[],
@@ -154,18 +169,33 @@ impl Source {
     }
 }
 
+/// Latency counts added up, checked (regression: an `.hgrm`'s counts wrapped u64 and gave a
+/// share of misses of 1.8e20 %).
+pub fn total(path: &Path, counts: impl IntoIterator<Item = u64>) -> Result<u64> {
+    counts
+        .into_iter()
+        .try_fold(0u64, u64::checked_add)
+        .ok_or_else(|| {
+            anyhow!(
+                "--latency {}: its counts add up past 2^64 latencies: not a record of a run",
+                path.display()
+            )
+        })
+}
+
 /// A realtime run folder: per law, each tick's fate and latency (`arrival_ns` less the run's
-/// transport delay). The row a run diverged on (applied, no arrival) is kept as a reply at 0 ns:
-/// the replay takes it so, and the divergence rule ends the run on it before it acts.
-fn run_folder(dir: &Path) -> Result<(Vec<Vec<Tick>>, Vec<deltaloop_config::Law>)> {
+/// transport delay), and the run's config. The row a run diverged on (applied, no arrival) is
+/// kept as a reply at 0 ns: the replay takes it so, and the divergence rule ends the run on it
+/// before it acts. The trace is checked as `replay` checks it ([`replay::read_recorded`]), and
+/// against the run's `summary.json`: a lockstep or in-process run is refused (it records no
+/// arrival: every reply acts at its tick), and so is a trace cut short.
+fn run_folder(dir: &Path) -> Result<(Vec<Vec<Tick>>, Vec<Law>, RunConfig)> {
+    let at = || format!("--latency {}", dir.display());
+    let summary = Finished::read(dir).with_context(at)?;
     let mut seqs: Vec<Vec<Tick>> = Vec::new();
     let mut laws = Vec::new();
-    let mut bad = None;
     let study = replay::read_recorded(dir, |r| {
         if laws.last() != Some(&r.law) {
-            if laws.contains(&r.law) {
-                bad.get_or_insert(format!("law `{}` appears twice", r.law));
-            }
             laws.push(r.law);
             seqs.push(Vec::new());
         }
@@ -179,10 +209,10 @@ fn run_folder(dir: &Path) -> Result<(Vec<Vec<Tick>>, Vec<deltaloop_config::Law>)
             s.push(t);
         }
     })
-    .with_context(|| format!("--latency {}", dir.display()))?;
-    if let Some(b) = bad {
-        bail!("--latency {}: trace.csv: {b}", dir.display());
-    }
+    .with_context(at)?;
+    summary
+        .check(dir, &laws, &seqs, study.reference.n as u64)
+        .with_context(at)?;
     // The arrivals count from t_k and include the run's transport delay: take it off.
     let d = study.config.transport_delay_ns();
     if d > 0 {
@@ -194,27 +224,113 @@ fn run_folder(dir: &Path) -> Result<(Vec<Vec<Tick>>, Vec<deltaloop_config::Law>)
             }
         }
     }
-    Ok((seqs, laws))
+    Ok((seqs, laws, study.config))
 }
 
-/// A text file of latencies in µs, one per line; blank lines and `#` comments are skipped.
-fn text(path: &Path) -> Result<Vec<Tick>> {
+/// What a run folder's `summary.json` says of its trace.
+struct Finished {
+    /// The laws that ran every tick 0..=N.
+    completed: Vec<Law>,
+}
+
+/// The largest `summary.json` read, bytes.
+const MAX_SUMMARY_BYTES: u64 = 16 << 20;
+
+impl Finished {
+    /// Reads `summary.json`; Err for a folder without one, or of a mode without arrivals.
+    fn read(dir: &Path) -> Result<Self> {
+        let p = dir.join("summary.json");
+        let bytes = files::read_regular(&p, MAX_SUMMARY_BYTES, "a run's summary").map_err(|e| {
+            anyhow!("cannot read {}: {e} (whatif reads the folder of a finished realtime run)", p.display())
+        })?;
+        let v: serde_json::Value = serde_json::from_slice(&bytes)
+            .map_err(|e| anyhow!("{}: not a run's summary ({e})", p.display()))?;
+        let mode = v["mode"].as_str().unwrap_or_default();
+        match LoopMode::parse(mode) {
+            Ok(LoopMode::Realtime) => {}
+            Ok(m) => bail!(
+                "a {} run records no arrival (its replies act at their tick, so every latency would read 0): give a realtime run folder, or a file of latencies",
+                m.name()
+            ),
+            Err(e) => bail!("{}: column mode: {e}", p.display()),
+        }
+        let completed = v["laws"]
+            .as_object()
+            .into_iter()
+            .flatten()
+            .filter(|(_, m)| m["completed"].as_bool() == Some(true))
+            .filter_map(|(l, _)| Law::parse(l).ok())
+            .collect();
+        Ok(Self { completed })
+    }
+
+    /// A law that completed must have its rows up to N, and the trace must end with its last
+    /// row's line end: else the record was cut.
+    fn check(&self, dir: &Path, laws: &[Law], seqs: &[Vec<Tick>], n: u64) -> Result<()> {
+        let trace = dir.join("trace.csv");
+        if !ends_with_line_end(&trace)? {
+            bail!(
+                "{}: the last row has no line end: the record is cut",
+                trace.display()
+            );
+        }
+        for (law, seq) in laws.iter().zip(seqs) {
+            if self.completed.contains(law) && seq.len() as u64 != n + 1 {
+                bail!(
+                    "{}: law `{law}` has ticks 0..={} but its run completed ticks 0..={n} (summary.json): the record is cut",
+                    trace.display(),
+                    seq.len().saturating_sub(1)
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Whether the file's last byte is `\n` (an empty file: true).
+fn ends_with_line_end(p: &Path) -> Result<bool> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = std::fs::File::open(p).with_context(|| format!("cannot read {}", p.display()))?;
+    let len = f.metadata()?.len();
+    if len == 0 {
+        return Ok(true);
+    }
+    let mut last = [0u8];
+    f.seek(SeekFrom::Start(len - 1))
+        .and_then(|_| f.read_exact(&mut last))
+        .with_context(|| format!("cannot read {}", p.display()))?;
+    Ok(last[0] == b'\n')
+}
+
+/// A text file of latencies, one per line, in `unit` (µs if None); blank lines and `#` comments
+/// are skipped. A line that is not UTF-8 is named.
+fn text(path: &Path, unit: Option<Unit>) -> Result<Vec<Tick>> {
     use std::io::BufRead;
+    let unit = unit.unwrap_or(Unit::Us);
     let file = files::open_regular(path, MAX_FILE_BYTES, "a latency file")
         .map_err(|e| anyhow!("--latency {}: cannot read it: {e}", path.display()))?;
     let mut out = Vec::new();
-    for (i, line) in std::io::BufReader::new(file).lines().enumerate() {
-        let line = line.with_context(|| format!("--latency {}", path.display()))?;
+    for (i, line) in std::io::BufReader::new(file).split(b'\n').enumerate() {
+        let at = || format!("--latency {} line {}", path.display(), i + 1);
+        let line = line.with_context(at)?;
+        let line = std::str::from_utf8(&line).map_err(|e| {
+            anyhow!(
+                "{}: byte {} is not UTF-8 text: expected a number of {} ≥ 0, one per line",
+                at(),
+                e.valid_up_to() + 1,
+                unit.symbol()
+            )
+        })?;
         let v = line.trim();
         if v.is_empty() || v.starts_with('#') {
             continue;
         }
-        out.push(Tick::Reply(latency_ns(v, 1e3).ok_or_else(|| {
+        out.push(Tick::Reply(latency_ns(v, unit.ns()).ok_or_else(|| {
             anyhow!(
-                "--latency {} line {}: {} is not a latency: expected a number of µs ≥ 0, one per line",
-                path.display(),
-                i + 1,
-                deltaloop_config::show_str(v)
+                "{}: {} is not a latency: expected a number of {} ≥ 0, one per line",
+                at(),
+                deltaloop_config::show_str(v),
+                unit.symbol()
             )
         })?));
     }
@@ -298,7 +414,7 @@ fn hgrm(path: &Path, unit: Option<Unit>) -> Result<Vec<(u64, u64)>> {
     // Java's TotalCount is cumulative; deltaloop's own files count each row. A column that adds
     // up to the footer's total counts rows (a cumulative one can only do so when every row but
     // the last is 0, where both readings agree); else it must rise to the total.
-    let sum: u64 = rows.iter().map(|r| r.2).sum();
+    let sum = total(path, rows.iter().map(|r| r.2))?;
     let rising = rows.windows(2).all(|w| w[0].2 <= w[1].2);
     let last = rows.last().map_or(0, |r| r.2);
     let per_row = match footer {
@@ -323,25 +439,24 @@ fn hgrm(path: &Path, unit: Option<Unit>) -> Result<Vec<(u64, u64)>> {
     Ok(out)
 }
 
-/// An HdrHistogram interval log: every interval added up.
+/// An HdrHistogram interval log: every interval added up, one interval in memory at a time.
 fn hlog(path: &Path, unit: Option<Unit>) -> Result<Vec<(u64, u64)>> {
-    let log = deltaloop_timing::hlog::read(path)
-        .with_context(|| format!("--latency {}", path.display()))?;
     let head = files::read_regular(path, MAX_FILE_BYTES, "an interval log")
         .map_err(|e| anyhow!("--latency {}: cannot read it: {e}", path.display()))?;
     let head = String::from_utf8_lossy(&head);
     let comments: Vec<&str> = head.lines().take_while(|l| l.starts_with('#')).collect();
     let scale = unit_of(path, &comments, unit)?.ns();
-    let mut out = Vec::new();
-    for i in &log.intervals {
+    let mut counts: std::collections::BTreeMap<u64, u64> = Default::default();
+    deltaloop_timing::hlog::each_interval(path, |i| {
         for v in i.hist.iter_recorded() {
-            let ns = v.value_iterated_to() as f64 * scale;
-            out.push((ns.round() as u64, v.count_at_value()));
+            let ns = (v.value_iterated_to() as f64 * scale).round() as u64;
+            let c = counts.entry(ns).or_default();
+            *c = total(path, [*c, v.count_at_value()])?;
         }
-    }
-    out.sort_unstable();
-    merge_equal(&mut out);
-    Ok(out)
+        Ok(())
+    })
+    .with_context(|| format!("--latency {}", path.display()))?;
+    Ok(counts.into_iter().collect())
 }
 
 /// Adds up the counts of equal values (sorted input).
@@ -447,6 +562,46 @@ mod tests {
             e.contains("line 2") && e.contains("not a percentile row"),
             "{e}"
         );
+    }
+
+    /// Regression: the counts of an `.hgrm` were added in u64 without a check: 10 µs × 2^63 and
+    /// 20 µs × 2^63 wrapped to a total of 0 and printed 1.8e20 % misses with exit 0 (in a release
+    /// build). Counts that add up past 2^64 are refused, in one file or pooled over several.
+    #[test]
+    fn regression_hgrm_counts_that_wrap_u64_are_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let big = 1u64 << 63;
+        let p = file(
+            &d,
+            "w.hgrm",
+            &format!("# values in us\n10 0.5 {big} 2\n20 1.0 {big} inf\n"),
+        );
+        let e = format!("{:#}", Source::load(&p, None).unwrap_err());
+        assert!(e.contains("w.hgrm") && e.contains("2^64"), "{e}");
+        let half = file(&d, "h.hgrm", &format!("# values in us\n10 1.0 {big} inf\n"));
+        let mut two = [
+            Source::load(&half, None).unwrap(),
+            Source::load(&half, None).unwrap(),
+        ];
+        let e = super::super::draw::Pool::new(&mut two, super::super::draw::Model::Independent)
+            .err()
+            .map(|e| format!("{e:#}"))
+            .unwrap_or_default();
+        assert!(e.contains("2^64"), "pooled: {e}");
+    }
+
+    /// Regression: `--latency-unit ns` was ignored for a text file (read in µs all the same),
+    /// and a text file with a byte that is not UTF-8 failed without its line.
+    #[test]
+    fn regression_text_files_take_the_latency_unit_and_name_a_non_utf8_line() {
+        let d = tempfile::tempdir().unwrap();
+        let p = file(&d, "ns.txt", "1500\n");
+        let s = Source::load(&p, Some(Unit::Ns)).unwrap();
+        assert_eq!(s.latencies, Latencies::Sequences(vec![vec![Tick::Reply(1500)]]));
+        let p = d.path().join("bad.txt");
+        std::fs::write(&p, b"10\n20\n3\xff0\n").unwrap();
+        let e = format!("{:#}", Source::load(&p, None).unwrap_err());
+        assert!(e.contains("bad.txt line 3") && e.contains("UTF-8"), "{e}");
     }
 
     #[test]

@@ -174,6 +174,9 @@ pub struct LatencyOut {
     /// missed, or later than the budget.
     pub miss_share: f64,
     pub budget_us: f64,
+    /// Misses in a row after which the plant stops the loop (`faults.controller_silence_ticks`):
+    /// the replica then ends with the controller-silence fault.
+    pub controller_silence_ticks: u32,
 }
 
 /// Speed: the replicas' wall time against one in-process run of each law timed in the same
@@ -228,9 +231,16 @@ pub struct Inputs<'a> {
     pub threads: usize,
 }
 
-/// The key of a scale in `scales`: its shortest decimal form (`0.5`, `2`).
+/// The key of a scale in `scales` and its `traces/x<key>` folder: its shortest decimal form
+/// (`0.5`, `2`), or its exponent form where that is long (`1e-300`; regression: a 300-character
+/// folder name).
 pub fn scale_key(s: f64) -> String {
-    format!("{s}")
+    let plain = format!("{s}");
+    if plain.len() <= 12 {
+        plain
+    } else {
+        format!("{s:e}")
+    }
 }
 
 /// The samples of law `l` of `laws` laws at scale `s`, replica by replica: `samples` is in the
@@ -354,6 +364,7 @@ fn latency_out(i: &Inputs<'_>) -> LatencyOut {
         max_us: replies.last().map(|r| r.0 as f64 / 1e3),
         miss_share: missed as f64 / ticks.max(1) as f64,
         budget_us: budget_ns as f64 / 1e3,
+        controller_silence_ticks: i.study.config.faults.controller_silence_ticks,
     }
 }
 
