@@ -101,7 +101,8 @@ fn regression_whatif_out_holding_its_config_is_refused() {
 }
 
 /// `run CONFIG --out DIR --force` with CONFIG in DIR (here a run's own config.toml, re-run into
-/// its own folder) would empty DIR, CONFIG with it: refused, the folder untouched.
+/// its own folder) would empty DIR, CONFIG with it: refused, the folder untouched; the same for
+/// a script its controller command names.
 #[test]
 fn regression_run_out_holding_its_config_is_refused() {
     let tmp = tempfile::tempdir().unwrap();
@@ -124,6 +125,26 @@ fn regression_run_out_holding_its_config_is_refused() {
         assert_eq!(entries(&a), before);
         assert_eq!(std::fs::read(&cfg).unwrap(), kept);
     }
+    // The same for a file its controller command names.
+    let script = a.join("ctl.py");
+    std::fs::write(&script, "print()").unwrap();
+    let ctl = format!("python3 {}", s(&script));
+    let e = one_line_error(&deltaloop(&[
+        "run",
+        "configs/s1-nominal.toml",
+        "--mode",
+        "lockstep",
+        "--controller-cmd",
+        &ctl,
+        "--out",
+        s(&a),
+        "--force",
+    ]));
+    assert!(
+        e.contains("contains a file of the controller command"),
+        "{e}"
+    );
+    assert!(script.is_file() && cfg.is_file());
 }
 
 /// `sweep run SWEEP --base BASE --out DIR --force` with the base copy in DIR: refused, BASE kept.
