@@ -127,7 +127,8 @@ fn regression_export_accepted_a_timing_cell_x() {
 
 /// 30 custom segments of an hour each at the shortest period: 10.8 G ticks (about 3 KB).
 fn hostile_config() -> String {
-    let seg = "{ from = [0.25, 0, -0.43], to = [-0.25, 0, -0.43], apex_m = 0.12, duration_s = 3600.0 }";
+    let seg =
+        "{ from = [0.25, 0, -0.43], to = [-0.25, 0, -0.43], apex_m = 0.12, duration_s = 3600.0 }";
     let segs = vec![seg; 30].join(",\n  ");
     format!(
         "name = \"long\"\n[scenario]\npath = \"custom\"\nsegments = [\n  {segs}\n]\n[loop]\nts_s = 1e-5\ntorque_budget_us = 5\n"
@@ -137,8 +138,7 @@ fn hostile_config() -> String {
 /// What the refusal names: the first segment past the bound, its value and the bound.
 fn assert_names_the_bound(err: &str) {
     assert!(
-        err.contains("scenario.segments[0].duration_s` = 3600")
-            && err.contains("300000000 ticks"),
+        err.contains("scenario.segments[0].duration_s` = 3600") && err.contains("300000000 ticks"),
         "{err}"
     );
 }
