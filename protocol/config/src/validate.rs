@@ -43,7 +43,7 @@ pub const MAX_SUBSTEPS: u32 = 1000;
 pub const MAX_HOLD_S: f64 = 86_400.0;
 
 /// The most ticks a run may have, N = round((motion + hold)/Ts): 300 000 000, a day's hold and an
-/// hour of motion at Ts = 0.3 ms (83 h at the default period, 50 min at the shortest). Every
+/// hour of motion at Ts = 0.3 ms (25 h in all; 50 min at the shortest period). Every
 /// command that reads a config checks it in a few operations per segment, so a small file cannot
 /// ask for billions of ticks that take hours to walk before anything starts.
 pub const MAX_TICKS: u64 = 300_000_000;
