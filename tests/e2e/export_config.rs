@@ -100,7 +100,7 @@ fn regression_export_accepted_a_duplicated_tick() {
     let err = export_refused(&dir);
     assert!(
         err.contains(&format!("{} line 12", trace.display()))
-            && err.contains("column k = 9")
+            && err.contains("column k = \"9\"")
             && err.contains("after tick 9"),
         "{err}"
     );

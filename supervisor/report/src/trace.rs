@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use deltaloop_law::Law;
 use deltaloop_model::Vec3;
 use deltaloop_study::Study;
-use deltaloop_study::record::TickRecord;
+use deltaloop_study::record::{ReplyFate, TickRecord};
 use deltaloop_study::reference::RefRow;
 use std::fmt::Arguments;
 use std::path::{Path, PathBuf};
@@ -176,17 +176,139 @@ pub const COLUMNS: [Column; 15] = [
     ARRIVAL,
 ];
 
+/// What `drives` may say (see [`DRIVES`]).
+pub const DRIVES_WORDS: [&str; 5] = ["commanded", "clamped", "held", "rejected", UNKNOWN];
+
+/// `reply` and `drives` of a tick recorded without the plant's telemetry.
+pub const UNKNOWN: &str = "unknown";
+
+/// What a number column holds.
+const A_NUMBER: &str = "a number, or empty";
+
+/// What a column of ns holds.
+pub const A_NS: &str = "a whole number of ns, or empty";
+
+/// A cell of a run's file that is not what its column holds, in one line: `column reply =
+/// "maybe": expected applied, …` (the reader puts the file and line before it).
+pub fn bad_cell(column: &str, value: &str, allowed: &str) -> anyhow::Error {
+    anyhow::anyhow!(
+        "column {column} = {}: expected {allowed}",
+        deltaloop_config::show_str(value)
+    )
+}
+
+/// The position of column `name` in a header read by name: there once, else an error naming it.
+pub fn column_at(header: &csv::StringRecord, name: &str) -> Result<usize> {
+    let mut at = header.iter().enumerate().filter(|(_, c)| *c == name);
+    match (at.next(), at.next()) {
+        (Some((i, _)), None) => Ok(i),
+        (None, _) => anyhow::bail!("no column `{name}`"),
+        (Some(_), Some(_)) => anyhow::bail!("column `{name}` appears twice"),
+    }
+}
+
+/// The `law` cell.
+pub fn law_cell(v: &str) -> Result<Law> {
+    Law::parse(v).map_err(|_| bad_cell(LAW.name, v, &deltaloop_names::one_of::<Law>()))
+}
+
+/// The `k` cell.
+pub fn tick_cell(v: &str) -> Result<u64> {
+    v.parse()
+        .map_err(|_| bad_cell(K.name, v, "a tick number (0, 1, 2, …)"))
+}
+
+/// The `reply` cell: what became of the reply, None if `unknown`.
+pub fn reply_cell(v: &str) -> Result<Option<ReplyFate>> {
+    if v == UNKNOWN {
+        return Ok(None);
+    }
+    ReplyFate::parse(v).map(Some).map_err(|_| {
+        let words = deltaloop_names::allowed::<ReplyFate>();
+        bad_cell(REPLY.name, v, &format!("{words} or {UNKNOWN}"))
+    })
+}
+
+/// The `drives` cell, one of [`DRIVES_WORDS`].
+pub fn drives_cell(v: &str) -> Result<()> {
+    if DRIVES_WORDS.contains(&v) {
+        return Ok(());
+    }
+    let (last, rest) = DRIVES_WORDS.split_last().unwrap_or((&"", &[]));
+    Err(bad_cell(
+        DRIVES.name,
+        v,
+        &format!("{} or {last}", rest.join(", ")),
+    ))
+}
+
+/// A number cell of `column` (per joint: `name`, joint j = 1..=3), None if empty.
+pub fn number_cell(name: &str, j: Option<usize>, v: &str) -> Result<Option<f64>> {
+    if v.is_empty() {
+        return Ok(None);
+    }
+    v.parse().map(Some).map_err(|_| match j {
+        Some(j) => bad_cell(&format!("{name}_{j}"), v, A_NUMBER),
+        None => bad_cell(name, v, A_NUMBER),
+    })
+}
+
+/// A cell of ns (`arrival_ns`, a timing column), None if empty.
+pub fn ns_cell(column: &str, v: &str) -> Result<Option<u64>> {
+    if v.is_empty() {
+        return Ok(None);
+    }
+    v.parse().map(Some).map_err(|_| bad_cell(column, v, A_NS))
+}
+
+/// The order of a trace's rows as the recorder writes them: each law's rows together, their
+/// ticks increasing, each once.
+#[derive(Default)]
+pub struct RowOrder {
+    current: Option<(Law, u64)>,
+    done: Vec<Law>,
+}
+
+impl RowOrder {
+    /// Checks the next row, of `law` at tick `k`.
+    pub fn next(&mut self, law: Law, k: u64) -> Result<()> {
+        match self.current {
+            Some((l, last)) if l == law => {
+                if k <= last {
+                    return Err(bad_cell(
+                        K.name,
+                        &k.to_string(),
+                        &format!("a tick after tick {last} (each tick once, in order)"),
+                    ));
+                }
+            }
+            _ => {
+                self.done.extend(self.current.map(|(l, _)| l));
+                if self.done.contains(&law) {
+                    return Err(bad_cell(
+                        LAW.name,
+                        law.name(),
+                        "each law's rows together (its rows ended above)",
+                    ));
+                }
+            }
+        }
+        self.current = Some((law, k));
+        Ok(())
+    }
+}
+
 /// The reply's fate and what the drives did; both `unknown` without the plant's telemetry
 /// (nothing then says what it did with the reply).
 fn fate_and_drives(r: &TickRecord) -> (&'static str, &'static str) {
     if !r.telemetry {
-        return ("unknown", "unknown");
+        return (UNKNOWN, UNKNOWN);
     }
     let drives = match (r.rejected, r.held, r.clamped) {
-        (true, _, _) => "rejected",
-        (_, true, _) => "held",
-        (_, _, true) => "clamped",
-        _ => "commanded",
+        (true, _, _) => DRIVES_WORDS[3],
+        (_, true, _) => DRIVES_WORDS[2],
+        (_, _, true) => DRIVES_WORDS[1],
+        _ => DRIVES_WORDS[0],
     };
     (r.fate.name(), drives)
 }

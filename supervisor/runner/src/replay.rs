@@ -99,14 +99,8 @@ impl TraceRows {
         let at = || format!("{} line {}", self.path.display(), self.line);
         let row = row.with_context(at)?;
         let [law, k, reply, arrival] = self.cols.map(|c| row.get(c).unwrap_or(""));
-        let law = Law::parse(law).map_err(|e| anyhow::anyhow!("{}: column law: {e}", at()))?;
-        let k = k.parse().map_err(|_| {
-            anyhow::anyhow!(
-                "{}: column k = {} is not a tick number",
-                at(),
-                deltaloop_config::show_str(k)
-            )
-        })?;
+        let law = output::trace::law_cell(law).with_context(at)?;
+        let k = output::trace::tick_cell(k).with_context(at)?;
         let fate = match ReplyFate::parse(reply).ok() {
             Some(fate) => fate,
             // The supervisor recorded the tick without knowing what the plant did with it (its
@@ -126,12 +120,11 @@ impl TraceRows {
                     at()
                 )
             }
-            None => bail!(
-                "{}: column reply = {}: expected {}",
-                at(),
-                deltaloop_config::show_str(reply),
-                deltaloop_names::one_of::<ReplyFate>()
-            ),
+            None => {
+                let allowed = deltaloop_names::one_of::<ReplyFate>();
+                let e = output::trace::bad_cell(output::trace::REPLY.name, reply, &allowed);
+                bail!("{}: {e}", at())
+            }
         };
         let arrival_ns = match (fate, arrival) {
             // The row the divergence rule ended the run on: recorded before the drives took its
