@@ -554,4 +554,42 @@ mod tests {
         assert_eq!(&h[..4], ["law", "k", "t_s", "q_des_1"]);
         assert_eq!(h.last().map(String::as_str), Some("arrival_ns"));
     }
+
+    /// A trace's rows in the recorder's order: each law's together, ticks increasing; a header
+    /// names each column once. Each refusal names the column, the value and what is allowed.
+    #[test]
+    fn rows_out_of_order_and_columns_twice_are_named() {
+        let mut o = RowOrder::default();
+        for (law, k) in [(Law::Tdc, 0), (Law::Tdc, 1), (Law::Tdc, 3), (Law::Pid, 0)] {
+            o.next(law, k).unwrap();
+        }
+        assert_eq!(
+            o.next(Law::Pid, 0).unwrap_err().to_string(),
+            "column k = \"0\": expected a tick after tick 0 (each tick once, in order)"
+        );
+        assert_eq!(
+            o.next(Law::Tdc, 4).unwrap_err().to_string(),
+            "column law = \"tdc\": expected each law's rows together (its rows ended above)"
+        );
+        let h = csv::StringRecord::from(vec!["k", "reply", "k"]);
+        assert_eq!(column_at(&h, "reply").unwrap(), 1);
+        assert_eq!(
+            column_at(&h, "k").unwrap_err().to_string(),
+            "column `k` appears twice"
+        );
+        assert_eq!(
+            column_at(&h, "law").unwrap_err().to_string(),
+            "no column `law`"
+        );
+        assert!(drives_cell("held").is_ok());
+        assert_eq!(
+            drives_cell("braked").unwrap_err().to_string(),
+            "column drives = \"braked\": expected commanded, clamped, held, rejected or unknown"
+        );
+        assert_eq!(reply_cell("unknown").unwrap(), None);
+        assert_eq!(
+            number_cell("s", Some(1), "x").unwrap_err().to_string(),
+            "column s_1 = \"x\": expected a number, or empty"
+        );
+    }
 }

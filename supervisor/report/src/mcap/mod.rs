@@ -374,8 +374,7 @@ fn write_export(out: &mut Out, dir: &Path, input: &RunInput) -> Result<()> {
     let trace_path = &input.trace_path;
     let (mut rows, header) = capped_csv(trace_path, trace::max_bytes(study), "this run's trace")?;
     let col = |name: &str| {
-        trace::column_at(&header, name)
-            .with_context(|| format!("{} line 1", trace_path.display()))
+        trace::column_at(&header, name).with_context(|| format!("{} line 1", trace_path.display()))
     };
     // Every column of the format, each once, wherever the header puts it.
     for name in trace::header() {
@@ -536,16 +535,16 @@ const TIMING_CELL: &str = "a whole number (ns, a tick, or a 0/1 flag), or empty"
 
 /// A timing row's cells by name ([`TIMING_COLUMNS`], at columns `at`): ns, counts or flags, each
 /// a whole number or empty; the tick `k` is always there.
-fn timing_row<'a>(
-    row: &csv::StringRecord,
-    at: &[usize],
-) -> Result<[(&'a str, Option<u64>); 13]> {
+fn timing_row<'a>(row: &csv::StringRecord, at: &[usize]) -> Result<[(&'a str, Option<u64>); 13]> {
     let mut cells = [("", None); 13];
     for (i, (name, &col)) in TIMING_COLUMNS.iter().zip(at).enumerate() {
         let v = row.get(col).unwrap_or("");
         let n = match v {
             "" => None,
-            v => Some(v.parse().map_err(|_| trace::bad_cell(name, v, TIMING_CELL))?),
+            v => Some(
+                v.parse()
+                    .map_err(|_| trace::bad_cell(name, v, TIMING_CELL))?,
+            ),
         };
         cells[i] = (*name, n);
     }
