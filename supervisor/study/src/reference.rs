@@ -233,8 +233,13 @@ mod tests {
             None,
         )
         .unwrap();
-        let path = TaskPath::from_section(&cfg.scenario);
-        for ts in [3e-4, 1e-4, 7e-5] {
+        let paper = |p: &str| {
+            let c = RunConfig::from_toml_str(&format!("[scenario]\npath = \"{p}\"\n"), None);
+            (TaskPath::from_section(&c.unwrap().scenario), 3e-4)
+        };
+        let custom = TaskPath::from_section(&cfg.scenario);
+        let cases = [3e-4, 1e-4, 7e-5].map(|ts| (custom.clone(), ts));
+        for (path, ts) in cases.into_iter().chain(["s1", "s2", "s3"].map(paper)) {
             let r = JointReference::build(&DeltaRobot::default(), &path, ts, 0.01).unwrap();
             let end = r.row_count() as u64;
             let spans = path.spans(ts, end);
