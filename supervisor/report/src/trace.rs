@@ -261,6 +261,40 @@ pub fn ns_cell(column: &str, v: &str) -> Result<Option<u64>> {
     v.parse().map(Some).map_err(|_| bad_cell(column, v, A_NS))
 }
 
+/// What `arrival_ns` (A_k − t_k) of an applied reply may be in a run of `study`, ns: at least the
+/// transport delay D (the plant adds a latency ≥ 0 to it), and at most D plus the run's span
+/// (N + 1)·Ts. A command arriving after the run's end could not have acted in it, and the bound
+/// keeps every time the drives add up far from overflow (regression: `u64::MAX` was taken, and
+/// wrapped around inside the drives).
+pub fn arrivals(study: &Study) -> std::ops::RangeInclusive<u64> {
+    let d = study.config.transport_delay_ns();
+    let span_ns = (study.reference.n as f64 + 1.0) * study.config.loop_.ts_s * 1e9;
+    // `as` saturates: a span beyond u64 (not a valid config) cannot wrap.
+    d..=d.saturating_add(span_ns.round() as u64)
+}
+
+/// The `arrival_ns` cell of a row whose reply is `fate`, checked against `range`
+/// ([`arrivals`]) when the reply was applied.
+pub fn arrival_cell(
+    v: &str,
+    fate: Option<ReplyFate>,
+    range: &std::ops::RangeInclusive<u64>,
+) -> Result<Option<u64>> {
+    let ns = ns_cell(ARRIVAL.name, v)?;
+    match ns {
+        Some(a) if fate == Some(ReplyFate::Applied) && !range.contains(&a) => Err(bad_cell(
+            ARRIVAL.name,
+            v,
+            &format!(
+                "{}..={} ns for an applied reply (the transport delay, plus at most the run's span)",
+                range.start(),
+                range.end()
+            ),
+        )),
+        _ => Ok(ns),
+    }
+}
+
 /// The order of a trace's rows as the recorder writes them: each law's rows together, their
 /// ticks increasing, each once.
 #[derive(Default)]
@@ -587,6 +621,18 @@ mod tests {
             "column drives = \"braked\": expected commanded, clamped, held, rejected or unknown"
         );
         assert_eq!(reply_cell("unknown").unwrap(), None);
+        let r = 100..=200;
+        let applied = Some(ReplyFate::Applied);
+        assert_eq!(arrival_cell("150", applied, &r).unwrap(), Some(150));
+        assert_eq!(arrival_cell("", applied, &r).unwrap(), None);
+        assert_eq!(
+            arrival_cell("999", Some(ReplyFate::Late), &r).unwrap(),
+            Some(999)
+        );
+        assert_eq!(
+            arrival_cell("999", applied, &r).unwrap_err().to_string(),
+            "column arrival_ns = \"999\": expected 100..=200 ns for an applied reply (the transport delay, plus at most the run's span)"
+        );
         assert_eq!(
             number_cell("s", Some(1), "x").unwrap_err().to_string(),
             "column s_1 = \"x\": expected a number, or empty"

@@ -383,13 +383,14 @@ fn write_export(out: &mut Out, dir: &Path, input: &RunInput) -> Result<()> {
     let cols = Columns::find(&col)?;
     let mut current: Option<(Law, Channels)> = None;
     let mut order = trace::RowOrder::default();
+    let arrivals = trace::arrivals(study);
     for (i, row) in rows.records().enumerate() {
         let line = i + 2;
         let at = || format!("{} line {line}", trace_path.display());
         let row = row.with_context(at)?;
         let cell = |i| row.get(i).unwrap_or("");
         let law = trace::law_cell(cell(cols.law)).with_context(at)?;
-        let r = Row::parse(&cell, &cols).with_context(at)?;
+        let r = Row::parse(&cell, &cols, &arrivals).with_context(at)?;
         order.next(law, r.k).with_context(at)?;
         if current.as_ref().is_none_or(|(l, _)| *l != law) {
             if let Some((done, ch)) = current.take() {
@@ -685,7 +686,9 @@ impl<B: Bus> Live<B> {
         }
         trace::render(self.law, r, row, n_true, &mut self.fields);
         let fields = &self.fields;
-        let row = Row::parse(&|i| fields.get(i).map_or("", String::as_str), &self.cols)?;
+        let cell = |i| fields.get(i).map_or("", String::as_str);
+        // The recorder's own row: any arrival it measured.
+        let row = Row::parse(&cell, &self.cols, &(0..=u64::MAX))?;
         row.write(
             &mut self.out,
             &self.ch,

@@ -11,6 +11,7 @@ use deltaloop_mcap::scene::Painter;
 use deltaloop_model::Vec3;
 use serde::Serialize;
 use serde::ser::{SerializeMap, Serializer};
+use std::ops::RangeInclusive;
 
 /// The per-joint groups a `JointState` carries (not repeated in the control message).
 const JOINT_STATE: [&str; 3] = ["q", "qdot", "tau_applied"];
@@ -101,8 +102,13 @@ pub(super) struct Row {
 
 impl Row {
     /// The row whose field `i` is `cell(i)`, every cell checked as its column says (an error
-    /// names the column, the value and what is allowed).
-    pub(super) fn parse<'a>(cell: &dyn Fn(usize) -> &'a str, c: &Columns) -> Result<Self> {
+    /// names the column, the value and what is allowed); an applied reply's arrival within
+    /// `arrivals`, ns ([`trace::arrivals`]).
+    pub(super) fn parse<'a>(
+        cell: &dyn Fn(usize) -> &'a str,
+        c: &Columns,
+        arrivals: &RangeInclusive<u64>,
+    ) -> Result<Self> {
         let k = trace::tick_cell(cell(c.k))?;
         let joints = c
             .joints
@@ -112,10 +118,10 @@ impl Row {
                 Ok((name, [v(0)?, v(1)?, v(2)?]))
             })
             .collect::<Result<_>>()?;
-        let arrival_ns = trace::ns_cell(trace::ARRIVAL.name, cell(c.arrival))?;
         let (reply, drives) = (cell(c.reply), cell(c.drives));
-        trace::reply_cell(reply)?;
+        let fate = trace::reply_cell(reply)?;
         trace::drives_cell(drives)?;
+        let arrival_ns = trace::arrival_cell(cell(c.arrival), fate, arrivals)?;
         Ok(Self {
             k,
             joints,
