@@ -188,7 +188,7 @@ fn regression_export_replay_whatif_hung_on_a_run_folder_of_that_config() {
             whatif_out.to_str().unwrap(),
         ],
     ] {
-        let o = finish_within(spawn(&args), Duration::from_secs(2), args[0]);
+        let o = finish_within(spawn(&args), Duration::from_secs(1), args[0]);
         assert_names_the_bound(&one_line_error(&o));
     }
 }
