@@ -11,6 +11,7 @@ mod crate_graph;
 mod custom_process;
 mod delay_injection;
 mod doc_paths;
+mod export_config;
 mod export_mcap;
 mod faults;
 mod foreign_peers;

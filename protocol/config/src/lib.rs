@@ -44,7 +44,7 @@ pub use text::{
     toml_error_position,
 };
 pub use validate::{
-    EmulationOutOfRange, MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY,
+    EmulationOutOfRange, MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TICKS,
     MAX_TRANSPORT_DELAY, MAX_TRANSPORT_DELAY_US, NAME_RULE, name_is_valid,
 };
 

@@ -42,6 +42,12 @@ pub const MAX_SUBSTEPS: u32 = 1000;
 /// The longest hold, s: a day (a run streams, so only the disk bounds its length).
 pub const MAX_HOLD_S: f64 = 86_400.0;
 
+/// The most ticks a run may have, N = round((motion + hold)/Ts): 300 000 000, a day's hold and an
+/// hour of motion at Ts = 0.3 ms (25 h in all; 50 min at the shortest period). Every
+/// command that reads a config checks it in a few operations per segment, so a small file cannot
+/// ask for billions of ticks that take hours to walk before anything starts.
+pub const MAX_TICKS: u64 = 300_000_000;
+
 /// What a scenario or sweep `name` may be: it names a folder under `runs/`.
 pub const NAME_RULE: &str = "1 to 64 characters from A-Z a-z 0-9 . _ -, not starting with . or -";
 
@@ -605,6 +611,7 @@ impl RunConfig {
     /// a payload step falls within the run.
     fn validate_timing(&self) -> Result<(), ConfigError> {
         let ts = self.loop_.ts_s;
+        self.check_ticks()?;
         for (i, seg) in self.scenario.segments.iter().enumerate() {
             if seg.duration_s < ts {
                 return Err(range(
@@ -643,6 +650,51 @@ impl RunConfig {
                     ),
                 ));
             }
+        }
+        Ok(())
+    }
+
+    /// At most [`MAX_TICKS`] ticks in the run, checked in closed form: the hold, then each custom
+    /// segment's end (the segments and the hold so far); the error names the key that crosses
+    /// the bound.
+    fn check_ticks(&self) -> Result<(), ConfigError> {
+        let ts = self.loop_.ts_s;
+        let hold = self.scenario.hold_s;
+        let ticks = |s: f64| (s / ts).round();
+        let allowed = |reach: f64| {
+            format!(
+                "a run (motion + hold) of at most {MAX_TICKS} ticks, {} s at ts_s = {} s (here {reach:.0} ticks)",
+                secs(MAX_TICKS as f64 * ts),
+                secs(ts),
+            )
+        };
+        let over = |s: f64| ticks(s) > MAX_TICKS as f64;
+        if over(hold) {
+            return Err(range(
+                "scenario.hold_s",
+                show_num(hold),
+                &allowed(ticks(hold)),
+            ));
+        }
+        let mut end = hold;
+        for (i, seg) in self.scenario.segments.iter().enumerate() {
+            end += seg.duration_s;
+            if over(end) {
+                return Err(range(
+                    &format!("scenario.segments[{i}].duration_s"),
+                    show_num(seg.duration_s),
+                    &allowed(ticks(end)),
+                ));
+            }
+        }
+        let total = self.motion_duration_s() + hold;
+        if over(total) {
+            // A paper path (under 2 s) with a hold at the bound.
+            return Err(range(
+                "scenario.hold_s",
+                show_num(hold),
+                &allowed(ticks(total)),
+            ));
         }
         Ok(())
     }
@@ -812,6 +864,43 @@ mod tests {
                 None
             )
             .is_ok()
+        );
+    }
+
+    /// Regression: 30 custom segments of an hour at `ts_s = 1e-5` (10.8 G ticks, a 3 KB file)
+    /// were accepted and walked tick by tick for hours. The run's ticks are bounded, checked
+    /// per segment; the error names the key that crosses the bound, its value and the bound.
+    #[test]
+    fn regression_a_3kb_config_asked_for_billions_of_ticks() {
+        let seg = "{ from = [0.25, 0, -0.43], to = [-0.25, 0, -0.43], apex_m = 0.12, duration_s = 3600.0 }";
+        let custom = |n: usize, ts: &str, hold: &str| {
+            format!(
+                "[scenario]\npath = \"custom\"\nhold_s = {hold}\nsegments = [{}]\n[loop]\nts_s = {ts}\ntorque_budget_us = 5\n",
+                vec![seg; n].join(", ")
+            )
+        };
+        let t0 = std::time::Instant::now();
+        assert_eq!(
+            err(&custom(30, "1e-5", "0")),
+            "config key `scenario.segments[0].duration_s` = 3600 is out of range: a run (motion + hold) of at most 300000000 ticks, 3000 s at ts_s = 1e-5 s (here 360000000 ticks)"
+        );
+        assert!(t0.elapsed().as_secs_f64() < 0.5, "{:?}", t0.elapsed());
+        // At 0.3 ms: 24 h of hold and an hour of motion fit, a second more does not.
+        assert!(RunConfig::from_toml_str(&custom(1, "3e-4", "86400"), None).is_ok());
+        assert!(RunConfig::from_toml_str(&custom(25, "3e-4", "0"), None).is_ok());
+        assert_eq!(
+            err(&custom(25, "3e-4", "1")),
+            "config key `scenario.segments[24].duration_s` = 3600 is out of range: a run (motion + hold) of at most 300000000 ticks, 90000 s at ts_s = 0.0003 s (here 300003333 ticks)"
+        );
+        // A day's hold at a short period names the hold.
+        assert!(
+            err("[scenario]\npath = \"s1\"\nhold_s = 86400\n[loop]\nts_s = 1e-4\ntorque_budget_us = 50\n")
+                .starts_with("config key `scenario.hold_s` = 86400 is out of range: a run (motion + hold) of at most 300000000 ticks, 30000 s at ts_s = 0.0001 s")
+        );
+        // A paper path's motion on top of a hold at the bound.
+        assert!(
+            err("[scenario]\npath = \"s3\"\nhold_s = 90000\n")
+                .contains("`scenario.hold_s` = 90000")
         );
     }
 }

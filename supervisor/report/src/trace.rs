@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use deltaloop_law::Law;
 use deltaloop_model::Vec3;
 use deltaloop_study::Study;
-use deltaloop_study::record::TickRecord;
+use deltaloop_study::record::{ReplyFate, TickRecord};
 use deltaloop_study::reference::RefRow;
 use std::fmt::Arguments;
 use std::path::{Path, PathBuf};
@@ -176,17 +176,173 @@ pub const COLUMNS: [Column; 15] = [
     ARRIVAL,
 ];
 
+/// What `drives` may say (see [`DRIVES`]).
+pub const DRIVES_WORDS: [&str; 5] = ["commanded", "clamped", "held", "rejected", UNKNOWN];
+
+/// `reply` and `drives` of a tick recorded without the plant's telemetry.
+pub const UNKNOWN: &str = "unknown";
+
+/// What a number column holds.
+const A_NUMBER: &str = "a number, or empty";
+
+/// What a column of ns holds.
+pub const A_NS: &str = "a whole number of ns, or empty";
+
+/// A cell of a run's file that is not what its column holds, in one line: `column reply =
+/// "maybe": expected applied, …` (the reader puts the file and line before it).
+pub fn bad_cell(column: &str, value: &str, allowed: &str) -> anyhow::Error {
+    anyhow::anyhow!(
+        "column {column} = {}: expected {allowed}",
+        deltaloop_config::show_str(value)
+    )
+}
+
+/// The position of column `name` in a header read by name: there once, else an error naming it.
+pub fn column_at(header: &csv::StringRecord, name: &str) -> Result<usize> {
+    let mut at = header.iter().enumerate().filter(|(_, c)| *c == name);
+    match (at.next(), at.next()) {
+        (Some((i, _)), None) => Ok(i),
+        (None, _) => anyhow::bail!("no column `{name}`"),
+        (Some(_), Some(_)) => anyhow::bail!("column `{name}` appears twice"),
+    }
+}
+
+/// The `law` cell.
+pub fn law_cell(v: &str) -> Result<Law> {
+    Law::parse(v).map_err(|_| bad_cell(LAW.name, v, &deltaloop_names::one_of::<Law>()))
+}
+
+/// The `k` cell.
+pub fn tick_cell(v: &str) -> Result<u64> {
+    v.parse()
+        .map_err(|_| bad_cell(K.name, v, "a tick number (0, 1, 2, …)"))
+}
+
+/// The `reply` cell: what became of the reply, None if `unknown`.
+pub fn reply_cell(v: &str) -> Result<Option<ReplyFate>> {
+    if v == UNKNOWN {
+        return Ok(None);
+    }
+    ReplyFate::parse(v).map(Some).map_err(|_| {
+        let words = deltaloop_names::allowed::<ReplyFate>();
+        bad_cell(REPLY.name, v, &format!("{words} or {UNKNOWN}"))
+    })
+}
+
+/// The `drives` cell, one of [`DRIVES_WORDS`].
+pub fn drives_cell(v: &str) -> Result<()> {
+    if DRIVES_WORDS.contains(&v) {
+        return Ok(());
+    }
+    let (last, rest) = DRIVES_WORDS.split_last().unwrap_or((&"", &[]));
+    Err(bad_cell(
+        DRIVES.name,
+        v,
+        &format!("{} or {last}", rest.join(", ")),
+    ))
+}
+
+/// A number cell of `column` (per joint: `name`, joint j = 1..=3), None if empty.
+pub fn number_cell(name: &str, j: Option<usize>, v: &str) -> Result<Option<f64>> {
+    if v.is_empty() {
+        return Ok(None);
+    }
+    v.parse().map(Some).map_err(|_| match j {
+        Some(j) => bad_cell(&format!("{name}_{j}"), v, A_NUMBER),
+        None => bad_cell(name, v, A_NUMBER),
+    })
+}
+
+/// A cell of ns (`arrival_ns`, a timing column), None if empty.
+pub fn ns_cell(column: &str, v: &str) -> Result<Option<u64>> {
+    if v.is_empty() {
+        return Ok(None);
+    }
+    v.parse().map(Some).map_err(|_| bad_cell(column, v, A_NS))
+}
+
+/// What `arrival_ns` (A_k − t_k) of an applied reply may be in a run of `study`, ns: at least the
+/// transport delay D (the plant adds a latency ≥ 0 to it), and at most D plus the run's span
+/// (N + 1)·Ts. A command arriving after the run's end could not have acted in it, and the bound
+/// keeps every time the drives add up far from overflow (regression: `u64::MAX` was taken, and
+/// wrapped around inside the drives).
+pub fn arrivals(study: &Study) -> std::ops::RangeInclusive<u64> {
+    let d = study.config.transport_delay_ns();
+    let span_ns = (study.reference.n as f64 + 1.0) * study.config.loop_.ts_s * 1e9;
+    // `as` saturates: a span beyond u64 (not a valid config) cannot wrap.
+    d..=d.saturating_add(span_ns.round() as u64)
+}
+
+/// The `arrival_ns` cell of a row whose reply is `fate`, checked against `range`
+/// ([`arrivals`]) when the reply was applied.
+pub fn arrival_cell(
+    v: &str,
+    fate: Option<ReplyFate>,
+    range: &std::ops::RangeInclusive<u64>,
+) -> Result<Option<u64>> {
+    let ns = ns_cell(ARRIVAL.name, v)?;
+    match ns {
+        Some(a) if fate == Some(ReplyFate::Applied) && !range.contains(&a) => Err(bad_cell(
+            ARRIVAL.name,
+            v,
+            &format!(
+                "{}..={} ns for an applied reply (the transport delay, plus at most the run's span)",
+                range.start(),
+                range.end()
+            ),
+        )),
+        _ => Ok(ns),
+    }
+}
+
+/// The order of a trace's rows as the recorder writes them: each law's rows together, their
+/// ticks increasing, each once.
+#[derive(Default)]
+pub struct RowOrder {
+    current: Option<(Law, u64)>,
+    done: Vec<Law>,
+}
+
+impl RowOrder {
+    /// Checks the next row, of `law` at tick `k`.
+    pub fn next(&mut self, law: Law, k: u64) -> Result<()> {
+        match self.current {
+            Some((l, last)) if l == law => {
+                if k <= last {
+                    return Err(bad_cell(
+                        K.name,
+                        &k.to_string(),
+                        &format!("a tick after tick {last} (each tick once, in order)"),
+                    ));
+                }
+            }
+            _ => {
+                self.done.extend(self.current.map(|(l, _)| l));
+                if self.done.contains(&law) {
+                    return Err(bad_cell(
+                        LAW.name,
+                        law.name(),
+                        "each law's rows together (its rows ended above)",
+                    ));
+                }
+            }
+        }
+        self.current = Some((law, k));
+        Ok(())
+    }
+}
+
 /// The reply's fate and what the drives did; both `unknown` without the plant's telemetry
 /// (nothing then says what it did with the reply).
 fn fate_and_drives(r: &TickRecord) -> (&'static str, &'static str) {
     if !r.telemetry {
-        return ("unknown", "unknown");
+        return (UNKNOWN, UNKNOWN);
     }
     let drives = match (r.rejected, r.held, r.clamped) {
-        (true, _, _) => "rejected",
-        (_, true, _) => "held",
-        (_, _, true) => "clamped",
-        _ => "commanded",
+        (true, _, _) => DRIVES_WORDS[3],
+        (_, true, _) => DRIVES_WORDS[2],
+        (_, _, true) => DRIVES_WORDS[1],
+        _ => DRIVES_WORDS[0],
     };
     (r.fate.name(), drives)
 }
@@ -510,5 +666,55 @@ mod tests {
         assert_eq!(h.len(), 3 + 9 * 3 + 3);
         assert_eq!(&h[..4], ["law", "k", "t_s", "q_des_1"]);
         assert_eq!(h.last().map(String::as_str), Some("arrival_ns"));
+    }
+
+    /// A trace's rows in the recorder's order: each law's together, ticks increasing; a header
+    /// names each column once. Each refusal names the column, the value and what is allowed.
+    #[test]
+    fn rows_out_of_order_and_columns_twice_are_named() {
+        let mut o = RowOrder::default();
+        for (law, k) in [(Law::Tdc, 0), (Law::Tdc, 1), (Law::Tdc, 3), (Law::Pid, 0)] {
+            o.next(law, k).unwrap();
+        }
+        assert_eq!(
+            o.next(Law::Pid, 0).unwrap_err().to_string(),
+            "column k = \"0\": expected a tick after tick 0 (each tick once, in order)"
+        );
+        assert_eq!(
+            o.next(Law::Tdc, 4).unwrap_err().to_string(),
+            "column law = \"tdc\": expected each law's rows together (its rows ended above)"
+        );
+        let h = csv::StringRecord::from(vec!["k", "reply", "k"]);
+        assert_eq!(column_at(&h, "reply").unwrap(), 1);
+        assert_eq!(
+            column_at(&h, "k").unwrap_err().to_string(),
+            "column `k` appears twice"
+        );
+        assert_eq!(
+            column_at(&h, "law").unwrap_err().to_string(),
+            "no column `law`"
+        );
+        assert!(drives_cell("held").is_ok());
+        assert_eq!(
+            drives_cell("braked").unwrap_err().to_string(),
+            "column drives = \"braked\": expected commanded, clamped, held, rejected or unknown"
+        );
+        assert_eq!(reply_cell("unknown").unwrap(), None);
+        let r = 100..=200;
+        let applied = Some(ReplyFate::Applied);
+        assert_eq!(arrival_cell("150", applied, &r).unwrap(), Some(150));
+        assert_eq!(arrival_cell("", applied, &r).unwrap(), None);
+        assert_eq!(
+            arrival_cell("999", Some(ReplyFate::Late), &r).unwrap(),
+            Some(999)
+        );
+        assert_eq!(
+            arrival_cell("999", applied, &r).unwrap_err().to_string(),
+            "column arrival_ns = \"999\": expected 100..=200 ns for an applied reply (the transport delay, plus at most the run's span)"
+        );
+        assert_eq!(
+            number_cell("s", Some(1), "x").unwrap_err().to_string(),
+            "column s_1 = \"x\": expected a number, or empty"
+        );
     }
 }

@@ -36,21 +36,9 @@ struct TraceRows {
     rows: csv::StringRecordsIntoIter<files::Capped>,
     line: u64,
     cols: [usize; 4],
-    /// What `arrival_ns` of an applied reply may be, ns (see [`arrivals`]).
+    /// What `arrival_ns` of an applied reply may be, ns (see [`output::trace::arrivals`]).
     arrival: std::ops::RangeInclusive<u64>,
     peeked: Option<Recorded>,
-}
-
-/// What `arrival_ns` (A_k − t_k) of an applied reply may be in a run of `study`, ns: at least the
-/// transport delay D (the plant adds a latency ≥ 0 to it), and at most D plus the run's span
-/// (N + 1)·Ts. A command arriving after the run's end could not have acted in it, and the bound
-/// keeps every time the drives add up far from overflow (regression: `u64::MAX` was taken, and
-/// wrapped around inside the drives).
-fn arrivals(study: &Study) -> std::ops::RangeInclusive<u64> {
-    let d = study.config.transport_delay_ns();
-    let span_ns = (study.reference.n as f64 + 1.0) * study.config.loop_.ts_s * 1e9;
-    // `as` saturates: a span beyond u64 (not a valid config) cannot wrap.
-    d..=d.saturating_add(span_ns.round() as u64)
 }
 
 impl TraceRows {
@@ -82,7 +70,7 @@ impl TraceRows {
             rows: r.into_records(),
             line: 1,
             cols,
-            arrival: arrivals(study),
+            arrival: output::trace::arrivals(study),
             peeked: None,
         })
     }
@@ -99,14 +87,8 @@ impl TraceRows {
         let at = || format!("{} line {}", self.path.display(), self.line);
         let row = row.with_context(at)?;
         let [law, k, reply, arrival] = self.cols.map(|c| row.get(c).unwrap_or(""));
-        let law = Law::parse(law).map_err(|e| anyhow::anyhow!("{}: column law: {e}", at()))?;
-        let k = k.parse().map_err(|_| {
-            anyhow::anyhow!(
-                "{}: column k = {} is not a tick number",
-                at(),
-                deltaloop_config::show_str(k)
-            )
-        })?;
+        let law = output::trace::law_cell(law).with_context(at)?;
+        let k = output::trace::tick_cell(k).with_context(at)?;
         let fate = match ReplyFate::parse(reply).ok() {
             Some(fate) => fate,
             // The supervisor recorded the tick without knowing what the plant did with it (its
@@ -126,12 +108,11 @@ impl TraceRows {
                     at()
                 )
             }
-            None => bail!(
-                "{}: column reply = {}: expected {}",
-                at(),
-                deltaloop_config::show_str(reply),
-                deltaloop_names::one_of::<ReplyFate>()
-            ),
+            None => {
+                let allowed = deltaloop_names::one_of::<ReplyFate>();
+                let e = output::trace::bad_cell(output::trace::REPLY.name, reply, &allowed);
+                bail!("{}: {e}", at())
+            }
         };
         let arrival_ns = match (fate, arrival) {
             // The row the divergence rule ended the run on: recorded before the drives took its

@@ -77,6 +77,60 @@ impl TaskPath {
         }
         unreachable!("the last segment always answers")
     }
+
+    /// The ticks k < `end` (t_k = k·Ts) each segment answers for in [`Self::sample`], found in
+    /// closed form: segment i's from the first tick at or after its start to the first at or
+    /// after its end (the last segment's to `end`).
+    pub fn spans(&self, ts: f64, end: u64) -> Vec<Span> {
+        let mut out = Vec::with_capacity(self.segments.len());
+        let mut start = 0.0;
+        let last = self.segments.len() - 1;
+        for (i, seg) in self.segments.iter().enumerate() {
+            let from = first_tick_at(start, ts).min(end);
+            let to = if i == last {
+                end
+            } else {
+                first_tick_at(start + seg.duration_s, ts).min(end)
+            };
+            out.push(Span {
+                segment: i,
+                start_s: start,
+                ticks: from..to.max(from),
+            });
+            start += seg.duration_s;
+        }
+        out
+    }
+
+    /// The reference at time t (s) within `span`: what [`Self::sample`] gives for a t of its
+    /// ticks, without looking for the segment.
+    pub fn sample_in(&self, span: &Span, t: f64) -> TaskSample {
+        semi_ellipse(&self.segments[span.segment], t - span.start_s)
+    }
+}
+
+/// The ticks of one segment ([`TaskPath::spans`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Span {
+    /// The segment's index.
+    pub segment: usize,
+    /// Its start, s (the durations before it summed as [`TaskPath::sample`] sums them).
+    pub start_s: f64,
+    /// Its ticks k (t_k = k·Ts).
+    pub ticks: std::ops::Range<u64>,
+}
+
+/// The first tick k with k·Ts ≥ t (t_k computed as every reader computes it, `k as f64 * ts`).
+pub fn first_tick_at(t: f64, ts: f64) -> u64 {
+    // `as` saturates; the loops below fix the division's round-off (a step or two).
+    let mut k = (t / ts).ceil().max(0.0) as u64;
+    while k > 0 && (k - 1) as f64 * ts >= t {
+        k -= 1;
+    }
+    while (k as f64 * ts) < t {
+        k += 1;
+    }
+    k
 }
 
 /// A semi-ellipse from P_a to P_b with apex h (docs/delta-robot.md §6), at local time t (s).

@@ -374,33 +374,37 @@ fn write_export(out: &mut Out, dir: &Path, input: &RunInput) -> Result<()> {
     let trace_path = &input.trace_path;
     let (mut rows, header) = capped_csv(trace_path, trace::max_bytes(study), "this run's trace")?;
     let col = |name: &str| {
-        header
-            .iter()
-            .position(|c| c == name)
-            .with_context(|| format!("{}: no column `{name}`", trace_path.display()))
+        trace::column_at(&header, name).with_context(|| format!("{} line 1", trace_path.display()))
     };
+    // Every column of the format, each once, wherever the header puts it.
+    for name in trace::header() {
+        col(&name)?;
+    }
     let cols = Columns::find(&col)?;
-    let mut current: Option<(String, Channels)> = None;
+    let mut current: Option<(Law, Channels)> = None;
+    let mut order = trace::RowOrder::default();
+    let arrivals = trace::arrivals(study);
     for (i, row) in rows.records().enumerate() {
         let line = i + 2;
         let at = || format!("{} line {line}", trace_path.display());
         let row = row.with_context(at)?;
-        let law = row.get(cols.law).unwrap_or("").to_string();
+        let cell = |i| row.get(i).unwrap_or("");
+        let law = trace::law_cell(cell(cols.law)).with_context(at)?;
+        let r = Row::parse(&cell, &cols, &arrivals).with_context(at)?;
+        order.next(law, r.k).with_context(at)?;
         if current.as_ref().is_none_or(|(l, _)| *l != law) {
             if let Some((done, ch)) = current.take() {
-                finish_law(out, dir, study, summary, &done, &ch)?;
+                finish_law(out, dir, study, summary, done.name(), &ch)?;
             }
-            let ch = law_channels(out, &law)?;
-            current = Some((law.clone(), ch));
+            current = Some((law, law_channels(out, law.name())?));
         }
         let Some((_, ch)) = current.as_ref() else {
             continue;
         };
-        let r = Row::parse(&|i| row.get(i).unwrap_or(""), &cols).with_context(at)?;
-        r.write(out, ch, &law, &cols, ts_ns, Some((&mut painter, 1)))?;
+        r.write(out, ch, law.name(), &cols, ts_ns, Some((&mut painter, 1)))?;
     }
     if let Some((done, ch)) = current.take() {
-        finish_law(out, dir, study, summary, &done, &ch)?;
+        finish_law(out, dir, study, summary, done.name(), &ch)?;
     }
     for (name, media, data) in [
         ("config.toml", "application/toml", &input.config_text),
@@ -508,17 +512,47 @@ fn finish_law(
     let timing = dir.join(format!("{law}.timing.csv"));
     if std::fs::symlink_metadata(&timing).is_ok() {
         let (mut rows, header) = capped_csv(&timing, timing_max_bytes(study), "a timing.csv")?;
-        let order = tick::timing_order(header.iter());
+        // Read by name: every column of the format, each once.
+        let at: Vec<usize> = TIMING_COLUMNS
+            .iter()
+            .map(|name| {
+                trace::column_at(&header, name)
+                    .with_context(|| format!("{} line 1", timing.display()))
+            })
+            .collect::<Result<_>>()?;
+        let order = tick::timing_order(TIMING_COLUMNS.into_iter());
         for (i, row) in rows.records().enumerate() {
-            let row = row.with_context(|| format!("{} line {}", timing.display(), i + 2))?;
-            let cells: Vec<_> = header
-                .iter()
-                .zip(row.iter().map(|cell| cell.parse::<u64>().ok()))
-                .collect();
+            let line = || format!("{} line {}", timing.display(), i + 2);
+            let row = row.with_context(line)?;
+            let cells = timing_row(&row, &at).with_context(line)?;
             write_timing(out, ch, ts_ns, &cells, &order)?;
         }
     }
     ending(out, ch, law, &summary["laws"][law], ts_ns)
+}
+
+/// What a timing cell holds.
+const TIMING_CELL: &str = "a whole number (ns, a tick, or a 0/1 flag), or empty";
+
+/// A timing row's cells by name ([`TIMING_COLUMNS`], at columns `at`): ns, counts or flags, each
+/// a whole number or empty; the tick `k` is always there.
+fn timing_row<'a>(row: &csv::StringRecord, at: &[usize]) -> Result<[(&'a str, Option<u64>); 13]> {
+    let mut cells = [("", None); 13];
+    for (i, (name, &col)) in TIMING_COLUMNS.iter().zip(at).enumerate() {
+        let v = row.get(col).unwrap_or("");
+        let n = match v {
+            "" => None,
+            v => Some(
+                v.parse()
+                    .map_err(|_| trace::bad_cell(name, v, TIMING_CELL))?,
+            ),
+        };
+        cells[i] = (*name, n);
+    }
+    if cells[0].1.is_none() {
+        return Err(trace::bad_cell("k", "", "a tick number (0, 1, 2, …)"));
+    }
+    Ok(cells)
 }
 
 /// The longest `<law>.timing.csv` row, bytes: 13 numbers of at most 20 digits make under 300.
@@ -652,7 +686,9 @@ impl<B: Bus> Live<B> {
         }
         trace::render(self.law, r, row, n_true, &mut self.fields);
         let fields = &self.fields;
-        let row = Row::parse(&|i| fields.get(i).map_or("", String::as_str), &self.cols)?;
+        let cell = |i| fields.get(i).map_or("", String::as_str);
+        // The recorder's own row: any arrival it measured.
+        let row = Row::parse(&cell, &self.cols, &(0..=u64::MAX))?;
         row.write(
             &mut self.out,
             &self.ch,

@@ -11,6 +11,7 @@ use deltaloop_mcap::scene::Painter;
 use deltaloop_model::Vec3;
 use serde::Serialize;
 use serde::ser::{SerializeMap, Serializer};
+use std::ops::RangeInclusive;
 
 /// The per-joint groups a `JointState` carries (not repeated in the control message).
 const JOINT_STATE: [&str; 3] = ["q", "qdot", "tau_applied"];
@@ -28,7 +29,7 @@ enum Field {
 }
 
 impl Field {
-    fn name(self, joints: &[(&'static str, usize)]) -> &'static str {
+    fn name(self, joints: &[(&'static str, [usize; 3])]) -> &'static str {
         match self {
             Field::K => "k",
             Field::Ts => "t_s",
@@ -40,12 +41,12 @@ impl Field {
     }
 }
 
-/// Where each trace column is.
+/// Where each trace column is, found by name.
 pub(super) struct Columns {
     pub(super) law: usize,
     k: usize,
-    /// `(name, first column)` of every per-joint group, in trace order.
-    joints: Vec<(&'static str, usize)>,
+    /// `(name, columns of joints 1, 2, 3)` of every per-joint group, in trace order.
+    joints: Vec<(&'static str, [usize; 3])>,
     reply: usize,
     drives: usize,
     arrival: usize,
@@ -59,7 +60,10 @@ impl Columns {
         let joints: Vec<_> = trace::COLUMNS
             .iter()
             .filter(|c| c.per_joint)
-            .map(|c| Ok((c.name, col(&format!("{}_1", c.name))?)))
+            .map(|c| {
+                let at = |j: usize| col(&format!("{}_{j}", c.name));
+                Ok((c.name, [at(1)?, at(2)?, at(3)?]))
+            })
             .collect::<Result<_>>()?;
         let mut control = vec![
             Field::K,
@@ -88,7 +92,7 @@ impl Columns {
 
 /// One trace row, parsed.
 pub(super) struct Row {
-    k: u64,
+    pub(super) k: u64,
     /// Every per-joint group: its name and three values (None: an empty cell).
     joints: Vec<(&'static str, [Option<f64>; 3])>,
     reply: String,
@@ -97,37 +101,32 @@ pub(super) struct Row {
 }
 
 impl Row {
-    /// The row whose field `i` is `cell(i)`.
-    pub(super) fn parse<'a>(cell: &dyn Fn(usize) -> &'a str, c: &Columns) -> Result<Self> {
-        let num = |i: usize| -> Result<Option<f64>> {
-            match cell(i) {
-                "" => Ok(None),
-                s => s
-                    .parse()
-                    .map(Some)
-                    .map_err(|_| anyhow::anyhow!("column {} = `{s}` is not a number", i + 1)),
-            }
-        };
-        let k = cell(c.k)
-            .parse()
-            .map_err(|_| anyhow::anyhow!("column k = `{}` is not a tick", cell(c.k)))?;
+    /// The row whose field `i` is `cell(i)`, every cell checked as its column says (an error
+    /// names the column, the value and what is allowed); an applied reply's arrival within
+    /// `arrivals`, ns ([`trace::arrivals`]).
+    pub(super) fn parse<'a>(
+        cell: &dyn Fn(usize) -> &'a str,
+        c: &Columns,
+        arrivals: &RangeInclusive<u64>,
+    ) -> Result<Self> {
+        let k = trace::tick_cell(cell(c.k))?;
         let joints = c
             .joints
             .iter()
-            .map(|&(name, at)| Ok((name, [num(at)?, num(at + 1)?, num(at + 2)?])))
+            .map(|&(name, at)| {
+                let v = |j: usize| trace::number_cell(name, Some(j + 1), cell(at[j]));
+                Ok((name, [v(0)?, v(1)?, v(2)?]))
+            })
             .collect::<Result<_>>()?;
-        let arrival_ns = match cell(c.arrival) {
-            "" => None,
-            s => Some(
-                s.parse()
-                    .map_err(|_| anyhow::anyhow!("column arrival_ns = `{s}` is not ns"))?,
-            ),
-        };
+        let (reply, drives) = (cell(c.reply), cell(c.drives));
+        let fate = trace::reply_cell(reply)?;
+        trace::drives_cell(drives)?;
+        let arrival_ns = trace::arrival_cell(cell(c.arrival), fate, arrivals)?;
         Ok(Self {
             k,
             joints,
-            reply: cell(c.reply).into(),
-            drives: cell(c.drives).into(),
+            reply: reply.into(),
+            drives: drives.into(),
             arrival_ns,
         })
     }
