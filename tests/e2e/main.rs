@@ -26,6 +26,7 @@ mod realtime;
 mod replay;
 mod replay_merge_hardening;
 mod ros2;
+mod ros2_face;
 mod run_folder;
 mod sensitivity;
 mod soak;
