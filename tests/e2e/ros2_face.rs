@@ -5,67 +5,12 @@
 //! domain of its own.
 
 use crate::common;
-use common::python::{python, root, text};
+use crate::ros2::{deltaloop, node, wait, wait_for};
+use common::python::{root, text};
 use std::net::UdpSocket;
 use std::path::Path;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Command, Output};
 use std::time::{Duration, Instant};
-
-/// `deltaloop <args>` on DDS domain `domain`, ROS 2's other variables unset.
-fn deltaloop(domain: u16, args: &[&str]) -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_deltaloop"));
-    c.args(args)
-        .current_dir(root())
-        .env("ROS_DOMAIN_ID", domain.to_string())
-        .env_remove("ROS_AUTOMATIC_DISCOVERY_RANGE")
-        .env_remove("ROS_LOCALHOST_ONLY")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped());
-    c
-}
-
-/// The Python node `script` with `args`, in the tests' venv.
-fn node(script: &str, args: &[&str]) -> Child {
-    Command::new(python())
-        .arg(root().join(script))
-        .args(args)
-        .current_dir(root())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap_or_else(|e| panic!("{script} starts: {e}"))
-}
-
-/// Waits for `child` at most `limit` (killing it past that); its output.
-fn wait(mut child: Child, limit: Duration, what: &str) -> Output {
-    let t0 = Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if t0.elapsed() > limit {
-            let _ = child.kill();
-            let o = child.wait_with_output().unwrap();
-            panic!(
-                "{what}: still running after {limit:?}\n{}\n{}",
-                text(&o.stdout),
-                text(&o.stderr)
-            );
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    child.wait_with_output().unwrap()
-}
-
-/// Until `path` exists.
-fn wait_for(path: &Path) {
-    let t0 = Instant::now();
-    while !path.exists() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(60),
-            "{} never appeared",
-            path.display()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
 
 fn all(o: &Output) -> String {
     format!("{}\n{}", text(&o.stdout), text(&o.stderr))
@@ -165,7 +110,13 @@ fn regression_refused_commands_are_named_and_counted_when_the_run_faults() {
     wait_for(&out.join("config.toml"));
     let d = domain.to_string();
     let conf = out.join("config.toml");
-    let args = ["--config", conf.to_str().unwrap(), "--domain", &d, "--stale"];
+    let args = [
+        "--config",
+        conf.to_str().unwrap(),
+        "--domain",
+        &d,
+        "--stale",
+    ];
     let peer = node("tests/peers/ros2_hostile.py", &args);
     let run = wait(run, Duration::from_secs(120), "the run");
     let peer = wait(peer, Duration::from_secs(60), "the stale node");
@@ -238,7 +189,7 @@ fn peak_kib(pid: u32) -> u64 {
 
 /// One DATA_FRAG announcing a 256 MiB sample, to every unicast port of the run's domain on
 /// loopback: the supervisor (whose participant serves `--ros2`) allocates no more than 16 MiB
-/// for it, and the run completes.
+/// for it, and the run completes (lockstep: a loaded host does not fault it).
 #[test]
 fn regression_an_announced_sample_size_allocates_nothing_before_its_fragments() {
     let domain = 178;
@@ -250,16 +201,16 @@ fn regression_an_announced_sample_size_allocates_nothing_before_its_fragments() 
         "--law",
         "tdc",
         "--mode",
-        "realtime",
+        "lockstep",
         "--hold-s",
-        "1.5",
+        "3",
         "--ros2",
         "--out",
         out.to_str().unwrap(),
     ];
     let run = deltaloop(domain, &args).spawn().unwrap();
-    // The participant joined before the run folder was made.
-    wait_for(&out.join("config.toml"));
+    // Once the loop runs: the run's own tables are allocated before START.
+    wait_for(&out.join("trace.tdc.part"));
     std::thread::sleep(Duration::from_millis(300));
     let before = peak_kib(run.id());
     let sock = UdpSocket::bind("127.0.0.1:0").unwrap();
@@ -355,6 +306,13 @@ fn regression_a_discovery_flood_does_not_hold_the_exit() {
             std::thread::sleep(Duration::from_millis(5));
         }
     }
+    // The announcements were taken: the run answers new participants at their locator.
+    sock.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    let mut buf = [0u8; 1500];
+    let heard = sock
+        .recv(&mut buf)
+        .is_ok_and(|n| buf[..n].starts_with(b"RTPS"));
+    assert!(heard, "the run never answered a fake participant");
     let summary = out.join("summary.json");
     wait_for(&summary);
     let written = Instant::now();
@@ -369,9 +327,10 @@ fn regression_a_discovery_flood_does_not_hold_the_exit() {
         std::thread::sleep(Duration::from_millis(20));
     };
     let exited = written.elapsed();
+    let said = all(&run.wait_with_output().unwrap());
     assert!(
         exited <= Duration::from_secs(2),
-        "the run exited {exited:?} after summary.json ({status})"
+        "the run exited {exited:?} after summary.json ({status}): {said}"
     );
     assert!(status.success(), "{status}");
 }

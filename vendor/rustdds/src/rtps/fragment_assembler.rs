@@ -265,8 +265,8 @@ impl FragmentAssembler {
       debug!("new_datafrag: COMPLETED FRAGMENT");
       if let Some(assembly_buffer) = self.assembly_buffers.remove(&writer_sn) {
         // Return what we have assembled.
-        let serialized_data_or_key =
-          SerializedPayload::from_bytes(&assembly_buffer.assembled()).map_or_else(
+        let serialized_data_or_key = SerializedPayload::from_bytes(&assembly_buffer.assembled())
+          .map_or_else(
             |e| {
               error!("Deserializing SerializedPayload from DATAFRAG: {:?}", e);
               None
