@@ -51,24 +51,6 @@ fn example_node(domain: u16, config: &Path) -> Child {
 fn regression_a_node_started_first_or_late_is_waited_for() {
     let domain = 176;
     let tmp = tempfile::tempdir().unwrap();
-    let builtin = tmp.path().join("builtin");
-    common::run("configs/s1-ros2.toml", "lockstep", &builtin, &[]);
-    let config = builtin.join("config.toml");
-
-    // First: the node waits for the trajectory, the run comes later.
-    let ctl = example_node(domain, &config);
-    std::thread::sleep(Duration::from_secs(1));
-    let first = tmp.path().join("first");
-    let run = wait(
-        robot_run(domain, &first, &[]).spawn().unwrap(),
-        Duration::from_secs(120),
-        "the run with the node first",
-    );
-    let ctl = wait(ctl, Duration::from_secs(60), "the node started first");
-    assert!(ctl.status.success(), "{}", all(&ctl));
-    assert!(run.status.success(), "{}", all(&run));
-    let s = common::summary(&first);
-    assert_eq!(s["laws"]["tdc"]["status"], "ok", "{s}");
 
     // Late: 1.5 s after the run, which says what it waits for meanwhile.
     let late = tmp.path().join("late");
@@ -88,6 +70,21 @@ fn regression_a_node_started_first_or_late_is_waited_for() {
         "{said}"
     );
     assert_eq!(common::summary(&late)["laws"]["tdc"]["status"], "ok");
+
+    // First, with that run's config: the node waits for the trajectory, the run comes later.
+    let ctl = example_node(domain, &late.join("config.toml"));
+    std::thread::sleep(Duration::from_secs(1));
+    let first = tmp.path().join("first");
+    let run = wait(
+        robot_run(domain, &first, &[]).spawn().unwrap(),
+        Duration::from_secs(120),
+        "the run with the node first",
+    );
+    let ctl = wait(ctl, Duration::from_secs(60), "the node started first");
+    assert!(ctl.status.success(), "{}", all(&ctl));
+    assert!(run.status.success(), "{}", all(&run));
+    let s = common::summary(&first);
+    assert_eq!(s["laws"]["tdc"]["status"], "ok", "{s}");
 }
 
 /// A node whose every command is refused (stale stamps), in realtime: the terminal line of the
