@@ -635,6 +635,27 @@ mod tests {
         assert_eq!(p.announced("n"), (vec![], vec![b.guid()]));
     }
 
+    /// A guid of participant `p`, endpoint `e`.
+    fn guid(p: u8, e: u8) -> GUID {
+        let mut b = [p; 16];
+        b[12..].copy_from_slice(&[0, 0, e, 2]);
+        GUID::from_bytes(b)
+    }
+
+    /// The robot starts tick 0 only once one participant reads and writes: a reader of one
+    /// node and a writer of another are no node, and an unmatched endpoint counts no more.
+    #[test]
+    fn a_pair_is_a_reader_and_a_writer_of_one_participant() {
+        let mut m = Matched::default();
+        Matched::file(&mut m.readers, guid(1, 1), 1);
+        Matched::file(&mut m.writers, guid(2, 1), 1);
+        assert_eq!(m.pair(), None);
+        Matched::file(&mut m.writers, guid(1, 2), 1);
+        assert_eq!(m.pair(), Some((guid(1, 1), guid(1, 2))));
+        Matched::file(&mut m.readers, guid(1, 1), -1);
+        assert_eq!(m.pair(), None);
+    }
+
     #[test]
     fn law_topics_use_ros_names() {
         let r = Settings::resolve(&Ros2Section::default(), env(&[])).unwrap();

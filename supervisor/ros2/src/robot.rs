@@ -335,6 +335,35 @@ impl Step for Robot {
 mod tests {
     use super::*;
 
+    /// In realtime the robot gives up with the plant (its refusals then reach the record); in
+    /// lockstep, where the plant waits as long, at the silence limit.
+    #[test]
+    fn the_robot_waits_no_longer_than_the_plant() {
+        let mut cfg = RunConfig::from_toml_str(
+            &std::fs::read_to_string(concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/../../configs/s1-ros2.toml"
+            ))
+            .unwrap(),
+            None,
+        )
+        .unwrap();
+        cfg.faults.controller_silence_ticks = 500;
+        assert_eq!(
+            give_up(&cfg, LoopMode::Realtime),
+            Duration::from_millis(500)
+        );
+        assert_eq!(
+            give_up(&cfg, LoopMode::Lockstep),
+            Duration::from_millis(2000)
+        );
+        cfg.faults.controller_silence_ticks = 5000;
+        assert_eq!(
+            give_up(&cfg, LoopMode::Realtime),
+            Duration::from_millis(2000)
+        );
+    }
+
     fn cmd(stamp_ns: u64, names: &[&str], effort: &[f64]) -> JointState {
         let mut m = msg::joint_state(stamp_ns, &[], &[], effort);
         m.name = names.iter().map(|s| s.to_string()).collect();
