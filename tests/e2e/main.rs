@@ -30,6 +30,7 @@ mod replay;
 mod replay_merge_hardening;
 mod ros2;
 mod ros2_live;
+mod ros2_face;
 mod run_folder;
 mod sensitivity;
 mod soak;

@@ -14,7 +14,7 @@ use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 /// `deltaloop <args>` on DDS domain `domain`, ROS 2's other variables unset.
-fn deltaloop(domain: u16, args: &[&str]) -> Command {
+pub(crate) fn deltaloop(domain: u16, args: &[&str]) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_deltaloop"));
     c.args(args)
         .current_dir(root())
@@ -27,7 +27,7 @@ fn deltaloop(domain: u16, args: &[&str]) -> Command {
 }
 
 /// The Python node `script` (a path from the repository root) with `args`, in the venv.
-fn node(script: &str, args: &[&str]) -> Child {
+pub(crate) fn node(script: &str, args: &[&str]) -> Child {
     Command::new(python())
         .arg(root().join(script))
         .args(args)
@@ -39,7 +39,7 @@ fn node(script: &str, args: &[&str]) -> Child {
 }
 
 /// Waits for `child` at most `limit`, killing it past that; its output.
-fn wait(mut child: Child, limit: Duration, what: &str) -> Output {
+pub(crate) fn wait(mut child: Child, limit: Duration, what: &str) -> Output {
     let t0 = Instant::now();
     while child.try_wait().unwrap().is_none() {
         if t0.elapsed() > limit {
@@ -67,7 +67,7 @@ fn ok(o: &Output, what: &str) {
 }
 
 /// Until `path` exists (the run folder's config.toml: the run has started).
-fn wait_for(path: &Path) {
+pub(crate) fn wait_for(path: &Path) {
     let t0 = Instant::now();
     while !path.exists() {
         assert!(

@@ -2,8 +2,10 @@
 answer to tick 5 a command with the joints in another order, to tick 6 one with two efforts, to
 tick 7 one with a NaN, to tick 8 tick 7's stamp again, and to tick 9 a valid-looking command from a
 second writer. Every answer itself is the tdc law's, so the run stays the built-in's.
+With `--stale`, it answers every state with the next tick's stamp instead: every command is
+refused as stale, and the run ends at tick 0.
 
-    python tests/peers/ros2_hostile.py --config RUN/config.toml --domain N [--idle-s 2]
+    python tests/peers/ros2_hostile.py --config RUN/config.toml --domain N [--idle-s 2] [--stale]
 """
 
 import argparse
@@ -28,6 +30,7 @@ def main():
     p.add_argument("--config", required=True)
     p.add_argument("--domain", type=int, required=True)
     p.add_argument("--idle-s", type=float, default=2.0, help="exit this long after the last state")
+    p.add_argument("--stale", action="store_true", help="stamp every answer with the next tick's stamp")
     a = p.parse_args()
     cfg = tomllib.load(open(a.config, "rb"))
     ts_ns = round(float(cfg["loop"]["ts_s"]) * 1e9)
@@ -65,7 +68,9 @@ def main():
             t = s.header.stamp
             k = (t.sec * 1_000_000_000 + t.nanosec) // ts_ns
             tau = law.step(State(s.position, s.velocity, s.effort), refs[min(k, len(refs) - 1)])[0]
-            if k == 5:
+            if a.stale:
+                main_writer.write(command(ros2.stamp(k + 1, ts_ns), tau))
+            elif k == 5:
                 main_writer.write(command(t, tau, ["joint_1", "joint_3", "joint_2"]))
             elif k == 6:
                 main_writer.write(command(t, tau[:2]))
@@ -75,7 +80,8 @@ def main():
                 main_writer.write(command(ros2.stamp(7, ts_ns), tau))
             elif k == 9:
                 second.write(command(t, [0.0, 0.0, 0.0]))
-            main_writer.write(command(t, tau))
+            if not a.stale:
+                main_writer.write(command(t, tau))
             answered += 1
         idle = time.monotonic() + a.idle_s
     print(f"ros2_hostile: answered {answered} states", file=sys.stderr)

@@ -368,6 +368,17 @@ impl Ros2Section {
                 return Err(range(key, show_str(t), ROS_NAME_RULE));
             }
         }
+        let topic = |t: &str| t.trim_start_matches('/').to_owned();
+        if topic(&self.state_topic) == topic(&self.command_topic) {
+            return Err(range(
+                "ros2.command_topic",
+                show_str(&self.command_topic),
+                &format!(
+                    "a topic other than ros2.state_topic's ({}): the robot would read its own states as commands",
+                    show_str(&self.state_topic)
+                ),
+            ));
+        }
         if !(1..=1_000_000).contains(&self.every) {
             return Err(range(
                 "ros2.every",
@@ -732,6 +743,23 @@ mod tests {
         );
         let e = RunConfig::from_toml_str(&format!("{MIN}[loop]\nts_s = nan\n"), None).unwrap_err();
         assert!(e.to_string().contains("loop.ts_s` = NaN"), "{e}");
+    }
+
+    /// With one topic for both, the robot reads its own states as commands (no node needed).
+    #[test]
+    fn regression_a_state_topic_equal_to_the_command_topic_is_refused() {
+        for (states, commands) in [("/robot_io", "/robot_io"), ("/robot_io", "robot_io")] {
+            let toml = format!(
+                "{MIN}[ros2]\nstate_topic = \"{states}\"\ncommand_topic = \"{commands}\"\n"
+            );
+            let e = RunConfig::from_toml_str(&toml, None).unwrap_err();
+            assert_eq!(
+                e.to_string(),
+                format!(
+                    "config key `ros2.command_topic` = \"{commands}\" is out of range: a topic other than ros2.state_topic's (\"{states}\"): the robot would read its own states as commands"
+                )
+            );
+        }
     }
 
     #[test]

@@ -146,29 +146,66 @@ pub fn best_effort(depth: i32) -> QosPolicies {
     qos(Reliability::BestEffort, Durability::Volatile, depth)
 }
 
-/// Waits until `writer` has a matched reader and `reader` a matched writer (DDS discovery), or
-/// `timeout`; returns which of the two matched.
+/// What discovery has matched to a writer and a reader: the remote readers of the writer's
+/// topic and the remote writers of the reader's.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Matched {
+    pub readers: Vec<GUID>,
+    pub writers: Vec<GUID>,
+}
+
+impl Matched {
+    /// A reader and a writer of one participant (one node's pair), if there is one.
+    pub fn pair(&self) -> Option<(GUID, GUID)> {
+        self.readers.iter().find_map(|r| {
+            let w = self.writers.iter().find(|w| w.prefix == r.prefix)?;
+            Some((*r, *w))
+        })
+    }
+
+    /// Files one match (`change` > 0) or unmatch (`change` < 0) of `remote` in `list`.
+    fn file(list: &mut Vec<GUID>, remote: GUID, change: i32) {
+        if change > 0 && !list.contains(&remote) {
+            list.push(remote);
+        } else if change < 0 {
+            list.retain(|g| *g != remote);
+        }
+    }
+}
+
+/// Waits until one participant has both a reader matched to `writer` and a writer matched to
+/// `reader` (DDS discovery), or `timeout`; what matched by then.
 pub fn wait_matched<W, R>(
     writer: &Writer<W>,
     reader: &Reader<R>,
     timeout: std::time::Duration,
-) -> (bool, bool)
+) -> Matched
 where
     W: Serialize,
     R: DeserializeOwned + 'static,
 {
-    use rustdds::StatusEvented;
+    use rustdds::{DataReaderStatus, DataWriterStatus, StatusEvented};
     let until = std::time::Instant::now() + timeout;
-    let (mut read, mut heard) = (false, false);
+    let mut m = Matched::default();
     loop {
         while let Some(s) = reader.try_recv_status() {
-            heard |= matches!(s, rustdds::DataReaderStatus::SubscriptionMatched { .. });
+            if let DataReaderStatus::SubscriptionMatched {
+                current, writer, ..
+            } = s
+            {
+                Matched::file(&mut m.writers, writer, current.count_change());
+            }
         }
         while let Some(s) = writer.try_recv_status() {
-            read |= matches!(s, rustdds::DataWriterStatus::PublicationMatched { .. });
+            if let DataWriterStatus::PublicationMatched {
+                current, reader, ..
+            } = s
+            {
+                Matched::file(&mut m.readers, reader, current.count_change());
+            }
         }
-        if (read && heard) || std::time::Instant::now() >= until {
-            return (read, heard);
+        if m.pair().is_some() || std::time::Instant::now() >= until {
+            return m;
         }
         std::thread::sleep(std::time::Duration::from_millis(5));
     }
@@ -266,6 +303,48 @@ impl<T: DeserializeOwned + 'static> Waiting<T> {
     /// Blocks until a sample may have come, or `timeout` (a signal may end it sooner).
     pub fn wait(&mut self, timeout: std::time::Duration) {
         let _ = self.poll.poll(&mut self.events, Some(timeout));
+    }
+}
+
+/// Drops what it holds on a thread of its own and waits for that at most `limit`: the drop of a
+/// participant waits for its discovery thread, which a flood of announcements keeps busy for
+/// minutes. Past the limit the drop goes on unwaited for, and the process's exit ends it.
+pub struct DropWithin<T: Send + 'static> {
+    inner: Option<T>,
+    limit: std::time::Duration,
+}
+
+impl<T: Send + 'static> DropWithin<T> {
+    pub fn new(inner: T, limit: std::time::Duration) -> Self {
+        Self {
+            inner: Some(inner),
+            limit,
+        }
+    }
+
+    pub fn get(&self) -> &T {
+        self.inner.as_ref().expect("held until dropped")
+    }
+}
+
+impl<T: Send + 'static> Drop for DropWithin<T> {
+    fn drop(&mut self) {
+        let Some(inner) = self.inner.take() else {
+            return;
+        };
+        let (done, dropped) = std::sync::mpsc::channel();
+        let spawned = std::thread::Builder::new()
+            .name("dds-drop".into())
+            .spawn(move || {
+                drop(inner);
+                let _ = done.send(());
+            });
+        if spawned.is_ok() && dropped.recv_timeout(self.limit).is_err() {
+            eprintln!(
+                "ROS 2: DDS did not close within {:.1} s (discovery busy); it ends with the process",
+                self.limit.as_secs_f64()
+            );
+        }
     }
 }
 
@@ -554,6 +633,27 @@ mod tests {
         assert_eq!(p.announced("n").1, vec![a.guid(), b.guid()]);
         p.retire(&[a.guid()]).unwrap();
         assert_eq!(p.announced("n"), (vec![], vec![b.guid()]));
+    }
+
+    /// A guid of participant `p`, endpoint `e`.
+    fn guid(p: u8, e: u8) -> GUID {
+        let mut b = [p; 16];
+        b[12..].copy_from_slice(&[0, 0, e, 2]);
+        GUID::from_bytes(b)
+    }
+
+    /// The robot starts tick 0 only once one participant reads and writes: a reader of one
+    /// node and a writer of another are no node, and an unmatched endpoint counts no more.
+    #[test]
+    fn a_pair_is_a_reader_and_a_writer_of_one_participant() {
+        let mut m = Matched::default();
+        Matched::file(&mut m.readers, guid(1, 1), 1);
+        Matched::file(&mut m.writers, guid(2, 1), 1);
+        assert_eq!(m.pair(), None);
+        Matched::file(&mut m.writers, guid(1, 2), 1);
+        assert_eq!(m.pair(), Some((guid(1, 1), guid(1, 2))));
+        Matched::file(&mut m.readers, guid(1, 1), -1);
+        assert_eq!(m.pair(), None);
     }
 
     #[test]

@@ -15,7 +15,7 @@ use crate::live::ReferenceTopics;
 use crate::msg::{self, JointState};
 use crate::node::{Participant, Settings, Waiting, Writer, reliable, wait_matched};
 use anyhow::{Context, Result, bail};
-use deltaloop_config::RunConfig;
+use deltaloop_config::{LoopMode, RunConfig};
 use deltaloop_controller::process::Step;
 use deltaloop_study::Study;
 use deltaloop_transport::wire::{RefSample, StateMsg, TorqueMsg};
@@ -67,29 +67,97 @@ impl Refused {
             + self.second_publisher
             + self.undecodable
     }
+
+    /// Counts `r` under its cause.
+    fn count(&mut self, r: Refusal) {
+        *match r {
+            Refusal::Names => &mut self.names,
+            Refusal::Length => &mut self.length,
+            Refusal::NonFinite => &mut self.non_finite,
+            Refusal::Stale { .. } => &mut self.stale,
+            Refusal::SecondPublisher => &mut self.second_publisher,
+            Refusal::Undecodable => &mut self.undecodable,
+        } += 1;
+    }
+}
+
+/// Why one command was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Refusal {
+    Names,
+    Length,
+    NonFinite,
+    /// Its stamp (s, ns) is not the awaited tick's.
+    Stale {
+        sec: i32,
+        nanosec: u32,
+    },
+    SecondPublisher,
+    Undecodable,
+}
+
+impl std::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Names => write!(f, "joint names other than {}", msg::JOINTS.join(", ")),
+            Self::Length => write!(f, "effort not three values"),
+            Self::NonFinite => write!(f, "a NaN or infinite torque"),
+            Self::Stale { sec, nanosec } => {
+                write!(f, "stale, stamped {sec} s {nanosec} ns")
+            }
+            Self::SecondPublisher => write!(f, "from a second publisher"),
+            Self::Undecodable => write!(f, "not a plain-CDR JointState"),
+        }
+    }
 }
 
 /// Judges one command against tick `k` (period `ts_ns`): τ (N m) if it answers tick k, else
-/// None with the refusal counted under its cause in `refused`.
-pub fn judge(m: &JointState, k: u64, ts_ns: u64, refused: &mut Refused) -> Option<[f64; 3]> {
+/// why it is refused.
+pub fn judge(m: &JointState, k: u64, ts_ns: u64) -> Result<[f64; 3], Refusal> {
     let named = m.name.is_empty() || m.name.iter().map(String::as_str).eq(msg::JOINTS);
     if !named {
-        refused.names += 1;
-        return None;
+        return Err(Refusal::Names);
     }
     let Ok(tau) = <[f64; 3]>::try_from(m.effort.as_slice()) else {
-        refused.length += 1;
-        return None;
+        return Err(Refusal::Length);
     };
     if !tau.iter().all(|t| t.is_finite()) {
-        refused.non_finite += 1;
-        return None;
+        return Err(Refusal::NonFinite);
     }
     if m.header.stamp.ns() != Some(k * ts_ns) {
-        refused.stale += 1;
-        return None;
+        return Err(Refusal::Stale {
+            sec: m.header.stamp.sec,
+            nanosec: m.header.stamp.nanosec,
+        });
     }
-    Some(tau)
+    Ok(tau)
+}
+
+/// How long the robot waits for the answer to a tick: the silence limit, and in realtime no
+/// longer than the plant waits (`[faults] controller_silence_ticks`), whose safe stop then ends
+/// the run: the robot's end and its counts of refused commands reach the run's record.
+fn give_up(cfg: &RunConfig, mode: LoopMode) -> Duration {
+    let silence = Duration::from_millis(u64::from(cfg.loop_.silence_timeout_ms));
+    match mode {
+        LoopMode::Realtime => {
+            let ticks = u64::from(cfg.faults.controller_silence_ticks);
+            silence.min(Duration::from_nanos(ticks.saturating_mul(cfg.ts_ns())))
+        }
+        _ => silence,
+    }
+}
+
+/// What the robot waits for before tick 0, in words (the robot's log and the run's terminal).
+pub fn waiting_line(settings: &Settings) -> String {
+    let s = &settings.section;
+    format!(
+        "waiting up to {} s for a ROS 2 node that reads {} and writes {} (domain {}, {}) before tick 0",
+        s.wait_s,
+        s.state_topic,
+        s.command_topic,
+        settings.domain,
+        settings.reach()
+    )
 }
 
 /// What the run calls this controller (its READY): `tdc (ros2)` in the tables.
@@ -106,12 +174,14 @@ pub struct Robot {
     /// The first publisher heard on the command topic: the only one obeyed.
     from: Option<GUID>,
     pub refused: Refused,
+    /// The first command refused while the current tick is awaited, and how many are.
+    refused_now: (Option<Refusal>, u64),
 }
 
 impl Robot {
     /// Joins the graph of the run's `[ros2]`, publishes `law`'s trajectory and waits for the
     /// node (a reader of the states and a writer of the commands, `[ros2] wait_s`).
-    pub fn new(cfg: &RunConfig, law: &str) -> Result<Self> {
+    pub fn new(cfg: &RunConfig, law: &str, mode: LoopMode) -> Result<Self> {
         let settings = Settings::of_run(cfg)?;
         let section = settings.section.clone();
         if let Some(w) = settings.warning() {
@@ -126,33 +196,41 @@ impl Robot {
         let reference = ReferenceTopics::publish(&part, NODE, law, &study.reference, ts_ns, 10)?;
         let states: Writer<JointState> = part.writer(NODE, &state_topic, reliable(10))?;
         let commands = Waiting::new(part.reader(NODE, &command_topic, reliable(10))?)?;
-        // The node is there when it reads the states and its commands reach us.
-        let (read, heard) = wait_matched(
-            &states,
-            &commands.reader,
-            Duration::from_secs_f64(section.wait_s),
-        );
-        if !(read && heard) {
+        // The node is there when one participant reads the states and its commands reach us:
+        // no tick 0 goes out before that.
+        let wait = Duration::from_secs_f64(section.wait_s);
+        eprintln!("{NODE}: {}", waiting_line(&settings));
+        let t0 = Instant::now();
+        let m = wait_matched(&states, &commands.reader, wait);
+        if m.pair().is_none() {
+            let missing = match (m.readers.is_empty(), m.writers.is_empty()) {
+                (true, true) => format!("read {state_topic} or wrote {command_topic}"),
+                (false, true) => format!("wrote {command_topic}"),
+                (true, false) => format!("read {state_topic}"),
+                (false, false) => format!(
+                    "both read {state_topic} and wrote {command_topic} (one participant read, another wrote)"
+                ),
+            };
             bail!(
-                "no ROS 2 node {} within {} s (domain {domain}, {}): start the node first, or raise [ros2] wait_s",
-                match (read, heard) {
-                    (false, false) => format!("read {state_topic} or wrote {command_topic}"),
-                    (true, false) => format!("wrote {command_topic}"),
-                    _ => format!("read {state_topic}"),
-                },
+                "no ROS 2 node {missing} within [ros2] wait_s = {} s (domain {domain}, {}): start the node within that time (the example node reads the run folder's config.toml), or raise wait_s (at most 25 s)",
                 section.wait_s,
                 settings.reach()
             );
         }
+        eprintln!(
+            "{NODE}: a ROS 2 node matched after {:.1} s",
+            t0.elapsed().as_secs_f64()
+        );
         Ok(Self {
             _part: part,
             states,
             reference,
             commands,
             ts_ns,
-            silence: Duration::from_millis(u64::from(cfg.loop_.silence_timeout_ms)),
+            silence: give_up(cfg, mode),
             from: None,
             refused: Refused::default(),
+            refused_now: (None, 0),
         })
     }
 
@@ -166,20 +244,42 @@ impl Robot {
                 Ok(Some(s)) => s,
                 Ok(None) => break,
                 Err(_) => {
-                    self.refused.undecodable += 1;
+                    self.refuse(Refusal::Undecodable);
                     continue;
                 }
             };
             let w = s.sample_info().writer_guid();
             if *self.from.get_or_insert(w) != w {
-                self.refused.second_publisher += 1;
+                self.refuse(Refusal::SecondPublisher);
                 continue;
             }
-            if let Some(t) = judge(s.value(), k, self.ts_ns, &mut self.refused) {
-                answer.get_or_insert(t);
+            match judge(s.value(), k, self.ts_ns) {
+                Ok(t) => {
+                    answer.get_or_insert(t);
+                }
+                Err(r) => self.refuse(r),
             }
         }
         answer
+    }
+
+    /// Counts `r`, and keeps it if it is the first while this tick is awaited.
+    fn refuse(&mut self, r: Refusal) {
+        self.refused.count(r);
+        self.refused_now.0.get_or_insert(r);
+        self.refused_now.1 += 1;
+    }
+
+    /// Why tick `k` went unanswered: the silence, and the commands refused meanwhile.
+    fn unanswered(&self, k: u64) -> String {
+        let ms = self.silence.as_millis();
+        match self.refused_now {
+            (Some(first), n) => format!(
+                "the ROS 2 node did not answer tick {k} within {ms} ms: its {n} command(s) meanwhile were refused, the first: {first} (tick {k} is at {} ns)",
+                k * self.ts_ns
+            ),
+            (None, _) => format!("the ROS 2 node did not answer tick {k} within {ms} ms"),
+        }
     }
 
     /// The count line of the end.
@@ -204,6 +304,7 @@ impl Step for Robot {
             return Err(format!("cannot publish the state of tick {k}: {e:?}"));
         }
         let until = Instant::now() + self.silence;
+        self.refused_now = (None, 0);
         loop {
             if let Some(tau) = self.take(k) {
                 return Ok(TorqueMsg {
@@ -214,10 +315,7 @@ impl Step for Robot {
             }
             let now = Instant::now();
             if now >= until {
-                return Err(format!(
-                    "the ROS 2 node did not answer tick {k} within {} ms",
-                    self.silence.as_millis()
-                ));
+                return Err(self.unanswered(k));
             }
             self.commands
                 .wait((until - now).min(Duration::from_millis(50)));
@@ -237,6 +335,35 @@ impl Step for Robot {
 mod tests {
     use super::*;
 
+    /// In realtime the robot gives up with the plant (its refusals then reach the record); in
+    /// lockstep, where the plant waits as long, at the silence limit.
+    #[test]
+    fn the_robot_waits_no_longer_than_the_plant() {
+        let mut cfg = RunConfig::from_toml_str(
+            &std::fs::read_to_string(concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/../../configs/s1-ros2.toml"
+            ))
+            .unwrap(),
+            None,
+        )
+        .unwrap();
+        cfg.faults.controller_silence_ticks = 500;
+        assert_eq!(
+            give_up(&cfg, LoopMode::Realtime),
+            Duration::from_millis(500)
+        );
+        assert_eq!(
+            give_up(&cfg, LoopMode::Lockstep),
+            Duration::from_millis(2000)
+        );
+        cfg.faults.controller_silence_ticks = 5000;
+        assert_eq!(
+            give_up(&cfg, LoopMode::Realtime),
+            Duration::from_millis(2000)
+        );
+    }
+
     fn cmd(stamp_ns: u64, names: &[&str], effort: &[f64]) -> JointState {
         let mut m = msg::joint_state(stamp_ns, &[], &[], effort);
         m.name = names.iter().map(|s| s.to_string()).collect();
@@ -249,29 +376,25 @@ mod tests {
     fn a_command_answers_its_tick_only() {
         let ts = 300_000;
         let mut r = Refused::default();
+        let mut judged = |m: &JointState, k| judge(m, k, ts).inspect_err(|e| r.count(*e));
         let good = cmd(7 * ts, &msg::JOINTS, &[1.0, -2.0, 0.5]);
-        assert_eq!(judge(&good, 7, ts, &mut r), Some([1.0, -2.0, 0.5]));
+        assert_eq!(judged(&good, 7), Ok([1.0, -2.0, 0.5]));
         let unnamed = cmd(7 * ts, &[], &[1.0, 2.0, 3.0]);
-        assert_eq!(judge(&unnamed, 7, ts, &mut r), Some([1.0, 2.0, 3.0]));
-        assert_eq!(r, Refused::default());
-        judge(&cmd(6 * ts, &msg::JOINTS, &[0.0; 3]), 7, ts, &mut r);
-        judge(&cmd(7 * ts + 1, &msg::JOINTS, &[0.0; 3]), 7, ts, &mut r);
-        judge(
-            &cmd(7 * ts, &["joint_1", "joint_3", "joint_2"], &[0.0; 3]),
-            7,
-            ts,
-            &mut r,
+        assert_eq!(judged(&unnamed, 7), Ok([1.0, 2.0, 3.0]));
+        let stale = judged(&cmd(6 * ts, &msg::JOINTS, &[0.0; 3]), 7).unwrap_err();
+        assert_eq!(stale.to_string(), "stale, stamped 0 s 1800000 ns");
+        let _ = judged(&cmd(7 * ts + 1, &msg::JOINTS, &[0.0; 3]), 7);
+        let swapped = cmd(7 * ts, &["joint_1", "joint_3", "joint_2"], &[0.0; 3]);
+        assert_eq!(judged(&swapped, 7), Err(Refusal::Names));
+        assert_eq!(
+            judged(&cmd(7 * ts, &msg::JOINTS, &[0.0; 2]), 7),
+            Err(Refusal::Length)
         );
-        judge(&cmd(7 * ts, &msg::JOINTS, &[0.0; 2]), 7, ts, &mut r);
-        judge(
-            &cmd(7 * ts, &msg::JOINTS, &[0.0, f64::NAN, 0.0]),
-            7,
-            ts,
-            &mut r,
-        );
+        let nan = cmd(7 * ts, &msg::JOINTS, &[0.0, f64::NAN, 0.0]);
+        assert_eq!(judged(&nan, 7), Err(Refusal::NonFinite));
         let mut neg = cmd(0, &msg::JOINTS, &[0.0; 3]);
         neg.header.stamp.sec = -1;
-        judge(&neg, 0, ts, &mut r);
+        let _ = judged(&neg, 0);
         assert_eq!(
             r,
             Refused {
@@ -311,9 +434,11 @@ pub fn main() -> std::process::ExitCode {
     use clap::Parser as _;
     let args = Args::parse();
     let term = deltaloop_transport::rt::child_signals();
-    let law = args.law.clone();
+    let (law, mode) = (args.law.clone(), args.run.mode);
     deltaloop_transport::exit::exit(
         NODE,
-        deltaloop_controller::process::serve(&args.run, &term, NODE, |cfg| Robot::new(cfg, &law)),
+        deltaloop_controller::process::serve(&args.run, &term, NODE, |cfg| {
+            Robot::new(cfg, &law, mode)
+        }),
     )
 }

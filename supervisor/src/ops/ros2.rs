@@ -4,13 +4,28 @@ use anyhow::Result;
 use deltaloop_config::RunConfig;
 use deltaloop_runner::lawrun::Tap;
 
+/// The longest the run's end waits for its DDS participant to close, s: the process exits
+/// within this of the run's end whatever discovery holds.
+#[cfg(feature = "ros2")]
+const DDS_CLOSE_S: f64 = 1.5;
+
 /// The tap of `--ros2` (None when not asked): joins the ROS 2 graph of the run's `[ros2]` and
-/// says where on stderr, with a warning line if discovery reaches beyond this host.
+/// says where on stderr, with a warning line if discovery reaches beyond this host. With
+/// `--controller ros2` it also says what the robot waits for before tick 0.
 #[cfg(feature = "ros2")]
 pub fn live_tap(cfg: &RunConfig, asked: bool) -> Result<Option<Tap>> {
     use deltaloop_ros2::live::LiveRun;
-    use deltaloop_ros2::node::Settings;
+    use deltaloop_ros2::node::{DropWithin, Settings};
     use deltaloop_study::record::TickSink;
+    // The robot of `--controller ros2` publishes the law's reference topics itself.
+    let robot = deltaloop_runner::procs::ros2_robot_answers(cfg);
+    if robot {
+        let line = deltaloop_ros2::robot::waiting_line(&Settings::of_run(cfg)?);
+        eprintln!(
+            "ROS 2: each law's robot (/{}) is {line}; the example node reads the run folder's config.toml",
+            deltaloop_ros2::robot::NODE
+        );
+    }
     if !asked {
         return Ok(None);
     }
@@ -18,8 +33,6 @@ pub fn live_tap(cfg: &RunConfig, asked: bool) -> Result<Option<Tap>> {
     if let Some(w) = settings.warning() {
         eprintln!("{w}");
     }
-    // The robot of `--controller ros2` publishes the law's reference topics itself.
-    let robot = deltaloop_runner::procs::ros2_robot_answers(cfg);
     let leaves = if robot {
         "joint_states"
     } else {
@@ -34,8 +47,9 @@ pub fn live_tap(cfg: &RunConfig, asked: bool) -> Result<Option<Tap>> {
     );
     let ts_ns = cfg.ts_ns();
     let live = LiveRun::open(settings, deltaloop_model::DeltaRobot::default(), ts_ns)?;
+    let live = DropWithin::new(live, std::time::Duration::from_secs_f64(DDS_CLOSE_S));
     Ok(Some(Tap(std::sync::Arc::new(move |study, law| {
-        let topics = live.law(law, (!robot).then_some(&study.reference))?;
+        let topics = live.get().law(law, (!robot).then_some(&study.reference))?;
         Ok(Box::new(topics) as Box<dyn TickSink + Send>)
     }))))
 }
