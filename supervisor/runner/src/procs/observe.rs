@@ -201,6 +201,11 @@ impl<'a> Observation<'a> {
     /// is whole or has waited long enough ([`GRACE_NS`]).
     fn drain(&mut self, obs: &Observer) -> Result<()> {
         obs.drain(&mut |m| self.file(m))?;
+        self.finish_ready()
+    }
+
+    /// Finishes, in order, every tick that is whole or has waited long enough.
+    fn finish_ready(&mut self) -> Result<()> {
         while let Some(now) = self.last_state
             && self.window.next < self.window.last
             && self.ready(self.window.next, now)
@@ -232,12 +237,14 @@ impl<'a> Observation<'a> {
     }
 
     /// Hands what is written of the trace part and the timing file to the kernel (a killed
-    /// supervisor loses only what it has not finished).
+    /// supervisor loses only what it has not finished). A trace that fails stops the loop (see
+    /// [`observe`]) and is the run's error.
     fn flush(&mut self) -> Result<()> {
-        if let Some(csv) = &mut self.csv {
-            csv.flush()?;
+        self.rec.sink_mut().flush();
+        match &mut self.csv {
+            Some(csv) => csv.flush(),
+            None => Ok(()),
         }
-        self.rec.sink_mut().flush()
     }
 
     /// Files one message the observer's ports took.
@@ -766,6 +773,65 @@ mod tests {
         let cfg =
             RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s2\"\n", None).unwrap();
         Study::new(cfg).unwrap()
+    }
+
+    /// A whole tick is finished at once (the e2e regression test: a killed run lost its last
+    /// 2.5 s when a tick was finished only 8192 ticks after it); a tick the plant
+    /// missed, once a local controller has answered a newer state; one without its telemetry,
+    /// once the plant's states are [`GRACE_NS`] past it; one whose applied reply's copy has
+    /// not come, only after [`APPLIED_LAG`] ticks.
+    #[test]
+    fn ticks_are_finished_once_whole_or_waited_for() {
+        let study = s2();
+        let mut obs = seen_up_to_tick_9(&study);
+        obs.last_state = Some(9);
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 10, "ticks 0..=9 are whole");
+        // Tick 10: its state, and telemetry saying the plant missed the reply.
+        let row = study.reference.row(10).joint;
+        let state = StateMsg {
+            tick: 10,
+            q: row.q.into(),
+            q_true: row.q.into(),
+            ..StateMsg::default()
+        };
+        let missed = TelemetryMsg {
+            tick: 10,
+            flags: wire::TEL_MISSED,
+            ..TelemetryMsg::default()
+        };
+        obs.window.slot(10).state = Some(state);
+        obs.window.slot(10).tel = Some(missed);
+        obs.last_state = Some(11);
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 10, "its reply may still come");
+        obs.last_torque = Some(TorqueMsg {
+            tick: 11,
+            ..TorqueMsg::default()
+        });
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 11, "the controller answered a newer state");
+        // Tick 11: no telemetry yet.
+        obs.window.slot(11).state = Some(StateMsg { tick: 11, ..state });
+        obs.last_state = Some(11 + obs.grace - 1);
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 11);
+        obs.last_state = Some(11 + obs.grace);
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 12, "waited the grace");
+        assert_eq!(obs.grace, 334, "0.1 s at Ts = 0.3 ms");
+        // Tick 12: applied, by the telemetry, but the reply's copy is still on its way.
+        obs.window.slot(12).state = Some(StateMsg { tick: 12, ..state });
+        obs.window.slot(12).tel = Some(TelemetryMsg {
+            tick: 12,
+            ..TelemetryMsg::default()
+        });
+        obs.last_state = Some(12 + APPLIED_LAG - 1);
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 12);
+        obs.last_state = Some(12 + APPLIED_LAG);
+        obs.finish_ready().unwrap();
+        assert!(obs.window.next > 12);
     }
 
     /// Regression: a supervisor starved of the CPU saw the loop up to tick 465, the plant's
