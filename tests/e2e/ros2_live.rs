@@ -27,7 +27,13 @@ fn watcher(domain: u16, out: &Path) -> Child {
 /// `run CONFIG --mode realtime --ros2 --out OUT` on `domain`, started.
 fn live_run(domain: u16, config: &Path, out: &Path) -> Child {
     Command::new(env!("CARGO_BIN_EXE_deltaloop"))
-        .args(["run", config.to_str().unwrap(), "--mode", "realtime", "--ros2"])
+        .args([
+            "run",
+            config.to_str().unwrap(),
+            "--mode",
+            "realtime",
+            "--ros2",
+        ])
         .args(["--out", out.to_str().unwrap()])
         .current_dir(root())
         .env("ROS_DOMAIN_ID", domain.to_string())
@@ -108,7 +114,10 @@ fn watched_run(
     let run = live_run(domain, &config(tmp, hold_s), &out);
     let t0 = Instant::now();
     while !out.join("tdc.timing.csv").is_file() {
-        assert!(t0.elapsed() < Duration::from_secs(30), "the loop never started");
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "the loop never started"
+        );
         std::thread::sleep(Duration::from_millis(5));
     }
     during(&out);
@@ -137,7 +146,11 @@ fn regression_live_joint_states_came_late_and_in_bursts() {
         .iter()
         .filter_map(|m| {
             let s = stamp_ns(m);
-            assert_eq!(s % (10 * TS_NS), 0, "a stamp off k·Ts (every 10th tick): {m}");
+            assert_eq!(
+                s % (10 * TS_NS),
+                0,
+                "a stamp off k·Ts (every 10th tick): {m}"
+            );
             let d = *due.get(&(s / TS_NS))?;
             Some(m["arrival_ns"].as_i64().unwrap() - d as i64)
         })
@@ -194,7 +207,11 @@ fn regression_diagnostics_miss_the_last_ticks_and_never_warn() {
     let trace = std::fs::read_to_string(out.join("trace.csv")).unwrap();
     let header: Vec<&str> = trace.lines().next().unwrap().split(',').collect();
     let reply = header.iter().position(|h| *h == "reply").unwrap();
-    let rows: Vec<Vec<&str>> = trace.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    let rows: Vec<Vec<&str>> = trace
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
     let missed = rows.iter().filter(|r| r[reply] != "applied").count() as u64;
     assert!(missed > 0, "the 40 ms stop missed ticks");
     let diag: Vec<Value> = samples(&seen, "diagnostics")

@@ -445,8 +445,11 @@ impl TraceWriter {
             error: None,
         };
         w.encode(&header);
-        w.flush()?;
-        Ok(w)
+        w.write_rows();
+        match w.error.take() {
+            Some(e) => Err(e),
+            None => Ok(w),
+        }
     }
 
     /// Writes tick k's row (into the fields and buffer allocated at creation: no allocation per
@@ -495,14 +498,10 @@ impl TraceWriter {
         self.error.is_some()
     }
 
-    /// Hands every row so far to the kernel (a killed run keeps them); the first write error, if
-    /// any.
-    pub fn flush(&mut self) -> Result<()> {
+    /// Hands every row so far to the kernel (a killed run keeps them). A failure is kept, as a
+    /// row's: [`TraceWriter::failed`] says so, [`TraceWriter::finish`] returns it.
+    pub fn flush(&mut self) {
         self.write_rows();
-        match &self.error {
-            Some(e) => Err(anyhow::anyhow!("{e:#}")),
-            None => Ok(()),
-        }
     }
 
     /// Writes what is left; the first write error, if any.

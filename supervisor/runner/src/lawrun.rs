@@ -91,11 +91,10 @@ impl RunSinks<'_> {
         self.trace.as_ref().is_some_and(TraceWriter::failed)
     }
 
-    /// Hands the trace rows written so far to the kernel; the trace's first write error, if any.
-    pub fn flush(&mut self) -> Result<()> {
-        match &mut self.trace {
-            Some(t) => t.flush(),
-            None => Ok(()),
+    /// Hands the trace rows written so far to the kernel (a failure shows in [`Self::failed`]).
+    pub fn flush(&mut self) {
+        if let Some(t) = &mut self.trace {
+            t.flush();
         }
     }
 

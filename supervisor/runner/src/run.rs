@@ -599,22 +599,48 @@ fn child_logs(dir: &Path) -> Vec<String> {
 fn kept_note(finished: &[Law], dir: &Path, logs: &[String]) -> String {
     if finished.is_empty() {
         format!(
-            "no law finished: {} holds the resolved config.toml{}, and a summary and report without results",
+            "no law finished: {} holds the resolved config.toml{}, and a summary and report without results{}",
             dir.display(),
             if logs.is_empty() {
                 String::new()
             } else {
                 format!(", the children's logs ({})", logs.join(", "))
-            }
+            },
+            rows_apart(&[], dir)
         )
     } else {
         let names: Vec<String> = finished.iter().map(Law::to_string).collect();
         format!(
-            "the laws that finished ({}) are kept in {}",
+            "the laws that finished ({}) are kept in {}{}",
             names.join(", "),
-            dir.display()
+            dir.display(),
+            rows_apart(&names, dir)
         )
     }
+}
+
+/// Where the rows of the laws that did not finish are (`trace.<law>.csv`, kept apart from
+/// `trace.csv`), as the end of [`kept_note`]; empty if none.
+fn rows_apart(finished: &[String], dir: &Path) -> String {
+    let mut apart: Vec<String> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| {
+            n.strip_prefix("trace.")
+                .and_then(|l| l.strip_suffix(".csv"))
+                .is_some_and(|l| !finished.iter().any(|f| f == l))
+        })
+        .collect();
+    apart.sort();
+    if apart.is_empty() {
+        return String::new();
+    }
+    format!(
+        " (the rows of the laws that did not finish: {})",
+        apart.join(", ")
+    )
 }
 
 /// The report section that says what the measured latency cost: each law's tracking against the

@@ -685,8 +685,7 @@ mod tests {
             timing_csv: true,
         };
         assert!(check_disk(ticks, &timing_only, 59_000_000_000, Path::new("."), &day).is_ok());
-        let e =
-            check_disk(ticks, &timing_only, 30_000_000_000, Path::new("."), &day).unwrap_err();
+        let e = check_disk(ticks, &timing_only, 30_000_000_000, Path::new("."), &day).unwrap_err();
         assert!(e.contains("≈ 110 B in timing.csv)"), "{e}");
         let none = RecordSection {
             trace: false,

@@ -28,17 +28,18 @@ mod faults;
 /// Ticks the observer holds open at most (a ring indexed by tick).
 const WINDOW: u64 = 32_768;
 
-/// How long the supervisor waits for what is missing of a tick, in loop time (ns): a tick is
-/// finished once it is whole (its state, its telemetry and the reply the plant applied, or, for
-/// a reply the plant did not apply, a newer reply of a local controller: it will not answer
-/// this state any more), else once the plant's states are this far past it. A reply later than
-/// that counts as missed; the row is not rewritten after.
+/// How long the supervisor waits for a tick's state or telemetry, in loop time (ns), when both
+/// loop processes are on this host (across the link, [`REPLY_LAG`]): the tick is finished once
+/// the plant's states are this far past it. A tick that is whole (its state,
+/// its telemetry, its reply; or, with a local controller, a newer reply: a controller answers in
+/// order, so this state's will not come) is finished at once. The row is not rewritten after.
 const GRACE_NS: u64 = 100_000_000;
 
-/// The longest wait for the supervisor's copy of a reply that the plant's telemetry says it
-/// applied (ticks; 2.5 s at Ts = 0.3 ms): the copy is on its way (held up behind a bridge), and
-/// a row without it would say "missed" of a reply that was applied.
-const APPLIED_LAG: u64 = 8_192;
+/// The longest wait for a reply while the controller has answered nothing newer (ticks; 2.5 s
+/// at Ts = 0.3 ms): it may still answer this state, late (held up behind a bridge, or stopped),
+/// and the replay needs every state the controller answered. A reply later than that counts as
+/// missed.
+const REPLY_LAG: u64 = 8_192;
 
 /// How often the supervisor hands what it wrote of `trace.<law>.part` and `<law>.timing.csv` to
 /// the kernel (ns of its own clock): a killed run loses at most this much more than the
@@ -112,7 +113,7 @@ struct Observation<'a> {
     /// The newest state seen: the loop's clock as the supervisor sees it (states are drained
     /// first, so every reply and telemetry sent before one is taken in the same drain).
     last_state: Option<u64>,
-    /// [`GRACE_NS`] in ticks.
+    /// [`GRACE_NS`] in ticks ([`REPLY_LAG`] across the link).
     grace: u64,
     /// The controller is across the link: a reply that did not come may yet be said lost
     /// (REPLIES_LOST), so a tick without one waits the grace.
@@ -171,7 +172,12 @@ impl<'a> Observation<'a> {
         csv: Option<TimingCsv>,
         on_tick: Option<OnTick<'a>>,
     ) -> Self {
-        let grace = GRACE_NS.div_ceil(timing.ts_ns().max(1)).max(2);
+        // Across the link what is missing may be held up behind a bridge (its queue lets
+        // through a burst after a stall): there the wait is the longest.
+        let grace = match timing.across() {
+            Some(_) => REPLY_LAG,
+            None => GRACE_NS.div_ceil(timing.ts_ns().max(1)).max(2),
+        };
         let remote_controller = timing.across() == Some(RemoteSide::Controller);
         Self {
             window: Window::new(timing.last_tick() + 1),
@@ -201,6 +207,11 @@ impl<'a> Observation<'a> {
     /// is whole or has waited long enough ([`GRACE_NS`]).
     fn drain(&mut self, obs: &Observer) -> Result<()> {
         obs.drain(&mut |m| self.file(m))?;
+        self.finish_ready()
+    }
+
+    /// Finishes, in order, every tick that is whole or has waited long enough.
+    fn finish_ready(&mut self) -> Result<()> {
         while let Some(now) = self.last_state
             && self.window.next < self.window.last
             && self.ready(self.window.next, now)
@@ -216,28 +227,24 @@ impl<'a> Observation<'a> {
         let newer_reply = self.last_torque.is_some_and(|t| t.tick > k);
         let local = !self.remote_controller;
         let s = self.window.slot(k);
-        if now >= k + APPLIED_LAG {
+        if now >= k + REPLY_LAG {
             return true;
         }
-        let Some(tel) = s.tel.filter(|_| s.state.is_some()) else {
+        if s.state.is_none() || s.tel.is_none() {
             return now >= k + self.grace;
-        };
-        let applied = tel.flags & (wire::TEL_MISSED | wire::TEL_SAFE_STOP) == 0;
-        match (s.torque.is_some(), applied) {
-            (true, _) => true,
-            // The plant applied a reply whose copy has not come yet.
-            (false, true) => false,
-            (false, false) => (local && newer_reply) || now >= k + self.grace,
         }
+        s.torque.is_some() || (newer_reply && (local || now >= k + self.grace))
     }
 
     /// Hands what is written of the trace part and the timing file to the kernel (a killed
-    /// supervisor loses only what it has not finished).
+    /// supervisor loses only what it has not finished). A trace that fails stops the loop (see
+    /// [`observe`]) and is the run's error.
     fn flush(&mut self) -> Result<()> {
-        if let Some(csv) = &mut self.csv {
-            csv.flush()?;
+        self.rec.sink_mut().flush();
+        match &mut self.csv {
+            Some(csv) => csv.flush(),
+            None => Ok(()),
         }
-        self.rec.sink_mut().flush()
     }
 
     /// Files one message the observer's ports took.
@@ -766,6 +773,66 @@ mod tests {
         let cfg =
             RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s2\"\n", None).unwrap();
         Study::new(cfg).unwrap()
+    }
+
+    /// A whole tick is finished at once (the e2e regression test: a killed run lost its last
+    /// 2.5 s when a tick was finished only 8192 ticks after it); a tick without its reply, once
+    /// a local controller has answered a newer state; one without its telemetry, once the
+    /// plant's states are [`GRACE_NS`] past it; one whose reply has not come while the
+    /// controller answered nothing newer, only after [`REPLY_LAG`] ticks.
+    #[test]
+    fn ticks_are_finished_once_whole_or_waited_for() {
+        let study = s2();
+        let mut obs = seen_up_to_tick_9(&study);
+        obs.last_state = Some(9);
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 10, "ticks 0..=9 are whole");
+        // Tick 10: its state, and telemetry saying the plant missed the reply.
+        let row = study.reference.row(10).joint;
+        let state = StateMsg {
+            tick: 10,
+            q: row.q.into(),
+            q_true: row.q.into(),
+            ..StateMsg::default()
+        };
+        let missed = TelemetryMsg {
+            tick: 10,
+            flags: wire::TEL_MISSED,
+            ..TelemetryMsg::default()
+        };
+        obs.window.slot(10).state = Some(state);
+        obs.window.slot(10).tel = Some(missed);
+        obs.last_state = Some(11);
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 10, "its reply may still come");
+        obs.last_torque = Some(TorqueMsg {
+            tick: 11,
+            ..TorqueMsg::default()
+        });
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 11, "the controller answered a newer state");
+        // Tick 11: no telemetry yet.
+        obs.window.slot(11).state = Some(StateMsg { tick: 11, ..state });
+        obs.last_state = Some(11 + obs.grace - 1);
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 11);
+        obs.last_state = Some(11 + obs.grace);
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 12, "waited the grace");
+        assert_eq!(obs.grace, 334, "0.1 s at Ts = 0.3 ms");
+        // Tick 12: applied, by the telemetry, but the reply's copy is still on its way (late
+        // replies are recorded: the replay needs every state the controller answered).
+        obs.window.slot(12).state = Some(StateMsg { tick: 12, ..state });
+        obs.window.slot(12).tel = Some(TelemetryMsg {
+            tick: 12,
+            ..TelemetryMsg::default()
+        });
+        obs.last_state = Some(12 + REPLY_LAG - 1);
+        obs.finish_ready().unwrap();
+        assert_eq!(obs.window.next, 12);
+        obs.last_state = Some(12 + REPLY_LAG);
+        obs.finish_ready().unwrap();
+        assert!(obs.window.next > 12);
     }
 
     /// Regression: a supervisor starved of the CPU saw the loop up to tick 465, the plant's
