@@ -16,6 +16,10 @@ pub struct LinkReport {
     pub refused_connections: u64,
     /// Datagrams refused during the run, by reason: both hosts together (`near` + `far`).
     pub refused_datagrams: RefusedCounts,
+    /// Errors reported by ICMP on the link's UDP sockets during the run (port, host or network
+    /// unreachable), both hosts together: each held back a datagram, which was sent again.
+    #[serde(default)]
+    pub icmp_errors: u64,
     /// What the near side (the supervisor's host) refused.
     #[serde(default)]
     pub near: SideRefusals,
@@ -30,6 +34,35 @@ pub struct LinkReport {
 pub struct SideRefusals {
     /// Datagrams refused, by reason.
     pub refused_datagrams: RefusedCounts,
+    /// Errors reported by ICMP on this side's UDP socket (see [`LinkReport::icmp_errors`]).
+    #[serde(default)]
+    pub icmp_errors: u64,
+}
+
+impl SideRefusals {
+    /// Bytes of a `Refused` frame: the counts by reason, then the ICMP errors (u64 LE).
+    pub const WIRE: usize = RefusedCounts::WIRE + 8;
+
+    pub fn to_wire(self) -> [u8; Self::WIRE] {
+        let mut b = [0u8; Self::WIRE];
+        b[..RefusedCounts::WIRE].copy_from_slice(&self.refused_datagrams.to_wire());
+        b[RefusedCounts::WIRE..].copy_from_slice(&self.icmp_errors.to_le_bytes());
+        b
+    }
+
+    /// A `Refused` frame's (None: not [`Self::WIRE`] bytes).
+    pub fn from_wire(b: &[u8]) -> Option<Self> {
+        if b.len() != Self::WIRE {
+            return None;
+        }
+        let (counts, icmp) = b.split_at(RefusedCounts::WIRE);
+        let mut w = [0u8; 8];
+        w.copy_from_slice(icmp);
+        Some(Self {
+            refused_datagrams: RefusedCounts::from_wire(counts)?,
+            icmp_errors: u64::from_le_bytes(w),
+        })
+    }
 }
 
 /// Datagrams refused, by reason (the link's `Refusals` by name), for JSON.
