@@ -165,8 +165,12 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
             ports,
             peer,
             host: PlantHost::new(spin_ns, lockstep).with_recall(),
+            late_copies: 0,
         };
         let r = n.forward(term);
+        if let Some(line) = late_copies_warning(n.late_copies) {
+            eprintln!("{line}");
+        }
         let counts = n.host.counts();
         finish(&mut n.peer, &report, &emu, Some(counts), r)
     }
@@ -752,6 +756,17 @@ fn take_process_counts(p: &mut Peer) {
     }
 }
 
+/// The warning for reply copies that reached this host too late for the record (this bridge
+/// was held up past [`crate::sides::RECORD_HORIZON`] ticks), if any.
+fn late_copies_warning(late: u64) -> Option<String> {
+    (late > 0).then(|| {
+        format!(
+            "deltaloop-bridge: warning: {late} cop(ies) of the far controller's replies reached this host {} or more ticks after their state (this bridge was held up): the record had finished those ticks; each the plant applied is recorded with `reply` unknown and counted in `replies_lost`",
+            crate::sides::RECORD_HORIZON
+        )
+    })
+}
+
 /// The far side's refusals from its `Refused` frame.
 fn far_refusals(p: &[u8]) -> Option<SideRefusals> {
     SideRefusals::from_wire(p)
@@ -952,6 +967,8 @@ struct Near {
     ports: Ports,
     peer: Peer,
     host: PlantHost,
+    /// Reply copies that came too late for the record ([`crate::sides::RECORD_HORIZON`]).
+    late_copies: u64,
 }
 
 impl Near {
@@ -1018,9 +1035,10 @@ impl Near {
         }
         let (ports, far_end, log) = (&self.ports, &mut p.far_end, &mut p.log);
         let (far_refused, host) = (&mut p.report.far, &mut self.host);
+        let (newest, late) = (host.newest_state, &mut self.late_copies);
         p.tcp.poll(|kind, p| {
             match kind {
-                Kind::Replies => crate::sides::file_replies(p, &ports.torque)?,
+                Kind::Replies => *late += crate::sides::file_replies(p, &ports.torque, newest)?,
                 Kind::Recalled => {
                     let mut said = Ok(());
                     let torque = (&ports.torque, &ports.torque_ready);

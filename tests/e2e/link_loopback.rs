@@ -1450,6 +1450,56 @@ fn regression_a_near_bridge_held_up_3_s_loses_no_reply_copy_silently() {
     let whole =
         replays_or_names_what_it_lost("near bridge held up 3 s", &out, &tmp.path().join("replay"));
     assert!(!whole, "the replay reproduced a run that lost replies");
+    let log = std::fs::read_to_string(&log).unwrap();
+    assert!(log.contains("had finished those ticks"), "{log}");
+}
+
+/// Regression: a near bridge killed with -9 in a `--controller-remote` run was reported as
+/// "the controller was killed (SIGKILL)", though the controller on the other host was fine.
+/// The run's reason names the bridge.
+#[test]
+fn regression_a_killed_near_bridge_is_named_not_the_controller() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, cfg, key, ep) = s1_with_key();
+    let out = tmp.path().join("run");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let args = [
+        "run",
+        &s(&cfg),
+        "--mode",
+        "realtime",
+        "--controller-remote",
+        &ep,
+        "--link-key",
+        &s(&key),
+        "--out",
+        &s(&out),
+    ];
+    let run = common::spawn(&args);
+    let near = near_bridge_of(run.id());
+    let far_root = tmp.path().join("far-root");
+    let join = join_as(&ep, "controller", &key, &far_root);
+    let log = out.join("tdc.controller.log");
+    let t0 = std::time::Instant::now();
+    while !std::fs::read_to_string(&log).is_ok_and(|l| l.contains("direct path")) {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "the loop never started"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    // SAFETY: the run's child, the near bridge.
+    unsafe { libc::kill(near, libc::SIGKILL) };
+    let (o, _) = finish_pair(run, join, &far_root);
+    let law = &summary(&out)["laws"]["tdc"];
+    let reason = law["reason"].as_str().unwrap_or("");
+    assert!(
+        reason.contains("near bridge") && reason.contains("SIGKILL"),
+        "{law}\n{}",
+        text(&o.stderr)
+    );
+    assert!(!reason.contains("the controller was killed"), "{reason}");
 }
 
 /// Regression: the near side counts a connection as having proved the key only by its first

@@ -103,12 +103,20 @@ pub(super) fn fault_cause(
     if ctrl.is_some() && !ok(ctrl) {
         let what = ctrl.map_or("did not exit".into(), status_text);
         let line = last_line(ctrl_log);
+        // With the controller on another host, this child is the near bridge in its place: it
+        // exits with the far controller's code, but a signal is its own (regression: a killed
+        // bridge was reported as "the controller was killed").
+        let who = if bridge_killed(streams, RemoteSide::Controller, ctrl) {
+            "the near bridge (deltaloop-bridge, in the place of the controller on the other host)"
+        } else {
+            "the controller"
+        };
         parts.push((
             About::Controller,
             if line.is_empty() {
-                format!("the controller {what}")
+                format!("{who} {what}")
             } else {
-                format!("the controller {what} ({line})")
+                format!("{who} {what} ({line})")
             },
         ));
     }
@@ -129,13 +137,18 @@ pub(super) fn fault_cause(
     let line = last_line(plant_log);
     if plant.is_some() && !ok(plant) {
         let what = plant.map_or("did not exit".into(), status_text);
+        let who = if bridge_killed(streams, RemoteSide::Plant, plant) {
+            "the near bridge (deltaloop-bridge, in the place of the plant on the other host)"
+        } else {
+            "the plant"
+        };
         parts.push((
             About::Plant,
             if line.is_empty() {
-                format!("the plant {what}")
+                format!("{who} {what}")
             } else {
                 format!(
-                    "the plant {what}: {}",
+                    "{who} {what}: {}",
                     line.trim_start_matches("deltaloop-plant: ")
                 )
             },
@@ -197,6 +210,13 @@ pub(super) fn fault_cause(
         kind,
         cause: peer_text::sanitize(cause.as_bytes(), 4 * peer_text::MAX_CHARS),
     })
+}
+
+/// Whether the child in `side`'s place is the near bridge of a process on the other host and a
+/// signal ended it: the bridge's own death (it relays the far process's end as an exit code).
+fn bridge_killed(streams: &Observation<'_>, side: RemoteSide, s: Option<ExitStatus>) -> bool {
+    use std::os::unix::process::ExitStatusExt;
+    streams.timing.across() == Some(side) && s.is_some_and(|s| s.signal().is_some())
 }
 
 /// What kind of fault ended the run, from how the children exited (None: still running when
