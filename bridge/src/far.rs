@@ -303,65 +303,88 @@ fn handshake(
 }
 
 /// Proves the link key to the near side ([`seal::initiate`]: a near side without it cannot
-/// answer) and says which role this side joined for, the first sealed frame. A handshake that
-/// failed for want of the near side's attention ([`retried`]) is tried again until `--wait-s`
+/// answer), says which role this side joined for (the first sealed frame) and waits for the
+/// HELLO (None: SIGTERM came first). A handshake that failed for want of the near side's
+/// attention ([`retried`]), or a connection the near side dropped for room before it read the
+/// JOIN (it counts a connection as proven only by that frame), is tried again until `--wait-s`
 /// runs out, whatever `--runs` says. One line naming the near side otherwise.
-fn join(a: &Args, mut stream: TcpStream, term: &AtomicBool) -> Result<(Tcp, Session)> {
+fn join(
+    a: &Args,
+    mut stream: TcpStream,
+    term: &AtomicBool,
+) -> Result<Option<(Tcp, Session, Hello)>> {
     let key = LinkKey::from_env().map_err(anyhow::Error::msg)?;
     let end = rt::now_ns().saturating_add(a.wait_s.saturating_mul(1_000_000_000));
     // The last failure said, so each kind is said once, not at every try.
     let mut said = None;
-    let session = loop {
-        match handshake(&mut stream, &key, term)? {
-            Ok(s) => break s,
-            Err(e)
-                if retried(&e)
-                    && (a.wait_s == 0 || rt::now_ns() < end)
-                    && !term.load(Ordering::Relaxed) =>
-            {
-                if said.as_ref() != Some(&e) {
-                    let until = match a.wait_s {
-                        0 => String::new(),
-                        s => format!(" for up to {s} s"),
-                    };
-                    eprintln!(
-                        "deltaloop-bridge: the near side at {} {e}; trying again{until} (this side's link key: {})",
-                        a.connect,
-                        key.fingerprint()
-                    );
-                    said = Some(e);
+    loop {
+        let e = match handshake(&mut stream, &key, term)? {
+            Ok(session) => {
+                let mut tcp = Tcp::new(stream, &session, End::Far)?;
+                tcp.send(Kind::Join, &[&crate::side_to_wire(a.role).to_ne_bytes()])?;
+                eprintln!(
+                    "deltaloop-bridge: joined the run at {} (link key {})",
+                    a.connect,
+                    key.fingerprint()
+                );
+                match await_hello(a, &mut tcp, term)? {
+                    Heard::Hello(h) => return Ok(Some((tcp, session, h))),
+                    Heard::Stopped => return Ok(None),
+                    Heard::Dropped => seal::HandshakeError::Busy,
                 }
-                std::thread::sleep(RETRY);
-                let Some(s) = connect(a, term)? else {
-                    bail!("interrupted while joining the near side at {}", a.connect);
-                };
-                stream = s;
             }
-            Err(e) if retried(&e) && !term.load(Ordering::Relaxed) => bail!(
+            Err(e) => e,
+        };
+        if !retried(&e) || term.load(Ordering::Relaxed) {
+            bail!("the near side at {} {e}", a.connect);
+        }
+        if a.wait_s != 0 && rt::now_ns() >= end {
+            bail!(
                 "the near side at {} {e}, every try until --wait-s {} ran out (this side's link key: {}; the near side's log says why it turned this side away)",
                 a.connect,
                 a.wait_s,
                 key.fingerprint()
-            ),
-            Err(e) => bail!("the near side at {} {e}", a.connect),
+            );
         }
-    };
-    let mut tcp = Tcp::new(stream, &session, End::Far)?;
-    tcp.send(Kind::Join, &[&crate::side_to_wire(a.role).to_ne_bytes()])?;
-    eprintln!(
-        "deltaloop-bridge: joined the run at {} (link key {})",
-        a.connect,
-        key.fingerprint()
-    );
-    Ok((tcp, session))
+        if said.as_ref() != Some(&e) {
+            let until = match a.wait_s {
+                0 => String::new(),
+                s => format!(" for up to {s} s"),
+            };
+            eprintln!(
+                "deltaloop-bridge: the near side at {} {e}; trying again{until} (this side's link key: {})",
+                a.connect,
+                key.fingerprint()
+            );
+            said = Some(e);
+        }
+        std::thread::sleep(RETRY);
+        let Some(s) = connect(a, term)? else {
+            bail!("interrupted while joining the near side at {}", a.connect);
+        };
+        stream = s;
+    }
 }
 
-/// Waits for the near side's HELLO (None: SIGTERM came first).
-fn await_hello(a: &Args, tcp: &mut Tcp, term: &AtomicBool) -> Result<Option<Hello>> {
+/// What came after the JOIN.
+enum Heard {
+    Hello(Hello),
+    /// SIGTERM.
+    Stopped,
+    /// The near side closed the connection before any sealed frame: it dropped this one for
+    /// room before it read the JOIN (its busy notice, or a bare close), as it may drop any
+    /// connection that has not yet sent its first sealed frame.
+    Dropped,
+}
+
+/// Waits for the near side's HELLO.
+fn await_hello(a: &Args, tcp: &mut Tcp, term: &AtomicBool) -> Result<Heard> {
     let end = rt::now_ns() + ipc::HANDSHAKE_TIMEOUT_NS;
+    let mut heard_any = false;
     loop {
         let (mut hello, mut err) = (None, None);
         tcp.poll(|k, p| {
+            heard_any = true;
             match (k, Hello::decode(p)) {
                 (Kind::Hello, Ok(h)) => hello = Some(h),
                 (Kind::Hello, Err(e)) => err = Some(e),
@@ -372,11 +395,14 @@ fn await_hello(a: &Args, tcp: &mut Tcp, term: &AtomicBool) -> Result<Option<Hell
         if let Some(e) = err {
             bail!("{e}");
         }
-        if hello.is_some() {
-            return Ok(hello);
+        if let Some(h) = hello {
+            return Ok(Heard::Hello(h));
         }
         if term.load(Ordering::Relaxed) {
-            return Ok(None);
+            return Ok(Heard::Stopped);
+        }
+        if tcp.closed && !heard_any {
+            return Ok(Heard::Dropped);
         }
         if tcp.closed || rt::now_ns() > end {
             bail!("the near side at {} sent no HELLO", a.connect);
@@ -407,8 +433,7 @@ fn serve(
     cmd: &[String],
     term: &AtomicBool,
 ) -> Result<(u8, Option<String>)> {
-    let (mut tcp, session) = join(a, stream, term)?;
-    let Some(hello) = await_hello(a, &mut tcp, term)? else {
+    let Some((mut tcp, session, hello)) = join(a, stream, term)? else {
         return Ok((
             EXIT_STOPPED,
             Some("interrupted while waiting for the near side's HELLO".into()),

@@ -1,7 +1,7 @@
 //! deltaloop-bridge: one run's iceoryx2 services carried between two hosts.
 //!
 //! The loop's messages (state out, torque back) travel as one UDP datagram each, the `#[repr(C)]`
-//! wire type byte for byte behind a 16-byte header ([`frame`]); run control, the reference chunks,
+//! wire type byte for byte behind a 24-byte header and sealed with a 16-byte tag ([`frame`]); run control, the reference chunks,
 //! the final state and the far process's log and exit travel over one TCP connection (reliable
 //! and ordered, off the 3.3 kHz path; with a remote plant also its telemetry, its control
 //! messages and a copy of every state for the record). On each host the bridge is an ordinary

@@ -165,8 +165,12 @@ pub fn run(a: &Args, term: &AtomicBool) -> Result<(u8, Option<String>)> {
             ports,
             peer,
             host: PlantHost::new(spin_ns, lockstep).with_recall(),
+            late_copies: 0,
         };
         let r = n.forward(term);
+        if let Some(line) = late_copies_warning(n.late_copies) {
+            eprintln!("{line}");
+        }
         let counts = n.host.counts();
         finish(&mut n.peer, &report, &emu, Some(counts), r)
     }
@@ -237,7 +241,12 @@ type Joined = (Tcp, SocketAddr, Option<RemoteSide>);
 /// waits for its first sealed frame (JOIN), which a replayed handshake cannot send; nothing of
 /// the run is said before. All by `accepted` + [`PER_CONNECTION`], however the peer paces its
 /// bytes. One line saying why otherwise.
-/// `verified` is set once the key is proven: the connection is then never dropped for room.
+/// `verified` is set once the key is proven, by the first sealed frame: the connection is then
+/// never dropped for room. A first handshake message that opens proves nothing: it carries
+/// nothing fresh, and a copy of an honest one opens on every new connection (regression: such
+/// replays, 3,000 a second, held the slots as proven and kept the honest `join` out for 40 s).
+/// The frame is sealed under keys that only the holder of the ephemeral key of that first
+/// message can derive from this side's fresh answer.
 fn authenticate(
     mut stream: std::net::TcpStream,
     peer: SocketAddr,
@@ -248,7 +257,6 @@ fn authenticate(
     let end = accepted + PER_CONNECTION;
     let left = end.saturating_duration_since(std::time::Instant::now());
     seal::respond(&mut stream, key, session, left).map_err(|e| e.to_string())?;
-    verified.store(true, Ordering::Release);
     let mut tcp = Tcp::new(stream, session, End::Near).map_err(|e| format!("{e:#}"))?;
     loop {
         let mut joined = None;
@@ -260,6 +268,7 @@ fn authenticate(
         })
         .map_err(|e| format!("{e:#}"))?;
         if let Some(role) = joined {
+            verified.store(true, Ordering::Release);
             return Ok((tcp, peer, role));
         }
         if tcp.closed {
@@ -311,8 +320,8 @@ struct Pending {
     accepted: std::time::Instant,
     /// A handle on its socket, to drop it if room is needed.
     stream: std::net::TcpStream,
-    /// Set by its thread once it proved the link key (`seal::respond` passed): from then on it
-    /// only waits for its JOIN, and is never dropped for room.
+    /// Set by its thread once it proved the link key (its first sealed frame, JOIN, opened):
+    /// from then on it is never dropped for room.
     verified: std::sync::Arc<AtomicBool>,
 }
 
@@ -697,9 +706,12 @@ fn finish(
     let near = RefusedCounts::from(p.udp.refused);
     p.report.near = SideRefusals {
         refused_datagrams: near,
+        icmp_errors: p.udp.icmp_errors,
     };
-    let far = p.report.far.unwrap_or_default().refused_datagrams;
+    let far_side = p.report.far.unwrap_or_default();
+    let far = far_side.refused_datagrams;
     p.report.refused_datagrams = near.plus(far);
+    p.report.icmp_errors = p.udp.icmp_errors.saturating_add(far_side.icmp_errors);
     if let Err(e) = p.report.write(report) {
         eprintln!("deltaloop-bridge: warning: {e}");
     }
@@ -715,6 +727,12 @@ fn finish(
             far.describe()
         );
     }
+    if far_side.icmp_errors > 0 {
+        eprintln!(
+            "deltaloop-bridge: warning: the far side's UDP socket had {} ICMP error report(s) (port, host or network unreachable); each datagram they held back was sent again",
+            far_side.icmp_errors
+        );
+    }
     Ok(end)
 }
 
@@ -727,11 +745,8 @@ fn take_process_counts(p: &mut Peer) {
     let Some(h) = &p.handoff else { return };
     let until = rt::now_ns() + 500_000_000;
     loop {
-        if let Some((refused, lost)) = crate::direct::read_counts(h) {
-            for (a, b) in p.udp.refused.counts.iter_mut().zip(refused) {
-                *a = a.saturating_add(b);
-            }
-            p.udp.emulated_lost = p.udp.emulated_lost.saturating_add(lost);
+        if let Some(c) = crate::direct::read_counts(h) {
+            p.udp.absorb(c);
             return;
         }
         if rt::now_ns() > until {
@@ -741,24 +756,47 @@ fn take_process_counts(p: &mut Peer) {
     }
 }
 
-/// The far side's refusals from its `Refused` frame.
-fn far_refusals(p: &[u8]) -> Option<SideRefusals> {
-    RefusedCounts::from_wire(p).map(|c| SideRefusals {
-        refused_datagrams: c,
+/// The warning for reply copies that reached this host too late for the record (this bridge
+/// was held up past [`crate::sides::RECORD_HORIZON`] ticks), if any.
+fn late_copies_warning(late: u64) -> Option<String> {
+    (late > 0).then(|| {
+        format!(
+            "deltaloop-bridge: warning: {late} cop(ies) of the far controller's replies reached this host {} or more ticks after their state (this bridge was held up): the record had finished those ticks; each the plant applied is recorded with `reply` unknown and counted in `replies_lost`",
+            crate::sides::RECORD_HORIZON
+        )
     })
 }
 
-/// The warning line for the datagrams this side refused, if it refused any.
+/// The far side's refusals from its `Refused` frame.
+fn far_refusals(p: &[u8]) -> Option<SideRefusals> {
+    SideRefusals::from_wire(p)
+}
+
+/// The warning lines for the datagrams this side (and the loop process that took its socket)
+/// refused, and for the errors ICMP messages reported on its socket, if any.
 pub fn refused_warning(udp: &Udp) -> Option<String> {
     let r = &udp.refused;
-    (r.total() > 0).then(|| {
+    let refused = (r.total() > 0).then(|| {
+        let first = udp
+            .last_refusal
+            .as_deref()
+            .map_or(String::new(), |why| format!("; the first: {why}"));
         format!(
-            "deltaloop-bridge: warning: refused {} datagram(s) on the link ({}; first: {})",
+            "deltaloop-bridge: warning: refused {} datagram(s) on the link ({}{first})",
             r.total(),
             r.describe(),
-            udp.last_refusal.as_deref().unwrap_or("")
         )
-    })
+    });
+    let icmp = (udp.icmp_errors > 0).then(|| {
+        format!(
+            "deltaloop-bridge: warning: {} ICMP error report(s) (port, host or network unreachable) on the link's UDP socket; each datagram they held back was sent again",
+            udp.icmp_errors
+        )
+    });
+    match (refused, icmp) {
+        (Some(a), Some(b)) => Some(format!("{a}\n{b}")),
+        (a, b) => a.or(b),
+    }
 }
 
 /// The link's statistics on stderr, if there is anything to say: the datagrams the emulation
@@ -929,6 +967,8 @@ struct Near {
     ports: Ports,
     peer: Peer,
     host: PlantHost,
+    /// Reply copies that came too late for the record ([`crate::sides::RECORD_HORIZON`]).
+    late_copies: u64,
 }
 
 impl Near {
@@ -995,9 +1035,10 @@ impl Near {
         }
         let (ports, far_end, log) = (&self.ports, &mut p.far_end, &mut p.log);
         let (far_refused, host) = (&mut p.report.far, &mut self.host);
+        let (newest, late) = (host.newest_state, &mut self.late_copies);
         p.tcp.poll(|kind, p| {
             match kind {
-                Kind::Replies => crate::sides::file_replies(p, &ports.torque)?,
+                Kind::Replies => *late += crate::sides::file_replies(p, &ports.torque, newest)?,
                 Kind::Recalled => {
                     let mut said = Ok(());
                     let torque = (&ports.torque, &ports.torque_ready);
@@ -1196,7 +1237,12 @@ mod tests {
     /// A TCP connection to `addr` from loopback address `from` (127.0.0.x): another source, as
     /// the near side tells them apart.
     fn connect_from(from: [u8; 4], addr: SocketAddr) -> TcpStream {
-        use std::os::fd::FromRawFd;
+        try_connect_from(from, addr).unwrap()
+    }
+
+    /// [`connect_from`], or why not.
+    fn try_connect_from(from: [u8; 4], addr: SocketAddr) -> std::io::Result<TcpStream> {
+        use std::os::fd::{FromRawFd, OwnedFd};
         let SocketAddr::V4(to) = addr else {
             panic!("{addr}: IPv4 only")
         };
@@ -1213,14 +1259,19 @@ mod tests {
         // its descriptor is owned by the returned stream alone.
         unsafe {
             let fd = libc::socket(libc::AF_INET, libc::SOCK_STREAM | libc::SOCK_CLOEXEC, 0);
-            assert!(fd >= 0, "{}", std::io::Error::last_os_error());
+            if fd < 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            let owned = OwnedFd::from_raw_fd(fd);
             let me = sin(from, 0);
-            let r = libc::bind(fd, (&raw const me).cast(), len);
-            assert_eq!(r, 0, "bind: {}", std::io::Error::last_os_error());
+            if libc::bind(fd, (&raw const me).cast(), len) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
             let there = sin(to.ip().octets(), to.port());
-            let r = libc::connect(fd, (&raw const there).cast(), len);
-            assert_eq!(r, 0, "connect: {}", std::io::Error::last_os_error());
-            TcpStream::from_raw_fd(fd)
+            if libc::connect(fd, (&raw const there).cast(), len) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(TcpStream::from(owned))
         }
     }
 
@@ -1264,31 +1315,194 @@ mod tests {
         );
     }
 
+    /// A pending connection of a test, from `who`, its socket a fresh loopback connection.
+    fn pending(id: u64, who: SocketAddr, l: &TcpListener, verified: bool) -> Pending {
+        let _c = TcpStream::connect(l.local_addr().unwrap()).unwrap();
+        let (stream, _) = l.accept().unwrap();
+        Pending {
+            id,
+            who,
+            accepted: Instant::now(),
+            stream,
+            verified: Arc::new(AtomicBool::new(verified)),
+        }
+    }
+
     /// Regression: when all slots were taken, the oldest connection was dropped, even one that
-    /// had already proved the key and was about to send its JOIN: a flood of more than
-    /// [`MAX_PENDING`] connections made it fail with a frame error, not "busy", and it did not
-    /// try again. A connection that proved the key is never dropped for room.
+    /// had already proved the key: a flood of more than [`MAX_PENDING`] connections made it fail.
+    /// A connection that proved the key (its first sealed frame opened) is never dropped for
+    /// room; when only such could make room, the new one is turned away.
     #[test]
     fn regression_a_connection_that_proved_the_key_is_never_dropped_for_room() {
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        let mut gate = Gate::new();
+        let who = |i: u16| SocketAddr::from(([127, 0, 0, 2], 1000 + i));
+        for i in 0..MAX_PER_SOURCE as u16 {
+            gate.pending
+                .push_back(pending(u64::from(i), who(i), &l, i == 3));
+        }
+        for _ in 0..200 {
+            match gate.room(who(0).ip()) {
+                Room::Drop(i) => assert_ne!(i, 3, "the proven connection was chosen"),
+                _ => panic!("an unproven connection could make room"),
+            }
+        }
+        for p in &gate.pending {
+            p.verified.store(true, Ordering::Release);
+        }
+        assert!(matches!(gate.room(who(0).ip()), Room::Proven));
+    }
+
+    /// A real first handshake message of an honest far side, as one on the path captured it:
+    /// the version and the Noise message, as `seal::initiate` writes them.
+    fn captured_first_message(key: &LinkKey) -> Vec<u8> {
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = l.local_addr().unwrap();
+        let key = key.clone();
+        let far = std::thread::spawn(move || {
+            let mut s = TcpStream::connect(addr).unwrap();
+            let _ = seal::initiate(&mut s, &key, Duration::from_millis(500));
+        });
+        let (mut tap, _) = l.accept().unwrap();
+        tap.set_read_timeout(Some(Duration::from_millis(300)))
+            .unwrap();
+        let mut got = Vec::new();
+        let mut b = [0u8; 512];
+        while let Ok(n) = tap.read(&mut b) {
+            if n == 0 {
+                break;
+            }
+            got.extend_from_slice(&b[..n]);
+        }
+        drop(tap);
+        far.join().unwrap();
+        assert!(got.len() > 8, "{got:?}");
+        got
+    }
+
+    /// Regression: a connection counted as having proved the key once its first handshake
+    /// message opened, and that message carries nothing fresh: one capture, replayed on new
+    /// connections, held "proven" slots (492 at 3,000 a second) that are never dropped for
+    /// room. A replay gets the answer but cannot open it, so it never sends the first sealed
+    /// frame: it is refused at its deadline, never counted proven.
+    #[test]
+    fn regression_a_replayed_first_handshake_message_does_not_prove_the_key() {
         let key = LinkKey::generate().unwrap();
-        let (addr, near) = near_side(&key);
-        let mut s = TcpStream::connect(addr).unwrap();
-        let me = s.local_addr().unwrap();
-        let session = seal::initiate(&mut s, &key, seal::HANDSHAKE_BUDGET).unwrap();
-        // Proven; now a flood from the same address before its JOIN.
-        let flood: Vec<TcpStream> = (0..3 * MAX_PENDING)
-            .map(|_| TcpStream::connect(addr).unwrap())
+        let capture = captured_first_message(&key);
+        let session = Session::generate().unwrap();
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        let replays: Vec<_> = (0..8)
+            .map(|_| {
+                let mut c = TcpStream::connect(l.local_addr().unwrap()).unwrap();
+                c.write_all(&capture).unwrap();
+                let (s, who) = l.accept().unwrap();
+                let verified = Arc::new(AtomicBool::new(false));
+                let (k, sn, v) = (key.clone(), session.clone(), verified.clone());
+                // 400 ms left of its time to prove the key.
+                let accepted = Instant::now() + Duration::from_millis(400) - PER_CONNECTION;
+                let t = std::thread::spawn(move || {
+                    authenticate(s, who, (&k, &sn), accepted, &v).map(|_| ())
+                });
+                (c, verified, t)
+            })
             .collect();
-        std::thread::sleep(Duration::from_millis(300));
-        let mut tcp = Tcp::new(s, &session, End::Far).unwrap();
-        let role = crate::side_to_wire(RemoteSide::Controller).to_ne_bytes();
-        let sent = tcp.send(Kind::Join, &[&role]);
+        for (c, verified, t) in replays {
+            let r = t.join().unwrap();
+            assert!(
+                !verified.load(Ordering::Acquire),
+                "a replay was counted as proven"
+            );
+            let why = r.expect_err("a replay joined");
+            // The capture is a valid first message: it got the answer, and no further.
+            assert!(why.contains("sent nothing sealed"), "{why}");
+            drop(c);
+        }
+    }
+
+    /// Regression: replays of one captured first handshake message on new connections, from
+    /// two addresses as fast as the near side takes them, kept the honest `join` out for 40 s
+    /// (86,580 refused). Counted as unproven, they are dropped for room like any stranger's:
+    /// the honest side gets in within the bound silent connections allow.
+    #[test]
+    fn regression_replayed_handshakes_do_not_keep_the_honest_join_out() {
+        let key = LinkKey::generate().unwrap();
+        let capture = Arc::new(captured_first_message(&key));
+        let (addr, near) = near_side(&key);
+        let stop = Arc::new(AtomicBool::new(false));
+        let flood: Vec<_> = (0..4u8)
+            .map(|i| {
+                let (stop, capture) = (stop.clone(), capture.clone());
+                std::thread::spawn(move || {
+                    // Each replay held open past its deadline at the near side (which closes
+                    // those it drops): about 500 new connections a second per thread.
+                    let mut open = VecDeque::new();
+                    while !stop.load(Ordering::Relaxed) {
+                        std::thread::sleep(Duration::from_millis(2));
+                        while open
+                            .front()
+                            .is_some_and(|(t, _): &(Instant, _)| t.elapsed() > PER_CONNECTION)
+                        {
+                            open.pop_front();
+                        }
+                        let Ok(mut s) = try_connect_from([127, 0, 0, 2 + i % 2], addr) else {
+                            continue;
+                        };
+                        if s.write_all(&capture).is_ok() {
+                            open.push_back((Instant::now(), s));
+                        }
+                    }
+                })
+            })
+            .collect();
+        // The slots full of replays, then the honest side.
+        std::thread::sleep(Duration::from_millis(500));
+        let (took, joined, errors) = honest(addr, key).join().unwrap();
         let r = near.join().unwrap();
-        drop(flood);
-        sent.unwrap();
-        let ((_, peer, role), refused) = r.unwrap().expect("not stopped");
-        assert_eq!((peer, role), (me, Some(RemoteSide::Controller)));
-        assert!(refused >= 2 * MAX_PENDING as u64, "{refused}");
+        stop.store(true, Ordering::Relaxed);
+        for f in flood {
+            f.join().unwrap();
+        }
+        let ((_, peer, _), refused) = r.unwrap().expect("not stopped");
+        let (_tcp, me) = joined.unwrap_or_else(|| panic!("never admitted: {errors:?}"));
+        assert_eq!(peer, me);
+        // What this guards against took 40 s; 3 s leave room for a loaded machine.
+        assert!(took < Duration::from_secs(3), "{took:?}: {errors:?}");
+        assert!(refused >= 1, "{refused}");
+    }
+
+    /// Regression: on the direct path the loop process's socket counted its refusals and
+    /// handed its bridge the counts only, so the bridge's warning ended "first: )". The
+    /// reason comes with the counts, and a warning without one names none.
+    #[test]
+    fn regression_the_direct_paths_refusal_warning_names_the_first_reason() {
+        let (a, b) = (
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+            UdpSocket::bind("127.0.0.1:0").unwrap(),
+        );
+        a.connect(b.local_addr().unwrap()).unwrap();
+        b.connect(a.local_addr().unwrap()).unwrap();
+        let s = Session::generate().unwrap();
+        let mut process = Udp::sealed(a, &s, End::Near, Emulation::default()).unwrap();
+        b.send(b"junk").unwrap();
+        std::thread::sleep(Duration::from_millis(20));
+        assert!(process.recv().unwrap().is_none());
+        let (bridge_end, process_end) = deltaloop_transport::handoff::pair().unwrap();
+        crate::direct::counts(&process_end, &process);
+        let spare = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let mut bridge = Udp::sealed(spare, &s, End::Near, Emulation::default()).unwrap();
+        assert_eq!(refused_warning(&bridge), None);
+        bridge.absorb(crate::direct::read_counts(&bridge_end).expect("the counts"));
+        let line = refused_warning(&bridge).unwrap();
+        assert!(
+            line.contains("malformed 1") && line.contains("the first: 4 bytes"),
+            "{line}"
+        );
+        bridge.last_refusal = None;
+        let line = refused_warning(&bridge).unwrap();
+        assert!(
+            !line.contains("first") && line.ends_with("(malformed 1)"),
+            "{line}"
+        );
     }
 
     /// Regression: a flood from one address pushed out another address's connection (the

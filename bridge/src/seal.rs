@@ -31,9 +31,9 @@ pub const NOISE: &str = "Noise_NNpsk0_25519_ChaChaPoly_BLAKE2s";
 /// The link protocol's version: bound into the handshake ([`PROLOGUE`]) and said in the clear
 /// before it ([`VERSION_MAGIC`]), so two versions name each other instead of failing as a wrong
 /// key would. Raised with any change to the handshake, a frame's kind or layout.
-pub const LINK_VERSION: u16 = 4;
+pub const LINK_VERSION: u16 = 5;
 /// Bound into the handshake: a peer of another protocol or version fails it.
-pub const PROLOGUE: &[u8] = b"deltaloop link v4";
+pub const PROLOGUE: &[u8] = b"deltaloop link v5";
 /// What the far side sends before its first handshake message, then [`LINK_VERSION`] (`u16`,
 /// LE).
 pub const VERSION_MAGIC: [u8; 4] = *b"DLLK";

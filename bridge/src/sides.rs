@@ -53,6 +53,9 @@ pub struct PlantHost {
     /// The plant took the link's socket (the direct path): no datagram goes through here; the
     /// final state, and with `record` a copy of every state, still go over TCP.
     pub direct: bool,
+    /// The newest state the plant published here (its tick): the loop's clock, as the
+    /// supervisor here sees it.
+    pub newest_state: Option<u64>,
 }
 
 /// What a [`PlantHost`] counted on the link, for its closing line.
@@ -99,6 +102,7 @@ impl PlantHost {
             recall: false,
             recalls: Recalls::default(),
             direct: false,
+            newest_state: None,
         }
     }
 
@@ -168,6 +172,7 @@ impl PlantHost {
             if self.record {
                 tcp.queue(Kind::State, &[bytes_of(&st)])?;
             }
+            self.newest_state = self.newest_state.max(Some(st.tick));
             if self.direct {
                 continue;
             }
@@ -642,14 +647,25 @@ impl Copies {
     }
 }
 
+/// How far behind the plant's newest state a reply's copy may come and still find its tick
+/// open in the record, ticks: the supervisor's queues and its wait for a copy the plant's
+/// telemetry says is on its way ([`ipc::OBSERVER_BUFFER`]).
+pub const RECORD_HORIZON: u64 = ipc::OBSERVER_BUFFER as u64;
+
 /// A REPLIES frame's replies filed for the record here (the direct path, `--controller-remote`),
 /// on this host's clock as the relay republished them, waking no one: the plant took each from
-/// its own socket. Malformed entries are skipped.
-pub fn file_replies(p: &[u8], torque: &ipc::TorqueOut) -> Result<()> {
+/// its own socket. Malformed entries are skipped. Returns how many came [`RECORD_HORIZON`] or
+/// more ticks behind `newest_state` (the plant's newest state here): too late for the record,
+/// which had finished their ticks (this bridge was held up).
+pub fn file_replies(p: &[u8], torque: &ipc::TorqueOut, newest_state: Option<u64>) -> Result<u64> {
+    let mut late = 0;
     for i in 0..p.len() / crate::replies::ENTRY {
         let Some(e) = crate::replies::entry(p, i) else {
             continue;
         };
+        if newest_state.is_some_and(|n| n >= e.msg.tick.saturating_add(RECORD_HORIZON)) {
+            late += 1;
+        }
         let mut t = e.msg;
         let now = rt::now_ns();
         t.t_publish_ns = now;
@@ -657,7 +673,7 @@ pub fn file_replies(p: &[u8], torque: &ipc::TorqueOut) -> Result<()> {
         t.t_poll_until_ns = 0;
         torque.send_copy(t).ipc("publish torque")?;
     }
-    Ok(())
+    Ok(late)
 }
 
 /// Republishes what the controller on the other host said (frame payload `p`), as the

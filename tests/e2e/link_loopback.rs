@@ -1394,3 +1394,305 @@ fn regression_a_remote_plant_loop_recovers_after_a_near_bridge_stall() {
         },
     );
 }
+
+/// Regression: with `--controller-remote`, a near bridge its host held up for about 3 s lost
+/// reply copies without a word: the supervisor had finished those ticks (or its queue had
+/// overflowed) before the copies came, so the run said `ok`, `replies_lost` 0, hundreds of rows
+/// "missed" that the far controller had answered, and `replay` "differs at tick 3145". The near
+/// bridge knows when it was held up past what the record can wait for, and tells the
+/// supervisor which ticks' replies it cannot file (REPLIES_LOST): the run is `lost_data` with
+/// them counted, and the replay refuses exactly those ticks, as with a stalled `--plant-remote`.
+/// About 15 s: `cargo test --test e2e link_loopback::regression_a_near_bridge_held_up_3_s -- --ignored`.
+#[test]
+#[ignore = "a 3 s stall in a 7 s run: see docs/guide/failure-behaviour.md"]
+fn regression_a_near_bridge_held_up_3_s_loses_no_reply_copy_silently() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, cfg, key, ep) = s1_with_key();
+    let out = tmp.path().join("run");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let args = [
+        "run",
+        &s(&cfg),
+        "--mode",
+        "realtime",
+        "--controller-remote",
+        &ep,
+        "--link-key",
+        &s(&key),
+        "--hold-s",
+        "6",
+        "--out",
+        &s(&out),
+    ];
+    let run = common::spawn(&args);
+    let near = near_bridge_of(run.id());
+    let far_root = tmp.path().join("far-root");
+    let join = join_as(&ep, "controller", &key, &far_root);
+    let log = out.join("tdc.controller.log");
+    let t0 = std::time::Instant::now();
+    while !std::fs::read_to_string(&log).is_ok_and(|l| l.contains("direct path")) {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "the loop never started"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(1000));
+    // SAFETY: the run's child, the near bridge.
+    unsafe { libc::kill(near, libc::SIGSTOP) };
+    std::thread::sleep(Duration::from_millis(3000));
+    unsafe { libc::kill(near, libc::SIGCONT) };
+    let (o, _) = finish_pair(run, join, &far_root);
+    let law = &summary(&out)["laws"]["tdc"];
+    eprintln!("{law}\n{}", text(&o.stderr));
+    assert_eq!(law["status"], "lost_data", "{law}");
+    assert!(law["replies_lost"].as_u64().unwrap_or(0) > 0, "{law}");
+    let whole =
+        replays_or_names_what_it_lost("near bridge held up 3 s", &out, &tmp.path().join("replay"));
+    assert!(!whole, "the replay reproduced a run that lost replies");
+    let log = std::fs::read_to_string(&log).unwrap();
+    assert!(log.contains("had finished those ticks"), "{log}");
+}
+
+/// Regression: a near bridge killed with -9 in a `--controller-remote` run was reported as
+/// "the controller was killed (SIGKILL)", though the controller on the other host was fine.
+/// The run's reason names the bridge.
+#[test]
+fn regression_a_killed_near_bridge_is_named_not_the_controller() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (tmp, cfg, key, ep) = s1_with_key();
+    let out = tmp.path().join("run");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let args = [
+        "run",
+        &s(&cfg),
+        "--mode",
+        "realtime",
+        "--controller-remote",
+        &ep,
+        "--link-key",
+        &s(&key),
+        "--out",
+        &s(&out),
+    ];
+    let run = common::spawn(&args);
+    let near = near_bridge_of(run.id());
+    let far_root = tmp.path().join("far-root");
+    let join = join_as(&ep, "controller", &key, &far_root);
+    let log = out.join("tdc.controller.log");
+    let t0 = std::time::Instant::now();
+    while !std::fs::read_to_string(&log).is_ok_and(|l| l.contains("direct path")) {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "the loop never started"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    // SAFETY: the run's child, the near bridge.
+    unsafe { libc::kill(near, libc::SIGKILL) };
+    let (o, _) = finish_pair(run, join, &far_root);
+    let law = &summary(&out)["laws"]["tdc"];
+    let reason = law["reason"].as_str().unwrap_or("");
+    assert!(
+        reason.contains("near bridge") && reason.contains("SIGKILL"),
+        "{law}\n{}",
+        text(&o.stderr)
+    );
+    assert!(!reason.contains("the controller was killed"), "{reason}");
+}
+
+/// Regression: the near side counts a connection as having proved the key only by its first
+/// sealed frame (a replayed first handshake message proves nothing), so a flood can drop an
+/// honest one for room after answering its handshake, before reading its JOIN. `join` heard the
+/// busy notice where it waited for the HELLO, said "sent no HELLO" and gave up; it connects
+/// again, as for any busy near side.
+#[test]
+fn regression_join_dropped_for_room_after_the_handshake_tries_again() {
+    use deltaloop_bridge::seal;
+    let tmp = tempfile::tempdir().unwrap();
+    let key = tmp.path().join("link.key");
+    let k = seal::LinkKey::write_new(&key).unwrap();
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = l.local_addr().unwrap().port();
+    let root = tmp.path().join("far-root");
+    let join = join_runs(port, &key, 1, &root);
+    let mut first = accept_within(&l);
+    let session = seal::Session::generate().unwrap();
+    seal::respond(&mut first, &k, &session, Duration::from_secs(10)).unwrap();
+    seal::busy(&first);
+    first.shutdown(std::net::Shutdown::Both).unwrap();
+    let joined = joins(accept_within(&l), &k);
+    let (o, _) = terminate(join);
+    drop(first);
+    deltaloop_supervisor::ops::loopback::remove_root(&root, false);
+    let err = text(&o.stderr);
+    assert!(joined, "no JOIN came: {err}");
+    assert!(err.contains("trying again"), "{err}");
+    assert!(
+        !err.contains("sent no HELLO") && !err.contains("link key?"),
+        "{err}"
+    );
+}
+
+/// The port the UDP socket bound at 127.0.0.1:`port` is connected to (from /proc/net/udp),
+/// within 30 s.
+fn udp_peer_of(port: u16) -> u16 {
+    let local = format!("0100007F:{port:04X}");
+    let t0 = std::time::Instant::now();
+    loop {
+        let table = std::fs::read_to_string("/proc/net/udp").unwrap_or_default();
+        for line in table.lines().skip(1) {
+            let f: Vec<&str> = line.split_whitespace().collect();
+            if f.get(1) == Some(&local.as_str())
+                && let Some((_, p)) = f.get(2).and_then(|r| r.split_once(':'))
+                && let Ok(p) = u16::from_str_radix(p, 16)
+                && p != 0
+            {
+                return p;
+            }
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "no connected socket on {port}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// An ICMP port unreachable (type 3, code 3) to 127.0.0.1 quoting a UDP datagram from
+/// 127.0.0.1:`from` to 127.0.0.1:`to`, as anyone who knows the link's addresses can send it.
+fn icmp_port_unreachable(raw: i32, from: u16, to: u16) {
+    let sum = |b: &[u8]| {
+        let mut s: u32 = b
+            .chunks(2)
+            .map(|c| u32::from(u16::from_be_bytes([c[0], *c.get(1).unwrap_or(&0)])))
+            .sum();
+        while s > 0xffff {
+            s = (s & 0xffff) + (s >> 16);
+        }
+        !(s as u16)
+    };
+    let mut ip = [
+        0x45,
+        0,
+        0,
+        28 + 168,
+        0,
+        0,
+        0x40,
+        0,
+        64,
+        17,
+        0,
+        0,
+        127,
+        0,
+        0,
+        1,
+        127,
+        0,
+        0,
+        1,
+    ];
+    let c = sum(&ip).to_be_bytes();
+    ip[10..12].copy_from_slice(&c);
+    let mut m = vec![3u8, 3, 0, 0, 0, 0, 0, 0];
+    m.extend_from_slice(&ip);
+    m.extend_from_slice(&from.to_be_bytes());
+    m.extend_from_slice(&to.to_be_bytes());
+    m.extend_from_slice(&[0, 176, 0, 0]);
+    let c = sum(&m).to_be_bytes();
+    m[2..4].copy_from_slice(&c);
+    let to = libc::sockaddr_in {
+        sin_family: libc::AF_INET as libc::sa_family_t,
+        sin_port: 0,
+        sin_addr: libc::in_addr {
+            s_addr: u32::from_ne_bytes([127, 0, 0, 1]),
+        },
+        sin_zero: [0; 8],
+    };
+    // SAFETY: a valid buffer and sockaddr_in of the given lengths.
+    unsafe {
+        libc::sendto(
+            raw,
+            m.as_ptr().cast(),
+            m.len(),
+            0,
+            (&raw const to).cast(),
+            size_of::<libc::sockaddr_in>() as libc::socklen_t,
+        )
+    };
+}
+
+/// Regression: ICMP port unreachable messages quoting the plant's socket's addresses (from
+/// anyone, no key, about the loop's own rate) set an error on the connected socket that made
+/// the next send fail, taken for sent: 40 % of the ticks missed, the run `ok` with
+/// `link_security` all zero. The send is made again and the errors counted. Needs root (a raw
+/// socket); about 10 s:
+/// `cargo test --test e2e link_loopback::regression_icmp_errors_on_the_link -- --ignored`.
+#[test]
+#[ignore = "a raw-socket ICMP flood, as root: see docs/guide/failure-behaviour.md"]
+fn regression_icmp_errors_on_the_link_drop_no_datagram_and_are_counted() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    // SAFETY: a new raw socket, owned here and closed at the end.
+    let raw = unsafe { libc::socket(libc::AF_INET, libc::SOCK_RAW, libc::IPPROTO_ICMP) };
+    if raw < 0 {
+        eprintln!("SKIPPED: no raw socket (not root)");
+        return;
+    }
+    let (tmp, cfg, key, ep) = s1_with_key();
+    let port: u16 = ep.rsplit_once(':').unwrap().1.parse().unwrap();
+    let out = tmp.path().join("run");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let args = [
+        "run",
+        &s(&cfg),
+        "--mode",
+        "realtime",
+        "--controller-remote",
+        &ep,
+        "--link-key",
+        &s(&key),
+        "--hold-s",
+        "3",
+        "--out",
+        &s(&out),
+    ];
+    let run = common::spawn(&args);
+    let far_root = tmp.path().join("far-root");
+    let join = join_as(&ep, "controller", &key, &far_root);
+    let log = out.join("tdc.controller.log");
+    let t0 = std::time::Instant::now();
+    while !std::fs::read_to_string(&log).is_ok_and(|l| l.contains("direct path")) {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "the loop never started"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let far = udp_peer_of(port);
+    // About 5,000 a second for 2 s.
+    let t0 = std::time::Instant::now();
+    while t0.elapsed() < Duration::from_secs(2) {
+        for _ in 0..5 {
+            icmp_port_unreachable(raw, port, far);
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    // SAFETY: the raw socket opened above.
+    unsafe { libc::close(raw) };
+    let (o, _) = finish_pair(run, join, &far_root);
+    let law = &summary(&out)["laws"]["tdc"];
+    let sec = &summary(&out)["timing"]["tdc"]["link_security"];
+    eprintln!("{law}\n{sec}");
+    assert_eq!(law["status"], "ok", "{law}\n{}", text(&o.stderr));
+    assert!(sec["icmp_errors"].as_u64().unwrap_or(0) > 100, "{sec}");
+    let trace = rows(&out.join("trace.csv"));
+    let missed = trace.iter().filter(|r| r["reply"] != "applied").count();
+    assert!(
+        missed * 20 < trace.len(),
+        "{missed} of {} ticks missed",
+        trace.len()
+    );
+}

@@ -190,27 +190,57 @@ pub fn answer(end: &handoff::End) -> Result<Option<Udp>> {
     }
 }
 
-/// A loop process's closing word to its bridge: what its socket refused (by reason) and the
-/// emulation dropped, for the run's link report.
-pub fn counts(end: &handoff::End, udp: &Udp) {
-    let mut b = [0u8; 40];
-    for (i, n) in udp.refused.counts.iter().enumerate() {
-        b[i * 8..i * 8 + 8].copy_from_slice(&n.to_le_bytes());
-    }
-    b[32..].copy_from_slice(&udp.emulated_lost.to_le_bytes());
-    let _ = end.send(Tag::Counts, &b, None);
+/// What a loop process's socket counted on the direct path, for its bridge's report.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ProcessCounts {
+    /// Datagrams refused, by reason ([`crate::seal::Refusals`]).
+    pub refused: [u64; 4],
+    /// Datagrams the emulation dropped.
+    pub emulated_lost: u64,
+    /// ICMP-reported errors on the socket ([`Udp::icmp_errors`]).
+    pub icmp_errors: u64,
+    /// The first refusal's reason, in words (regression: the bridge's warning ended
+    /// "first: )", the reason left in the loop process).
+    pub first_refusal: Option<String>,
 }
 
-/// The bridge's reading of [`counts`]: (refusals by reason, emulated losses), if the process
-/// said them.
-pub fn read_counts(end: &handoff::End) -> Option<([u64; 4], u64)> {
+/// Bytes of the counts in a COUNTS message, before the first refusal's reason.
+const COUNTS_LEN: usize = 6 * 8;
+
+/// A loop process's closing word to its bridge: what its socket refused (by reason, and the
+/// first reason in words), what the emulation dropped and the ICMP-reported errors, for the
+/// run's link report.
+pub fn counts(end: &handoff::End, udp: &Udp) {
+    let mut b = [0u8; handoff::MAX_MSG - 1];
+    let words = udp
+        .refused
+        .counts
+        .iter()
+        .chain([&udp.emulated_lost, &udp.icmp_errors]);
+    for (i, n) in words.enumerate() {
+        b[i * 8..i * 8 + 8].copy_from_slice(&n.to_le_bytes());
+    }
+    let why = udp.last_refusal.as_deref().unwrap_or("").as_bytes();
+    let n = why.len().min(b.len() - COUNTS_LEN);
+    b[COUNTS_LEN..COUNTS_LEN + n].copy_from_slice(&why[..n]);
+    let _ = end.send(Tag::Counts, &b[..COUNTS_LEN + n], None);
+}
+
+/// The bridge's reading of [`counts`], if the process said them.
+pub fn read_counts(end: &handoff::End) -> Option<ProcessCounts> {
     let mut buf = [0u8; handoff::MAX_MSG];
     let mut got = None;
     while let Ok(Some((tag, n, _))) = end.recv(&mut buf, 0) {
-        if tag == Tag::Counts && n == 40 {
+        if tag == Tag::Counts && n >= COUNTS_LEN {
             let w =
                 |i: usize| u64::from_le_bytes(buf[i * 8..i * 8 + 8].try_into().unwrap_or([0; 8]));
-            got = Some(([w(0), w(1), w(2), w(3)], w(4)));
+            let why = String::from_utf8_lossy(&buf[COUNTS_LEN..n]);
+            got = Some(ProcessCounts {
+                refused: [w(0), w(1), w(2), w(3)],
+                emulated_lost: w(4),
+                icmp_errors: w(5),
+                first_refusal: (!why.is_empty()).then(|| wire::escape_peer_text(&why)),
+            });
         }
     }
     got

@@ -58,8 +58,9 @@ pub enum Kind {
     /// the session; the near side says nothing of the run before it.
     Join = 24,
     /// TCP, far → near, at the end of a run before EXIT: the datagrams the far side refused,
-    /// by reason (four u64, little-endian: malformed, other run, forged, replayed), for the
-    /// run's record on the supervisor's host.
+    /// by reason, and the ICMP-reported errors on its socket (five u64, little-endian:
+    /// malformed, other run, forged, replayed, ICMP errors), for the run's record on the
+    /// supervisor's host.
     Refused = 25,
     /// TCP, near → far: replies lost beyond the copies, wanted again (two u64: the first
     /// sequence number and how many, 1..=[`crate::replies::RING`]; [`crate::replies`]).
@@ -144,7 +145,7 @@ fn fixed_size(kind: Kind) -> Option<usize> {
         Kind::Ping | Kind::Pong => Some(size_of::<StateMsg>()),
         Kind::Punch | Kind::NearDirect => Some(0),
         Kind::Ack => Some(8),
-        Kind::Refused => Some(4 * 8),
+        Kind::Refused => Some(5 * 8),
         Kind::Control => Some(size_of::<ControlMsg>()),
         Kind::Telemetry => Some(size_of::<TelemetryMsg>()),
         // A recall and its answer are checked by their reader, which refuses and counts a malformed

@@ -16,6 +16,10 @@ pub struct LinkReport {
     pub refused_connections: u64,
     /// Datagrams refused during the run, by reason: both hosts together (`near` + `far`).
     pub refused_datagrams: RefusedCounts,
+    /// Errors reported by ICMP on the link's UDP sockets during the run (port, host or network
+    /// unreachable), both hosts together: each held back a datagram, which was sent again.
+    #[serde(default)]
+    pub icmp_errors: u64,
     /// What the near side (the supervisor's host) refused.
     #[serde(default)]
     pub near: SideRefusals,
@@ -30,6 +34,35 @@ pub struct LinkReport {
 pub struct SideRefusals {
     /// Datagrams refused, by reason.
     pub refused_datagrams: RefusedCounts,
+    /// Errors reported by ICMP on this side's UDP socket (see [`LinkReport::icmp_errors`]).
+    #[serde(default)]
+    pub icmp_errors: u64,
+}
+
+impl SideRefusals {
+    /// Bytes of a `Refused` frame: the counts by reason, then the ICMP errors (u64 LE).
+    pub const WIRE: usize = RefusedCounts::WIRE + 8;
+
+    pub fn to_wire(self) -> [u8; Self::WIRE] {
+        let mut b = [0u8; Self::WIRE];
+        b[..RefusedCounts::WIRE].copy_from_slice(&self.refused_datagrams.to_wire());
+        b[RefusedCounts::WIRE..].copy_from_slice(&self.icmp_errors.to_le_bytes());
+        b
+    }
+
+    /// A `Refused` frame's (None: not [`Self::WIRE`] bytes).
+    pub fn from_wire(b: &[u8]) -> Option<Self> {
+        if b.len() != Self::WIRE {
+            return None;
+        }
+        let (counts, icmp) = b.split_at(RefusedCounts::WIRE);
+        let mut w = [0u8; 8];
+        w.copy_from_slice(icmp);
+        Some(Self {
+            refused_datagrams: RefusedCounts::from_wire(counts)?,
+            icmp_errors: u64::from_le_bytes(w),
+        })
+    }
 }
 
 /// Datagrams refused, by reason (the link's `Refusals` by name), for JSON.
@@ -148,5 +181,32 @@ mod tests {
         assert_eq!((both.forged, both.malformed), (u64::MAX, u64::MAX));
         assert_eq!(both.total(), u64::MAX);
         assert!(both.describe().contains(&format!("forged {}", u64::MAX)));
+    }
+
+    /// Regression: ICMP errors on the link's sockets were neither counted nor reported (the
+    /// run's `link_security` said nothing while they dropped 40 % of the ticks). Each side's
+    /// count crosses in its REFUSED frame and is in the report; a report of a run before them
+    /// still reads.
+    #[test]
+    fn regression_icmp_errors_cross_the_link_and_are_in_the_report() {
+        let far = SideRefusals {
+            refused_datagrams: RefusedCounts {
+                replayed: 2,
+                ..RefusedCounts::default()
+            },
+            icmp_errors: 4321,
+        };
+        assert_eq!(SideRefusals::from_wire(&far.to_wire()), Some(far));
+        assert_eq!(SideRefusals::from_wire(&far.to_wire()[1..]), None);
+        let r = LinkReport {
+            icmp_errors: 4321,
+            far: Some(far),
+            ..LinkReport::default()
+        };
+        let json = serde_json::to_string(&r).unwrap();
+        assert!(json.contains("\"icmp_errors\":4321"), "{json}");
+        let old = r#"{"peer":"p","key_fingerprint":"k","refused_connections":0,"refused_datagrams":{"malformed":0,"other_run":0,"forged":0,"replayed":0}}"#;
+        let old: LinkReport = serde_json::from_str(old).unwrap();
+        assert_eq!(old.icmp_errors, 0);
     }
 }

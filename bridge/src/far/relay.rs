@@ -163,14 +163,14 @@ impl FarLink {
     fn report(&mut self, code: u8) -> Result<String> {
         if self.direct
             && let Some(h) = &self.handoff
-            && let Some((refused, lost)) = crate::direct::read_counts(h)
+            && let Some(c) = crate::direct::read_counts(h)
         {
-            for (a, b) in self.udp.refused.counts.iter_mut().zip(refused) {
-                *a = a.saturating_add(b);
-            }
-            self.udp.emulated_lost = self.udp.emulated_lost.saturating_add(lost);
+            self.udp.absorb(c);
         }
-        let refused = crate::seal::RefusedCounts::from(self.udp.refused);
+        let refused = crate::seal::SideRefusals {
+            refused_datagrams: self.udp.refused.into(),
+            icmp_errors: self.udp.icmp_errors,
+        };
         self.tcp.send(Kind::Refused, &[&refused.to_wire()])?;
         if let Some(line) = crate::near::refused_warning(&self.udp) {
             eprintln!("{line}");

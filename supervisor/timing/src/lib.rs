@@ -235,16 +235,31 @@ pub struct TimingSummary {
 /// the loop.
 pub fn link_refusals_note(r: Option<&LinkReport>) -> Option<String> {
     let r = r?;
-    if r.refused_connections == 0 && r.refused_datagrams.total() == 0 {
+    if r.refused_connections == 0 && r.refused_datagrams.total() == 0 && r.icmp_errors == 0 {
         return None;
     }
     Some(format!(
-        "the link refused {} connection(s) before {} joined and {} datagram(s) during the run ({}); none reached the loop",
+        "the link refused {} connection(s) before {} joined and {} datagram(s) during the run ({}); none reached the loop{}",
         r.refused_connections,
         r.peer,
         r.refused_datagrams.total(),
-        link_refusals_by_host(r)
+        link_refusals_by_host(r),
+        icmp_note(r)
     ))
+}
+
+/// `; N ICMP error report(s) …` when the link's UDP sockets had any (an ICMP port, host or
+/// network unreachable quoting their addresses, which anyone who knows them can send), else
+/// empty.
+pub fn icmp_note(r: &LinkReport) -> String {
+    if r.icmp_errors == 0 {
+        return String::new();
+    }
+    let far = r.far.map_or("?".into(), |f| f.icmp_errors.to_string());
+    format!(
+        "; {} ICMP error report(s) (port, host or network unreachable) on the link's UDP sockets (here {}, on the far host {far}), each datagram they held back sent again",
+        r.icmp_errors, r.near.icmp_errors
+    )
 }
 
 /// The datagrams each host refused, by reason: `here: malformed 0, …; on the far host: …`.

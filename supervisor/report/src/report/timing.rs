@@ -136,13 +136,14 @@ fn link_security(s: &mut String, metrics: &[LawMetrics], timing: &[Option<Timing
         if let Some(r) = t.as_ref().and_then(|t| t.link_security.as_ref()) {
             let _ = writeln!(
                 s,
-                "\nLink of `{}`: the far side {} joined with link key {}; refused {} connection(s) before it and {} datagram(s) during the run ({}), none of which reached the loop.",
+                "\nLink of `{}`: the far side {} joined with link key {}; refused {} connection(s) before it and {} datagram(s) during the run ({}), none of which reached the loop{}.",
                 m.law,
                 r.peer,
                 r.key_fingerprint,
                 r.refused_connections,
                 r.refused_datagrams.total(),
-                deltaloop_timing::link_refusals_by_host(r)
+                deltaloop_timing::link_refusals_by_host(r),
+                deltaloop_timing::icmp_note(r)
             );
         }
     }

@@ -616,6 +616,18 @@ impl<'a> OpenTicks<'a> {
     /// counted: the tick's fates are unknown).
     fn applied(&mut self, tel: Option<&TelemetryMsg>) {
         let flags = tel.map_or(0, |m| m.flags);
+        let unanswered = wire::TEL_MISSED | wire::TEL_SAFE_STOP;
+        if tel.is_some()
+            && flags & unanswered == 0
+            && self.open.back().is_some_and(|(r, _)| r.out.is_none())
+        {
+            // The plant applied a reply the record never got (its copy came after the tick was
+            // finished, or a queue on its way overflowed): the controller stepped here, so the
+            // row cannot say "missed" (regression: a near bridge held up 3 s left 1,870 such
+            // rows, the run `ok` and its replay differing).
+            self.reply_lost();
+            return;
+        }
         if let Some((r, _)) = self.open.back_mut() {
             r.telemetry = tel.is_some();
             if tel.is_none() {
@@ -958,6 +970,45 @@ mod tests {
             "a late reply keeps its own τ"
         );
         assert!(ticks[1].0.held && !ticks[0].0.held);
+    }
+
+    /// Regression: with the controller on another host, a reply the plant applied whose copy
+    /// reached the supervisor after it had finished the tick (a near bridge held up 3 s) was
+    /// recorded "missed": the run was `ok`, and its replay, whose controller did not step there,
+    /// differed. The row's reply is `unknown`, counted as a reply lost, and the run lost data.
+    #[test]
+    fn regression_a_reply_the_plant_applied_that_the_record_lacks_is_unknown() {
+        let r = reference();
+        let mut rec = Recorder::new(Law::Tdc, &r, 1.0, Ticks::new());
+        let applied = TelemetryMsg::default();
+        let missed = TelemetryMsg {
+            flags: wire::TEL_MISSED | wire::TEL_HELD,
+            ..TelemetryMsg::default()
+        };
+        assert!(tick(&mut rec, &r, 0, 0.0));
+        rec.applied(Some(&applied));
+        // Applied by the plant, its copy never came.
+        assert!(rec.tick(&state(&r, 1, 0.0, 0.0), None));
+        rec.applied(Some(&applied));
+        // Missed by the plant: a miss.
+        assert!(rec.tick(&state(&r, 2, 0.0, 0.0), None));
+        rec.applied(Some(&missed));
+        assert!(tick(&mut rec, &r, 3, 0.0));
+        rec.applied(Some(&applied));
+        let (end, ticks) = rec.finish(Some(&state(&r, 4, 0.0, 0.0)));
+        assert_eq!(end.outcome, Outcome::LostData);
+        assert_eq!((end.replies_lost, end.first_reply_lost), (1, Some(1)));
+        let seen: Vec<_> = ticks.iter().map(|(t, _)| (t.telemetry, t.fate)).collect();
+        use ReplyFate::*;
+        assert_eq!(
+            seen,
+            [
+                (true, Applied),
+                (false, Missed),
+                (true, Missed),
+                (true, Applied)
+            ]
+        );
     }
 
     /// Regression: ticks whose telemetry never came were recorded with invented fates and the run

@@ -2,7 +2,6 @@
 //! says why, and the run's [`Fault`].
 
 use super::super::children::Pair;
-use super::super::role;
 use super::super::status::status_text;
 use super::{Ending, Observation};
 use crate::peer_text::{self, Tail};
@@ -103,12 +102,13 @@ pub(super) fn fault_cause(
     if ctrl.is_some() && !ok(ctrl) {
         let what = ctrl.map_or("did not exit".into(), status_text);
         let line = last_line(ctrl_log);
+        let who = child_name(streams, Sender::Controller, ctrl);
         parts.push((
             About::Controller,
             if line.is_empty() {
-                format!("the controller {what}")
+                format!("{who} {what}")
             } else {
-                format!("the controller {what} ({line})")
+                format!("{who} {what} ({line})")
             },
         ));
     }
@@ -129,13 +129,14 @@ pub(super) fn fault_cause(
     let line = last_line(plant_log);
     if plant.is_some() && !ok(plant) {
         let what = plant.map_or("did not exit".into(), status_text);
+        let who = child_name(streams, Sender::Plant, plant);
         parts.push((
             About::Plant,
             if line.is_empty() {
-                format!("the plant {what}")
+                format!("{who} {what}")
             } else {
                 format!(
-                    "the plant {what}: {}",
+                    "{who} {what}: {}",
                     line.trim_start_matches("deltaloop-plant: ")
                 )
             },
@@ -176,8 +177,12 @@ pub(super) fn fault_cause(
             parts.push((
                 About::Observer,
                 format!(
-                    "the supervisor saw the {} exit {:.1} ms after its last message",
-                    role(who),
+                    "the supervisor saw {} exit {:.1} ms after its last message",
+                    child_name(
+                        streams,
+                        who,
+                        if who == Sender::Plant { plant } else { ctrl }
+                    ),
                     noticed.saturating_sub(t) as f64 * 1e-6
                 ),
             ));
@@ -197,6 +202,30 @@ pub(super) fn fault_cause(
         kind,
         cause: peer_text::sanitize(cause.as_bytes(), 4 * peer_text::MAX_CHARS),
     })
+}
+
+/// What to call the child in `who`'s place that ended with `status`: the process, or, when
+/// that process is on the other host and a signal ended the child, the near bridge in its
+/// place (it exits with the far process's code, so a signal is its own death; regression: a
+/// killed bridge was reported as "the controller was killed").
+fn child_name(streams: &Observation<'_>, who: Sender, status: Option<ExitStatus>) -> &'static str {
+    use std::os::unix::process::ExitStatusExt;
+    let side = match who {
+        Sender::Plant => RemoteSide::Plant,
+        _ => RemoteSide::Controller,
+    };
+    let bridge =
+        streams.timing.across() == Some(side) && status.is_some_and(|s| s.signal().is_some());
+    match (side, bridge) {
+        (RemoteSide::Controller, true) => {
+            "the near bridge (deltaloop-bridge, in the place of the controller on the other host)"
+        }
+        (RemoteSide::Plant, true) => {
+            "the near bridge (deltaloop-bridge, in the place of the plant on the other host)"
+        }
+        (RemoteSide::Controller, false) => "the controller",
+        (RemoteSide::Plant, false) => "the plant",
+    }
 }
 
 /// What kind of fault ended the run, from how the children exited (None: still running when
