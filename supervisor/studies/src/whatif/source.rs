@@ -441,11 +441,13 @@ fn hgrm(path: &Path, unit: Option<Unit>) -> Result<Vec<(u64, u64)>> {
 
 /// An HdrHistogram interval log: every interval added up, one interval in memory at a time.
 fn hlog(path: &Path, unit: Option<Unit>) -> Result<Vec<(u64, u64)>> {
-    let head = files::read_regular(path, MAX_FILE_BYTES, "an interval log")
-        .map_err(|e| anyhow!("--latency {}: cannot read it: {e}", path.display()))?;
-    let head = String::from_utf8_lossy(&head);
-    let comments: Vec<&str> = head.lines().take_while(|l| l.starts_with('#')).collect();
-    let scale = unit_of(path, &comments, unit)?.ns();
+    let scale = {
+        let head = files::read_regular(path, MAX_FILE_BYTES, "an interval log")
+            .map_err(|e| anyhow!("--latency {}: cannot read it: {e}", path.display()))?;
+        let head = String::from_utf8_lossy(&head);
+        let comments: Vec<&str> = head.lines().take_while(|l| l.starts_with('#')).collect();
+        unit_of(path, &comments, unit)?.ns()
+    };
     let mut counts: std::collections::BTreeMap<u64, u64> = Default::default();
     deltaloop_timing::hlog::each_interval(path, |i| {
         for v in i.hist.iter_recorded() {
