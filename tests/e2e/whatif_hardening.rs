@@ -53,7 +53,10 @@ fn regression_whatif_a_controller_silence_stop_is_a_fault_not_a_divergence() {
     let w = json(&out.join("whatif.json"));
     let tdc = &w["laws"]["tdc"];
     assert_eq!(
-        (tdc["faulted_share"].as_f64(), tdc["diverged_share"].as_f64()),
+        (
+            tdc["faulted_share"].as_f64(),
+            tdc["diverged_share"].as_f64()
+        ),
         (Some(1.0), Some(0.0)),
         "{tdc}"
     );
@@ -62,7 +65,10 @@ fn regression_whatif_a_controller_silence_stop_is_a_fault_not_a_divergence() {
         "the budget rule is named: {said}"
     );
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    assert!(report.contains("faults.controller_silence_ticks"), "{report}");
+    assert!(
+        report.contains("faults.controller_silence_ticks"),
+        "{report}"
+    );
     let trace = std::fs::read_to_string(out.join("traces/0000/trace.csv")).unwrap();
     let header: Vec<&str> = trace.lines().next().unwrap().split(',').collect();
     let last: Vec<&str> = trace.lines().last().unwrap().split(',').collect();
@@ -206,7 +212,11 @@ fn realtime_like(tmp: &Path, name: &str) -> PathBuf {
     let s = dir.join("summary.json");
     let text = std::fs::read_to_string(&s).unwrap();
     assert!(text.contains("\"mode\": \"inproc\""), "{text}");
-    std::fs::write(&s, text.replace("\"mode\": \"inproc\"", "\"mode\": \"realtime\"")).unwrap();
+    std::fs::write(
+        &s,
+        text.replace("\"mode\": \"inproc\"", "\"mode\": \"realtime\""),
+    )
+    .unwrap();
     dir
 }
 
@@ -292,7 +302,14 @@ fn regression_whatif_refuses_run_folders_replay_would_refuse() {
     let out = tmp.path().join("w-good");
     ok(&whatif(
         &out,
-        &["--law", "tdc", "--latency", good.to_str().unwrap(), "--replicas", "1"],
+        &[
+            "--law",
+            "tdc",
+            "--latency",
+            good.to_str().unwrap(),
+            "--replicas",
+            "1",
+        ],
     ));
     let o = deltaloop(&[
         "whatif",
@@ -310,7 +327,9 @@ fn regression_whatif_refuses_run_folders_replay_would_refuse() {
     let e = one_line_error(&o);
     assert!(
         e.contains("--as-recorded")
-            && e.contains("config.toml has name = \"s2-fast\" where the scenario has \"s1-nominal\""),
+            && e.contains(
+                "config.toml has name = \"s2-fast\" where the scenario has \"s1-nominal\""
+            ),
         "{e}"
     );
     // A text file of zeros is a valid source.
@@ -318,7 +337,14 @@ fn regression_whatif_refuses_run_folders_replay_would_refuse() {
     std::fs::write(&zeros, "0\n0\n0\n").unwrap();
     ok(&whatif(
         &tmp.path().join("w-zeros"),
-        &["--law", "tdc", "--latency", zeros.to_str().unwrap(), "--replicas", "1"],
+        &[
+            "--law",
+            "tdc",
+            "--latency",
+            zeros.to_str().unwrap(),
+            "--replicas",
+            "1",
+        ],
     ));
 }
 

@@ -99,7 +99,9 @@ fn budget_rule(json: &WhatIfJson) -> Option<String> {
         }
     };
     match &json.scales {
-        Some(sc) => sc.iter().for_each(|(k, laws)| note(&format!("×{k} "), laws)),
+        Some(sc) => sc
+            .iter()
+            .for_each(|(k, laws)| note(&format!("×{k} "), laws)),
         None => note("", &json.laws),
     }
     (!shares.is_empty()).then(|| {
