@@ -53,7 +53,10 @@ fn regression_whatif_a_controller_silence_stop_is_a_fault_not_a_divergence() {
     let w = json(&out.join("whatif.json"));
     let tdc = &w["laws"]["tdc"];
     assert_eq!(
-        (tdc["faulted_share"].as_f64(), tdc["diverged_share"].as_f64()),
+        (
+            tdc["faulted_share"].as_f64(),
+            tdc["diverged_share"].as_f64()
+        ),
         (Some(1.0), Some(0.0)),
         "{tdc}"
     );
@@ -62,7 +65,10 @@ fn regression_whatif_a_controller_silence_stop_is_a_fault_not_a_divergence() {
         "the budget rule is named: {said}"
     );
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    assert!(report.contains("faults.controller_silence_ticks"), "{report}");
+    assert!(
+        report.contains("faults.controller_silence_ticks"),
+        "{report}"
+    );
     let trace = std::fs::read_to_string(out.join("traces/0000/trace.csv")).unwrap();
     let header: Vec<&str> = trace.lines().next().unwrap().split(',').collect();
     let last: Vec<&str> = trace.lines().last().unwrap().split(',').collect();
@@ -106,7 +112,7 @@ fn regression_whatif_stops_on_sigint_and_sigterm_with_130_and_writes_no_result()
     let t0 = Instant::now();
     let o = common::finish_within(early, Duration::from_secs(5), "whatif after SIGTERM");
     let early_s = t0.elapsed();
-    std::thread::sleep(Duration::from_millis(1700));
+    std::thread::sleep(Duration::from_millis(1000));
     unsafe { libc::kill(late.id() as i32, libc::SIGINT) };
     let t0 = Instant::now();
     let l = common::finish_within(late, Duration::from_secs(5), "whatif after SIGINT");
@@ -198,15 +204,21 @@ fn regression_a_hostile_hlog_payload_length_allocates_nothing_big() {
     );
 }
 
-/// An in-process run folder of S2 (`tdc`) relabelled as realtime: a source whatif reads, to
-/// edit. (In-process traces carry `arrival_ns` = the transport delay.)
-fn realtime_like(tmp: &Path, name: &str) -> PathBuf {
-    let dir = tmp.join(name);
-    run(S2, "inproc", &dir, &["--law", "tdc"]);
+/// A copy of run folder `from` as `name` beside it, its `summary.json`'s mode `was` made `mode`.
+fn relabelled(from: &Path, name: &str, was: &str, mode: &str) -> PathBuf {
+    let dir = from.with_file_name(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    for f in ["config.toml", "summary.json", "trace.csv"] {
+        std::fs::copy(from.join(f), dir.join(f)).unwrap();
+    }
     let s = dir.join("summary.json");
     let text = std::fs::read_to_string(&s).unwrap();
-    assert!(text.contains("\"mode\": \"inproc\""), "{text}");
-    std::fs::write(&s, text.replace("\"mode\": \"inproc\"", "\"mode\": \"realtime\"")).unwrap();
+    let (a, b) = (
+        format!("\"mode\": \"{was}\""),
+        format!("\"mode\": \"{mode}\""),
+    );
+    assert!(text.contains(&a), "{text}");
+    std::fs::write(&s, text.replace(&a, &b)).unwrap();
     dir
 }
 
@@ -230,15 +242,10 @@ fn regression_whatif_refuses_run_folders_replay_would_refuse() {
     let tmp = tempfile::tempdir().unwrap();
     let inproc = tmp.path().join("inproc");
     run(S2, "inproc", &inproc, &["--law", "tdc"]);
-    let good = realtime_like(tmp.path(), "good");
-    let copy = |name: &str| {
-        let d = tmp.path().join(name);
-        std::fs::create_dir_all(&d).unwrap();
-        for f in ["config.toml", "summary.json", "trace.csv"] {
-            std::fs::copy(good.join(f), d.join(f)).unwrap();
-        }
-        d
-    };
+    // The in-process run relabelled as realtime: a source whatif reads (its trace carries
+    // `arrival_ns` = the transport delay, 0), to edit.
+    let good = relabelled(&inproc, "good", "inproc", "realtime");
+    let copy = |name: &str| relabelled(&good, name, "realtime", "realtime");
     let deleted = copy("deleted");
     edit_trace(&deleted, |l| {
         l.remove(100);
@@ -253,54 +260,69 @@ fn regression_whatif_refuses_run_folders_replay_would_refuse() {
     std::fs::write(cut_row.join("trace.csv"), &t[..t.len() - 1]).unwrap();
     let cut_end = copy("cut_end");
     edit_trace(&cut_end, |l| l.truncate(300));
-    let lockstep = copy("lockstep");
-    let s = std::fs::read_to_string(lockstep.join("summary.json")).unwrap();
-    std::fs::write(
-        lockstep.join("summary.json"),
-        s.replace("\"mode\": \"realtime\"", "\"mode\": \"lockstep\""),
-    )
-    .unwrap();
-    let arg = |d: &PathBuf| d.to_str().unwrap().to_string();
-    let n = |x: &str| x.to_string();
-    let cases: Vec<(Vec<String>, &str, &str)> = vec![
-        (vec![arg(&inproc)], "inproc", "records no arrival"),
-        (vec![arg(&lockstep)], "lockstep", "records no arrival"),
-        (vec![arg(&deleted)], "deleted", "lost ticks"),
-        (vec![arg(&duplicated)], "duplicated", "out of order"),
-        (vec![arg(&cut_row)], "cut_row", "trace.csv"),
-        (vec![arg(&cut_end)], "cut_end", "trace.csv"),
-    ];
-    for (src, what, says) in cases {
-        let out = tmp.path().join(format!("w-{what}"));
+    let lockstep = relabelled(&good, "lockstep", "realtime", "lockstep");
+    for (src, says) in [
+        (&inproc, "records no arrival"),
+        (&lockstep, "records no arrival"),
+        (&deleted, "the run lost ticks 99..99"),
+        (&duplicated, "ticks out of order"),
+        (&cut_row, "the last row has no line end: the record is cut"),
+        (
+            &cut_end,
+            "has ticks 0..=298 but its run completed ticks 0..=667",
+        ),
+    ] {
+        let out = src.with_extension("w");
         let o = whatif(
             &out,
             &[
-                &["--law".to_string(), n("tdc"), n("--latency")][..],
-                &src,
-                &[n("--replicas"), n("1")],
-            ]
-            .concat()
-            .iter()
-            .map(String::as_str)
-            .collect::<Vec<_>>(),
+                "--law",
+                "tdc",
+                "--latency",
+                src.to_str().unwrap(),
+                "--replicas",
+                "1",
+            ],
         );
         let e = one_line_error(&o);
-        assert!(e.contains(what) && e.contains(says), "{what}: {e}");
-        assert!(!out.exists(), "{what}: a refused whatif made its folder");
+        assert!(
+            e.contains(src.to_str().unwrap()) && e.contains(says),
+            "{}: {e}",
+            src.display()
+        );
+        assert!(
+            !out.exists(),
+            "{}: a refused whatif made its folder",
+            src.display()
+        );
     }
-    // The good one reads; S1's CONFIG against it with --as-recorded is refused.
-    let out = tmp.path().join("w-good");
+    // The good one reads, and so does a text file of zeros; S1's CONFIG against the good one
+    // with --as-recorded is refused.
+    let zeros = tmp.path().join("zeros.txt");
+    std::fs::write(&zeros, "0\n0\n0\n").unwrap();
+    let (g, z) = (good.to_str().unwrap(), zeros.to_str().unwrap());
+    let w = tmp.path().join("w-good");
     ok(&whatif(
-        &out,
-        &["--law", "tdc", "--latency", good.to_str().unwrap(), "--replicas", "1"],
+        &w,
+        &[
+            "--law",
+            "tdc",
+            "--latency",
+            g,
+            "--latency",
+            z,
+            "--replicas",
+            "1",
+        ],
     ));
+    assert_eq!(json(&w.join("whatif.json"))["latency"]["ticks"], 668 + 3);
     let o = deltaloop(&[
         "whatif",
         "configs/s1-nominal.toml",
         "--law",
         "tdc",
         "--latency",
-        good.to_str().unwrap(),
+        g,
         "--as-recorded",
         "--replicas",
         "1",
@@ -310,16 +332,11 @@ fn regression_whatif_refuses_run_folders_replay_would_refuse() {
     let e = one_line_error(&o);
     assert!(
         e.contains("--as-recorded")
-            && e.contains("config.toml has name = \"s2-fast\" where the scenario has \"s1-nominal\""),
+            && e.contains(
+                "config.toml has name = \"s2-fast\" where the scenario has \"s1-nominal\""
+            ),
         "{e}"
     );
-    // A text file of zeros is a valid source.
-    let zeros = tmp.path().join("zeros.txt");
-    std::fs::write(&zeros, "0\n0\n0\n").unwrap();
-    ok(&whatif(
-        &tmp.path().join("w-zeros"),
-        &["--law", "tdc", "--latency", zeros.to_str().unwrap(), "--replicas", "1"],
-    ));
 }
 
 /// Regression: `--law tdc --law tdc` ran the law twice and wrote its key twice into

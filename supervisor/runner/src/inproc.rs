@@ -13,10 +13,10 @@ use anyhow::Result;
 use deltaloop_config::Law;
 use deltaloop_model::Vec3;
 use deltaloop_plant::{Arrival, PlantSide, PlantStop};
-use deltaloop_study::record::{Fault, FaultKind};
-use deltaloop_transport::wire::{self, TelemetryMsg};
 use deltaloop_study::Study;
 use deltaloop_study::record::metrics::LawMetrics;
+use deltaloop_study::record::{Fault, FaultKind};
+use deltaloop_transport::wire::{self, TelemetryMsg};
 
 /// Runs one law over the study's reference, ticks 0..=N, then takes the final state N + 1.
 /// Fails only if the trace cannot be written.

@@ -697,7 +697,11 @@ pub struct Cancelled(pub String);
 
 impl std::fmt::Display for Cancelled {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{} interrupted before its end; nothing was written", self.0)
+        write!(
+            f,
+            "{} interrupted before its end; nothing was written",
+            self.0
+        )
     }
 }
 

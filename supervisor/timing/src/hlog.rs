@@ -178,8 +178,12 @@ pub fn each_interval(
                 let raw = base64::engine::general_purpose::STANDARD
                     .decode(i.encoded_histogram())
                     .map_err(|e| bad(&format!("interval is not base64 ({e})")))?;
-                let hist = decode(&raw)
-                    .map_err(|e| bad(&format!("interval at {} s: {e}", i.start_timestamp().as_secs_f64())))?;
+                let hist = decode(&raw).map_err(|e| {
+                    bad(&format!(
+                        "interval at {} s: {e}",
+                        i.start_timestamp().as_secs_f64()
+                    ))
+                })?;
                 each(Interval {
                     start_s: i.start_timestamp().as_secs_f64(),
                     length_s: i.duration().as_secs_f64(),

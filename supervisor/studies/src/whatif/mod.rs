@@ -141,9 +141,10 @@ pub fn plan(req: Request<'_>) -> Result<Planned<'_>> {
 }
 
 /// A run folder's config against the scenario: `--as-recorded` replays the run, so the scenario
-/// must be the run's (the laws aside: `--law` picks among them); a drawn record's verdicts
-/// (late, missed) were made at its period and budget, so those must be the scenario's
-/// (regression: S1's 2668 rows ran `--as-recorded` as S2, which has 668).
+/// must be the run's (but for the laws, which `--law` picks among, and the free-text
+/// description); a drawn record's verdicts (late, missed) were made at its period and budget,
+/// so those must be the scenario's (regression: S1's 2668 rows ran `--as-recorded` as S2, which
+/// has 668).
 fn check_recorded(cfg: &RunConfig, rec: &RunConfig, path: &Path, model: Model) -> Result<()> {
     let mut rec = rec.clone();
     rec.controller.laws.clone_from(&cfg.controller.laws);
@@ -168,8 +169,10 @@ fn check_recorded(cfg: &RunConfig, rec: &RunConfig, path: &Path, model: Model) -
                 "--latency {}: its config.toml has {at} = {b} where the scenario has {a}: {}",
                 path.display(),
                 match model {
-                    Model::AsRecorded => "--as-recorded replays that run: give its config.toml as CONFIG",
-                    _ => "its late and missed ticks were judged at its own period and budget: record at the scenario's",
+                    Model::AsRecorded =>
+                        "--as-recorded replays that run: give its config.toml as CONFIG",
+                    _ =>
+                        "its late and missed ticks were judged at its own period and budget: record at the scenario's",
                 }
             );
         }

@@ -95,16 +95,21 @@ fn budget_rule(json: &WhatIfJson) -> Option<String> {
     let mut shares: Vec<String> = Vec::new();
     let mut note = |scale: &str, laws: &ByName<LawOut>| {
         for (law, o) in laws.iter().filter(|(_, o)| o.faulted_share > 0.0) {
-            shares.push(format!("`{law}` {scale}{}", pct(o.faulted_share)));
+            shares.push(format!(
+                "{} of `{law}`'s replicas{scale}",
+                pct(o.faulted_share)
+            ));
         }
     };
     match &json.scales {
-        Some(sc) => sc.iter().for_each(|(k, laws)| note(&format!("×{k} "), laws)),
+        Some(sc) => sc
+            .iter()
+            .for_each(|(k, laws)| note(&format!(" at latency ×{k}"), laws)),
         None => note("", &json.laws),
     }
     (!shares.is_empty()).then(|| {
         format!(
-            "the budget rule: a reply later than the {:.0} µs budget (loop.torque_budget_us) is a miss, and {} misses in a row (faults.controller_silence_ticks) stop the loop with the controller-silence fault; it ended {} of the replicas",
+            "the budget rule: a reply later than the {:.0} µs budget (loop.torque_budget_us) is a miss, and {} misses in a row (faults.controller_silence_ticks) stop the loop with the controller-silence fault; it ended {}",
             json.latency.budget_us,
             json.latency.controller_silence_ticks,
             shares.join(", ")

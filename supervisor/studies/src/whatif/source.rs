@@ -136,7 +136,11 @@ impl Source {
         } else if ext == "hlog" {
             (Kind::Hlog, Latencies::Histogram(hlog(path, unit)?), vec![])
         } else {
-            (Kind::Text, Latencies::Sequences(vec![text(path, unit)?]), vec![])
+            (
+                Kind::Text,
+                Latencies::Sequences(vec![text(path, unit)?]),
+                vec![],
+            )
         };
         let ticks = match &latencies {
             Latencies::Sequences(s) => s.iter().map(|s| s.len() as u64).sum(),
@@ -241,7 +245,10 @@ impl Finished {
     fn read(dir: &Path) -> Result<Self> {
         let p = dir.join("summary.json");
         let bytes = files::read_regular(&p, MAX_SUMMARY_BYTES, "a run's summary").map_err(|e| {
-            anyhow!("cannot read {}: {e} (whatif reads the folder of a finished realtime run)", p.display())
+            anyhow!(
+                "cannot read {}: {e} (whatif reads the folder of a finished realtime run)",
+                p.display()
+            )
         })?;
         let v: serde_json::Value = serde_json::from_slice(&bytes)
             .map_err(|e| anyhow!("{}: not a run's summary ({e})", p.display()))?;
@@ -441,11 +448,13 @@ fn hgrm(path: &Path, unit: Option<Unit>) -> Result<Vec<(u64, u64)>> {
 
 /// An HdrHistogram interval log: every interval added up, one interval in memory at a time.
 fn hlog(path: &Path, unit: Option<Unit>) -> Result<Vec<(u64, u64)>> {
-    let head = files::read_regular(path, MAX_FILE_BYTES, "an interval log")
-        .map_err(|e| anyhow!("--latency {}: cannot read it: {e}", path.display()))?;
-    let head = String::from_utf8_lossy(&head);
-    let comments: Vec<&str> = head.lines().take_while(|l| l.starts_with('#')).collect();
-    let scale = unit_of(path, &comments, unit)?.ns();
+    let scale = {
+        let head = files::read_regular(path, MAX_FILE_BYTES, "an interval log")
+            .map_err(|e| anyhow!("--latency {}: cannot read it: {e}", path.display()))?;
+        let head = String::from_utf8_lossy(&head);
+        let comments: Vec<&str> = head.lines().take_while(|l| l.starts_with('#')).collect();
+        unit_of(path, &comments, unit)?.ns()
+    };
     let mut counts: std::collections::BTreeMap<u64, u64> = Default::default();
     deltaloop_timing::hlog::each_interval(path, |i| {
         for v in i.hist.iter_recorded() {
@@ -597,7 +606,10 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let p = file(&d, "ns.txt", "1500\n");
         let s = Source::load(&p, Some(Unit::Ns)).unwrap();
-        assert_eq!(s.latencies, Latencies::Sequences(vec![vec![Tick::Reply(1500)]]));
+        assert_eq!(
+            s.latencies,
+            Latencies::Sequences(vec![vec![Tick::Reply(1500)]])
+        );
         let p = d.path().join("bad.txt");
         std::fs::write(&p, b"10\n20\n3\xff0\n").unwrap();
         let e = format!("{:#}", Source::load(&p, None).unwrap_err());
