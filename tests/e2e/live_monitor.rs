@@ -270,10 +270,11 @@ fn soak_interrupted_once() -> Result<(), String> {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    // Wait for ≈ 1 s of loop in the timing file (≈ 100 B a row), then Ctrl-C.
+    // Wait for ≈ 1.3 s of loop in the timing file (≈ 100 B a row, written as ticks finish),
+    // then Ctrl-C.
     let timing = out.join("tdc-is-sta.timing.csv");
     let end = Instant::now() + Duration::from_secs(20);
-    while std::fs::metadata(&timing).map_or(0, |m| m.len()) < 300_000 {
+    while std::fs::metadata(&timing).map_or(0, |m| m.len()) < 400_000 {
         assert!(Instant::now() < end, "the soak never got going");
         std::thread::sleep(Duration::from_millis(50));
     }

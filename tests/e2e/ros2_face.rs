@@ -200,12 +200,14 @@ fn regression_an_announced_sample_size_allocates_nothing_before_its_fragments() 
         "--mode",
         "lockstep",
         "--hold-s",
-        "3",
+        "20",
         "--ros2",
         "--out",
         out.to_str().unwrap(),
     ];
     let run = deltaloop(domain, &args).spawn().unwrap();
+    // The trace part appears at tick 0; 20 s of hold keep the loop running (≈ 3 s of lockstep
+    // in a debug build) past both readings of its peak memory.
     // Once the loop runs: the run's own tables are allocated before START.
     wait_for(&out.join("trace.tdc.part"));
     std::thread::sleep(Duration::from_millis(300));

@@ -24,6 +24,7 @@ use crate::frame::Kind;
 use crate::offset::Offset;
 use crate::replies::{Inbox, Outbox};
 use crate::seal::{End, KEY_LEN, Opener, Sealer, Session};
+pub use crate::udp::ProcessCounts;
 use crate::udp::{self as link, Udp};
 use anyhow::{Context, Result, bail};
 use deltaloop_transport::handoff::{self, Tag};
@@ -188,20 +189,6 @@ pub fn answer(end: &handoff::End) -> Result<Option<Udp>> {
             _ => {}
         }
     }
-}
-
-/// What a loop process's socket counted on the direct path, for its bridge's report.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct ProcessCounts {
-    /// Datagrams refused, by reason ([`crate::seal::Refusals`]).
-    pub refused: [u64; 4],
-    /// Datagrams the emulation dropped.
-    pub emulated_lost: u64,
-    /// ICMP-reported errors on the socket ([`Udp::icmp_errors`]).
-    pub icmp_errors: u64,
-    /// The first refusal's reason, in words (regression: the bridge's warning ended
-    /// "first: )", the reason left in the loop process).
-    pub first_refusal: Option<String>,
 }
 
 /// Bytes of the counts in a COUNTS message, before the first refusal's reason.

@@ -51,6 +51,19 @@ struct Inbox {
     short: bool,
 }
 
+/// What a loop process's socket counted on the direct path, for its bridge's report.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ProcessCounts {
+    /// Datagrams refused, by reason ([`crate::seal::Refusals`]).
+    pub refused: [u64; 4],
+    /// Datagrams the emulation dropped.
+    pub emulated_lost: u64,
+    /// ICMP-reported errors on the socket ([`Udp::icmp_errors`]).
+    pub icmp_errors: u64,
+    /// The first refusal's reason, in words, for the bridge's warning.
+    pub first_refusal: Option<String>,
+}
+
 /// The loop's datagram socket, connected to the peer (the kernel drops datagrams from anyone
 /// else), with its pre-allocated buffers and, on a run's link, the session's sealing.
 pub struct Udp {
@@ -223,9 +236,9 @@ impl Udp {
         Ok(())
     }
 
-    /// Adds what a loop process's socket counted ([`crate::direct::ProcessCounts`], the direct
+    /// Adds what a loop process's socket counted ([`ProcessCounts`], the direct
     /// path) to this socket's counts; its first refusal's reason stands if this one has none.
-    pub fn absorb(&mut self, c: crate::direct::ProcessCounts) {
+    pub fn absorb(&mut self, c: ProcessCounts) {
         for (a, b) in self.refused.counts.iter_mut().zip(c.refused) {
             *a = a.saturating_add(b);
         }

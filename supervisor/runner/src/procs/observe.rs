@@ -53,6 +53,9 @@ struct Window {
     next: u64,
     /// The last tick kept (N + 1: the state after the run).
     last: u64,
+    /// Whether each of the last [`WINDOW`] finished ticks had its reply (by slot): a reply that
+    /// comes for one of them after it was finished is a second reply, counted as such.
+    replied: Vec<bool>,
 }
 
 impl Window {
@@ -65,6 +68,7 @@ impl Window {
             slots: vec![empty; WINDOW as usize],
             next: 0,
             last,
+            replied: vec![false; WINDOW as usize],
         }
     }
 
@@ -94,7 +98,13 @@ impl Window {
             }
         };
         s.k = u64::MAX;
+        self.replied[(k % WINDOW) as usize] = seen.torque.is_some();
         seen
+    }
+
+    /// Whether tick k, finished already and among the last [`WINDOW`] finished, had its reply.
+    fn finished_with_reply(&self, k: u64) -> bool {
+        k < self.next && self.next - k <= WINDOW && self.replied[(k % WINDOW) as usize]
     }
 }
 
@@ -275,6 +285,9 @@ impl<'a> Observation<'a> {
                     if m.tau.iter().any(|x| !x.is_finite()) && m.tick < self.window.last {
                         self.non_finite.get_or_insert(m.tick);
                     }
+                } else if self.window.finished_with_reply(m.tick) {
+                    // The tick was finished as soon as its first reply was in.
+                    self.duplicate_replies += 1;
                 }
                 if self.last_torque.is_none_or(|t| t.tick < m.tick) {
                     self.last_torque = Some(m);
