@@ -145,6 +145,26 @@ fn regression_run_out_holding_its_config_is_refused() {
         "{e}"
     );
     assert!(script.is_file() && cfg.is_file());
+    // A script named by a bare word, from the working directory, is a file the command reads.
+    let cfg_abs = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/s1-nominal.toml");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_deltaloop"))
+        .args(["run", cfg_abs, "--mode", "lockstep"])
+        .args([
+            "--controller-cmd",
+            "python3 ctl.py",
+            "--out",
+            ".",
+            "--force",
+        ])
+        .current_dir(&a)
+        .output()
+        .unwrap();
+    let e = one_line_error(&o);
+    assert!(
+        e.contains("contains a file of the controller command") && e.contains("ctl.py"),
+        "{e}"
+    );
+    assert!(script.is_file() && cfg.is_file());
 }
 
 /// `sweep run SWEEP --base BASE --out DIR --force` with the base copy in DIR: refused, BASE kept.

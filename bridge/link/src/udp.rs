@@ -51,6 +51,11 @@ struct Inbox {
     short: bool,
 }
 
+/// The refusal of a datagram the kernel cut to the buffer (the link's largest is
+/// [`MAX_DATAGRAM`], 496 bytes).
+const OVERSIZED: &str = "a datagram longer than the largest of the link (496 bytes)";
+const _: () = assert!(MAX_DATAGRAM == 496, "OVERSIZED names the size");
+
 /// What a loop process's socket counted on the direct path, for its bridge's report.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct ProcessCounts {
@@ -82,7 +87,9 @@ pub struct Udp {
     last_due: u64,
     /// Datagrams refused on receipt, by reason, and the first reason in words.
     pub refused: Refusals,
-    pub last_refusal: Option<String>,
+    /// The first refusal's reason, in words (built once, on the first refusal; a constant one
+    /// costs no allocation).
+    pub last_refusal: Option<std::borrow::Cow<'static, str>>,
     /// Datagrams the emulation dropped.
     pub emulated_lost: u64,
     /// Errors the kernel reported on this socket from an ICMP message quoting its addresses
@@ -245,7 +252,7 @@ impl Udp {
         self.emulated_lost = self.emulated_lost.saturating_add(c.emulated_lost);
         self.icmp_errors = self.icmp_errors.saturating_add(c.icmp_errors);
         if self.last_refusal.is_none() {
-            self.last_refusal = c.first_refusal;
+            self.last_refusal = c.first_refusal.map(std::borrow::Cow::Owned);
         }
     }
 
@@ -289,9 +296,7 @@ impl Udp {
                 // first bytes say.
                 self.refused.add(crate::seal::Refusal::Malformed);
                 if self.last_refusal.is_none() {
-                    self.last_refusal = Some(format!(
-                        "a datagram longer than the largest of the link ({MAX_DATAGRAM} bytes)"
-                    ));
+                    self.last_refusal = Some(OVERSIZED.into());
                 }
                 continue;
             }
@@ -307,7 +312,7 @@ impl Udp {
                 Err((reason, why)) => {
                     self.refused.add(reason);
                     if self.last_refusal.is_none() {
-                        self.last_refusal = Some(why);
+                        self.last_refusal = Some(why.into());
                     }
                 }
             }

@@ -4,7 +4,8 @@
 //! that asked for it the link's socket and this run's session keys for the loop's datagrams
 //! ([`Tag::Offer`], the socket passed as `SCM_RIGHTS`), so plant and controller exchange state
 //! and torque socket to socket, with no relay between them (docs/protocol.md §14.4). The
-//! long-lived link key never crosses it, and nothing secret is ever in an environment.
+//! long-lived link key never crosses it, and nothing secret is ever in a loop process's
+//! environment (the bridges hold the key in theirs).
 //!
 //! The exchange: the loop process says [`Tag::Hello`] at set-up (before its READY); at START the
 //! bridge answers [`Tag::Offer`] (or [`Tag::Relay`]: the run asks for the relay); at its end the

@@ -101,10 +101,19 @@ impl ReferenceFeed {
     /// it.
     fn send_chunk(&self, reference: &JointReference, c: u64) -> Result<()> {
         let ticks = chunk_ticks(c, self.total_rows);
+        // The first row that fails its check ends the run before the loop reaches it (chunks
+        // go out ahead of the loop); its sample carries the end point meanwhile.
+        let mut failed = None;
         self.publisher
             .send_chunk((ticks.end - ticks.start) as usize, &mut |i| {
                 let tick = ticks.start + i as u64;
-                let j = reference.row(tick as usize).joint;
+                let j = match reference.try_row(tick as usize) {
+                    Ok(row) => row.joint,
+                    Err(e) => {
+                        failed.get_or_insert((tick, e));
+                        reference.row(tick as usize).joint
+                    }
+                };
                 RefSample {
                     tick,
                     q: j.q.into(),
@@ -113,7 +122,10 @@ impl ReferenceFeed {
                 }
             })
             .map_err(|e| anyhow::anyhow!("{e} (reference chunk {c})"))?;
-        Ok(())
+        match failed {
+            Some((tick, e)) => anyhow::bail!("the reference at tick {tick}: {e}"),
+            None => Ok(()),
+        }
     }
 }
 

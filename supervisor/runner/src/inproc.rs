@@ -156,7 +156,11 @@ pub fn run_schedule<'a>(
             return lawrun::finish(rec, None);
         }
         let state = plant.state();
-        let reference = study.reference.row(k as usize).joint;
+        let reference = study
+            .reference
+            .try_row(k as usize)
+            .map_err(|e| anyhow::anyhow!("the reference at tick {k}: {e}"))?
+            .joint;
         let (reply, arrival) = match step {
             Step::Now | Step::After(_) | Step::Late => {
                 let mut reply = ctrl.answer(&state, &reference);

@@ -175,12 +175,13 @@ pub fn config_reads(path: &Path, o: &Overrides) -> Vec<(PathBuf, &'static str)> 
         .collect()
 }
 
-/// The files a config's plant and controller commands name (words with a `/` that name a file:
-/// the program, a script), each with what it is: a run folder may not hold them.
+/// The files a config's plant and controller commands name (words that name an existing file,
+/// from the working directory: the program, a script), each with what it is: a run folder may
+/// not hold them.
 pub fn command_files(cfg: &RunConfig) -> Vec<(PathBuf, &'static str)> {
     let named = |cmd: &[String], what: &'static str| {
         cmd.iter()
-            .filter(|w| w.contains('/') && Path::new(w).is_file())
+            .filter(|w| Path::new(w).is_file())
             .map(move |w| (PathBuf::from(w), what))
             .collect::<Vec<_>>()
     };

@@ -164,14 +164,25 @@ impl JointReference {
         })
     }
 
-    /// The row of tick k (t_k = k·Ts), for any k ≤ N + 1.
-    pub fn row(&self, k: usize) -> RefRow {
+    /// The row of tick k (t_k = k·Ts), for any k ≤ N + 1, checked: a motion longer than
+    /// [`MAX_CHECKED_TICKS`] was checked by `build` only at that many ticks, so the loop's
+    /// reference (the supervisor's feed, the in-process loop) takes its rows from here and ends
+    /// the run at the first that fails.
+    pub fn try_row(&self, k: usize) -> Result<RefRow, KinematicsError> {
         let t = k as f64 * self.ts;
         if k >= self.hold_from {
-            return RefRow { t, ..self.hold };
+            return Ok(RefRow { t, ..self.hold });
         }
-        // Every tick before the hold was checked by `build`.
-        checked_row(&self.robot, &self.path, t).unwrap_or(RefRow { t, ..self.hold })
+        checked_row(&self.robot, &self.path, t)
+    }
+
+    /// The row of tick k, for views of ticks the loop already ran (their rows passed
+    /// [`Self::try_row`]); a row that fails its check reads as the end point.
+    pub fn row(&self, k: usize) -> RefRow {
+        self.try_row(k).unwrap_or(RefRow {
+            t: k as f64 * self.ts,
+            ..self.hold
+        })
     }
 
     /// Whether tick k lies in the hold, where every row is the same (but for its time).
@@ -294,5 +305,32 @@ mod tests {
         assert!(short.end - short.start > 600, "{short:?}");
         assert_eq!(picked.last().unwrap().len() as u64, short.end - short.start);
         assert!(took.as_secs_f64() < 5.0, "{took:?}");
+    }
+
+    /// Regression: a motion longer than [`MAX_CHECKED_TICKS`] is checked by `build` at that many
+    /// ticks, and a tick between them that failed its check read silently as the end point in
+    /// the loop's reference. The loop takes its rows from `try_row`, which names the failure.
+    #[test]
+    fn regression_an_unchecked_tick_read_silently_as_the_end_point() {
+        let text = "name = \"arch\"\n[scenario]\npath = \"custom\"\nsegments = [{ from = [0.25, 0, -0.43], to = [-0.25, 0, -0.43], apex_m = 0.9, duration_s = 1.0 }]\n";
+        let cfg = RunConfig::from_toml_str(text, None).unwrap();
+        let path = TaskPath::from_section(&cfg.scenario);
+        let robot = DeltaRobot::default();
+        let ts = 3e-4;
+        assert!(JointReference::build(&robot, &path, ts, 0.0).is_err());
+        // As `build` leaves it when the failing ticks were not among those it checked.
+        let end = hold_start(&path, ts);
+        let r = JointReference {
+            ts,
+            n: end as usize,
+            duration: path.duration(),
+            robot: robot.clone(),
+            path: path.clone(),
+            hold_from: end as usize,
+            hold: checked_row(&robot, &path, end as f64 * ts).unwrap(),
+        };
+        let bad = (0..end as usize).find(|&k| r.try_row(k).is_err());
+        assert!(bad.is_some_and(|k| k > 0), "{bad:?}");
+        assert!(r.try_row(0).is_ok() && r.try_row(end as usize).is_ok());
     }
 }

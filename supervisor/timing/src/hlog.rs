@@ -207,7 +207,8 @@ const DEFLATE_MAX_RATIO: u64 = 1032;
 /// Decodes one V2 histogram (deflated or plain), checking each length its header claims against
 /// the bytes there are before anything is allocated for it (regression: a 360-byte log whose
 /// header claimed a 4 GiB payload had 4 GiB allocated). What a payload inflates to is bounded by
-/// deflate's ratio, so every allocation is bounded by the file's size.
+/// deflate's ratio; the counts array the header's range and digits ask for (at most about 70 MB
+/// at 5 digits over the whole u64 range) is the one allocation not tied to the file's size.
 fn decode(raw: &[u8]) -> std::result::Result<Histogram<u64>, String> {
     use std::io::Read as _;
     let word = |b: &[u8], at: usize| {
