@@ -1407,36 +1407,15 @@ fn regression_a_remote_plant_loop_recovers_after_a_near_bridge_stall() {
 #[ignore = "a 3 s stall in a 7 s run: see docs/guide/failure-behaviour.md"]
 fn regression_a_near_bridge_held_up_3_s_loses_no_reply_copy_silently() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let (tmp, cfg, key, ep) = s1_with_key();
-    let out = tmp.path().join("run");
-    let s = |p: &Path| p.to_str().unwrap().to_string();
-    let args = [
-        "run",
-        &s(&cfg),
-        "--mode",
-        "realtime",
-        "--controller-remote",
-        &ep,
-        "--link-key",
-        &s(&key),
-        "--hold-s",
-        "6",
-        "--out",
-        &s(&out),
-    ];
-    let run = common::spawn(&args);
-    let near = near_bridge_of(run.id());
-    let far_root = tmp.path().join("far-root");
-    let join = join_as(&ep, "controller", &key, &far_root);
-    let log = out.join("tdc.controller.log");
-    let t0 = std::time::Instant::now();
-    while !std::fs::read_to_string(&log).is_ok_and(|l| l.contains("direct path")) {
-        assert!(
-            t0.elapsed() < Duration::from_secs(60),
-            "the loop never started"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    let RemoteController {
+        tmp,
+        out,
+        run,
+        near,
+        join,
+        far_root,
+        log,
+    } = remote_controller_started(&["--hold-s", "6"]);
     std::thread::sleep(Duration::from_millis(1000));
     // SAFETY: the run's child, the near bridge.
     unsafe { libc::kill(near, libc::SIGSTOP) };
@@ -1460,34 +1439,15 @@ fn regression_a_near_bridge_held_up_3_s_loses_no_reply_copy_silently() {
 #[test]
 fn regression_a_killed_near_bridge_is_named_not_the_controller() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let (tmp, cfg, key, ep) = s1_with_key();
-    let out = tmp.path().join("run");
-    let s = |p: &Path| p.to_str().unwrap().to_string();
-    let args = [
-        "run",
-        &s(&cfg),
-        "--mode",
-        "realtime",
-        "--controller-remote",
-        &ep,
-        "--link-key",
-        &s(&key),
-        "--out",
-        &s(&out),
-    ];
-    let run = common::spawn(&args);
-    let near = near_bridge_of(run.id());
-    let far_root = tmp.path().join("far-root");
-    let join = join_as(&ep, "controller", &key, &far_root);
-    let log = out.join("tdc.controller.log");
-    let t0 = std::time::Instant::now();
-    while !std::fs::read_to_string(&log).is_ok_and(|l| l.contains("direct path")) {
-        assert!(
-            t0.elapsed() < Duration::from_secs(60),
-            "the loop never started"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    let RemoteController {
+        tmp: _tmp,
+        out,
+        run,
+        near,
+        join,
+        far_root,
+        ..
+    } = remote_controller_started(&[]);
     std::thread::sleep(Duration::from_millis(300));
     // SAFETY: the run's child, the near bridge.
     unsafe { libc::kill(near, libc::SIGKILL) };
@@ -1695,4 +1655,58 @@ fn regression_icmp_errors_on_the_link_drop_no_datagram_and_are_counted() {
         "{missed} of {} ticks missed",
         trace.len()
     );
+}
+
+/// A realtime S1 run with its controller joined from "the other host" (loopback), once the loop
+/// runs on the direct path: the run, its near bridge's pid, the join and where things are.
+struct RemoteController {
+    tmp: tempfile::TempDir,
+    out: PathBuf,
+    run: std::process::Child,
+    near: i32,
+    join: std::process::Child,
+    far_root: PathBuf,
+    /// The law's controller log (the near bridge's words).
+    log: PathBuf,
+}
+
+fn remote_controller_started(extra: &[&str]) -> RemoteController {
+    let (tmp, cfg, key, ep) = s1_with_key();
+    let out = tmp.path().join("run");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let (cfg, key_s, out_s) = (s(&cfg), s(&key), s(&out));
+    let mut args = vec![
+        "run",
+        &cfg,
+        "--mode",
+        "realtime",
+        "--controller-remote",
+        &ep,
+        "--link-key",
+        &key_s,
+    ];
+    args.extend_from_slice(extra);
+    args.extend_from_slice(&["--out", &out_s]);
+    let run = common::spawn(&args);
+    let near = near_bridge_of(run.id());
+    let far_root = tmp.path().join("far-root");
+    let join = join_as(&ep, "controller", &key, &far_root);
+    let log = out.join("tdc.controller.log");
+    let t0 = std::time::Instant::now();
+    while !std::fs::read_to_string(&log).is_ok_and(|l| l.contains("direct path")) {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "the loop never started"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    RemoteController {
+        tmp,
+        out,
+        run,
+        near,
+        join,
+        far_root,
+        log,
+    }
 }
