@@ -151,6 +151,42 @@ fn in_namespace(tmp: &Path, cfg: &str, script: &str) -> (std::path::PathBuf, std
     (disk, keep)
 }
 
+/// Runs `cfg` in `mode` on a tmpfs of `from` that shrinks to `to` once the first law's trace
+/// part has rows (past the run's check of the free space), so the disk fills mid-run: the
+/// run's exit code, the ms from the shrink to its end, its stderr, and the folder its run
+/// folder was copied to.
+fn shrunk_mid_run(
+    tmp: &Path,
+    cfg: &str,
+    mode: &str,
+    from: &str,
+    to: &str,
+) -> (String, u64, String, std::path::PathBuf) {
+    let script = format!(
+        r#"
+mount -t tmpfs -o size={from} tmpfs "$DISK" || exit 90
+timeout 120 "$BIN" run "$CFG" --mode {mode} --out "$DISK/run" 2>"$KEEP/stderr" &
+pid=$!
+while [ ! -s "$DISK/run/trace.tdc.part" ] && kill -0 $pid 2>/dev/null; do sleep 0.01; done
+mount -o remount,size={to} "$DISK" || exit 91
+start=$(date +%s%N)
+wait $pid
+echo $? > "$KEEP/rc"
+echo $(( ($(date +%s%N) - start) / 1000000 )) > "$KEEP/ms"
+cp -a "$DISK/run" "$KEEP/run" 2>/dev/null || true
+"#
+    );
+    let (_, keep) = in_namespace(tmp, cfg, &script);
+    let err = std::fs::read_to_string(keep.join("stderr")).unwrap();
+    let rc = std::fs::read_to_string(keep.join("rc")).unwrap();
+    let ms: u64 = std::fs::read_to_string(keep.join("ms"))
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    (rc, ms, err, keep)
+}
+
 /// Every line of `text` has the header's field count and the text ends with a newline.
 fn assert_whole_rows(text: &str, what: &str) {
     let width = text.lines().next().unwrap().split(',').count();
@@ -178,27 +214,8 @@ fn regression_a_full_disk_cut_inproc_rows_and_did_not_stop_the_run() {
         "name = \"full\"\n[scenario]\npath = \"s1\"\nhold_s = 600.0\n[controller]\nlaws = [\"tdc\", \"tde-is\", \"tdc-is-sta\"]\n",
     )
     .unwrap();
-    let script = r#"
-mount -t tmpfs -o size=8g tmpfs "$DISK" || exit 90
-timeout 120 "$BIN" run "$CFG" --mode inproc --out "$DISK/run" 2>"$KEEP/stderr" &
-pid=$!
-while [ ! -s "$DISK/run/trace.tdc.part" ] && kill -0 $pid 2>/dev/null; do sleep 0.01; done
-# Past the run's check of the free space: the disk shrinks to 16 MiB, and fills.
-mount -o remount,size=16m "$DISK" || exit 91
-start=$(date +%s%N)
-wait $pid
-echo $? > "$KEEP/rc"
-echo $(( ($(date +%s%N) - start) / 1000000 )) > "$KEEP/ms"
-cp -a "$DISK/run" "$KEEP/run" 2>/dev/null || true
-"#;
-    let (_, keep) = in_namespace(tmp.path(), cfg.to_str().unwrap(), script);
-    let err = std::fs::read_to_string(keep.join("stderr")).unwrap();
-    let rc = std::fs::read_to_string(keep.join("rc")).unwrap();
-    let ms: u64 = std::fs::read_to_string(keep.join("ms"))
-        .unwrap()
-        .trim()
-        .parse()
-        .unwrap();
+    let (rc, ms, err, keep) =
+        shrunk_mid_run(tmp.path(), cfg.to_str().unwrap(), "inproc", "8g", "16m");
     assert_eq!(rc.trim(), "1", "{err}");
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("No space left on device"), "{err}");
@@ -231,27 +248,7 @@ fn regression_a_full_disk_did_not_stop_a_process_run() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let cfg = config(tmp.path(), 600.0, "");
-    let script = r#"
-mount -t tmpfs -o size=4g tmpfs "$DISK" || exit 90
-timeout 120 "$BIN" run "$CFG" --mode lockstep --out "$DISK/run" 2>"$KEEP/stderr" &
-pid=$!
-while [ ! -s "$DISK/run/trace.tdc.part" ] && kill -0 $pid 2>/dev/null; do sleep 0.01; done
-# Past the run's check of the free space: the disk shrinks to 8 MiB, and fills.
-mount -o remount,size=8m "$DISK" || exit 91
-start=$(date +%s%N)
-wait $pid
-echo $? > "$KEEP/rc"
-echo $(( ($(date +%s%N) - start) / 1000000 )) > "$KEEP/ms"
-cp -a "$DISK/run" "$KEEP/run" 2>/dev/null || true
-"#;
-    let (_, keep) = in_namespace(tmp.path(), &cfg, script);
-    let err = std::fs::read_to_string(keep.join("stderr")).unwrap();
-    let rc = std::fs::read_to_string(keep.join("rc")).unwrap();
-    let ms: u64 = std::fs::read_to_string(keep.join("ms"))
-        .unwrap()
-        .trim()
-        .parse()
-        .unwrap();
+    let (rc, ms, err, keep) = shrunk_mid_run(tmp.path(), &cfg, "lockstep", "4g", "8m");
     assert_eq!(rc.trim(), "1", "{err}");
     assert!(err.contains("No space left on device"), "{err}");
     // 8 MiB hold about 11,000 rows of trace and timing: a few seconds of lockstep.
