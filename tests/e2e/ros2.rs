@@ -374,22 +374,29 @@ fn ros2_controller_node_closes_the_loop() {
     let log = std::fs::read_to_string(dds.join("tdc.controller.log")).unwrap();
     assert!(log.contains("0 command(s) refused"), "{log}");
 
-    let rt = tmp.path().join("dds-realtime");
-    let run = with_dds_controller(CONTROLLER, 172, "realtime", &rt, &[]);
-    ok(&run, "the realtime run over DDS");
-    let s = common::summary(&rt);
-    assert_eq!(s["laws"]["tdc"]["status"], "ok", "{s}");
-    // The node's latency was felt: commands arrived hundreds of µs after their state.
-    let arrivals: Vec<u64> = trace(&rt)
-        .values()
-        .filter_map(|r| r["arrival_ns"].parse().ok())
-        .collect();
-    assert!(
-        arrivals.len() > 700,
-        "{} commands applied of 801",
-        arrivals.len()
-    );
-    common::assert_replays(&rt);
+    // Realtime at 1 kHz, judged by the run's record: a host that stalled the plant says nothing
+    // about the node, and the attempt is run again.
+    common::on_a_noisy_host("ros2_controller_node_closes_the_loop", |n| {
+        let rt = tmp.path().join(format!("dds-realtime-{n}"));
+        let run = with_dds_controller(CONTROLLER, 172, "realtime", &rt, &[]);
+        ok(&run, "the realtime run over DDS");
+        let s = common::summary(&rt);
+        // The node's latency was felt: commands arrived hundreds of µs after their state.
+        let arrivals = trace(&rt)
+            .values()
+            .filter(|r| r["arrival_ns"].parse::<u64>().is_ok())
+            .count();
+        let check = if s["laws"]["tdc"]["status"] != "ok" {
+            Err(format!("status {}: {s}", s["laws"]["tdc"]["status"]))
+        } else if arrivals <= 700 {
+            Err(format!("{arrivals} commands applied of 801"))
+        } else {
+            Ok(())
+        };
+        common::judge(common::disturbance(&s, "tdc"), check)?;
+        common::assert_replays(&rt);
+        Ok(())
+    });
 }
 
 /// Commands deltaloop must refuse, each counted under its cause (other joint names, two efforts,
