@@ -3,6 +3,7 @@
 use std::ffi::{c_char, c_int, c_void};
 
 use deltaloop_controller::process::{Step, serve};
+use deltaloop_link::Handoff;
 use deltaloop_transport::args::LoopArgs;
 use deltaloop_transport::exit::ProcessEnd;
 use deltaloop_wire::{RefSample, StateMsg, TorqueMsg};
@@ -121,7 +122,7 @@ fn controller_main(
         return Err("dl_controller_main: the step function is null");
     };
     let term = deltaloop_transport::rt::child_signals();
-    let end = serve(&args.run, &term, name, |cfg| {
+    let end = serve(&args.run, &term, name, Handoff::default(), |cfg| {
         let run = DlRun::new(cfg, &args.run, &args.law)?;
         if let Some(init) = init {
             // SAFETY: a valid function accepting `user` (the caller's promise); `run` lives

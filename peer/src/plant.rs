@@ -5,6 +5,7 @@
 
 use std::ffi::{c_char, c_int, c_void};
 
+use deltaloop_link::Handoff;
 use deltaloop_model::{PlantSample, Vec3};
 use deltaloop_plant::process::serve;
 use deltaloop_plant::tick::{Drives, Physics};
@@ -174,7 +175,7 @@ fn plant_main(
         return Err("dl_plant_main: fns, or its truth, measure or advance, is null");
     };
     let term = deltaloop_transport::rt::child_signals();
-    let end = serve(&args.run, &term, name, |cfg| {
+    let end = serve(&args.run, &term, name, Handoff::default(), |cfg| {
         let run = DlRun::new(cfg, &args.run, "")?;
         if let Some(init) = fns.init {
             // SAFETY: a valid function accepting `user`; `run` lives through the call.

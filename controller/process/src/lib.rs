@@ -1,6 +1,6 @@
 //! The controller process (`deltaloop-controller`, [`process`]): the controller's tick, which
 //! every loop mode calls (`deltaloop-controller-tick`, pure, re-exported as [`tick`]), served over
-//! iceoryx2 or the direct link, with the joint reference in a fixed ring ([`ring`]). The laws themselves are
+//! the loop's transport its binary picks (`deltaloop_transport::exchange`), with the joint reference in a fixed ring ([`ring`]). The laws themselves are
 //! `deltaloop-law` (pure math). Model-free: this crate never depends on the plant.
 
 pub mod process;

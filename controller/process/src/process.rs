@@ -18,11 +18,12 @@ use anyhow::{Result, bail};
 use clap::Parser;
 use deltaloop_config::{FaultInjection, Poll};
 use deltaloop_config::{Law, LoopMode, RunConfig};
-use deltaloop_link::direct::{self, ControllerEnd};
 use deltaloop_transport::args::LoopArgs;
+use deltaloop_transport::exchange::{
+    Connector, ControllerTransport, IpcController, OverTransport, Transport,
+};
 use deltaloop_transport::exit::{self, ProcessEnd};
-use deltaloop_transport::ipc::ListenerWaitError;
-use deltaloop_transport::ipc::{self, ControlIn, IpcContext, RefIn};
+use deltaloop_transport::ipc::{self, ControlIn, ControlPorts, IpcContext, RefIn};
 use deltaloop_transport::rt;
 use deltaloop_transport::wire::{self, ControlKind, ControlMsg, RefSample, StateMsg};
 use std::process::ExitCode;
@@ -44,14 +45,14 @@ struct Args {
     law: Law,
 }
 
-/// Entry point of `deltaloop-controller`.
-pub fn main() -> ExitCode {
+/// Entry point of `deltaloop-controller`, over the transport `connector` gives at START.
+pub fn main(connector: impl Connector) -> ExitCode {
     let args = Args::parse();
     let term = rt::child_signals();
     let law = args.law;
     exit::exit(
         NAME,
-        serve(&args.run, &term, NAME, |cfg| {
+        serve(&args.run, &term, NAME, connector, |cfg| {
             Ok(crate::ControllerSide::from_config(cfg, law))
         }),
     )
@@ -84,16 +85,44 @@ impl Step for ControllerSide {
     }
 }
 
-/// The controller's iceoryx2 ports.
-type Ports = ipc::ControllerPorts;
+/// The controller's iceoryx2 ports beside the loop's: the reference chunks and run control.
+struct Ports {
+    reference: RefIn,
+    control: ControlPorts,
+    _node: ipc::RunNode,
+}
+
+impl Ports {
+    /// These ports and the loop's (which go to the transport at START).
+    fn open(run_id: &str) -> Result<(Self, IpcController)> {
+        let node = ipc::node("controller", run_id)?;
+        let loop_ports = IpcController::open(&node, run_id)?;
+        let ports = Self {
+            reference: ipc::reference_subscriber(&node, run_id)?,
+            control: ipc::control_ports(&node, run_id, wire::Sender::Controller)?,
+            _node: node,
+        };
+        Ok((ports, loop_ports))
+    }
+
+    /// Sends `kind` (READY, ARMED, …) on the controller's control service.
+    fn send_control(&self, kind: ControlKind) -> Result<()> {
+        self.control
+            .0
+            .send_copy(ControlMsg::new(kind, wire::Sender::Controller))
+            .ipc(format!("send {kind:?}"))?;
+        Ok(())
+    }
+}
 
 /// The controller process of run `args`: `make` builds what answers the states from the run's
-/// config (before READY), then the handshake and the loop until the run ends; `name` prefixes
-/// its warnings.
+/// config (before READY), then the handshake and the loop until the run ends, over the transport
+/// `connector` picks at START (asked at set-up, before READY); `name` prefixes its warnings.
 pub fn serve<S: Step>(
     args: &LoopArgs,
     term: &AtomicBool,
     name: &str,
+    mut connector: impl Connector,
     make: impl FnOnce(&RunConfig) -> Result<S>,
 ) -> Result<ProcessEnd> {
     let cfg = RunConfig::from_file(&args.config)?;
@@ -101,12 +130,8 @@ pub fn serve<S: Step>(
         bail!("mode {} has no processes", args.mode);
     };
     let mut side = make(&cfg)?;
-    let ports = Ports::open(&args.run_id, ipc::LOOP_BUFFER)?;
-    // Across two hosts: ask the bridge beside us for the link's socket (before READY).
-    let handoff = match cfg.link {
-        Some(_) => direct::hello()?,
-        None => None,
-    };
+    let (ports, loop_ports) = Ports::open(&args.run_id)?;
+    connector.prepare(&cfg)?;
     // Allocated and touched before READY: the loop files rows without allocating or faulting.
     let mut ring = RefRing::new();
     rt::schedule_and_report_ready(
@@ -134,21 +159,11 @@ pub fn serve<S: Step>(
     let Some(start) = handshake(&ports, &mut ring, term)? else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
-    // The states' stamps move onto this host's clock on the direct path whichever side the
-    // plant is on: the record here needs them with the plant across, and the schedule below
-    // (sleep to just before each deadline) needs them with the controller across, where the
-    // plant's clock is another host's.
-    let mut link = match &handoff {
-        Some(h) => direct::answer(h)?.map(|udp| ControllerEnd::new(udp, true)),
-        None => None,
-    };
-    ipc::connect_now(&[&ports.state, &ports.torque, &ports.torque_ready])?;
-    let spin_ns = layout.spin_ns();
-    let mut lp = Loop {
+    let lp = Loop {
         cfg: &cfg,
         name,
         rows: start.ticks + 2,
-        spin_ns,
+        spin_ns: layout.spin_ns(),
         poll: layout.poll,
         schedule: match (args.mode, layout.controller_lead_ns()) {
             (LoopMode::Realtime, Some(lead_ns)) => Some(Schedule {
@@ -161,24 +176,57 @@ pub fn serve<S: Step>(
             _ => None,
         },
     };
-    let end = answer_states(&ports, &mut link, &mut lp, &mut side, &mut ring, term);
-    if let (Some(h), Some(l)) = (&handoff, &link) {
-        direct::counts(h, &l.udp);
-    }
-    if let Some((n, why)) = side.refused().filter(|(n, _)| *n > 0) {
-        let mut m = ControlMsg::with_text(
-            ControlKind::RepliesRefused,
-            wire::Sender::Controller,
-            0,
-            &why,
-        );
-        m.ticks = n;
-        if let Err(e) = ports.control.0.send_copy(m) {
-            eprintln!("{name}: cannot say the refused replies: {e:?}");
+    connector.connect(FromStart {
+        ports: &ports,
+        loop_ports,
+        lp,
+        side: &mut side,
+        ring: &mut ring,
+        term,
+    })?
+}
+
+/// The run from START, over the transport the connector picked.
+struct FromStart<'r, S> {
+    ports: &'r Ports,
+    loop_ports: IpcController,
+    lp: Loop<'r>,
+    side: &'r mut S,
+    ring: &'r mut RefRing,
+    term: &'r AtomicBool,
+}
+
+impl<S: Step> OverTransport for FromStart<'_, S> {
+    type Output = Result<ProcessEnd>;
+
+    fn run<T: Transport>(self, transport: T) -> Result<ProcessEnd> {
+        let Self {
+            ports,
+            loop_ports,
+            mut lp,
+            side,
+            ring,
+            term,
+        } = self;
+        let mut link = transport.controller(loop_ports);
+        link.connect()?;
+        let end = answer_states(ports, &mut link, &mut lp, side, ring, term);
+        link.finish();
+        if let Some((n, why)) = side.refused().filter(|(n, _)| *n > 0) {
+            let mut m = ControlMsg::with_text(
+                ControlKind::RepliesRefused,
+                wire::Sender::Controller,
+                0,
+                &why,
+            );
+            m.ticks = n;
+            if let Err(e) = ports.control.0.send_copy(m) {
+                eprintln!("{}: cannot say the refused replies: {e:?}", lp.name);
+            }
         }
+        std::thread::sleep(ipc::LINGER);
+        end
     }
-    std::thread::sleep(ipc::LINGER);
-    end
 }
 
 /// The handshake: file the chunks the supervisor sends before START, report ARMED once tick 0's
@@ -310,7 +358,7 @@ impl Loop<'_> {
 /// The loop: answer every state until the final one, the plant's silence, or a stop.
 fn answer_states(
     ports: &Ports,
-    link: &mut Option<ControllerEnd>,
+    link: &mut impl ControllerTransport,
     lp: &mut Loop,
     side: &mut impl Step,
     ring: &mut RefRing,
@@ -331,10 +379,7 @@ fn answer_states(
     let mut stalled = false;
     let end = loop {
         let silence_ns = if stalled { u64::MAX } else { silence_ns };
-        let waited = match link {
-            Some(l) => wait_state_direct(ports, l, silence_ns, lp, &wait, term)?,
-            None => wait_state(ports, silence_ns, lp.spin_ns, lp.poll, &wait, term)?,
-        };
+        let waited = wait_state(ports, link, silence_ns, lp, &wait, term)?;
         let (state, skipped, rx) = match waited {
             Waited::State(s, skipped, rx) => (s, skipped, rx),
             Waited::Silent => {
@@ -384,7 +429,7 @@ fn answer_states(
         let mut msg = match side.step(&state, &r) {
             Ok(m) => m,
             Err(why) => {
-                tell_plant_the_step_failed(ports, state.tick, &why);
+                tell_plant_the_step_failed(ports, link, state.tick, &why);
                 break ProcessEnd::Fault(format!("the step failed at tick {}: {why}", state.tick));
             }
         };
@@ -402,17 +447,7 @@ fn answer_states(
         lp.follow(&state, rx);
         wait = lp.wait_for(state.tick + 1, msg.t_publish_ns, wait.poll_until_ns);
         msg.t_poll_until_ns = wait.poll_until_ns;
-        if let Some(l) = link {
-            // The plant is across the link: the reply goes to its socket; the copy here is the
-            // record's (no one here waits for it).
-            l.send_reply(&msg)?;
-            ports.torque.send_copy(msg).ipc("publish torque")?;
-        } else {
-            ports.torque.send_copy(msg).ipc("publish torque")?;
-            if ipc::published_needs_notify(state.t_poll_until_ns) {
-                ports.torque_ready.notify().ipc("notify torque")?;
-            }
-        }
+        link.send_reply(msg, state.t_poll_until_ns)?;
         answered = Some(state.tick);
         // On the plant's CPU, hand it the CPU now: the reply is taken before our bookkeeping.
         if lp.poll == Poll::Yield {
@@ -435,7 +470,7 @@ fn answer_states(
 /// Says CONTROLLER_ERROR (tick `k`, the error `why`) on the controller's control service and
 /// wakes the plant, which then ends the loop at once instead of holding the last torque through
 /// its silence window. Best effort: the exit code says the same if this cannot be sent.
-fn tell_plant_the_step_failed(ports: &Ports, k: u64, why: &str) {
+fn tell_plant_the_step_failed(ports: &Ports, link: &impl ControllerTransport, k: u64, why: &str) {
     let m = ControlMsg::with_text(
         ControlKind::ControllerError,
         wire::Sender::Controller,
@@ -443,7 +478,7 @@ fn tell_plant_the_step_failed(ports: &Ports, k: u64, why: &str) {
         why,
     );
     let _ = ports.control.0.send_copy(m);
-    let _ = ports.torque_ready.notify();
+    link.wake_plant();
 }
 
 /// Tick `k`'s reference row: from the ring, where it normally already is. If it is not, the
@@ -517,106 +552,41 @@ enum Waited {
 const BLOCK_SLICE_NS: u64 = 50_000_000;
 
 /// Waits for the next state: sleeps until `wait.wake_ns` if set, polls (spinning or yielding,
-/// `poll`) until `wait.poll_until_ns` (or `spin_ns` past a late wake-up), then blocks on the
-/// wake-up event in slices of [`BLOCK_SLICE_NS`], looking for STOP and SIGTERM between them. The
-/// clock is read before each look, so the look that precedes blocking happens at or after
-/// `poll_until_ns` (docs/protocol.md §6.1).
-fn wait_state(
+/// `lp.poll`) until `wait.poll_until_ns` (or `lp.spin_ns` past a late wake-up), then blocks on the
+/// transport's wake-ups in slices of [`BLOCK_SLICE_NS`], looking for STOP and SIGTERM between
+/// them. The clock is read before each look, so the look that precedes blocking happens at or
+/// after `poll_until_ns` (docs/protocol.md §6.1).
+fn wait_state<T: ControllerTransport>(
     ports: &Ports,
+    link: &mut T,
     silence_ns: u64,
-    spin_ns: u64,
-    poll: Poll,
+    lp: &Loop,
     wait: &Wait,
     term: &AtomicBool,
 ) -> Result<Waited> {
-    let (sub, listener) = (&ports.state, &ports.state_ready);
     let mut poll_until_ns = wait.poll_until_ns;
-    if let Some(t) = wait.wake_ns {
-        rt::sleep_until_ns(t);
-        poll_until_ns = poll_after_wake(poll_until_ns, rt::now_ns(), spin_ns);
+    // Where START's t0 may come late (`START_ON_TIME`), not before the first state: it wakes the
+    // controller and puts the schedule on the plant's clock ([`Loop::follow`]).
+    let on_schedule = T::START_ON_TIME || lp.schedule.as_ref().is_some_and(|s| s.seen > 0);
+    if let Some(t) = wait.wake_ns.filter(|_| on_schedule) {
+        link.sleep_until(t)?;
+        poll_until_ns = poll_after_wake(poll_until_ns, rt::now_ns(), lp.spin_ns);
     }
     let until = rt::now_ns().saturating_add(silence_ns);
     // Whether this wait has blocked once already: STOP is looked for only after a block that
     // brought no state, so the tick's normal path (one block, woken by the state) reads no
     // control message.
     let mut blocked = false;
+    // Whether the last block saw a wake-up event (a transport may drain only then).
+    let mut woke = false;
     loop {
         // Before the states: SIGTERM ends the loop even while states keep coming.
         if term.load(Ordering::Relaxed) {
             return Ok(Waited::Stopped("stopped by SIGTERM"));
         }
         let now = rt::now_ns();
-        let mut newest: Option<StateMsg> = None;
-        let mut seen = 0u64;
-        while let Some(sample) = sub.receive().ipc("receive state")? {
-            newest = Some(sample);
-            seen += 1;
-        }
-        if let Some(s) = newest {
-            return Ok(Waited::State(s, seen - 1, rt::now_ns()));
-        }
-        if now >= until {
-            return Ok(Waited::Silent);
-        }
-        if now < poll_until_ns {
-            rt::poll_pause(poll);
-            continue;
-        }
-        if blocked && drain_control(&ports.control.1)?.stop {
-            return Ok(Waited::Stopped("stopped by the supervisor (STOP)"));
-        }
-        blocked = true;
-        // The only timeout here is the silence limit (seconds), so iceoryx2's own timed wait (a
-        // blocking receive, woken directly by the notification) is precise enough and cheapest.
-        // A signal (SIGTERM, or SIGCONT after a SIGSTOP) only interrupts the wait: look again.
-        let slice = (until - now).min(BLOCK_SLICE_NS);
-        match listener.timed_wait(core::time::Duration::from_nanos(slice)) {
-            Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
-            Err(e) => return Err(e).ipc("wait for state").map_err(Into::into),
-        }
-    }
-}
-
-/// [`wait_state`] on the direct path: the states come on the link's socket (`link`); on
-/// iceoryx2 only the final one (the bridge passes it on from its control connection) and the
-/// record's copies, which are not for answering. Blocks on the socket and the wake-up event
-/// together.
-fn wait_state_direct(
-    ports: &Ports,
-    link: &mut ControllerEnd,
-    silence_ns: u64,
-    lp: &Loop,
-    wait: &Wait,
-    term: &AtomicBool,
-) -> Result<Waited> {
-    let (sub, listener) = (&ports.state, &ports.state_ready);
-    let mut poll_until_ns = wait.poll_until_ns;
-    // Not before the first state: START's t0 came over the control connection, behind the
-    // reference chunks, and is late by as much as they took (regression: 4 ms, and the first
-    // 14 states were taken at once). The first state wakes the controller on its socket and puts
-    // the schedule on the plant's clock ([`Loop::follow`]).
-    let on_schedule = lp.schedule.as_ref().is_some_and(|s| s.seen > 0);
-    if let Some(t) = wait.wake_ns.filter(|_| on_schedule) {
-        link.sleep_until(t)?;
-        poll_until_ns = poll_after_wake(poll_until_ns, rt::now_ns(), lp.spin_ns);
-    }
-    let until = rt::now_ns().saturating_add(silence_ns);
-    let mut blocked = false;
-    // Whether the last wait saw a wake-up event: only then is there one to drain (a pending one
-    // makes the next wait return at once).
-    let mut event = false;
-    loop {
-        if term.load(Ordering::Relaxed) {
-            return Ok(Waited::Stopped("stopped by SIGTERM"));
-        }
-        let now = rt::now_ns();
-        if let Some((s, older)) = link.poll()? {
-            return Ok(Waited::State(s, older, rt::now_ns()));
-        }
-        while let Some(s) = sub.receive().ipc("receive state")? {
-            if s.flags & wire::STATE_FINAL != 0 {
-                return Ok(Waited::State(s, 0, rt::now_ns()));
-            }
+        if let Some((s, skipped)) = link.take_state()? {
+            return Ok(Waited::State(s, skipped, rt::now_ns()));
         }
         if now >= until {
             return Ok(Waited::Silent);
@@ -629,16 +599,8 @@ fn wait_state_direct(
             return Ok(Waited::Stopped("stopped by the supervisor (STOP)"));
         }
         blocked = true;
-        if std::mem::take(&mut event) {
-            listener.try_wait().ipc("drain state events")?;
-        }
-        let slice = (until - now).min(BLOCK_SLICE_NS).min(link.timeout_ns(now));
-        let mut fds = [
-            direct::readable(&link.udp),
-            deltaloop_link::udp::event(listener),
-        ];
-        deltaloop_link::udp::wait(&mut fds, slice)?;
-        event = fds[1].revents != 0;
+        let slice = (until - now).min(BLOCK_SLICE_NS);
+        woke = link.block(now, slice, std::mem::take(&mut woke))?;
     }
 }
 

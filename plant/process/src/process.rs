@@ -1,5 +1,7 @@
 //! The plant process (`deltaloop-plant`): runs the plant's tick ([`PlantSide`], the same every
-//! mode uses) once per tick and exchanges state and torque with the controller over iceoryx2.
+//! mode uses) once per tick and exchanges state and torque with the controller over the loop's
+//! transport (iceoryx2, or across two hosts the link's socket), which its binary's
+//! [`Connector`] picks at START; the process is generic over it.
 //!
 //! - lockstep: publish state k, wait (without limit but the silence timeout) for τ_k, integrate.
 //! - realtime: wake at the absolute deadline t0 + k·Ts, publish state k, wait for τ_k at most the
@@ -13,20 +15,22 @@
 //! codes: the table in `deltaloop_transport::exit` (0 done, 2 arguments, 3 set-up, 4 fault,
 //! 5 stopped).
 
+use crate::reply::{Awaited, wait_torque};
 use crate::{Arrival, Physics, PlantSide, PlantStop, plant_from_config};
 use anyhow::{Context, Result, bail};
 use clap::Parser;
 use deltaloop_config::{ApplyTorque, Overrun, Poll};
 use deltaloop_config::{LoopMode, RunConfig};
-use deltaloop_link::direct::{self, PlantEnd};
 use deltaloop_model::Vec3;
 use deltaloop_transport::args::LoopArgs;
-use deltaloop_transport::exit::{self, ProcessEnd};
-use deltaloop_transport::ipc::{
-    self, ControlIn, ControlPorts, IpcContext, Ping, StateOut, TelemetryOut, TorqueIn, Wake,
+use deltaloop_transport::exchange::{
+    Connector, IpcPlant, OverTransport, PlantTransport, Transport,
 };
+use deltaloop_transport::exit::{self, ProcessEnd};
+use deltaloop_transport::ipc::{self, ControlIn, ControlPorts, IpcContext, TelemetryOut};
 use deltaloop_transport::rt;
-use deltaloop_transport::wire::{self, ControlKind, ControlMsg, Sender, StateMsg, TorqueMsg};
+use deltaloop_transport::wire::{self, ControlKind, ControlMsg, Sender};
+use std::marker::PhantomData;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -42,74 +46,40 @@ struct Args {
     run: LoopArgs,
 }
 
-/// Entry point of `deltaloop-plant`.
-pub fn main() -> ExitCode {
+/// Entry point of `deltaloop-plant`, over the transport `connector` gives at START.
+pub fn main(connector: impl Connector) -> ExitCode {
     let args = Args::parse();
     let term = rt::child_signals();
-    let end = serve(&args.run, &term, NAME, |cfg| {
+    let end = serve(&args.run, &term, NAME, connector, |cfg| {
         let cfg = cfg.clone();
         Ok(move |q0| Ok(plant_from_config(&cfg, q0)?))
     });
     exit::exit(NAME, end)
 }
 
-/// The plant's iceoryx2 ports.
+/// The plant's iceoryx2 ports beside the loop's: telemetry and run control.
 struct Ports {
-    state: StateOut,
     telemetry: TelemetryOut,
-    torque: TorqueIn,
-    state_ready: Ping,
-    torque_ready: Wake,
     control: ControlPorts,
     /// The controller's own control service: its CONTROLLER_ERROR (its step failed) ends the
     /// loop at once instead of after the silence window.
     from_controller: ControlIn,
-    /// Across two hosts, the link's socket its bridge handed on: states out and replies in go
-    /// there, not through the bridge (None: iceoryx2, on one host or relayed).
-    link: Option<PlantEnd>,
     _node: ipc::RunNode,
 }
 
 impl Ports {
-    fn open(run_id: &str) -> Result<Self> {
+    /// These ports and the loop's (which go to the transport at START).
+    fn open(run_id: &str) -> Result<(Self, IpcPlant)> {
         let node = ipc::node("plant", run_id)?;
-        let (state, torque, state_ready, torque_ready) =
-            ipc::plant_loop(&node, run_id, ipc::LOOP_BUFFER)?;
-        Ok(Self {
-            state,
+        let loop_ports = IpcPlant::open(&node, run_id)?;
+        let ports = Self {
             telemetry: ipc::telemetry(&node, run_id)?.sole_publisher("telemetry")?,
-            torque,
-            state_ready,
-            torque_ready,
             control: ipc::control_ports(&node, run_id, Sender::Plant)?,
             from_controller: ipc::control(&node, run_id, Sender::Controller)?
                 .subscriber(None, "control-controller subscriber")?,
-            link: None,
             _node: node,
-        })
-    }
-
-    /// Publishes a state and wakes the controller unless it declared it is polling
-    /// (`ctrl_poll_until_ns`, from its last reply; 0: always wake it). On the direct path the
-    /// state goes to the link's socket, and the copy here is the record's: only the final state
-    /// wakes the bridge, which passes it on over its control connection.
-    fn publish_state(&mut self, msg: StateMsg, ctrl_poll_until_ns: u64) -> Result<()> {
-        let last = msg.flags & wire::STATE_FINAL != 0;
-        if let Some(l) = &mut self.link {
-            if !last {
-                l.send_state(&msg)?;
-            }
-            self.state.send_copy(msg).ipc("publish state")?;
-            if last {
-                self.state_ready.notify().ipc("notify state")?;
-            }
-            return Ok(());
-        }
-        self.state.send_copy(msg).ipc("publish state")?;
-        if ipc::published_needs_notify(ctrl_poll_until_ns) {
-            self.state_ready.notify().ipc("notify state")?;
-        }
-        Ok(())
+        };
+        Ok((ports, loop_ports))
     }
 }
 
@@ -203,11 +173,13 @@ struct LoopStop {
 
 /// The plant process of run `args`: `open` prepares the plant from the run's config (before
 /// READY: a rig opens its drives here) and returns how to start it at rest at q0 (rad, after
-/// START); then the loop until the run ends, and the safe stop. `name` prefixes its messages.
+/// START); then the loop until the run ends, and the safe stop, over the transport `connector`
+/// picks at START (asked at set-up, before READY). `name` prefixes its messages.
 pub fn serve<P, S>(
     args: &LoopArgs,
     term: &AtomicBool,
     name: &str,
+    mut connector: impl Connector,
     open: impl FnOnce(&RunConfig) -> Result<S>,
 ) -> Result<ProcessEnd>
 where
@@ -219,12 +191,8 @@ where
         bail!("mode {} has no processes", args.mode);
     };
     let start_at = open(&cfg)?;
-    let mut ports = Ports::open(&args.run_id)?;
-    // Across two hosts: ask the bridge beside us for the link's socket (before READY).
-    let handoff = match cfg.link {
-        Some(_) => direct::hello()?,
-        None => None,
-    };
+    let (ports, loop_ports) = Ports::open(&args.run_id)?;
+    connector.prepare(&cfg)?;
     rt::schedule_and_report_ready(
         &rt::Sched {
             core: layout.plant_cpu,
@@ -250,20 +218,7 @@ where
     else {
         return Ok(ProcessEnd::Stopped("stopped before start".into()));
     };
-    if let Some(h) = &handoff {
-        let lockstep = args.mode == LoopMode::Lockstep;
-        ports.link = direct::answer(h)?.map(|udp| PlantEnd::new(udp, lockstep));
-    }
-    ipc::connect_now(&[
-        &ports.state,
-        &ports.telemetry,
-        &ports.torque,
-        &ports.state_ready,
-        &ports.from_controller,
-    ])?;
-    let physics = start_at(Vec3::from(start.q0)).context("initial configuration")?;
-    let mut side = PlantSide::new(physics, &cfg, start.ticks);
-    let mut clock = Clock {
+    let clock = Clock {
         mode: args.mode,
         t0_ns: start.t0_ns,
         ts_ns: cfg.ts_ns(),
@@ -278,22 +233,66 @@ where
         overrun_after_ns: cfg.overrun_after_ns(),
         paused_ns: 0,
     };
-    let end = match run_loop(&mut ports, &mut side, &mut clock, &cfg, term)? {
-        Some(stop) => end_run(&mut ports, &mut side, &clock, &cfg, stop),
-        // No DONE message: the final state and the exit status say it, and the controller's ports
-        // are already going away (a send now would race their teardown).
-        None => ProcessEnd::Completed,
-    };
-    if let (Some(h), Some(l)) = (&handoff, &ports.link) {
-        direct::counts(h, &l.udp);
-    }
+    let end = connector.connect(FromStart {
+        ports: &ports,
+        loop_ports,
+        cfg: &cfg,
+        start,
+        start_at,
+        clock,
+        term,
+        physics: PhantomData,
+    })??;
     std::thread::sleep(ipc::LINGER);
     Ok(end)
 }
 
+/// The run from START, over the transport the connector picked.
+struct FromStart<'r, P, S> {
+    ports: &'r Ports,
+    loop_ports: IpcPlant,
+    cfg: &'r RunConfig,
+    start: ControlMsg,
+    start_at: S,
+    clock: Clock,
+    term: &'r AtomicBool,
+    physics: PhantomData<fn() -> P>,
+}
+
+impl<P: Physics, S: FnOnce(Vec3) -> Result<P>> OverTransport for FromStart<'_, P, S> {
+    type Output = Result<ProcessEnd>;
+
+    fn run<T: Transport>(self, transport: T) -> Result<ProcessEnd> {
+        let Self {
+            ports,
+            loop_ports,
+            cfg,
+            start,
+            start_at,
+            mut clock,
+            term,
+            physics: _,
+        } = self;
+        let mut link = transport.plant(loop_ports, clock.mode);
+        link.connect()?;
+        ipc::connect_now(&[&ports.telemetry, &ports.from_controller])?;
+        let physics = start_at(Vec3::from(start.q0)).context("initial configuration")?;
+        let mut side = PlantSide::new(physics, cfg, start.ticks);
+        let end = match run_loop(ports, &mut link, &mut side, &mut clock, cfg, term)? {
+            Some(stop) => end_run(ports, &mut link, &mut side, &clock, cfg, stop),
+            // No DONE message: the final state and the exit status say it, and the
+            // controller's ports are already going away (a send now would race their teardown).
+            None => ProcessEnd::Completed,
+        };
+        link.finish();
+        Ok(end)
+    }
+}
+
 /// Ticks 0..=N, then the final state N + 1. Some(stop) if the loop ended early.
-fn run_loop<P: Physics>(
-    ports: &mut Ports,
+fn run_loop<P: Physics, T: PlantTransport>(
+    ports: &Ports,
+    link: &mut T,
     side: &mut PlantSide<P>,
     clock: &mut Clock,
     cfg: &RunConfig,
@@ -346,12 +345,13 @@ fn run_loop<P: Physics>(
             _ => msg.t_publish_ns + clock.silence_ns,
         };
         msg.t_poll_until_ns = (msg.t_publish_ns + clock.spin_ns).min(until);
-        ports.publish_state(msg, ctrl_poll_until)?;
+        link.send_state(msg, ctrl_poll_until)?;
         if msg.flags & wire::STATE_FINAL != 0 {
             return Ok(None);
         }
         let reply = match wait_torque(
-            &mut *ports,
+            link,
+            &ports.from_controller,
             k,
             (msg.t_publish_ns, msg.t_poll_until_ns, until),
             clock.poll,
@@ -439,7 +439,8 @@ fn loop_stop(stop: PlantStop, last_deadline_ns: u64) -> LoopStop {
 /// After an early stop: tell the supervisor, release the controller, and brake if the model
 /// still works (keeping the clock in realtime).
 fn end_run<P: Physics>(
-    ports: &mut Ports,
+    ports: &Ports,
+    link: &mut impl PlantTransport,
     side: &mut PlantSide<P>,
     clock: &Clock,
     cfg: &RunConfig,
@@ -461,7 +462,7 @@ fn end_run<P: Physics>(
     // Release the controller (it may be blocked waiting for a state): the run is over.
     let mut last = side.final_state(tick);
     last.t_publish_ns = rt::now_ns();
-    let _ = ports.publish_state(last, 0);
+    let _ = link.send_state(last, 0);
     let end = |why: String| {
         if requested {
             ProcessEnd::Stopped(why)
@@ -508,188 +509,6 @@ fn safe_stop<P: Physics>(
     Ok(side.plant().sample().map(|s| s.qd.amax()))
 }
 
-/// What the plant does with a torque reply while it waits for tick `tick`'s.
-#[derive(Debug, PartialEq, Eq)]
-enum Reply {
-    /// The answer to this tick, sent within the budget.
-    Apply,
-    /// Too late: for an earlier tick, or for this one but sent after the budget ended.
-    Late,
-    /// Not an answer to any state published yet (a misbehaving peer): dropped.
-    Ignore,
-}
-
-/// Judges a reply by the controller's own send time (`stamp_ns`, from [`trusted_stamp`]), not by
-/// when the plant looks: a plant that was itself preempted past the budget must not apply a reply
-/// that came late (it would count a late controller as on time, and the miss statistics would
-/// depend on the plant's CPU).
-fn reply_verdict(m: &TorqueMsg, stamp_ns: u64, tick: u64, until_ns: u64) -> Reply {
-    match m.tick.cmp(&tick) {
-        std::cmp::Ordering::Equal if stamp_ns <= until_ns => Reply::Apply,
-        std::cmp::Ordering::Equal | std::cmp::Ordering::Less => Reply::Late,
-        std::cmp::Ordering::Greater => Reply::Ignore,
-    }
-}
-
-/// The controller's publish stamp `claimed` if it can be true, else the plant's own receive time
-/// `rx_ns` (all CLOCK_MONOTONIC, ns); true when it was replaced. A reply cannot have been sent
-/// before the state it answers was published (`state_pub_ns`) nor after the plant received it:
-/// a stamp outside that window is a peer's lie (regression: a controller that stamped its replies
-/// with the state's deadline, or 0, was charged no latency and never missed its budget), and the
-/// physics then rests on what the plant itself observed.
-fn trusted_stamp(claimed: u64, state_pub_ns: u64, rx_ns: u64) -> (u64, bool) {
-    if (state_pub_ns..=rx_ns).contains(&claimed) {
-        (claimed, false)
-    } else {
-        (rx_ns, true)
-    }
-}
-
-/// A reply the plant applies.
-#[derive(Clone, Copy, Debug)]
-struct Received {
-    msg: TorqueMsg,
-    /// When the plant took it, ns.
-    rx_ns: u64,
-    /// When it was published, as far as the plant can trust the controller's stamp, ns.
-    stamp_ns: u64,
-    /// The controller's stamp was impossible and replaced by `rx_ns`.
-    stamp_replaced: bool,
-}
-
-/// How the wait for a reply ended.
-enum Awaited {
-    Reply(Received),
-    /// No reply by the end of the wait.
-    Nothing,
-    /// The controller said its step failed (CONTROLLER_ERROR): no reply will come. One line.
-    ControllerError(String),
-}
-
-/// Waits for τ_k until `until_ns`: polls (spinning or yielding, `poll`) until `poll_until_ns`
-/// (what the state declared), then blocks on the wake-up event. The clock is read before each
-/// look, so the look that precedes blocking happens at or after `poll_until_ns`
-/// (docs/protocol.md §6.1). Replies judged late are
-/// dropped and counted on `side`; replies for later ticks are ignored. `state_pub_ns` is when
-/// state `tick` was published. Before each block, and when the wait ends empty, it looks for the
-/// controller's CONTROLLER_ERROR (the controller wakes the plant after sending it).
-fn wait_torque<P: Physics>(
-    ports: &mut Ports,
-    tick: u64,
-    times: (u64, u64, u64),
-    poll: Poll,
-    side: &mut PlantSide<P>,
-) -> Result<Awaited> {
-    if let Some(link) = &mut ports.link {
-        let events = (&ports.torque_ready, &ports.from_controller);
-        return wait_torque_direct(link, events, tick, times, poll, side);
-    }
-    let (state_pub_ns, poll_until_ns, until_ns) = times;
-    let (sub, listener) = (&ports.torque, &ports.torque_ready);
-    loop {
-        let now = rt::now_ns();
-        while let Some(m) = sub.receive().ipc("receive torque")? {
-            let rx_ns = rt::now_ns();
-            let (stamp_ns, stamp_replaced) = trusted_stamp(m.t_publish_ns, state_pub_ns, rx_ns);
-            match reply_verdict(&m, stamp_ns, tick, until_ns) {
-                Reply::Apply => {
-                    return Ok(Awaited::Reply(Received {
-                        msg: m,
-                        rx_ns,
-                        stamp_ns,
-                        stamp_replaced,
-                    }));
-                }
-                Reply::Late => side.late_reply(),
-                Reply::Ignore => {}
-            }
-        }
-        if now >= until_ns {
-            return Ok(controller_error(&ports.from_controller)
-                .map_or(Awaited::Nothing, Awaited::ControllerError));
-        }
-        if now < poll_until_ns {
-            rt::poll_pause(poll);
-            continue;
-        }
-        // Drop wake-ups already seen (e.g. a late reply's), so the poll sleeps until a new one.
-        listener.try_wait().ipc("drain torque events")?;
-        if sub.has_samples().unwrap_or(true) {
-            continue;
-        }
-        if let Some(why) = controller_error(&ports.from_controller) {
-            return Ok(Awaited::ControllerError(why));
-        }
-        ipc::wait_event(listener, until_ns - now)?;
-    }
-}
-
-/// [`wait_torque`] on the direct path: the replies come on the link's socket, already stamped
-/// with their arrival here; the wait blocks on the socket and the wake-up event together (the
-/// bridge wakes the plant for a CONTROLLER_ERROR). Replies for earlier ticks (copies that came
-/// late) are counted late, as on iceoryx2; the record's copies on iceoryx2 are not for the loop.
-fn wait_torque_direct<P: Physics>(
-    link: &mut PlantEnd,
-    (listener, from_controller): (&Wake, &ControlIn),
-    tick: u64,
-    (state_pub_ns, poll_until_ns, until_ns): (u64, u64, u64),
-    poll: Poll,
-    side: &mut PlantSide<P>,
-) -> Result<Awaited> {
-    // Whether the last wait saw a wake-up event: only then is there one to drain (a system call
-    // saved on every other tick; a pending one makes the next wait return at once).
-    let mut event = false;
-    loop {
-        let now = rt::now_ns();
-        let (mut got, mut late) = (None, 0u64);
-        link.poll(|m| {
-            // The reply's stamp is when it reached this host (the kernel's); the plant took it
-            // now, and the round trip counts to now, as on one host.
-            let rx_ns = rt::now_ns();
-            let (stamp_ns, stamp_replaced) = trusted_stamp(m.t_publish_ns, state_pub_ns, rx_ns);
-            match reply_verdict(&m, stamp_ns, tick, until_ns) {
-                Reply::Apply if got.is_none() => {
-                    got = Some(Received {
-                        msg: m,
-                        rx_ns,
-                        stamp_ns,
-                        stamp_replaced,
-                    })
-                }
-                Reply::Apply | Reply::Ignore => {}
-                Reply::Late => late += 1,
-            }
-        })?;
-        for _ in 0..late {
-            side.late_reply();
-        }
-        if let Some(r) = got {
-            return Ok(Awaited::Reply(r));
-        }
-        if now >= until_ns {
-            return Ok(controller_error(from_controller)
-                .map_or(Awaited::Nothing, Awaited::ControllerError));
-        }
-        if now < poll_until_ns {
-            rt::poll_pause(poll);
-            continue;
-        }
-        if std::mem::take(&mut event) {
-            listener.try_wait().ipc("drain torque events")?;
-        }
-        if let Some(why) = controller_error(from_controller) {
-            return Ok(Awaited::ControllerError(why));
-        }
-        let slice = (until_ns - now).min(link.timeout_ns(now));
-        let mut fds = [
-            direct::readable(&link.udp),
-            deltaloop_link::udp::event(listener),
-        ];
-        deltaloop_link::udp::wait(&mut fds, slice)?;
-        event = fds[1].revents != 0;
-    }
-}
-
 /// The cause of a loop the supervisor ended.
 const STOPPED: &str = "stopped by the supervisor (STOP)";
 
@@ -702,23 +521,6 @@ fn stop_requested(sub: &ControlIn) -> bool {
         }
     }
     false
-}
-
-/// The controller's CONTROLLER_ERROR, if it sent one, as the plant's cause: which tick, and the
-/// error it quoted. Only the controller can publish on its service (one publisher slot, checked
-/// by the supervisor); its other kinds are not for the plant.
-fn controller_error(sub: &ControlIn) -> Option<String> {
-    while let Ok(Some(m)) = sub.receive() {
-        if m.kind() == Some(ControlKind::ControllerError) && m.sender() == Some(Sender::Controller)
-        {
-            return Some(format!(
-                "the controller reported an error at tick {}: {}",
-                m.tick,
-                m.text()
-            ));
-        }
-    }
-    None
 }
 
 /// Polls the control channel for START (1 ms steps) up to `timeout_ms`; None on STOP or SIGTERM.
@@ -747,51 +549,6 @@ fn wait_for_start(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn reply(tick: u64, t_publish_ns: u64) -> TorqueMsg {
-        TorqueMsg {
-            tick,
-            t_publish_ns,
-            ..wire::TorqueMsg::default()
-        }
-    }
-
-    fn verdict(m: &TorqueMsg, tick: u64, until_ns: u64) -> Reply {
-        reply_verdict(m, m.t_publish_ns, tick, until_ns)
-    }
-
-    #[test]
-    fn a_reply_in_budget_for_this_tick_is_applied() {
-        assert_eq!(verdict(&reply(7, 1_000), 7, 1_000), Reply::Apply);
-        assert_eq!(verdict(&reply(7, 999), 7, 1_000), Reply::Apply);
-    }
-
-    /// Regression: the plant took the controller's publish stamp as the arrival time, so a slow
-    /// controller that stamped its replies with the state's deadline (or 0) was charged zero
-    /// latency and never missed its budget. A stamp outside [state published, reply received]
-    /// is replaced by the plant's own receive time, and the tick says so.
-    #[test]
-    fn regression_a_forged_publish_stamp_is_replaced_by_the_plants_receive_time() {
-        // State published at 1 000, reply received at 1 400.
-        assert_eq!(trusted_stamp(1_200, 1_000, 1_400), (1_200, false));
-        assert_eq!(trusted_stamp(1_000, 1_000, 1_400), (1_000, false));
-        assert_eq!(trusted_stamp(1_400, 1_000, 1_400), (1_400, false));
-        // The deadline (before the state was published), 0, or the future: not believed.
-        assert_eq!(trusted_stamp(900, 1_000, 1_400), (1_400, true));
-        assert_eq!(trusted_stamp(0, 1_000, 1_400), (1_400, true));
-        assert_eq!(trusted_stamp(5_000, 1_000, 1_400), (1_400, true));
-        // A reply received after the budget with a stamp of 0 is late, not applied.
-        let (stamp, _) = trusted_stamp(0, 1_000, 1_400);
-        assert_eq!(reply_verdict(&reply(7, 0), stamp, 7, 1_150), Reply::Late);
-    }
-
-    /// Regression: a plant preempted past its budget applied the late reply it found on waking,
-    /// so a controller 1 ms late was counted on time whenever the plant's CPU was busy (seen as a
-    /// flaky compute-delay test without SCHED_FIFO).
-    #[test]
-    fn regression_reply_sent_after_the_budget_is_late_even_if_the_plant_sees_it_late_too() {
-        assert_eq!(verdict(&reply(7, 1_001), 7, 1_000), Reply::Late);
-    }
 
     fn realtime_clock(overrun: Overrun) -> Clock {
         Clock {
@@ -854,11 +611,5 @@ mod tests {
         assert_eq!(c.paused_ns, w.deadline - (c.t0_ns + k * c.ts_ns));
         let next = c.t0_ns + c.paused_ns + (k + 1) * c.ts_ns;
         assert_eq!(next, w.deadline + c.ts_ns);
-    }
-
-    #[test]
-    fn replies_for_earlier_ticks_are_late_and_for_later_ticks_ignored() {
-        assert_eq!(verdict(&reply(6, 10), 7, 1_000), Reply::Late);
-        assert_eq!(verdict(&reply(8, 10), 7, 1_000), Reply::Ignore);
     }
 }

@@ -437,8 +437,12 @@ pub fn main() -> std::process::ExitCode {
     let (law, mode) = (args.law.clone(), args.run.mode);
     deltaloop_transport::exit::exit(
         NODE,
-        deltaloop_controller::process::serve(&args.run, &term, NODE, |cfg| {
-            Robot::new(cfg, &law, mode)
-        }),
+        deltaloop_controller::process::serve(
+            &args.run,
+            &term,
+            NODE,
+            deltaloop_link::Handoff::default(),
+            |cfg| Robot::new(cfg, &law, mode),
+        ),
     )
 }
