@@ -1,8 +1,9 @@
 //! The crate graph keeps its promises: the model and the laws are pure math (no transport, CLI,
 //! error-reporting, signal or libc crate anywhere below them), the config schema carries no
 //! transport and no law, both sides' ticks, the wire and the study are pure, the transport's
-//! default build carries no command-line parser, and nothing on the controller side depends on
-//! the plant (model-free by construction). Read from `cargo tree`, so a new dependency that
+//! default build carries no command-line parser, nothing on the controller side depends on
+//! the plant (model-free by construction), and the loop processes know the loop's transport only
+//! through its traits. Read from `cargo tree`, so a new dependency that
 //! breaks a rule fails here.
 
 use std::process::Command;
@@ -298,6 +299,61 @@ fn clap_only_in_the_command_line_modules() {
     assert!(
         offenders.is_empty(),
         "clap outside the CLI modules: {offenders:?}"
+    );
+}
+
+/// The loop processes speak to the loop's transport (`deltaloop_transport::exchange`), not to one
+/// transport: the direct path across two hosts is a transport their binaries supply, so neither
+/// process crate, nor anything below it, depends on the link (or the bridge).
+#[test]
+fn loop_processes_depend_on_no_link() {
+    for pkg in ["deltaloop-plant", "deltaloop-controller"] {
+        assert_none_of(pkg, &["deltaloop-link", "deltaloop-bridge"]);
+    }
+}
+
+/// What a transport is made of stays in that transport: the plant's and the controller's process
+/// code names neither the direct path's ends and socket nor iceoryx2's loop ports.
+#[test]
+fn loop_processes_name_no_transport_of_their_own() {
+    const NAMES: &[&str] = &[
+        "deltaloop_link",
+        "direct::",
+        "PlantEnd",
+        "ControllerEnd",
+        "UdpSocket",
+        "StateOut",
+        "StateIn",
+        "TorqueOut",
+        "TorqueIn",
+    ];
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut found = Vec::new();
+    for dir in ["plant/process/src", "controller/process/src"] {
+        let files = walk(&root.join(dir));
+        assert!(!files.is_empty(), "no sources under {dir}");
+        for f in files
+            .iter()
+            .filter(|f| f.extension().is_some_and(|x| x == "rs"))
+        {
+            let text = std::fs::read_to_string(f).unwrap();
+            let rel = f.strip_prefix(root).unwrap().display().to_string();
+            for name in NAMES {
+                // A whole name: `StateIn`, not `StateInfo`.
+                let whole = text.match_indices(name).any(|(i, _)| {
+                    let next = text[i + name.len()..].chars().next();
+                    name.ends_with(':') || !next.is_some_and(|c| c.is_alphanumeric() || c == '_')
+                });
+                if whole {
+                    found.push(format!("{rel}: {name}"));
+                }
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "the loop processes name a transport's own types (use the traits of \
+         deltaloop_transport::exchange): {found:?}"
     );
 }
 
