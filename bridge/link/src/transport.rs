@@ -10,7 +10,7 @@ use deltaloop_transport::exchange::{
     ControllerTransport, IpcController, IpcPlant, PlantTransport, Transport,
 };
 use deltaloop_transport::handoff;
-use deltaloop_transport::ipc::{IpcContext, IpcError};
+use deltaloop_transport::ipc::{IpcContext, IpcError, Wake};
 use deltaloop_transport::wire::{self, StateMsg, TorqueMsg};
 
 /// An error of the direct path, with its causes on one line.
@@ -35,6 +35,14 @@ impl From<IpcError> for LinkError {
     fn from(e: IpcError) -> Self {
         Self(e.into())
     }
+}
+
+/// Blocks until the link's socket `sock` is readable or `listener` has an event, `slice_ns` at
+/// most; whether the event came.
+fn socket_or_event(sock: &Udp, listener: &Wake, slice_ns: u64) -> Result<bool, LinkError> {
+    let mut fds = [direct::readable(sock), udp::event(listener)];
+    udp::wait(&mut fds, slice_ns)?;
+    Ok(fds[1].revents != 0)
 }
 
 /// The link's socket, taken from the bridge over `handoff` (which hears the link's counts at the
@@ -128,12 +136,7 @@ impl PlantTransport for DirectPlant<'_> {
     /// CONTROLLER_ERROR), no longer than until the next held datagram or resend is due.
     fn block(&mut self, now_ns: u64, until_ns: u64) -> Result<bool, LinkError> {
         let slice = (until_ns - now_ns).min(self.end.timeout_ns(now_ns));
-        let mut fds = [
-            direct::readable(&self.end.udp),
-            udp::event(&self.ipc.torque_ready),
-        ];
-        udp::wait(&mut fds, slice)?;
-        Ok(fds[1].revents != 0)
+        socket_or_event(&self.end.udp, &self.ipc.torque_ready, slice)
     }
 
     fn finish(&mut self) {
@@ -197,12 +200,7 @@ impl ControllerTransport for DirectController<'_> {
             self.ipc.state_ready.try_wait().ipc("drain state events")?;
         }
         let slice = slice_ns.min(self.end.timeout_ns(now_ns));
-        let mut fds = [
-            direct::readable(&self.end.udp),
-            udp::event(&self.ipc.state_ready),
-        ];
-        udp::wait(&mut fds, slice)?;
-        Ok(fds[1].revents != 0)
+        socket_or_event(&self.end.udp, &self.ipc.state_ready, slice)
     }
 
     fn finish(&mut self) {

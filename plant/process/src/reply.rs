@@ -156,7 +156,7 @@ mod tests {
         TorqueMsg {
             tick,
             t_publish_ns,
-            ..wire::TorqueMsg::default()
+            ..TorqueMsg::default()
         }
     }
 
