@@ -174,12 +174,12 @@ pub fn total(path: &Path, counts: impl IntoIterator<Item = u64>) -> Result<u64> 
         })
 }
 
-/// A realtime run folder: per law, each tick's outcome (an applied reply at its `arrival_ns` less
-/// the run's transport delay, as the replay takes it: [`replay::read_recorded`]), and the run's
-/// config. The row a run diverged on (applied, no arrival) is a reply at 0 ns: the divergence
-/// rule ends the run on it before it acts. The trace is checked as `replay` checks it ([`replay::read_recorded`]), and
-/// against the run's `summary.json`: a lockstep or in-process run is refused (it records no
-/// arrival: every reply acts at its tick), and so is a trace cut short.
+/// A realtime run folder: per law, each tick's outcome as the replay takes it (an applied reply
+/// at its `arrival_ns` less the run's transport delay; the row a run diverged on, applied without
+/// an arrival, at 0 ns: the divergence rule ends the run on it before it acts), and the run's
+/// config. The trace is checked as `replay` checks it ([`replay::read_recorded`]), and against
+/// the run's `summary.json`: a lockstep or in-process run is refused (it records no arrival:
+/// every reply acts at its tick), and so is a trace cut short.
 fn run_folder(dir: &Path) -> Result<(Vec<Vec<ReplyOutcome>>, Vec<Law>, RunConfig)> {
     let at = || format!("--latency {}", dir.display());
     let summary = Finished::read(dir).with_context(at)?;
