@@ -3,13 +3,17 @@
 //! reply, or nothing), let the drives apply or hold, integrate [t_k, t_{k+1}), and say what
 //! happened in the tick's telemetry. Transport code only moves these messages and stamps times.
 
+mod reply;
+
+pub use reply::{Arrival, ReplyFate, ReplyOutcome};
+
 use deltaloop_config::RunConfig;
 use deltaloop_config::TorqueLimit;
 use deltaloop_model::sensor::{Sensor, SensorConfig};
 use deltaloop_model::{
     DeltaRobot, KinematicsError, PayloadStep, Plant, PlantSample, SimConfig, Vec3,
 };
-use deltaloop_wire::{self as wire, StateMsg, TelemetryMsg, TorqueMsg};
+use deltaloop_wire::{self as wire, StateMsg, TelemetryMsg};
 
 /// The plant's simulation settings for a config (one mapping for every mode).
 pub fn sim_config(cfg: &RunConfig) -> SimConfig {
@@ -102,19 +106,6 @@ impl Physics for Plant {
             .map(|_| ())
             .map_err(|e| e.to_string())
     }
-}
-
-/// What reached the plant for the current tick.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Arrival {
-    /// The controller's reply to this tick, in time, reaching the drives at its tick (plus the
-    /// configured transport delay).
-    Reply(TorqueMsg),
-    /// The reply, in time, reaching the drives a measured latency (ns) after its tick's deadline
-    /// (plus the configured transport delay): realtime with `apply_torque = "arrival"`.
-    ReplyAfter(TorqueMsg, u64),
-    /// No reply in time (realtime): the drives hold the last applied torque.
-    Missed,
 }
 
 /// Why the plant side ends the loop.
@@ -287,12 +278,7 @@ impl<P: Physics> PlantSide<P> {
             tick: k,
             ..TelemetryMsg::default()
         };
-        let reply = match arrival {
-            Arrival::Reply(t) => Some((t, 0)),
-            Arrival::ReplyAfter(t, latency) => Some((t, latency)),
-            Arrival::Missed => None,
-        };
-        let (cmd, latency_ns) = match reply {
+        let (cmd, latency_ns) = match arrival.reply() {
             Some((t, latency)) => {
                 self.consecutive = 0;
                 // Saturating: a latency from a peer or a file must not wrap the time around.
@@ -350,6 +336,7 @@ impl<P: Physics> PlantSide<P> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use deltaloop_wire::TorqueMsg;
 
     fn side(silence: u32) -> PlantSide {
         let mut cfg = RunConfig::from_toml_str("name = \"t\"\n[scenario]\npath = \"s1\"\n", None)

@@ -46,6 +46,17 @@ macro_rules! text_enum {
         #[strum(serialize_all = $case)]
         $vis enum $name { $($body)* }
 
+        $crate::text_words!($what; $name);
+    };
+}
+
+/// The words of a text enum another derive declares (strum's `EnumDiscriminants`: the variants
+/// of an enum with data, without it): what [`text_enum!`](crate::text_enum) adds (`ALL`,
+/// `name()`, `parse()`, `Display`, [`TextEnum`]) to an enum that derives `Copy`,
+/// `strum::IntoStaticStr` and `strum::VariantArray` in its case rule.
+#[macro_export]
+macro_rules! text_words {
+    ($what:literal; $name:ident) => {
         impl $name {
             /// Every variant, in declaration order.
             pub const ALL: &'static [Self] = <Self as strum::VariantArray>::VARIANTS;

@@ -13,6 +13,7 @@ use anyhow::Result;
 use deltaloop_config::Law;
 use deltaloop_model::Vec3;
 use deltaloop_plant::{Arrival, PlantSide, PlantStop};
+use deltaloop_plant_tick::ReplyOutcome;
 use deltaloop_study::Study;
 use deltaloop_study::record::metrics::LawMetrics;
 use deltaloop_study::record::{Fault, FaultKind};
@@ -95,25 +96,10 @@ fn run_from(study: &Study, law: Law, keep: &Keep, last: u64, q0: Vec3) -> Result
     run_schedule(study, law, rec, plant, &mut Ideal { last })
 }
 
-/// What the transport did with one tick, as the in-process loop steps it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Step {
-    /// Answered, and the reply reaches the drives at once (the in-process loop).
-    Now,
-    /// Answered, and the reply reaches the drives this many ns after the transport delay.
-    After(u64),
-    /// Answered too late to act: the drives hold.
-    Late,
-    /// Not answered; the next reply says it skipped this state.
-    Skipped,
-    /// Not answered.
-    Missed,
-}
-
 /// The arrival schedule of one law's run: what happened at each tick, in order.
 pub trait Schedule {
-    /// The step of tick `k`; None: the run ended before it.
-    fn step(&mut self, k: u64) -> Result<Option<Step>>;
+    /// What became of the reply to tick `k`; None: the run ended before it.
+    fn outcome(&mut self, k: u64) -> Result<Option<ReplyOutcome>>;
     /// Ctrl-C / SIGTERM end the loop (recorded as interrupted) before the next tick.
     fn interruptible(&self) -> bool;
 }
@@ -124,8 +110,8 @@ struct Ideal {
 }
 
 impl Schedule for Ideal {
-    fn step(&mut self, k: u64) -> Result<Option<Step>> {
-        Ok((k <= self.last).then_some(Step::Now))
+    fn outcome(&mut self, k: u64) -> Result<Option<ReplyOutcome>> {
+        Ok((k <= self.last).then_some(ReplyOutcome::Applied(0)))
     }
 
     fn interruptible(&self) -> bool {
@@ -148,7 +134,7 @@ pub fn run_schedule<'a>(
     let mut last = None;
     loop {
         let k = plant.tick();
-        let Some(step) = schedule.step(k)? else {
+        let Some(outcome) = schedule.outcome(k)? else {
             break;
         };
         if schedule.interruptible() && crate::signals::interrupted() {
@@ -161,22 +147,17 @@ pub fn run_schedule<'a>(
             .try_row(k as usize)
             .map_err(|e| anyhow::anyhow!("the reference at tick {k}: {e}"))?
             .joint;
-        let (reply, arrival) = match step {
-            Step::Now | Step::After(_) | Step::Late => {
+        let (reply, arrival) = match outcome {
+            ReplyOutcome::Applied(_) | ReplyOutcome::Late => {
                 let mut reply = ctrl.answer(&state, &reference);
                 reply.skipped = std::mem::take(&mut skipped_before);
-                let arrival = match step {
-                    Step::Now => Arrival::Reply(reply),
-                    Step::After(ns) => Arrival::ReplyAfter(reply, ns),
-                    _ => Arrival::Missed,
-                };
-                (Some(reply), arrival)
+                (Some(reply), outcome.arrival(reply))
             }
-            Step::Skipped => {
+            ReplyOutcome::Skipped => {
                 skipped_before += 1;
                 (None, Arrival::Missed)
             }
-            Step::Missed => {
+            ReplyOutcome::Missed => {
                 skipped_before = 0;
                 (None, Arrival::Missed)
             }

@@ -8,11 +8,12 @@
 //! the replay steps the same two ticks with the same inputs, and must write the same bytes. It
 //! reads the trace as it goes: memory does not grow with the run.
 
-use crate::inproc::{self, Schedule, Step};
+use crate::inproc::{self, Schedule};
 use crate::lawrun::{self, Keep, LawRun};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::files;
 use deltaloop_config::{Law, RunConfig};
+use deltaloop_plant_tick::ReplyOutcome;
 use deltaloop_report as output;
 use deltaloop_study::Study;
 use deltaloop_study::record::ReplyFate;
@@ -20,7 +21,7 @@ use std::path::{Path, PathBuf};
 
 /// What one tick of the recorded trace says about the transport.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Recorded {
+struct Recorded {
     pub law: Law,
     /// The tick k.
     pub k: u64,
@@ -200,26 +201,21 @@ struct Replayed<'r> {
 }
 
 impl Schedule for Replayed<'_> {
-    fn step(&mut self, k: u64) -> Result<Option<Step>> {
+    fn outcome(&mut self, k: u64) -> Result<Option<ReplyOutcome>> {
         let Some(r) = self.rows.next_of(self.law)? else {
             return Ok(None);
         };
         tick_due(&self.rows.path, self.rows.line, r.k, k)?;
+        // Regression: every run that diverged by the tracking rule was refused. Its last row (an
+        // applied reply without its arrival) is replayed as recorded; the rule ends the replay on
+        // it before any arrival counts.
         if r.fate == ReplyFate::Applied && r.arrival_ns.is_none() {
             let line = self.rows.line;
             if self.rows.next_of(self.law)?.is_some() {
                 return Err(no_arrival(&self.rows.path, line));
             }
-            // Regression: every run that diverged by the tracking rule was refused. Its last row
-            // is replayed as recorded; the rule ends the replay on it before any arrival counts.
-            return Ok(Some(Step::Now));
         }
-        Ok(Some(match (r.fate, r.arrival_ns) {
-            (ReplyFate::Applied, Some(a)) => Step::After(a.saturating_sub(self.delay_ns)),
-            (ReplyFate::Applied | ReplyFate::Late, _) => Step::Late,
-            (ReplyFate::Skipped, _) => Step::Skipped,
-            (ReplyFate::Missed, _) => Step::Missed,
-        }))
+        Ok(Some(r.fate.recorded(r.arrival_ns, self.delay_ns)))
     }
 
     /// A replay runs to its end: Ctrl-C does not cut it into a trace that differs.
@@ -262,9 +258,10 @@ pub enum Verdict {
 /// Reads the transport's part of a finished run's trace, row by row in the file's order, checked
 /// as a replay checks it (each row's cells; each law's rows in one stretch, its ticks 0, 1, 2, …
 /// with none lost or repeated; an applied reply without its arrival only on a law's last row),
-/// into `each`; returns the run's study (its config: the transport delay the arrivals include).
-/// Memory does not grow with the run.
-pub fn read_recorded(run_dir: &Path, mut each: impl FnMut(&Recorded)) -> Result<Study> {
+/// into `each`: each tick's law and its reply's outcome as the plant took it (the recorded
+/// arrival less the run's transport delay, [`ReplyFate::recorded`], as the replay takes it);
+/// returns the run's study. Memory does not grow with the run.
+pub fn read_recorded(run_dir: &Path, mut each: impl FnMut(Law, ReplyOutcome)) -> Result<Study> {
     let cfg = RunConfig::from_file(&run_dir.join("config.toml"))?;
     if !cfg.record.trace {
         bail!(
@@ -274,6 +271,7 @@ pub fn read_recorded(run_dir: &Path, mut each: impl FnMut(&Recorded)) -> Result<
     }
     let study = Study::new(cfg).context("the recorded scenario")?;
     let mut rows = TraceRows::open(&run_dir.join("trace.csv"), &study)?;
+    let delay_ns = study.config.transport_delay_ns();
     let mut laws: Vec<Law> = Vec::new();
     let (mut due, mut no_arrival_on) = (0u64, None);
     while let Some(r) = rows.next()? {
@@ -290,7 +288,7 @@ pub fn read_recorded(run_dir: &Path, mut each: impl FnMut(&Recorded)) -> Result<
         due += 1;
         no_arrival_on =
             (r.fate == ReplyFate::Applied && r.arrival_ns.is_none()).then_some(rows.line);
-        each(&r);
+        each(r.law, r.fate.recorded(r.arrival_ns, delay_ns));
     }
     Ok(study)
 }

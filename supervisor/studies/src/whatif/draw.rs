@@ -6,9 +6,10 @@
 //! and the drives hold. A record's late, skipped and missed ticks stay so at every scale (their
 //! latency is unknown beyond the budget).
 
-use super::source::{Latencies, Source, Tick};
+use super::source::{Latencies, Source};
 use anyhow::{Result, bail};
-use deltaloop_runner::inproc::{Schedule, Step};
+use deltaloop_plant_tick::ReplyOutcome;
+use deltaloop_runner::inproc::Schedule;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -56,11 +57,11 @@ impl Model {
 /// The pooled latencies, ready to draw from.
 pub struct Pool {
     /// Every recorded sequence (block bootstrap).
-    seqs: Vec<Vec<Tick>>,
+    seqs: Vec<Vec<ReplyOutcome>>,
     /// Cumulative lengths of `seqs`: a replica's sequence is drawn weighted by its length.
     seq_ends: Vec<u64>,
     /// Every distinct outcome with its cumulative weight (independent draws).
-    items: Vec<(Tick, u64)>,
+    items: Vec<(ReplyOutcome, u64)>,
 }
 
 impl Pool {
@@ -70,12 +71,13 @@ impl Pool {
     pub fn new(sources: &mut [Source], model: Model) -> Result<Self> {
         let sources_len = sources.len();
         let mut seqs = Vec::new();
-        let mut counts: std::collections::BTreeMap<(u8, u64), u64> = Default::default();
+        // Sorted as `ReplyOutcome` orders: replies by latency, then late, skipped, missed.
+        let mut counts: std::collections::BTreeMap<ReplyOutcome, u64> = Default::default();
         for s in sources.iter_mut() {
             match &mut s.latencies {
                 Latencies::Sequences(v) => {
                     for t in v.iter().flatten() {
-                        *counts.entry(order(*t)).or_default() += 1;
+                        *counts.entry(*t).or_default() += 1;
                     }
                     if let Model::Block { .. } = model {
                         seqs.extend(std::mem::take(v).into_iter().filter(|s| !s.is_empty()));
@@ -89,7 +91,7 @@ impl Pool {
                         );
                     }
                     for &(v, c) in h.iter() {
-                        let n = counts.entry(order(Tick::Reply(v))).or_default();
+                        let n = counts.entry(ReplyOutcome::Applied(v)).or_default();
                         *n = n.checked_add(c).ok_or_else(|| past_2_64(sources_len))?;
                     }
                 }
@@ -105,9 +107,9 @@ impl Pool {
         let items = counts
             .into_iter()
             .filter(|&(_, c)| c > 0)
-            .map(|(key, c)| {
+            .map(|(t, c)| {
                 cum = cum.checked_add(c).ok_or_else(|| past_2_64(sources_len))?;
-                Ok((tick_of(key), cum))
+                Ok((t, cum))
             })
             .collect::<Result<_>>()?;
         Ok(Self {
@@ -118,7 +120,7 @@ impl Pool {
     }
 
     /// Every pooled outcome with its weight, ascending: (outcome, count).
-    pub fn distribution(&self) -> impl Iterator<Item = (Tick, u64)> + '_ {
+    pub fn distribution(&self) -> impl Iterator<Item = (ReplyOutcome, u64)> + '_ {
         let mut prev = 0;
         self.items.iter().map(move |&(t, cum)| {
             let c = cum - prev;
@@ -137,26 +139,6 @@ fn past_2_64(sources: usize) -> anyhow::Error {
     anyhow::anyhow!(
         "the {sources} --latency sources' counts add up past 2^64 latencies: not records of runs"
     )
-}
-
-/// The outcome of a sort key.
-fn tick_of((kind, l): (u8, u64)) -> Tick {
-    match kind {
-        0 => Tick::Reply(l),
-        1 => Tick::Late,
-        2 => Tick::Skipped,
-        _ => Tick::Missed,
-    }
-}
-
-/// A sort key: replies by latency, then late, skipped, missed.
-fn order(t: Tick) -> (u8, u64) {
-    match t {
-        Tick::Reply(l) => (0, l),
-        Tick::Late => (1, 0),
-        Tick::Skipped => (2, 0),
-        Tick::Missed => (3, 0),
-    }
 }
 
 /// One replica's arrival schedule: ticks 0..=`last`, each drawn as `model` says.
@@ -212,7 +194,7 @@ impl<'p> Drawn<'p> {
         }
     }
 
-    fn draw(&mut self) -> Tick {
+    fn draw(&mut self) -> ReplyOutcome {
         match self.model {
             Model::Block { ticks } => {
                 let seq = &self.pool.seqs[self.seq];
@@ -231,35 +213,33 @@ impl<'p> Drawn<'p> {
         }
     }
 
-    /// The step a drawn outcome makes at this scale under the arrival rule.
-    fn step_of(&self, t: Tick) -> Step {
+    /// What a drawn outcome becomes at this scale under the arrival rule.
+    fn scaled(&self, t: ReplyOutcome) -> ReplyOutcome {
         match t {
-            Tick::Reply(l) => {
+            ReplyOutcome::Applied(l) => {
                 let l = (l as f64 * self.scale).round() as u64;
                 if l <= self.budget_ns {
-                    Step::After(l)
+                    ReplyOutcome::Applied(l)
                 } else {
-                    Step::Late
+                    ReplyOutcome::Late
                 }
             }
-            Tick::Late => Step::Late,
-            Tick::Skipped => Step::Skipped,
-            Tick::Missed => Step::Missed,
+            ReplyOutcome::Late | ReplyOutcome::Skipped | ReplyOutcome::Missed => t,
         }
     }
 }
 
 impl Schedule for Drawn<'_> {
-    fn step(&mut self, k: u64) -> Result<Option<Step>> {
+    fn outcome(&mut self, k: u64) -> Result<Option<ReplyOutcome>> {
         if k > self.last {
             return Ok(None);
         }
         let t = self.draw();
-        let step = self.step_of(t);
-        if !matches!(step, Step::After(_)) {
+        let outcome = self.scaled(t);
+        if !matches!(outcome, ReplyOutcome::Applied(_)) {
             self.misses += 1;
         }
-        Ok(Some(step))
+        Ok(Some(outcome))
     }
 
     /// Ctrl-C ends a replica at once: whatif then writes nothing.
@@ -271,26 +251,19 @@ impl Schedule for Drawn<'_> {
 /// A law's recorded sequence replayed in order, each reply at its recorded latency and every
 /// verdict as the run's plant made it: the replay of that run.
 pub struct AsRecorded<'r> {
-    pub seq: &'r [Tick],
+    pub seq: &'r [ReplyOutcome],
     pub misses: u64,
 }
 
 impl Schedule for AsRecorded<'_> {
-    fn step(&mut self, k: u64) -> Result<Option<Step>> {
+    fn outcome(&mut self, k: u64) -> Result<Option<ReplyOutcome>> {
         let Some(&t) = self.seq.get(k as usize) else {
             return Ok(None);
         };
-        Ok(Some(match t {
-            Tick::Reply(l) => Step::After(l),
-            other => {
-                self.misses += 1;
-                match other {
-                    Tick::Late => Step::Late,
-                    Tick::Skipped => Step::Skipped,
-                    _ => Step::Missed,
-                }
-            }
-        }))
+        if !matches!(t, ReplyOutcome::Applied(_)) {
+            self.misses += 1;
+        }
+        Ok(Some(t))
     }
 
     /// Ctrl-C ends a replica at once: whatif then writes nothing.
@@ -304,7 +277,7 @@ mod tests {
     use super::super::source::Kind;
     use super::*;
 
-    fn seq_source(seqs: Vec<Vec<Tick>>) -> Source {
+    fn seq_source(seqs: Vec<Vec<ReplyOutcome>>) -> Source {
         Source {
             path: "x".into(),
             kind: Kind::Text,
@@ -315,8 +288,8 @@ mod tests {
         }
     }
 
-    fn steps(d: &mut Drawn, n: u64) -> Vec<Step> {
-        (0..n).map(|k| d.step(k).unwrap().unwrap()).collect()
+    fn steps(d: &mut Drawn, n: u64) -> Vec<ReplyOutcome> {
+        (0..n).map(|k| d.outcome(k).unwrap().unwrap()).collect()
     }
 
     /// A block is a run of consecutive recorded ticks (wrapping round its sequence); a replica
@@ -324,8 +297,8 @@ mod tests {
     /// the same whatever else runs.
     #[test]
     fn blocks_are_consecutive_ticks_of_one_sequence_and_replicas_repeat() {
-        let a: Vec<Tick> = (0..10).map(|i| Tick::Reply(1000 + i)).collect();
-        let b: Vec<Tick> = (0..7).map(|i| Tick::Reply(5000 + i)).collect();
+        let a: Vec<ReplyOutcome> = (0..10).map(|i| ReplyOutcome::Applied(1000 + i)).collect();
+        let b: Vec<ReplyOutcome> = (0..7).map(|i| ReplyOutcome::Applied(5000 + i)).collect();
         let pool = Pool::new(&mut [seq_source(vec![a, b])], Model::Block { ticks: 4 }).unwrap();
         let model = Model::Block { ticks: 4 };
         let mut d = Drawn::new(&pool, model, 7, 3, 1.0, 1_000_000, 99);
@@ -334,7 +307,7 @@ mod tests {
             let ls: Vec<u64> = block
                 .iter()
                 .map(|s| match s {
-                    Step::After(l) => *l,
+                    ReplyOutcome::Applied(l) => *l,
                     other => panic!("{other:?}"),
                 })
                 .collect();
@@ -343,15 +316,15 @@ mod tests {
                 assert_eq!((w[1] - base), (w[0] - base + 1) % len, "{ls:?}");
             }
         }
-        let from_b = |steps: &[Step]| {
+        let from_b = |steps: &[ReplyOutcome]| {
             steps
                 .iter()
-                .all(|s| matches!(s, Step::After(l) if *l >= 5000))
+                .all(|s| matches!(s, ReplyOutcome::Applied(l) if *l >= 5000))
         };
-        let from_a = |steps: &[Step]| {
+        let from_a = |steps: &[ReplyOutcome]| {
             steps
                 .iter()
-                .all(|s| matches!(s, Step::After(l) if *l < 5000))
+                .all(|s| matches!(s, ReplyOutcome::Applied(l) if *l < 5000))
         };
         assert!(
             from_a(&got) || from_b(&got),
@@ -372,7 +345,7 @@ mod tests {
         assert_eq!(steps(&mut again, 100), got);
         let mut other = Drawn::new(&pool, model, 7, 4, 1.0, 1_000_000, 99);
         assert_ne!(steps(&mut other, 100), got);
-        assert_eq!(d.step(100).unwrap(), None, "ticks end after `last`");
+        assert_eq!(d.outcome(100).unwrap(), None, "ticks end after `last`");
     }
 
     /// The arrival rule: a scaled latency above the budget is a miss; a record's misses stay
@@ -393,20 +366,22 @@ mod tests {
             .to_string();
         assert!(e.contains("--draw independent"), "{e}");
         let pool = Pool::new(
-            &mut [src, seq_source(vec![vec![Tick::Missed]])],
+            &mut [src, seq_source(vec![vec![ReplyOutcome::Missed]])],
             Model::Independent,
         )
         .unwrap();
         let mut d = Drawn::new(&pool, Model::Independent, 1, 0, 2.0, 150_000, 19_999);
         let got = steps(&mut d, 20_000);
-        let count = |s: Step| got.iter().filter(|&&x| x == s).count() as f64 / 20_000.0;
-        assert!((count(Step::After(20_000)) - 0.6).abs() < 0.02);
+        let count = |s: ReplyOutcome| got.iter().filter(|&&x| x == s).count() as f64 / 20_000.0;
+        assert!((count(ReplyOutcome::Applied(20_000)) - 0.6).abs() < 0.02);
         // 100 µs × 2 = 200 µs > 150 µs: late.
-        assert!((count(Step::Late) - 0.2).abs() < 0.02);
-        assert!((count(Step::Missed) - 0.2).abs() < 0.02);
+        assert!((count(ReplyOutcome::Late) - 0.2).abs() < 0.02);
+        assert!((count(ReplyOutcome::Missed) - 0.2).abs() < 0.02);
         assert_eq!(
             d.misses,
-            got.iter().filter(|s| !matches!(s, Step::After(_))).count() as u64
+            got.iter()
+                .filter(|s| !matches!(s, ReplyOutcome::Applied(_)))
+                .count() as u64
         );
     }
 }

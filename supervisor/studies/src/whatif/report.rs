@@ -2,10 +2,10 @@
 //! figure (the latency distribution drawn from, and each law's RMS distribution).
 
 use super::draw::Pool;
-use super::source::Tick;
 use super::summary::{ByName, Dist, LawOut, Sample, WhatIfJson, as_measured, of_law};
 use anyhow::Result;
 use deltaloop_config::Law;
+use deltaloop_plant_tick::ReplyOutcome;
 use deltaloop_report::plot::{self, Panel, Series};
 use deltaloop_study::record::RunStatus;
 use std::fmt::Write as _;
@@ -286,7 +286,7 @@ fn latency_panel(json: &WhatIfJson, pool: &Pool) -> Panel {
     let mut points = Vec::new();
     let mut seen = 0u64;
     for (t, c) in pool.distribution() {
-        if let Tick::Reply(l) = t {
+        if let ReplyOutcome::Applied(l) = t {
             seen += c;
             let p = seen as f64 / (total + 1) as f64;
             points.push((1.0 / (1.0 - p), l as f64 / 1e3));

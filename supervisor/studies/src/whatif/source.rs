@@ -6,22 +6,9 @@
 
 use anyhow::{Context, Result, anyhow, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig, files};
+use deltaloop_plant_tick::ReplyOutcome;
 use deltaloop_runner::replay;
-use deltaloop_study::record::ReplyFate;
 use std::path::{Path, PathBuf};
-
-/// What became of one tick's reply, as a record tells it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Tick {
-    /// A reply arrived this many ns after the tick's state was published.
-    Reply(u64),
-    /// The controller answered after the budget: the drives held.
-    Late,
-    /// The controller answered a newer state instead of this one.
-    Skipped,
-    /// No reply.
-    Missed,
-}
 
 deltaloop_names::text_enum! {
     "lowercase", "latency unit";
@@ -77,7 +64,7 @@ impl Unit {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Latencies {
     /// Recorded in order, one per tick (a run folder: one sequence per law; a text file: one).
-    Sequences(Vec<Vec<Tick>>),
+    Sequences(Vec<Vec<ReplyOutcome>>),
     /// A distribution without order: (latency ns, count), ascending.
     Histogram(Vec<(u64, u64)>),
 }
@@ -165,7 +152,7 @@ impl Source {
     }
 
     /// A run folder's recorded sequence of `law` (empty if it has none).
-    pub fn sequence_of(&self, law: Law) -> &[Tick] {
+    pub fn sequence_of(&self, law: Law) -> &[ReplyOutcome] {
         match (&self.latencies, self.laws.iter().position(|&l| l == law)) {
             (Latencies::Sequences(s), Some(i)) => &s[i],
             _ => &[],
@@ -187,47 +174,30 @@ pub fn total(path: &Path, counts: impl IntoIterator<Item = u64>) -> Result<u64> 
         })
 }
 
-/// A realtime run folder: per law, each tick's fate and latency (`arrival_ns` less the run's
-/// transport delay), and the run's config. The row a run diverged on (applied, no arrival) is
-/// kept as a reply at 0 ns: the replay takes it so, and the divergence rule ends the run on it
-/// before it acts. The trace is checked as `replay` checks it ([`replay::read_recorded`]), and
-/// against the run's `summary.json`: a lockstep or in-process run is refused (it records no
-/// arrival: every reply acts at its tick), and so is a trace cut short.
-fn run_folder(dir: &Path) -> Result<(Vec<Vec<Tick>>, Vec<Law>, RunConfig)> {
+/// A realtime run folder: per law, each tick's outcome as the replay takes it (an applied reply
+/// at its `arrival_ns` less the run's transport delay; the row a run diverged on, applied without
+/// an arrival, at 0 ns: the divergence rule ends the run on it before it acts), and the run's
+/// config. The trace is checked as `replay` checks it ([`replay::read_recorded`]), and against
+/// the run's `summary.json`: a lockstep or in-process run is refused (it records no arrival:
+/// every reply acts at its tick), and so is a trace cut short.
+fn run_folder(dir: &Path) -> Result<(Vec<Vec<ReplyOutcome>>, Vec<Law>, RunConfig)> {
     let at = || format!("--latency {}", dir.display());
     let summary = Finished::read(dir).with_context(at)?;
-    let mut seqs: Vec<Vec<Tick>> = Vec::new();
+    let mut seqs: Vec<Vec<ReplyOutcome>> = Vec::new();
     let mut laws = Vec::new();
-    let study = replay::read_recorded(dir, |r| {
-        if laws.last() != Some(&r.law) {
-            laws.push(r.law);
+    let study = replay::read_recorded(dir, |law, outcome| {
+        if laws.last() != Some(&law) {
+            laws.push(law);
             seqs.push(Vec::new());
         }
-        let t = match r.fate {
-            ReplyFate::Applied => Tick::Reply(r.arrival_ns.unwrap_or(0)),
-            ReplyFate::Late => Tick::Late,
-            ReplyFate::Skipped => Tick::Skipped,
-            ReplyFate::Missed => Tick::Missed,
-        };
         if let Some(s) = seqs.last_mut() {
-            s.push(t);
+            s.push(outcome);
         }
     })
     .with_context(at)?;
     summary
         .check(dir, &laws, &seqs, study.reference.n as u64)
         .with_context(at)?;
-    // The arrivals count from t_k and include the run's transport delay: take it off.
-    let d = study.config.transport_delay_ns();
-    if d > 0 {
-        for s in &mut seqs {
-            for t in s.iter_mut() {
-                if let Tick::Reply(l) = t {
-                    *l = l.saturating_sub(d);
-                }
-            }
-        }
-    }
     Ok((seqs, laws, study.config))
 }
 
@@ -273,7 +243,7 @@ impl Finished {
 
     /// A law that completed must have its rows up to N, and the trace must end with its last
     /// row's line end: else the record was cut.
-    fn check(&self, dir: &Path, laws: &[Law], seqs: &[Vec<Tick>], n: u64) -> Result<()> {
+    fn check(&self, dir: &Path, laws: &[Law], seqs: &[Vec<ReplyOutcome>], n: u64) -> Result<()> {
         let trace = dir.join("trace.csv");
         if !ends_with_line_end(&trace)? {
             bail!(
@@ -311,7 +281,7 @@ fn ends_with_line_end(p: &Path) -> Result<bool> {
 
 /// A text file of latencies, one per line, in `unit` (µs if None); blank lines and `#` comments
 /// are skipped. A line that is not UTF-8 is named.
-fn text(path: &Path, unit: Option<Unit>) -> Result<Vec<Tick>> {
+fn text(path: &Path, unit: Option<Unit>) -> Result<Vec<ReplyOutcome>> {
     use std::io::BufRead;
     let unit = unit.unwrap_or(Unit::Us);
     let file = files::open_regular(path, MAX_FILE_BYTES, "a latency file")
@@ -332,14 +302,16 @@ fn text(path: &Path, unit: Option<Unit>) -> Result<Vec<Tick>> {
         if v.is_empty() || v.starts_with('#') {
             continue;
         }
-        out.push(Tick::Reply(latency_ns(v, unit.ns()).ok_or_else(|| {
-            anyhow!(
-                "{}: {} is not a latency: expected a number of {} ≥ 0, one per line",
-                at(),
-                deltaloop_config::show_str(v),
-                unit.symbol()
-            )
-        })?));
+        out.push(ReplyOutcome::Applied(latency_ns(v, unit.ns()).ok_or_else(
+            || {
+                anyhow!(
+                    "{}: {} is not a latency: expected a number of {} ≥ 0, one per line",
+                    at(),
+                    deltaloop_config::show_str(v),
+                    unit.symbol()
+                )
+            },
+        )?));
     }
     Ok(out)
 }
@@ -498,9 +470,9 @@ mod tests {
         assert_eq!(
             s.latencies,
             Latencies::Sequences(vec![vec![
-                Tick::Reply(12_500),
-                Tick::Reply(30_000),
-                Tick::Reply(0)
+                ReplyOutcome::Applied(12_500),
+                ReplyOutcome::Applied(30_000),
+                ReplyOutcome::Applied(0)
             ]])
         );
         for bad in ["-1", "nan", "12 us", "inf"] {
@@ -608,7 +580,7 @@ mod tests {
         let s = Source::load(&p, Some(Unit::Ns)).unwrap();
         assert_eq!(
             s.latencies,
-            Latencies::Sequences(vec![vec![Tick::Reply(1500)]])
+            Latencies::Sequences(vec![vec![ReplyOutcome::Applied(1500)]])
         );
         let p = d.path().join("bad.txt");
         std::fs::write(&p, b"10\n20\n3\xff0\n").unwrap();

@@ -1,8 +1,9 @@
 //! The replicas' spread, per law and scale, as `whatif.json` holds it.
 
 use super::draw::{Model, Pool};
-use super::source::{Source, Tick};
+use super::source::Source;
 use deltaloop_config::Law;
+use deltaloop_plant_tick::ReplyOutcome;
 use deltaloop_study::Study;
 use deltaloop_study::record::RunStatus;
 use deltaloop_study::record::metrics::{LawMetrics, percentile_type7};
@@ -313,13 +314,13 @@ fn latency_out(i: &Inputs<'_>) -> LatencyOut {
     for (t, c) in i.pool.distribution() {
         ticks += c;
         match t {
-            Tick::Reply(l) => {
+            ReplyOutcome::Applied(l) => {
                 replies.push((l, c));
                 if l > budget_ns {
                     missed += c;
                 }
             }
-            _ => missed += c,
+            ReplyOutcome::Late | ReplyOutcome::Skipped | ReplyOutcome::Missed => missed += c,
         }
     }
     let n: u64 = replies.iter().map(|r| r.1).sum();

@@ -18,20 +18,9 @@ use std::collections::VecDeque;
 /// Error bound of the divergence rule, rad (docs/controllers.md: |e_i| > 0.5 rad).
 pub const DIVERGENCE_ERR_RAD: f64 = 0.5;
 
-deltaloop_names::text_enum! {
-    "snake_case", "reply";
-    /// What became of the controller's reply to tick k (`trace.csv` column `reply`).
-    pub enum ReplyFate {
-        /// It arrived in time and went to the drives (which may still clamp or reject it).
-        Applied,
-        /// The controller answered after the torque budget: dropped, the drives held.
-        Late,
-        /// The controller never answered this state: it answered a newer one instead.
-        Skipped,
-        /// No answer at all: the drives held.
-        Missed,
-    }
-}
+/// What became of the controller's reply to tick k: declared with its outcome in the plant's
+/// tick, where the in-process loop's arrival schedule and the plant take it.
+pub use deltaloop_plant_tick::ReplyFate;
 
 /// One control tick.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -872,6 +861,7 @@ mod tests {
         check::<LoopMode>();
         check::<RunStatus>();
         check::<FaultKind>();
+        check::<ReplyFate>();
         for &f in ReplyFate::VARIANTS {
             assert_eq!(ReplyFate::parse(f.name()), Ok(f));
         }
