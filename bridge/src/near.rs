@@ -14,9 +14,9 @@
 //! states' stamps onto this host's clock (their publication = their arrival here) for the
 //! supervisor and the controller here (docs/protocol.md §14).
 //!
-//! Its parts: the listener ([`listen`]: the wait, the HELLO, the UDP socket), handshake
-//! admission ([`admit`]: who may try the link key, and in what room), run control across the
-//! link ([`control`]), and the two stand-ins ([`controller`], [`plant`]).
+//! Its parts: the listener (`listen`: the wait, the HELLO, the UDP socket), handshake
+//! admission (`admit`: who may try the link key, and in what room), run control across the
+//! link (`control`), and the two stand-ins (`controller`, `plant`).
 
 use crate::bytes::{self, bytes_of, bytes_of_slice};
 use crate::cli::NearArgs as Args;

@@ -2,7 +2,7 @@
 //! and type mapping are public, so a pure-Rust DDS (RustDDS) speaks it.
 //!
 //! - [`live`]: a run's live topics (`run --ros2`), published from what the run records;
-//! - [`bench`]: the DDS side of `bench ros2`'s ping-pong;
+//! - [`bench`](mod@bench): the DDS side of `bench ros2`'s ping-pong;
 //! - [`node`]: the participant, ROS names, QoS and the node graph (`ros_discovery_info`), and
 //!   what the robot of `--controller ros2` is called and waits for (its process is the
 //!   controller-side crate `deltaloop-ros2-robot`, on this crate);
