@@ -2,12 +2,12 @@
 //! the limit cycle; a diverging configuration is reported, not crashed; runs are deterministic.
 
 use deltaloop_config::{Law, RunConfig};
-use deltaloop_supervisor::loops::inproc;
-use deltaloop_supervisor::loops::lawrun::{Keep, LawRun};
-use deltaloop_supervisor::output::report::limit_cycle;
-use deltaloop_supervisor::record::metrics::LawMetrics;
-use deltaloop_supervisor::record::{Outcome, RunStatus};
-use deltaloop_supervisor::study::Study;
+use deltaloop_report::report::limit_cycle;
+use deltaloop_runner::inproc;
+use deltaloop_runner::lawrun::{Keep, LawRun};
+use deltaloop_study::Study;
+use deltaloop_study::record::metrics::LawMetrics;
+use deltaloop_study::record::{Outcome, RunStatus};
 
 fn study(extra: &str) -> Study {
     let text = format!("[scenario]\npath = \"s1\"\n[plant]\nfriction = true\n{extra}");

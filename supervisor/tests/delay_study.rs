@@ -1,10 +1,10 @@
 //! The delay study's building blocks: TDE delay, transport delay, sensor noise, payload step.
 
 use deltaloop_config::{Law, RunConfig};
-use deltaloop_supervisor::loops::inproc;
-use deltaloop_supervisor::loops::lawrun::{Keep, LawRun};
-use deltaloop_supervisor::record::{Outcome, RunStatus};
-use deltaloop_supervisor::study::Study;
+use deltaloop_runner::inproc;
+use deltaloop_runner::lawrun::{Keep, LawRun};
+use deltaloop_study::Study;
+use deltaloop_study::record::{Outcome, RunStatus};
 
 /// The in-process run of `law`, every record kept.
 fn run_law(s: &Study, law: Law) -> LawRun {

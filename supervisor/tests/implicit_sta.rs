@@ -3,11 +3,11 @@
 //! properties that make it worth having, each measured in-process on S1–S3, preset `matched`.
 
 use deltaloop_config::{Law, RunConfig};
-use deltaloop_supervisor::loops::inproc;
-use deltaloop_supervisor::loops::lawrun::Keep;
-use deltaloop_supervisor::record::RunStatus;
-use deltaloop_supervisor::record::metrics::LawMetrics;
-use deltaloop_supervisor::study::Study;
+use deltaloop_runner::inproc;
+use deltaloop_runner::lawrun::Keep;
+use deltaloop_study::Study;
+use deltaloop_study::record::RunStatus;
+use deltaloop_study::record::metrics::LawMetrics;
 
 fn metrics(scenario: &str, extra: &str, law: Law) -> LawMetrics {
     let text = format!("[scenario]\npath = \"{scenario}\"\n[plant]\nfriction = true\n{extra}");

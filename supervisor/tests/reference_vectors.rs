@@ -2,8 +2,8 @@
 
 use deltaloop_config::RunConfig;
 use deltaloop_model::{DeltaRobot, Vec3};
-use deltaloop_supervisor::study::reference::joint_sample;
-use deltaloop_supervisor::study::scenario::TaskPath;
+use deltaloop_study::reference::joint_sample;
+use deltaloop_study::scenario::TaskPath;
 use serde_json::Value;
 
 fn v3(v: &Value) -> Vec3 {

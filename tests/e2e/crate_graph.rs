@@ -628,3 +628,38 @@ fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
     }
     out
 }
+
+/// ROS 2 has one crate per side: `deltaloop-ros2` (the messages, the participant, the live
+/// topics, the DDS side of `bench ros2`) needs no baseline (the supervisor's bench composes
+/// the two), and the robot of `--controller ros2` (`deltaloop-ros2-robot`) is a controller
+/// process: it runs the controller's `serve` and never reaches the plant's process or the
+/// supervisor.
+#[test]
+fn ros2_needs_no_baseline_and_its_robot_is_on_the_controller_side() {
+    assert_none_of(
+        "deltaloop-ros2",
+        &[
+            "deltaloop-baseline",
+            "deltaloop-controller",
+            "deltaloop-plant",
+            "deltaloop-supervisor",
+        ],
+    );
+    let robot = graph("deltaloop-ros2-robot");
+    for side in ["deltaloop-controller", "deltaloop-ros2"] {
+        assert!(
+            robot.iter().any(|n| n == side),
+            "deltaloop-ros2-robot does not depend on {side}; its graph: {robot:?}"
+        );
+    }
+    assert_none_of(
+        "deltaloop-ros2-robot",
+        &[
+            "deltaloop-plant",
+            "deltaloop-baseline",
+            "deltaloop-runner",
+            "deltaloop-supervisor",
+            "deltaloop-bridge",
+        ],
+    );
+}

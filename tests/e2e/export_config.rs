@@ -110,7 +110,7 @@ fn regression_export_accepted_a_duplicated_tick() {
 fn regression_export_accepted_a_timing_cell_x() {
     let (_tmp, dir, _) = edited_run(|_| {});
     let timing = dir.join("tdc.timing.csv");
-    let header = deltaloop_supervisor::timing::TIMING_COLUMNS.join(",");
+    let header = deltaloop_timing::TIMING_COLUMNS.join(",");
     std::fs::write(
         &timing,
         format!("{header}\n0,1000,1000,1000,1000,1000,1000,0,0,0,0,0,\n1,x,,,,,,,,,,,\n"),

@@ -14,6 +14,7 @@ mod doc_paths;
 mod export_config;
 mod export_mcap;
 mod faults;
+mod file_length;
 mod foreign_peers;
 mod input_hardening;
 mod link_loopback;

@@ -2,7 +2,7 @@
 //! in report.md are the ones in summary.json.
 
 use crate::common;
-use deltaloop_supervisor::record::sensitivity;
+use deltaloop_study::record::sensitivity;
 
 use common::{deltaloop, summary};
 use serde_json::Value;

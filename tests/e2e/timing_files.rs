@@ -211,7 +211,7 @@ fn a_killed_run_leaves_its_completed_intervals() {
     // SAFETY: as above, our own child.
     unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
     let _ = child.wait();
-    let read = deltaloop_supervisor::timing::hlog::read(&log).unwrap();
+    let read = deltaloop_timing::hlog::read(&log).unwrap();
     assert!(
         read.intervals.len() >= 3,
         "{} intervals",

@@ -2,8 +2,10 @@
 //! and type mapping are public, so a pure-Rust DDS (RustDDS) speaks it.
 //!
 //! - [`live`]: a run's live topics (`run --ros2`), published from what the run records;
-//! - [`robot`]: the robot side of a ROS 2 node as the controller (`--controller ros2`);
-//! - [`node`]: the participant, ROS names, QoS and the node graph (`ros_discovery_info`);
+//! - [`bench`](mod@bench): the DDS side of `bench ros2`'s ping-pong;
+//! - [`node`]: the participant, ROS names, QoS and the node graph (`ros_discovery_info`), and
+//!   what the robot of `--controller ros2` is called and waits for (its process is the
+//!   controller-side crate `deltaloop-ros2-robot`, on this crate);
 //! - [`msg`]: the ROS 2 messages as DDS types.
 //!
 //! Discovery stays on this host unless the config or ROS 2's environment widens it
@@ -13,4 +15,3 @@ pub mod bench;
 pub mod live;
 pub mod msg;
 pub mod node;
-pub mod robot;

@@ -111,6 +111,24 @@ impl Settings {
     }
 }
 
+/// The node of `--controller ros2`'s robot (the `deltaloop-ros2-robot` process): its topics
+/// belong to it, and the run's terminal names it.
+pub const ROBOT_NODE: &str = "deltaloop_robot";
+
+/// What the robot of `--controller ros2` waits for before tick 0, in words (the robot's log and
+/// the run's terminal).
+pub fn robot_waiting_line(settings: &Settings) -> String {
+    let s = &settings.section;
+    format!(
+        "waiting up to {} s for a ROS 2 node that reads {} and writes {} (domain {}, {}) before tick 0",
+        s.wait_s,
+        s.state_topic,
+        s.command_topic,
+        settings.domain,
+        settings.reach()
+    )
+}
+
 /// A ROS topic name (`/a/b`) as its DDS topic (`rt/a/b`).
 pub fn dds_topic(ros_name: &str) -> String {
     format!("rt/{}", ros_name.trim_start_matches('/'))

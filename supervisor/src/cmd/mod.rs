@@ -17,8 +17,8 @@ mod top;
 mod whatif;
 mod words;
 
-use crate::record::RunStatus;
 use clap::{Parser, Subcommand};
+use deltaloop_study::record::RunStatus;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -97,8 +97,8 @@ pub struct Context {
 /// Entry point of the `deltaloop` binary.
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
-    crate::loops::signals::install();
-    if let Err(e) = crate::loops::signals::die_with_parent_from_env() {
+    deltaloop_runner::signals::install();
+    if let Err(e) = deltaloop_runner::signals::die_with_parent_from_env() {
         eprintln!("deltaloop: error: {e}");
         return ExitCode::from(exit_code(RunStatus::Error));
     }
@@ -133,8 +133,8 @@ pub fn main() -> ExitCode {
     match (result, status) {
         (Ok(()), _) => {}
         (Err(e), RunStatus::Interrupted) => {
-            let by = crate::loops::signals::signal().map_or(String::new(), |s| {
-                format!(" (by {})", crate::loops::signals::name(s))
+            let by = deltaloop_runner::signals::signal().map_or(String::new(), |s| {
+                format!(" (by {})", deltaloop_runner::signals::name(s))
             });
             say(format!("deltaloop: {e}{by}"));
         }

@@ -27,7 +27,7 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
     let out = a
         .out
         .out
-        .unwrap_or_else(|| crate::output::default_run_dir("paper"));
+        .unwrap_or_else(|| deltaloop_report::default_run_dir("paper"));
     let opts = paper::Options {
         sensitivity: !a.no_sensitivity,
         seeds: a.seeds,

@@ -2,8 +2,8 @@
 
 use super::{Context, OutArgs};
 use crate::ops::replay;
-use crate::output::RunFolder;
 use anyhow::Result;
+use deltaloop_report::RunFolder;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -46,7 +46,7 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
     let line = replay::describe(&verdict, run_dir);
     if a.ideal {
         let cfg = deltaloop_config::RunConfig::from_file(&run_dir.join("config.toml"))?;
-        let study = crate::study::Study::new(cfg)?;
+        let study = deltaloop_study::Study::new(cfg)?;
         let measured: Vec<_> = runs.iter().map(|r| &r.metrics).collect();
         let best = replay::ideal_rms(&study, &measured)?;
         for l in replay::latency_cost(&measured, &best) {

@@ -62,7 +62,10 @@ fn refuse_if_too_big(
         timing_csv: cfg.record.timing_csv && mode.is_process(),
         ..cfg.record.clone()
     };
-    let dir = out.map_or_else(|| crate::output::default_run_dir(&cfg.name), PathBuf::from);
+    let dir = out.map_or_else(
+        || deltaloop_report::default_run_dir(&cfg.name),
+        PathBuf::from,
+    );
     let asked = format!(
         "a run of {:.0} s (scenario.hold_s = {}, {laws} law{})",
         cfg.motion_duration_s() + cfg.scenario.hold_s,

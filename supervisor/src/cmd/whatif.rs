@@ -3,9 +3,9 @@
 
 use super::words::Words;
 use super::{Context, OutArgs};
-use crate::output::{self, RunFolder};
 use anyhow::Result;
 use deltaloop_config::{Law, RunConfig};
+use deltaloop_report::RunFolder;
 use deltaloop_studies::whatif::{self, DrawChoice, Request, source::Unit};
 use std::path::PathBuf;
 
@@ -63,7 +63,7 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
         .out
         .out
         .clone()
-        .unwrap_or_else(|| output::default_run_dir(&format!("whatif-{}", cfg.name)));
+        .unwrap_or_else(|| deltaloop_report::default_run_dir(&format!("whatif-{}", cfg.name)));
     let sources: Vec<(&std::path::Path, &str)> =
         std::iter::once((a.config.as_path(), "the scenario file"))
             .chain(

@@ -1,11 +1,11 @@
 //! `deltaloop bench plant`: how many wall seconds the plant needs per simulated second.
 
-use crate::loops::inproc;
-use crate::loops::lawrun::Keep;
-use crate::study::Study;
 use anyhow::{Context, Result};
 use deltaloop_config::{Law, RunConfig};
 use deltaloop_model::{DeltaRobot, Plant, SimConfig, Vec3};
+use deltaloop_runner::inproc;
+use deltaloop_runner::lawrun::Keep;
+use deltaloop_study::Study;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 

@@ -14,9 +14,9 @@
 //! The namespaces, the veth pair, each root's shared memory and a temporary output folder are
 //! removed when [`TwoHosts`] is dropped: at the end, on an error and after Ctrl-C.
 
-use crate::loops::procs::exe_dir;
 use crate::ops::loopback::{Kid, remove_root};
 use anyhow::{Context, Result, bail};
+use deltaloop_runner::procs::exe_dir;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};

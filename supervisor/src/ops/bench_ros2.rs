@@ -15,9 +15,11 @@ const ROWS: [&str; 3] = [
     "DDS (RustDDS, reliable, loopback)",
 ];
 
+/// `count` round trips of DDS on `domain`, one every [`PERIOD_NS`].
 #[cfg(feature = "ros2")]
 fn dds(domain: u16, count: u64) -> Result<PingPong> {
-    deltaloop_ros2::bench::dds(domain, count, PERIOD_NS)
+    let mut dds = deltaloop_ros2::bench::Dds::open(domain)?;
+    paced::paced(count, PERIOD_NS, |seq| dds.round(seq, paced::PONG_TIMEOUT))
 }
 
 #[cfg(not(feature = "ros2"))]

@@ -1,3 +1,3 @@
-//! `deltaloop export RUN_DIR --mcap`: a finished run as one MCAP file ([`crate::output::mcap`]).
+//! `deltaloop export RUN_DIR --mcap`: a finished run as one MCAP file ([`deltaloop_report::mcap`]).
 
-pub use crate::output::mcap::{ExportRequest, Exported, export};
+pub use deltaloop_report::mcap::{ExportRequest, Exported, export};

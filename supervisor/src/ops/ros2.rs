@@ -20,10 +20,10 @@ pub fn live_tap(cfg: &RunConfig, asked: bool) -> Result<Option<Tap>> {
     // The robot of `--controller ros2` publishes the law's reference topics itself.
     let robot = deltaloop_runner::procs::ros2_robot_answers(cfg);
     if robot {
-        let line = deltaloop_ros2::robot::waiting_line(&Settings::of_run(cfg)?);
+        let line = deltaloop_ros2::node::robot_waiting_line(&Settings::of_run(cfg)?);
         eprintln!(
             "ROS 2: each law's robot (/{}) is {line}; the example node reads the run folder's config.toml",
-            deltaloop_ros2::robot::NODE
+            deltaloop_ros2::node::ROBOT_NODE
         );
     }
     if !asked {

@@ -8,10 +8,10 @@
 //! slot stays free for `deltaloop top`.
 
 use crate::ops::run::{self, Overrides};
-use crate::record::RunStatus;
-use crate::timing::{self, PeakRss, Percentiles, Seen};
 use anyhow::{Result, bail};
 use deltaloop_config::{LoopMode, RecordSection};
+use deltaloop_study::record::RunStatus;
+use deltaloop_timing::{PeakRss, Percentiles, Seen};
 use deltaloop_transport::wire;
 use hdrhistogram::Histogram;
 use std::path::{Path, PathBuf};
@@ -157,7 +157,7 @@ impl MinuteAcc {
             misses: 0,
             open: false,
             last_k: 0,
-            round_trip: timing::latency_histogram(),
+            round_trip: deltaloop_timing::latency_histogram(),
             total_ticks: 0,
             total_misses: 0,
             done: Vec::new(),
@@ -182,7 +182,7 @@ impl MinuteAcc {
         if m.flags & wire::TEL_MISSED != 0 {
             self.misses += 1;
             self.total_misses += 1;
-        } else if let Some(rt) = timing::round_trip_ns(&m) {
+        } else if let Some(rt) = deltaloop_timing::round_trip_ns(&m) {
             self.round_trip.saturating_record(rt.max(1));
         }
     }
@@ -196,7 +196,7 @@ impl MinuteAcc {
             index: self.minute + 1,
             ticks: self.ticks,
             misses: self.misses,
-            round_trip: timing::percentiles(&self.round_trip),
+            round_trip: deltaloop_timing::percentiles(&self.round_trip),
             span_s: (self.last_k - self.minute * self.ticks_per_minute) as f64 * self.ts_s,
         });
         self.ticks = 0;
@@ -428,7 +428,7 @@ pub fn soak(r: Request<'_>) -> Result<()> {
     let total = cfg.ticks(motion) + 1;
     let out = r
         .out
-        .unwrap_or_else(|| crate::output::default_run_dir(&format!("soak-{}", cfg.name)));
+        .unwrap_or_else(|| deltaloop_report::default_run_dir(&format!("soak-{}", cfg.name)));
 
     let shown = humantime::format_duration(r.duration).to_string();
     let asked = format!("--duration {shown}");
@@ -719,7 +719,7 @@ mod tests {
             index: 1,
             ticks: 10,
             misses: 0,
-            round_trip: timing::percentiles(&timing::latency_histogram()),
+            round_trip: deltaloop_timing::percentiles(&deltaloop_timing::latency_histogram()),
             span_s: 3.0,
         };
         let line = minute_line(&m, &rss);

@@ -5,7 +5,7 @@ use iceoryx2::prelude::*;
 pub mod python;
 
 #[allow(unused_imports)]
-pub use deltaloop_supervisor::record::{FaultKind, RunStatus};
+pub use deltaloop_study::record::{FaultKind, RunStatus};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -229,7 +229,7 @@ pub fn assert_complete(summary: &Value, out: &Path, law: &str) -> [f64; 3] {
     assert_eq!(t["ticks"], ticks, "{t}");
     assert_eq!(t["round_trip"]["count"], ticks, "{t}");
     let log = out.join(format!("{law}.round_trip.hlog"));
-    let logged: u64 = deltaloop_supervisor::timing::hlog::read(&log)
+    let logged: u64 = deltaloop_timing::hlog::read(&log)
         .unwrap()
         .intervals
         .iter()
@@ -382,10 +382,10 @@ pub fn plant_stalled(summary: &Value, law: &str) -> Option<String> {
 }
 
 /// Misses in the record of `law` beyond what the run's classifier allows (more than
-/// [`MAX_MISS_SHARE`](deltaloop_supervisor::timing::MAX_MISS_SHARE) of the ticks, or a burst
-/// of [`MAX_MISS_BURST`](deltaloop_supervisor::timing::MAX_MISS_BURST)), whatever else it says.
+/// [`MAX_MISS_SHARE`](deltaloop_timing::MAX_MISS_SHARE) of the ticks, or a burst
+/// of [`MAX_MISS_BURST`](deltaloop_timing::MAX_MISS_BURST)), whatever else it says.
 pub fn missed_too_many(summary: &Value, law: &str) -> Option<String> {
-    use deltaloop_supervisor::timing::{MAX_MISS_BURST, MAX_MISS_SHARE};
+    use deltaloop_timing::{MAX_MISS_BURST, MAX_MISS_SHARE};
     let t = &summary["timing"][law];
     let share = t["miss_ratio"].as_f64().unwrap_or(0.0);
     let burst = t["max_consecutive_misses"].as_u64().unwrap_or(0);

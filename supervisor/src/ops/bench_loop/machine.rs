@@ -22,7 +22,7 @@ pub fn sleep_only_loop(
             priority: prio,
             lock_memory: false,
         });
-        let mut h = crate::timing::latency_histogram();
+        let mut h = deltaloop_timing::latency_histogram();
         let t0 = rt::now_ns() + 1_000_000;
         for k in 0..n {
             let d = t0 + k * ts_ns;
@@ -68,7 +68,7 @@ pub fn cyclictest(
 
 /// cyclictest's `-h` output: lines "<µs> <count>" and comments; overflows go to the top bucket.
 fn parse_cyclictest_histogram(text: &str) -> Result<Histogram<u64>, String> {
-    let mut h = crate::timing::latency_histogram();
+    let mut h = deltaloop_timing::latency_histogram();
     for line in text.lines() {
         if let Some(rest) = line.strip_prefix("# Histogram Overflows:") {
             let n: u64 = rest.trim().parse().unwrap_or(0);

@@ -16,17 +16,17 @@ mod machine;
 use deltaloop_baseline as baseline;
 pub use deltaloop_baseline::{Handoff, iox_controller, uds_controller};
 
-use crate::loops::inproc;
-use crate::loops::lawrun::Keep;
-use crate::loops::procs;
 use crate::ops::bench::s1_hold_study;
-use crate::study::Study;
-use crate::timing::{StealMs, TimingSummary};
 use anyhow::{Context, Result};
 use deltaloop_config::Law;
 use deltaloop_config::Layout;
 use deltaloop_config::LoopMode;
 use deltaloop_config::ResolvedLayout;
+use deltaloop_runner::inproc;
+use deltaloop_runner::lawrun::Keep;
+use deltaloop_runner::procs;
+use deltaloop_study::Study;
+use deltaloop_timing::{StealMs, TimingSummary};
 use hdrhistogram::Histogram;
 use std::path::Path;
 use std::time::Instant;
@@ -153,7 +153,7 @@ impl Series {
         Self {
             hz: vec![],
             cost_us: vec![],
-            hand: crate::timing::latency_histogram(),
+            hand: deltaloop_timing::latency_histogram(),
         }
     }
 
@@ -306,7 +306,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     if let Ok(h) = &cyclic {
         hists.push(("cyclictest", h));
     }
-    crate::output::plot::latency_percentiles(
+    deltaloop_report::plot::latency_percentiles(
         &out.join("latency"),
         "bench loop: realtime round trip and wake lateness vs the machine",
         &hists,
@@ -521,7 +521,12 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
 
 /// One realtime run of `seconds` on the S1 hold with `layout`, in `out/<name>`; its timing, with
 /// the `.hgrm` files and figures written there.
-fn realtime(out: &Path, name: &str, seconds: f64, layout: Layout) -> Result<crate::timing::Timing> {
+fn realtime(
+    out: &Path,
+    name: &str,
+    seconds: f64,
+    layout: Layout,
+) -> Result<deltaloop_timing::Timing> {
     let mut rs = s1_hold_study("bench-loop", seconds)?;
     rs.config.loop_.realtime = layout;
     // A virtual CPU the host freezes for 30 ms must not end the measurement: count the misses.
@@ -540,7 +545,7 @@ fn realtime(out: &Path, name: &str, seconds: f64, layout: Layout) -> Result<crat
     )?;
     pr.timing.write_hgrm(&dir, "tdc-is-sta.")?;
     let budget = f64::from(rs.config.loop_.torque_budget_us);
-    crate::output::plot::timing_figures(
+    deltaloop_report::plot::timing_figures(
         &dir,
         "tdc-is-sta.",
         &format!("tdc-is-sta, {name}"),
@@ -604,12 +609,12 @@ fn transport_phase(
     let mut best: Option<(Rounds, Option<Disturbance>)> = None;
     while attempts < PHASE_ATTEMPTS {
         attempts += 1;
-        let steal_before = crate::timing::steal_jiffies();
+        let steal_before = deltaloop_timing::steal_jiffies();
         let t0 = Instant::now();
         let r = transport_rounds(ls, cfg_path, ls_dir, pc, cc, repeats)?;
         let wall_s = t0.elapsed().as_secs_f64();
         let stolen =
-            crate::timing::steal_ms_between(&steal_before, &crate::timing::steal_jiffies());
+            deltaloop_timing::steal_ms_between(&steal_before, &deltaloop_timing::steal_jiffies());
         let taken: Vec<(usize, f64)> = stolen
             .iter()
             .filter(|s| [pc, cc].contains(&Some(s.cpu)))

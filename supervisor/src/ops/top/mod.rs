@@ -12,10 +12,10 @@ pub mod find;
 pub mod relay;
 pub mod view;
 
-use crate::study::Study;
-use crate::timing::live::LiveStats;
 use anyhow::{Context, Result, anyhow, bail};
 use deltaloop_config::{Law, LoopMode, RunConfig};
+use deltaloop_study::Study;
+use deltaloop_timing::live::LiveStats;
 use deltaloop_transport::ipc::{self, IpcContext, OBSERVER_BUFFER};
 use deltaloop_transport::observe;
 use deltaloop_transport::wire::{self, ControlKind, Sender};
@@ -159,9 +159,9 @@ impl Watched {
         while let Some(m) = w.control.receive().ipc("receive control")? {
             // The text is the peer's: shown on the terminal only as one escaped line.
             let text = || {
-                crate::loops::peer_text::sanitize(
+                deltaloop_runner::peer_text::sanitize(
                     m.text().as_bytes(),
-                    crate::loops::peer_text::MAX_CHARS,
+                    deltaloop_runner::peer_text::MAX_CHARS,
                 )
             };
             let why = match m.kind() {
@@ -258,12 +258,12 @@ pub struct Options {
 
 /// The live server's bus (feature `foxglove`); without the feature there is none to make.
 #[cfg(feature = "foxglove")]
-type LiveBus = crate::output::mcap::server::Server;
+type LiveBus = deltaloop_report::mcap::server::Server;
 #[cfg(not(feature = "foxglove"))]
 enum LiveBus {}
 
 #[cfg(not(feature = "foxglove"))]
-impl crate::output::mcap::Bus for LiveBus {
+impl deltaloop_report::mcap::Bus for LiveBus {
     fn schema(&mut self, _: &'static str, _: &str, _: &str) -> Result<u16> {
         match *self {}
     }
@@ -403,7 +403,7 @@ fn plain(watch: &Watch, w: &mut Watched, sv: &mut Serving, interval: Duration) -
                 return Ok(());
             }
         }
-        if ended || crate::loops::signals::interrupted() {
+        if ended || deltaloop_runner::signals::interrupted() {
             return Ok(());
         }
         std::thread::sleep(DRAIN);
@@ -450,7 +450,7 @@ fn screen(watch: &Watch, w: &mut Watched, sv: &mut Serving, interval: Duration) 
             })
             .context("cannot draw")?;
         }
-        if crate::loops::signals::interrupted() {
+        if deltaloop_runner::signals::interrupted() {
             return Ok(());
         }
         if event::poll(DRAIN).context("cannot read the terminal")?

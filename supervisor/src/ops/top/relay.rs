@@ -6,15 +6,15 @@
 //! lose their oldest samples when `top` falls behind (a tick seen without its state is counted
 //! lost, not drawn); the run's own files stay the record.
 
-use crate::output::mcap::{Bus, ERROR, INFO, Live};
-use crate::record::{Recorder, TickRecord, TickSink};
-use crate::study::Study;
-use crate::study::reference::RefRow;
-use crate::timing::{Seen, timing_cells};
 use anyhow::Result;
 use deltaloop_config::Law;
 use deltaloop_config::RemoteSide;
 use deltaloop_model::Vec3;
+use deltaloop_report::mcap::{Bus, ERROR, INFO, Live};
+use deltaloop_study::Study;
+use deltaloop_study::record::{Recorder, TickRecord, TickSink};
+use deltaloop_study::reference::RefRow;
+use deltaloop_timing::{Seen, timing_cells};
 use deltaloop_transport::wire::{StateMsg, TelemetryMsg, TorqueMsg};
 use std::collections::BTreeMap;
 
@@ -62,7 +62,7 @@ impl<'a, B: Bus> Relay<'a, B> {
             study,
             rec: Recorder::new(law, &study.reference, study.params.m_bar, feed),
             pending: BTreeMap::new(),
-            link: crate::output::link::across(&study.config),
+            link: deltaloop_report::link::across(&study.config),
             newest_state: None,
             next: None,
             stopped: false,

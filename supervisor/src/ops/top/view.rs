@@ -2,8 +2,8 @@
 //! (`key=value`, for scripts). No terminal I/O here.
 
 use super::find::RunInfo;
-use crate::timing::Percentiles;
-use crate::timing::live::Snapshot;
+use deltaloop_timing::Percentiles;
+use deltaloop_timing::live::Snapshot;
 
 /// Where the run is.
 #[derive(Clone, Debug, PartialEq)]

@@ -11,19 +11,18 @@
 //! length, a non-finite torque, another tick's stamp, or from a second publisher is refused and
 //! counted; the counts are the process's last line.
 
-use crate::live::ReferenceTopics;
-use crate::msg::{self, JointState};
-use crate::node::{Participant, Settings, Waiting, Writer, reliable, wait_matched};
 use anyhow::{Context, Result, bail};
 use deltaloop_config::{LoopMode, RunConfig};
 use deltaloop_controller::process::Step;
+use deltaloop_ros2::live::ReferenceTopics;
+use deltaloop_ros2::msg::{self, JointState};
+use deltaloop_ros2::node::{
+    Participant, ROBOT_NODE, Settings, Waiting, Writer, reliable, robot_waiting_line, wait_matched,
+};
 use deltaloop_study::Study;
 use deltaloop_transport::wire::{RefSample, StateMsg, TorqueMsg};
 use rustdds::GUID;
 use std::time::{Duration, Instant};
-
-/// The node the robot's topics belong to.
-pub const NODE: &str = "deltaloop_robot";
 
 /// Commands refused, by cause.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -147,19 +146,6 @@ fn give_up(cfg: &RunConfig, mode: LoopMode) -> Duration {
     }
 }
 
-/// What the robot waits for before tick 0, in words (the robot's log and the run's terminal).
-pub fn waiting_line(settings: &Settings) -> String {
-    let s = &settings.section;
-    format!(
-        "waiting up to {} s for a ROS 2 node that reads {} and writes {} (domain {}, {}) before tick 0",
-        s.wait_s,
-        s.state_topic,
-        s.command_topic,
-        settings.domain,
-        settings.reach()
-    )
-}
-
 /// What the run calls this controller (its READY): `tdc (ros2)` in the tables.
 const LABEL: &str = "ros2";
 
@@ -185,7 +171,7 @@ impl Robot {
         let settings = Settings::of_run(cfg)?;
         let section = settings.section.clone();
         if let Some(w) = settings.warning() {
-            eprintln!("{NODE}: {w}");
+            eprintln!("{ROBOT_NODE}: {w}");
         }
         let study = Study::new(cfg.clone()).context("the scenario's reference")?;
         let ts_ns = cfg.ts_ns();
@@ -193,13 +179,14 @@ impl Robot {
             (section.state_topic.clone(), section.command_topic.clone());
         let domain = settings.domain;
         let part = Participant::join(settings.clone())?;
-        let reference = ReferenceTopics::publish(&part, NODE, law, &study.reference, ts_ns, 10)?;
-        let states: Writer<JointState> = part.writer(NODE, &state_topic, reliable(10))?;
-        let commands = Waiting::new(part.reader(NODE, &command_topic, reliable(10))?)?;
+        let reference =
+            ReferenceTopics::publish(&part, ROBOT_NODE, law, &study.reference, ts_ns, 10)?;
+        let states: Writer<JointState> = part.writer(ROBOT_NODE, &state_topic, reliable(10))?;
+        let commands = Waiting::new(part.reader(ROBOT_NODE, &command_topic, reliable(10))?)?;
         // The node is there when one participant reads the states and its commands reach us:
         // no tick 0 goes out before that.
         let wait = Duration::from_secs_f64(section.wait_s);
-        eprintln!("{NODE}: {}", waiting_line(&settings));
+        eprintln!("{ROBOT_NODE}: {}", robot_waiting_line(&settings));
         let t0 = Instant::now();
         let m = wait_matched(&states, &commands.reader, wait);
         if m.pair().is_none() {
@@ -218,7 +205,7 @@ impl Robot {
             );
         }
         eprintln!(
-            "{NODE}: a ROS 2 node matched after {:.1} s",
+            "{ROBOT_NODE}: a ROS 2 node matched after {:.1} s",
             t0.elapsed().as_secs_f64()
         );
         Ok(Self {
@@ -285,7 +272,7 @@ impl Robot {
     /// The count line of the end.
     fn summary(&self) -> String {
         let r = &self.refused;
-        format!("{NODE}: {} command(s) refused: {r}", r.total())
+        format!("{ROBOT_NODE}: {} command(s) refused: {r}", r.total())
     }
 }
 
@@ -436,11 +423,11 @@ pub fn main() -> std::process::ExitCode {
     let term = deltaloop_transport::rt::child_signals();
     let (law, mode) = (args.law.clone(), args.run.mode);
     deltaloop_transport::exit::exit(
-        NODE,
+        ROBOT_NODE,
         deltaloop_controller::process::serve(
             &args.run,
             &term,
-            NODE,
+            ROBOT_NODE,
             deltaloop_link::Handoff::default(),
             |cfg| Robot::new(cfg, &law, mode),
         ),
