@@ -155,7 +155,11 @@ impl Key {
                 hi,
                 hi_open,
                 ..
-            } => (if lo_open { v > lo } else { v >= lo }) && (if hi_open { v < hi } else { v <= hi }),
+            } => {
+                let above = if lo_open { v > lo } else { v >= lo };
+                let below = if hi_open { v < hi } else { v <= hi };
+                above && below
+            }
             Allowed::Span { lo, hi, .. } => (lo..=hi).contains(&v),
             Allowed::Words(_) | Allowed::Rule(_) | Allowed::Any => true,
         }

@@ -1,8 +1,9 @@
 //! Every key of a scenario file, declared once: its TOML path, type, unit, allowed values,
 //! default and doc line. From here come the serde defaults of the sections (`#[serde(default =
 //! "PlantKeys::tau_max_nm")]`), the range checks and their one-line errors (`PLANT.tau_max_nm
-//! .check(v)`), the key table of docs/guide/scenario-files.md and the config fuzzer's keys; the
-//! tests below fail when the schema, the doc table or the defaults disagree with it.
+//! .check(v)`), the key table of docs/guide/scenario-files.md and the config fuzzer's keys. Its
+//! tests (`keys/tests.rs`) fail when the serde schema has a key it does not declare (or lacks
+//! one it does), a default, a range check or the doc table disagrees with it.
 //!
 //! A new key: its line here, its field in its section (the section's file in `sections/`, whose
 //! `validate` calls the key's check), and `DELTALOOP_UPDATE_DOCS=1 cargo test -p

@@ -37,9 +37,9 @@ mod validate;
 pub use deltaloop_names::{ControllerParams, Law, Preset, VelocitySource};
 pub use error::ConfigError;
 pub use files::{MAX_FILE_BYTES, read_text_file};
+pub use key::{Allowed, Key, KeyDefault};
 pub use layout::{Layout, Poll, Priority, ResolvedLayout};
 pub use mode::LoopMode;
-pub use key::{Allowed, Key, KeyDefault};
 pub use schema::{
     ApplyTorque, ControllerSection, EmulationOutOfRange, FaultInjection, FaultSection,
     LinkEmulation, LinkPath, LinkSection, LoopSection, Overrun, PathKind, PlantSection,
@@ -51,8 +51,8 @@ pub use text::{
     toml_error_position,
 };
 pub use validate::{
-    MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TICKS,
-    MAX_TRANSPORT_DELAY, MAX_TRANSPORT_DELAY_US, NAME_RULE, name_is_valid,
+    MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TICKS, MAX_TRANSPORT_DELAY,
+    MAX_TRANSPORT_DELAY_US, NAME_RULE, name_is_valid,
 };
 
 /// What the unit tests of several modules share.
@@ -71,5 +71,42 @@ mod test_util {
             .to_string();
         assert!(!e.contains('\n') && !e.contains('\r'), "not one line: {e}");
         e
+    }
+}
+
+/// No file of the crate is over 800 lines before its first `#[cfg(test)]`.
+#[cfg(test)]
+mod file_length {
+    use std::path::Path;
+
+    fn files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
+        for e in std::fs::read_dir(dir).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                files(&p, out);
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                out.push(p);
+            }
+        }
+    }
+
+    #[test]
+    fn no_file_is_over_800_lines_before_its_tests() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut all = Vec::new();
+        files(&root.join("src"), &mut all);
+        files(&root.join("tests"), &mut all);
+        let long: Vec<String> = all
+            .iter()
+            .filter_map(|p| {
+                let text = std::fs::read_to_string(p).unwrap();
+                let n = text
+                    .lines()
+                    .take_while(|l| l.trim() != "#[cfg(test)]")
+                    .count();
+                (n > 800).then(|| format!("{} ({n} lines)", p.display()))
+            })
+            .collect();
+        assert!(long.is_empty(), "over 800 lines before the tests: {long:?}");
     }
 }

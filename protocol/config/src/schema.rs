@@ -200,9 +200,9 @@ pub(crate) fn step_tick(t: f64, ts: f64) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use deltaloop_names::{Law, Preset};
     use crate::files::MAX_FILE_BYTES;
     use crate::test_util::{MIN, err};
+    use deltaloop_names::{Law, Preset};
 
     /// Regression: the label was guessed by prefix (`shaper` and `envoy-ctl` taken for the
     /// interpreters `sh` and `env`), and `env K=V prog` was labelled `K=V`.

@@ -18,7 +18,9 @@ fn schema_fields(table: &str) -> Option<Vec<String>> {
         format!("[{table}]\nzz_probe = 1\n")
     };
     let e = toml::from_str::<RunConfig>(&text).unwrap_err();
-    let rest = e.message().strip_prefix("unknown field `zz_probe`, expected ")?;
+    let rest = e
+        .message()
+        .strip_prefix("unknown field `zz_probe`, expected ")?;
     Some(
         rest.split('`')
             .skip(1)
@@ -43,7 +45,10 @@ fn schema_keys() -> BTreeSet<String> {
             if schema_fields(&path).is_some() {
                 tables.push(path);
             } else {
-                keys.insert(path.replace("loop.realtime.", "loop.<mode>.").replace("loop.lockstep.", "loop.<mode>."));
+                keys.insert(
+                    path.replace("loop.realtime.", "loop.<mode>.")
+                        .replace("loop.lockstep.", "loop.<mode>."),
+                );
             }
         }
     }
@@ -88,7 +93,9 @@ fn the_schema_defaults_are_the_declared_ones() {
                 // Left out when it has its default (`skip_serializing_if`).
                 None => assert!(
                     declared.as_array().is_some_and(Vec::is_empty)
-                        || declared.as_str().is_some_and(|s| s.is_empty() || s == "direct"),
+                        || declared
+                            .as_str()
+                            .is_some_and(|s| s.is_empty() || s == "direct"),
                     "`{}` is not written though its default is {declared}",
                     key.name()
                 ),
@@ -97,7 +104,10 @@ fn the_schema_defaults_are_the_declared_ones() {
     }
     // The sections' `Default`s, which a missing section takes, agree.
     let defaults = toml::Value::try_from(crate::schema::PlantSection::default()).unwrap();
-    assert_eq!(at(&defaults, "tau_max_nm"), Some(&(PLANT.tau_max_nm.default_value())));
+    assert_eq!(
+        at(&defaults, "tau_max_nm"),
+        Some(&(PLANT.tau_max_nm.default_value()))
+    );
 }
 
 impl Key {
@@ -168,7 +178,11 @@ fn validation_refuses_what_each_declared_range_does_not_allow_in_its_words() {
         // The range does not refuse its bounds (a rule across keys may: `substeps` and the
         // period).
         for v in [hi, if lo_open { hi } else { lo }] {
-            let v = if whole { format!("{}", v as i64) } else { format!("{v:?}") };
+            let v = if whole {
+                format!("{}", v as i64)
+            } else {
+                format!("{v:?}")
+            };
             let (_, text) = file_with(&key, &v);
             if let Err(e) = RunConfig::from_toml_str(&text, None) {
                 assert!(!e.to_string().ends_with(&key.allowed_text()), "{text}: {e}");
@@ -183,7 +197,11 @@ fn span_words_name_their_bound_and_gain_units_read_as_their_docs() {
     for key in all() {
         if let Allowed::Span { hi, words, .. } = key.allowed {
             let (a, b) = (format!("{}", hi as i64), show_num(hi));
-            assert!(words.contains(&a) || words.contains(&b), "{}: {words}", key.name());
+            assert!(
+                words.contains(&a) || words.contains(&b),
+                "{}: {words}",
+                key.name()
+            );
         }
     }
     let units: Vec<String> = gain_keys()
@@ -192,7 +210,18 @@ fn span_words_name_their_bound_and_gain_units_read_as_their_docs() {
         .collect();
     assert_eq!(
         units,
-        ["kg m²", "1/s²", "1/s", "rad/s²", "rad/s", "rad^½/s^(3/2)", "rad/s³", "N m/rad", "N m/(rad s)", "N m s/rad"]
+        [
+            "kg m²",
+            "1/s²",
+            "1/s",
+            "rad/s²",
+            "rad/s",
+            "rad^½/s^(3/2)",
+            "rad/s³",
+            "N m/rad",
+            "N m/(rad s)",
+            "N m s/rad"
+        ]
     );
     assert_eq!(gain_unit(gain_keys()[0].doc), "kg m²");
 }
@@ -207,9 +236,13 @@ const END: &str = "<!-- keys: end -->";
 fn the_key_table_of_the_guide_is_the_declaration() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(DOC);
     let doc = std::fs::read_to_string(&path).unwrap();
-    let begin = doc.find(BEGIN).expect("the guide has its key table's begin marker");
+    let begin = doc
+        .find(BEGIN)
+        .expect("the guide has its key table's begin marker");
     let body = begin + doc[begin..].find("-->").unwrap() + 3;
-    let end = doc.find(END).expect("the guide has its key table's end marker");
+    let end = doc
+        .find(END)
+        .expect("the guide has its key table's end marker");
     let want = format!("\n{}\n", doc_table());
     if std::env::var_os("DELTALOOP_UPDATE_DOCS").is_some() {
         let new = format!("{}{want}{}", &doc[..body], &doc[end..]);
@@ -223,8 +256,14 @@ fn the_key_table_of_the_guide_is_the_declaration() {
             .collect()
     };
     let (have, want_rows) = (rows(&doc[body..end]), rows(&want));
-    let missing: Vec<_> = want_rows.keys().filter(|k| !have.contains_key(*k)).collect();
-    let extra: Vec<_> = have.keys().filter(|k| !want_rows.contains_key(*k)).collect();
+    let missing: Vec<_> = want_rows
+        .keys()
+        .filter(|k| !have.contains_key(*k))
+        .collect();
+    let extra: Vec<_> = have
+        .keys()
+        .filter(|k| !want_rows.contains_key(*k))
+        .collect();
     let differ: Vec<_> = want_rows
         .iter()
         .filter(|(k, row)| have.get(*k).is_some_and(|h| h != *row))

@@ -38,7 +38,10 @@ pub struct LinkSection {
     /// How the loop's messages cross: `direct` (plant and controller socket to socket, each
     /// bridge handing its socket to the loop process beside it) or `relay` (through both
     /// bridges, as a process that speaks only iceoryx2 always is).
-    #[serde(default = "LinkKeys::path", skip_serializing_if = "LinkPath::is_direct")]
+    #[serde(
+        default = "LinkKeys::path",
+        skip_serializing_if = "LinkPath::is_direct"
+    )]
     pub path: LinkPath,
 }
 

@@ -34,10 +34,7 @@ pub struct PlantSection {
     /// Run this executable (program, then arguments) in place of the built-in `deltaloop-plant`;
     /// it gets the same arguments after these (`--run-id`, `--config`, `--mode`) and must speak
     /// the wire contract (docs/protocol.md). Empty: the built-in plant.
-    #[serde(
-        default = "PlantKeys::command",
-        skip_serializing_if = "Vec::is_empty"
-    )]
+    #[serde(default = "PlantKeys::command", skip_serializing_if = "Vec::is_empty")]
     pub command: Vec<String>,
 
     /// In realtime mode, when a reply takes effect: at its measured arrival (`arrival`: its

@@ -70,7 +70,6 @@ deltaloop_names::text_enum! {
     }
 }
 
-
 impl Ros2Section {
     /// `[ros2]`: the domain, the names, the rate and the wait.
     pub(crate) fn validate(&self) -> Result<(), ConfigError> {
