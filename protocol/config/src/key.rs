@@ -28,21 +28,11 @@ pub struct Key {
 /// What values a key may take.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Allowed {
-    /// `lo <= value <= hi` (`<` where open), said `lo <= field <= hi unit (note)`; checked by
-    /// [`Key::check`] / [`Key::check_int`].
-    Range {
-        lo: f64,
-        lo_open: bool,
-        hi: f64,
-        hi_open: bool,
-        note: &'static str,
-    },
-    /// `lo <= value <= hi`, said in these words; checked by [`Key::check`] / [`Key::check_int`].
-    Span {
-        lo: f64,
-        hi: f64,
-        words: &'static str,
-    },
+    /// Within the bounds, said `lo <= field <= hi unit (note)`; checked by [`Key::check`] /
+    /// [`Key::check_int`].
+    Range { bounds: Bounds, note: &'static str },
+    /// Within the bounds, said in these words; checked by [`Key::check`] / [`Key::check_int`].
+    Span { bounds: Bounds, words: &'static str },
     /// One of these words (the serde enum refuses the others).
     Words(&'static str),
     /// A rule the section's validation checks in code, in words.
@@ -51,14 +41,54 @@ pub enum Allowed {
     Any,
 }
 
+/// `lo <= value <= hi`, with `<` where a bound is open.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bounds {
+    pub lo: f64,
+    pub lo_open: bool,
+    pub hi: f64,
+    pub hi_open: bool,
+}
+
+impl Bounds {
+    /// Whether `v` is within.
+    pub fn admits(self, v: f64) -> bool {
+        let above = if self.lo_open {
+            v > self.lo
+        } else {
+            v >= self.lo
+        };
+        let below = if self.hi_open {
+            v < self.hi
+        } else {
+            v <= self.hi
+        };
+        above && below
+    }
+
+    /// As errors say it: `lo <= field <= hi`.
+    fn said(self, field: &str) -> String {
+        let op = |open| if open { "<" } else { "<=" };
+        format!(
+            "{} {} {field} {} {}",
+            bound(self.lo),
+            op(self.lo_open),
+            op(self.hi_open),
+            bound(self.hi)
+        )
+    }
+}
+
 impl Allowed {
     /// `lo <= value <= hi`.
     pub const fn closed(lo: f64, hi: f64) -> Self {
         Allowed::Range {
-            lo,
-            lo_open: false,
-            hi,
-            hi_open: false,
+            bounds: Bounds {
+                lo,
+                lo_open: false,
+                hi,
+                hi_open: false,
+            },
             note: "",
         }
     }
@@ -66,36 +96,42 @@ impl Allowed {
     /// `lo < value <= hi`.
     pub const fn left_open(lo: f64, hi: f64) -> Self {
         Allowed::Range {
-            lo,
-            lo_open: true,
-            hi,
-            hi_open: false,
+            bounds: Bounds {
+                lo,
+                lo_open: true,
+                hi,
+                hi_open: false,
+            },
             note: "",
         }
     }
 
     /// `lo <= value <= hi`, said in `words`.
     pub const fn span(lo: f64, hi: f64, words: &'static str) -> Self {
-        Allowed::Span { lo, hi, words }
+        Allowed::Span {
+            bounds: Bounds {
+                lo,
+                lo_open: false,
+                hi,
+                hi_open: false,
+            },
+            words,
+        }
     }
 
     /// A range with a note after its unit (`(24 h)`).
     pub const fn note(self, note: &'static str) -> Self {
         match self {
-            Allowed::Range {
-                lo,
-                lo_open,
-                hi,
-                hi_open,
-                ..
-            } => Allowed::Range {
-                lo,
-                lo_open,
-                hi,
-                hi_open,
-                note,
-            },
+            Allowed::Range { bounds, .. } => Allowed::Range { bounds, note },
             other => other,
+        }
+    }
+
+    /// Its numeric bounds, if it has any.
+    pub fn bounds(self) -> Option<Bounds> {
+        match self {
+            Allowed::Range { bounds, .. } | Allowed::Span { bounds, .. } => Some(bounds),
+            Allowed::Words(_) | Allowed::Rule(_) | Allowed::Any => None,
         }
     }
 }
@@ -148,42 +184,14 @@ impl Key {
 
     /// Whether `v` is within the declared bounds (always, for a key without numeric bounds).
     fn admits(&self, v: f64) -> bool {
-        match self.allowed {
-            Allowed::Range {
-                lo,
-                lo_open,
-                hi,
-                hi_open,
-                ..
-            } => {
-                let above = if lo_open { v > lo } else { v >= lo };
-                let below = if hi_open { v < hi } else { v <= hi };
-                above && below
-            }
-            Allowed::Span { lo, hi, .. } => (lo..=hi).contains(&v),
-            Allowed::Words(_) | Allowed::Rule(_) | Allowed::Any => true,
-        }
+        self.allowed.bounds().is_none_or(|b| b.admits(v))
     }
 
     /// What is allowed, as the error and the key table say it.
     pub fn allowed_text(&self) -> String {
         match self.allowed {
-            Allowed::Range {
-                lo,
-                lo_open,
-                hi,
-                hi_open,
-                note,
-            } => {
-                let op = |open| if open { "<" } else { "<=" };
-                let mut s = format!(
-                    "{} {} {} {} {}",
-                    bound(lo),
-                    op(lo_open),
-                    self.field,
-                    op(hi_open),
-                    bound(hi)
-                );
+            Allowed::Range { bounds, note } => {
+                let mut s = bounds.said(self.field);
                 for part in [self.unit, note] {
                     if !part.is_empty() {
                         s.push(' ');

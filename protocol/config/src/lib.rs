@@ -37,7 +37,7 @@ mod validate;
 pub use deltaloop_names::{ControllerParams, Law, Preset, VelocitySource};
 pub use error::ConfigError;
 pub use files::{MAX_FILE_BYTES, read_text_file};
-pub use key::{Allowed, Key, KeyDefault};
+pub use key::{Allowed, Bounds, Key, KeyDefault};
 pub use layout::{Layout, Poll, Priority, ResolvedLayout};
 pub use mode::LoopMode;
 pub use schema::{

@@ -3,6 +3,7 @@
 
 use super::*;
 use crate::RunConfig;
+use crate::key::Bounds;
 use crate::text::show_num;
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -139,12 +140,11 @@ fn file_with(key: &Key, value: &str) -> (String, String) {
 fn validation_refuses_what_each_declared_range_does_not_allow_in_its_words() {
     let mut checked = 0;
     for key in all() {
-        let (lo, lo_open, hi) = match key.allowed {
-            Allowed::Range {
-                lo, lo_open, hi, ..
-            } => (lo, lo_open, hi),
-            Allowed::Span { lo, hi, .. } => (lo, false, hi),
-            _ => continue,
+        let Some(Bounds {
+            lo, lo_open, hi, ..
+        }) = key.allowed.bounds()
+        else {
+            continue;
         };
         let whole = key.toml_type() == "integer";
         let unsigned = key.ty.contains('u');
@@ -195,7 +195,8 @@ fn validation_refuses_what_each_declared_range_does_not_allow_in_its_words() {
 #[test]
 fn span_words_name_their_bound_and_gain_units_read_as_their_docs() {
     for key in all() {
-        if let Allowed::Span { hi, words, .. } = key.allowed {
+        if let Allowed::Span { bounds, words } = key.allowed {
+            let hi = bounds.hi;
             let (a, b) = (format!("{}", hi as i64), show_num(hi));
             assert!(
                 words.contains(&a) || words.contains(&b),
