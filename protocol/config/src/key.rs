@@ -28,10 +28,9 @@ pub struct Key {
 /// What values a key may take.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Allowed {
-    /// Within the bounds, said `lo <= field <= hi unit (note)`; checked by [`Key::check`] /
-    /// [`Key::check_int`].
+    /// Within the bounds, said `lo <= field <= hi unit (note)`; checked by the key's `check`.
     Range { bounds: Bounds, note: &'static str },
-    /// Within the bounds, said in these words; checked by [`Key::check`] / [`Key::check_int`].
+    /// Within the bounds, said in these words; checked by the key's `check`.
     Span { bounds: Bounds, words: &'static str },
     /// One of these words (the serde enum refuses the others).
     Words(&'static str),

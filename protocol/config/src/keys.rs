@@ -15,8 +15,8 @@ use crate::sections::{
     ApplyTorque, FaultInjection, LinkPath, Overrun, Ros2Distro, Segment, TorqueLimit,
 };
 use crate::validate::{
-    MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TRANSPORT_DELAY,
-    MAX_TRANSPORT_DELAY_US, NAME_RULE, ROS_NAME_RULE,
+    COMMAND_RULE, LABEL_RULE, MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY,
+    MAX_TRANSPORT_DELAY, MAX_TRANSPORT_DELAY_US, NAME_RULE, ROS_NAME_RULE,
 };
 use deltaloop_names::{Law, Preset, VelocitySource};
 
@@ -81,8 +81,6 @@ macro_rules! declare_keys {
     };
 }
 
-const COMMAND_RULE: &str =
-    "a program and its arguments, each a non-empty string of at most 4096 bytes without NUL";
 const LINK_DELAY_WORDS: &str = "0 <= value <= 1000000 us";
 
 declare_keys! {
@@ -139,7 +137,7 @@ declare_keys! {
         /// Your own controller process, program then arguments (docs/guide/own-process.md); empty: the built-in one.
         command: Vec<String> = (Vec::new()), "", Allowed::Rule(COMMAND_RULE);
         /// What the tables call the controller (empty: the command's program or script).
-        label: String = (String::new()), "", Allowed::Rule("at most 64 printable characters on one line");
+        label: String = (String::new()), "", Allowed::Rule(LABEL_RULE);
     }
 
     /// `[loop]`: the timing of the control loop.

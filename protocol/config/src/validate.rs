@@ -43,6 +43,13 @@ pub fn name_is_valid(name: &str) -> bool {
             .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-'))
 }
 
+/// What a process command may be (`plant.command`, `controller.command`).
+pub(crate) const COMMAND_RULE: &str =
+    "a program and its arguments, each a non-empty string of at most 4096 bytes without NUL";
+
+/// What a label may be (`controller.label`).
+pub(crate) const LABEL_RULE: &str = "at most 64 printable characters on one line";
+
 /// A process command: empty (the built-in process), or a program and its arguments, each a
 /// non-empty string without NUL of at most 4096 bytes.
 pub(crate) fn check_command(key: &str, cmd: &[String]) -> Result<(), ConfigError> {
@@ -50,11 +57,7 @@ pub(crate) fn check_command(key: &str, cmd: &[String]) -> Result<(), ConfigError
         .iter()
         .find(|a| a.is_empty() || a.contains('\0') || a.len() > 4096)
     {
-        Some(bad) => Err(range(
-            key,
-            show_str(bad),
-            "a program and its arguments, each a non-empty string of at most 4096 bytes without NUL",
-        )),
+        Some(bad) => Err(range(key, show_str(bad), COMMAND_RULE)),
         None => Ok(()),
     }
 }
@@ -64,11 +67,7 @@ pub(crate) fn check_label(key: &str, label: &str) -> Result<(), ConfigError> {
     if label.chars().count() <= 64 && !label.chars().any(char::is_control) {
         Ok(())
     } else {
-        Err(range(
-            key,
-            show_str(label),
-            "at most 64 printable characters on one line",
-        ))
+        Err(range(key, show_str(label), LABEL_RULE))
     }
 }
 
