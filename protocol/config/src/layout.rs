@@ -3,6 +3,9 @@
 //! filled with its mode's defaults when the file is read; [`ResolvedLayout`] is the same layout
 //! in real types, which the processes and the supervisor act on.
 
+use crate::error::ConfigError;
+use crate::key::range;
+use crate::keys::LAYOUT;
 use serde::{Deserialize, Serialize};
 
 /// Where and how the two loop processes run in one mode. Missing keys take the mode's default
@@ -298,6 +301,77 @@ impl ResolvedLayout {
     /// notification instead.
     pub fn controller_lead_ns(&self) -> Option<u64> {
         self.controller_wake_early_us.map(|us| u64::from(us) * 1000)
+    }
+}
+
+impl Layout {
+    /// Checks one mode's layout; `section` names it in errors (`loop.realtime`, `loop.lockstep`),
+    /// `ts_s` is the (already validated) control period, which bounds `wake_early_us`: waking more
+    /// than a period before the deadline would wake before the previous tick.
+    pub(crate) fn validate(&self, section: &str, ts_s: f64) -> Result<(), ConfigError> {
+        for (key, cpu) in [
+            (LAYOUT.plant_cpu, self.plant_cpu),
+            (LAYOUT.controller_cpu, self.controller_cpu),
+            (LAYOUT.supervisor_cpu, self.supervisor_cpu),
+        ] {
+            key.check_int_in(section, cpu.unwrap_or(-1).into())?;
+        }
+        for (key, priority) in [
+            (LAYOUT.plant_priority, self.plant_priority),
+            (LAYOUT.controller_priority, self.controller_priority),
+        ] {
+            key.check_int_in(section, priority.unwrap_or(0).into())?;
+        }
+        LAYOUT
+            .spin_us
+            .check_int_in(section, self.spin_us.unwrap_or(0).into())?;
+        let wake = self.wake_early_us.unwrap_or(0);
+        let period_us = ts_s * 1e6;
+        if f64::from(wake) > period_us {
+            return Err(range(
+                &format!("{section}.wake_early_us"),
+                wake,
+                &format!("0 <= wake_early_us <= Ts = {period_us} us"),
+            ));
+        }
+        let cwake = self.controller_wake_early_us.unwrap_or(-1);
+        if cwake < -1 || f64::from(cwake) > period_us {
+            return Err(range(
+                &format!("{section}.controller_wake_early_us"),
+                cwake,
+                &format!(
+                    "-1 (wait for the notification) or 0 <= controller_wake_early_us <= Ts = {period_us} us"
+                ),
+            ));
+        }
+        self.check_yield(section)
+    }
+
+    /// `poll = "yield"` hands the CPU over only to a peer of the same priority on the same CPU:
+    /// anywhere else a yield returns at once, or never reaches a peer of lower priority, which
+    /// would then starve behind the polling plant.
+    fn check_yield(&self, section: &str) -> Result<(), ConfigError> {
+        if self.poll != Some(Poll::Yield) {
+            return Ok(());
+        }
+        let (pc, cc) = (
+            self.plant_cpu.unwrap_or(-1),
+            self.controller_cpu.unwrap_or(-1),
+        );
+        let (pp, cp) = (
+            self.plant_priority.unwrap_or(0),
+            self.controller_priority.unwrap_or(0),
+        );
+        if pc < 0 || pc != cc || pp != cp {
+            return Err(range(
+                &format!("{section}.poll"),
+                "\"yield\"",
+                &format!(
+                    "\"yield\" needs plant_cpu = controller_cpu (pinned) and plant_priority = controller_priority; here plant_cpu {pc}, controller_cpu {cc}, plant_priority {pp}, controller_priority {cp} (or poll = \"spin\")"
+                ),
+            ));
+        }
+        Ok(())
     }
 }
 

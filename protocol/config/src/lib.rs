@@ -10,42 +10,49 @@
 //!
 //! | module | holds |
 //! |---|---|
-//! | [`schema`] | the serde structs of the file's sections, their defaults, reading and writing a [`RunConfig`] |
-//! | [`layout`] | the `[loop.<mode>]` layouts: the TOML table, its defaults per mode, and [`ResolvedLayout`] in real types |
+//! | [`keys`] | every key declared once: TOML path, type, unit, allowed values, default, doc line; the serde defaults, the range checks, the doc's key table and the fuzzer's keys come from it |
+//! | [`key`] | what a declaration holds ([`Key`]), its range check and one-line error, its row of the key table |
+//! | [`schema`] | [`RunConfig`], the whole file: reading and writing it; its sections re-exported |
+//! | `sections` | one module per section (`[scenario]`, `[plant]`, `[controller]`, `[loop]`, `[sensor]`, `[faults]`, `[record]`, `[link]`, `[ros2]`): its serde struct, defaults and checks |
+//! | [`layout`] | the `[loop.<mode>]` layouts: the TOML table, its defaults per mode, its checks, and [`ResolvedLayout`] in real types |
 //! | [`mode`] | [`LoopMode`]: inproc, lockstep, realtime |
-//! | `validate` | the allowed range of every key, checked section by section; the limits (`MAX_*`, [`NAME_RULE`]) |
+//! | `validate` | a whole config's checks: each section's, then the keys bounded by the period and the run's length; the limits (`MAX_*`, [`NAME_RULE`]) |
 //! | [`text`] | echoing user text in one-line errors |
 //! | [`error`] | [`ConfigError`] |
 //! | [`files`] | the one way every input file is opened |
 //!
-//! Everything is re-exported here, and under [`config`], the path the workspace has used.
+//! Everything is re-exported here.
 
 pub mod error;
 pub mod files;
+pub mod key;
+pub mod keys;
 pub mod layout;
 pub mod mode;
 pub mod schema;
+mod sections;
 pub mod text;
 mod validate;
 
 pub use deltaloop_names::{ControllerParams, Law, Preset, VelocitySource};
 pub use error::ConfigError;
 pub use files::{MAX_FILE_BYTES, read_text_file};
+pub use key::{Allowed, Bounds, Key, KeyDefault};
 pub use layout::{Layout, Poll, Priority, ResolvedLayout};
 pub use mode::LoopMode;
 pub use schema::{
-    ApplyTorque, ControllerSection, FaultInjection, FaultSection, LinkEmulation, LinkPath,
-    LinkSection, LoopSection, Overrun, PathKind, PlantSection, RecordSection, RemoteSide,
-    Ros2Distro, Ros2Range, Ros2Section, RunConfig, ScenarioSection, Segment, SensorSection,
-    TorqueLimit,
+    ApplyTorque, ControllerSection, EmulationOutOfRange, FaultInjection, FaultSection,
+    LinkEmulation, LinkPath, LinkSection, LoopSection, Overrun, PathKind, PlantSection,
+    RecordSection, RemoteSide, Ros2Distro, Ros2Range, Ros2Section, RunConfig, ScenarioSection,
+    Segment, SensorSection, TorqueLimit,
 };
 pub use text::{
     MAX_ECHO_CHARS, clean_message, show_num, show_path, show_str, toml_error_line,
     toml_error_position,
 };
 pub use validate::{
-    EmulationOutOfRange, MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TICKS,
-    MAX_TRANSPORT_DELAY, MAX_TRANSPORT_DELAY_US, NAME_RULE, name_is_valid,
+    MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY, MAX_TICKS, MAX_TRANSPORT_DELAY,
+    MAX_TRANSPORT_DELAY_US, NAME_RULE, name_is_valid,
 };
 
 /// What the unit tests of several modules share.
@@ -64,5 +71,42 @@ mod test_util {
             .to_string();
         assert!(!e.contains('\n') && !e.contains('\r'), "not one line: {e}");
         e
+    }
+}
+
+/// No file of the crate is over 800 lines before its first `#[cfg(test)]`.
+#[cfg(test)]
+mod file_length {
+    use std::path::Path;
+
+    fn files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
+        for e in std::fs::read_dir(dir).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                files(&p, out);
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                out.push(p);
+            }
+        }
+    }
+
+    #[test]
+    fn no_file_is_over_800_lines_before_its_tests() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut all = Vec::new();
+        files(&root.join("src"), &mut all);
+        files(&root.join("tests"), &mut all);
+        let long: Vec<String> = all
+            .iter()
+            .filter_map(|p| {
+                let text = std::fs::read_to_string(p).unwrap();
+                let n = text
+                    .lines()
+                    .take_while(|l| l.trim() != "#[cfg(test)]")
+                    .count();
+                (n > 800).then(|| format!("{} ({n} lines)", p.display()))
+            })
+            .collect();
+        assert!(long.is_empty(), "over 800 lines before the tests: {long:?}");
     }
 }

@@ -1,69 +1,41 @@
 //! Fuzzing the config parser: no input may panic it. Whatever it accepts is valid and round-trips.
 
-use deltaloop_config::{LoopMode, RunConfig};
+use deltaloop_config::{KeyDefault, LoopMode, RunConfig, keys};
 use proptest::prelude::*;
 
-const SECTIONS: &[&str] = &[
-    "",
-    "scenario",
-    "plant",
-    "controller",
-    "loop",
-    "loop.realtime",
-    "loop.lockstep",
-    "sensor",
-    "faults",
-    "bogus",
-];
-const KEYS: &[&str] = &[
-    "name",
-    "path",
-    "hold_s",
-    "segments",
-    "friction",
-    "tau_max_nm",
-    "substeps",
-    "transport_delay_samples",
-    "payload_step_kg",
-    "payload_step_at_s",
-    "preset",
-    "laws",
-    "tde_delay_samples",
-    "compute_delay_us",
-    "m_bar",
-    "kp",
-    "kd",
-    "ks",
-    "phi",
-    "k1",
-    "k2",
-    "pid_p",
-    "pid_i",
-    "pid_d",
-    "ts_s",
-    "torque_budget_us",
-    "silence_timeout_ms",
-    "plant_cpu",
-    "controller_cpu",
-    "supervisor_cpu",
-    "plant_priority",
-    "controller_priority",
-    "spin_us",
-    "lock_memory",
-    "wake_early_us",
-    "controller_wake_early_us",
-    "encoder_counts_per_rev",
-    "q_noise_std_rad",
-    "qd_noise_std_rad_s",
-    "seed",
-    "velocity",
-    "controller_silence_ticks",
-    "safe_stop_ms",
-    "brake_damping_nm_s",
-    "torque_limit",
-    "inject",
-    "unknown_key",
-];
+/// The tables of the declared keys (`loop.<mode>` as both layouts), the top level, and one the
+/// schema does not know.
+fn sections() -> Vec<String> {
+    let mut t: Vec<String> = vec![String::new(), "bogus".into()];
+    for key in keys::all() {
+        for table in tables(key.table) {
+            if !t.contains(&table) {
+                t.push(table);
+            }
+        }
+    }
+    t
+}
+
+/// The tables a declared key is in: `loop.<mode>` is both layouts.
+fn tables(table: &str) -> Vec<String> {
+    if table.contains("<mode>") {
+        ["realtime", "lockstep"]
+            .map(|m| table.replace("<mode>", m))
+            .to_vec()
+    } else {
+        vec![table.to_string()]
+    }
+}
+
+/// Every declared key's name in its table, and one the schema does not know.
+fn field_names() -> Vec<&'static str> {
+    let mut k: Vec<&str> = keys::all().iter().map(|k| k.field).collect();
+    k.sort_unstable();
+    k.dedup();
+    k.push("unknown_key");
+    k
+}
 
 /// A TOML value that is often wrong: hostile numbers, wrong types, near-valid strings.
 fn value() -> impl Strategy<Value = String> {
@@ -77,6 +49,9 @@ fn value() -> impl Strategy<Value = String> {
         any::<bool>().prop_map(|b| b.to_string()),
         prop_oneof![Just("s1"), Just("s2"), Just("s3"), Just("custom"), Just("matched"), Just("paper"), Just("tdc"), Just("stall@3"), Just("nan-torque@x"), Just("reject"), Just("encoder-difference"), Just("")]
             .prop_map(|s| format!("{s:?}")),
+        prop_oneof![Just("catch-up"), Just("fault"), Just("tick"), Just("arrival"), Just("relay"), Just("direct"), Just("controller"), Just("plant"), Just("127.0.0.1:7447"), Just("[::1]:0"), Just("humble"), Just("subnet"), Just("yield"), Just("/robot_io"), Just("a/1b")]
+            .prop_map(|s| format!("{s:?}")),
+        Just(r#"["sh", "-c", "x"]"#.to_string()),
         prop::collection::vec(prop_oneof![Just("\"tdc\""), Just("\"pid\""), Just("\"lqr\""), Just("1"), Just("0.25")], 0..4).prop_map(|v| format!("[{}]", v.join(", "))),
         Just("[{ from = [0.25, 0, -0.43], to = [-0.25, 0, -0.43], apex_m = 0.12, duration_s = 0.5 }]".to_string()),
         Just("[{ from = [9, 9, 9], to = [1], apex_m = nan, duration_s = -1 }]".to_string()),
@@ -92,14 +67,15 @@ fn value() -> impl Strategy<Value = String> {
 fn document() -> impl Strategy<Value = String> {
     prop::collection::vec(
         (
-            prop::sample::select(SECTIONS),
-            prop::collection::vec((prop::sample::select(KEYS), value()), 0..6),
+            prop::sample::select(sections()),
+            prop::collection::vec((prop::sample::select(field_names()), value()), 0..6),
         ),
         0..6,
     )
     .prop_map(|sections| {
         let mut s = String::from("[scenario]\npath = \"s1\"\n");
         for (name, kvs) in sections {
+            let name = name.as_str();
             if !name.is_empty() && name != "scenario" {
                 s.push_str(&format!("[{name}]\n"));
             }
@@ -109,6 +85,84 @@ fn document() -> impl Strategy<Value = String> {
         }
         s
     })
+}
+
+/// A document of declared keys, each in its own table (mostly), with values often wrong.
+fn declared_document() -> impl Strategy<Value = String> {
+    // Each key in its table, with its declared default where it has one (a valid value).
+    let placed: Vec<(String, &'static str, Option<String>)> = keys::all()
+        .iter()
+        .flat_map(|k| {
+            let default = match (k.default, k.name().as_str()) {
+                (KeyDefault::Value(v), _) => Some(v().to_string()),
+                // The required keys of `[link]`.
+                (_, "link.remote") => Some("\"controller\"".into()),
+                (_, "link.listen") => Some("\"127.0.0.1:7447\"".into()),
+                _ => None,
+            };
+            tables(k.table)
+                .into_iter()
+                .map(move |t| (t, k.field, default.clone()))
+        })
+        .collect();
+    let line = (prop::sample::select(placed), value(), any::<bool>());
+    (prop::collection::vec(line, 0..12), any::<bool>()).prop_map(|(kvs, link)| {
+        let mut top = String::new();
+        let mut scenario = String::from("path = \"s1\"\n");
+        let mut tables: Vec<(String, String)> = Vec::new();
+        for ((table, field, default), v, plausible) in kvs {
+            let v = default.filter(|_| plausible).unwrap_or(v);
+            let line = format!("{field} = {v}\n");
+            match table.as_str() {
+                "" => top.push_str(&line),
+                "scenario" => scenario.push_str(&line),
+                _ => match tables.iter_mut().find(|(t, _)| *t == table) {
+                    Some((_, lines)) => lines.push_str(&line),
+                    None => tables.push((table, line)),
+                },
+            }
+        }
+        // Often a `[link]` with its required keys, so that its others are accepted too.
+        if link {
+            let required = "remote = \"controller\"\nlisten = \"127.0.0.1:7447\"\n";
+            match tables.iter_mut().find(|(t, _)| t == "link") {
+                Some((_, lines)) => lines.insert_str(0, required),
+                None => tables.push(("link".into(), required.into())),
+            }
+        }
+        let mut s = format!("{top}[scenario]\n{scenario}");
+        for (table, lines) in tables {
+            s.push_str(&format!("[{table}]\n{lines}"));
+        }
+        s
+    })
+}
+
+/// The fuzzer's keys are the declared ones: every key it can write is declared, and it writes
+/// every declared key in its table.
+#[test]
+fn the_fuzzer_writes_every_declared_key() {
+    let fields = field_names();
+    let tables = sections();
+    for key in keys::all() {
+        assert!(fields.contains(&key.field), "{}", key.name());
+        for t in self::tables(key.table) {
+            assert!(tables.contains(&t), "{}", key.name());
+        }
+    }
+    for f in [
+        "transport_delay_us",
+        "overrun",
+        "command",
+        "trace",
+        "listen",
+        "namespace",
+    ] {
+        assert!(fields.contains(&f), "{f}");
+    }
+    for t in ["record", "link", "ros2"] {
+        assert!(tables.contains(&t.to_string()), "{t}");
+    }
 }
 
 fn check(text: &str) {
@@ -179,6 +233,11 @@ proptest! {
 
     #[test]
     fn structured_toml_never_panics(doc in document()) {
+        check(&doc);
+    }
+
+    #[test]
+    fn declared_keys_in_their_tables_never_panic(doc in declared_document()) {
         check(&doc);
     }
 
