@@ -176,7 +176,7 @@ declare_keys! {
         /// Realtime: the controller wakes this long before each deadline and polls for the state (-1: woken by the plant).
         controller_wake_early_us: Option<i32> = per_mode, "us", Allowed::Rule("-1 (wait for the notification) or 0 <= controller_wake_early_us <= Ts");
         /// Between two looks for the peer's message: spin, or yield to a peer on the same CPU at the same priority.
-        poll: Option<crate::layout::Poll> = per_mode, "", Allowed::Words("spin | yield");
+        poll: Option<Poll> = per_mode, "", Allowed::Words("spin | yield");
     }
 
     /// `[sensor]`: measurement realism, off by default.
