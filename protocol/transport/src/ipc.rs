@@ -176,6 +176,26 @@ fn open_error(what: &str, e: impl Debug) -> IpcError {
     }
 }
 
+/// Opens or creates a service, again while another process is half-way through creating it.
+/// iceoryx2's `open_or_create` can find the service absent, fail to create it because the other
+/// process just did, and then find it still absent while that one is initialising it; the error
+/// says `DoesNotExist`. Set-up only: at most [`OPEN_RACE_TRIES`] tries, 2 ms apart.
+fn open_racing<T, E: Debug>(mut open: impl FnMut() -> Result<T, E>) -> Result<T, E> {
+    let mut tries = 1;
+    loop {
+        match open() {
+            Err(e) if tries < OPEN_RACE_TRIES && format!("{e:?}").contains("DoesNotExist") => {
+                tries += 1;
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+            done => return done,
+        }
+    }
+}
+
+/// How often [`open_racing`] tries (100 ms in all).
+const OPEN_RACE_TRIES: u32 = 50;
+
 fn pubsub<T: ZeroCopySend + Debug + Copy + 'static>(
     node: &Node<Svc>,
     run_id: &str,
@@ -184,17 +204,21 @@ fn pubsub<T: ZeroCopySend + Debug + Copy + 'static>(
     subscribers: usize,
     buffer: usize,
 ) -> Result<publish_subscribe::PortFactory<Svc, T, ()>, IpcError> {
-    node.service_builder(&service_name(run_id, what)?)
-        .publish_subscribe::<T>()
-        .max_publishers(publishers)
-        .max_subscribers(subscribers)
-        .max_nodes(MAX_NODES)
-        .subscriber_max_buffer_size(buffer)
-        .history_size(0)
-        // A slow observer loses its oldest samples (counted by tick gaps); it never blocks the loop.
-        .enable_safe_overflow(true)
-        .open_or_create_with_attributes(&wire_version()?)
-        .map_err(|e| open_error(what, e))
+    let (name, version) = (service_name(run_id, what)?, wire_version()?);
+    open_racing(|| {
+        node.service_builder(&name)
+            .publish_subscribe::<T>()
+            .max_publishers(publishers)
+            .max_subscribers(subscribers)
+            .max_nodes(MAX_NODES)
+            .subscriber_max_buffer_size(buffer)
+            .history_size(0)
+            // A slow observer loses its oldest samples (counted by tick gaps); it never blocks
+            // the loop.
+            .enable_safe_overflow(true)
+            .open_or_create_with_attributes(&version)
+    })
+    .map_err(|e| open_error(what, e))
 }
 
 /// Plant → controller + supervisor.
@@ -283,19 +307,22 @@ pub fn reference(
     node: &Node<Svc>,
     run_id: &str,
 ) -> Result<publish_subscribe::PortFactory<Svc, [RefSample], ()>, IpcError> {
-    node.service_builder(&service_name(run_id, "reference")?)
-        .publish_subscribe::<[RefSample]>()
-        .max_publishers(1)
-        // No spare here: the reference is the controller's input, not the loop's output, and each
-        // subscriber slot would cost REF_RING chunks (5 MiB) of shared memory.
-        .max_subscribers(1)
-        .max_nodes(MAX_NODES)
-        .subscriber_max_buffer_size(REF_RING)
-        .subscriber_max_borrowed_samples(1)
-        .history_size(0)
-        .enable_safe_overflow(true)
-        .open_or_create_with_attributes(&wire_version()?)
-        .map_err(|e| open_error("reference", e))
+    let (name, version) = (service_name(run_id, "reference")?, wire_version()?);
+    open_racing(|| {
+        node.service_builder(&name)
+            .publish_subscribe::<[RefSample]>()
+            .max_publishers(1)
+            // No spare here: the reference is the controller's input, not the loop's output, and
+            // each subscriber slot would cost REF_RING chunks (5 MiB) of shared memory.
+            .max_subscribers(1)
+            .max_nodes(MAX_NODES)
+            .subscriber_max_buffer_size(REF_RING)
+            .subscriber_max_borrowed_samples(1)
+            .history_size(0)
+            .enable_safe_overflow(true)
+            .open_or_create_with_attributes(&version)
+    })
+    .map_err(|e| open_error("reference", e))
 }
 
 /// The supervisor's end of the reference: chunks of up to [`REF_CHUNK`] rows, one loaned at a
@@ -326,13 +353,16 @@ pub fn wakeup(
     run_id: &str,
     what: &str,
 ) -> Result<event::PortFactory<Svc>, IpcError> {
-    node.service_builder(&service_name(run_id, what)?)
-        .event()
-        .max_notifiers(2)
-        .max_listeners(2)
-        .max_nodes(4)
-        .open_or_create()
-        .ipc(format!("open event {what}"))
+    let name = service_name(run_id, what)?;
+    open_racing(|| {
+        node.service_builder(&name)
+            .event()
+            .max_notifiers(2)
+            .max_listeners(2)
+            .max_nodes(4)
+            .open_or_create()
+    })
+    .ipc(format!("open event {what}"))
 }
 
 /// The listening end of the wake-up event `what` ([`wakeup`]).
@@ -554,4 +584,37 @@ pub fn wait_event(listener: &Wake, timeout_ns: u64) -> Result<bool, IpcError> {
         });
     }
     Ok(r > 0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn regression_a_service_half_created_by_the_peer_is_opened_again() {
+        // The peer creates the service between our failed create and our open: DoesNotExist.
+        let mut calls = 0;
+        let r: Result<u32, &str> = open_racing(|| {
+            calls += 1;
+            if calls < 3 {
+                Err("EventOpenError(DoesNotExist)")
+            } else {
+                Ok(7)
+            }
+        });
+        assert_eq!((r, calls), (Ok(7), 3));
+        // Any other error is reported at once; a service that stays absent, after the last try.
+        let mut calls = 0;
+        let r: Result<u32, &str> = open_racing(|| {
+            calls += 1;
+            Err("IncompatibleAttributes")
+        });
+        assert_eq!((r, calls), (Err("IncompatibleAttributes"), 1));
+        let mut calls = 0;
+        let r: Result<u32, &str> = open_racing(|| {
+            calls += 1;
+            Err("DoesNotExist")
+        });
+        assert_eq!((r, calls), (Err("DoesNotExist"), OPEN_RACE_TRIES));
+    }
 }
