@@ -11,12 +11,12 @@
 //! `with_controller_gains!` (crate `deltaloop-names`); their keys follow from it ([`gain_keys`]).
 
 use crate::key::{Allowed, Key, KeyDefault};
-use crate::sections::{
-    ApplyTorque, FaultInjection, LinkPath, Overrun, Ros2Distro, Segment, TorqueLimit,
-};
-use crate::validate::{
+use crate::limits::{
     COMMAND_RULE, LABEL_RULE, MAX_HOLD_S, MAX_LINK_DELAY_US, MAX_SUBSTEPS, MAX_TDE_DELAY,
     MAX_TRANSPORT_DELAY, MAX_TRANSPORT_DELAY_US, NAME_RULE, ROS_NAME_RULE,
+};
+use crate::sections::{
+    ApplyTorque, FaultInjection, LinkPath, Overrun, Ros2Distro, Segment, TorqueLimit,
 };
 use deltaloop_names::{Law, Preset, VelocitySource};
 

@@ -28,6 +28,7 @@ pub mod files;
 pub mod key;
 pub mod keys;
 pub mod layout;
+pub mod limits;
 pub mod mode;
 pub mod schema;
 mod sections;
