@@ -49,7 +49,10 @@ fn regression_a_stalled_bridge_run_replays_or_says_what_it_lost() {
         ("plant", "far", "relay"),
         ("controller", "near", "direct"),
     ] {
-        {
+        // A loaded host may start the loop only after the stalls: such a run tests nothing, and
+        // is run again.
+        let name = format!("stalled bridge: {role} remote, {stalled} stalled, {path} path");
+        common::on_a_noisy_host(&name, |_| {
             let (tmp, cfg, key, ep) = s1_with_key();
             let out = tmp.path().join("run");
             let remote = format!("--{role}-remote");
@@ -107,9 +110,10 @@ fn regression_a_stalled_bridge_run_replays_or_says_what_it_lost() {
                 .map(<[_]>::len)
                 .max()
                 .unwrap_or(0);
-            if path == "relay" {
-                assert!(longest >= 300, "{case}: no stall in the trace ({longest})");
-            } else {
+            if path == "relay" && longest < 300 {
+                return Err(format!("{case}: no stall in the trace ({longest})"));
+            }
+            if path == "direct" {
                 assert!(
                     longest < 300,
                     "{case}: the bridge's stall reached the loop ({longest})"
@@ -117,7 +121,8 @@ fn regression_a_stalled_bridge_run_replays_or_says_what_it_lost() {
             }
             let whole = replays_or_names_what_it_lost(&case, &out, &tmp.path().join("replay"));
             assert!(whole || path == "relay", "{case}: the record lost ticks");
-        }
+            Ok(())
+        });
     }
 }
 
