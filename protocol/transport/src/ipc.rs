@@ -15,6 +15,7 @@ pub use iceoryx2::node::Node;
 use iceoryx2::node::NodeView;
 pub use iceoryx2::port::listener::ListenerWaitError;
 use iceoryx2::prelude::*;
+use iceoryx2::service::builder;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use std::fmt::Debug;
 
@@ -176,15 +177,41 @@ fn open_error(what: &str, e: impl Debug) -> IpcError {
     }
 }
 
+/// An `open_or_create` error that says the service is absent, which, right after this process's
+/// own create failed, means the peer is half-way through creating it.
+trait HalfCreated {
+    fn half_created(&self) -> bool;
+}
+
+impl HalfCreated for builder::event::EventOpenOrCreateError {
+    fn half_created(&self) -> bool {
+        matches!(
+            self,
+            Self::EventOpenError(builder::event::EventOpenError::DoesNotExist)
+        )
+    }
+}
+
+impl HalfCreated for builder::publish_subscribe::PublishSubscribeOpenOrCreateError {
+    fn half_created(&self) -> bool {
+        matches!(
+            self,
+            Self::PublishSubscribeOpenError(
+                builder::publish_subscribe::PublishSubscribeOpenError::DoesNotExist,
+            )
+        )
+    }
+}
+
 /// Opens or creates a service, again while another process is half-way through creating it.
 /// iceoryx2's `open_or_create` can find the service absent, fail to create it because the other
-/// process just did, and then find it still absent while that one is initialising it; the error
-/// says `DoesNotExist`. Set-up only: at most [`OPEN_RACE_TRIES`] tries, 2 ms apart.
-fn open_racing<T, E: Debug>(mut open: impl FnMut() -> Result<T, E>) -> Result<T, E> {
+/// process just did, and then find it still absent while that one is initialising it
+/// ([`HalfCreated`]). Set-up only: at most [`OPEN_RACE_TRIES`] tries, 2 ms apart.
+fn open_racing<T, E: HalfCreated>(mut open: impl FnMut() -> Result<T, E>) -> Result<T, E> {
     let mut tries = 1;
     loop {
         match open() {
-            Err(e) if tries < OPEN_RACE_TRIES && format!("{e:?}").contains("DoesNotExist") => {
+            Err(e) if tries < OPEN_RACE_TRIES && e.half_created() => {
                 tries += 1;
                 std::thread::sleep(std::time::Duration::from_millis(2));
             }
@@ -590,6 +617,13 @@ pub fn wait_event(listener: &Wake, timeout_ns: u64) -> Result<bool, IpcError> {
 mod tests {
     use super::*;
 
+    /// A stand-in error for [`open_racing`]'s own rule.
+    impl HalfCreated for &str {
+        fn half_created(&self) -> bool {
+            *self == "DoesNotExist"
+        }
+    }
+
     #[test]
     fn regression_a_service_half_created_by_the_peer_is_opened_again() {
         // The peer creates the service between our failed create and our open: DoesNotExist.
@@ -597,7 +631,7 @@ mod tests {
         let r: Result<u32, &str> = open_racing(|| {
             calls += 1;
             if calls < 3 {
-                Err("EventOpenError(DoesNotExist)")
+                Err("DoesNotExist")
             } else {
                 Ok(7)
             }
@@ -616,5 +650,15 @@ mod tests {
             Err("DoesNotExist")
         });
         assert_eq!((r, calls), (Err("DoesNotExist"), OPEN_RACE_TRIES));
+        // iceoryx2's own errors: only "absent" on opening is the peer's half-made service.
+        use builder::event::{EventCreateError, EventOpenError, EventOpenOrCreateError as E};
+        assert!(E::EventOpenError(EventOpenError::DoesNotExist).half_created());
+        assert!(!E::EventOpenError(EventOpenError::IncompatibleAttributes).half_created());
+        assert!(!E::EventCreateError(EventCreateError::AlreadyExists).half_created());
+        use builder::publish_subscribe::{
+            PublishSubscribeOpenError as O, PublishSubscribeOpenOrCreateError as P,
+        };
+        assert!(P::PublishSubscribeOpenError(O::DoesNotExist).half_created());
+        assert!(!P::PublishSubscribeOpenError(O::IncompatibleAttributes).half_created());
     }
 }
