@@ -431,8 +431,8 @@ pub fn controller_loop(
 }
 
 /// Every port of the controller's side of a run: the loop ([`controller_loop`]), the reference
-/// chunks and run control. Held by the built-in controller and by the bridge's near side, which
-/// stands in for it.
+/// chunks and run control. Held by the bridge's near side, which stands in for the controller (the
+/// built-in controller keeps its loop ports apart, for the transport it picks at START).
 pub struct ControllerPorts {
     pub state: StateIn,
     pub torque: TorqueOut,
@@ -457,15 +457,6 @@ impl ControllerPorts {
             control: control_ports(&node, run_id, Sender::Controller)?,
             _node: node,
         })
-    }
-
-    /// Sends `kind` (READY, ARMED, …) on the controller's control service.
-    pub fn send_control(&self, kind: crate::wire::ControlKind) -> Result<(), IpcError> {
-        self.control
-            .0
-            .send_copy(ControlMsg::new(kind, Sender::Controller))
-            .ipc(format!("send {kind:?}"))?;
-        Ok(())
     }
 }
 
