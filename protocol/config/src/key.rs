@@ -40,13 +40,12 @@ pub enum Allowed {
     Any,
 }
 
-/// `lo <= value <= hi`, with `<` where a bound is open.
+/// `lo <= value <= hi`, or `lo < value` where the lower bound is open (no key's upper bound is).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Bounds {
     pub lo: f64,
     pub lo_open: bool,
     pub hi: f64,
-    pub hi_open: bool,
 }
 
 impl Bounds {
@@ -57,24 +56,13 @@ impl Bounds {
         } else {
             v >= self.lo
         };
-        let below = if self.hi_open {
-            v < self.hi
-        } else {
-            v <= self.hi
-        };
-        above && below
+        above && v <= self.hi
     }
 
     /// As errors say it: `lo <= field <= hi`.
     fn said(self, field: &str) -> String {
-        let op = |open| if open { "<" } else { "<=" };
-        format!(
-            "{} {} {field} {} {}",
-            bound(self.lo),
-            op(self.lo_open),
-            op(self.hi_open),
-            bound(self.hi)
-        )
+        let op = if self.lo_open { "<" } else { "<=" };
+        format!("{} {op} {field} <= {}", bound(self.lo), bound(self.hi))
     }
 }
 
@@ -86,7 +74,6 @@ impl Allowed {
                 lo,
                 lo_open: false,
                 hi,
-                hi_open: false,
             },
             note: "",
         }
@@ -99,7 +86,6 @@ impl Allowed {
                 lo,
                 lo_open: true,
                 hi,
-                hi_open: false,
             },
             note: "",
         }
@@ -112,7 +98,6 @@ impl Allowed {
                 lo,
                 lo_open: false,
                 hi,
-                hi_open: false,
             },
             words,
         }
