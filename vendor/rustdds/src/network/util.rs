@@ -16,8 +16,8 @@ use crate::{
 
 /// Platform-neutral view of one network-interface address.
 ///
-/// [`netdev`] gives us a single cross-platform enumeration; we normalize its
-/// per-interface data into this small struct (one entry per assigned IP). The
+/// The interface enumeration (below) normalizes the OS's per-interface data into
+/// this small struct (one entry per assigned IP). The
 /// inner helper functions then operate on `IfAddr` alone, which keeps them free
 /// of any enumeration dependency and makes them trivially unit-testable.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -38,53 +38,70 @@ pub(crate) struct IfAddr {
 }
 
 // ---------------------------------------------------------------------------
-// Interface enumeration (cross-platform, via netdev)
+// Interface enumeration (getifaddrs, via nix)
 // ---------------------------------------------------------------------------
 
-/// Enumerate all interface addresses across platforms using [`netdev`].
+/// Enumerate all interface addresses with `getifaddrs(3)` (through `nix`).
 ///
-/// `netdev::get_interfaces()` yields one [`netdev::Interface`] per interface
-/// with its index, MTU, loopback/multicast flags and the list of assigned
-/// IPv4/IPv6 prefixes. We flatten this into one [`IfAddr`] per assigned IP so
-/// the existing locator/multicast/ifindex helpers keep working unchanged, while
-/// the new fields (`netmask`, `mtu`) enable per-peer path-MTU resolution.
-///
-/// This is infallible in practice (netdev returns an empty list rather than an
-/// error), but the signature is kept as `io::Result` for API compatibility with
-/// the previous per-platform implementations.
+/// deltaloop: upstream enumerates with the `netdev` crate, whose Linux backend
+/// parses rtnetlink (`netlink-packet-route`, the largest compile of the
+/// dependency tree after RustDDS itself). `getifaddrs` yields one entry per
+/// assigned address with its interface's flags and netmask; the index comes
+/// from `if_nametoindex` and the MTU, on Linux, from
+/// `/sys/class/net/<name>/mtu` (unknown elsewhere: the per-peer budget then
+/// falls back to the default, as for a peer behind a router).
+#[cfg(unix)]
 fn enumerate_interfaces() -> io::Result<Vec<IfAddr>> {
+  use nix::{ifaddrs::getifaddrs, net::if_::InterfaceFlags};
+
   let mut result = Vec::new();
-
-  for iface in netdev::get_interfaces() {
-    let index = iface.index;
-    let is_loopback = iface.is_loopback();
-    let is_multicast = iface.is_multicast();
-    let mtu = iface.mtu;
-
-    for net in &iface.ipv4 {
-      result.push(IfAddr {
-        ip: IpAddr::V4(net.addr()),
-        index,
-        is_loopback,
-        is_multicast,
-        netmask: Some(net.netmask()),
-        mtu,
-      });
-    }
-    for net in &iface.ipv6 {
-      result.push(IfAddr {
-        ip: IpAddr::V6(net.addr()),
-        index,
-        is_loopback,
-        is_multicast,
-        // IPv4-only subnet matching for now; IPv6 peers fall back to default.
-        netmask: None,
-        mtu,
-      });
-    }
+  for ifa in getifaddrs().map_err(io::Error::from)? {
+    let Some(addr) = ifa.address.as_ref() else {
+      continue;
+    };
+    let (ip, netmask) = if let Some(v4) = addr.as_sockaddr_in() {
+      let mask = ifa
+        .netmask
+        .as_ref()
+        .and_then(|m| m.as_sockaddr_in())
+        .map(|m| m.ip());
+      (IpAddr::V4(v4.ip()), mask)
+    } else if let Some(v6) = addr.as_sockaddr_in6() {
+      // IPv4-only subnet matching for now; IPv6 peers fall back to default.
+      (IpAddr::V6(v6.ip()), None)
+    } else {
+      continue; // a link-layer (AF_PACKET) entry
+    };
+    result.push(IfAddr {
+      ip,
+      index: nix::net::if_::if_nametoindex(ifa.interface_name.as_str()).unwrap_or(0),
+      is_loopback: ifa.flags.contains(InterfaceFlags::IFF_LOOPBACK),
+      is_multicast: ifa.flags.contains(InterfaceFlags::IFF_MULTICAST),
+      netmask,
+      mtu: interface_mtu(&ifa.interface_name),
+    });
   }
-
   Ok(result)
+}
+
+/// No enumeration without `getifaddrs`: no interface is known.
+#[cfg(not(unix))]
+fn enumerate_interfaces() -> io::Result<Vec<IfAddr>> {
+  Ok(Vec::new())
+}
+
+/// The MTU of interface `name` in bytes, as Linux reports it in sysfs.
+#[cfg(unix)]
+fn interface_mtu(name: &str) -> Option<u32> {
+  // A name with a slash would leave /sys/class/net: no interface has one.
+  if name.contains('/') {
+    return None;
+  }
+  std::fs::read_to_string(format!("/sys/class/net/{name}/mtu"))
+    .ok()?
+    .trim()
+    .parse()
+    .ok()
 }
 
 // ---------------------------------------------------------------------------
