@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The phases of `.ci/run` in a fresh clone of this checkout's HEAD (no target/, no venv), each
 # timed by wall and CPU time (CPU time compares across a loaded machine's hours, wall time does
-# not): the formatting check, clippy, the test build (`cargo test --no-run`), then the README's
-# test command (only running, the build being done) with its doctests and every test binary on
+# not): the formatting check, clippy over the test build (as .ci/run), then the README's test
+# command (only running, the build being done) with its doctests and every test binary on
 # a line of its own. With `e2e`, also the end-to-end binary once more on one thread, each test's
 # wall time, the slowest ten last. Usage: docs/bench/ci-phases.sh [e2e]
 set -euo pipefail
@@ -18,8 +18,8 @@ phase() { # name command...
     cat "$d.time"
 }
 phase fmt cargo fmt --all -- --check
-phase clippy cargo clippy --workspace --all-targets --locked -- -D warnings
-phase test-build cargo test --workspace --locked --no-run
+phase clippy-and-build env CLIPPY_DRIVER="$(rustc --print sysroot)/bin/clippy-driver" \
+    RUSTC_WRAPPER="$d/.ci/clippy-rustc" cargo test --workspace --all-targets --locked --no-run
 phase test-run cargo test --workspace --locked
 grep -E '^test result' "$d.test-run.log" \
     | awk '{p+=$4; f+=$6; i+=$8} END {print "tests: " p " passed, " f " failed, " i " ignored"}'

@@ -6,6 +6,7 @@ mod common;
 
 mod bridge_netns;
 mod c_abi;
+mod ci_gate;
 mod cli_run;
 mod crate_graph;
 mod custom_process;
