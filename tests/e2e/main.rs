@@ -8,6 +8,7 @@ mod bridge_netns;
 mod c_abi;
 mod ci_gate;
 mod cli_run;
+mod compensation;
 mod crate_graph;
 mod custom_process;
 mod delay_injection;

@@ -1,6 +1,7 @@
 //! The control laws (docs/controllers.md, "The laws"). One [`Controller`] runs one law; call
 //! [`Controller::step`] once per tick k with that tick's measurement and reference.
 
+use crate::predict::Predictor;
 use crate::{ControllerParams, Law, TdeHistory, Vec3, VelocitySource, sat, sgn};
 
 /// What the controller measures at tick k.
@@ -59,6 +60,8 @@ pub struct Controller {
     v: Vec3,
     /// PID integral state z_{k−1}, N m.
     z: Vec3,
+    /// Delay compensation: the law acts on the state predicted for when its torque acts.
+    predictor: Option<Predictor>,
 }
 
 impl Controller {
@@ -78,7 +81,24 @@ impl Controller {
             e_int: Vec3::zeros(),
             v: Vec3::zeros(),
             z: Vec3::zeros(),
+            predictor: None,
         }
+    }
+
+    /// Compensates the delay until its torque acts with `p` (docs/controllers.md, "Delay
+    /// compensation"): each tick the law runs on the state `p` predicts for that time, and the
+    /// caller passes the reference at that time. `pid` has no TDE model to predict with and is
+    /// left as it is.
+    pub fn with_predictor(mut self, p: Predictor) -> Self {
+        if self.law != Law::Pid {
+            self.predictor = Some(p);
+        }
+        self
+    }
+
+    /// The delay compensation in use, if any.
+    pub fn predictor(&self) -> Option<&Predictor> {
+        self.predictor.as_ref()
     }
 
     /// Takes q̇ and the TDE accelerations from `v` (default: the measured q̇).
@@ -90,6 +110,11 @@ impl Controller {
     /// The law this controller runs.
     pub fn law(&self) -> Law {
         self.law
+    }
+
+    /// The control period Ts, s.
+    pub fn ts(&self) -> f64 {
+        self.ts
     }
 
     /// The constants in use.
@@ -119,6 +144,9 @@ impl Controller {
             self.q_prev = [m.q; 2];
             self.tau_prev = m.tau_applied;
             self.z = m.tau_applied;
+            if let Some(p) = &mut self.predictor {
+                p.reset(m.tau_applied);
+            }
         }
         let ts = self.ts;
         let p = &self.p;
@@ -139,8 +167,13 @@ impl Controller {
         };
         self.qd_prev = qd;
         let (a_lag, tau_lag) = self.tde.push(accel_prev, tau_pair);
+        // The state the torque will meet: measured, or predicted over the torques in flight.
+        let (q, qd) = match &mut self.predictor {
+            Some(p) => p.predict(m.q, qd, accel_prev, tau_pair),
+            None => (m.q, qd),
+        };
 
-        let e = r.q - m.q;
+        let e = r.q - q;
         let ed = r.qd - qd;
         self.e_int += e * ts;
         let s = ed + e * p.kd + self.e_int * p.kp;
@@ -179,6 +212,9 @@ impl Controller {
                 tau_lag - a_lag * p.m_bar + (r.qdd + ed * p.kd + e * p.kp + u) * p.m_bar
             }
         };
+        if let Some(p) = &mut self.predictor {
+            p.sent(tau);
+        }
         Output { tau, s, n_hat, u }
     }
 

@@ -7,10 +7,12 @@
 //! knows nothing of the robot model. This crate does not depend on the plant crate.
 
 pub mod law;
+pub mod predict;
 pub mod sta;
 pub mod tde;
 
 pub use law::{Controller, Measurement, Output, Reference};
+pub use predict::{Delay, InertiaEstimate, Predictor};
 // The laws' names and constants are `deltaloop-names`, below the config schema too.
 pub use deltaloop_names::{ControllerParams, Law, Preset, VelocitySource};
 pub use tde::TdeHistory;

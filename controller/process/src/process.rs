@@ -66,6 +66,24 @@ pub trait Step {
     /// transport sets the tick's stamps), or why the step failed (the run ends with a fault).
     fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<wire::TorqueMsg, String>;
 
+    /// Rows ahead of the state's tick the step reads: Some(d) for a law that compensates a
+    /// delay of d whole ticks (and a sub-tick part), whose [`Step::step_ahead`] gets rows k + d
+    /// and k + d + 1; None (the default): [`Step::step`] with row k.
+    fn lookahead(&self) -> Option<u64> {
+        None
+    }
+
+    /// Tick k's reply with rows k + d (`row`) and k + d + 1 (`next`), d from
+    /// [`Step::lookahead`] (each the last row past the reference's end).
+    fn step_ahead(
+        &mut self,
+        state: &StateMsg,
+        row: &RefSample,
+        _next: &RefSample,
+    ) -> Result<wire::TorqueMsg, String> {
+        self.step(state, row)
+    }
+
     /// What the controller calls itself, said in its READY (the run shows it beside the law);
     /// None: nothing (the built-in law, or a peer that did not say).
     fn label(&self) -> Option<&str> {
@@ -82,6 +100,20 @@ pub trait Step {
 impl Step for ControllerSide {
     fn step(&mut self, state: &StateMsg, row: &RefSample) -> Result<wire::TorqueMsg, String> {
         Ok(self.answer(state, &crate::reference(row)))
+    }
+
+    fn lookahead(&self) -> Option<u64> {
+        ControllerSide::lookahead(self)
+    }
+
+    fn step_ahead(
+        &mut self,
+        state: &StateMsg,
+        row: &RefSample,
+        next: &RefSample,
+    ) -> Result<wire::TorqueMsg, String> {
+        let (row, next) = (crate::reference(row), crate::reference(next));
+        Ok(self.answer_ahead(state, &row, &next))
     }
 }
 
@@ -422,11 +454,28 @@ fn answer_states(
                 state.tick, lp.rows
             ));
         }
-        let r = match await_row(ports, ring, state.tick, cfg.loop_.silence_timeout_ms, term)? {
-            Ok(r) => r,
-            Err(end) => break end,
+        let silence_ms = cfg.loop_.silence_timeout_ms;
+        let stepped = match side.lookahead() {
+            None => match await_row(ports, ring, state.tick, silence_ms, term)? {
+                Ok(r) => side.step(&state, &r),
+                Err(end) => break end,
+            },
+            Some(d) => {
+                // Rows k + d and k + d + 1, or the last row past the reference's end.
+                let last = lp.rows - 1;
+                let j = (state.tick + d).min(last);
+                let r = match await_row(ports, ring, j, silence_ms, term)? {
+                    Ok(r) => r,
+                    Err(end) => break end,
+                };
+                let next = match await_row(ports, ring, (j + 1).min(last), silence_ms, term)? {
+                    Ok(r) => r,
+                    Err(end) => break end,
+                };
+                side.step_ahead(&state, &r, &next)
+            }
         };
-        let mut msg = match side.step(&state, &r) {
+        let mut msg = match stepped {
             Ok(m) => m,
             Err(why) => {
                 tell_plant_the_step_failed(ports, link, state.tick, &why);

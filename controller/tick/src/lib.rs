@@ -2,8 +2,11 @@
 //! lockstep, realtime, the loop benchmark): state k and tick k's reference row in, the reply out.
 //! Transport code only moves these messages and stamps times.
 
-use deltaloop_config::{Law, RunConfig};
-use deltaloop_law::{Controller, Measurement, Output, Reference, Vec3};
+use deltaloop_config::{Compensation, Law, RunConfig};
+use deltaloop_law::predict::reference_ahead;
+use deltaloop_law::{
+    Controller, Delay, InertiaEstimate, Measurement, Output, Predictor, Reference, Vec3,
+};
 use deltaloop_wire::{RefSample, StateMsg, TorqueMsg};
 
 /// The controller side of the loop: one law with its state.
@@ -16,15 +19,56 @@ impl ControllerSide {
     /// A fresh controller for `law` with the config's constants, period, TDE delay and velocity
     /// source. Every mode builds its controller here.
     pub fn from_config(cfg: &RunConfig, law: Law) -> Self {
+        let params = cfg.controller_params();
+        let ts = cfg.loop_.ts_s;
+        let ctrl = Controller::new(law, params, ts, cfg.controller.tde_delay_samples as usize)
+            .with_velocity(cfg.sensor.velocity);
         Self {
-            ctrl: Controller::new(
-                law,
-                cfg.controller_params(),
-                cfg.loop_.ts_s,
-                cfg.controller.tde_delay_samples as usize,
-            )
-            .with_velocity(cfg.sensor.velocity),
+            ctrl: match cfg.controller.compensate {
+                Compensation::None => ctrl,
+                // The delay the run injects; the drives' limit; an inertia learned from M̄ up.
+                Compensation::Predict => ctrl.with_predictor(Predictor::new(
+                    Delay::from_ns(cfg.transport_delay_ns(), cfg.ts_ns()),
+                    ts,
+                    cfg.plant.tau_max_nm,
+                    InertiaEstimate::for_m_bar(params.m_bar),
+                )),
+            },
         }
+    }
+
+    /// The reference rows tick k's answer needs: (j, j + 1) with j = k + d, d the whole ticks
+    /// of the compensated delay (j = k, and row j alone, without compensation).
+    pub fn rows_for(&self, k: u64) -> (u64, u64) {
+        let d = self.lookahead().unwrap_or(0);
+        (k + d, k + d + 1)
+    }
+
+    /// d, the whole ticks of the delay a compensated law looks ahead by; None without
+    /// compensation.
+    pub fn lookahead(&self) -> Option<u64> {
+        self.ctrl.predictor().map(|p| p.delay().whole as u64)
+    }
+
+    /// Tick k with the reference rows [`rows_for`](Self::rows_for) names: `row` (j) and `next`
+    /// (j + 1, read only for a sub-tick delay). Without compensation, [`answer`](Self::answer)
+    /// with `row`.
+    pub fn answer_ahead(
+        &mut self,
+        state: &StateMsg,
+        row: &Reference,
+        next: &Reference,
+    ) -> TorqueMsg {
+        let r = match self.ctrl.predictor() {
+            Some(p) => reference_ahead(row, next, p.delay().frac, self.ctrl.ts()),
+            None => *row,
+        };
+        self.answer(state, &r)
+    }
+
+    /// M̂ per joint (kg m²) of a compensated law, learned so far.
+    pub fn m_hat(&self) -> Option<Vec3> {
+        self.ctrl.predictor().map(|p| p.inertia().m_hat())
     }
 
     /// The law this side runs.

@@ -18,7 +18,7 @@ use crate::limits::{
 use crate::sections::{
     ApplyTorque, FaultInjection, LinkPath, Overrun, Ros2Distro, Segment, TorqueLimit,
 };
-use deltaloop_names::{Law, Preset, VelocitySource};
+use deltaloop_names::{Compensation, Law, Preset, VelocitySource};
 
 /// Declares each table's keys: a struct with one [`Key`] per field, its one `static`, and per
 /// key with a value default (`= (value)`) the function serde's `default` names. A default in
@@ -132,6 +132,8 @@ declare_keys! {
         laws: Vec<Law> = (Law::STUDY.to_vec()), "", Allowed::Rule("at least one law, each at most once");
         /// TDE delay ℓ (L = ℓ·Ts).
         tde_delay_samples: u32 = (1), "ticks", Allowed::closed(1.0, MAX_TDE_DELAY as f64);
+        /// Delay compensation: the law acts on the state predicted for when its torque acts (docs/controllers.md).
+        compensate: Compensation = (Compensation::None), "", Allowed::Words("none | predict");
         /// Extra wall time per reply (realtime: real misses; inproc: no effect).
         compute_delay_us: u32 = (0), "us", Allowed::closed(0.0, 1e6);
         /// Your own controller process, program then arguments (docs/guide/own-process.md); empty: the built-in one.

@@ -6,7 +6,7 @@ use crate::error::ConfigError;
 use crate::files::read_text_file;
 use crate::layout::Layout;
 use crate::text::{clean_message, show_path, toml_error_position};
-use deltaloop_names::ControllerParams;
+use deltaloop_names::{Compensation, ControllerParams};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -178,6 +178,15 @@ impl RunConfig {
     pub fn transport_delay_ns(&self) -> u64 {
         u64::from(self.plant.transport_delay_samples) * self.ts_ns()
             + (self.plant.transport_delay_us * 1e3).round() as u64
+    }
+
+    /// Reference rows a controller reads beyond its state's tick: a compensated law at tick k
+    /// reads rows k + d and k + d + 1 (d the whole ticks of the transport delay); 0 otherwise.
+    pub fn reference_lookahead_ticks(&self) -> u64 {
+        match self.controller.compensate {
+            Compensation::None => 0,
+            Compensation::Predict => self.transport_delay_ns() / self.ts_ns() + 1,
+        }
     }
 
     /// Number of control ticks after tick 0 for the whole run: round((T + hold)/Ts).

@@ -142,3 +142,18 @@ pub enum VelocitySource {
     /// with the mean applied torque of the two intervals (docs/controllers.md).
     EncoderDifference,
 }
+
+crate::text_enum! {
+    "kebab-case", "compensation";
+    /// How a law meets the delay between its measurement and the moment its torque acts
+    /// (docs/controllers.md, "Delay compensation").
+    #[derive(Default)]
+    pub enum Compensation {
+        /// The law acts on the state it measured.
+        #[default]
+        None,
+        /// The law acts on the state predicted for when its torque acts, over the torques in
+        /// flight, with an inertia learned from measured data, and on the reference of that time.
+        Predict,
+    }
+}

@@ -20,13 +20,20 @@ pub fn chunk_ticks(c: u64, total_rows: u64) -> std::ops::Range<u64> {
 }
 
 /// How many chunks (0..this) the supervisor may have sent, given the newest tick the controller
-/// has answered (None: none yet, before START) and how many chunks it may be ahead (`lead`, at
-/// most `REF_RING`). Chunk c < lead may go at once; chunk c ≥ lead once
-/// a + 1 ≥ (c − lead + 1)·C, i.e. c < ⌊(a + 1)/C⌋ + lead.
-pub fn chunks_allowed(answered: Option<u64>, total_rows: u64, lead: u64) -> u64 {
-    let passed = answered.map_or(0, |a| a.saturating_add(1) / REF_CHUNK as u64);
+/// has answered (None: none yet, before START), how many chunks it may be ahead (`lead`, at
+/// most `REF_RING`) and how many rows past its state's tick the controller reads (`lookahead`
+/// A: a compensated law at tick k reads rows up to k + A; 0 otherwise, A < `REF_CHUNK`). Chunk
+/// c < lead may go at once; chunk c ≥ lead once a + 1 + A ≥ (c − lead + 1)·C, i.e.
+/// c < ⌊(a + 1 + A)/C⌋ + lead. With A > 0 the lead is at most `REF_RING` − 1: the chunk of the
+/// next tick the controller answers may then be one behind the chunk of the rows it reads, and
+/// stays in the ring.
+pub fn chunks_allowed(answered: Option<u64>, total_rows: u64, lead: u64, lookahead: u64) -> u64 {
+    let ring = REF_RING as u64 - u64::from(lookahead > 0);
+    let passed = answered.map_or(0, |a| {
+        a.saturating_add(1).saturating_add(lookahead) / REF_CHUNK as u64
+    });
     passed
-        .saturating_add(lead.min(REF_RING as u64))
+        .saturating_add(lead.min(ring))
         .min(chunk_count(total_rows))
 }
 
@@ -47,6 +54,8 @@ pub struct ReferenceFeed {
     total_rows: u64,
     /// Chunks the feed may be ahead of the controller's last answer.
     lead: u64,
+    /// Rows past its state's tick the controller reads.
+    lookahead: u64,
 }
 
 impl ReferenceFeed {
@@ -56,25 +65,30 @@ impl ReferenceFeed {
         run_id: &str,
         total_rows: usize,
         lead: u64,
+        lookahead: u64,
     ) -> Result<Self> {
         Ok(Self {
             publisher: ipc::reference_publisher(node, run_id)?,
             next: 0,
             total_rows: total_rows as u64,
             lead,
+            lookahead,
         })
     }
 
     /// Sends chunks 0..min(lead, chunks) (before START).
     pub fn send_initial(&mut self, reference: &JointReference) -> Result<()> {
-        self.send_up_to(reference, chunks_allowed(None, self.total_rows, self.lead))
+        self.send_up_to(
+            reference,
+            chunks_allowed(None, self.total_rows, self.lead, self.lookahead),
+        )
     }
 
     /// Sends every chunk the rule allows now that the controller has answered tick `answered`.
     pub fn feed(&mut self, reference: &JointReference, answered: u64) -> Result<()> {
         self.send_up_to(
             reference,
-            chunks_allowed(Some(answered), self.total_rows, self.lead),
+            chunks_allowed(Some(answered), self.total_rows, self.lead, self.lookahead),
         )
     }
 
@@ -157,11 +171,11 @@ mod tests {
     /// Before START, and after tick 0, the first `REF_RING` chunks may go, or all if fewer.
     #[test]
     fn the_first_ring_goes_before_start() {
-        assert_eq!(chunks_allowed(None, 100 * C, R), R);
-        assert_eq!(chunks_allowed(Some(0), 100 * C, R), R);
-        assert_eq!(chunks_allowed(None, 3 * C + 7, R), 4);
-        assert_eq!(chunks_allowed(Some(0), 3 * C + 7, R), 4);
-        assert_eq!(chunks_allowed(None, 1, R), 1);
+        assert_eq!(chunks_allowed(None, 100 * C, R, 0), R);
+        assert_eq!(chunks_allowed(Some(0), 100 * C, R, 0), R);
+        assert_eq!(chunks_allowed(None, 3 * C + 7, R, 0), 4);
+        assert_eq!(chunks_allowed(Some(0), 3 * C + 7, R, 0), 4);
+        assert_eq!(chunks_allowed(None, 1, R, 0), 1);
     }
 
     /// Chunk `REF_RING` (which overwrites chunk 0) goes only once the last tick of chunk 0 was
@@ -169,10 +183,10 @@ mod tests {
     #[test]
     fn a_chunk_goes_once_the_one_it_overwrites_is_passed() {
         let total = 100 * C;
-        assert_eq!(chunks_allowed(Some(C - 2), total, R), R);
-        assert_eq!(chunks_allowed(Some(C - 1), total, R), R + 1);
-        assert_eq!(chunks_allowed(Some(2 * C - 2), total, R), R + 1);
-        assert_eq!(chunks_allowed(Some(2 * C - 1), total, R), R + 2);
+        assert_eq!(chunks_allowed(Some(C - 2), total, R, 0), R);
+        assert_eq!(chunks_allowed(Some(C - 1), total, R, 0), R + 1);
+        assert_eq!(chunks_allowed(Some(2 * C - 2), total, R, 0), R + 1);
+        assert_eq!(chunks_allowed(Some(2 * C - 1), total, R, 0), R + 2);
     }
 
     /// A jump of many ticks (skipped replies, a slow observer) releases every chunk it passed at
@@ -180,9 +194,9 @@ mod tests {
     #[test]
     fn a_jump_releases_many_chunks_but_never_past_the_end() {
         let total = 100 * C + 5;
-        assert_eq!(chunks_allowed(Some(50 * C + 3), total, R), 50 + R);
-        assert_eq!(chunks_allowed(Some(total - 1), total, R), 101);
-        assert_eq!(chunks_allowed(Some(u64::MAX), total, R), 101);
+        assert_eq!(chunks_allowed(Some(50 * C + 3), total, R, 0), 50 + R);
+        assert_eq!(chunks_allowed(Some(total - 1), total, R, 0), 101);
+        assert_eq!(chunks_allowed(Some(u64::MAX), total, R, 0), 101);
     }
 
     /// The rule never lets the supervisor get more than `REF_RING` chunks ahead of the chunk the
@@ -191,11 +205,11 @@ mod tests {
     fn the_lockstep_lead_keeps_the_loop_within_one_chunk_of_the_last_answer() {
         let total = 100 * C;
         let l = LOCKSTEP_LEAD_CHUNKS;
-        assert_eq!(chunks_allowed(None, total, l), 1);
+        assert_eq!(chunks_allowed(None, total, l, 0), 1);
         // Answered up to a: the controller can reach at most tick a + C (then it needs chunk
         // ⌊(a + 1)/C⌋ + 1, not yet sent): one chunk past the answer, half the observers' queues.
         for a in [0, C - 2, C - 1, 7 * C + 5, total - 2] {
-            let first_missing_row = chunks_allowed(Some(a), total, l) * C;
+            let first_missing_row = chunks_allowed(Some(a), total, l, 0) * C;
             assert!(
                 first_missing_row > a + 1 && first_missing_row <= a + 1 + C,
                 "{a}"
@@ -203,23 +217,36 @@ mod tests {
             assert!(first_missing_row - (a + 1) <= ipc::OBSERVER_BUFFER as u64 / 2);
         }
         // Never more than the ring, whatever lead is asked for.
-        assert_eq!(chunks_allowed(None, total, 1000), R);
+        assert_eq!(chunks_allowed(None, total, 1000, 0), R);
     }
 
     #[test]
     fn the_rule_keeps_the_ring_sufficient_and_unoverrun() {
         let total = 37 * C + 11;
-        for a in (0..total)
-            .step_by(97)
-            .chain([C - 1, C, total - 2, total - 1])
-        {
-            let allowed = chunks_allowed(Some(a), total, R);
-            let needed = (a + 1).min(total - 1) / C;
-            assert!(allowed > needed, "answered {a}: chunk {needed} not allowed");
-            // Chunk `allowed − 1` overwrites chunk `allowed − 1 − R`, whose ticks must all be ≤ a.
-            if allowed > R {
-                let dead = chunk_ticks(allowed - 1 - R, total);
-                assert!(dead.end <= a + 1, "answered {a}: chunk still live");
+        // Without a look-ahead, and with a compensated law's (one tick, eight, most of a chunk).
+        for lookahead in [0, 2, 9, C - 1] {
+            for lead in [LOCKSTEP_LEAD_CHUNKS, R] {
+                for a in (0..total).step_by(97).chain([
+                    C - 1,
+                    C,
+                    C - 1 - lookahead,
+                    total - 2,
+                    total - 1,
+                ]) {
+                    let allowed = chunks_allowed(Some(a), total, lead, lookahead);
+                    // The rows the controller reads next: ticks a + 1 ..= a + 1 + A.
+                    let needed = (a + 1 + lookahead).min(total - 1) / C;
+                    assert!(
+                        allowed > needed,
+                        "answered {a}, A {lookahead}: {needed} held"
+                    );
+                    // Chunk `allowed − 1` overwrites chunk `allowed − 1 − R`, whose ticks must
+                    // all be ≤ a (the controller answers only ticks after a).
+                    if allowed > R {
+                        let dead = chunk_ticks(allowed - 1 - R, total);
+                        assert!(dead.end <= a + 1, "answered {a}, A {lookahead}: live chunk");
+                    }
+                }
             }
         }
     }

@@ -142,14 +142,21 @@ pub fn run_schedule<'a>(
             return lawrun::finish(rec, None);
         }
         let state = plant.state();
-        let reference = study
-            .reference
-            .try_row(k as usize)
-            .map_err(|e| anyhow::anyhow!("the reference at tick {k}: {e}"))?
-            .joint;
+        // The rows of the time the reply acts (a compensated law looks ahead); past the table's
+        // last row, the robot holds that row's pose.
+        let (j, next) = ctrl.rows_for(k);
+        let row = |j: u64| {
+            let j = j.min(study.reference.n as u64);
+            study
+                .reference
+                .try_row(j as usize)
+                .map(|r| r.joint)
+                .map_err(|e| anyhow::anyhow!("the reference at tick {j}: {e}"))
+        };
+        let (reference, next) = (row(j)?, row(next)?);
         let (reply, arrival) = match outcome {
             ReplyOutcome::Applied(_) | ReplyOutcome::Late => {
-                let mut reply = ctrl.answer(&state, &reference);
+                let mut reply = ctrl.answer_ahead(&state, &reference, &next);
                 reply.skipped = std::mem::take(&mut skipped_before);
                 (Some(reply), outcome.arrival(reply))
             }

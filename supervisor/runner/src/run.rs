@@ -4,7 +4,7 @@ use crate::inproc;
 use crate::lawrun::{Keep, LawRun, Tap};
 use crate::procs::{self, OnTick};
 use anyhow::{Context, Result, bail};
-use deltaloop_config::{Law, LoopMode, Overrun, RunConfig};
+use deltaloop_config::{Compensation, Law, LoopMode, Overrun, RunConfig};
 use deltaloop_report::report;
 use deltaloop_report::{self as output, Summary};
 use deltaloop_study::Study;
@@ -56,6 +56,8 @@ pub struct Overrides {
     pub transport_delay_us: Option<f64>,
     /// Extra controller compute time per tick, µs (controller.compute_delay_us; realtime).
     pub compute_delay_us: Option<u32>,
+    /// Delay compensation (controller.compensate): none, or predict.
+    pub compensate: Option<Compensation>,
     /// Sensor noise seed (sensor.seed).
     pub seed: Option<u64>,
     /// Realtime: what the plant does when its own process wakes later than
@@ -118,6 +120,9 @@ impl Overrides {
         }
         if let Some(v) = self.compute_delay_us {
             cfg.controller.compute_delay_us = v;
+        }
+        if let Some(v) = self.compensate {
+            cfg.controller.compensate = v;
         }
         if let Some(v) = self.seed {
             cfg.sensor.seed = v;

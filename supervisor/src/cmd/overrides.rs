@@ -4,7 +4,7 @@
 use super::words::Words;
 use crate::ops::join::RemoteArgs;
 use crate::ops::run::Overrides;
-use deltaloop_config::{Law, LinkEmulation, LinkPath, Overrun};
+use deltaloop_config::{Compensation, Law, LinkEmulation, LinkPath, Overrun};
 use std::path::PathBuf;
 
 /// `--law`, `--seed`, `--plant-cmd`, … : overrides of a scenario file (None: keep the file's value).
@@ -25,6 +25,10 @@ pub struct OverrideArgs {
     /// Extra controller compute time per tick, µs (controller.compute_delay_us; realtime).
     #[arg(long)]
     pub compute_delay_us: Option<u32>,
+    /// Delay compensation: `none`, or `predict` (the law acts on the state predicted for when
+    /// its torque acts; controller.compensate, docs/controllers.md).
+    #[arg(long, value_parser = Words::<Compensation>::new())]
+    pub compensate: Option<Compensation>,
     /// Sensor noise seed (sensor.seed).
     #[arg(long)]
     pub seed: Option<u64>,
@@ -115,6 +119,7 @@ impl From<OverrideArgs> for Overrides {
             transport_delay: a.transport_delay,
             transport_delay_us: a.transport_delay_us,
             compute_delay_us: a.compute_delay_us,
+            compensate: a.compensate,
             seed: a.seed,
             overrun: a.overrun,
             hold_s: a.hold_s,

@@ -6,7 +6,7 @@ use crate::key::range;
 use crate::keys::{CONTROLLER, ControllerKeys, gain_keys};
 use crate::text::show_path;
 use crate::validate::{check_command, check_label};
-use deltaloop_names::{ControllerParams, Law, Preset};
+use deltaloop_names::{Compensation, ControllerParams, Law, Preset};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -28,6 +28,11 @@ macro_rules! controller_section {
             /// TDE delay ℓ (L = ℓ·Ts), ticks, ≥ 1.
             #[serde(default = "ControllerKeys::tde_delay_samples")]
             pub tde_delay_samples: u32,
+
+            /// Delay compensation (docs/controllers.md, "Delay compensation"): `none`, or
+            /// `predict`, the law on the state predicted for when its torque acts.
+            #[serde(default = "ControllerKeys::compensate")]
+            pub compensate: Compensation,
 
             /// Extra wall time the controller process spends before each reply, µs (realtime: real
             /// misses; lockstep: only slower; inproc: no effect).

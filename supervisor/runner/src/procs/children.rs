@@ -609,7 +609,13 @@ pub(super) fn start_pair(
         LoopMode::Lockstep => crate::feed::LOCKSTEP_LEAD_CHUNKS,
         _ => ipc::REF_RING as u64,
     };
-    let mut feed = ReferenceFeed::create(&obs.node, &rid, study.reference.row_count(), lead)?;
+    let mut feed = ReferenceFeed::create(
+        &obs.node,
+        &rid,
+        study.reference.row_count(),
+        lead,
+        study.config.reference_lookahead_ticks(),
+    )?;
     let mut pair = Pair::spawn(&rid, law, mode, run_dir, &study.config)?;
     obs.trust(&pair);
     match handshake(&obs, &mut feed, &mut pair, study) {

@@ -1,0 +1,240 @@
+//! Delay compensation (docs/controllers.md, "Delay compensation"): the state at the time a
+//! torque will act, predicted over the torques already in flight, and the per-joint inertia the
+//! prediction needs, learned from measured data.
+//!
+//! A reply to tick k acts D = d·Ts + δ (0 ≤ δ < Ts) after t_k. At tick k the controller holds
+//! q_k, q̇_k, the last interval's acceleration a_{k−1} and applied torque τᵃ_k, and the commands
+//! it sent that have not acted yet. Over [t_k, t_k + D) the drives apply those commands, each
+//! clamped to ±τ_max, and the TDE model says how the robot answers a torque τ:
+//! q̈ = a_{k−1} + (τ − τᵃ_k) / M̂ (per joint). Integrated piece by piece (constant acceleration
+//! within a piece), that gives q̂, q̂̇ at t_k + D.
+
+use crate::{Reference, Vec3};
+
+/// The prior of the learned inertia, as a multiple of the law's M̄: the robot's real inertia
+/// along the study's paths is 1.2–2.4× M̄ (docs/controllers.md), and a prediction made with too
+/// small an inertia overshoots (unstable at whole-tick delays with M̄ itself).
+pub const PRIOR_OVER_M_BAR: f64 = 2.0;
+
+/// The learned inertia stays within these multiples of M̄.
+pub const BOUNDS_OVER_M_BAR: (f64, f64) = (0.5, 8.0);
+
+/// Forgetting factor of the inertia estimate, per tick that teaches it (a memory of about
+/// 1 / (1 − λ) = 2000 such ticks, 0.6 s at Ts = 0.3 ms).
+pub const FORGETTING: f64 = 0.9995;
+
+/// A second difference of applied torque (N m) below which a tick teaches the inertia nothing:
+/// what the acceleration does then is the robot's own dynamics and the sensor's noise.
+pub const MIN_TORQUE_STEP_NM: f64 = 1e-3;
+
+/// Per-joint inertia M̂ (kg m²) learned online: a recursive least-squares fit of
+/// Δ²a = θ Δ²τᵃ, θ = 1/M, over the second differences of the measured pairs (a_{k−1}, τᵃ_k),
+/// with forgetting and bounds. Model-free: it sees only what the controller measures.
+#[derive(Clone, Debug)]
+pub struct InertiaEstimate {
+    /// θ = 1/M̂ per joint, 1/(kg m²).
+    theta: Vec3,
+    /// The fit's covariance per joint.
+    p: Vec3,
+    /// The previous pair (a, τᵃ) and the one before, once there are.
+    last: Option<(Vec3, Vec3)>,
+    last2: Option<(Vec3, Vec3)>,
+    /// θ's bounds, 1/(kg m²): (min, max).
+    theta_bounds: (f64, f64),
+    learning: bool,
+}
+
+impl InertiaEstimate {
+    /// Learning from `m_prior` (kg m², per joint), kept within [lo, hi] (kg m²).
+    pub fn learning(m_prior: Vec3, lo: f64, hi: f64) -> Self {
+        let theta = m_prior.map(|m| 1.0 / m);
+        Self {
+            theta,
+            // Uncertain by the prior itself, per unit of torque step.
+            p: theta.map(|t| t * t * 1e4),
+            last: None,
+            last2: None,
+            theta_bounds: (1.0 / hi, 1.0 / lo),
+            learning: true,
+        }
+    }
+
+    /// For the law's M̄ (kg m²): prior and bounds as [`PRIOR_OVER_M_BAR`] and
+    /// [`BOUNDS_OVER_M_BAR`] say.
+    pub fn for_m_bar(m_bar: f64) -> Self {
+        let (lo, hi) = BOUNDS_OVER_M_BAR;
+        Self::learning(
+            Vec3::repeat(PRIOR_OVER_M_BAR * m_bar),
+            lo * m_bar,
+            hi * m_bar,
+        )
+    }
+
+    /// A fixed inertia `m` (kg m², per joint), never updated.
+    pub fn fixed(m: Vec3) -> Self {
+        Self {
+            theta: m.map(|m| 1.0 / m),
+            p: Vec3::zeros(),
+            last: None,
+            last2: None,
+            theta_bounds: (0.0, f64::INFINITY),
+            learning: false,
+        }
+    }
+
+    /// M̂ per joint, kg m².
+    pub fn m_hat(&self) -> Vec3 {
+        self.theta.map(|t| 1.0 / t)
+    }
+
+    /// 1/M̂ per joint, 1/(kg m²).
+    pub fn inverse(&self) -> Vec3 {
+        self.theta
+    }
+
+    /// Learns from tick k's measured pair: `accel` a_{k−1} (rad/s²) with `tau_applied` τᵃ_k
+    /// (N m). The fit runs on second differences over the last three pairs,
+    /// Δ²a = θ Δ²τᵃ: the unknown term N = a − τᵃ/M changes smoothly, so its second difference
+    /// is O(Ts²), where its first difference follows the torque the loop answers it with and
+    /// would bias θ.
+    pub fn learn(&mut self, accel: Vec3, tau_applied: Vec3) {
+        let prev = self.last.replace((accel, tau_applied));
+        let prev2 = std::mem::replace(&mut self.last2, prev);
+        let (Some((a1, t1)), Some((a2, t2))) = (prev, prev2) else {
+            return;
+        };
+        if !self.learning {
+            return;
+        }
+        let (lo, hi) = self.theta_bounds;
+        for i in 0..3 {
+            let d2a = accel[i] - 2.0 * a1[i] + a2[i];
+            let d2t = tau_applied[i] - 2.0 * t1[i] + t2[i];
+            if d2t.abs() < MIN_TORQUE_STEP_NM || !d2a.is_finite() {
+                continue;
+            }
+            let p = self.p[i];
+            let gain = p * d2t / (FORGETTING + p * d2t * d2t);
+            self.theta[i] = (self.theta[i] + gain * (d2a - self.theta[i] * d2t)).clamp(lo, hi);
+            self.p[i] = (p - gain * d2t * p) / FORGETTING;
+        }
+    }
+}
+
+/// The delay until a reply acts, split as the predictor walks it: `whole` ticks and `frac`
+/// seconds (0 ≤ frac < Ts).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Delay {
+    /// d, whole ticks.
+    pub whole: usize,
+    /// δ, s.
+    pub frac: f64,
+}
+
+impl Delay {
+    /// D = `delay_ns` at period `ts_ns` (both ns, as the config gives them: exact).
+    pub fn from_ns(delay_ns: u64, ts_ns: u64) -> Self {
+        Self {
+            whole: (delay_ns / ts_ns) as usize,
+            frac: (delay_ns % ts_ns) as f64 / 1e9,
+        }
+    }
+
+    /// Commands in flight at a tick: d, and one more whose interval the sub-tick part cuts.
+    pub fn in_flight(&self) -> usize {
+        self.whole + usize::from(self.frac > 0.0)
+    }
+}
+
+/// Predicts the state at t_k + D over the commands in flight. Allocates only in [`Predictor::new`].
+#[derive(Clone, Debug)]
+pub struct Predictor {
+    ts: f64,
+    delay: Delay,
+    /// Drive limit τ_max, N m (each command is clamped to ±τ_max, as the drives do).
+    tau_max: f64,
+    /// The last [`Delay::in_flight`] commands sent (N m, unclamped), oldest at `head`.
+    sent: Vec<Vec3>,
+    head: usize,
+    inertia: InertiaEstimate,
+}
+
+impl Predictor {
+    /// A predictor for delay `delay` at period `ts` (s), drive limit `tau_max` (N m), with
+    /// `inertia`.
+    pub fn new(delay: Delay, ts: f64, tau_max: f64, inertia: InertiaEstimate) -> Self {
+        Self {
+            ts,
+            delay,
+            tau_max,
+            sent: vec![Vec3::zeros(); delay.in_flight()],
+            head: 0,
+            inertia,
+        }
+    }
+
+    /// The delay it predicts over.
+    pub fn delay(&self) -> Delay {
+        self.delay
+    }
+
+    /// The inertia estimate in use.
+    pub fn inertia(&self) -> &InertiaEstimate {
+        &self.inertia
+    }
+
+    /// Before tick 0 the drives held `tau_a0` (N m): the commands "in flight" are that.
+    pub fn reset(&mut self, tau_a0: Vec3) {
+        self.sent.fill(tau_a0);
+        self.head = 0;
+    }
+
+    /// Tick k: learns from (a_{k−1}, τᵃ_k) and predicts (q̂, q̂̇) at t_k + D from q_k (rad),
+    /// q̇_k (rad/s), `accel` a_{k−1} (rad/s²) and `tau_applied` τᵃ_k (N m).
+    pub fn predict(&mut self, q: Vec3, qd: Vec3, accel: Vec3, tau_applied: Vec3) -> (Vec3, Vec3) {
+        self.inertia.learn(accel, tau_applied);
+        let inv_m = self.inertia.inverse();
+        let (mut q, mut qd) = (q, qd);
+        let n = self.sent.len();
+        for i in 0..n {
+            let cmd = self.sent[(self.head + i) % n];
+            // The oldest command acts only for δ when the delay has a sub-tick part.
+            let h = if i == 0 && self.delay.frac > 0.0 {
+                self.delay.frac
+            } else {
+                self.ts
+            };
+            let tau = cmd.map(|t| t.clamp(-self.tau_max, self.tau_max));
+            let acc = accel + (tau - tau_applied).component_mul(&inv_m);
+            q += qd * h + acc * (0.5 * h * h);
+            qd += acc * h;
+        }
+        (q, qd)
+    }
+
+    /// Records τ_k (N m), the command just sent.
+    pub fn sent(&mut self, tau: Vec3) {
+        let n = self.sent.len();
+        if n > 0 {
+            self.sent[self.head] = tau;
+            self.head = (self.head + 1) % n;
+        }
+    }
+}
+
+/// The reference at t_j + δ from rows j and j + 1 (`frac` δ in s, `ts` Ts): q and q̇ by a
+/// second-order step from row j, q̈ linearly between the rows; row j itself when δ = 0.
+pub fn reference_ahead(row: &Reference, next: &Reference, frac: f64, ts: f64) -> Reference {
+    if frac == 0.0 {
+        return *row;
+    }
+    let w = frac / ts;
+    Reference {
+        q: row.q + row.qd * frac + row.qdd * (0.5 * frac * frac),
+        qd: row.qd + row.qdd * frac,
+        qdd: row.qdd * (1.0 - w) + next.qdd * w,
+    }
+}
+
+#[cfg(test)]
+mod tests;
