@@ -5,7 +5,7 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use deltaloop_config::{ControllerParams, Law, Preset};
-use deltaloop_law::{Controller, Measurement, Reference};
+use deltaloop_law::{Controller, Delay, InertiaEstimate, Measurement, Predictor, Reference};
 use deltaloop_model::{DeltaRobot, Plant, SimConfig, Vec3};
 use std::hint::black_box;
 
@@ -74,11 +74,27 @@ fn controller(c: &mut Criterion) {
         qd: Vec3::new(1.01, -0.5, 0.2),
         qdd: Vec3::new(3.0, -2.0, 1.0),
     };
+    let params = ControllerParams::preset(Preset::Matched);
     for &law in Law::ALL {
-        let mut ctrl = Controller::new(law, ControllerParams::preset(Preset::Matched), 3e-4, 1);
+        let mut ctrl = Controller::new(law, params, 3e-4, 1);
         g.bench_function(law.name(), |b| {
             b.iter(|| ctrl.step(black_box(&m), black_box(&r)))
         });
+    }
+    // Compensated at eight ticks plus 100 µs of delay: nine torques in flight per step, and
+    // the inertia estimate's update (docs/controllers.md, "Delay compensation").
+    for law in [Law::Tdc, Law::TdeIs, Law::TdcIsSta, Law::TdcIsIsta] {
+        let predictor = Predictor::new(
+            Delay::from_ns(8 * 300_000 + 100_000, 300_000),
+            3e-4,
+            100.0,
+            InertiaEstimate::for_m_bar(params.m_bar),
+        );
+        let mut ctrl = Controller::new(law, params, 3e-4, 1).with_predictor(predictor);
+        g.bench_function(
+            format!("{}, compensated, d = 8 + 100 us", law.name()),
+            |b| b.iter(|| ctrl.step(black_box(&m), black_box(&r))),
+        );
     }
     g.finish();
 }

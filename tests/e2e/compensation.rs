@@ -115,3 +115,63 @@ fn lockstep_equals_inproc_with_compensation() {
     let trace = |p: &Path| std::fs::read(p.join("trace.csv")).unwrap();
     assert!(trace(&a) == trace(&b), "lockstep and inproc differ");
 }
+
+/// With the paper's sensor (4194304 counts/rev, σ_q 2e-7 rad, σ_q̇ 1e-3 rad/s) against the same
+/// sensor with no delay: S2 `tde-is` at one tick within 2×, `tdc` at two ticks within 3×.
+#[test]
+fn compensation_holds_with_the_papers_sensor_noise() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("s2-noise.toml");
+    std::fs::write(
+        &cfg,
+        "name = \"s2-noise\"\n[scenario]\npath = \"s2\"\n[plant]\nfriction = true\n\
+         [sensor]\nencoder_counts_per_rev = 4194304\nq_noise_std_rad = 2e-7\nqd_noise_std_rad_s = 1e-3\n",
+    )
+    .unwrap();
+    let cfg = cfg.to_str().unwrap();
+    let ideal = rms(tmp.path(), "ideal", cfg, &[]);
+    let pred = |name: &str, d: &str| {
+        rms(
+            tmp.path(),
+            name,
+            cfg,
+            &["--transport-delay", d, "--compensate", "predict"],
+        )
+    };
+    let (one, two) = (pred("d1", "1"), pred("d2", "2"));
+    assert!(
+        one[1] / ideal[1] <= 2.0,
+        "tde-is at d = 1: {one:?} vs {ideal:?}"
+    );
+    assert!(
+        two[0] / ideal[0] <= 3.0,
+        "tdc at d = 2: {two:?} vs {ideal:?}"
+    );
+}
+
+/// After the S1 payload step (0.5 kg at T/2, unknown to the controller), at one and two ticks of
+/// delay, no compensated law tracks worse than the same law uncompensated.
+#[test]
+fn compensation_is_no_worse_after_the_payload_step() {
+    let tmp = tempfile::tempdir().unwrap();
+    for d in ["1", "2"] {
+        let delay = ["--transport-delay", d];
+        let plain = rms(
+            tmp.path(),
+            &format!("d{d}"),
+            "configs/s1-payload.toml",
+            &delay,
+        );
+        let mut with = delay.to_vec();
+        with.extend(["--compensate", "predict"]);
+        let pred = rms(
+            tmp.path(),
+            &format!("d{d}-pred"),
+            "configs/s1-payload.toml",
+            &with,
+        );
+        for (i, law) in LAWS.iter().enumerate() {
+            assert!(pred[i] <= plain[i], "d = {d}, {law}: {pred:?} vs {plain:?}");
+        }
+    }
+}

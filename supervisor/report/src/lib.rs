@@ -14,7 +14,7 @@ pub mod trace;
 pub use trace::{TraceWriter, join_trace, trace_part};
 
 use anyhow::{Context, Result};
-use deltaloop_config::{LoopMode, Preset};
+use deltaloop_config::{Compensation, LoopMode, Preset};
 use deltaloop_law::{ControllerParams, Law};
 use deltaloop_study::analysis::Mismatch;
 use deltaloop_study::record::metrics::LawMetrics;
@@ -45,6 +45,8 @@ pub struct Summary<'a> {
     pub friction: bool,
     pub tau_max_nm: f64,
     pub tde_delay_samples: u32,
+    /// The laws' delay compensation (`controller.compensate`): `none` or `predict`.
+    pub compensate: Compensation,
     pub controller: ControllerParams,
     pub mismatch: &'a Mismatch,
     /// Ctrl-C / SIGTERM stopped the run: the data is partial.

@@ -1,8 +1,8 @@
 //! Human-readable results: the terminal table and `report.md`, shaped like the paper's
 //! Tables II–IV, plus the columns the paper does not have.
 
+use deltaloop_config::{Compensation, PathKind, VelocitySource};
 use deltaloop_config::{ControllerParams, Law, LoopMode, Overrun, Preset, RunConfig};
-use deltaloop_config::{PathKind, VelocitySource};
 use deltaloop_study::analysis::Mismatch;
 use deltaloop_study::record::metrics::LawMetrics;
 use deltaloop_study::record::sensitivity;
@@ -245,6 +245,13 @@ fn header(s: &mut String, cfg: &RunConfig, p: &ControllerParams, mode: LoopMode,
         cfg.loop_.ts_s * 1e3,
         cfg.controller.tde_delay_samples,
     );
+    if cfg.controller.compensate != Compensation::None {
+        let _ = writeln!(
+            s,
+            "Delay compensation: `{}` (docs/controllers.md, \"Delay compensation\").\n",
+            cfg.controller.compensate
+        );
+    }
     let extras = injected(cfg);
     if !extras.is_empty() {
         let _ = writeln!(s, "Injected: {}.\n", extras.join("; "));

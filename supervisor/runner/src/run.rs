@@ -485,6 +485,7 @@ fn write_results(
         friction: cfg.plant.friction,
         tau_max_nm: cfg.plant.tau_max_nm,
         tde_delay_samples: cfg.controller.tde_delay_samples,
+        compensate: cfg.controller.compensate,
         controller: study.params,
         mismatch: &mm,
         interrupted: crate::signals::interrupted(),
