@@ -175,3 +175,59 @@ fn compensation_is_no_worse_after_the_payload_step() {
         }
     }
 }
+
+/// `whatif --compensate predict` predicts the compensated law: with a zero-latency record on a
+/// scenario with one tick of transport delay, every replica is the compensated inproc run byte
+/// for byte.
+#[test]
+fn whatif_predicts_the_compensated_law() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("s2-d1.toml");
+    let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/s2-fast.toml");
+    let text = std::fs::read_to_string(&base).unwrap();
+    std::fs::write(
+        &cfg,
+        text.replace("[plant]\n", "[plant]\ntransport_delay_samples = 1\n"),
+    )
+    .unwrap();
+    assert!(
+        std::fs::read_to_string(&cfg)
+            .unwrap()
+            .contains("transport_delay_samples = 1")
+    );
+    let cfg = cfg.to_str().unwrap();
+    let ip = tmp.path().join("inproc");
+    run(
+        cfg,
+        "inproc",
+        &ip,
+        &["--law", "tde-is", "--compensate", "predict"],
+    );
+    let lat = tmp.path().join("zero.txt");
+    std::fs::write(&lat, "0\n").unwrap();
+    let out = tmp.path().join("w");
+    let o = common::deltaloop(&[
+        "whatif",
+        cfg,
+        "--law",
+        "tde-is",
+        "--compensate",
+        "predict",
+        "--latency",
+        lat.to_str().unwrap(),
+        "--replicas",
+        "2",
+        "--keep-traces",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let want = std::fs::read(ip.join("trace.csv")).unwrap();
+    for r in ["0000", "0001"] {
+        let got = std::fs::read(out.join("traces").join(r).join("trace.csv")).unwrap();
+        assert!(
+            got == want,
+            "replica {r} differs from the compensated inproc run"
+        );
+    }
+}

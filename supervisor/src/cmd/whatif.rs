@@ -4,7 +4,7 @@
 use super::words::Words;
 use super::{Context, OutArgs};
 use anyhow::Result;
-use deltaloop_config::{Law, RunConfig};
+use deltaloop_config::{Compensation, Law, RunConfig};
 use deltaloop_report::RunFolder;
 use deltaloop_studies::whatif::{self, DrawChoice, Request, source::Unit};
 use std::path::PathBuf;
@@ -21,6 +21,10 @@ pub struct Args {
     /// Only this law (repeatable; default: the config's laws).
     #[arg(long = "law", value_parser = Words::<Law>::new())]
     laws: Vec<Law>,
+    /// Delay compensation of the laws (controller.compensate): `none` or `predict` (default: the
+    /// config's). A compensated law predicts over the config's transport delay, as in a run.
+    #[arg(long, value_parser = Words::<Compensation>::new())]
+    compensate: Option<Compensation>,
     /// Replicas per law (each a drawn latency sequence).
     #[arg(long, default_value_t = 200)]
     replicas: u64,
@@ -58,6 +62,9 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
         // and wrote its key twice into whatif.json).
         cfg.controller.laws = a.laws.clone();
         cfg.validate().map_err(|e| anyhow::anyhow!("--law: {e}"))?;
+    }
+    if let Some(c) = a.compensate {
+        cfg.controller.compensate = c;
     }
     let dir = a
         .out
