@@ -90,30 +90,39 @@ fn compensation_without_delay_changes_nothing() {
     assert!(trace(&a) == trace(&b), "the traces differ");
 }
 
-/// Lockstep over the process pair equals inproc byte for byte with compensation, at a delay
+/// Lockstep over the process pair equals inproc byte for byte with compensation: at a delay
 /// that makes the controller read the reference ahead across the first chunk boundary (tick
-/// 4096: the run is longer than one chunk).
+/// 4096: a run longer than one chunk), and past the reference's end (no hold: the last ticks
+/// read rows beyond the last tick).
 #[test]
 fn lockstep_equals_inproc_with_compensation() {
     let tmp = tempfile::tempdir().unwrap();
-    let (a, b) = (tmp.path().join("inproc"), tmp.path().join("lockstep"));
-    let flags = [
-        "--law",
-        "tde-is",
-        "--transport-delay",
-        "2",
-        "--transport-delay-us",
-        "100",
-        "--compensate",
-        "predict",
-        "--hold-s",
-        "1.2",
-    ];
-    run("configs/s2-fast.toml", "inproc", &a, &flags);
-    let s = run("configs/s2-fast.toml", "lockstep", &b, &flags);
-    assert!(s["ticks"].as_u64().unwrap() > 4096, "{s}");
-    let trace = |p: &Path| std::fs::read(p.join("trace.csv")).unwrap();
-    assert!(trace(&a) == trace(&b), "lockstep and inproc differ");
+    for hold in ["1.2", "0"] {
+        let a = tmp.path().join(format!("inproc-{hold}"));
+        let b = tmp.path().join(format!("lockstep-{hold}"));
+        let flags = [
+            "--law",
+            "tde-is",
+            "--transport-delay",
+            "2",
+            "--transport-delay-us",
+            "100",
+            "--compensate",
+            "predict",
+            "--hold-s",
+            hold,
+        ];
+        run("configs/s2-fast.toml", "inproc", &a, &flags);
+        let s = run("configs/s2-fast.toml", "lockstep", &b, &flags);
+        if hold != "0" {
+            assert!(s["ticks"].as_u64().unwrap() > 4096, "{s}");
+        }
+        let trace = |p: &Path| std::fs::read(p.join("trace.csv")).unwrap();
+        assert!(
+            trace(&a) == trace(&b),
+            "hold {hold}: lockstep and inproc differ"
+        );
+    }
 }
 
 /// With the paper's sensor (4194304 counts/rev, σ_q 2e-7 rad, σ_q̇ 1e-3 rad/s) against the same

@@ -142,11 +142,12 @@ pub fn run_schedule<'a>(
             return lawrun::finish(rec, None);
         }
         let state = plant.state();
-        // The rows of the time the reply acts (a compensated law looks ahead); past the table's
-        // last row, the robot holds that row's pose.
+        // The rows of the time the reply acts (a compensated law looks ahead); past the
+        // reference's last row (N + 1, the last the process modes' controller receives), that row.
         let (j, next) = ctrl.rows_for(k);
+        let last_row = study.reference.row_count() as u64 - 1;
         let row = |j: u64| {
-            let j = j.min(study.reference.n as u64);
+            let j = j.min(last_row);
             study
                 .reference
                 .try_row(j as usize)
