@@ -41,7 +41,6 @@ pub struct InertiaEstimate {
     last2: Option<(Vec3, Vec3)>,
     /// θ's bounds, 1/(kg m²): (min, max).
     theta_bounds: (f64, f64),
-    learning: bool,
 }
 
 impl InertiaEstimate {
@@ -55,7 +54,6 @@ impl InertiaEstimate {
             last: None,
             last2: None,
             theta_bounds: (1.0 / hi, 1.0 / lo),
-            learning: true,
         }
     }
 
@@ -70,7 +68,7 @@ impl InertiaEstimate {
         )
     }
 
-    /// A fixed inertia `m` (kg m², per joint), never updated.
+    /// A fixed inertia `m` (kg m², per joint), never updated (a zero covariance: every gain is 0).
     pub fn fixed(m: Vec3) -> Self {
         Self {
             theta: m.map(|m| 1.0 / m),
@@ -78,7 +76,6 @@ impl InertiaEstimate {
             last: None,
             last2: None,
             theta_bounds: (0.0, f64::INFINITY),
-            learning: false,
         }
     }
 
@@ -103,9 +100,6 @@ impl InertiaEstimate {
         let (Some((a1, t1)), Some((a2, t2))) = (prev, prev2) else {
             return;
         };
-        if !self.learning {
-            return;
-        }
         let (lo, hi) = self.theta_bounds;
         for i in 0..3 {
             let d2a = accel[i] - 2.0 * a1[i] + a2[i];

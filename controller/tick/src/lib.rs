@@ -37,22 +37,15 @@ impl ControllerSide {
         }
     }
 
-    /// The reference rows tick k's answer needs: (j, j + 1) with j = k + d, d the whole ticks
-    /// of the compensated delay (j = k, and row j alone, without compensation).
-    pub fn rows_for(&self, k: u64) -> (u64, u64) {
-        let d = self.lookahead().unwrap_or(0);
-        (k + d, k + d + 1)
-    }
-
     /// d, the whole ticks of the delay a compensated law looks ahead by; None without
     /// compensation.
     pub fn lookahead(&self) -> Option<u64> {
         self.ctrl.predictor().map(|p| p.delay().whole as u64)
     }
 
-    /// Tick k with the reference rows [`rows_for`](Self::rows_for) names: `row` (j) and `next`
-    /// (j + 1, read only for a sub-tick delay). Without compensation, [`answer`](Self::answer)
-    /// with `row`.
+    /// Tick k of a compensated law with the reference rows j = k + d (`row`) and j + 1 (`next`,
+    /// read only for a sub-tick delay), d its [`lookahead`](Self::lookahead). Without
+    /// compensation, [`answer`](Self::answer) with `row`.
     pub fn answer_ahead(
         &mut self,
         state: &StateMsg,
@@ -64,11 +57,6 @@ impl ControllerSide {
             None => *row,
         };
         self.answer(state, &r)
-    }
-
-    /// M̂ per joint (kg m²) of a compensated law, learned so far.
-    pub fn m_hat(&self) -> Option<Vec3> {
-        self.ctrl.predictor().map(|p| p.inertia().m_hat())
     }
 
     /// The law this side runs.

@@ -142,22 +142,31 @@ pub fn run_schedule<'a>(
             return lawrun::finish(rec, None);
         }
         let state = plant.state();
-        // The rows of the time the reply acts (a compensated law looks ahead); past the
-        // reference's last row (N + 1, the last the process modes' controller receives), that row.
-        let (j, next) = ctrl.rows_for(k);
-        let last_row = study.reference.row_count() as u64 - 1;
         let row = |j: u64| {
-            let j = j.min(last_row);
             study
                 .reference
                 .try_row(j as usize)
                 .map(|r| r.joint)
                 .map_err(|e| anyhow::anyhow!("the reference at tick {j}: {e}"))
         };
-        let (reference, next) = (row(j)?, row(next)?);
+        let reference = row(k)?;
+        // A compensated law reads the rows of the time its reply acts, k + d and k + d + 1, or
+        // past the reference's last row (N + 1, the last the process modes' controller
+        // receives) that row.
+        let ahead = match ctrl.lookahead() {
+            None => None,
+            Some(d) => {
+                let last_row = study.reference.row_count() as u64 - 1;
+                let j = (k + d).min(last_row);
+                Some((row(j)?, row((j + 1).min(last_row))?))
+            }
+        };
         let (reply, arrival) = match outcome {
             ReplyOutcome::Applied(_) | ReplyOutcome::Late => {
-                let mut reply = ctrl.answer_ahead(&state, &reference, &next);
+                let mut reply = match &ahead {
+                    None => ctrl.answer(&state, &reference),
+                    Some((row, next)) => ctrl.answer_ahead(&state, row, next),
+                };
                 reply.skipped = std::mem::take(&mut skipped_before);
                 (Some(reply), outcome.arrival(reply))
             }
