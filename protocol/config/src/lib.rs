@@ -35,7 +35,9 @@ mod sections;
 pub mod text;
 mod validate;
 
-pub use deltaloop_names::{Compensation, ControllerParams, Law, Preset, VelocitySource};
+pub use deltaloop_names::{
+    Compensation, ControllerParams, Law, LawVariant, Preset, VelocitySource,
+};
 pub use error::ConfigError;
 pub use files::{MAX_FILE_BYTES, read_text_file};
 pub use key::{Allowed, Bounds, Key, KeyDefault};

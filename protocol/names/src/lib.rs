@@ -7,5 +7,5 @@
 mod params;
 mod text;
 
-pub use params::{Compensation, ControllerParams, Law, Preset, VelocitySource};
+pub use params::{Compensation, ControllerParams, Law, LawVariant, Preset, VelocitySource};
 pub use text::{TextEnum, allowed, one_of, parse};

@@ -147,7 +147,7 @@ crate::text_enum! {
     "kebab-case", "compensation";
     /// How a law meets the delay between its measurement and the moment its torque acts
     /// (docs/controllers.md, "Delay compensation").
-    #[derive(Default)]
+    #[derive(Default, PartialOrd, Ord)]
     pub enum Compensation {
         /// The law acts on the state it measured.
         #[default]
@@ -155,5 +155,95 @@ crate::text_enum! {
         /// The law acts on the state predicted for when its torque acts, over the torques in
         /// flight, with an inertia learned from measured data, and on the reference of that time.
         Predict,
+    }
+}
+
+impl Compensation {
+    /// What a law's name gets in tables and `sweep.csv` when it runs this way: "" or `+pred`.
+    pub fn suffix(self) -> &'static str {
+        match self {
+            Compensation::None => "",
+            Compensation::Predict => "+pred",
+        }
+    }
+}
+
+/// A law as tables, `sweep.csv` and figures name it: `tde-is`, or `tde-is+pred` compensated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct LawVariant {
+    pub law: Law,
+    pub compensate: Compensation,
+}
+
+impl LawVariant {
+    /// `law` as it runs with `compensate`.
+    pub fn new(law: Law, compensate: Compensation) -> Self {
+        Self { law, compensate }
+    }
+
+    /// Parses `tde-is` or `tde-is+pred`; the error lists what is allowed.
+    pub fn parse(s: &str) -> Result<Self, String> {
+        let (name, compensate) = match s.strip_suffix(Compensation::Predict.suffix()) {
+            Some(name) => (name, Compensation::Predict),
+            None => (s, Compensation::None),
+        };
+        let law = Law::parse(name).map_err(|e| {
+            format!(
+                "{e}; a compensated law adds `{}`",
+                Compensation::Predict.suffix()
+            )
+        })?;
+        Ok(Self { law, compensate })
+    }
+}
+
+impl From<Law> for LawVariant {
+    fn from(law: Law) -> Self {
+        Self::new(law, Compensation::None)
+    }
+}
+
+impl std::fmt::Display for LawVariant {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(&format!("{}{}", self.law.name(), self.compensate.suffix()))
+    }
+}
+
+impl Serialize for LawVariant {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> Deserialize<'de> for LawVariant {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let s = <std::borrow::Cow<'de, str>>::deserialize(d)?;
+        Self::parse(&s).map_err(serde::de::Error::custom)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every law, compensated or not, reads back from its name; an unknown one says what is
+    /// allowed.
+    #[test]
+    fn law_variants_round_trip_through_their_names() {
+        for &law in Law::ALL {
+            for &c in Compensation::ALL {
+                let v = LawVariant::new(law, c);
+                assert_eq!(LawVariant::parse(&v.to_string()), Ok(v));
+            }
+        }
+        assert_eq!(
+            LawVariant::new(Law::TdeIs, Compensation::Predict).to_string(),
+            "tde-is+pred"
+        );
+        let e = LawVariant::parse("tde-is+smith").unwrap_err();
+        assert!(
+            e.contains("unknown law `tde-is+smith`") && e.contains("+pred"),
+            "{e}"
+        );
     }
 }

@@ -56,6 +56,8 @@ pub struct Series {
     /// Error bars (x, low, high): a confidence interval at each point, drawn as a vertical bar
     /// with caps. Empty: none.
     pub bars: Vec<(f64, f64, f64)>,
+    /// Drawn dashed: the second variant of a law (e.g. compensated), beside its solid line.
+    pub dashed: bool,
 }
 
 /// One panel of a figure.
@@ -138,12 +140,22 @@ macro_rules! draw_panel {
                         && (!$p.log_x || *x > 0.0)
                 })
                 .collect();
-            chart
-                .draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
+            let style = color.stroke_width(2);
+            let drawn = if s.dashed {
+                chart.draw_series(DashedLineSeries::new(pts.clone(), 6, 4, style))
+            } else {
+                chart.draw_series(LineSeries::new(pts.clone(), style))
+            };
+            let dashed = s.dashed;
+            drawn
                 .map_err(e)?
                 .label(s.name.as_str())
                 .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+                    // Two strokes with a gap for a dashed series, one for a solid one.
+                    let (a, b) = if dashed { (8, 12) } else { (20, 20) };
+                    EmptyElement::at((x, y))
+                        + PathElement::new(vec![(0, 0), (a, 0)], style)
+                        + PathElement::new(vec![(b, 0), (20, 0)], style)
                 });
             let bars: Vec<(f64, f64, f64)> = s
                 .bars

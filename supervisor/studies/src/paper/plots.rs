@@ -111,6 +111,7 @@ fn joint_panels(
             series: runs
                 .iter()
                 .map(|r| Series {
+                    dashed: false,
                     bars: Vec::new(),
                     name: format!("{} ({})", r.law.paper_name(), r.law.name()),
                     color: plot::law_color(r.law),

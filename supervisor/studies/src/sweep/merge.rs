@@ -215,7 +215,7 @@ fn check_row(plan: &Plan, d: &Path, m: &Manifest, line: usize, r: &Row) -> Resul
         r.mode,
         r.tde_delay_samples,
         r.transport_delay_samples,
-    ) != (p.job.law, p.mode, p.job.ell, p.job.d)
+    ) != (p.job.variant(), p.mode, p.job.ell, p.job.d)
         || r.scenario != p.job.scenario
         || r.preset != p.job.preset
         || r.compute_delay_us != p.job.kind.compute_us()

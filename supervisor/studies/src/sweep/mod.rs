@@ -11,6 +11,7 @@ use anyhow::Result;
 use deltaloop_config::RunConfig;
 use std::path::Path;
 
+mod compensation;
 pub mod merge;
 pub mod plan;
 mod plots;
@@ -375,6 +376,7 @@ mod tests {
             scenario: PathKind::S2,
             preset: Preset::Paper,
             law: Law::TdeIs,
+            compensate: deltaloop_config::Compensation::None,
             ell: 2,
             d: 1,
             kind: PointKind::Compute { us: 200 },
@@ -403,7 +405,10 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         let rows = rows.unwrap();
         assert_eq!(rows.len(), 1);
-        assert_eq!((rows[0].law, rows[0].status), (Law::Pid, RunStatus::Ok));
+        assert_eq!(
+            (rows[0].law, rows[0].status),
+            (Law::Pid.into(), RunStatus::Ok)
+        );
     }
 
     /// With an encoder in the base config the twins' one-ulp change stays inside a count: the

@@ -70,13 +70,14 @@ fn sha256_hex(parts: &[&[u8]]) -> String {
 }
 
 /// The parameters a point id hashes. `D` is written exactly (Rust's shortest round-trip form);
-/// a link point adds its emulated link (the other points' ids stay as they were).
+/// a link point adds its emulated link, a compensated law its `+pred` (the other points' ids
+/// stay as they were).
 fn params_key(job: &Job, mode: LoopMode) -> String {
     let mut key = format!(
         "scenario={} preset={} law={} ell={} d={} D_us={:?} compute_us={} mode={}",
         job.scenario.name(),
         job.preset.name(),
-        job.law.name(),
+        job.variant(),
         job.ell,
         job.d,
         job.kind.transport_us(),

@@ -2,9 +2,9 @@
 //! effective-delay figures of a sub-tick axis.
 
 use super::point::{Metric, Row};
-use super::schema::SweepFile;
+use super::schema::{SweepFile, variants};
 use anyhow::Result;
-use deltaloop_config::LoopMode;
+use deltaloop_config::{Compensation, LoopMode};
 use deltaloop_report::plot::{self, Panel, Series};
 use deltaloop_study::record::RunStatus;
 use std::path::Path;
@@ -87,9 +87,8 @@ pub(super) fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(Str
             for &sc in &sw.scenarios {
                 for &pr in &sw.presets {
                     let scn = sc.name();
-                    let series = sw
-                        .laws
-                        .iter()
+                    let series = variants(sw)
+                        .into_iter()
                         .map(|law| {
                             let here: Vec<&Row> = rows
                                 .iter()
@@ -97,13 +96,14 @@ pub(super) fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(Str
                                     on_axis(r)
                                         && r.scenario == sc
                                         && r.preset == pr
-                                        && r.law == *law
+                                        && r.law == law
                                         && r.status == RunStatus::Ok
                                 })
                                 .collect();
                             Series {
-                                name: law.name().to_string(),
-                                color: plot::law_color(*law),
+                                dashed: law.compensate != Compensation::None,
+                                name: law.to_string(),
+                                color: plot::law_color(law.law),
                                 points: here.iter().map(|r| (x_of(r), get(r))).collect(),
                                 bars: bars(&here, x_of, band),
                             }
@@ -132,6 +132,9 @@ pub(super) fn plots(sw: &SweepFile, rows: &[Row], out: &Path) -> Result<Vec<(Str
     if !sw.transport_delay_us.is_empty() {
         written.extend(effective_delay_figures(sw, rows, out)?);
     }
+    if super::compensation::compares(sw) {
+        written.push(super::compensation::figure(sw, rows, out)?);
+    }
     Ok(written)
 }
 
@@ -158,7 +161,7 @@ fn effective_delay_figures(
                         && r.effective_delay_ticks <= max_x
                 };
                 let mut series = Vec::new();
-                for &law in &sw.laws {
+                for law in variants(sw) {
                     let points = |by_ell: bool| -> Vec<&Row> {
                         let mut p: Vec<&Row> = rows
                             .iter()
@@ -179,15 +182,16 @@ fn effective_delay_figures(
                     };
                     let x = |r: &Row| r.effective_delay_ticks;
                     for (by_ell, name, color) in [
-                        (true, format!("{law}: ℓ"), plot::law_color(law)),
+                        (true, format!("{law}: ℓ"), plot::law_color(law.law)),
                         (
                             false,
                             format!("{law}: D (µs)"),
-                            plot::lighter(plot::law_color(law)),
+                            plot::lighter(plot::law_color(law.law)),
                         ),
                     ] {
                         let p = points(by_ell);
                         series.push(Series {
+                            dashed: law.compensate != Compensation::None,
                             name,
                             color,
                             points: p.iter().map(|r| (x(r), get(r))).collect(),

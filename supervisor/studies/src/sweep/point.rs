@@ -4,7 +4,7 @@
 use super::schema::{Job, SweepFile};
 use anyhow::{Context, Result};
 use deltaloop_config::PathKind;
-use deltaloop_config::{Law, LoopMode, Preset, RunConfig};
+use deltaloop_config::{Compensation, Law, LawVariant, LoopMode, Preset, RunConfig};
 use deltaloop_runner::Ran;
 use deltaloop_runner::inproc;
 use deltaloop_runner::lawrun::Keep;
@@ -22,7 +22,8 @@ pub struct Row {
     pub point: String,
     pub scenario: PathKind,
     pub preset: Preset,
-    pub law: Law,
+    /// The law, `<law>+pred` when it ran compensated (`controller.compensate = "predict"`).
+    pub law: LawVariant,
     pub mode: LoopMode,
     pub tde_delay_samples: u32,
     pub transport_delay_samples: u32,
@@ -234,7 +235,7 @@ fn row(
         point: String::new(),
         scenario: job.scenario,
         preset: job.preset,
-        law: job.law,
+        law: job.variant(),
         mode,
         tde_delay_samples: job.ell,
         transport_delay_samples: job.d,
@@ -377,10 +378,14 @@ fn summarise(reps: Vec<Row>) -> Row {
 pub(super) fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
     let mut c = base.clone();
     c.name = format!(
-        "{}-{}-{}-l{}-d{}-u{}-c{}{}",
+        "{}-{}-{}{}-l{}-d{}-u{}-c{}{}",
         job.scenario.name(),
         job.preset.name(),
         job.law,
+        match job.compensate {
+            Compensation::None => "",
+            Compensation::Predict => "-pred",
+        },
         job.ell,
         job.d,
         (job.kind.transport_us() * 1e3).round(),
@@ -407,6 +412,7 @@ pub(super) fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
     c.controller.m_bar = Some(p.m_bar);
     c.controller.phi = Some(p.phi);
     c.controller.laws = vec![job.law];
+    c.controller.compensate = job.compensate;
     c.controller.tde_delay_samples = job.ell;
     c.controller.compute_delay_us = job.kind.compute_us();
     c.plant.transport_delay_samples = job.d;
@@ -649,6 +655,7 @@ mod tests {
             scenario: PathKind::S2,
             preset: Preset::Matched,
             law: Law::Tdc,
+            compensate: Compensation::None,
             ell: 1,
             d: 0,
             kind: PointKind::Compute { us: 200 },

@@ -1,9 +1,9 @@
 //! The sweep's `report.md`: one table per axis, the latency budget of each law.
 
 use super::point::{LINK_MAX_MISS_SHARE, Metric, Row};
-use super::schema::SweepFile;
+use super::schema::{SweepFile, variants};
 use deltaloop_config::PathKind;
-use deltaloop_config::{Law, LoopMode, Preset};
+use deltaloop_config::{LawVariant, LoopMode, Preset};
 use deltaloop_study::record::RunStatus;
 use deltaloop_study::record::{sensitivity, stats};
 use std::fmt::Write as _;
@@ -18,7 +18,7 @@ fn latency_budget<'a>(
     rows: &'a [Row],
     scenario: PathKind,
     preset: Preset,
-    law: Law,
+    law: LawVariant,
 ) -> Option<(&'a Row, f64, &'a Row)> {
     let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
     let at = |us: f64| {
@@ -128,8 +128,8 @@ fn axis_table<'a>(
     caption: &str,
     sym: &str,
     values: &[u32],
-    laws: &[Law],
-    find: impl Fn(Law, u32) -> Option<&'a Row>,
+    laws: &[LawVariant],
+    find: impl Fn(LawVariant, u32) -> Option<&'a Row>,
     get: Shown,
 ) {
     let _ = writeln!(s, "{caption}:\n");
@@ -222,6 +222,9 @@ pub(super) fn report(
     if !sw.link_delay_us.is_empty() {
         link_table(&mut s, sw, rows);
     }
+    if super::compensation::compares(sw) {
+        super::compensation::table(&mut s, sw, rows);
+    }
     if !sw.transport_delay_us.is_empty() {
         budget_table(&mut s, sw, rows);
     }
@@ -301,12 +304,12 @@ fn grid_tables(s: &mut String, sw: &SweepFile, rows: &[Row]) {
                 );
                 let (l0, d0) = (sw.tde_delay_samples[0], sw.transport_delay_samples[0]);
                 let base = |r: &&Row| r.on_grid() && r.scenario == sc && r.preset == pr;
-                let by_ell = |law: Law, l: u32| {
+                let by_ell = |law: LawVariant, l: u32| {
                     rows.iter().filter(base).find(|r| {
                         r.law == law && r.tde_delay_samples == l && r.transport_delay_samples == d0
                     })
                 };
-                let by_d = |law: Law, d: u32| {
+                let by_d = |law: LawVariant, d: u32| {
                     rows.iter().filter(base).find(|r| {
                         r.law == law && r.tde_delay_samples == l0 && r.transport_delay_samples == d
                     })
@@ -316,7 +319,7 @@ fn grid_tables(s: &mut String, sw: &SweepFile, rows: &[Row]) {
                     &format!("Against the TDE delay ℓ (transport delay d = {d0})"),
                     "ℓ",
                     &sw.tde_delay_samples,
-                    &sw.laws,
+                    &variants(sw),
                     by_ell,
                     get,
                 );
@@ -325,7 +328,7 @@ fn grid_tables(s: &mut String, sw: &SweepFile, rows: &[Row]) {
                     &format!("Against the transport delay d (ℓ = {l0})"),
                     "d",
                     &sw.transport_delay_samples,
-                    &sw.laws,
+                    &variants(sw),
                     by_d,
                     get,
                 );
@@ -344,7 +347,7 @@ fn budget_table(s: &mut String, sw: &SweepFile, rows: &[Row]) {
     );
     for &sc in &sw.scenarios {
         for &pr in &sw.presets {
-            for &law in &sw.laws {
+            for law in variants(sw) {
                 if let Some((zero, us, there)) = latency_budget(sw, rows, sc, pr, law) {
                     let _ = writeln!(
                         s,

@@ -3,7 +3,7 @@
 
 use anyhow::{Result, bail};
 use deltaloop_config::{self as cfgfile, PathKind};
-use deltaloop_config::{ConfigError, Law, LoopMode, Preset, RunConfig};
+use deltaloop_config::{Compensation, ConfigError, Law, LawVariant, LoopMode, Preset, RunConfig};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -23,6 +23,11 @@ pub struct SweepFile {
     pub scenarios: Vec<PathKind>,
     pub presets: Vec<Preset>,
     pub laws: Vec<Law>,
+    /// Each law with and/or without delay compensation (`controller.compensate`): a compensated
+    /// point's rows name the law `<law>+pred`. `pid`, which has no TDE model to predict with,
+    /// runs uncompensated only. Default `["none"]`.
+    #[serde(default = "uncompensated", skip_serializing_if = "is_uncompensated")]
+    pub compensate: Vec<Compensation>,
     pub tde_delay_samples: Vec<u32>,
     pub transport_delay_samples: Vec<u32>,
     /// Sub-tick transport delay axis, µs: each value runs every law × scenario × preset at the
@@ -57,6 +62,27 @@ pub struct SweepFile {
     pub sensitivity: bool,
 }
 
+fn uncompensated() -> Vec<Compensation> {
+    vec![Compensation::None]
+}
+
+fn is_uncompensated(v: &Vec<Compensation>) -> bool {
+    *v == uncompensated()
+}
+
+/// The law variants a sweep runs, in its order: each law × each `compensate` it can take.
+pub fn variants(sw: &SweepFile) -> Vec<LawVariant> {
+    sw.laws
+        .iter()
+        .flat_map(|&law| {
+            sw.compensate
+                .iter()
+                .filter(move |&&c| c == Compensation::None || law.uses_tde())
+                .map(move |&c| LawVariant::new(law, c))
+        })
+        .collect()
+}
+
 fn one() -> u32 {
     1
 }
@@ -86,6 +112,7 @@ pub struct Job {
     pub(super) scenario: PathKind,
     pub(super) preset: Preset,
     pub(super) law: Law,
+    pub(super) compensate: Compensation,
     pub(super) ell: u32,
     pub(super) d: u32,
     /// Which axis the point is of, and its value there.
@@ -142,6 +169,13 @@ impl PointKind {
     }
 }
 
+impl Job {
+    /// The law as the point runs it, `<law>+pred` when compensated.
+    pub fn variant(&self) -> LawVariant {
+        LawVariant::new(self.law, self.compensate)
+    }
+}
+
 impl std::fmt::Display for Job {
     /// `s1/matched/tdc ℓ=1 d=0`, and `c=200us (realtime)` for the compute-delay axis.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -150,7 +184,7 @@ impl std::fmt::Display for Job {
             "{}/{}/{} ℓ={} d={}",
             self.scenario.name(),
             self.preset.name(),
-            self.law,
+            self.variant(),
             self.ell,
             self.d
         )?;
@@ -178,9 +212,9 @@ fn repeated(values: &[String]) -> Option<&String> {
 /// `sweep merge` on allocation).
 pub const MAX_POINTS: u64 = 100_000;
 
-/// How many points a sweep expands to: scenarios × presets × laws × (ℓ × d + the sub-tick
-/// delays above 0 + the compute delays), in checked arithmetic; the error names the axes, their
-/// product and [`MAX_POINTS`].
+/// How many points a sweep expands to: scenarios × presets × laws (each compensated or not, as
+/// `compensate` says) × (ℓ × d + the sub-tick delays above 0 + the compute delays), in checked
+/// arithmetic; the error names the axes, their product and [`MAX_POINTS`].
 fn point_count(sw: &SweepFile) -> Result<u64> {
     let n = |v: usize| v as u64;
     let us = sw.transport_delay_us.iter().filter(|&&us| us > 0.0).count();
@@ -189,7 +223,7 @@ fn point_count(sw: &SweepFile) -> Result<u64> {
         .and_then(|g| g.checked_add(n(us)))
         .and_then(|g| g.checked_add(n(sw.compute_delay_us.len())))
         .and_then(|g| g.checked_add(n(sw.link_delay_us.len())))
-        .and_then(|g| g.checked_mul(n(sw.laws.len())))
+        .and_then(|g| g.checked_mul(n(variants(sw).len())))
         .and_then(|g| g.checked_mul(n(sw.presets.len())))
         .and_then(|g| g.checked_mul(n(sw.scenarios.len())));
     match count {
@@ -199,7 +233,7 @@ fn point_count(sw: &SweepFile) -> Result<u64> {
             count.map_or_else(|| "more than 2^64".to_string(), |c| c.to_string()),
             sw.scenarios.len(),
             sw.presets.len(),
-            sw.laws.len(),
+            variants(sw).len(),
             sw.tde_delay_samples.len(),
             sw.transport_delay_samples.len(),
             sw.compute_delay_us.len(),
@@ -246,7 +280,7 @@ fn check(sw: &SweepFile) -> Result<()> {
         );
     }
     point_count(sw)?;
-    let axes: [(&str, Vec<String>, bool); 8] = [
+    let axes: [(&str, Vec<String>, bool); 9] = [
         (
             "scenarios",
             sw.scenarios.iter().map(|s| s.name().to_string()).collect(),
@@ -260,6 +294,11 @@ fn check(sw: &SweepFile) -> Result<()> {
         (
             "laws",
             sw.laws.iter().map(|l| l.name().to_string()).collect(),
+            true,
+        ),
+        (
+            "compensate",
+            sw.compensate.iter().map(|c| c.name().to_string()).collect(),
             true,
         ),
         (
@@ -430,13 +469,14 @@ pub(super) fn jobs(sw: &SweepFile) -> Result<Vec<Job>> {
     let mut v = Vec::new();
     for &scenario in &sw.scenarios {
         for &preset in &sw.presets {
-            for &law in &sw.laws {
+            for LawVariant { law, compensate } in variants(sw) {
                 for &ell in &sw.tde_delay_samples {
                     for &d in &sw.transport_delay_samples {
                         v.push(Job {
                             scenario,
                             preset,
                             law,
+                            compensate,
                             ell,
                             d,
                             kind: PointKind::Grid,
@@ -448,6 +488,7 @@ pub(super) fn jobs(sw: &SweepFile) -> Result<Vec<Job>> {
                     scenario,
                     preset,
                     law,
+                    compensate,
                     ell: sw.tde_delay_samples[0],
                     d: sw.transport_delay_samples[0],
                     kind,
@@ -490,6 +531,42 @@ mod tests {
         ))
         .unwrap();
         assert_eq!(point_count(&sw).unwrap(), MAX_POINTS);
+    }
+
+    /// `compensate = ["none", "predict"]` runs each TDE law twice and `pid` once, counted as
+    /// expanded; an empty or repeated list is refused.
+    #[test]
+    fn the_compensate_axis_runs_each_tde_law_both_ways_and_pid_once() {
+        let sweep = |comp: &str| {
+            toml::from_str::<SweepFile>(&format!(
+                "name = \"c\"\nbase = \"b.toml\"\nscenarios = [\"s2\"]\npresets = [\"matched\"]\nlaws = [\"tdc\", \"pid\"]\n{comp}tde_delay_samples = [1]\ntransport_delay_samples = [0, 1]\ntransport_delay_us = [0, 45]\n"
+            ))
+            .unwrap()
+        };
+        let sw = sweep("compensate = [\"none\", \"predict\"]\n");
+        let names: Vec<String> = variants(&sw).iter().map(|v| v.to_string()).collect();
+        assert_eq!(names, ["tdc", "tdc+pred", "pid"]);
+        let j = jobs(&sw).unwrap();
+        assert_eq!(j.len() as u64, point_count(&sw).unwrap());
+        assert_eq!(j.len(), 3 * 3);
+        assert_eq!(
+            j.iter()
+                .filter(|j| j.compensate == Compensation::Predict)
+                .count(),
+            3
+        );
+        // Without the key, as before: one variant per law.
+        assert_eq!(variants(&sweep("")).len(), 2);
+        for (comp, says) in [
+            ("compensate = []\n", "`compensate` = [] is out of range"),
+            (
+                "compensate = [\"predict\", \"predict\"]\n",
+                "`compensate` lists predict twice",
+            ),
+        ] {
+            let e = check(&sweep(comp)).unwrap_err().to_string();
+            assert!(e.contains(says), "{e}");
+        }
     }
 
     /// Regression: `sensor.seed = 2⁶⁴ − 1` with 3 repeats ran seeds that wrapped to 0 and 1, and

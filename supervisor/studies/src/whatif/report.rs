@@ -310,12 +310,14 @@ fn latency_panel(json: &WhatIfJson, pool: &Pool) -> Panel {
         log_y: true,
         series: vec![
             Series {
+                dashed: false,
                 name: "pooled replies".into(),
                 color: plot::RGBColor(40, 80, 160),
                 points: kept,
                 bars: vec![],
             },
             Series {
+                dashed: false,
                 name: format!("budget {:.0} µs", json.latency.budget_us),
                 color: plot::RGBColor(200, 40, 40),
                 points: vec![
@@ -340,6 +342,7 @@ fn rms_panel(samples: &[Sample], replicas: usize, laws: &[Law], scales: &[f64]) 
             v.sort_by(f64::total_cmp);
             let n = v.len() as f64;
             Series {
+                dashed: false,
                 name: law.to_string(),
                 color: plot::law_color(law),
                 points: v
@@ -376,6 +379,7 @@ fn scale_panel(sc: &ByName<ByName<LawOut>>, laws: &[Law]) -> Panel {
                 .filter_map(|(s, v)| Some((*s, v.get(&key)?.rms_max_rad.as_ref()?)))
                 .collect();
             Series {
+                dashed: false,
                 name: key.clone(),
                 color: plot::law_color(law),
                 points: at.iter().map(|(s, d)| (*s, d.p50)).collect(),
