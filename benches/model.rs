@@ -5,7 +5,9 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use deltaloop_config::{ControllerParams, Law, Preset};
-use deltaloop_law::{Controller, Delay, InertiaEstimate, Measurement, Predictor, Reference};
+use deltaloop_law::{
+    Controller, Delay, DelayEstimate, InertiaEstimate, Measurement, Predictor, Reference,
+};
 use deltaloop_model::{DeltaRobot, Plant, SimConfig, Vec3};
 use std::hint::black_box;
 
@@ -96,6 +98,19 @@ fn controller(c: &mut Criterion) {
             |b| b.iter(|| ctrl.step(black_box(&m), black_box(&r))),
         );
     }
+    // What measuring the delay adds to a compensated step (docs/controllers.md, "D in
+    // realtime"): one report learned from (a least-squares fit per candidate m and the median of
+    // the last 31 fits) and one command recorded, commands that change every tick.
+    let mut est = DelayEstimate::new(Delay::from_ns(8 * 300_000 + 100_000, 300_000), 3e-4, 100.0);
+    let mut k = 0u64;
+    g.bench_function("delay measured, d = 8 + 100 us", |b| {
+        b.iter(|| {
+            k += 1;
+            let c = Vec3::repeat((k % 7) as f64 * 0.1);
+            est.observe(black_box(k), black_box(c * 0.7));
+            est.sent(k, black_box(c));
+        })
+    });
     g.finish();
 }
 

@@ -125,6 +125,58 @@ fn lockstep_equals_inproc_with_compensation() {
     }
 }
 
+/// A compensated law told nothing of the delay (D₀ = 0) that measures it from the drives'
+/// reports (`--compensate-delay measured`) does as well as one told the delay exactly, at 150 µs
+/// and at one tick (the end of its search, D₀ + Ts); lockstep equals inproc with it byte for
+/// byte; and one told a delay 50 % short at one tick loses most of what compensation wins.
+#[test]
+fn a_measured_delay_compensates_as_the_configured_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let ideal = rms(d, "ideal", "configs/s2-fast.toml", &[]);
+    for us in ["150", "300"] {
+        let delay = ["--transport-delay-us", us, "--compensate", "predict"];
+        let told = rms(d, &format!("told-{us}"), "configs/s2-fast.toml", &delay);
+        let mut measuring = delay.to_vec();
+        measuring.extend([
+            "--compensate-delay",
+            "measured",
+            "--compensate-delay-us",
+            "0",
+        ]);
+        let measured = rms(
+            d,
+            &format!("measured-{us}"),
+            "configs/s2-fast.toml",
+            &measuring,
+        );
+        for (i, law) in LAWS.iter().enumerate() {
+            assert!(
+                measured[i] <= 1.05 * told[i] && measured[i] <= 2.0 * ideal[i],
+                "{us} µs {law}: measured {:.3e} rad, told {:.3e}, no delay {:.3e}",
+                measured[i],
+                told[i],
+                ideal[i]
+            );
+        }
+        if us == "300" {
+            let mut short = delay.to_vec();
+            short.extend(["--compensate-delay-us", "150"]);
+            let short = rms(d, "short-300", "configs/s2-fast.toml", &short);
+            assert!(
+                short[1] > 10.0 * told[1],
+                "tde-is told 150 of 300 µs: {short:?} vs {told:?}"
+            );
+            let (a, b) = (d.join("inproc-measured"), d.join("lockstep-measured"));
+            let flags: Vec<&str> = ["--law", "tde-is"].into_iter().chain(measuring).collect();
+            run("configs/s2-fast.toml", "inproc", &a, &flags);
+            run("configs/s2-fast.toml", "lockstep", &b, &flags);
+            let trace = |p: &Path| std::fs::read(p.join("trace.csv")).unwrap();
+            assert!(trace(&a) == trace(&b), "lockstep and inproc differ");
+        }
+    }
+}
+
 /// With the paper's sensor (4194304 counts/rev, σ_q 2e-7 rad, σ_q̇ 1e-3 rad/s) against the same
 /// sensor with no delay: S2 `tde-is` at one tick within 2×, `tdc` at two ticks within 3×.
 #[test]

@@ -96,6 +96,14 @@ impl Controller {
         self
     }
 
+    /// Predicts over `d` from the next step on (a delay measured as the loop runs); nothing
+    /// without compensation.
+    pub fn set_delay(&mut self, d: crate::Delay) {
+        if let Some(p) = &mut self.predictor {
+            p.set_delay(d);
+        }
+    }
+
     /// The delay compensation in use, if any.
     pub fn predictor(&self) -> Option<&Predictor> {
         self.predictor.as_ref()

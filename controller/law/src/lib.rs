@@ -12,7 +12,7 @@ pub mod sta;
 pub mod tde;
 
 pub use law::{Controller, Measurement, Output, Reference};
-pub use predict::{Delay, InertiaEstimate, Predictor};
+pub use predict::{Delay, DelayEstimate, InertiaEstimate, Predictor};
 // The laws' names and constants are `deltaloop-names`, below the config schema too.
 pub use deltaloop_names::{ControllerParams, Law, Preset, VelocitySource};
 pub use tde::TdeHistory;

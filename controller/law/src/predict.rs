@@ -11,6 +11,9 @@
 
 use crate::{Reference, Vec3};
 
+mod delay;
+pub use delay::{DelayEstimate, WINDOW};
+
 /// The prior of the learned inertia, as a multiple of the law's M̄: the robot's real inertia
 /// along the study's paths is 1.2–2.4× M̄ (docs/controllers.md), and a prediction made with too
 /// small an inertia overshoots (unstable at whole-tick delays with M̄ itself).
@@ -141,6 +144,21 @@ impl Delay {
     pub fn in_flight(&self) -> usize {
         self.whole + usize::from(self.frac > 0.0)
     }
+
+    /// D = `s` seconds at period `ts` (s); a negative or non-finite D is 0.
+    pub fn from_s(s: f64, ts: f64) -> Self {
+        let s = if s.is_finite() { s.max(0.0) } else { 0.0 };
+        let whole = (s / ts).floor();
+        Self {
+            whole: whole as usize,
+            frac: (s - whole * ts).clamp(0.0, ts),
+        }
+    }
+
+    /// D in seconds at period `ts` (s).
+    pub fn seconds(&self, ts: f64) -> f64 {
+        self.whole as f64 * ts + self.frac
+    }
 }
 
 /// Predicts the state at t_k + D over the commands in flight. Allocates only in [`Predictor::new`].
@@ -150,7 +168,8 @@ pub struct Predictor {
     delay: Delay,
     /// Drive limit τ_max, N m (each command is clamped to ±τ_max, as the drives do).
     tau_max: f64,
-    /// The last [`Delay::in_flight`] commands sent (N m, unclamped), oldest at `head`.
+    /// The commands sent (N m, unclamped), a ring with room for the longest delay it may be
+    /// set to; the next is written at `head`.
     sent: Vec<Vec3>,
     head: usize,
     inertia: InertiaEstimate,
@@ -175,6 +194,27 @@ impl Predictor {
         self.delay
     }
 
+    /// Makes room for delays up to `max` ([`set_delay`](Self::set_delay)); allocates.
+    pub fn with_room_for(mut self, max: Delay) -> Self {
+        let n = max.in_flight().max(self.sent.len());
+        self.sent = vec![Vec3::zeros(); n];
+        self.head = 0;
+        self
+    }
+
+    /// Predicts over `delay` from the next tick on, as long as its commands in flight fit the
+    /// room made for them (a longer one is cut to the longest that fits).
+    pub fn set_delay(&mut self, delay: Delay) {
+        self.delay = if delay.in_flight() <= self.sent.len() {
+            delay
+        } else {
+            Delay {
+                whole: self.sent.len(),
+                frac: 0.0,
+            }
+        };
+    }
+
     /// The inertia estimate in use.
     pub fn inertia(&self) -> &InertiaEstimate {
         &self.inertia
@@ -192,9 +232,10 @@ impl Predictor {
         self.inertia.learn(accel, tau_applied);
         let inv_m = self.inertia.inverse();
         let (mut q, mut qd) = (q, qd);
-        let n = self.sent.len();
+        let (cap, n) = (self.sent.len(), self.delay.in_flight());
         for i in 0..n {
-            let cmd = self.sent[(self.head + i) % n];
+            // The last n commands sent, oldest first.
+            let cmd = self.sent[(self.head + cap - n + i) % cap];
             // The oldest command acts only for δ when the delay has a sub-tick part.
             let h = if i == 0 && self.delay.frac > 0.0 {
                 self.delay.frac
@@ -220,12 +261,19 @@ impl Predictor {
 }
 
 /// The reference at t_j + δ from rows j and j + 1 (`frac` δ in s, `ts` Ts): q and q̇ by a
-/// second-order step from row j, q̈ linearly between the rows; row j itself when δ = 0.
+/// second-order step from row j, q̈ linearly between the rows; row j itself when δ = 0. A δ of
+/// a tick or more (a measured delay past the one configured) steps from row j + 1 instead, with
+/// its q̈.
 pub fn reference_ahead(row: &Reference, next: &Reference, frac: f64, ts: f64) -> Reference {
     if frac == 0.0 {
         return *row;
     }
-    let w = frac / ts;
+    let (row, frac) = if frac >= ts {
+        (next, (frac - ts).min(ts))
+    } else {
+        (row, frac)
+    };
+    let w = (frac / ts).min(1.0);
     Reference {
         q: row.q + row.qd * frac + row.qdd * (0.5 * frac * frac),
         qd: row.qd + row.qdd * frac,

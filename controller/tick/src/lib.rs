@@ -2,10 +2,11 @@
 //! lockstep, realtime, the loop benchmark): state k and tick k's reference row in, the reply out.
 //! Transport code only moves these messages and stamps times.
 
-use deltaloop_config::{Compensation, Law, RunConfig};
+use deltaloop_config::{Compensation, DelaySource, Law, RunConfig};
 use deltaloop_law::predict::reference_ahead;
 use deltaloop_law::{
-    Controller, Delay, InertiaEstimate, Measurement, Output, Predictor, Reference, Vec3,
+    Controller, Delay, DelayEstimate, InertiaEstimate, Measurement, Output, Predictor, Reference,
+    Vec3,
 };
 use deltaloop_wire::{RefSample, StateMsg, TorqueMsg};
 
@@ -13,6 +14,10 @@ use deltaloop_wire::{RefSample, StateMsg, TorqueMsg};
 #[derive(Clone, Debug)]
 pub struct ControllerSide {
     ctrl: Controller,
+    /// d, the whole ticks of D₀ a compensated law reads the reference ahead by.
+    lookahead: Option<u64>,
+    /// The delay measured from the drives' reports (`controller.compensate_delay = "measured"`).
+    measured: Option<DelayEstimate>,
 }
 
 impl ControllerSide {
@@ -23,24 +28,34 @@ impl ControllerSide {
         let ts = cfg.loop_.ts_s;
         let ctrl = Controller::new(law, params, ts, cfg.controller.tde_delay_samples as usize)
             .with_velocity(cfg.sensor.velocity);
+        let base = Delay::from_ns(cfg.compensation_delay_ns(), cfg.ts_ns());
+        let tau_max = cfg.plant.tau_max_nm;
+        let measured = (cfg.controller.compensate == Compensation::Predict
+            && cfg.controller.compensate_delay == DelaySource::Measured)
+            .then(|| DelayEstimate::new(base, ts, tau_max));
+        let ctrl = match cfg.controller.compensate {
+            Compensation::None => ctrl,
+            // D₀ (the delay the run injects, or the one it is told to assume), with room for
+            // what may be measured past it; the drives' limit; an inertia learned from M̄ up.
+            Compensation::Predict => {
+                let p = Predictor::new(base, ts, tau_max, InertiaEstimate::for_m_bar(params.m_bar));
+                ctrl.with_predictor(match &measured {
+                    Some(m) => p.with_room_for(m.max()),
+                    None => p,
+                })
+            }
+        };
         Self {
-            ctrl: match cfg.controller.compensate {
-                Compensation::None => ctrl,
-                // The delay the run injects; the drives' limit; an inertia learned from M̄ up.
-                Compensation::Predict => ctrl.with_predictor(Predictor::new(
-                    Delay::from_ns(cfg.transport_delay_ns(), cfg.ts_ns()),
-                    ts,
-                    cfg.plant.tau_max_nm,
-                    InertiaEstimate::for_m_bar(params.m_bar),
-                )),
-            },
+            lookahead: ctrl.predictor().map(|_| base.whole as u64),
+            ctrl,
+            measured,
         }
     }
 
     /// d, the whole ticks of the delay a compensated law looks ahead by; None without
     /// compensation.
     pub fn lookahead(&self) -> Option<u64> {
-        self.ctrl.predictor().map(|p| p.delay().whole as u64)
+        self.lookahead
     }
 
     /// Tick k of a compensated law with the reference rows j = k + d (`row`) and j + 1 (`next`,
@@ -52,11 +67,16 @@ impl ControllerSide {
         row: &Reference,
         next: &Reference,
     ) -> TorqueMsg {
-        let r = match self.ctrl.predictor() {
-            Some(p) => reference_ahead(row, next, p.delay().frac, self.ctrl.ts()),
-            None => *row,
+        self.measure(state);
+        let ts = self.ctrl.ts();
+        let r = match (self.ctrl.predictor(), self.lookahead) {
+            // What the delay in use adds past row j (a measured one may pass row j + 1).
+            (Some(p), Some(d)) => {
+                reference_ahead(row, next, p.delay().seconds(ts) - d as f64 * ts, ts)
+            }
+            _ => *row,
         };
-        self.answer(state, &r)
+        self.step(state, &r)
     }
 
     /// The law this side runs.
@@ -67,7 +87,23 @@ impl ControllerSide {
     /// Tick k: the state the plant published and tick k's reference → the reply to tick k
     /// (commanded τ_k and the law's internals; skip count and times left zero for the transport).
     pub fn answer(&mut self, state: &StateMsg, r: &Reference) -> TorqueMsg {
+        self.measure(state);
+        self.step(state, r)
+    }
+
+    /// With a measured delay: learns from the state's τᵃ and predicts over the new estimate.
+    fn measure(&mut self, state: &StateMsg) {
+        if let Some(m) = &mut self.measured {
+            m.observe(state.tick, Vec3::from(state.tau_applied));
+            self.ctrl.set_delay(m.delay());
+        }
+    }
+
+    fn step(&mut self, state: &StateMsg, r: &Reference) -> TorqueMsg {
         let out = self.ctrl.step(&measurement(state), r);
+        if let Some(m) = &mut self.measured {
+            m.sent(state.tick, out.tau);
+        }
         reply(state.tick, &out)
     }
 }

@@ -36,7 +36,7 @@ pub mod text;
 mod validate;
 
 pub use deltaloop_names::{
-    Compensation, ControllerParams, Law, LawVariant, Preset, VelocitySource,
+    Compensation, ControllerParams, DelaySource, Law, LawVariant, Preset, VelocitySource,
 };
 pub use error::ConfigError;
 pub use files::{MAX_FILE_BYTES, read_text_file};

@@ -180,12 +180,21 @@ impl RunConfig {
             + (self.plant.transport_delay_us * 1e3).round() as u64
     }
 
+    /// The delay a compensated law predicts over, ns: `controller.compensate_delay_us` when
+    /// set, else the transport delay.
+    pub fn compensation_delay_ns(&self) -> u64 {
+        self.controller
+            .compensate_delay_us
+            .map_or(self.transport_delay_ns(), |us| (us * 1e3).round() as u64)
+    }
+
     /// Reference rows a controller reads beyond its state's tick: a compensated law at tick k
-    /// reads rows k + d and k + d + 1 (d the whole ticks of the transport delay); 0 otherwise.
+    /// reads rows k + d and k + d + 1 (d the whole ticks of the delay it predicts over); 0
+    /// otherwise.
     pub fn reference_lookahead_ticks(&self) -> u64 {
         match self.controller.compensate {
             Compensation::None => 0,
-            Compensation::Predict => self.transport_delay_ns() / self.ts_ns() + 1,
+            Compensation::Predict => self.compensation_delay_ns() / self.ts_ns() + 1,
         }
     }
 

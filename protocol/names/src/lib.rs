@@ -7,5 +7,7 @@
 mod params;
 mod text;
 
-pub use params::{Compensation, ControllerParams, Law, LawVariant, Preset, VelocitySource};
+pub use params::{
+    Compensation, ControllerParams, DelaySource, Law, LawVariant, Preset, VelocitySource,
+};
 pub use text::{TextEnum, allowed, one_of, parse};

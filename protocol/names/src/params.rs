@@ -158,6 +158,19 @@ crate::text_enum! {
     }
 }
 
+crate::text_enum! {
+    "kebab-case", "delay source";
+    /// Where a compensated law's delay D comes from (docs/controllers.md, "D in realtime").
+    #[derive(Default)]
+    pub enum DelaySource {
+        /// D₀: `controller.compensate_delay_us`, else the run's transport delay.
+        #[default]
+        Config,
+        /// Measured each tick from the drives' reports of applied torque, from D₀ up to D₀ + Ts.
+        Measured,
+    }
+}
+
 impl Compensation {
     /// What a law's name gets in tables and `sweep.csv` when it runs this way: "" or `+pred`.
     pub fn suffix(self) -> &'static str {

@@ -248,8 +248,14 @@ fn header(s: &mut String, cfg: &RunConfig, p: &ControllerParams, mode: LoopMode,
     if cfg.controller.compensate != Compensation::None {
         let _ = writeln!(
             s,
-            "Delay compensation: `{}` (docs/controllers.md, \"Delay compensation\").\n",
-            cfg.controller.compensate
+            "Delay compensation: `{}` over D = {} µs{} (docs/controllers.md, \"Delay compensation\").\n",
+            cfg.controller.compensate,
+            cfg.compensation_delay_ns() as f64 / 1e3,
+            match cfg.controller.compensate_delay {
+                deltaloop_config::DelaySource::Config => "",
+                deltaloop_config::DelaySource::Measured =>
+                    ", measured each tick from the drives' reports up to one tick more",
+            }
         );
     }
     let extras = injected(cfg);

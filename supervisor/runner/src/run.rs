@@ -4,7 +4,7 @@ use crate::inproc;
 use crate::lawrun::{Keep, LawRun, Tap};
 use crate::procs::{self, OnTick};
 use anyhow::{Context, Result, bail};
-use deltaloop_config::{Compensation, Law, LoopMode, Overrun, RunConfig};
+use deltaloop_config::{Compensation, DelaySource, Law, LoopMode, Overrun, RunConfig};
 use deltaloop_report::report;
 use deltaloop_report::{self as output, Summary};
 use deltaloop_study::Study;
@@ -58,6 +58,10 @@ pub struct Overrides {
     pub compute_delay_us: Option<u32>,
     /// Delay compensation (controller.compensate): none, or predict.
     pub compensate: Option<Compensation>,
+    /// The delay D₀ a compensated law assumes, µs (controller.compensate_delay_us).
+    pub compensate_delay_us: Option<f64>,
+    /// Where a compensated law's delay comes from (controller.compensate_delay).
+    pub compensate_delay: Option<DelaySource>,
     /// Sensor noise seed (sensor.seed).
     pub seed: Option<u64>,
     /// Realtime: what the plant does when its own process wakes later than
@@ -123,6 +127,12 @@ impl Overrides {
         }
         if let Some(v) = self.compensate {
             cfg.controller.compensate = v;
+        }
+        if let Some(v) = self.compensate_delay_us {
+            cfg.controller.compensate_delay_us = Some(v);
+        }
+        if let Some(v) = self.compensate_delay {
+            cfg.controller.compensate_delay = v;
         }
         if let Some(v) = self.seed {
             cfg.sensor.seed = v;

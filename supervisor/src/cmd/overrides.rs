@@ -4,7 +4,7 @@
 use super::words::Words;
 use crate::ops::join::RemoteArgs;
 use crate::ops::run::Overrides;
-use deltaloop_config::{Compensation, Law, LinkEmulation, LinkPath, Overrun};
+use deltaloop_config::{Compensation, DelaySource, Law, LinkEmulation, LinkPath, Overrun};
 use std::path::PathBuf;
 
 /// `--law`, `--seed`, `--plant-cmd`, … : overrides of a scenario file (None: keep the file's value).
@@ -29,6 +29,14 @@ pub struct OverrideArgs {
     /// its torque acts; controller.compensate, docs/controllers.md).
     #[arg(long, value_parser = Words::<Compensation>::new())]
     pub compensate: Option<Compensation>,
+    /// The delay D₀ a compensated law assumes, µs (controller.compensate_delay_us; default: the
+    /// transport delay).
+    #[arg(long)]
+    pub compensate_delay_us: Option<f64>,
+    /// Where a compensated law's delay comes from: `config` (D₀) or `measured` each tick from the
+    /// drives' reports, D₀ to D₀ + Ts (controller.compensate_delay; for realtime).
+    #[arg(long, value_parser = Words::<DelaySource>::new())]
+    pub compensate_delay: Option<DelaySource>,
     /// Sensor noise seed (sensor.seed).
     #[arg(long)]
     pub seed: Option<u64>,
@@ -120,6 +128,8 @@ impl From<OverrideArgs> for Overrides {
             transport_delay_us: a.transport_delay_us,
             compute_delay_us: a.compute_delay_us,
             compensate: a.compensate,
+            compensate_delay_us: a.compensate_delay_us,
+            compensate_delay: a.compensate_delay,
             seed: a.seed,
             overrun: a.overrun,
             hold_s: a.hold_s,

@@ -203,3 +203,101 @@ fn the_inertia_estimate_converges_from_its_prior_and_keeps_its_bounds() {
         est.m_hat()
     );
 }
+
+/// The drives' report τᵃ_k over [t_{k−1}, t_k) when the reply to tick j acts from t_j + D:
+/// the commands of that interval, clamped, weighted by how long each acted.
+fn applied(cmds: &[Vec3], k: usize, d: f64, tau_max: f64) -> Vec3 {
+    // Command j acts over [t_j + D, t_{j+1} + D); before tick 0, c_0's predecessor held 0.
+    let clamp = |v: Vec3| v.map(|t| t.clamp(-tau_max, tau_max));
+    let (t0, t1) = ((k as f64 - 1.0) * TS, k as f64 * TS);
+    let mut sum = Vec3::zeros();
+    for (j, c) in cmds.iter().enumerate() {
+        let (a, b) = (j as f64 * TS + d, (j + 1) as f64 * TS + d);
+        let overlap = (b.min(t1) - a.max(t0)).max(0.0);
+        sum += clamp(*c) * overlap;
+    }
+    sum / TS
+}
+
+/// The delay measured from the drives' reports is the delay the commands met, for whole,
+/// sub-tick and mixed delays up to a tick past D₀, with clamped commands and with ticks the
+/// controller skipped (no command of its own for them); with no tick to learn from it stays D₀.
+#[test]
+fn the_measured_delay_is_the_one_the_commands_met() {
+    let tau_max = 1.5;
+    let cmds: Vec<Vec3> = (0..400)
+        .map(|j| {
+            let t = j as f64 * TS;
+            Vec3::new(
+                (300.0 * t).sin() * 2.0,
+                (170.0 * t).cos(),
+                0.3 * (90.0 * t).sin(),
+            )
+        })
+        .collect();
+    for (base_us, true_us) in [
+        (0.0, 40.0),
+        (0.0, 0.0),
+        (150.0, 270.0),
+        (300.0, 300.0),
+        (450.0, 700.0),
+    ] {
+        let base = Delay::from_s(base_us * 1e-6, TS);
+        let mut est = DelayEstimate::new(base, TS, tau_max);
+        assert!((est.delay().seconds(TS) - base_us * 1e-6).abs() < 1e-12);
+        let d = true_us * 1e-6;
+        for k in 0..cmds.len() {
+            // Every seventh tick the controller skipped (sent nothing for it).
+            if k >= 3 {
+                est.observe(k as u64, applied(&cmds[..k], k, d, tau_max));
+            }
+            if k % 7 != 3 {
+                est.sent(k as u64, cmds[k]);
+            }
+        }
+        let got = est.delay().seconds(TS);
+        assert!(
+            (got - d).abs() < 1e-9,
+            "D₀ {base_us} µs, true {true_us} µs: measured {} µs",
+            got * 1e6
+        );
+        assert!(est.max().seconds(TS) >= d);
+    }
+    // Constant commands say nothing: D₀ stays.
+    let mut est = DelayEstimate::new(Delay::from_s(150e-6, TS), TS, tau_max);
+    for k in 0..100u64 {
+        est.observe(k, Vec3::repeat(0.5));
+        est.sent(k, Vec3::repeat(0.5));
+    }
+    assert!((est.delay().seconds(TS) - 150e-6).abs() < 1e-12);
+}
+
+/// A predictor whose delay is set each tick walks the commands of that delay: set to the delay
+/// it was built for, it predicts what it predicted before; room is made up front, and a delay
+/// past the room is cut to it.
+#[test]
+fn a_predictor_set_to_another_delay_walks_its_commands() {
+    let make = |d: Delay| Predictor::new(d, TS, 100.0, InertiaEstimate::fixed(Vec3::repeat(0.05)));
+    let d1 = Delay::from_s(450e-6, TS);
+    let mut fixed = make(d1);
+    let mut moving = make(Delay::from_s(0.0, TS)).with_room_for(Delay::from_s(600e-6, TS));
+    moving.set_delay(d1);
+    for p in [&mut fixed, &mut moving] {
+        p.reset(Vec3::repeat(0.1));
+        for j in 0..5 {
+            p.sent(Vec3::repeat(j as f64));
+        }
+    }
+    let args = (
+        Vec3::repeat(0.2),
+        Vec3::repeat(0.01),
+        Vec3::repeat(0.3),
+        Vec3::repeat(0.1),
+    );
+    assert_eq!(
+        fixed.predict(args.0, args.1, args.2, args.3),
+        moving.predict(args.0, args.1, args.2, args.3)
+    );
+    moving.set_delay(Delay::from_s(10.0 * TS, TS));
+    assert_eq!(moving.delay().in_flight(), 2, "cut to the room made");
+}

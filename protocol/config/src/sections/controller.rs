@@ -6,7 +6,7 @@ use crate::key::range;
 use crate::keys::{CONTROLLER, ControllerKeys, gain_keys};
 use crate::text::show_path;
 use crate::validate::{check_command, check_label};
-use deltaloop_names::{Compensation, ControllerParams, Law, Preset};
+use deltaloop_names::{Compensation, ControllerParams, DelaySource, Law, Preset};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -33,6 +33,17 @@ macro_rules! controller_section {
             /// `predict`, the law on the state predicted for when its torque acts.
             #[serde(default = "ControllerKeys::compensate")]
             pub compensate: Compensation,
+
+            /// The delay D the prediction of `compensate = "predict"` assumes, µs; None: the run's
+            /// transport delay d·Ts + `plant.transport_delay_us` (docs/controllers.md, "D").
+            #[serde(default, skip_serializing_if = "Option::is_none")]
+            pub compensate_delay_us: Option<f64>,
+
+            /// Where D comes from: `config` (D₀ above), or `measured` each tick from the drives'
+            /// reports of applied torque, between D₀ and D₀ + Ts (docs/controllers.md, "D in
+            /// realtime").
+            #[serde(default = "ControllerKeys::compensate_delay")]
+            pub compensate_delay: DelaySource,
 
             /// Extra wall time the controller process spends before each reply, µs (realtime: real
             /// misses; lockstep: only slower; inproc: no effect).
@@ -142,6 +153,9 @@ impl ControllerSection {
             if self.laws[..i].contains(l) {
                 return Err(range("controller.laws", l, "each law at most once"));
             }
+        }
+        if let Some(us) = self.compensate_delay_us {
+            CONTROLLER.compensate_delay_us.check(us)?;
         }
         check_command("controller.command", &self.command)?;
         check_label("controller.label", &self.label)?;
