@@ -84,6 +84,11 @@ impl ControllerSide {
         self.ctrl.law()
     }
 
+    /// A compensated law's learned inertia M̂ per joint (kg m²); None without compensation.
+    pub fn m_hat(&self) -> Option<Vec3> {
+        self.ctrl.predictor().map(|p| p.inertia().m_hat())
+    }
+
     /// Tick k: the state the plant published and tick k's reference → the reply to tick k
     /// (commanded τ_k and the law's internals; skip count and times left zero for the transport).
     pub fn answer(&mut self, state: &StateMsg, r: &Reference) -> TorqueMsg {

@@ -157,6 +157,17 @@ pub const ARRIVAL: Column = Column {
     },
 };
 
+/// After [`COLUMNS`], in the traces of compensated runs only (every other trace is as it was).
+pub const M_HAT: Column = Column {
+    name: "m_hat",
+    per_joint: true,
+    unit: "kg m²",
+    what: "a compensated law's learned inertia M̂ after tick k (docs/controllers.md; only in a \
+           run with `compensate = \"predict\"`; empty for `pid`, and from a reply the supervisor \
+           did not see on)",
+    write: |r, put| joints(r.rec.m_hat, put),
+};
+
 /// The columns of `trace.csv`, in order.
 pub const COLUMNS: [Column; 15] = [
     LAW,
@@ -347,10 +358,16 @@ fn fate_and_drives(r: &TickRecord) -> (&'static str, &'static str) {
     (r.fate.name(), drives)
 }
 
-/// The header line's fields.
+/// The header line's fields ([`COLUMNS`]: every trace has them).
 pub fn header() -> Vec<String> {
+    header_of(false)
+}
+
+/// The header line's fields of a run's trace: [`COLUMNS`], then [`M_HAT`] if `compensated`.
+pub fn header_of(compensated: bool) -> Vec<String> {
     COLUMNS
         .iter()
+        .chain(compensated.then_some(&M_HAT))
         .flat_map(|c| {
             if c.per_joint {
                 (1..=3).map(|j| format!("{}_{j}", c.name)).collect()
@@ -362,7 +379,7 @@ pub fn header() -> Vec<String> {
 }
 
 /// Renders tick k's row of `law` into `fields` (one per header field, reused: no allocation once
-/// they have grown).
+/// they have grown); fields past the [`header_of`] they were made for are not written.
 pub fn render(
     law: Law,
     rec: &TickRecord,
@@ -384,7 +401,7 @@ pub fn render(
             let _ = s.write_fmt(v);
         }
     };
-    for c in &COLUMNS {
+    for c in COLUMNS.iter().chain([&M_HAT]) {
         (c.write)(&row, &mut put);
     }
 }
@@ -426,11 +443,12 @@ impl std::io::Write for Rows {
 
 impl TraceWriter {
     /// Creates the part file `path` for `law`'s rows, starting with the header (a part is a valid
-    /// CSV on its own: what a killed run leaves is readable).
-    pub fn create(path: &Path, law: Law) -> Result<Self> {
+    /// CSV on its own: what a killed run leaves is readable); a `compensated` run's rows end with
+    /// [`M_HAT`].
+    pub fn create(path: &Path, law: Law, compensated: bool) -> Result<Self> {
         let file = std::fs::File::create(path)
             .with_context(|| format!("cannot create {}", path.display()))?;
-        let header = header();
+        let header = header_of(compensated);
         let mut w = Self {
             path: path.to_path_buf(),
             law,
@@ -635,7 +653,7 @@ mod tests {
         let start = doc.find("- `trace.csv`").expect("the trace.csv entry");
         let entry = &doc[start..start + doc[start..].find("\n- ").unwrap()];
         let mut at = 0;
-        for c in &COLUMNS {
+        for c in COLUMNS.iter().chain([&M_HAT]) {
             let token = if c.per_joint {
                 format!("`{}_j", c.name)
             } else {

@@ -155,11 +155,12 @@ pub fn run_schedule<'a>(
         // receives) that row.
         let ahead = match ctrl.lookahead() {
             None => None,
-            Some(d) => {
-                let last_row = study.reference.row_count() as u64 - 1;
-                let j = (k + d).min(last_row);
-                Some((row(j)?, row((j + 1).min(last_row))?))
-            }
+            Some(d) => Some(
+                study
+                    .reference
+                    .rows_ahead(k, d)
+                    .map_err(|e| anyhow::anyhow!("the reference ahead of tick {k}: {e}"))?,
+            ),
         };
         let (reply, arrival) = match outcome {
             ReplyOutcome::Applied(_) | ReplyOutcome::Late => {

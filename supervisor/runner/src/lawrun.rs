@@ -3,13 +3,13 @@
 //! it ends ([`LawRun`]). Every loop mode records through [`LawRecorder`].
 
 use anyhow::Result;
-use deltaloop_config::Law;
+use deltaloop_config::{Compensation, Law};
 use deltaloop_model::Vec3;
 use deltaloop_report::TraceWriter;
 use deltaloop_report::mcap::Live;
 use deltaloop_study::Study;
 use deltaloop_study::record::metrics::{LawMetrics, MetricsAcc};
-use deltaloop_study::record::{Recorder, RunEnd, TickRecord, TickSink};
+use deltaloop_study::record::{Recorder, RunEnd, Shadow, TickRecord, TickSink};
 use deltaloop_study::reference::RefRow;
 use deltaloop_transport::wire::StateMsg;
 use std::path::PathBuf;
@@ -120,7 +120,10 @@ pub fn recorder<'a>(study: &'a Study, law: Law, keep: &Keep) -> Result<LawRecord
         trace: keep
             .trace
             .as_deref()
-            .map(|p| TraceWriter::create(p, law))
+            .map(|p| {
+                let compensated = study.config.controller.compensate != Compensation::None;
+                TraceWriter::create(p, law, compensated)
+            })
             .transpose()?,
         records: keep.records.then(|| Vec::with_capacity(reference.n + 1)),
         mcap: keep
@@ -137,7 +140,15 @@ pub fn recorder<'a>(study: &'a Study, law: Law, keep: &Keep) -> Result<LawRecord
             }
         }),
     };
-    Ok(Recorder::new(law, reference, study.params.m_bar, sinks))
+    // A compensated built-in law's M̂ for the trace (a controller of the user's has its own).
+    let shadow = study
+        .config
+        .controller
+        .command
+        .is_empty()
+        .then(|| Shadow::of(study.controller_side(law)))
+        .flatten();
+    Ok(Recorder::new(law, reference, study.params.m_bar, sinks).with_shadow(shadow))
 }
 
 /// A finished run of one law.

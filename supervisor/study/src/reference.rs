@@ -195,6 +195,18 @@ impl JointReference {
         self.n + 2
     }
 
+    /// The joint rows a compensated law reads at tick k with a look-ahead of d ticks: k + d and
+    /// k + d + 1, or past the last row (N + 1, the last the process modes' controller receives)
+    /// that row.
+    pub fn rows_ahead(&self, k: u64, d: u64) -> Result<(Reference, Reference), KinematicsError> {
+        let last = self.row_count() as u64 - 1;
+        let j = k.saturating_add(d).min(last);
+        Ok((
+            self.try_row(j as usize)?.joint,
+            self.try_row((j + 1).min(last) as usize)?.joint,
+        ))
+    }
+
     /// The initial joint angles q_d(0), rad.
     pub fn q0(&self) -> Vec3 {
         self.row(0).joint.q

@@ -775,6 +775,7 @@ mod tests {
                 rejected: false,
                 arrival_ns: Some(41_000),
                 telemetry: true,
+                m_hat: None,
             };
             live.take(&r, &row, None).unwrap();
             let t = k * 300_000;

@@ -10,6 +10,7 @@ pub mod stats;
 
 use crate::reference::{JointReference, RefRow};
 use deltaloop_config::Law;
+use deltaloop_controller_tick::ControllerSide;
 use deltaloop_law::Output;
 use deltaloop_model::{PlantSample, Vec3};
 use deltaloop_wire::{self as wire, StateMsg, TelemetryMsg, TorqueMsg};
@@ -50,6 +51,58 @@ pub struct TickRecord {
     /// False when the plant's telemetry of this tick was expected and not seen: what the plant
     /// did with the reply and the drives is then unknown (`trace.csv` says `unknown`, not a guess).
     pub telemetry: bool,
+    /// A compensated law's learned inertia M̂ after tick k, per joint, kg m² ([`Shadow`]); None
+    /// for the other laws, and from a reply the supervisor did not see on.
+    pub m_hat: Option<Vec3>,
+}
+
+/// The supervisor's copy of a compensated built-in law, stepped on the states the controller
+/// answered, with the reference rows it read: the law is deterministic, so its M̂ is the
+/// controller's own, in every mode, as long as its torque is the reply's to the bit. A reply the
+/// supervisor did not see (a state the copy did not step on), or a controller that is not the
+/// built-in law, makes the torques part: from then on M̂ is unknown, not a guess.
+pub struct Shadow {
+    side: ControllerSide,
+    /// d, the look-ahead of the law's reference rows.
+    lookahead: u64,
+    /// Still stepping as the controller did.
+    alive: bool,
+}
+
+impl Shadow {
+    /// A copy of `side`, a compensated law before its first tick; None for a law that is not
+    /// compensated.
+    pub fn of(side: ControllerSide) -> Option<Self> {
+        Some(Self {
+            lookahead: side.lookahead()?,
+            side,
+            alive: true,
+        })
+    }
+
+    /// Steps on state k as the controller did; its M̂ after it if its torque is the reply's.
+    fn step(
+        &mut self,
+        reference: &JointReference,
+        state: &StateMsg,
+        reply: &TorqueMsg,
+    ) -> Option<Vec3> {
+        if !self.alive {
+            return None;
+        }
+        let Ok((row, next)) = reference.rows_ahead(state.tick, self.lookahead) else {
+            self.alive = false;
+            return None;
+        };
+        let mine = self.side.answer_ahead(state, &row, &next);
+        let same = mine
+            .tau
+            .iter()
+            .zip(&reply.tau)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        self.alive = same;
+        self.side.m_hat().filter(|_| same)
+    }
 }
 
 /// The measured part of a state message: tick k, q, q̇ and τᵃ_k as the controller saw them.
@@ -350,6 +403,7 @@ struct OpenTicks<'a> {
     told: bool,
     last_k: Option<u64>,
     end: RunEnd,
+    shadow: Option<Shadow>,
 }
 
 impl<'a, S: TickSink> Recorder<'a, S> {
@@ -359,6 +413,12 @@ impl<'a, S: TickSink> Recorder<'a, S> {
             ticks: OpenTicks::new(law, reference, m_bar),
             sink,
         }
+    }
+
+    /// Records each tick's M̂ of a compensated law through `shadow` ([`TickRecord::m_hat`]).
+    pub fn with_shadow(mut self, shadow: Option<Shadow>) -> Self {
+        self.ticks.shadow = shadow;
+        self
     }
 
     /// Records tick k: the state the plant published and the controller's reply to it (None: it
@@ -451,6 +511,7 @@ impl<'a> OpenTicks<'a> {
             open: VecDeque::with_capacity(OPEN_TICKS + 1),
             told: true,
             last_k: None,
+            shadow: None,
             end: RunEnd {
                 law,
                 records: 0,
@@ -495,6 +556,10 @@ impl<'a> OpenTicks<'a> {
             u: Vec3::from(t.u),
         });
         let row = self.reference.row(sample.k as usize);
+        let m_hat = match (&mut self.shadow, reply) {
+            (Some(shadow), Some(r)) => shadow.step(self.reference, state, r),
+            _ => None,
+        };
         let record = TickRecord {
             sample,
             q_true: Vec3::from(state.q_true),
@@ -511,6 +576,7 @@ impl<'a> OpenTicks<'a> {
             rejected: false,
             arrival_ns: None,
             telemetry: true,
+            m_hat,
         };
         self.push(record, row, sink);
         let e = row.joint.q - sample.q;
