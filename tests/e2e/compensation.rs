@@ -401,7 +401,8 @@ fn a_sweep_runs_each_law_with_and_without_compensation() {
 /// inertia, settled (under 10 % change over the motion's last 300 ticks), and it is between 0.8×
 /// and 2.5× of it: a per-joint fit reads the inertia along the loop's own torque changes, and
 /// joints 2 and 3, which move together, read up to 1.9× high (the safe side: too large an M̂
-/// only under-corrects). `pid`'s column is empty, and a run without compensation has none.
+/// only under-corrects). `pid`'s column is empty, and a run without compensation has none; the
+/// report's tables name the compensated law `tde-is+pred`.
 #[test]
 fn the_learned_inertia_follows_the_payload_step() {
     use deltaloop_model::{DeltaRobot, Vec3};
@@ -475,6 +476,13 @@ fn the_learned_inertia_follows_the_payload_step() {
             "joint {joint}: M̂ still moving: {settling} → {h1}"
         );
     }
+    // The tables name the compensated law's variant; `pid` is never compensated.
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        report.contains("(`tde-is+pred`)") && report.contains("(`pid`)"),
+        "{report}"
+    );
+    assert!(!report.contains("pid+pred"), "{report}");
     let plain = tmp.path().join("plain");
     run(
         "configs/s1-nominal.toml",

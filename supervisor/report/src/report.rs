@@ -1,7 +1,7 @@
 //! Human-readable results: the terminal table and `report.md`, shaped like the paper's
 //! Tables II–IV, plus the columns the paper does not have.
 
-use deltaloop_config::{Compensation, PathKind, VelocitySource};
+use deltaloop_config::{Compensation, LawVariant, PathKind, VelocitySource};
 use deltaloop_config::{ControllerParams, Law, LoopMode, Overrun, Preset, RunConfig};
 use deltaloop_study::analysis::Mismatch;
 use deltaloop_study::record::metrics::LawMetrics;
@@ -93,9 +93,22 @@ pub fn controller_label(cfg: &RunConfig, mode: LoopMode, said: Option<&str>) -> 
     }
 }
 
+/// A law as a run's tables name it: `tde-is+pred` when it ran compensated (`pid`, which has no
+/// TDE model to predict with, never does).
+pub fn variant(comp: Compensation, law: Law) -> LawVariant {
+    LawVariant::new(
+        law,
+        if law.uses_tde() {
+            comp
+        } else {
+            Compensation::None
+        },
+    )
+}
+
 /// A law as the tables name it: with the controller's label when a foreign one answered as it
 /// (`tdc (c-tdc)`), so it is never taken for the built-in law.
-fn law_cell(law: Law, label: Option<&str>) -> String {
+fn law_cell(law: LawVariant, label: Option<&str>) -> String {
     match label {
         Some(l) => format!("{law} ({l})"),
         None => law.to_string(),
@@ -107,7 +120,11 @@ pub fn terminal_table(cfg: &RunConfig, label: Option<&str>, metrics: &[LawMetric
     let mut s = String::new();
     let width = metrics
         .iter()
-        .map(|m| law_cell(m.law, label).chars().count())
+        .map(|m| {
+            law_cell(variant(cfg.controller.compensate, m.law), label)
+                .chars()
+                .count()
+        })
         .max()
         .unwrap_or(0)
         .max(11);
@@ -148,7 +165,7 @@ pub fn terminal_table(cfg: &RunConfig, label: Option<&str>, metrics: &[LawMetric
         let _ = writeln!(
             s,
             "{:<width$} {:>10} {:>10} {:>10} {:>9} {:>9.3} {:>8.4} {:>7} {:>10}{}  {}",
-            law_cell(m.law, label),
+            law_cell(variant(cfg.controller.compensate, m.law), label),
             fig(m.rms_rad[0], rel),
             fig(m.rms_rad[1], rel),
             fig(m.rms_rad[2], rel),
@@ -210,9 +227,10 @@ pub fn markdown(
     let mut s = String::new();
     header(&mut s, cfg, &p, mode, command);
     controller_line(&mut s, cfg, label);
-    rms_section(&mut s, cfg.scenario.path, metrics);
-    accuracy_section(&mut s, metrics);
-    tde_section(&mut s, &p, metrics);
+    let comp = cfg.controller.compensate;
+    rms_section(&mut s, cfg.scenario.path, comp, metrics);
+    accuracy_section(&mut s, comp, metrics);
+    tde_section(&mut s, &p, comp, metrics);
     rejected_notes(&mut s, metrics);
     peer_notes(&mut s, metrics);
     stopped_section(&mut s, metrics);
@@ -347,7 +365,7 @@ fn sensitivity_note(s: &mut String, metrics: &[LawMetrics]) {
 }
 
 /// Our RMS error per joint and law, then the paper's published table for this scenario.
-fn rms_section(s: &mut String, path: PathKind, metrics: &[LawMetrics]) {
+fn rms_section(s: &mut String, path: PathKind, comp: Compensation, metrics: &[LawMetrics]) {
     let table = paper_table(path);
     let _ = writeln!(
         s,
@@ -370,7 +388,7 @@ fn rms_section(s: &mut String, path: PathKind, metrics: &[LawMetrics]) {
             s,
             "| {} (`{}`) | {} | {} | {} |{} {} |",
             law.paper_name(),
-            m.law,
+            variant(comp, m.law),
             fig(m.rms_rad[0], rel),
             fig(m.rms_rad[1], rel),
             fig(m.rms_rad[2], rel),
@@ -409,7 +427,7 @@ fn rms_section(s: &mut String, path: PathKind, metrics: &[LawMetrics]) {
 }
 
 /// Error and torque figures the paper does not report.
-fn accuracy_section(s: &mut String, metrics: &[LawMetrics]) {
+fn accuracy_section(s: &mut String, comp: Compensation, metrics: &[LawMetrics]) {
     let _ = writeln!(s, "\n## Accuracy and torque\n");
     let _ = writeln!(
         s,
@@ -420,7 +438,7 @@ fn accuracy_section(s: &mut String, metrics: &[LawMetrics]) {
         let _ = writeln!(
             s,
             "| `{}` | {} | {:.4} | {:.4} | {:.3} | {} | {} | {} | {} | {} |",
-            m.law,
+            variant(comp, m.law),
             e3(m.max_abs_err_rad),
             m.task_rms_mm,
             m.task_max_mm,
@@ -435,7 +453,7 @@ fn accuracy_section(s: &mut String, metrics: &[LawMetrics]) {
 }
 
 /// The TDE error and the super-twisting gain condition, per law with a TDE.
-fn tde_section(s: &mut String, p: &ControllerParams, metrics: &[LawMetrics]) {
+fn tde_section(s: &mut String, p: &ControllerParams, comp: Compensation, metrics: &[LawMetrics]) {
     let _ = writeln!(
         s,
         "\n## Time-delay estimation and the super-twisting gain condition (eq. 43)\n"
@@ -457,7 +475,7 @@ fn tde_section(s: &mut String, p: &ControllerParams, metrics: &[LawMetrics]) {
                 let _ = writeln!(
                     s,
                     "| `{}` | {} | {} | {} | {} | {} | {} |",
-                    m.law,
+                    variant(comp, m.law),
                     e3(r),
                     e(max3(dm)),
                     e(max3(dp)),
