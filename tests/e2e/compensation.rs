@@ -25,8 +25,8 @@ fn rms(dir: &Path, name: &str, config: &str, extra: &[&str]) -> Vec<f64> {
 
 /// The targets of the issue, inproc on the matched preset: at one tick of transport delay, at
 /// 150 µs and at 450 µs, each compensated law stays within 2× its own undelayed RMS on S2 and
-/// within 5× on S1, where uncompensated the sliding-mode laws lose 10²–10⁴×; and at two ticks
-/// `tdc` stays within 3× on S2.
+/// within 5× on S1, where uncompensated the sliding-mode laws lose 10²–10⁴×, and the drives
+/// never clamp them (no clamp limit cycle); and at two ticks `tdc` stays within 3× on S2.
 #[test]
 fn compensated_laws_keep_their_accuracy_under_transport_delay() {
     let tmp = tempfile::tempdir().unwrap();
@@ -46,6 +46,14 @@ fn compensated_laws_keep_their_accuracy_under_transport_delay() {
             with.extend(["--compensate", "predict"]);
             let plain = rms(d, &format!("{bound}-{point}-none"), config, flags);
             let pred = rms(d, &format!("{bound}-{point}-pred"), config, &with);
+            // No clamp limit cycle: the drives never clamp a compensated law here.
+            let s = common::summary(&d.join(format!("{bound}-{point}-pred")));
+            for law in LAWS {
+                assert_eq!(
+                    s["laws"][law]["clamp_count"], 0,
+                    "{config} {point} {law} clamped"
+                );
+            }
             for (i, law) in LAWS.iter().enumerate() {
                 let ratio = pred[i] / ideal[i];
                 assert!(
