@@ -70,9 +70,12 @@ impl ControllerSide {
         self.measure(state);
         let ts = self.ctrl.ts();
         let r = match (self.ctrl.predictor(), self.lookahead) {
-            // What the delay in use adds past row j (a measured one may pass row j + 1).
+            // What the delay in use adds past row j (a measured one may pass row j + 1); its
+            // sub-tick part exactly when it has d whole ticks.
             (Some(p), Some(d)) => {
-                reference_ahead(row, next, p.delay().seconds(ts) - d as f64 * ts, ts)
+                let delay = p.delay();
+                let past = (delay.whole as f64 - d as f64) * ts + delay.frac;
+                reference_ahead(row, next, past, ts)
             }
             _ => *row,
         };
