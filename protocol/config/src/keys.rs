@@ -134,9 +134,9 @@ declare_keys! {
         tde_delay_samples: u32 = (1), "ticks", Allowed::closed(1.0, MAX_TDE_DELAY as f64);
         /// Delay compensation: the law acts on the state predicted for when its torque acts (docs/controllers.md).
         compensate: Compensation = (Compensation::None), "", Allowed::Words("none | predict");
-        /// The delay D₀ the prediction assumes; its study: docs/guide/delay-study.md.
+        /// The delay D₀ a compensated law predicts over (with compensate = "predict" only; docs/guide/delay-study.md).
         compensate_delay_us: Option<f64> = "the transport delay", "µs", Allowed::closed(0.0, MAX_TRANSPORT_DELAY_US);
-        /// D₀ as it is, or measured each tick from the drives' reports, D₀ to D₀ + Ts (realtime: docs/controllers.md).
+        /// D₀ as it is, or measured each tick from the drives' reports, D₀ to D₀ + Ts (with compensate = "predict" only; docs/controllers.md).
         compensate_delay: DelaySource = (DelaySource::Config), "", Allowed::Words("config | measured");
         /// Extra wall time per reply (realtime: real misses; inproc: no effect).
         compute_delay_us: u32 = (0), "us", Allowed::closed(0.0, 1e6);

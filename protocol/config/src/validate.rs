@@ -224,6 +224,31 @@ mod tests {
         assert!(e.to_string().contains("loop.ts_s` = NaN"), "{e}");
     }
 
+    /// The delay a prediction walks, given to a run that predicts nothing, is said, not ignored;
+    /// with `compensate = "predict"` both keys are taken.
+    #[test]
+    fn the_compensation_delay_keys_need_a_compensated_law() {
+        for (keys, says) in [
+            (
+                "compensate_delay_us = 150.0\n",
+                "`controller.compensate_delay_us` = 150 is out of range: it applies to a compensated law only",
+            ),
+            (
+                "compensate_delay = \"measured\"\n",
+                "`controller.compensate_delay` = \"measured\" is out of range: it applies to a compensated law only",
+            ),
+        ] {
+            let e =
+                RunConfig::from_toml_str(&format!("{MIN}[controller]\n{keys}"), None).unwrap_err();
+            assert!(e.to_string().contains(says), "{e}");
+            let c = RunConfig::from_toml_str(
+                &format!("{MIN}[controller]\ncompensate = \"predict\"\n{keys}"),
+                None,
+            );
+            assert!(c.is_ok(), "{c:?}");
+        }
+    }
+
     /// With one topic for both, the robot reads its own states as commands (no node needed).
     #[test]
     fn regression_a_state_topic_equal_to_the_command_topic_is_refused() {

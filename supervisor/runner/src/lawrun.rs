@@ -140,12 +140,9 @@ pub fn recorder<'a>(study: &'a Study, law: Law, keep: &Keep) -> Result<LawRecord
             }
         }),
     };
-    // A compensated built-in law's M̂ for the trace (a controller of the user's has its own).
-    let shadow = study
-        .config
-        .controller
-        .command
-        .is_empty()
+    // A compensated built-in law's M̂ for the trace (a controller of the user's has its own;
+    // without a trace nobody reads it).
+    let shadow = (keep.trace.is_some() && study.config.controller.command.is_empty())
         .then(|| Shadow::of(study.controller_side(law)))
         .flatten();
     Ok(Recorder::new(law, reference, study.params.m_bar, sinks).with_shadow(shadow))

@@ -78,7 +78,8 @@ impl DelayEstimate {
 
     /// Learns from τᵃ_k (N m), the drives' report in the state of tick `k`.
     pub fn observe(&mut self, k: u64, tau_applied: Vec3) {
-        let Some(d) = self.one_tick(k, tau_applied) else {
+        // A non-finite report or command (a fault) teaches nothing.
+        let Some(d) = self.one_tick(k, tau_applied).filter(|d| d.is_finite()) else {
             return;
         };
         self.window[self.next] = d;

@@ -157,6 +157,25 @@ impl ControllerSection {
         if let Some(us) = self.compensate_delay_us {
             CONTROLLER.compensate_delay_us.check(us)?;
         }
+        // The delay a prediction walks means nothing without one: said, not ignored.
+        if self.compensate == Compensation::None {
+            let set = match (self.compensate_delay_us, self.compensate_delay) {
+                (Some(us), _) => {
+                    Some(("controller.compensate_delay_us", crate::text::show_num(us)))
+                }
+                (None, DelaySource::Measured) => {
+                    Some(("controller.compensate_delay", "\"measured\"".to_string()))
+                }
+                (None, DelaySource::Config) => None,
+            };
+            if let Some((key, value)) = set {
+                return Err(range(
+                    key,
+                    value,
+                    "it applies to a compensated law only: set controller.compensate = \"predict\" (flag --compensate predict), or leave it out",
+                ));
+            }
+        }
         check_command("controller.command", &self.command)?;
         check_label("controller.label", &self.label)?;
         CONTROLLER

@@ -413,6 +413,11 @@ pub(super) fn point_config(base: &RunConfig, job: &Job) -> Result<RunConfig> {
     c.controller.phi = Some(p.phi);
     c.controller.laws = vec![job.law];
     c.controller.compensate = job.compensate;
+    if job.compensate == Compensation::None {
+        // What only a compensated law reads (the base's, for its `+pred` points).
+        c.controller.compensate_delay_us = None;
+        c.controller.compensate_delay = Default::default();
+    }
     c.controller.tde_delay_samples = job.ell;
     c.controller.compute_delay_us = job.kind.compute_us();
     c.plant.transport_delay_samples = job.d;

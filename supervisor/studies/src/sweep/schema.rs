@@ -338,6 +338,32 @@ fn check(sw: &SweepFile) -> Result<()> {
             bail!("sweep key `{k}` lists {v} twice: each value at most once");
         }
     }
+    check_compensate(sw)
+}
+
+/// Every law runs in some variant (`pid` only uncompensated), and no compensated law on the link
+/// axis: a link point's delay is the emulated link's, not its config's, so a compensated law
+/// would predict over none and its in-process twin over the measured arrival.
+fn check_compensate(sw: &SweepFile) -> Result<()> {
+    let listed = || {
+        let v: Vec<&str> = sw.compensate.iter().map(|c| c.name()).collect();
+        format!("[\"{}\"]", v.join("\", \""))
+    };
+    if let Some(law) = sw.laws.iter().find(|l| !l.uses_tde())
+        && !sw.compensate.is_empty()
+        && !sw.compensate.contains(&Compensation::None)
+    {
+        bail!(
+            "sweep key `compensate` = {} leaves `{law}` nothing to run: it has no TDE model to predict with and runs only uncompensated; add \"none\" to `compensate` or take `{law}` off `laws`",
+            listed()
+        );
+    }
+    if sw.compensate.contains(&Compensation::Predict) && !sw.link_delay_us.is_empty() {
+        bail!(
+            "sweep key `compensate` = {} with `link_delay_us`: a link point's delay is the emulated link's, which a compensated law is not told; run the link axis in a sweep of its own, uncompensated",
+            listed()
+        );
+    }
     Ok(())
 }
 
@@ -534,7 +560,8 @@ mod tests {
     }
 
     /// `compensate = ["none", "predict"]` runs each TDE law twice and `pid` once, counted as
-    /// expanded; an empty or repeated list is refused.
+    /// expanded; an empty or repeated list is refused, and so are a `pid` with nothing to run
+    /// and compensated laws on the link axis.
     #[test]
     fn the_compensate_axis_runs_each_tde_law_both_ways_and_pid_once() {
         let sweep = |comp: &str| {
@@ -557,6 +584,18 @@ mod tests {
         );
         // Without the key, as before: one variant per law.
         assert_eq!(variants(&sweep("")).len(), 2);
+        let e = check(&sweep("compensate = [\"predict\"]\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("`compensate` = [\"predict\"] leaves `pid` nothing to run")
+                && !e.contains('\n'),
+            "{e}"
+        );
+        let mut link = sweep("compensate = [\"none\", \"predict\"]\n");
+        link.link_delay_us = vec![25.0];
+        let e = check(&link).unwrap_err().to_string();
+        assert!(e.contains("with `link_delay_us`"), "{e}");
         for (comp, says) in [
             ("compensate = []\n", "`compensate` = [] is out of range"),
             (
