@@ -186,7 +186,12 @@ fn forged_stamps_once(dir: &Path, cfg: &str, cmd: &str) -> Result<(), String> {
     let s = summary(&out);
     let m = &s["laws"]["tdc"];
     let rows = fates(&out);
-    let applied: Vec<_> = rows.iter().filter(|r| r.0 == "applied").collect();
+    // Applied replies the plant reported on: the tick its model failed on (a diverging run)
+    // sends no telemetry, so its row has no arrival and its stamp was never looked at.
+    let applied: Vec<_> = rows
+        .iter()
+        .filter(|r| r.0 == "applied" && !r.2.is_empty())
+        .collect();
     if applied.is_empty() {
         let why = format!("no reply applied: {}\n{m}", text(&o.stderr));
         return common::judge(common::disturbance(&s, "tdc"), Err(why));
