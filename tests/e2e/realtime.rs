@@ -229,7 +229,13 @@ fn a_compensated_realtime_run_measures_its_delay_and_replays() {
         let o = run_output("configs/s2-fast.toml", "realtime", &b, &args);
         let sr = summary(&b);
         let status = assert_every_tick_on_disk(&sr, &b, "tde-is");
-        assert_eq!(o.status.success(), status == RunStatus::Ok);
+        // A divergence is a result (exit 0), judged below by the run's record.
+        assert_eq!(
+            o.status.success(),
+            matches!(status, RunStatus::Ok | RunStatus::Diverged),
+            "{status:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
         assert_replays(&b);
         let mut r = csv::Reader::from_path(b.join("trace.csv")).unwrap();
         let head = r.headers().unwrap().clone();
