@@ -90,7 +90,7 @@ impl Controller {
     /// caller passes the reference at that time. `pid` has no TDE model to predict with and is
     /// left as it is.
     pub fn with_predictor(mut self, p: Predictor) -> Self {
-        if self.law != Law::Pid {
+        if self.law.uses_tde() {
             self.predictor = Some(p);
         }
         self

@@ -12,7 +12,7 @@
 use crate::{Reference, Vec3};
 
 mod delay;
-pub use delay::{DelayEstimate, WINDOW};
+pub use delay::DelayEstimate;
 
 /// The prior of the learned inertia, as a multiple of the law's M̄: the robot's real inertia
 /// along the study's paths is 1.2–2.4× M̄ (docs/controllers.md), and a prediction made with too

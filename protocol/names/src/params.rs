@@ -194,6 +194,19 @@ impl LawVariant {
         Self { law, compensate }
     }
 
+    /// What `law` runs as in a run that asks for `compensate`: a law without a TDE model
+    /// (`pid`) has nothing to predict with and always runs uncompensated.
+    pub fn as_run(law: Law, compensate: Compensation) -> Self {
+        Self::new(
+            law,
+            if law.uses_tde() {
+                compensate
+            } else {
+                Compensation::None
+            },
+        )
+    }
+
     /// Parses `tde-is` or `tde-is+pred`; the error lists what is allowed.
     pub fn parse(s: &str) -> Result<Self, String> {
         let (name, compensate) = match s.strip_suffix(Compensation::Predict.suffix()) {

@@ -93,19 +93,6 @@ pub fn controller_label(cfg: &RunConfig, mode: LoopMode, said: Option<&str>) -> 
     }
 }
 
-/// A law as a run's tables name it: `tde-is+pred` when it ran compensated (`pid`, which has no
-/// TDE model to predict with, never does).
-pub fn variant(comp: Compensation, law: Law) -> LawVariant {
-    LawVariant::new(
-        law,
-        if law.uses_tde() {
-            comp
-        } else {
-            Compensation::None
-        },
-    )
-}
-
 /// A law as the tables name it: with the controller's label when a foreign one answered as it
 /// (`tdc (c-tdc)`), so it is never taken for the built-in law.
 fn law_cell(law: LawVariant, label: Option<&str>) -> String {
@@ -121,7 +108,7 @@ pub fn terminal_table(cfg: &RunConfig, label: Option<&str>, metrics: &[LawMetric
     let width = metrics
         .iter()
         .map(|m| {
-            law_cell(variant(cfg.controller.compensate, m.law), label)
+            law_cell(LawVariant::as_run(m.law, cfg.controller.compensate), label)
                 .chars()
                 .count()
         })
@@ -165,7 +152,7 @@ pub fn terminal_table(cfg: &RunConfig, label: Option<&str>, metrics: &[LawMetric
         let _ = writeln!(
             s,
             "{:<width$} {:>10} {:>10} {:>10} {:>9} {:>9.3} {:>8.4} {:>7} {:>10}{}  {}",
-            law_cell(variant(cfg.controller.compensate, m.law), label),
+            law_cell(LawVariant::as_run(m.law, cfg.controller.compensate), label),
             fig(m.rms_rad[0], rel),
             fig(m.rms_rad[1], rel),
             fig(m.rms_rad[2], rel),
@@ -388,7 +375,7 @@ fn rms_section(s: &mut String, path: PathKind, comp: Compensation, metrics: &[La
             s,
             "| {} (`{}`) | {} | {} | {} |{} {} |",
             law.paper_name(),
-            variant(comp, m.law),
+            LawVariant::as_run(m.law, comp),
             fig(m.rms_rad[0], rel),
             fig(m.rms_rad[1], rel),
             fig(m.rms_rad[2], rel),
@@ -438,7 +425,7 @@ fn accuracy_section(s: &mut String, comp: Compensation, metrics: &[LawMetrics]) 
         let _ = writeln!(
             s,
             "| `{}` | {} | {:.4} | {:.4} | {:.3} | {} | {} | {} | {} | {} |",
-            variant(comp, m.law),
+            LawVariant::as_run(m.law, comp),
             e3(m.max_abs_err_rad),
             m.task_rms_mm,
             m.task_max_mm,
@@ -475,7 +462,7 @@ fn tde_section(s: &mut String, p: &ControllerParams, comp: Compensation, metrics
                 let _ = writeln!(
                     s,
                     "| `{}` | {} | {} | {} | {} | {} | {} |",
-                    variant(comp, m.law),
+                    LawVariant::as_run(m.law, comp),
                     e3(r),
                     e(max3(dm)),
                     e(max3(dp)),

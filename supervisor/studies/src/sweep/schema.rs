@@ -77,7 +77,7 @@ pub fn variants(sw: &SweepFile) -> Vec<LawVariant> {
         .flat_map(|&law| {
             sw.compensate
                 .iter()
-                .filter(move |&&c| c == Compensation::None || law.uses_tde())
+                .filter(move |&&c| LawVariant::as_run(law, c).compensate == c)
                 .map(move |&c| LawVariant::new(law, c))
         })
         .collect()
