@@ -13,6 +13,7 @@ mod crate_graph;
 mod custom_process;
 mod delay_injection;
 mod doc_paths;
+mod explain;
 mod export_config;
 mod export_mcap;
 mod faults;

@@ -20,7 +20,7 @@ use std::sync::Mutex;
 use std::time::Duration;
 
 /// Held by each test: two FIFO loops on one CPU would starve each other.
-static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+pub(crate) static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 /// Whether the realtime run `sr` of `laws` tracked each joint within its allowance of the inproc
 /// run `si` (given the deadlines it missed); the first breach otherwise.

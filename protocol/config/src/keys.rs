@@ -219,6 +219,8 @@ declare_keys! {
         trace: bool = (true), "", Allowed::Any;
         /// Write `<law>.timing.csv` in realtime and lockstep runs (≈ 106 B a tick).
         timing_csv: bool = (true), "", Allowed::Any;
+        /// Realtime: record the kernel's scheduling on the loop's CPUs and name the cause of each missed or late tick (`--explain`; root and tracefs).
+        explain: bool = (false), "", Allowed::Any;
     }
 
     /// `[link]`: one process of the run on another host (docs/guide/two-hosts.md).

@@ -319,7 +319,8 @@ listen = \"127.0.0.1:7447\"
             c.record,
             RecordSection {
                 trace: true,
-                timing_csv: true
+                timing_csv: true,
+                explain: false
             }
         );
         let c = RunConfig::from_toml_str(&format!("{MIN}[record]\ntrace = false\n"), None).unwrap();
@@ -335,7 +336,7 @@ listen = \"127.0.0.1:7447\"
         );
         let e = err(&format!("{MIN}[record]\ntraces = false\n"));
         assert!(
-            e.contains("unknown field `traces`, expected `trace` or `timing_csv`"),
+            e.contains("unknown field `traces`, expected one of `trace`, `timing_csv`, `explain`"),
             "{e}"
         );
         let e = err(&format!("{MIN}[record]\ntrace = \"no\"\n"));

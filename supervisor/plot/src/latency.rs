@@ -27,7 +27,7 @@ pub fn quantity_color(name: &str) -> RGBColor {
 }
 
 /// Other lines get these, in turn.
-const PALETTE: [RGBColor; 6] = [
+pub(crate) const PALETTE: [RGBColor; 6] = [
     RGBColor(31, 119, 180),
     RGBColor(255, 127, 14),
     RGBColor(44, 160, 44),

@@ -16,6 +16,7 @@ use std::sync::Once;
 mod canvas;
 mod latency;
 use canvas::Canvas;
+pub mod lanes;
 pub mod timeline;
 pub use latency::{
     TimeBin, latency_percentiles, latency_percentiles_colored, quantity_color, timeline, with_ext,

@@ -82,6 +82,8 @@ pub struct Overrides {
     pub ros2_controller: bool,
     /// Publish the run's live topics (`--ros2`; `[ros2]` added likewise).
     pub ros2: bool,
+    /// Name the cause of each missed or late tick (`--explain`: record.explain).
+    pub explain: bool,
     pub remote: crate::join::RemoteArgs,
 }
 
@@ -143,6 +145,7 @@ impl Overrides {
         if let Some(v) = self.hold_s {
             cfg.scenario.hold_s = v;
         }
+        cfg.record.explain |= self.explain;
         let words = |c: &str| c.split_whitespace().map(str::to_string).collect::<Vec<_>>();
         if let Some(c) = &self.plant_cmd {
             cfg.plant.command = words(c);

@@ -67,6 +67,11 @@ pub struct OverrideArgs {
     /// it answered as (controller.label; default: --controller-cmd's program or script name).
     #[arg(long, value_name = "LABEL")]
     pub controller_label: Option<String>,
+    /// Realtime: record the kernel's scheduling on the loop's CPUs and name the cause of each
+    /// missed or late tick: `<law>.misses.csv`, `<law>.worst-miss.svg`, `miss_causes` in
+    /// summary.json (record.explain; root; docs/guide/misses.md).
+    #[arg(long)]
+    pub explain: bool,
     #[command(flatten)]
     pub remote: RemoteFlags,
 }
@@ -138,6 +143,7 @@ impl From<OverrideArgs> for Overrides {
             controller_label: a.controller_label,
             ros2_controller: a.controller == Some(ControllerKind::Ros2),
             ros2: a.ros2,
+            explain: a.explain,
             remote: a.remote.into(),
         }
     }

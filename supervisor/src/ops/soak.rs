@@ -683,6 +683,7 @@ mod tests {
         let timing_only = RecordSection {
             trace: false,
             timing_csv: true,
+            explain: false,
         };
         assert!(check_disk(ticks, &timing_only, 59_000_000_000, Path::new("."), &day).is_ok());
         let e = check_disk(ticks, &timing_only, 30_000_000_000, Path::new("."), &day).unwrap_err();
@@ -690,6 +691,7 @@ mod tests {
         let none = RecordSection {
             trace: false,
             timing_csv: false,
+            explain: false,
         };
         assert!(check_disk(u64::MAX, &none, 0, Path::new("."), &day).is_ok());
         assert!(free_bytes(Path::new("no/such/dir/below/cwd")).is_some_and(|b| b > 0));

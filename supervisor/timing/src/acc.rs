@@ -74,6 +74,8 @@ pub struct TimingAcc {
     hlogs: Option<Hlogs>,
     /// The host's steal, sampled while the loop runs (realtime process runs).
     steal: Option<StealLog>,
+    /// `--explain`: the missed and late ticks, to a file.
+    misses: Option<crate::explain::MissLog>,
 }
 
 impl TimingAcc {
@@ -102,7 +104,14 @@ impl TimingAcc {
             last: None,
             hlogs: None,
             steal: None,
+            misses: None,
         }
+    }
+
+    /// Also writes each missed or late tick's stamps to `log` (for `--explain`).
+    pub fn with_miss_log(mut self, log: crate::explain::MissLog) -> Self {
+        self.misses = Some(log);
+        self
     }
 
     /// Also samples the host's steal while the loop runs ([`TimingAcc::sample_steal`]), so each
@@ -201,6 +210,9 @@ impl TimingAcc {
             b.misses += u64::from(missed);
         }
         self.last = Some(seen.k);
+        if let Some(log) = &mut self.misses {
+            log.note(seen)?;
+        }
         if let Some(h) = &mut self.hlogs {
             let deadline = seen
                 .state
@@ -287,6 +299,9 @@ impl TimingAcc {
         let n = self.reached.min(self.n + 1);
         if self.pending.iter().any(|p| p.k == n && p.state.is_none()) {
             self.t.lost[0] += 1;
+        }
+        if let Some(log) = self.misses.take() {
+            self.t.miss_log = Some(log.finish()?);
         }
         if let Some(h) = &mut self.hlogs {
             let end = self.last.map_or(0, |k| k + 1).saturating_mul(self.ts_ns);

@@ -6,6 +6,7 @@
 //! the runner stand on it.
 
 mod acc;
+pub mod explain;
 pub mod hlog;
 pub mod live;
 pub mod pauses;
@@ -14,6 +15,7 @@ mod tick_csv;
 pub mod timeline;
 
 pub use acc::{Seen, TimingAcc};
+pub use deltaloop_sched as sched;
 pub use steal::{StealMs, steal_jiffies, steal_ms_between};
 pub use tick_csv::{TIMING_COLUMNS, TimingCsv, timing_cells};
 
@@ -126,6 +128,11 @@ pub struct Timing {
     pub ts_ns: u64,
     /// The run was realtime (wake lateness, jitter and misses are measured).
     pub realtime: bool,
+    /// `--explain`: the missed and late ticks by cause, from the kernel's record.
+    pub explained: Option<deltaloop_sched::Explained>,
+    /// `--explain`: the file of the missed and late ticks ([`explain::MissLog`]), until they
+    /// are explained.
+    pub miss_log: Option<PathBuf>,
 }
 
 /// Peak resident set size (VmHWM) of each process of a run, MiB: the supervisor's over its whole
@@ -228,6 +235,10 @@ pub struct TimingSummary {
     /// and `far` each host's own), none of which reached the loop.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub link_security: Option<LinkReport>,
+    /// `--explain` only: `miss_causes` {cause: missed ticks}, `miss_culprits` {command name:
+    /// missed ticks}, `late_causes`, and the kernel's events read (`sched_events`, per second).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub explained: Option<deltaloop_sched::Explained>,
 }
 
 /// One line if the link refused anything during a run (connections before the far side
@@ -338,6 +349,8 @@ impl Default for Timing {
             timeline: Timeline::default(),
             ts_ns: 0,
             realtime: false,
+            explained: None,
+            miss_log: None,
         }
     }
 }
@@ -441,6 +454,7 @@ impl Timing {
             round_trip: p(&self.round_trip),
             link_rtt: self.link.map(|_| p(&self.link_rtt)),
             link_security: self.link_report.clone(),
+            explained: self.explained.clone(),
         }
     }
 
@@ -491,6 +505,9 @@ impl Timing {
             .collect();
         if !stolen.is_empty() {
             why.push(format!("the host took {}", stolen.join(" and ")));
+        }
+        if let Some(causes) = self.explained.as_ref().and_then(|x| x.words()) {
+            why.push(format!("misses by cause: {causes}"));
         }
         Some(why.join("; "))
     }

@@ -17,6 +17,12 @@ pub struct RecordSection {
 
     /// Write `<law>.timing.csv` (the raw clock stamps of every tick) in realtime and lockstep runs.
     pub timing_csv: bool,
+
+    /// Realtime: record the kernel's scheduling events on the loop's CPUs while each law runs,
+    /// and name the cause of each missed or late tick (`<law>.misses.csv`,
+    /// docs/guide/misses.md). Needs root and tracefs; without them one warning, and the run goes
+    /// on.
+    pub explain: bool,
 }
 
 impl Default for RecordSection {
@@ -24,6 +30,7 @@ impl Default for RecordSection {
         Self {
             trace: RecordKeys::trace(),
             timing_csv: RecordKeys::timing_csv(),
+            explain: RecordKeys::explain(),
         }
     }
 }

@@ -56,6 +56,7 @@ pub fn timing_markdown(
     );
     percentiles(&mut s, metrics, timing);
     counts(&mut s, metrics, timing);
+    misses_by_cause(&mut s, metrics, timing);
     link_security(&mut s, metrics, timing);
     if mode == LoopMode::Realtime {
         s.push_str(&overrun_markdown(cfg, metrics, timing));
@@ -131,6 +132,85 @@ fn counts(s: &mut String, metrics: &[LawMetrics], timing: &[Option<TimingSummary
 }
 
 /// Who joined each law's link, and what it refused.
+/// `--explain`: each law's missed ticks by cause, its top culprits, its late ticks, and the
+/// figure of its worst missed tick.
+fn misses_by_cause(s: &mut String, metrics: &[LawMetrics], timing: &[Option<TimingSummary>]) {
+    use deltaloop_timing::sched::Cause;
+    let rows: Vec<_> = metrics
+        .iter()
+        .zip(timing)
+        .filter_map(|(m, t)| Some((m, t.as_ref()?, t.as_ref()?.explained.as_ref()?)))
+        .collect();
+    if rows.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        s,
+        "\n### Misses by cause\n\nEach missed tick's cause from the kernel's scheduling record of the loop's CPUs \
+         (`--explain`; one row per tick in `<law>.misses.csv`, how to read them: docs/guide/misses.md). `preempted`: \
+         another thread held the CPU while the loop thread was runnable (the culprit); `irq`, `softirq`: an interrupt \
+         ran; `wakeup`: the loop thread was woken late; `host`: it held the CPU and made no progress (the hypervisor); \
+         `own`: its own work; `unknown`: no record covers the tick.\n"
+    );
+    let head: Vec<&str> = Cause::ALL.iter().map(|c| c.name()).collect();
+    let _ = writeln!(s, "| law | missed | {} | top culprits |", head.join(" | "));
+    let _ = writeln!(s, "|---|---:|{}---|", "---:|".repeat(head.len()));
+    for (m, t, x) in &rows {
+        let by: Vec<String> = Cause::ALL
+            .iter()
+            .map(|c| {
+                x.miss_causes
+                    .get(c.name())
+                    .copied()
+                    .unwrap_or(0)
+                    .to_string()
+            })
+            .collect();
+        let top: Vec<String> = x
+            .top_culprits()
+            .iter()
+            .take(3)
+            .map(|(c, n)| format!("{c} ({n})"))
+            .collect();
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} |",
+            m.law,
+            t.deadline_misses,
+            by.join(" | "),
+            if top.is_empty() {
+                "–".into()
+            } else {
+                top.join(", ")
+            }
+        );
+    }
+    for (m, _, x) in &rows {
+        let late: u64 = x.late_causes.values().sum();
+        let worst = if x.worst.is_some() {
+            format!(" Its worst missed tick: `{}.worst-miss.svg`.", m.law)
+        } else {
+            String::new()
+        };
+        let by: Vec<String> = x
+            .late_causes
+            .iter()
+            .filter(|(_, n)| **n > 0)
+            .map(|(c, n)| format!("{c} {n}"))
+            .collect();
+        let by = if by.is_empty() {
+            String::new()
+        } else {
+            format!(" by cause: {}", by.join(", "))
+        };
+        let _ = writeln!(
+            s,
+            "\n`{}`: {late} late tick(s) (the plant woke a quarter period or more late){by}; the kernel logged {} events ({:.0} a second).{worst}",
+            m.law, x.sched_events, x.sched_events_per_s
+        );
+    }
+}
+
 fn link_security(s: &mut String, metrics: &[LawMetrics], timing: &[Option<TimingSummary>]) {
     for (m, t) in metrics.iter().zip(timing) {
         if let Some(r) = t.as_ref().and_then(|t| t.link_security.as_ref()) {

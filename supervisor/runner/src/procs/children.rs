@@ -313,7 +313,7 @@ impl Pair {
     }
 
     /// Each child's pid while it has not been reaped, the plant's first.
-    fn pids(&self) -> (Option<u32>, Option<u32>) {
+    pub(super) fn pids(&self) -> (Option<u32>, Option<u32>) {
         let pid = |r: &Reaped| r.child.as_ref().map(Child::id);
         (pid(&self.plant), pid(&self.controller))
     }

@@ -9,6 +9,7 @@
 //! from the same code) and on to disk: memory does not grow with the run.
 
 mod children;
+mod explain;
 mod observe;
 mod status;
 

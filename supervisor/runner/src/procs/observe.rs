@@ -662,6 +662,22 @@ pub(super) fn run(
     if mode == LoopMode::Realtime && link != Some(RemoteSide::Plant) {
         timing = timing.with_steal();
     }
+    let mut sched_warnings = sched_warnings;
+    // Before START: the kernel's record must cover tick 0.
+    let explaining = match super::explain::Explaining::start(
+        cfg,
+        mode,
+        &pair,
+        run_dir,
+        law.name(),
+        &mut sched_warnings,
+    ) {
+        Some((x, log)) => {
+            timing = timing.with_miss_log(log);
+            Some(x)
+        }
+        None => None,
+    };
     let mut streams = Observation::new(
         lawrun::recorder(study, law, keep)?,
         timing,
@@ -712,6 +728,15 @@ pub(super) fn run(
             .map(|w| format!("deltaloop: warning: {w}")),
     );
     let (run, mut timing) = streams.finish(ending.interrupted(), cause.as_ref())?;
+    if let Some(x) = explaining {
+        let mut warnings = Vec::new();
+        x.finish(&mut timing, run_dir, law.name(), &mut warnings);
+        child_messages.extend(
+            warnings
+                .into_iter()
+                .map(|w| format!("deltaloop: warning: {w}")),
+        );
+    }
     timing.steal =
         deltaloop_timing::steal_ms_between(&steal_before, &deltaloop_timing::steal_jiffies());
     timing.peak_rss = PeakRss::from_kib(own_peak_rss_kib(), plant_rss, ctrl_rss);
