@@ -16,7 +16,7 @@ pub mod timeline;
 
 pub use attribute::{Cause, MissKind, Verdict, Window};
 pub use event::{Event, Kind, Thread};
-pub use record::{Counts, Recorder};
+pub use record::{Counts, Recorder, steal_jiffies};
 
 use anyhow::Context as _;
 use serde::Serialize;
@@ -56,29 +56,29 @@ impl Explained {
         }
     }
 
-    /// `preempted 80 (burner 80), irq 2`: the causes of missed ticks that occurred, most first,
-    /// and the top culprits; None without a missed tick.
+    /// `preempted 80 (culprits: burner 80), irq 2`: the causes of missed ticks that occurred,
+    /// most first, and the top culprits; None without a missed tick.
     pub fn words(&self) -> Option<String> {
-        let mut causes: Vec<_> = self.miss_causes.iter().filter(|(_, n)| **n > 0).collect();
-        causes.sort_by(|a, b| b.1.cmp(a.1).then(a.0.cmp(b.0)));
-        if causes.is_empty() {
-            return None;
-        }
-        let mut s = causes
-            .iter()
-            .map(|(c, n)| format!("{c} {n}"))
-            .collect::<Vec<_>>()
-            .join(", ");
-        let top: Vec<String> = self
-            .top_culprits()
-            .iter()
-            .take(3)
-            .map(|(c, n)| format!("{c} {n}"))
-            .collect();
+        let mut s = by_cause(&self.miss_causes)?;
+        let top = self.culprit_words(3, |c, n| format!("{c} {n}"));
         if !top.is_empty() {
             s.push_str(&format!(" (culprits: {})", top.join(", ")));
         }
         Some(s)
+    }
+
+    /// The late ticks' causes as [`Explained::words`] says the missed ones'.
+    pub fn late_words(&self) -> Option<String> {
+        by_cause(&self.late_causes)
+    }
+
+    /// The first `n` culprits, most missed ticks first, each as `say(name, ticks)`.
+    pub fn culprit_words(&self, n: usize, say: impl Fn(&str, u64) -> String) -> Vec<String> {
+        self.top_culprits()
+            .iter()
+            .take(n)
+            .map(|(c, k)| say(c, *k))
+            .collect()
     }
 
     /// The culprits, most missed ticks first (ties by name).
@@ -91,6 +91,19 @@ impl Explained {
         v.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(b.0)));
         v
     }
+}
+
+/// `preempted 80, irq 2`: the causes that occurred, most first (ties by name); None if none.
+fn by_cause(m: &BTreeMap<&'static str, u64>) -> Option<String> {
+    let mut causes: Vec<_> = m.iter().filter(|(_, n)| **n > 0).collect();
+    causes.sort_by(|a, b| b.1.cmp(a.1).then(a.0.cmp(b.0)));
+    (!causes.is_empty()).then(|| {
+        causes
+            .iter()
+            .map(|(c, n)| format!("{c} {n}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    })
 }
 
 /// The events of a recorded file, in the file's order (lines of other shapes skipped).

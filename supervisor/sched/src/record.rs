@@ -103,7 +103,10 @@ impl Recorder {
         r.reader = Some(
             std::thread::Builder::new()
                 .name("sched-record".into())
-                .spawn(move || drain(pipe, out, &cpus, &stop))
+                .spawn(move || {
+                    keep_off(&cpus);
+                    drain(pipe, out, &cpus, &stop)
+                })
                 .map_err(|e| format!("cannot start the reader thread: {e}"))?,
         );
         Ok(r)
@@ -155,6 +158,44 @@ impl Drop for Recorder {
     }
 }
 
+/// Moves the calling thread off the loop's CPUs `cpus`, to the others this process may use (if
+/// it may use none, it stays: the loop's layout shares the supervisor's CPU with the loop).
+fn keep_off(cpus: &[usize]) {
+    // SAFETY: cpu_set_t is plain data; zeroed is the empty set.
+    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    // SAFETY: getting the calling thread's affinity into our set.
+    if unsafe { libc::sched_getaffinity(0, std::mem::size_of_val(&set), &mut set) } != 0 {
+        return;
+    }
+    let mut left = 0;
+    for c in 0..libc::CPU_SETSIZE as usize {
+        // SAFETY: c is below CPU_SETSIZE.
+        if unsafe { libc::CPU_ISSET(c, &set) } {
+            if cpus.contains(&c) {
+                // SAFETY: as above.
+                unsafe { libc::CPU_CLR(c, &mut set) };
+            } else {
+                left += 1;
+            }
+        }
+    }
+    if left == 0 {
+        // The process may run only on loop CPUs: try every other CPU of the machine.
+        // SAFETY: as above.
+        set = unsafe { std::mem::zeroed() };
+        let n = std::thread::available_parallelism().map_or(0, |n| n.get());
+        for c in (0..n.max(1)).filter(|c| !cpus.contains(c)) {
+            // SAFETY: as above.
+            unsafe { libc::CPU_SET(c, &mut set) };
+            left += 1;
+        }
+    }
+    if left > 0 {
+        // SAFETY: a valid set for the calling thread; a refusal leaves its affinity as it was.
+        unsafe { libc::sched_setaffinity(0, std::mem::size_of_val(&set), &set) };
+    }
+}
+
 /// Removes instances of supervisors that are gone.
 fn remove_stale(root: &Path) {
     let Ok(dir) = std::fs::read_dir(root.join("instances")) else {
@@ -197,7 +238,10 @@ fn drain(mut pipe: File, out: File, cpus: &[usize], stop: &AtomicBool) -> std::i
             }
         }
         let now = mono_ns();
-        for (cpu, jiffies) in steal_jiffies(cpus) {
+        for (cpu, jiffies) in steal_jiffies()
+            .into_iter()
+            .filter(|(c, _)| cpus.contains(c))
+        {
             writeln!(out, "steal cpu={cpu} jiffies={jiffies} t={now}")?;
         }
         if stopping {
@@ -221,8 +265,9 @@ fn mono_ns() -> u64 {
     ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
-/// The steal clock of `cpus` (/proc/stat, jiffies).
-fn steal_jiffies(cpus: &[usize]) -> Vec<(usize, u64)> {
+/// Each CPU's steal clock, (CPU index, jiffies) (/proc/stat's `steal`: time the hypervisor ran
+/// something else while this virtual CPU had work); empty where /proc/stat is unavailable.
+pub fn steal_jiffies() -> Vec<(usize, u64)> {
     let Ok(text) = std::fs::read_to_string("/proc/stat") else {
         return Vec::new();
     };
@@ -232,7 +277,7 @@ fn steal_jiffies(cpus: &[usize]) -> Vec<(usize, u64)> {
             let cpu = f.next()?.strip_prefix("cpu")?.parse::<usize>().ok()?;
             // user nice system idle iowait irq softirq steal
             let steal = f.nth(7)?.parse::<u64>().ok()?;
-            cpus.contains(&cpu).then_some((cpu, steal))
+            Some((cpu, steal))
         })
         .collect()
 }

@@ -28,6 +28,10 @@ enum What {
         /// Where the configs, logs and histograms go.
         #[arg(long, default_value = "runs/bench-loop")]
         out: PathBuf,
+        /// Name each realtime run's missed ticks' causes from the kernel's scheduling record
+        /// (root; docs/guide/misses.md).
+        #[arg(long)]
+        explain: bool,
     },
     /// Wall seconds per simulated second: the plant alone (RK4, h = Ts/10), the in-process loop and MuJoCo on the same model.
     Plant {
@@ -92,7 +96,8 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
             rt_seconds,
             repeats,
             out,
-        } => crate::ops::bench_loop::run(lockstep_seconds, rt_seconds, repeats, &out),
+            explain,
+        } => crate::ops::bench_loop::run(lockstep_seconds, rt_seconds, repeats, &out, explain),
         What::Net {
             hold_s,
             out,

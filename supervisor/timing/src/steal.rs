@@ -5,20 +5,7 @@ use super::*;
 /// Per-CPU "steal" time from /proc/stat: time the hypervisor ran something else while this
 /// (virtual) CPU had work. On a VM it explains stalls no scheduling policy inside the guest can
 /// prevent. Jiffies, per CPU index; empty where /proc/stat is unavailable.
-pub fn steal_jiffies() -> Vec<(usize, u64)> {
-    let Ok(text) = std::fs::read_to_string("/proc/stat") else {
-        return Vec::new();
-    };
-    text.lines()
-        .filter_map(|l| {
-            let mut f = l.split_whitespace();
-            let cpu = f.next()?.strip_prefix("cpu")?.parse::<usize>().ok()?;
-            // user nice system idle iowait irq softirq steal
-            let steal = f.nth(7)?.parse::<u64>().ok()?;
-            Some((cpu, steal))
-        })
-        .collect()
-}
+pub use deltaloop_sched::steal_jiffies;
 
 /// Steal time per CPU between two readings, ms.
 pub fn steal_ms_between(before: &[(usize, u64)], after: &[(usize, u64)]) -> Vec<StealMs> {

@@ -166,12 +166,7 @@ fn misses_by_cause(s: &mut String, metrics: &[LawMetrics], timing: &[Option<Timi
                     .to_string()
             })
             .collect();
-        let top: Vec<String> = x
-            .top_culprits()
-            .iter()
-            .take(3)
-            .map(|(c, n)| format!("{c} ({n})"))
-            .collect();
+        let top = x.culprit_words(3, |c, n| format!("{c} ({n})"));
         let _ = writeln!(
             s,
             "| {} | {} | {} | {} |",
@@ -192,17 +187,9 @@ fn misses_by_cause(s: &mut String, metrics: &[LawMetrics], timing: &[Option<Timi
         } else {
             String::new()
         };
-        let by: Vec<String> = x
-            .late_causes
-            .iter()
-            .filter(|(_, n)| **n > 0)
-            .map(|(c, n)| format!("{c} {n}"))
-            .collect();
-        let by = if by.is_empty() {
-            String::new()
-        } else {
-            format!(" by cause: {}", by.join(", "))
-        };
+        let by = x
+            .late_words()
+            .map_or(String::new(), |w| format!(" by cause: {w}"));
         let _ = writeln!(
             s,
             "\n`{}`: {late} late tick(s) (the plant woke a quarter period or more late){by}; the kernel logged {} events ({:.0} a second).{worst}",

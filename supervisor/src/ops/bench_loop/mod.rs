@@ -242,7 +242,14 @@ fn transport_rounds(
 }
 
 /// Runs every measurement and prints; the last line is the machine-readable summary.
-pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> Result<()> {
+/// `explain`: each realtime run also names its misses' causes (`--explain`).
+pub fn run(
+    lockstep_seconds: f64,
+    rt_seconds: f64,
+    repeats: u32,
+    out: &Path,
+    explain: bool,
+) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     println!(
         "deltaloop bench loop: lockstep/inproc {lockstep_seconds} s simulated ({} ticks) x {repeats} rounds, realtime {rt_seconds} s at 3.3 kHz; machine: {} logical CPUs, kernel {}",
@@ -256,12 +263,19 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
     // (d) realtime, the default layout, the split-CPU one and the one-CPU yielding one, then (e)
     // the machine's own limit.
     let budget_us = f64::from(ls.config.loop_.torque_budget_us);
-    let rt_default = realtime(out, "realtime", rt_seconds, Layout::realtime_default())?;
+    let rt_default = realtime(
+        out,
+        "realtime",
+        rt_seconds,
+        Layout::realtime_default(),
+        explain,
+    )?;
     let rt_split = realtime(
         out,
         "realtime-split",
         rt_seconds,
         Layout::realtime_split_cpus(),
+        explain,
     )?;
     let split_cpu = Layout::realtime_split_cpus().resolve().controller_cpu;
     let sp = rt_split.summary();
@@ -278,6 +292,7 @@ pub fn run(lockstep_seconds: f64, rt_seconds: f64, repeats: u32, out: &Path) -> 
         "realtime-yield",
         rt_seconds,
         Layout::realtime_one_cpu_yield(),
+        explain,
     )?;
     let lay = Layout::realtime_default().resolve();
     let (machine, cyclic) = machine_limit(&lay, ls.config.ts_ns(), rt_seconds)?;
@@ -520,15 +535,17 @@ fn lockstep(ls: &Study, repeats: u32, out: &Path) -> Result<Lockstep> {
 }
 
 /// One realtime run of `seconds` on the S1 hold with `layout`, in `out/<name>`; its timing, with
-/// the `.hgrm` files and figures written there.
+/// the `.hgrm` files and figures written there (and with `explain` its misses' causes).
 fn realtime(
     out: &Path,
     name: &str,
     seconds: f64,
     layout: Layout,
+    explain: bool,
 ) -> Result<deltaloop_timing::Timing> {
     let mut rs = s1_hold_study("bench-loop", seconds)?;
     rs.config.loop_.realtime = layout;
+    rs.config.record.explain = explain;
     // A virtual CPU the host freezes for 30 ms must not end the measurement: count the misses.
     rs.config.faults.controller_silence_ticks =
         rs.config.faults.controller_silence_ticks.max(10_000);
@@ -581,6 +598,14 @@ fn realtime(
             steal.join(", ")
         }
     );
+    if let Some(x) = &pr.timing.explained {
+        println!(
+            "    misses by cause: {}; late ticks: {} ({}/tdc-is-sta.misses.csv)",
+            x.words().unwrap_or_else(|| "none".into()),
+            x.late_words().unwrap_or_else(|| "none".into()),
+            dir.display()
+        );
+    }
     Ok(pr.timing)
 }
 
