@@ -87,6 +87,10 @@ pub struct Window {
     /// The thread's own work within the window, ns: the controller's compute, from the state
     /// received to the torque published, when it stamped both.
     pub work: Option<(u64, u64)>,
+    /// The controller is across a link: which leg its stamps blame (`state leg`, `reply leg`,
+    /// `far host`, `no reply`). The window is then the plant's, waiting; unless something on
+    /// this host held the plant's CPU, the cause is `link`.
+    pub link: Option<&'static str>,
 }
 
 /// A tick's cause.
@@ -345,8 +349,13 @@ fn verdict(o: &Open) -> Verdict {
             (Cause::Unknown, 0),
             |best, c| if c.1 > best.1 { c } else { best },
         );
-    // Before the CPU's first event the window's time counts as `wakeup`; with events lost the
-    // record cannot say.
+    // Across a link the plant waits for the datagram: unless a thread or an interrupt held its
+    // CPU, the time went to the link.
+    let local = matches!(cause, Cause::Preempted | Cause::Irq | Cause::Softirq);
+    if o.w.link.is_some() && !local {
+        cause = Cause::Link;
+    }
+    // With events lost the record cannot say.
     if o.lost_events {
         cause = Cause::Unknown;
     }
@@ -360,6 +369,7 @@ fn verdict(o: &Open) -> Verdict {
         source: match cause {
             Cause::Irq => irq.map(|i| i.0),
             Cause::Softirq => softirq.map(|s| s.0),
+            Cause::Link => o.w.link.map(str::to_string),
             _ => None,
         },
         cpu: o.w.cpu,
@@ -434,6 +444,7 @@ mod tests {
             from_ns: from_us * 1000,
             to_ns: to_us * 1000,
             work: None,
+            link: None,
         }
     }
 
@@ -530,6 +541,33 @@ mod tests {
             causes,
             [(1, Cause::Host), (2, Cause::Own), (3, Cause::Host)]
         );
+    }
+
+    /// Across a link the plant's wait is the link's (with the leg), unless a thread held its CPU.
+    #[test]
+    fn across_a_link_the_wait_is_the_links_unless_the_cpu_was_taken() {
+        let mut waiting = window(1, 0, 100);
+        waiting.link = Some("reply leg");
+        let mut taken = window(2, 200, 300);
+        taken.link = Some("state leg");
+        let v = run(
+            vec![waiting, taken],
+            vec![
+                switch(0, LOOP, false, th(0, "swapper/1", 120)),
+                at(
+                    150,
+                    Kind::Waking {
+                        pid: LOOP,
+                        target_cpu: 1,
+                    },
+                ),
+                switch(190, 0, false, th(9, "hog", 10)),
+            ],
+        );
+        assert_eq!(v[0].cause, Cause::Link);
+        assert_eq!(v[0].source.as_deref(), Some("reply leg"));
+        assert_eq!(v[1].cause, Cause::Preempted);
+        assert_eq!(v[1].culprit.as_ref().map(|c| c.pid), Some(9));
     }
 
     /// Lost events make the window unknown; windows come out in tick order even when an own

@@ -67,6 +67,10 @@ enum What {
         /// four more rows.
         #[arg(long)]
         polling: bool,
+        /// Name each run's missed ticks' causes from the kernel's scheduling record of the
+        /// plant's CPU (`link` with its leg when the datagram came late; docs/guide/misses.md).
+        #[arg(long)]
+        explain: bool,
     },
     /// ROS 2's transport against the loop's: a ping-pong of state-sized messages at 3.3 kHz
     /// over DDS (RustDDS, two participants on loopback), iceoryx2 and UDP on loopback,
@@ -103,13 +107,20 @@ pub fn exec(a: Args, _cx: &Context) -> Result<()> {
             out,
             zenoh_bridge,
             polling,
+            explain,
         } => {
             // Not this machine's fault but a missing prerequisite: said in one line, exit 2.
             if let Some(why) = crate::ops::bench_net::missing() {
                 eprintln!("deltaloop: error: {why}");
                 std::process::exit(2);
             }
-            crate::ops::bench_net::run(hold_s, out.as_deref(), zenoh_bridge.as_deref(), polling)
+            crate::ops::bench_net::run(
+                hold_s,
+                out.as_deref(),
+                zenoh_bridge.as_deref(),
+                polling,
+                explain,
+            )
         }
         What::Ros2 {
             count,

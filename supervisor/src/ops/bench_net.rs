@@ -84,6 +84,10 @@ pub struct TwoHosts {
     pub veth_a: String,
     dir: PathBuf,
     remove_dir: bool,
+    /// Commands in either namespace see tracefs (`--explain`): `ip netns exec` mounts a sysfs of
+    /// the namespace's own over /sys, which hides it; it is mounted again in the command's
+    /// private mount namespace.
+    pub tracefs: bool,
 }
 
 impl TwoHosts {
@@ -103,6 +107,7 @@ impl TwoHosts {
             veth_a: format!("vdl{id}a"),
             dir: dir.canonicalize()?,
             remove_dir,
+            tracefs: false,
         };
         let veth_b = format!("vdl{id}b");
         ip(&["netns", "add", &h.a])?;
@@ -129,7 +134,16 @@ impl TwoHosts {
     pub fn cmd(&self, side: &str, prog: &Path, args: &[&str]) -> Command {
         let ns = if side == "a" { &self.a } else { &self.b };
         let mut c = Command::new("ip");
-        c.args(["netns", "exec", ns, "env"])
+        c.args(["netns", "exec", ns]);
+        if self.tracefs {
+            c.args([
+                "sh",
+                "-c",
+                "[ -d /sys/kernel/tracing/instances ] || mount -t tracefs nodev /sys/kernel/tracing 2>/dev/null; exec \"$@\"",
+                "sh",
+            ]);
+        }
+        c.arg("env")
             .arg(format!("DELTALOOP_IOX2_ROOT={}", self.root(side).display()))
             .arg(prog)
             .args(args);
@@ -209,14 +223,43 @@ fn run_row(path: &str, out: &Path) -> Result<Row> {
         p99,
         p999,
         misses: format!(
-            "{} of {} ticks ({status})",
-            t["deadline_misses"], t["ticks"]
+            "{} of {} ticks ({status}){}",
+            t["deadline_misses"],
+            t["ticks"],
+            causes(t)
         ),
         miss_ratio: match (t["deadline_misses"].as_f64(), t["ticks"].as_f64()) {
             (Some(m), Some(n)) if n > 0.0 => Some(m / n),
             _ => None,
         },
     })
+}
+
+/// `; preempted 3, link 10 (culprits: …)`: a run's missed ticks by cause (`--explain`), or
+/// nothing.
+fn causes(t: &serde_json::Value) -> String {
+    let Some(m) = t["miss_causes"].as_object() else {
+        return String::new();
+    };
+    let mut by: Vec<(&String, u64)> = m
+        .iter()
+        .filter_map(|(c, n)| Some((c, n.as_u64().filter(|&n| n > 0)?)))
+        .collect();
+    by.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(b.0)));
+    let mut s: Vec<String> = by.iter().map(|(c, n)| format!("{c} {n}")).collect();
+    if s.is_empty() {
+        s.push("no miss".into());
+    }
+    let culprits: Vec<String> = t["miss_culprits"]
+        .as_object()
+        .map(|m| m.iter().map(|(c, n)| format!("{c} {n}")).collect())
+        .unwrap_or_default();
+    let culprits = if culprits.is_empty() {
+        String::new()
+    } else {
+        format!(" (culprits: {})", culprits.join(", "))
+    };
+    format!("; by cause: {}{culprits}", s.join(", "))
 }
 
 /// The last lines of a log, for an error.
@@ -236,12 +279,14 @@ const POLLING: &str = "<polling>";
 /// is late anyway).
 const POLL_US: u32 = 150;
 
-/// `deltaloop bench net`; `polling` adds the runs with the far, then the near bridge polling.
+/// `deltaloop bench net`; `polling` adds the runs with the far, then the near bridge polling;
+/// `explain` names each run's misses' causes (`--explain`).
 pub fn run(
     hold_s: f64,
     out: Option<&Path>,
     zenoh_bridge: Option<&Path>,
     polling: bool,
+    explain: bool,
 ) -> Result<()> {
     if let Some(why) = missing() {
         bail!("{why}");
@@ -253,7 +298,9 @@ pub fn run(
             true,
         ),
     };
-    let b = Bench::new(TwoHosts::new(&dir, remove)?, hold_s)?;
+    let mut h = TwoHosts::new(&dir, remove)?;
+    h.tracefs = explain;
+    let b = Bench::new(h, hold_s, explain)?;
     println!(
         "deltaloop bench net: two network namespaces joined by veth ({ADDR_A} | {ADDR_B}), S1 + {hold_s} s hold (tdc, realtime, 1000-tick hold window), {} UDP round trips; folders in {}",
         b.count,
@@ -371,7 +418,7 @@ struct Bench {
 }
 
 impl Bench {
-    fn new(h: TwoHosts, hold_s: f64) -> Result<Self> {
+    fn new(h: TwoHosts, hold_s: f64, explain: bool) -> Result<Self> {
         let dir = h.dir.clone();
         let bin = exe_dir()?;
         let config = dir.join("s1-nominal.toml");
@@ -379,15 +426,20 @@ impl Bench {
         // slower than the 150 µs budget (the far side's first wake-ups, its caches cold) ended
         // about one bench run in three in a fault before a round trip was measured; the misses
         // still count.
+        let record = if explain {
+            "[record]\nexplain = true\n"
+        } else {
+            ""
+        };
         std::fs::write(
             &config,
-            format!("{S1}\n[faults]\ncontroller_silence_ticks = 1000\n"),
+            format!("{S1}\n[faults]\ncontroller_silence_ticks = 1000\n{record}"),
         )?;
         let polling = dir.join("s1-polling.toml");
         std::fs::write(
             &polling,
             format!(
-                "{S1}\n[faults]\ncontroller_silence_ticks = 1000\n[loop.realtime]\nspin_us = {POLL_US}\n"
+                "{S1}\n[faults]\ncontroller_silence_ticks = 1000\n[loop.realtime]\nspin_us = {POLL_US}\n{record}"
             ),
         )?;
         // Both sides of every run across the link hold this key (the link has no

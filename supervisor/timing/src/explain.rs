@@ -96,23 +96,43 @@ fn windows(
                     from_ns: deadline,
                     to_ns: wake,
                     work: None,
+                    link: None,
                 }
             } else {
-                // A controller across the link: its stamps are another host's, and its CPU is not
-                // recorded here; the window stays on the plant's CPU (what it waited for).
+                // A controller across the link: its CPU is not recorded here; the window is the
+                // plant's (what it waited for), and the stamps say which leg was late.
                 let (pid, cpu) = threads.controller.unwrap_or(threads.plant);
+                let to_ns = pub_state + budget_ns;
                 Window {
                     k,
                     kind: MissKind::Missed,
                     cpu,
                     pid,
                     from_ns: pub_state,
-                    to_ns: pub_state + budget_ns,
+                    to_ns,
                     work: (threads.controller.is_some() && rx > 0 && publ >= rx)
                         .then_some((rx, publ)),
+                    link: threads
+                        .controller
+                        .is_none()
+                        .then(|| leg(pub_state, to_ns, rx, publ)),
                 }
             })
         }))
+}
+
+/// Which leg of the link a missed tick's stamps blame: the state arrived after the budget ended
+/// (`state leg`), the reply was sent within it and came late (`reply leg`), the controller took
+/// the state in time and answered late (`far host`), or nothing came back (`no reply`). The
+/// controller's stamps are read on the plant's clock: on one machine (`bench net`) they are;
+/// across two hosts the legs are as good as the hosts' clocks agree.
+fn leg(pub_state: u64, to_ns: u64, rx: u64, publ: u64) -> &'static str {
+    match (rx, publ) {
+        (0, _) | (_, 0) => "no reply",
+        (rx, _) if rx > to_ns => "state leg",
+        (_, p) if p <= to_ns && p >= pub_state => "reply leg",
+        _ => "far host",
+    }
 }
 
 /// Explains a law's run from the kernel's record `record` (what a recorder counted in
