@@ -6,25 +6,9 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::process::{Command, Stdio};
 
-/// Rows of a CSV file by column name.
-fn rows(path: &Path) -> Vec<HashMap<String, String>> {
-    let mut r = csv::Reader::from_path(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let head: Vec<String> = r.headers().unwrap().iter().map(str::to_string).collect();
-    r.records()
-        .map(|x| {
-            head.iter()
-                .cloned()
-                .zip(x.unwrap().iter().map(str::to_string))
-                .collect()
-        })
-        .collect()
-}
-
 /// Whether this host lets a test record the kernel's events (root and tracefs).
 fn can_trace() -> bool {
-    let ok = Path::new("/sys/kernel/tracing/instances").is_dir()
-        // SAFETY: geteuid has no preconditions.
-        && unsafe { libc::geteuid() } == 0;
+    let ok = common::can_explain();
     if !ok {
         eprintln!("SKIPPED: --explain needs root and tracefs at /sys/kernel/tracing");
     }
@@ -55,15 +39,21 @@ fn a_known_competitor_is_named_for_the_ticks_it_took() {
             .stdout(Stdio::piped())
             .spawn()
             .unwrap();
-        let s = common::run(
+        let o = common::run_output(
             "configs/s1-nominal.toml",
             "realtime",
             &out,
             &["--law", "tdc", "--explain", "--hold-s", "0.5"],
         );
-        let o = b.wait_with_output().unwrap();
-        assert!(o.status.success(), "burner failed");
-        let bursts: Vec<(u64, u64)> = String::from_utf8_lossy(&o.stdout)
+        let burned = b.wait_with_output().unwrap();
+        assert!(burned.status.success(), "burner failed");
+        let s = common::summary(&out);
+        if !o.status.success() {
+            // A host that stalls the loop past its hold window ends the run in a safe stop.
+            let failed = String::from_utf8_lossy(&o.stderr).into_owned();
+            common::judge(common::disturbance(&s, "tdc"), Err(failed))?;
+        }
+        let bursts: Vec<(u64, u64)> = String::from_utf8_lossy(&burned.stdout)
             .lines()
             .filter_map(|l| {
                 let mut w = l.split_whitespace().skip(1);
@@ -78,11 +68,11 @@ fn a_known_competitor_is_named_for_the_ticks_it_took() {
 /// The competitor test's verdict over one run.
 fn judge(s: &Value, out: &Path, bursts: &[(u64, u64)]) -> Result<(), String> {
     let ts_ns = 300_000;
-    let deadline: HashMap<String, u64> = rows(&out.join("tdc.timing.csv"))
+    let deadline: HashMap<String, u64> = common::csv_rows(&out.join("tdc.timing.csv"))
         .into_iter()
         .filter_map(|r| Some((r["k"].clone(), r["deadline_ns"].parse().ok()?)))
         .collect();
-    let misses = rows(&out.join("tdc.misses.csv"));
+    let misses = common::csv_rows(&out.join("tdc.misses.csv"));
     let missed: Vec<_> = misses.iter().filter(|r| r["kind"] == "missed").collect();
     let t = &s["timing"]["tdc"];
     // Every missed tick has its row and its cause, and the summary counts them.
@@ -171,7 +161,8 @@ fn without_tracefs_the_run_goes_on_and_says_so_once() {
         .output()
         .expect("unshare (util-linux) runs");
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{err}");
+    // The run may end in a safe stop on a host that stalls it; it runs, and says so, all the same.
+    assert!(out.join("summary.json").is_file(), "{err}");
     let warned: Vec<_> = err.lines().filter(|l| l.contains("--explain")).collect();
     assert_eq!(warned.len(), 1, "{err}");
     assert!(
@@ -182,7 +173,7 @@ fn without_tracefs_the_run_goes_on_and_says_so_once() {
     let s = common::summary(&out);
     let t = &s["timing"]["tdc"];
     assert_eq!(t["miss_causes"]["unknown"], t["deadline_misses"], "{t}");
-    let missed = rows(&out.join("tdc.misses.csv"))
+    let missed = common::csv_rows(&out.join("tdc.misses.csv"))
         .into_iter()
         .filter(|r| r["kind"] == "missed")
         .count() as u64;

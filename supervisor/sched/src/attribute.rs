@@ -132,6 +132,8 @@ struct Open {
     wake: u64,
     own: u64,
     no_progress: u64,
+    /// Time on a CPU whose state the record does not give.
+    unknown: u64,
     steal_at_open: Option<u64>,
     lost_events: bool,
 }
@@ -177,6 +179,7 @@ impl Explainer {
             wake: 0,
             own: 0,
             no_progress: 0,
+            unknown: 0,
             steal_at_open,
             lost_events: false,
         });
@@ -304,6 +307,8 @@ fn account(o: &mut Open, t: u64, cpu: &Cpu, runnable: bool) {
         *o.softirq.entry(n.clone()).or_default() += dt;
     } else {
         match &cpu.current {
+            // No switch seen on this CPU yet (or since events were lost): who ran is unknown.
+            None => o.unknown += dt,
             Some(th) if th.pid == o.w.pid => {
                 let work =
                     o.w.work
@@ -314,9 +319,8 @@ fn account(o: &mut Open, t: u64, cpu: &Cpu, runnable: bool) {
             Some(th) if runnable && !th.is_idle() => {
                 o.others.entry(th.pid).or_insert_with(|| (th.clone(), 0)).1 += dt;
             }
-            // Idle while runnable (woken, not yet run), or asleep (not woken yet), or an
-            // unknown CPU state before its first event.
-            _ => o.wake += dt,
+            // Idle while runnable (woken, not yet run), or asleep (not woken yet).
+            Some(_) => o.wake += dt,
         }
     }
 }
@@ -343,6 +347,7 @@ fn verdict(o: &Open) -> Verdict {
         (Cause::Wakeup, o.wake),
         (Cause::Host, o.no_progress),
         (Cause::Own, o.own),
+        (Cause::Unknown, o.unknown),
     ];
     let (mut cause, lost) =
         candidates.into_iter().fold(
@@ -350,8 +355,11 @@ fn verdict(o: &Open) -> Verdict {
             |best, c| if c.1 > best.1 { c } else { best },
         );
     // Across a link the plant waits for the datagram: unless a thread or an interrupt held its
-    // CPU, the time went to the link.
-    let local = matches!(cause, Cause::Preempted | Cause::Irq | Cause::Softirq);
+    // CPU (or the record says nothing), the time went to the link.
+    let local = matches!(
+        cause,
+        Cause::Preempted | Cause::Irq | Cause::Softirq | Cause::Unknown
+    );
     if o.w.link.is_some() && !local {
         cause = Cause::Link;
     }
@@ -541,6 +549,16 @@ mod tests {
             causes,
             [(1, Cause::Host), (2, Cause::Own), (3, Cause::Host)]
         );
+    }
+
+    /// With no record of the CPU (no tracing, or before its first switch), the cause is unknown.
+    #[test]
+    fn no_record_is_unknown() {
+        let v = run(vec![window(1, 0, 100)], vec![]);
+        assert_eq!(v[0].cause, Cause::Unknown);
+        let mut across = window(2, 0, 100);
+        across.link = Some("no reply");
+        assert_eq!(run(vec![across], vec![])[0].cause, Cause::Unknown);
     }
 
     /// Across a link the plant's wait is the link's (with the leg), unless a thread held its CPU.

@@ -19,6 +19,7 @@ use std::time::Duration;
 
 mod controller_remote;
 mod ctrl_c;
+mod flood;
 mod foreign;
 mod plant_remote;
 mod wire;

@@ -136,7 +136,33 @@ pub fn run_output(config: &str, mode: &str, out: &Path, extra: &[&str]) -> Outpu
         out.to_str().unwrap(),
     ];
     args.extend_from_slice(extra);
+    // A realtime run names its misses' causes where it can, so a test's INCONCLUSIVE verdict
+    // (its disturbance line) says what took the ticks.
+    if mode == "realtime" && can_explain() && !args.contains(&"--explain") {
+        args.push("--explain");
+    }
     deltaloop(&args)
+}
+
+/// The rows of a CSV file, each by column name.
+pub fn csv_rows(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
+    let mut r = csv::Reader::from_path(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let head: Vec<String> = r.headers().unwrap().iter().map(str::to_string).collect();
+    r.records()
+        .map(|x| {
+            let x = x.unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            head.iter()
+                .cloned()
+                .zip(x.iter().map(str::to_string))
+                .collect()
+        })
+        .collect()
+}
+
+/// Whether this host lets a run record the kernel's events (`--explain`: root and tracefs).
+pub fn can_explain() -> bool {
+    // SAFETY: geteuid has no preconditions.
+    Path::new("/sys/kernel/tracing/instances").is_dir() && unsafe { libc::geteuid() } == 0
 }
 
 /// `deltaloop run <config> --mode <mode> --out <out> <extra…>`, asserted to succeed; its summary.json.
