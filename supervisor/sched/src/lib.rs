@@ -39,6 +39,8 @@ pub struct Explained {
     /// The kernel's events read, and per second of the recording.
     pub sched_events: u64,
     pub sched_events_per_s: f64,
+    /// The record's size, bytes (a file in the run folder while the law runs, removed after).
+    pub sched_bytes: u64,
     /// The missed tick that lost the most, if any.
     #[serde(skip)]
     pub worst: Option<Verdict>,
@@ -52,6 +54,7 @@ impl Explained {
             late_causes: zeros(),
             sched_events: counts.lines,
             sched_events_per_s: counts.per_second(),
+            sched_bytes: counts.bytes,
             ..Self::default()
         }
     }

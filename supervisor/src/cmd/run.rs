@@ -58,8 +58,9 @@ fn refuse_if_too_big(
     // Ticks 0..=N and the state after them, per law.
     let ticks = (cfg.ticks(cfg.motion_duration_s()) + 2).saturating_mul(laws);
     let record = deltaloop_config::RecordSection {
-        // In-process runs write no timing file.
+        // In-process runs write no timing file; only realtime runs record the kernel.
         timing_csv: cfg.record.timing_csv && mode.is_process(),
+        explain: cfg.record.explain && mode == LoopMode::Realtime,
         ..cfg.record.clone()
     };
     let dir = out.map_or_else(
