@@ -107,7 +107,36 @@ fn one_constant_latency_is_the_inproc_run_with_that_delay_byte_for_byte() {
         }
         assert_eq!(w["laws"][law]["replicas"], 3);
         assert_eq!(w["laws"][law]["misses"]["p97_5"], 0.0);
+        // Each replica's value, in replica order: here each the inproc run's.
+        let values = d["values"].as_array().unwrap();
+        assert_eq!(values.len(), 3, "{d}");
+        assert!(
+            values
+                .iter()
+                .all(|v| v.as_f64().unwrap().to_bits() == rms.to_bits())
+        );
     }
+    // The two laws replica by replica: every replica the same ratio, so its interval is a point.
+    let (a, b) = (
+        common::max_joint_rms(&s, "tdc-is-sta"),
+        common::max_joint_rms(&s, "tdc"),
+    );
+    let pairs = w["pairs"].as_array().unwrap();
+    assert_eq!(pairs.len(), 1, "{pairs:?}");
+    let p = &pairs[0];
+    assert_eq!(
+        (p["a"].as_str(), p["b"].as_str()),
+        (Some("tdc-is-sta"), Some("tdc"))
+    );
+    assert_eq!(p["a_better_share"], if a < b { 1.0 } else { 0.0 });
+    assert_eq!(p["compared"], 3);
+    assert_eq!(
+        p["ratio_p50"].as_f64().unwrap().to_bits(),
+        (a / b).to_bits()
+    );
+    assert_eq!(p["ratio_ci95"][0], p["ratio_ci95"][1]);
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("## Law against law") && report.contains("in 100 % of the replicas"));
     assert_eq!(w["latency"]["draw"], "block-bootstrap");
     assert_eq!(w["latency"]["p50_us"], 40.0);
     for f in ["report.md", "whatif.png", "whatif.svg"] {

@@ -5,6 +5,7 @@
 //! ([`summary`]), written as `whatif.json`, `report.md` and a figure ([`report`]).
 
 pub mod draw;
+pub mod pairs;
 mod report;
 pub mod source;
 pub mod summary;

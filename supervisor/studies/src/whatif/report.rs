@@ -58,11 +58,11 @@ fn rows(json: &WhatIfJson, laws: &ByName<LawOut>) -> Vec<[String; 7]> {
         let ideal = json.ideal_rms_max_rad.get(law).copied().unwrap_or(f64::NAN);
         v.push([
             law.clone(),
-            format!("{} (ideal {ideal:.3e})", band(&o.rms_max_rad)),
-            mean_ci(&o.rms_max_rad),
-            band(&o.max_err_rad),
-            count_band(&o.misses),
-            count_band(&o.clamps),
+            format!("{} (ideal {ideal:.3e})", band(&o.rms_max_rad.dist)),
+            mean_ci(&o.rms_max_rad.dist),
+            band(&o.max_err_rad.dist),
+            count_band(&o.misses.dist),
+            count_band(&o.clamps.dist),
             format!("{} / {}", pct(o.diverged_share), pct(o.faulted_share)),
         ]);
     }
@@ -139,11 +139,12 @@ pub fn table(json: &WhatIfJson) -> Vec<String> {
         out.push(cells.join("  ").trim_end().to_string());
     }
     out.extend(budget_rule(json));
+    out.extend(json.pairs.iter().map(|p| p.sentence()));
     if let Some(sc) = &json.scales {
         for (s, laws) in sc.iter() {
             let line: Vec<String> = laws
                 .iter()
-                .map(|(law, o)| format!("{law} {}", band(&o.rms_max_rad)))
+                .map(|(law, o)| format!("{law} {}", band(&o.rms_max_rad.dist)))
                 .collect();
             out.push(format!("latency ×{s}: RMS {}", line.join("; ")));
         }
@@ -187,6 +188,19 @@ pub fn markdown(json: &WhatIfJson) -> String {
     if let Some(rule) = budget_rule(json) {
         let _ = writeln!(s, "\nThe faulted replicas: {rule}.");
     }
+    if !json.pairs.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n## Law against law\n\nReplica r meets the same latencies in every law, so two laws \
+             are compared replica by replica: the share of the replicas where one's max-joint RMS is \
+             below the other's (a diverged or faulted replica ranks worst), and the median of their \
+             ratio with its 95 % bootstrap interval (`pairs` in whatif.json; each replica's values \
+             are `laws.<law>.<metric>.values`).\n"
+        );
+        for p in &json.pairs {
+            let _ = writeln!(s, "- {}", p.sentence());
+        }
+    }
     if let Some(sc) = &json.scales {
         let _ = writeln!(s, "\n## Latency scaled\n");
         let _ = writeln!(
@@ -206,7 +220,7 @@ pub fn markdown(json: &WhatIfJson) -> String {
                         by.get(l).map_or("—".into(), |o| {
                             format!(
                                 "{}{}",
-                                band(&o.rms_max_rad),
+                                band(&o.rms_max_rad.dist),
                                 if o.diverged_share + o.faulted_share > 0.0 {
                                     format!(
                                         " ({} diverged/faulted)",
@@ -376,7 +390,7 @@ fn scale_panel(sc: &ByName<ByName<LawOut>>, laws: &[Law]) -> Panel {
             let key = law.to_string();
             let at: Vec<(f64, &Dist)> = by_scale
                 .iter()
-                .filter_map(|(s, v)| Some((*s, v.get(&key)?.rms_max_rad.as_ref()?)))
+                .filter_map(|(s, v)| Some((*s, v.get(&key)?.rms_max_rad.dist.as_ref()?)))
                 .collect();
             Series {
                 dashed: false,

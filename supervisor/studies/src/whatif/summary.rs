@@ -104,6 +104,31 @@ impl Dist {
     }
 }
 
+/// One metric of one law over the replicas: each replica's value and their distribution.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Metric {
+    /// In replica order (replica r meets the same latencies in every law); null for a replica
+    /// that diverged or faulted.
+    pub values: Vec<Option<f64>>,
+    /// Over the replicas that completed (none: no key).
+    #[serde(flatten)]
+    pub dist: Option<Dist>,
+}
+
+impl Metric {
+    fn of(samples: &[&Sample], f: fn(&Sample) -> f64) -> Self {
+        let values: Vec<Option<f64>> = samples
+            .iter()
+            .map(|s| (s.status == RunStatus::Ok).then(|| f(s)))
+            .collect();
+        let done: Vec<f64> = values.iter().flatten().copied().collect();
+        Self {
+            dist: Dist::of(&done),
+            values,
+        }
+    }
+}
+
 /// One law at one scale.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct LawOut {
@@ -115,35 +140,30 @@ pub struct LawOut {
     pub diverged_share: f64,
     pub faulted_share: f64,
     /// Max over joints of `rms_rad`, rad.
-    pub rms_max_rad: Option<Dist>,
+    pub rms_max_rad: Metric,
     /// Max over joints of `max_abs_err_rad`, rad.
-    pub max_err_rad: Option<Dist>,
+    pub max_err_rad: Metric,
     /// Ticks whose reply did not act.
-    pub misses: Option<Dist>,
+    pub misses: Metric,
     /// Intervals the drives clamped.
-    pub clamps: Option<Dist>,
+    pub clamps: Metric,
 }
 
 impl LawOut {
     fn of(samples: &[&Sample]) -> Self {
         let n = samples.len() as u64;
-        let done: Vec<&&Sample> = samples
-            .iter()
-            .filter(|s| s.status == RunStatus::Ok)
-            .collect();
         let share = |st: fn(RunStatus) -> bool| {
             samples.iter().filter(|s| st(s.status)).count() as f64 / n.max(1) as f64
         };
-        let dist = |f: fn(&Sample) -> f64| Dist::of(&done.iter().map(|s| f(s)).collect::<Vec<_>>());
         Self {
             replicas: n,
-            completed: done.len() as u64,
+            completed: samples.iter().filter(|s| s.status == RunStatus::Ok).count() as u64,
             diverged_share: share(|s| s == RunStatus::Diverged),
             faulted_share: share(|s| s != RunStatus::Diverged && s != RunStatus::Ok),
-            rms_max_rad: dist(|s| s.rms_max_rad),
-            max_err_rad: dist(|s| s.max_err_rad),
-            misses: dist(|s| s.misses as f64),
-            clamps: dist(|s| s.clamps as f64),
+            rms_max_rad: Metric::of(samples, |s| s.rms_max_rad),
+            max_err_rad: Metric::of(samples, |s| s.max_err_rad),
+            misses: Metric::of(samples, |s| s.misses as f64),
+            clamps: Metric::of(samples, |s| s.clamps as f64),
         }
     }
 }
@@ -205,6 +225,9 @@ pub struct WhatIfJson {
     pub latency: LatencyOut,
     /// Per law (as in `--law`) at the latencies as measured (scale 1).
     pub laws: ByName<LawOut>,
+    /// Each two laws at scale 1, replica by replica (`--law`'s order: the first against each
+    /// later one).
+    pub pairs: Vec<super::pairs::Pair>,
     /// The max-joint RMS of each law's in-process run with every reply at once, rad.
     pub ideal_rms_max_rad: ByName<f64>,
     /// Per scale (the latencies multiplied by it; `--scale`), per law; absent without --scale.
@@ -295,6 +318,13 @@ pub fn summarize(i: Inputs<'_>) -> WhatIfJson {
         replicas: i.replicas,
         seed: i.seed,
         latency: latency_out(&i),
+        pairs: super::pairs::all(
+            &per(one)
+                .iter()
+                .map(|(l, o)| (l.clone(), o.rms_max_rad.values.clone()))
+                .collect::<Vec<_>>(),
+            i.seed,
+        ),
         laws: per(one),
         ideal_rms_max_rad: by_law(i.ideal),
         scales,
