@@ -451,3 +451,52 @@ fn a_runs_own_hgrm_and_hlog_are_read_in_their_units() {
         );
     }
 }
+
+/// `--record-period-us`: a record logged every 900 µs holds each line for three ticks of 300 µs,
+/// so its one late line (900 µs, past the budget) is three misses in a row, which the scenario's
+/// silence rule (two in a row) ends in a fault; read a line per tick it is one miss, which does
+/// not. The record then spans three times its lines in ticks. A period out of range, or with no
+/// text source, is one line.
+#[test]
+fn a_record_at_another_rate_keeps_its_bursts_duration() {
+    let tmp = tempfile::tempdir().unwrap();
+    let lat = tmp.path().join("rtt.txt");
+    std::fs::write(&lat, "40\n".repeat(9) + "900\n").unwrap();
+    let cfg = tmp.path().join("s2-silence2.toml");
+    std::fs::write(
+        &cfg,
+        std::fs::read_to_string("configs/s2-fast.toml").unwrap()
+            + "\n[faults]\ncontroller_silence_ticks = 2\n",
+    )
+    .unwrap();
+    let (cfg, lat) = (cfg.to_str().unwrap(), lat.to_str().unwrap());
+    let base = ["--law", "tdc", "--latency", lat, "--replicas", "4"];
+    let per_tick = whatif_ok(cfg, &tmp.path().join("tick"), &base);
+    let spread = whatif_ok(
+        cfg,
+        &tmp.path().join("900"),
+        &[&base[..], &["--record-period-us", "900"]].concat(),
+    );
+    assert_eq!(per_tick["latency"]["ticks"], 10);
+    assert_eq!(spread["latency"]["ticks"], 30);
+    assert_eq!(spread["laws"]["tdc"]["faulted_share"], 1.0, "{spread}");
+    assert!(
+        per_tick["laws"]["tdc"]["faulted_share"].as_f64().unwrap() < 1.0,
+        "{per_tick}"
+    );
+    for (args, says) in [
+        (
+            vec!["--latency", lat, "--record-period-us", "0"],
+            "--record-period-us 0: allowed 0 < P <= 1000000",
+        ),
+        (
+            vec!["--latency", lat, "--record-period-us", "1e9"],
+            "--record-period-us 1000000000: allowed",
+        ),
+    ] {
+        let o = whatif(cfg, &tmp.path().join("bad"), &args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(err.contains(says) && err.lines().count() == 1, "{err}");
+    }
+}

@@ -45,6 +45,11 @@ pub struct Args {
     /// state its own.
     #[arg(long, value_parser = Words::<Unit>::new())]
     latency_unit: Option<Unit>,
+    /// A text record's lines are one every P µs (a target's loop at another rate): each line
+    /// then holds for P µs of the scenario's ticks, so a burst keeps its duration in time
+    /// (default: one line per tick of the scenario).
+    #[arg(long, value_name = "P")]
+    record_period_us: Option<f64>,
     /// Also run with the latencies multiplied by these factors, e.g. 0.5,2,4 (1 always runs).
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     scale: Vec<f64>,
@@ -84,6 +89,7 @@ pub fn exec(a: Args, cx: &Context) -> Result<()> {
         config_path: &a.config,
         sources: &a.latency,
         unit: a.latency_unit,
+        record_period_us: a.record_period_us,
         draw: a.draw,
         block_ticks: a.block_ticks,
         as_recorded: a.as_recorded,

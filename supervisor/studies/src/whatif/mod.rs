@@ -47,6 +47,8 @@ pub struct Request<'a> {
     pub sources: &'a [PathBuf],
     /// The unit of HdrHistogram files that do not state theirs.
     pub unit: Option<Unit>,
+    /// A text record's line period, µs (`--record-period-us`; None: one line per tick).
+    pub record_period_us: Option<f64>,
     pub draw: Option<DrawChoice>,
     pub block_ticks: Option<usize>,
     /// Each law's own recorded sequence, in order (one run folder, one replica).
@@ -101,6 +103,9 @@ pub fn plan(req: Request<'_>) -> Result<Planned<'_>> {
         .iter()
         .map(|p| Source::load(p, req.unit))
         .collect::<Result<Vec<_>>>()?;
+    if let Some(p) = req.record_period_us {
+        source::at_period(&mut sources, p, req.config.loop_.ts_s * 1e6)?;
+    }
     let model = model_of(&req, &sources)?;
     let mut scales = vec![1.0];
     for &s in req.scales {

@@ -103,6 +103,60 @@ pub struct Source {
     pub recorded: Option<Box<RunConfig>>,
 }
 
+/// The most ticks a text record may span once its lines are spread over their period
+/// (`--record-period-us`): 16 M ticks (80 minutes at 3.3 kHz, 256 MB of outcomes).
+pub const MAX_PERIOD_TICKS: u64 = 1 << 24;
+
+/// `--record-period-us P`: each text record's lines, one every `period_us`, put on the
+/// scenario's ticks of `ts_us`: tick k takes line ⌊k·Ts/P⌋, for the record's whole duration
+/// (⌊lines·P/Ts⌋ ticks). A burst keeps its duration in time: a 3 ms burst logged at 1 kHz is 10
+/// ticks at 3.3 kHz, not 3. Err (one line) for a P out of range, a record that would span more
+/// than [`MAX_PERIOD_TICKS`], or no text source among `sources`.
+pub fn at_period(sources: &mut [Source], period_us: f64, ts_us: f64) -> Result<()> {
+    if !(period_us.is_finite() && period_us > 0.0 && period_us <= 1e6) {
+        bail!(
+            "--record-period-us {period_us}: allowed 0 < P <= 1000000 (µs between a text record's lines)"
+        );
+    }
+    if !sources.iter().any(|s| s.kind == Kind::Text) {
+        bail!(
+            "--record-period-us {period_us}: no text source among --latency (run folders carry their own ticks, and histograms have no order)"
+        );
+    }
+    for s in sources.iter_mut().filter(|s| s.kind == Kind::Text) {
+        let Latencies::Sequences(seqs) = &mut s.latencies else {
+            continue;
+        };
+        for seq in seqs.iter_mut() {
+            let span = (seq.len() as f64 * period_us / ts_us).floor();
+            if span > MAX_PERIOD_TICKS as f64 {
+                bail!(
+                    "--latency {}: {} lines one every {period_us} µs span {span:.0} ticks of {ts_us} µs, more than the {MAX_PERIOD_TICKS} allowed: use a shorter record",
+                    s.path.display(),
+                    seq.len()
+                );
+            }
+            *seq = spread(seq, period_us, ts_us);
+        }
+        s.ticks = seqs.iter().map(|q| q.len() as u64).sum();
+        if s.ticks == 0 {
+            bail!(
+                "--latency {}: its lines, one every {period_us} µs, last less than one tick of {ts_us} µs",
+                s.path.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `seq`'s lines, one every `period_us`, on ticks of `ts_us`.
+fn spread(seq: &[ReplyOutcome], period_us: f64, ts_us: f64) -> Vec<ReplyOutcome> {
+    let span = (seq.len() as f64 * period_us / ts_us).floor() as usize;
+    (0..span)
+        .map(|k| seq[((k as f64 * ts_us / period_us).floor() as usize).min(seq.len() - 1)])
+        .collect()
+}
+
 /// The largest latency file read (text, `.hgrm`, `.hlog`), bytes: 100 M lines of text.
 const MAX_FILE_BYTES: u64 = 1 << 30;
 
@@ -460,6 +514,38 @@ mod tests {
         let p = dir.path().join(name);
         std::fs::write(&p, text).unwrap();
         p
+    }
+
+    #[test]
+    fn a_record_at_another_period_keeps_its_bursts_duration() {
+        let line = |us: u64| ReplyOutcome::Applied(us * 1000);
+        // Lines every 900 µs on ticks of 300 µs: each line holds three ticks.
+        let seq = [line(40), line(900), line(40)];
+        let got = spread(&seq, 900.0, 300.0);
+        assert_eq!(
+            got,
+            [
+                line(40),
+                line(40),
+                line(40),
+                line(900),
+                line(900),
+                line(900),
+                line(40),
+                line(40),
+                line(40)
+            ]
+        );
+        // Every 100 µs: every third line, for the record's 0.6 ms.
+        let fast: Vec<_> = (0..6).map(line).collect();
+        assert_eq!(spread(&fast, 100.0, 300.0), [line(0), line(3)]);
+        // 1 kHz onto 3.3 kHz: a 3 ms burst (3 lines) is 10 ticks.
+        let mut khz = vec![line(40); 10];
+        khz.extend([line(900); 3]);
+        khz.extend(vec![line(40); 10]);
+        let t = spread(&khz, 1000.0, 300.0);
+        assert_eq!(t.iter().filter(|&&o| o == line(900)).count(), 10);
+        assert_eq!(t.len(), 76);
     }
 
     #[test]
