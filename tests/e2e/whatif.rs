@@ -107,6 +107,20 @@ fn one_constant_latency_is_the_inproc_run_with_that_delay_byte_for_byte() {
         }
         assert_eq!(w["laws"][law]["replicas"], 3);
         assert_eq!(w["laws"][law]["misses"]["p97_5"], 0.0);
+        // The torque metrics, each the inproc run's too.
+        let max_tau = s["laws"][law]["max_abs_tau_nm"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .fold(0.0, f64::max);
+        assert_eq!(
+            w["laws"][law]["max_tau_nm"]["p50"].as_f64().unwrap().to_bits(),
+            max_tau.to_bits()
+        );
+        for k in ["torque_tv_nm", "hf_share"] {
+            assert_eq!(w["laws"][law][k]["values"].as_array().unwrap().len(), 3);
+        }
         // Each replica's value, in replica order: here each the inproc run's.
         let values = d["values"].as_array().unwrap();
         assert_eq!(values.len(), 3, "{d}");

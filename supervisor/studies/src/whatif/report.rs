@@ -39,12 +39,17 @@ fn count_band(d: &Option<Dist>) -> String {
     )
 }
 
+/// A distribution's median as `show` writes it, "—" without one.
+fn p50(d: &Option<Dist>, show: fn(f64) -> String) -> String {
+    d.as_ref().map_or_else(|| "—".into(), |d| show(d.p50))
+}
+
 fn pct(x: f64) -> String {
     format!("{:.1} %", x * 100.0)
 }
 
 /// The header and one row per law, as (cells) — shared by the terminal and report.md.
-fn rows(json: &WhatIfJson, laws: &ByName<LawOut>) -> Vec<[String; 7]> {
+fn rows(json: &WhatIfJson, laws: &ByName<LawOut>) -> Vec<[String; 10]> {
     let mut v = vec![[
         "law".to_string(),
         "RMS max-joint, rad: p50 [2.5 %, 97.5 %]".into(),
@@ -52,6 +57,9 @@ fn rows(json: &WhatIfJson, laws: &ByName<LawOut>) -> Vec<[String; 7]> {
         "max |e|, rad: p50 [band]".into(),
         "misses: p50 [band]".into(),
         "clamps: p50 [band]".into(),
+        "max |τ|, N m: p50".into(),
+        "τ total variation, N m: p50".into(),
+        "HF share: p50".into(),
         "diverged / faulted".into(),
     ]];
     for (law, o) in laws.iter() {
@@ -63,6 +71,9 @@ fn rows(json: &WhatIfJson, laws: &ByName<LawOut>) -> Vec<[String; 7]> {
             band(&o.max_err_rad.dist),
             count_band(&o.misses.dist),
             count_band(&o.clamps.dist),
+            p50(&o.max_tau_nm.dist, |x| format!("{x:.1}")),
+            p50(&o.torque_tv_nm.dist, |x| format!("{x:.3e}")),
+            p50(&o.hf_share.dist, |x| format!("{x:.3}")),
             format!("{} / {}", pct(o.diverged_share), pct(o.faulted_share)),
         ]);
     }
@@ -120,7 +131,7 @@ fn budget_rule(json: &WhatIfJson) -> Option<String> {
 /// The terminal's lines.
 pub fn table(json: &WhatIfJson) -> Vec<String> {
     let rows = rows(json, &json.laws);
-    let widths: Vec<usize> = (0..7)
+    let widths: Vec<usize> = (0..10)
         .map(|c| rows.iter().map(|r| r[c].chars().count()).max().unwrap_or(0))
         .collect();
     let mut out = vec![

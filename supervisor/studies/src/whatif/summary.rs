@@ -57,6 +57,12 @@ pub struct Sample {
     pub misses: u64,
     /// Intervals the drives clamped.
     pub clamps: u64,
+    /// The largest per-joint max |τ|, N m.
+    pub max_tau_nm: f64,
+    /// The largest per-joint total variation of τ, N m (how much the command moved).
+    pub torque_tv_nm: f64,
+    /// The largest per-joint share of τ's energy above the chattering cut-off (HF share).
+    pub hf_share: f64,
     pub status: RunStatus,
 }
 
@@ -67,6 +73,9 @@ impl Sample {
             max_err_rad: m.max_abs_err_rad.into_iter().fold(0.0, f64::max),
             misses,
             clamps: m.clamp_count,
+            max_tau_nm: m.max_abs_tau_nm.into_iter().fold(0.0, f64::max),
+            torque_tv_nm: m.torque_tv_nm.into_iter().fold(0.0, f64::max),
+            hf_share: m.hf_torque_share.into_iter().fold(0.0, f64::max),
             status: m.status,
         }
     }
@@ -147,6 +156,12 @@ pub struct LawOut {
     pub misses: Metric,
     /// Intervals the drives clamped.
     pub clamps: Metric,
+    /// Max over joints of `max_abs_tau_nm`, N m.
+    pub max_tau_nm: Metric,
+    /// Max over joints of `torque_tv_nm`, N m.
+    pub torque_tv_nm: Metric,
+    /// Max over joints of `hf_torque_share`.
+    pub hf_share: Metric,
 }
 
 impl LawOut {
@@ -164,6 +179,9 @@ impl LawOut {
             max_err_rad: Metric::of(samples, |s| s.max_err_rad),
             misses: Metric::of(samples, |s| s.misses as f64),
             clamps: Metric::of(samples, |s| s.clamps as f64),
+            max_tau_nm: Metric::of(samples, |s| s.max_tau_nm),
+            torque_tv_nm: Metric::of(samples, |s| s.torque_tv_nm),
+            hf_share: Metric::of(samples, |s| s.hf_share),
         }
     }
 }
