@@ -115,7 +115,10 @@ fn one_constant_latency_is_the_inproc_run_with_that_delay_byte_for_byte() {
             .map(|v| v.as_f64().unwrap())
             .fold(0.0, f64::max);
         assert_eq!(
-            w["laws"][law]["max_tau_nm"]["p50"].as_f64().unwrap().to_bits(),
+            w["laws"][law]["max_tau_nm"]["p50"]
+                .as_f64()
+                .unwrap()
+                .to_bits(),
             max_tau.to_bits()
         );
         for k in ["torque_tv_nm", "hf_share"] {

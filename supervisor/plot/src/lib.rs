@@ -81,7 +81,15 @@ fn range(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
         return if log { (0.1, 1.0) } else { (0.0, 1.0) };
     }
     if log {
-        (lo / 1.5, hi * 1.5)
+        let (lo, hi) = (lo / 1.5, hi * 1.5);
+        // Within one decade a log axis would carry one label or none: widen it to the decades
+        // around the data, so at least two decade ticks are labelled.
+        if hi / lo < 10.0 {
+            let below = 10f64.powf(lo.log10().floor());
+            (below, (10f64.powf(hi.log10().ceil())).max(below * 10.0))
+        } else {
+            (lo, hi)
+        }
     } else {
         let pad = ((hi - lo) * 0.05).max(1e-12);
         (lo - pad, hi + pad)

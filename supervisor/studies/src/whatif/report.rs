@@ -296,7 +296,7 @@ pub fn figure(
 ) -> Result<()> {
     let mut panels = vec![
         latency_panel(json, pool),
-        rms_panel(samples, json.replicas as usize, laws, scales),
+        rms_panel(samples, json, laws, scales),
     ];
     if let Some(sc) = &json.scales {
         panels.push(scale_panel(sc, laws));
@@ -355,8 +355,11 @@ fn latency_panel(json: &WhatIfJson, pool: &Pool) -> Panel {
     }
 }
 
-fn rms_panel(samples: &[Sample], replicas: usize, laws: &[Law], scales: &[f64]) -> Panel {
-    let series = laws
+/// Each law's RMS over the replicas as a cumulative share, and its ideal (every reply at once)
+/// as a dashed vertical line of its colour.
+fn rms_panel(samples: &[Sample], json: &WhatIfJson, laws: &[Law], scales: &[f64]) -> Panel {
+    let replicas = json.replicas as usize;
+    let mut series: Vec<Series> = laws
         .iter()
         .enumerate()
         .map(|(l, &law)| {
@@ -379,6 +382,16 @@ fn rms_panel(samples: &[Sample], replicas: usize, laws: &[Law], scales: &[f64]) 
             }
         })
         .collect();
+    series.extend(laws.iter().filter_map(|&law| {
+        let ideal = *json.ideal_rms_max_rad.get(&law.to_string())?;
+        Some(Series {
+            dashed: true,
+            name: format!("{law} ideal (no latency)"),
+            color: plot::law_color(law),
+            points: vec![(ideal, 0.0), (ideal, 1.0)],
+            bars: vec![],
+        })
+    }));
     Panel {
         title: "RMS over the replicas".into(),
         x_label: "RMS joint error, max over joints (rad)".into(),
