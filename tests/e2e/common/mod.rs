@@ -159,10 +159,21 @@ pub fn csv_rows(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
         .collect()
 }
 
-/// Whether this host lets a run record the kernel's events (`--explain`: root and tracefs).
+/// Whether this host lets a run record the kernel's events (`--explain`: root and a tracefs
+/// that takes a new instance; a container may show tracefs read-only). Probed once.
 pub fn can_explain() -> bool {
-    // SAFETY: geteuid has no preconditions.
-    Path::new("/sys/kernel/tracing/instances").is_dir() && unsafe { libc::geteuid() } == 0
+    static CAN: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *CAN.get_or_init(|| {
+        // SAFETY: geteuid has no preconditions.
+        if unsafe { libc::geteuid() } != 0 {
+            return false;
+        }
+        let probe = Path::new("/sys/kernel/tracing/instances")
+            .join(format!("deltaloop-probe-{}", std::process::id()));
+        let made = std::fs::create_dir(&probe).is_ok();
+        let _ = std::fs::remove_dir(&probe);
+        made
+    })
 }
 
 /// `deltaloop run <config> --mode <mode> --out <out> <extra…>`, asserted to succeed; its summary.json.
