@@ -258,9 +258,10 @@ impl Explainer {
         let mut i = 0;
         while i < self.open.len() {
             let o = &mut self.open[i];
-            let cpu = self.cpus.get(&o.w.cpu).cloned().unwrap_or_default();
+            let unseen = Cpu::default();
+            let cpu = self.cpus.get(&o.w.cpu).unwrap_or(&unseen);
             let runnable = self.runnable.get(&o.w.pid).copied().unwrap_or(false);
-            account(o, t, &cpu, runnable);
+            account(o, t, cpu, runnable);
             if t >= o.w.to_ns {
                 let o = self.open.swap_remove(i);
                 let v = verdict(&o);
